@@ -1,0 +1,50 @@
+"""tensegrity_sim: an ament_python ROS 2 package that is also pip-installable.
+
+This file is the one place where dependency versions are pinned. ``package.xml`` names the same
+runtime dependencies for rosdep, without versions.
+"""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "tensegrity_sim"
+
+INSTALL_REQUIRES = [
+    "numpy==2.4.6",
+    "scipy==1.17.1",
+    "PyYAML==6.0.3",
+    "tqdm==4.70.1",
+]
+EXTRAS_REQUIRE = {
+    "test": [
+        "pytest==9.0.3",
+    ],
+    "bench": [
+        "matplotlib==3.11.2",
+    ],
+}
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    package_data={f"{PACKAGE}.scenes": ["*.yaml"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    python_requires=">=3.10",
+    install_requires=INSTALL_REQUIRES,
+    extras_require=EXTRAS_REQUIRE,
+    zip_safe=True,
+    maintainer="tensegrity_sim developers",
+    maintainer_email="dev@tensegrity-sim.invalid",
+    description="Tensegrity dynamics with slack and snapping cables, member contacts, MCAP logs.",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "tensegrity-sim = tensegrity_sim.cli:main",
+        ],
+    },
+)

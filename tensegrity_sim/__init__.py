@@ -1,0 +1,16 @@
+"""tensegrity_sim: tensegrity-structure dynamics with slack and snapping cables.
+
+The numerical core (scene, system, methods, simulator) imports nothing from ROS, MCAP or file
+formats beyond the scene loader.
+"""
+from .methods import METHODS
+from .results import ContactEvent, StepResult, Trajectory
+from .scene import Cable, ClassKWarning, Node, Scene, SceneError, Strut, builtin_scenes, load_scene
+from .simulator import Simulator
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "METHODS", "Cable", "ClassKWarning", "ContactEvent", "Node", "Scene", "SceneError", "Simulator",
+    "StepResult", "Strut", "Trajectory", "builtin_scenes", "load_scene", "__version__",
+]

@@ -1,0 +1,164 @@
+"""The ``tensegrity-sim`` command line (contract §3)."""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from tqdm import tqdm
+
+from .commands import CommandError, CommandSchedule, load_commands
+from .scene import SceneError, load_scene
+from .simulator import Simulator
+
+__all__ = ["main", "RunSummary", "simulate"]
+
+DEFAULT_SCENE = "prism3"
+PROGRESS_MIN_STEPS = 20_000  # runs shorter than this finish too quickly to need a progress bar
+
+
+@dataclass
+class RunSummary:
+    """What ``run`` prints at the end."""
+
+    scene: str
+    method: str
+    method_reason: str
+    dt: float
+    steps: int
+    sim_time: float
+    wall_time: float
+    max_tension: float = 0.0
+    max_tension_cable: str = ""
+    switches: int = 0
+    contacts: int = 0
+    energy_start: float = 0.0
+    energy_end: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+    def lines(self) -> list[str]:
+        rate = self.steps / self.wall_time if self.wall_time > 0 else float("inf")
+        drift = self.energy_end - self.energy_start
+        scale = max(abs(self.energy_start), 1e-300)
+        out = [
+            f"scene            {self.scene}",
+            f"method           {self.method} ({self.method_reason})",
+            f"dt               {self.dt:g} s",
+            f"simulated        {self.sim_time:.6g} s in {self.steps} steps",
+            f"wall time        {self.wall_time:.3f} s ({rate:,.0f} steps/s, real-time factor "
+            f"{self.sim_time / self.wall_time if self.wall_time > 0 else float('inf'):.1f})",
+            f"max tension      {self.max_tension:.6g} N ({self.max_tension_cable or '-'})",
+            f"slack/taut       {self.switches} switches",
+            f"contacts         {self.contacts} events",
+            f"energy           {self.energy_start:.9g} J -> {self.energy_end:.9g} J "
+            f"(drift {drift:+.3e} J, {drift / scale:+.3e} relative)",
+        ]
+        out += [f"{k:<16} {v}" for k, v in self.extra.items()]
+        return out
+
+
+def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None, *,
+             progress: bool = False, on_step=None) -> RunSummary:
+    """Run ``steps`` steps applying ``commands`` before each step; return the summary.
+
+    ``on_step(result)`` sees every step (the logger uses it).
+    """
+    base_rest = sim.rest_lengths
+    energy_start = sim.energy()["total"]
+    max_t, max_cable = 0.0, -1
+    switches = 0
+    contacts = 0
+    slack_prev = sim.slack()
+    last_forces = None
+    bar = tqdm(total=steps, unit="step", disable=not progress, mininterval=0.5)
+    start = time.perf_counter()
+    try:
+        for _ in range(steps):
+            if commands is not None:
+                t = sim.time
+                rest = commands.rest_lengths_at(t, base_rest)
+                if not np.array_equal(rest, sim.rest_lengths):
+                    sim.set_rest_lengths(rest)
+                forces = commands.forces_at(t)
+                if forces is not None and forces is not last_forces:
+                    sim.set_external_forces(forces)
+                    last_forces = forces
+            r = sim.step()
+            if r.tensions.size:
+                k = int(np.argmax(r.tensions))
+                if r.tensions[k] > max_t:
+                    max_t, max_cable = float(r.tensions[k]), k
+            switches += int(np.count_nonzero(r.slack != slack_prev))
+            slack_prev = r.slack
+            contacts += len(r.contacts)
+            if on_step is not None:
+                on_step(r)
+            bar.update()
+    finally:
+        bar.close()
+    wall = time.perf_counter() - start
+    return RunSummary(
+        scene=sim.scene.name, method=sim.method, method_reason=sim.method_reason, dt=sim.dt,
+        steps=steps, sim_time=sim.time, wall_time=wall, max_tension=max_t,
+        max_tension_cable=sim.scene.cable_names[max_cable] if max_cable >= 0 else "",
+        switches=switches, contacts=contacts, energy_start=energy_start,
+        energy_end=sim.energy()["total"],
+    )
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    scene = load_scene(args.scene)
+    sim = Simulator(scene, method=args.method, dt=args.dt)
+    commands = load_commands(args.commands, scene) if args.commands else None
+    steps = int(round(args.duration / sim.dt))
+    print(f"method: {sim.method_reason}")
+    summary = simulate(sim, steps, commands, progress=steps >= PROGRESS_MIN_STEPS and not args.quiet)
+    print("\n".join(summary.lines()))
+    return 0
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not np.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="tensegrity-sim",
+                                     description="Tensegrity dynamics with slack and snapping cables.")
+    verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
+
+    run = verbs.add_parser("run", help="simulate a scene offline, as fast as possible",
+                           description="Simulate a scene offline, as fast as possible, and print a summary.")
+    run.add_argument("scene", nargs="?", default=DEFAULT_SCENE,
+                     help=f"a built-in scene name or a YAML file (default: {DEFAULT_SCENE})")
+    run.add_argument("--method", default="auto", help="elastic | inextensible | auto (default: auto)")
+    run.add_argument("--dt", type=_positive_float, default=1e-3, help="step, s (default: 0.001)")
+    run.add_argument("--duration", type=_positive_float, default=10.0, help="simulated time, s (default: 10)")
+    run.add_argument("--commands", help="a rest-length/force schedule (YAML; see tensegrity_sim.commands)")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.set_defaults(func=_cmd_run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (SceneError, CommandError, ValueError) as exc:
+        print(f"tensegrity-sim {args.verb}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"tensegrity-sim {args.verb}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

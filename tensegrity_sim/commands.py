@@ -1,0 +1,135 @@
+"""Command schedules for offline runs (``tensegrity-sim run --commands FILE``).
+
+The format (YAML) is a list of points in time, each setting the rest length of some cables and/or
+the external force on some nodes::
+
+    # times in s, rest lengths in m, forces in N (world axes)
+    - time: 0.0
+      rest_lengths: {c0: 0.95, c1: 0.95}
+    - time: 0.5
+      rest_lengths: {c0: 0.80}
+      forces: {n3: [0.0, 0.0, 20.0]}
+    - time: 1.0
+      rest_lengths: {c0: 0.95}
+      forces: {n3: [0.0, 0.0, 0.0]}
+
+Rest lengths are linear between a cable's own points, held at its first value before it and at its
+last value after it; cables never named keep the scene's rest length. Forces are steps: a node's force
+holds from its point until the next point that names that node. Times must increase strictly.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from .scene import Scene
+
+__all__ = ["CommandError", "CommandSchedule", "load_commands"]
+
+
+class CommandError(ValueError):
+    """A command schedule that cannot be used; the message names the file, the point and the field."""
+
+
+@dataclass(frozen=True)
+class CommandSchedule:
+    """Rest-length ramps and force steps for one scene.
+
+    rest_times / rest_values: per scheduled cable index, its points (s) and rest lengths (m).
+    force_times: (K,) s; force_values: (K, N, 3) N, the full force array from each point on.
+    """
+
+    rest_cables: np.ndarray
+    rest_times: tuple[np.ndarray, ...]
+    rest_values: tuple[np.ndarray, ...]
+    force_times: np.ndarray
+    force_values: np.ndarray
+
+    def rest_lengths_at(self, t: float, base: np.ndarray) -> np.ndarray:
+        """Every cable's rest length (n_cables,) m at time ``t``; ``base`` for unscheduled cables."""
+        out = base.copy()
+        for i, ts, vs in zip(self.rest_cables, self.rest_times, self.rest_values):
+            out[i] = np.interp(t, ts, vs)
+        return out
+
+    def forces_at(self, t: float) -> np.ndarray | None:
+        """The external forces (N, 3) N in effect at ``t``, or None before the first force point."""
+        k = np.searchsorted(self.force_times, t, side="right") - 1
+        return None if k < 0 else self.force_values[k]
+
+
+def _fail(source: str, where: str, msg: str) -> CommandError:
+    return CommandError(f"{source}: {where}: {msg}")
+
+
+def _finite(source, where, fld, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise _fail(source, where, f"{fld} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def parse_commands(points: Any, scene: Scene, source: str = "<commands>") -> CommandSchedule:
+    """Validate a schedule (the YAML content) against ``scene``."""
+    if not isinstance(points, list) or not points:
+        raise CommandError(f"{source}: must be a non-empty list of points")
+    cables = {n: i for i, n in enumerate(scene.cable_names)}
+    nodes = {n: i for i, n in enumerate(scene.node_names)}
+    rest: dict[int, list[tuple[float, float]]] = {}
+    force_times: list[float] = []
+    force_values: list[np.ndarray] = []
+    current = np.zeros((len(nodes), 3))
+    last = -math.inf
+    for k, point in enumerate(points):
+        where = f"point[{k}]"
+        if not isinstance(point, dict):
+            raise _fail(source, where, "must be a mapping with time, rest_lengths and/or forces")
+        unknown = sorted(set(point) - {"time", "rest_lengths", "forces"})
+        if unknown:
+            raise _fail(source, where, f"unknown key {unknown[0]!r} (allowed: forces, rest_lengths, time)")
+        if "time" not in point:
+            raise _fail(source, where, "missing required key 'time'")
+        t = _finite(source, where, "time", point["time"])
+        if t < 0 or t <= last:
+            raise _fail(source, where, f"time must be >= 0 and increase strictly, got {t!r} after {last!r}")
+        last = t
+        for name, value in (point.get("rest_lengths") or {}).items():
+            if name not in cables:
+                raise _fail(source, where, f"rest_lengths: unknown cable {name!r}")
+            length = _finite(source, where, f"rest_lengths[{name!r}]", value)
+            if length <= 0:
+                raise _fail(source, where, f"rest_lengths[{name!r}] must be > 0, got {length!r}")
+            rest.setdefault(cables[name], []).append((t, length))
+        if point.get("forces"):
+            for name, value in point["forces"].items():
+                if name not in nodes:
+                    raise _fail(source, where, f"forces: unknown node {name!r}")
+                if not isinstance(value, (list, tuple)) or len(value) != 3:
+                    raise _fail(source, where, f"forces[{name!r}] must be 3 numbers, got {value!r}")
+                current[nodes[name]] = [_finite(source, where, f"forces[{name!r}]", v) for v in value]
+            force_times.append(t)
+            force_values.append(current.copy())
+    order = sorted(rest)
+    return CommandSchedule(
+        rest_cables=np.array(order, dtype=np.intp),
+        rest_times=tuple(np.array([p[0] for p in rest[i]]) for i in order),
+        rest_values=tuple(np.array([p[1] for p in rest[i]]) for i in order),
+        force_times=np.array(force_times),
+        force_values=np.array(force_values).reshape(-1, len(nodes), 3),
+    )
+
+
+def load_commands(path: str | Path, scene: Scene) -> CommandSchedule:
+    """Read and validate a schedule file for ``scene``."""
+    path = Path(path)
+    try:
+        points = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise CommandError(f"{path}: cannot read: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise CommandError(f"{path}: not valid YAML: {exc}") from None
+    return parse_commands(points, scene, str(path))

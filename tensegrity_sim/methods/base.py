@@ -1,0 +1,82 @@
+"""The stepping contract every method implements.
+
+Rules for whoever writes a new method (compare ``scipy.integrate.OdeSolver``):
+
+1. Subclass :class:`StepMethod`, set ``name``, and register the class in ``methods.METHODS``.
+2. ``__init__(system, dt, **options)`` checks once everything the method needs of the scene and of
+   ``dt`` (a missing cable stiffness, a step beyond a stability limit) and raises ``ValueError`` naming
+   what is wrong. Nothing is checked inside the step loop.
+3. ``_step_impl(state)`` advances one step of ``dt`` from ``state`` and returns a :class:`MethodStep`.
+   It must not modify ``state``: the simulator commits the result, so a failure leaves it untouched.
+   No Python loops over members.
+4. A method may cache quantities derived from the state between steps (forces at the step's end become
+   the next step's start). The simulator calls ``invalidate()`` whenever it changes the state from
+   outside (new rest lengths, new external forces, a reset); the method must then recompute.
+5. ``strain_energy(positions, rest_lengths)`` is the elastic energy the method's model stores (J).
+6. ``impulses`` are each cable's impulse over the step (N*s), snaps included, in cable order.
+7. ``prepare(state)`` makes an initial state consistent with the method's constraints (e.g. removes
+   the part of the initial velocities that would stretch a rigid strut); it may modify ``state``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..system import System
+
+__all__ = ["State", "MethodStep", "StepMethod"]
+
+
+@dataclass
+class State:
+    """What changes during a run. Shapes: positions, velocities, external_forces (N, 3);
+    rest_lengths (n_cables,). Units: m, m/s, N, s."""
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    rest_lengths: np.ndarray
+    external_forces: np.ndarray
+    step_count: int = 0
+
+    def copy(self) -> "State":
+        return State(self.positions.copy(), self.velocities.copy(), self.rest_lengths.copy(),
+                     self.external_forces.copy(), self.step_count)
+
+
+@dataclass(frozen=True)
+class MethodStep:
+    """One step's outcome: positions, velocities (N, 3) at the step's end; impulses (n_cables,) N*s."""
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    impulses: np.ndarray
+
+
+class StepMethod:
+    """Base class of the stepping methods (see the module docstring for the rules)."""
+
+    name: str = ""
+
+    def __init__(self, system: System, dt: float):
+        self.system = system
+        self.dt = float(dt)
+
+    def invalidate(self) -> None:
+        """The state was changed from outside: drop anything cached from the previous step."""
+
+    def prepare(self, state: State) -> None:
+        """Make ``state`` consistent with the method's constraints (called on reset)."""
+
+    def _step_impl(self, state: State) -> MethodStep:
+        raise NotImplementedError
+
+    def step(self, state: State) -> MethodStep:
+        return self._step_impl(state)
+
+    def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
+        raise NotImplementedError
+
+    def describe(self) -> dict:
+        """Settings of the method worth logging (solver, tolerances...)."""
+        return {"method": self.name, "dt": self.dt}

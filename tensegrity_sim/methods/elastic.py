@@ -1,0 +1,113 @@
+"""Method 2 of physics.md §4: massless elastic cables (tension ``k max(0, e)``), elastic or rigid struts.
+
+Integrator: velocity Verlet (with RATTLE for rigid struts), chosen by measurement
+(``bench/convergence.py``, ``test/test_elastic.py``):
+
+* It is symplectic and time-reversible, so an undamped structure's energy error stays bounded (it
+  oscillates at O(h^2) and does not drift) over long runs; an explicit Runge-Kutta of the same cost
+  drifts.
+* Every force is an equal-and-opposite pair along a member, and Verlet applies it at one configuration,
+  so linear and angular momentum are conserved to round-off (it is a variational integrator).
+* The cable force ``k max(0, e)`` is continuous in the positions and only its derivative jumps at a
+  slack/taut switch. The velocity update is the trapezoidal rule on the force along the trajectory,
+  whose error on the one step containing a kink is O(h^2 [dF/dt]) instead of O(h^3); a switch happens a
+  bounded number of times per unit time, so the global error stays O(h^2) without locating the switch.
+  Measured order on the bungee (free fall, then a taut phase, closed form): 2.0
+  (``test_elastic.py::test_bungee_converges_second_order``).
+* It is explicit: stable only for ``dt < 2 / omega_max`` of the elastic members. The limit is computed
+  at start-up and a larger step is refused with the limit in the message; stiff struts can be made
+  ``"rigid"`` instead, which removes their frequency from the limit.
+
+Cable damping ``c de/dt`` acts only while a cable is taut, and the total cable tension is clipped at
+zero: a damped cable that is being released goes slack at once instead of pushing. The damping force
+at the end of a step uses the half-step velocity (first order in the damping term, still exactly
+momentum-conserving since it is along the cable).
+
+Impulses: the velocity update applies each cable's tension as ``h/2 (t_start + t_end)``; that is the
+cable's impulse over the step, and ``impulses / h`` the step's mean tension.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..system import System
+from .base import MethodStep, State, StepMethod
+from .rigid import RigidStruts
+
+__all__ = ["ElasticMethod"]
+
+
+class ElasticMethod(StepMethod):
+    name = "elastic"
+
+    def __init__(self, system: System, dt: float):
+        super().__init__(system, dt)
+        missing = [c.name for c in system.scene.cables if c.stiffness is None]
+        if missing:
+            raise ValueError(f"method 'elastic' needs a stiffness for every cable; missing for {missing}")
+        self.rigid = RigidStruts(system)
+        self.omega_max = system.max_frequency(system.scene.positions, include_cables=True)
+        if self.omega_max * self.dt >= 2.0:
+            raise ValueError(
+                f"dt={self.dt!r} s is beyond the stability limit of the explicit elastic method: "
+                f"dt must be < 2/omega_max = {2.0 / self.omega_max:.6g} s (omega_max = "
+                f"{self.omega_max:.6g} rad/s from the stiffest members); use a smaller dt or rigid struts")
+        self._damped = bool(np.any(system.cable_damping > 0))
+        self._rest = np.empty(system.n_members)
+        self._rest[: system.n_struts] = system.strut_rest
+        self._cache: tuple[np.ndarray, np.ndarray] | None = None
+
+    def invalidate(self) -> None:
+        self._cache = None
+
+    def prepare(self, state: State) -> None:
+        """Initial velocities that would stretch a rigid strut lose that component (a rigid body cannot
+        have it); the change is internal, so momentum is unchanged."""
+        if self.rigid.count:
+            state.velocities = state.velocities + self.rigid.project_velocities(state.positions, state.velocities)
+
+    def tensions(self, x: np.ndarray, v: np.ndarray, rest_lengths: np.ndarray):
+        """Member tensions (m,) N (struts first; rigid struts 0) and unit vectors (m, 3) at ``x``."""
+        sys = self.system
+        rest = self._rest
+        rest[sys.n_struts:] = rest_lengths
+        _, length, n = sys.geometry(x)
+        t = sys.stiffness * np.maximum(length - rest, sys.floor)
+        if self._damped:
+            cables = t[sys.n_struts:]
+            rate = sys.member_rates(v, n[sys.n_struts:], sys.cable_ends)
+            taut = cables > 0
+            cables += np.where(taut, sys.cable_damping * rate, 0.0)
+            np.maximum(cables, 0.0, out=cables)  # a damped cable never pushes
+        return t, n
+
+    def accelerations(self, x, v, state: State):
+        t, n = self.tensions(x, v, state.rest_lengths)
+        f = self.system.assemble(t[:, None] * n) + self.system.gravity_force + state.external_forces
+        return f * self.system.inv_mass[:, None], t[self.system.n_struts:]
+
+    def _step_impl(self, state: State) -> MethodStep:
+        h = self.dt
+        x, v = state.positions, state.velocities
+        if self._cache is None:
+            self._cache = self.accelerations(x, v, state)
+        acc, t_start = self._cache
+        v_half = v + (0.5 * h) * acc
+        x_new = x + h * v_half
+        if self.rigid.count:
+            dx = self.rigid.project_positions(x, x_new)
+            x_new += dx
+            v_half += dx / h
+        acc_new, t_end = self.accelerations(x_new, v_half, state)
+        v_new = v_half + (0.5 * h) * acc_new
+        if self.rigid.count:
+            v_new += self.rigid.project_velocities(x_new, v_new)
+        self._cache = (acc_new, t_end)
+        return MethodStep(x_new, v_new, (0.5 * h) * (t_start + t_end))
+
+    def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
+        sys = self.system
+        rest = np.concatenate([sys.strut_rest, rest_lengths])
+        _, length, _ = sys.geometry(positions)
+        e = np.maximum(length - rest, sys.floor)
+        return float(0.5 * np.sum(sys.stiffness * e * e))

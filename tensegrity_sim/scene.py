@@ -1,0 +1,393 @@
+"""Scenes: the immutable description of a tensegrity structure, its YAML schema and its validation.
+
+A :class:`Scene` holds what does not change during a run (topology, masses, stiffnesses, radii, the
+initial state and the initial rest lengths). Everything is checked once, here, when the scene is built;
+a bad entry raises :class:`SceneError` naming the source, the entry and the field::
+
+    prism3.yaml: cables[3] 'c3': stiffness must be > 0, got -5.0
+
+Units are SI: metres, kilograms, newtons, seconds.
+"""
+from __future__ import annotations
+
+import math
+import re
+import warnings
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+__all__ = [
+    "SceneError",
+    "ClassKWarning",
+    "Node",
+    "Strut",
+    "Cable",
+    "Scene",
+    "load_scene",
+    "builtin_scenes",
+]
+
+_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+RIGID = "rigid"
+
+
+class SceneError(ValueError):
+    """A scene that cannot be loaded; the message names the source, the entry and the field."""
+
+
+class ClassKWarning(UserWarning):
+    """A node carries more than one strut: a class-k structure, not a tensegrity in the strict sense."""
+
+
+@dataclass(frozen=True)
+class Node:
+    name: str
+    position: tuple[float, float, float]  # m
+    mass: float  # kg (own lumped mass, without strut masses); 0.0 allowed only for a fixed node
+    velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m/s
+    fixed: bool = False
+
+
+@dataclass(frozen=True)
+class Strut:
+    name: str
+    nodes: tuple[str, str]
+    stiffness: float  # N/m axial (EA/L); math.inf for a rigid strut
+    rest_length: float  # m
+    mass: float = 0.0  # kg, lumped half to each end node
+    radius: float = 0.0  # m
+
+    @property
+    def rigid(self) -> bool:
+        return math.isinf(self.stiffness)
+
+
+@dataclass(frozen=True)
+class Cable:
+    name: str
+    nodes: tuple[str, str]
+    stiffness: float | None  # N/m; None when the scene only serves the inextensible method
+    rest_length: float  # m
+    damping: float = 0.0  # N*s/m, acts only while taut
+    radius: float = 0.0  # m
+
+
+class _Context:
+    """Builds error messages: ``source: entry 'name': field message``."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def error(self, where: str, msg: str) -> SceneError:
+        prefix = f"{self.source}: " if self.source else ""
+        return SceneError(f"{prefix}{where}: {msg}" if where else f"{prefix}{msg}")
+
+
+def _entry_label(kind: str, index: int, raw: Any) -> str:
+    name = raw.get("name") if isinstance(raw, Mapping) else None
+    return f"{kind}[{index}] '{name}'" if isinstance(name, str) else f"{kind}[{index}]"
+
+
+def _check_keys(ctx: _Context, where: str, raw: Any, allowed: set[str], required: set[str]) -> None:
+    if not isinstance(raw, Mapping):
+        raise ctx.error(where, f"must be a mapping, got {type(raw).__name__}")
+    unknown = sorted(set(raw) - allowed)
+    if unknown:
+        raise ctx.error(where, f"unknown key {unknown[0]!r} (allowed: {', '.join(sorted(allowed))})")
+    missing = sorted(required - set(raw))
+    if missing:
+        raise ctx.error(where, f"missing required key {missing[0]!r}")
+
+
+def _number(ctx: _Context, where: str, fld: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ctx.error(where, f"{fld} must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ctx.error(where, f"{fld} must be finite, got {value!r}")
+    return value
+
+
+def _positive(ctx: _Context, where: str, fld: str, value: Any) -> float:
+    value = _number(ctx, where, fld, value)
+    if value <= 0.0:
+        raise ctx.error(where, f"{fld} must be > 0, got {value!r}")
+    return value
+
+
+def _non_negative(ctx: _Context, where: str, fld: str, value: Any) -> float:
+    value = _number(ctx, where, fld, value)
+    if value < 0.0:
+        raise ctx.error(where, f"{fld} must be >= 0, got {value!r}")
+    return value
+
+
+def _vector3(ctx: _Context, where: str, fld: str, value: Any) -> tuple[float, float, float]:
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
+        raise ctx.error(where, f"{fld} must be a list of 3 numbers, got {value!r}")
+    return tuple(_number(ctx, where, fld, v) for v in value)  # type: ignore[return-value]
+
+
+def _name(ctx: _Context, where: str, value: Any, seen: set[str]) -> str:
+    if not isinstance(value, str) or not _NAME_RE.match(value):
+        raise ctx.error(where, f"name must match [A-Za-z_][A-Za-z0-9_]*, got {value!r}")
+    if value in seen:
+        raise ctx.error(where, f"duplicate name {value!r}")
+    seen.add(value)
+    return value
+
+
+def _bool(ctx: _Context, where: str, fld: str, value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise ctx.error(where, f"{fld} must be true or false, got {value!r}")
+    return value
+
+
+_TOP_KEYS = {"name", "gravity", "nodes", "struts", "cables"}
+_NODE_KEYS = {"name", "position", "mass", "velocity", "fixed"}
+_STRUT_KEYS = {"name", "nodes", "stiffness", "rest_length", "mass", "radius"}
+_CABLE_KEYS = {"name", "nodes", "stiffness", "rest_length", "damping", "radius"}
+
+
+@dataclass(frozen=True)
+class Scene:
+    """An immutable tensegrity scene.
+
+    Node order is index order everywhere (arrays, messages, logs); members keep file order.
+    Build one with :meth:`from_dict` or :func:`load_scene`; both validate everything.
+    """
+
+    name: str
+    gravity: tuple[float, float, float]
+    nodes: tuple[Node, ...]
+    struts: tuple[Strut, ...]
+    cables: tuple[Cable, ...]
+    source: str = field(default="", compare=False)
+
+    # ----------------------------------------------------------------- names
+    @property
+    def node_names(self) -> tuple[str, ...]:
+        return tuple(n.name for n in self.nodes)
+
+    @property
+    def strut_names(self) -> tuple[str, ...]:
+        return tuple(s.name for s in self.struts)
+
+    @property
+    def cable_names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.cables)
+
+    # ----------------------------------------------------------------- arrays
+    @property
+    def positions(self) -> np.ndarray:
+        """Initial node positions, (N, 3) m."""
+        return np.array([n.position for n in self.nodes], dtype=float).reshape(-1, 3)
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """Initial node velocities, (N, 3) m/s."""
+        return np.array([n.velocity for n in self.nodes], dtype=float).reshape(-1, 3)
+
+    @property
+    def fixed(self) -> np.ndarray:
+        """(N,) bool: supports."""
+        return np.array([n.fixed for n in self.nodes], dtype=bool)
+
+    @property
+    def masses(self) -> np.ndarray:
+        """Lumped node masses, (N,) kg: each node's own mass plus half of every strut touching it."""
+        index = {n.name: i for i, n in enumerate(self.nodes)}
+        m = np.array([n.mass for n in self.nodes], dtype=float)
+        for s in self.struts:
+            for end in s.nodes:
+                m[index[end]] += 0.5 * s.mass
+        return m
+
+    @property
+    def cable_rest_lengths(self) -> np.ndarray:
+        """Initial cable rest lengths, (n_cables,) m."""
+        return np.array([c.rest_length for c in self.cables], dtype=float)
+
+    def member_index(self, members: tuple[Strut, ...] | tuple[Cable, ...]) -> np.ndarray:
+        """(n, 2) int node indices of the members' ends (a, b)."""
+        index = {n.name: i for i, n in enumerate(self.nodes)}
+        return np.array([[index[m.nodes[0]], index[m.nodes[1]]] for m in members], dtype=np.intp).reshape(-1, 2)
+
+    # ----------------------------------------------------------------- (de)serialisation
+    @classmethod
+    def from_dict(cls, mapping: Mapping[str, Any], *, source: str = "") -> "Scene":
+        """Validate a mapping in the YAML schema of the contract and build the scene.
+
+        ``source`` names the origin (a file name) in error messages.
+        """
+        ctx = _Context(source)
+        _check_keys(ctx, "", mapping, _TOP_KEYS, {"nodes"})
+        name = mapping.get("name", "scene")
+        if not isinstance(name, str):
+            raise ctx.error("name", f"must be a string, got {name!r}")
+        gravity = _vector3(ctx, "scene", "gravity", mapping.get("gravity", [0.0, 0.0, 0.0]))
+
+        nodes = cls._parse_nodes(ctx, mapping.get("nodes"))
+        node_names = {n.name: n for n in nodes}
+        member_names: set[str] = set(node_names)
+        struts = cls._parse_members(ctx, "struts", mapping.get("struts", []), nodes, member_names)
+        cables = cls._parse_members(ctx, "cables", mapping.get("cables", []), nodes, member_names)
+
+        scene = cls(name=name, gravity=gravity, nodes=tuple(nodes), struts=tuple(struts),
+                    cables=tuple(cables), source=source)
+        scene._check_masses(ctx)
+        scene._warn_class_k()
+        return scene
+
+    @staticmethod
+    def _parse_nodes(ctx: _Context, raw_nodes: Any) -> list[Node]:
+        if not isinstance(raw_nodes, list) or not raw_nodes:
+            raise ctx.error("nodes", "must be a non-empty list")
+        seen: set[str] = set()
+        nodes = []
+        for i, raw in enumerate(raw_nodes):
+            where = _entry_label("nodes", i, raw)
+            _check_keys(ctx, where, raw, _NODE_KEYS, {"name", "position"})
+            name = _name(ctx, where, raw["name"], seen)
+            fixed = _bool(ctx, where, "fixed", raw.get("fixed", False))
+            position = _vector3(ctx, where, "position", raw["position"])
+            velocity = _vector3(ctx, where, "velocity", raw.get("velocity", [0.0, 0.0, 0.0]))
+            if "mass" in raw:
+                mass = _non_negative(ctx, where, "mass", raw["mass"])
+            else:
+                mass = 0.0
+            if fixed and any(velocity):
+                raise ctx.error(where, f"velocity of a fixed node must be zero, got {list(velocity)!r}")
+            nodes.append(Node(name, position, mass, velocity, fixed))
+        return nodes
+
+    @staticmethod
+    def _parse_members(ctx: _Context, kind: str, raw_members: Any, nodes: list[Node],
+                       seen: set[str]) -> list:
+        if raw_members is None:
+            raw_members = []
+        if not isinstance(raw_members, list):
+            raise ctx.error(kind, f"must be a list, got {type(raw_members).__name__}")
+        by_name = {n.name: n for n in nodes}
+        keys = _STRUT_KEYS if kind == "struts" else _CABLE_KEYS
+        required = {"name", "nodes", "stiffness"} if kind == "struts" else {"name", "nodes"}
+        out = []
+        for i, raw in enumerate(raw_members):
+            where = _entry_label(kind, i, raw)
+            _check_keys(ctx, where, raw, keys, required)
+            name = _name(ctx, where, raw["name"], seen)
+            ends = raw["nodes"]
+            if not isinstance(ends, (list, tuple)) or len(ends) != 2 or not all(isinstance(e, str) for e in ends):
+                raise ctx.error(where, f"nodes must be a list of two node names, got {ends!r}")
+            for e in ends:
+                if e not in by_name:
+                    raise ctx.error(where, f"nodes: unknown node {e!r}")
+            if ends[0] == ends[1]:
+                raise ctx.error(where, f"nodes: a member cannot join node {ends[0]!r} to itself")
+            pa = np.array(by_name[ends[0]].position)
+            pb = np.array(by_name[ends[1]].position)
+            length = float(np.linalg.norm(pb - pa))
+            if length == 0.0:
+                raise ctx.error(where, f"nodes: zero-length member ({ends[0]!r} and {ends[1]!r} coincide)")
+            stiffness_raw = raw.get("stiffness")
+            if kind == "struts" and stiffness_raw == RIGID:
+                stiffness: float | None = math.inf
+            elif kind == "cables" and stiffness_raw is None:
+                stiffness = None
+            else:
+                stiffness = _positive(ctx, where, "stiffness", stiffness_raw)
+            rest = _positive(ctx, where, "rest_length", raw["rest_length"]) if "rest_length" in raw else length
+            radius = _non_negative(ctx, where, "radius", raw.get("radius", 0.0))
+            if kind == "struts":
+                mass = _non_negative(ctx, where, "mass", raw.get("mass", 0.0))
+                if stiffness == math.inf:
+                    if "rest_length" in raw and abs(rest - length) > 1e-9 * length:
+                        raise ctx.error(where, f"rest_length of a rigid strut must equal its length {length!r}, "
+                                               f"got {rest!r}")
+                    rest = length
+                out.append(Strut(name, (ends[0], ends[1]), stiffness, rest, mass, radius))
+            else:
+                damping = _non_negative(ctx, where, "damping", raw.get("damping", 0.0))
+                out.append(Cable(name, (ends[0], ends[1]), stiffness, rest, damping, radius))
+        return out
+
+    def _check_masses(self, ctx: _Context) -> None:
+        masses = self.masses
+        for i, n in enumerate(self.nodes):
+            if not n.fixed and masses[i] <= 0.0:
+                raise ctx.error(_entry_label("nodes", i, {"name": n.name}),
+                                f"mass must be > 0 for a free node, got {float(masses[i])!r}")
+
+    def _warn_class_k(self) -> None:
+        counts: dict[str, int] = {}
+        for s in self.struts:
+            for end in s.nodes:
+                counts[end] = counts.get(end, 0) + 1
+        crowded = sorted(n for n, c in counts.items() if c > 1)
+        if crowded:
+            where = f"{self.source}: " if self.source else ""
+            warnings.warn(f"{where}nodes {crowded} carry more than one strut: a class-k structure",
+                          ClassKWarning, stacklevel=4)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The scene as a mapping in the YAML schema; ``Scene.from_dict(s.to_dict()) == s``."""
+        def node(n: Node) -> dict[str, Any]:
+            d: dict[str, Any] = {"name": n.name, "position": list(n.position)}
+            if not n.fixed or n.mass > 0:
+                d["mass"] = n.mass
+            d["velocity"] = list(n.velocity)
+            d["fixed"] = n.fixed
+            return d
+
+        return {
+            "name": self.name,
+            "gravity": list(self.gravity),
+            "nodes": [node(n) for n in self.nodes],
+            "struts": [{"name": s.name, "nodes": list(s.nodes),
+                        "stiffness": RIGID if s.rigid else s.stiffness, "rest_length": s.rest_length,
+                        "mass": s.mass, "radius": s.radius} for s in self.struts],
+            "cables": [{"name": c.name, "nodes": list(c.nodes),
+                        **({"stiffness": c.stiffness} if c.stiffness is not None else {}),
+                        "rest_length": c.rest_length, "damping": c.damping, "radius": c.radius}
+                       for c in self.cables],
+        }
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+
+# --------------------------------------------------------------------------- loading
+_SCENE_PACKAGE = "tensegrity_sim.scenes"
+
+
+def builtin_scenes() -> tuple[str, ...]:
+    """Names of the scenes shipped with the package (YAML files in ``tensegrity_sim/scenes``)."""
+    return tuple(sorted(p.name[:-5] for p in resources.files(_SCENE_PACKAGE).iterdir()
+                        if p.name.endswith(".yaml")))
+
+
+def load_scene(name_or_path: str | Path) -> Scene:
+    """Load a built-in scene by name (see :func:`builtin_scenes`) or a YAML file by path."""
+    text: str
+    source: str
+    name = str(name_or_path)
+    if name in builtin_scenes():
+        source = f"{name}.yaml"
+        text = resources.files(_SCENE_PACKAGE).joinpath(source).read_text()
+    else:
+        path = Path(name_or_path)
+        if not path.is_file():
+            raise SceneError(f"{name}: no such scene file, and not a built-in scene "
+                             f"(built-ins: {', '.join(builtin_scenes())})")
+        source = str(path)
+        text = path.read_text()
+    try:
+        mapping = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise SceneError(f"{source}: not valid YAML: {exc}") from None
+    return Scene.from_dict(mapping, source=source)

@@ -1,0 +1,128 @@
+"""Scene loading: round trips, built-ins, and every refusal with its exact message."""
+import copy
+import math
+
+import pytest
+import yaml
+
+import tensegrity_sim as ts
+from conftest import bungee_dict
+
+BASE = {
+    "name": "t",
+    "nodes": [
+        {"name": "n0", "position": [0.0, 0.0, 0.0], "mass": 1.0},
+        {"name": "n1", "position": [1.0, 0.0, 0.0], "mass": 1.0},
+        {"name": "n2", "position": [0.0, 1.0, 0.0], "mass": 1.0},
+    ],
+    "struts": [{"name": "s0", "nodes": ["n0", "n1"], "stiffness": 1.0e4}],
+    "cables": [
+        {"name": "c0", "nodes": ["n1", "n2"], "stiffness": 100.0, "rest_length": 1.2},
+        {"name": "c1", "nodes": ["n2", "n0"], "stiffness": 100.0},
+    ],
+}
+
+
+def edited(path, value):
+    d = copy.deepcopy(BASE)
+    target = d
+    for key in path[:-1]:
+        target = target[key]
+    if value is KeyError:
+        del target[path[-1]]
+    else:
+        target[path[-1]] = value
+    return d
+
+
+REFUSED = [
+    (edited(["cables", 0, "stiffness"], -5.0), "cables[0] 'c0': stiffness must be > 0, got -5.0"),
+    (edited(["cables", 0, "rest_length"], 0.0), "cables[0] 'c0': rest_length must be > 0, got 0.0"),
+    (edited(["cables", 0, "rest_length"], math.nan), "cables[0] 'c0': rest_length must be finite, got nan"),
+    (edited(["nodes", 1, "position"], [1.0, math.inf, 0.0]), "nodes[1] 'n1': position must be finite, got inf"),
+    (edited(["nodes", 1, "position"], [1.0, 0.0]), "nodes[1] 'n1': position must be a list of 3 numbers, got [1.0, 0.0]"),
+    (edited(["nodes", 1, "colour"], "red"), "nodes[1] 'n1': unknown key 'colour' (allowed: fixed, mass, name, position, velocity)"),
+    (edited(["colour"], "red"), "unknown key 'colour' (allowed: cables, gravity, name, nodes, struts)"),
+    (edited(["nodes", 2, "name"], "n0"), "nodes[2] 'n0': duplicate name 'n0'"),
+    (edited(["cables", 1, "name"], "s0"), "cables[1] 's0': duplicate name 's0'"),
+    (edited(["nodes", 2, "name"], "2bad"), "nodes[2] '2bad': name must match [A-Za-z_][A-Za-z0-9_]*, got '2bad'"),
+    (edited(["cables", 0, "nodes"], ["n1", "n9"]), "cables[0] 'c0': nodes: unknown node 'n9'"),
+    (edited(["cables", 0, "nodes"], ["n1", "n1"]), "cables[0] 'c0': nodes: a member cannot join node 'n1' to itself"),
+    (edited(["nodes", 2, "position"], [1.0, 0.0, 0.0]), "cables[0] 'c0': nodes: zero-length member ('n1' and 'n2' coincide)"),
+    (edited(["nodes", 2, "mass"], KeyError), "nodes[2] 'n2': mass must be > 0 for a free node, got 0.0"),
+    (edited(["nodes", 2, "mass"], -1.0), "nodes[2] 'n2': mass must be >= 0, got -1.0"),
+    (edited(["struts", 0, "stiffness"], "soft"), "struts[0] 's0': stiffness must be a number, got 'soft'"),
+    (edited(["struts", 0, "stiffness"], KeyError), "struts[0] 's0': missing required key 'stiffness'"),
+    (edited(["cables", 0, "damping"], -0.1), "cables[0] 'c0': damping must be >= 0, got -0.1"),
+    (edited(["cables", 0, "radius"], -0.1), "cables[0] 'c0': radius must be >= 0, got -0.1"),
+    (edited(["gravity"], [0, 0]), "scene: gravity must be a list of 3 numbers, got [0, 0]"),
+    (edited(["nodes"], []), "nodes: must be a non-empty list"),
+    (edited(["nodes", 0, "fixed"], "yes"), "nodes[0] 'n0': fixed must be true or false, got 'yes'"),
+]
+
+
+@pytest.mark.parametrize("mapping, message", REFUSED, ids=[m for _, m in REFUSED])
+def test_refused_with_exact_message(mapping, message):
+    with pytest.raises(ts.SceneError) as err:
+        ts.Scene.from_dict(mapping, source="bad.yaml")
+    assert str(err.value) == f"bad.yaml: {message}"
+
+
+def test_refused_file_names_the_file(tmp_path):
+    path = tmp_path / "broken.yaml"
+    path.write_text(yaml.safe_dump(edited(["cables", 0, "stiffness"], -5.0)))
+    with pytest.raises(ts.SceneError, match=r"broken\.yaml: cables\[0\] 'c0': stiffness must be > 0, got -5.0"):
+        ts.load_scene(path)
+
+
+def test_unknown_scene_lists_builtins():
+    with pytest.raises(ts.SceneError, match="not a built-in scene .*prism3"):
+        ts.load_scene("no_such_scene")
+
+
+def test_defaults_and_lumped_masses():
+    d = copy.deepcopy(BASE)
+    d["struts"][0]["mass"] = 0.5
+    s = ts.Scene.from_dict(d)
+    assert s.cables[1].rest_length == 1.0  # default: the initial distance
+    assert s.struts[0].rest_length == 1.0
+    assert list(s.masses) == [1.25, 1.25, 1.0]
+    assert s.gravity == (0.0, 0.0, 0.0)
+    assert s.node_names == ("n0", "n1", "n2") and s.cable_names == ("c0", "c1") and s.strut_names == ("s0",)
+
+
+def test_round_trip_through_dict_and_yaml():
+    s = ts.Scene.from_dict(BASE)
+    again = ts.Scene.from_dict(yaml.safe_load(s.to_yaml()))
+    assert again == s
+    rigid = ts.Scene.from_dict(edited(["struts", 0, "stiffness"], "rigid"))
+    assert rigid.struts[0].rigid and rigid.to_dict()["struts"][0]["stiffness"] == "rigid"
+    assert ts.Scene.from_dict(rigid.to_dict()) == rigid
+
+
+def test_rigid_strut_rest_length_must_match():
+    d = edited(["struts", 0, "stiffness"], "rigid")
+    d["struts"][0]["rest_length"] = 0.9
+    with pytest.raises(ts.SceneError, match="rest_length of a rigid strut must equal its length 1.0, got 0.9"):
+        ts.Scene.from_dict(d)
+
+
+def test_class_k_loads_with_warning():
+    d = copy.deepcopy(BASE)
+    d["struts"].append({"name": "s1", "nodes": ["n0", "n2"], "stiffness": 1.0e4})
+    with pytest.warns(ts.ClassKWarning, match=r"\['n0'\] carry more than one strut"):
+        s = ts.Scene.from_dict(d)
+    assert len(s.struts) == 2
+
+
+def test_fixed_node_needs_no_mass():
+    s = ts.Scene.from_dict(bungee_dict())
+    assert s.masses[0] == 0.0 and bool(s.fixed[0])
+
+
+@pytest.mark.parametrize("name", ["prism3", "icosahedron", "tower"])
+def test_builtins_listed_and_load(name):
+    assert name in ts.builtin_scenes()
+    s = ts.load_scene(name)
+    assert ts.Scene.from_dict(s.to_dict()) == s
+    assert all(st.radius > 0 for st in s.struts) and all(c.radius > 0 for c in s.cables)

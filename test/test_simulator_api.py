@@ -1,0 +1,142 @@
+"""The Python API of contract §2: shapes, partial updates by name, refusals that change nothing."""
+import math
+
+import numpy as np
+import pytest
+
+import tensegrity_sim as ts
+from conftest import deadband_dict
+
+
+@pytest.fixture
+def sim():
+    s = ts.Simulator(ts.Scene.from_dict(deadband_dict()), method="elastic", dt=1e-3)
+    s.run(steps=10)
+    return s
+
+
+def snapshot(sim):
+    return (sim.time, sim.positions, sim.velocities, sim.rest_lengths, sim.external_forces)
+
+
+def assert_unchanged(before, sim):
+    after = snapshot(sim)
+    assert before[0] == after[0]
+    for a, b in zip(before[1:], after[1:]):
+        np.testing.assert_array_equal(a, b)
+
+
+BAD_REST = [
+    ({"nope": 1.0}, "rest_lengths: unknown name 'nope' (known: cl, cr)"),
+    ({"cl": -1.0}, "rest_lengths['cl']: must be > 0, got -1.0"),
+    ({"cl": 0.0}, "rest_lengths['cl']: must be > 0, got 0.0"),
+    ({"cl": math.nan}, "rest_lengths: values must be finite"),
+    ({"cl": [1.0, 2.0]}, "rest_lengths['cl']: expected a number, got shape (2,)"),
+    ({"cl": "long"}, "rest_lengths['cl']: not a number: 'long'"),
+    ([1.0, 2.0, 3.0], "rest_lengths: expected shape (2,), got (3,)"),
+    ([1.0, math.inf], "rest_lengths: values must be finite"),
+]
+
+
+@pytest.mark.parametrize("values, message", BAD_REST, ids=[m for _, m in BAD_REST])
+def test_bad_rest_lengths_refused_state_unchanged(sim, values, message):
+    before = snapshot(sim)
+    with pytest.raises(ValueError) as err:
+        sim.set_rest_lengths(values)
+    assert str(err.value) == message
+    assert_unchanged(before, sim)
+
+
+BAD_FORCES = [
+    ({"ghost": [0, 0, 1]}, "external_forces: unknown name 'ghost' (known: left, mass, right)"),
+    ({"mass": [0, 1]}, "external_forces['mass']: expected 3 numbers, got shape (2,)"),
+    ({"mass": [0, math.nan, 1]}, "external_forces: values must be finite"),
+    (np.zeros((2, 3)), "external_forces: expected shape (3, 3), got (2, 3)"),
+]
+
+
+@pytest.mark.parametrize("values, message", BAD_FORCES, ids=[m for _, m in BAD_FORCES])
+def test_bad_forces_refused_state_unchanged(sim, values, message):
+    before = snapshot(sim)
+    with pytest.raises(ValueError) as err:
+        sim.set_external_forces(values)
+    assert str(err.value) == message
+    assert_unchanged(before, sim)
+
+
+def test_partial_updates_by_name(sim):
+    sim.set_rest_lengths({"cr": 0.5})
+    np.testing.assert_array_equal(sim.rest_lengths, [1.1, 0.5])
+    sim.set_external_forces({"mass": [1.0, 2.0, 3.0]})
+    sim.set_external_forces({"left": [0.0, 0.0, 1.0]})
+    np.testing.assert_array_equal(sim.external_forces, [[0, 0, 1], [1, 2, 3], [0, 0, 0]])
+
+
+def test_shortened_cable_pulls_immediately(sim):
+    """A rest-length command takes effect at the next step (the cached forces are dropped)."""
+    sim.set_rest_lengths({"cr": 0.5})  # the mass is near the centre: cr is now stretched by ~0.5 m
+    v_before = sim.velocities[1, 0]
+    r = sim.step()
+    assert r.tensions[1] > 0.9 * 50.0 * 0.45 and not r.slack[1]
+    assert r.velocities[1, 0] - v_before > 0.9 * 1e-3 * 50.0 * 0.45 / 2.0
+
+
+def test_step_and_run_shapes(sim):
+    r = sim.step()
+    assert r.positions.shape == (3, 3) and r.impulses.shape == (2,) and r.slack.dtype == bool
+    assert r.contacts == ()
+    np.testing.assert_allclose(r.tensions, r.impulses / 1e-3, rtol=1e-15)
+    assert r.time == pytest.approx(11e-3, abs=1e-15)
+    traj = sim.run(duration=0.05)
+    assert traj.time.shape == (50,) and traj.positions.shape == (50, 3, 3) and traj.slack.shape == (50, 2)
+    assert traj.time[-1] == pytest.approx(61e-3, abs=1e-15) and traj.contacts == []
+    # results are copies: changing them does not touch the simulator
+    r.positions[:] = 99.0
+    assert not np.any(sim.positions == 99.0)
+
+
+def test_reset_returns_to_the_scene():
+    scene = ts.Scene.from_dict(deadband_dict())
+    sim = ts.Simulator(scene, method="elastic", dt=1e-3)
+    first = sim.run(steps=20)
+    sim.set_rest_lengths({"cl": 0.3})
+    sim.reset()
+    again = sim.run(steps=20)
+    np.testing.assert_array_equal(first.positions, again.positions)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"method": "verlet"}, "method must be one of ['elastic', "),
+    ({"dt": 0.0}, "dt must be a positive finite number of seconds, got 0.0"),
+    ({"dt": math.nan}, "dt must be a positive finite number of seconds, got nan"),
+    ({"dt": "fast"}, "dt must be a positive number of seconds, got 'fast'"),
+])
+def test_bad_constructor_arguments(kwargs, message):
+    with pytest.raises(ValueError) as err:
+        ts.Simulator(ts.Scene.from_dict(deadband_dict()), **kwargs)
+    assert str(err.value).startswith(message)
+
+
+def test_run_arguments(sim):
+    with pytest.raises(ValueError, match="exactly one of duration"):
+        sim.run()
+    with pytest.raises(ValueError, match="steps must be a whole number >= 0, got -1"):
+        sim.run(steps=-1)
+
+
+def test_energy_parts_closed_form():
+    """One stretched cable, mass at rest: strain = k e^2 / 2; gravity = -m g.x; kinetic = m v^2 / 2."""
+    d = deadband_dict(k=50.0, m=2.0, v0=0.0)
+    d["nodes"][1]["position"] = [0.4, 0.0, 0.3]
+    d["nodes"][1]["velocity"] = [0.0, 3.0, 0.0]
+    d["gravity"] = [0.0, 0.0, -9.81]
+    sim = ts.Simulator(ts.Scene.from_dict(d), method="elastic", dt=1e-3)
+    e = sim.energy()
+    stretch = math.hypot(1.4, 0.3) - 1.1
+    assert e["strain"] == pytest.approx(0.5 * 50.0 * stretch ** 2, rel=1e-14)
+    assert e["kinetic"] == pytest.approx(9.0, rel=1e-15)
+    assert e["gravity"] == pytest.approx(2.0 * 9.81 * 0.3, rel=1e-15)
+    assert e["total"] == pytest.approx(e["strain"] + 9.0 + 2.0 * 9.81 * 0.3, rel=1e-15)
+    p, ang = sim.momentum()
+    np.testing.assert_allclose(p, [0.0, 6.0, 0.0])
+    np.testing.assert_allclose(ang, np.cross([0.4, 0.0, 0.3], [0.0, 6.0, 0.0]))
