@@ -1,0 +1,159 @@
+"""Small scenes whose motion is known in closed form, and that motion (for tests and benchmarks).
+
+Each ``*_dict`` builds a scene mapping (contract §1); each ``*_exact`` gives the exact state at time ``t``
+in the model named, so that an error against it is the simulator's error and nothing else.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = [
+    "bungee_dict", "bungee_constants", "bungee_exact",
+    "deadband_dict", "deadband_exact",
+    "snap_pair_dict", "snap_pair_exact",
+]
+
+
+# ---------------------------------------------------------------------------------------------- bungee
+def bungee_dict(k=100.0, m=1.0, rest=1.0, drop=0.5, g=9.81, damping=0.0):
+    """A mass hanging on one tension-only cable from a fixed anchor at the origin, released at rest
+    ``drop`` m below the anchor (so it falls freely before the cable snaps taut)."""
+    return {
+        "name": "bungee",
+        "gravity": [0.0, 0.0, -g],
+        "nodes": [
+            {"name": "anchor", "position": [0.0, 0.0, 0.0], "fixed": True},
+            {"name": "mass", "position": [0.0, 0.0, -drop], "mass": m},
+        ],
+        "cables": [{"name": "c", "nodes": ["anchor", "mass"], "stiffness": k, "rest_length": rest,
+                    "damping": damping}],
+    }
+
+
+def bungee_constants(k=100.0, m=1.0, rest=1.0, drop=0.5, g=9.81):
+    """(period s, lowest height m) of the undamped elastic bungee of :func:`bungee_dict`."""
+    t1 = math.sqrt(2 * (rest - drop) / g)
+    v1 = g * t1
+    w = math.sqrt(k / m)
+    ys = m * g / k
+    alpha = math.atan2(v1 / w, ys)
+    period = 2 * t1 + (2 * math.pi - 2 * alpha) / w
+    lowest = -rest - (ys + math.hypot(ys, v1 / w))
+    return period, lowest
+
+
+def bungee_exact(t, k=100.0, m=1.0, rest=1.0, drop=0.5, g=9.81):
+    """Height z (m) and vertical velocity vz (m/s) of the elastic bungee mass at time ``t`` (s):
+    free fall, a taut harmonic swing about the stretched equilibrium, a free rise; periodic."""
+    t1 = math.sqrt(2 * (rest - drop) / g)        # the cable snaps taut
+    v1 = g * t1
+    w = math.sqrt(k / m)
+    ys = m * g / k
+    alpha = math.atan2(v1 / w, ys)
+    taut = (2 * math.pi - 2 * alpha) / w          # time spent taut
+    t = t % (2 * t1 + taut)
+    if t <= t1:
+        return -drop - 0.5 * g * t * t, -g * t
+    if t <= t1 + taut:
+        tau = t - t1
+        return (-rest - (ys * (1 - math.cos(w * tau)) + (v1 / w) * math.sin(w * tau)),
+                -(ys * w * math.sin(w * tau) + v1 * math.cos(w * tau)))
+    tau = t - t1 - taut
+    return -rest + v1 * tau - 0.5 * g * tau * tau, v1 - g * tau
+
+
+# -------------------------------------------------------------------------------------------- dead band
+def deadband_dict(k=50.0, m=2.0, half_gap=1.0, slack=0.1, v0=0.5):
+    """A mass between two fixed anchors on the x axis, each cable slack by ``slack`` at the centre."""
+    return {
+        "name": "deadband",
+        "nodes": [
+            {"name": "left", "position": [-half_gap, 0.0, 0.0], "fixed": True},
+            {"name": "mass", "position": [0.0, 0.0, 0.0], "mass": m, "velocity": [v0, 0.0, 0.0]},
+            {"name": "right", "position": [half_gap, 0.0, 0.0], "fixed": True},
+        ],
+        "cables": [
+            {"name": "cl", "nodes": ["left", "mass"], "stiffness": k, "rest_length": half_gap + slack},
+            {"name": "cr", "nodes": ["mass", "right"], "stiffness": k, "rest_length": half_gap + slack},
+        ],
+    }
+
+
+def deadband_exact(t, k=50.0, m=2.0, slack=0.1, v0=0.5):
+    """Elastic model of :func:`deadband_dict`: the mass's x (m) at time ``t`` (s) and each cable's
+    impulse (2,) N*s accumulated over [0, t]. A glide across the dead band at +-v0, then half a
+    harmonic period against one cable (which gives back the momentum: impulse ``2 m v0``)."""
+    w = math.sqrt(k / m)
+    half = math.pi / w
+    glide = 2 * slack / v0
+    period = 2 * half + 2 * glide
+    cycles, t = divmod(t, period)
+    impulse = np.full(2, 2 * m * v0 * cycles)
+    # phases from x = 0 moving right: glide to +slack, left cable taut, glide back, right cable taut, glide to 0
+    if t <= glide / 2:
+        return v0 * t, impulse
+    t -= glide / 2
+    if t <= half:
+        impulse[0] += m * v0 * (1 - math.cos(w * t))
+        return slack + (v0 / w) * math.sin(w * t), impulse
+    impulse[0] += 2 * m * v0
+    t -= half
+    if t <= glide:
+        return slack - v0 * t, impulse
+    t -= glide
+    if t <= half:
+        impulse[1] += m * v0 * (1 - math.cos(w * t))
+        return -slack - (v0 / w) * math.sin(w * t), impulse
+    impulse[1] += 2 * m * v0
+    return -slack + v0 * (t - half), impulse
+
+
+# ------------------------------------------------------------------------------------------- snap pair
+def snap_pair_dict(k=1.0e3, m1=1.0, m2=3.0, rest=1.0, d0=0.8, v_rel=2.0, drift=0.3):
+    """Two free masses on the x axis, ``d0`` apart (centre of mass at the origin), flying apart at
+    ``v_rel`` m/s on a cable of rest length ``rest`` (so it snaps taut at ``(rest - d0)/v_rel``), with a
+    common sideways drift ``drift`` m/s along y. No gravity. Serves both cable models."""
+    M = m1 + m2
+    return {
+        "name": "snap_pair",
+        "nodes": [
+            {"name": "a", "position": [-d0 * m2 / M, 0.0, 0.0], "mass": m1,
+             "velocity": [-v_rel * m2 / M, drift, 0.0]},
+            {"name": "b", "position": [d0 * m1 / M, 0.0, 0.0], "mass": m2,
+             "velocity": [v_rel * m1 / M, drift, 0.0]},
+        ],
+        "cables": [{"name": "c", "nodes": ["a", "b"], "stiffness": k, "rest_length": rest}],
+    }
+
+
+def snap_pair_exact(t, model, k=1.0e3, m1=1.0, m2=3.0, rest=1.0, d0=0.8, v_rel=2.0, drift=0.3):
+    """Positions (2, 3) m and the cable's impulse (1,) N*s over [0, t] of :func:`snap_pair_dict`.
+
+    ``model="inextensible"``: the snap is perfectly inelastic, both masses continue at the centre of
+    mass's velocity with the cable at its rest length; impulse ``mu v_rel`` (``mu = m1 m2 / M``).
+    ``model="elastic"``: half a harmonic period of the relative motion at ``w = sqrt(k/mu)`` with the
+    cable taut, then the masses approach at ``v_rel`` with the cable slack; impulse ``2 mu v_rel``.
+    Valid until the elastic pair would meet again (``t < t1 + pi/w + rest/v_rel``).
+    """
+    M = m1 + m2
+    mu = m1 * m2 / M
+    t1 = (rest - d0) / v_rel
+    if t <= t1:
+        s, impulse = d0 + v_rel * t, 0.0
+    elif model == "inextensible":
+        s, impulse = rest, mu * v_rel
+    elif model == "elastic":
+        w = math.sqrt(k / mu)
+        tau = t - t1
+        if tau <= math.pi / w:
+            s, impulse = rest + (v_rel / w) * math.sin(w * tau), mu * v_rel * (1 - math.cos(w * tau))
+        else:
+            s, impulse = rest - v_rel * (tau - math.pi / w), 2 * mu * v_rel
+        if s <= 0.0:
+            raise ValueError(f"snap_pair_exact: t={t!r} s is past the time the masses meet")
+    else:
+        raise ValueError(f"model must be 'elastic' or 'inextensible', got {model!r}")
+    x = np.array([[-s * m2 / M, drift * t, 0.0], [s * m1 / M, drift * t, 0.0]])
+    return x, np.array([impulse])

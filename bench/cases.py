@@ -1,0 +1,102 @@
+"""The scenes of the work-precision study: analytic cases (exact error) and slack-and-snap scenes.
+
+A :class:`Case` is a scene, a duration and the cable models it serves; analytic cases carry their
+closed-form final state, the others are measured against :mod:`bench.reference`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+import tensegrity_sim as ts
+
+from . import analytic
+from .reference import Final
+
+__all__ = ["Case", "rigid_consistent", "work_precision_cases"]
+
+
+@dataclass(frozen=True)
+class Case:
+    """name; scene; duration (s); models: the cable models it serves ("elastic", "inextensible");
+    summary: one line for the report; exact: ``exact(model) -> Final`` in closed form, or None."""
+
+    name: str
+    scene: ts.Scene
+    duration: float
+    models: tuple[str, ...]
+    summary: str
+    exact: Callable[[str], Final] | None = None
+
+
+def rigid_consistent(mapping: dict) -> ts.Scene:
+    """The scene of ``mapping`` with initial velocities that do not stretch a rigid strut: the component
+    along each rigid strut removed by the simulator's own ``prepare`` (an internal, momentum-conserving
+    change), so that every simulator and reference starts from the very same state."""
+    sim = ts.Simulator(ts.Scene.from_dict(mapping), method="elastic", dt=1e-6)
+    for node, v in zip(mapping["nodes"], sim.velocities):
+        node["velocity"] = [float(c) for c in v]
+    return ts.Scene.from_dict(mapping)
+
+
+def _bungee(duration: float) -> Case:
+    def exact(model: str) -> Final:
+        z, vz = analytic.bungee_exact(duration)
+        m, g = 1.0, 9.81
+        return Final(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, z]]), np.array([[0.0, 0.0, 0.0], [0.0, 0.0, vz]]),
+                     np.array([m * vz + m * g * duration]))   # momentum balance: int t dt = m dv + m g T
+    return Case("bungee", ts.Scene.from_dict(analytic.bungee_dict()), duration, ("elastic",),
+                "mass on a 100 N/m cable under gravity: free fall, snap, taut swing, release (closed form)", exact)
+
+
+def _deadband(duration: float) -> Case:
+    def exact(model: str) -> Final:
+        x, impulses = analytic.deadband_exact(duration)
+        return Final(np.array([[-1.0, 0.0, 0.0], [x, 0.0, 0.0], [1.0, 0.0, 0.0]]), None, impulses)
+    return Case("deadband", ts.Scene.from_dict(analytic.deadband_dict()), duration, ("elastic",),
+                "mass gliding between two slack cables, half a harmonic period on each (closed form)", exact)
+
+
+def _snap_pair(duration: float) -> Case:
+    def exact(model: str) -> Final:
+        x, impulses = analytic.snap_pair_exact(duration, model)
+        return Final(x, None, impulses)
+    return Case("snap_pair", ts.Scene.from_dict(analytic.snap_pair_dict()), duration, ("elastic", "inextensible"),
+                "two free masses flying apart until their cable snaps taut (closed form, impulse exact)", exact)
+
+
+def icosahedron_thrown(scale: float = 3.0, seed: int = 0) -> ts.Scene:
+    """The built-in icosahedron (rigid struts, 613 N/m cables, no gravity) with random node velocities
+    (normal, ``scale`` m/s) made rigid-consistent: it tumbles and its cables go slack and snap taut
+    (33 switches in the first second)."""
+    d = ts.load_scene("icosahedron").to_dict()
+    rng = np.random.default_rng(seed)
+    for node in d["nodes"]:
+        node["velocity"] = [float(c) for c in rng.normal(scale=scale, size=3)]
+    d["name"] = "icosahedron_thrown"
+    return rigid_consistent(d)
+
+
+def tower_kicked(speed: float = 2.0) -> ts.Scene:
+    """The built-in 3-stage tower (elastic struts, fixed base, gravity) with its three top nodes kicked
+    sideways at ``speed`` m/s along x (and half of it along y): about 600 slack/taut switches per second."""
+    d = ts.load_scene("tower").to_dict()
+    for node in [n for n in d["nodes"] if not n["fixed"]][-3:]:
+        node["velocity"] = [speed, 0.5 * speed, 0.0]
+    d["name"] = "tower_kicked"
+    return ts.Scene.from_dict(d)
+
+
+def work_precision_cases() -> list[Case]:
+    """Every case of the work-precision study, analytic ones first."""
+    return [
+        _bungee(2.0),
+        _deadband(3.0),
+        _snap_pair(0.5),
+        Case("icosahedron_thrown", icosahedron_thrown(), 1.0, ("elastic", "inextensible"),
+             "icosahedron (rigid struts) tumbling with random velocities of 3 m/s: cables slack and snap"),
+        Case("tower_kicked", tower_kicked(), 1.0, ("elastic", "inextensible"),
+             "3-stage tower (elastic struts, fixed base, gravity) kicked at the top at 2 m/s"),
+    ]
