@@ -18,9 +18,11 @@ INSTALL_REQUIRES = [
 EXTRAS_REQUIRE = {
     "test": [
         "pytest==9.0.3",
+        "mujoco==4.0.0",      # test/test_peers.py cross-checks the elastic method against MuJoCo
     ],
     "bench": [
         "matplotlib==3.11.2",
+        "mujoco==4.0.0",      # the peer in bench/run_all.py
     ],
 }
 

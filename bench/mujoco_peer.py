@@ -17,8 +17,12 @@ Modelling (one MJCF body per rigid strut or per free point mass; nothing else):
   dead band, no force for lengths in ``[0, L]`` and ``k (l - L)`` beyond, i.e. ``k max(0, l - L)``.
 * An **inextensible cable** is a limited spatial tendon, ``range = "0 L_max"`` with ``L_max`` the rest
   length plus the stretch the cable has at load time (as the simulator's inextensible method takes it,
-  physics.md §3). MuJoCo's limits are soft constraints: ``solreflimit = "2*dt 1"`` (time constant twice
-  the step, the stiffest MuJoCo recommends, critically damped), default ``solimplimit``.
+  physics.md §3). MuJoCo's limits are soft constraints: ``solreflimit = "2*dt zeta"``, a time constant of
+  twice the step (the stiffest MuJoCo allows: it clamps smaller ones), default ``solimplimit``. With the
+  default damping ratio ``zeta = 1`` a snap rebounds with a restitution of about 0.1 at every step
+  size (the constraint's dynamics scale with ``dt``, so it does not converge to the inelastic snap);
+  ``zeta = 30`` brings the snap-pair's impulse error down to 2e-4 N*s of 1.5 (measured), so the
+  benchmarks run both.
 * Gravity from the scene, contacts disabled, no damping anywhere, no actuators.
 
 Cable damping is refused (MuJoCo's tendon damping acts also while slack). A node carrying two rigid
@@ -47,11 +51,11 @@ class MujocoPeer:
 
     ``model``: "elastic" or "inextensible" (cable model); ``dt``: s; ``integrator``: one of
     :data:`INTEGRATORS`; ``axial_inertia``: a rigid strut's inertia about its axis, relative to its
-    transverse inertia.
+    transverse inertia; ``limit_dampratio``: damping ratio of the inextensible cables' soft limits.
     """
 
     def __init__(self, scene: ts.Scene, *, model: str = "elastic", dt: float = 1e-3, integrator: str = "RK4",
-                 axial_inertia: float = 1e-6):
+                 axial_inertia: float = 1e-6, limit_dampratio: float = 1.0):
         import mujoco
 
         if model not in ("elastic", "inextensible"):
@@ -60,7 +64,8 @@ class MujocoPeer:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
         self._mj = mujoco
         self.scene, self.system, self.cable_model, self.dt = scene, System(scene), model, float(dt)
-        self.xml = self._mjcf(integrator, axial_inertia)
+        self.integrator = integrator
+        self.xml = self._mjcf(integrator, axial_inertia, limit_dampratio)
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
         self._sites = np.array([self.model.site(f"node_{n}").id for n in scene.node_names])
@@ -69,7 +74,7 @@ class MujocoPeer:
         self.reset()
 
     # ------------------------------------------------------------------------------- building
-    def _mjcf(self, integrator: str, axial_inertia: float) -> str:
+    def _mjcf(self, integrator: str, axial_inertia: float, limit_dampratio: float) -> str:
         scene, sys = self.scene, self.system
         if np.any(sys.cable_damping > 0):
             raise ValueError("MujocoPeer: cable damping is not modelled (MuJoCo's tendon damping acts also when slack)")
@@ -123,7 +128,7 @@ class MujocoPeer:
                 law = f'stiffness="{cable.stiffness!r}" springlength="0 {cable.rest_length!r}"'
             else:
                 limit = max(cable.rest_length, float(length0[c]))
-                law = f'limited="true" range="0 {limit!r}" solreflimit="{2 * self.dt!r} 1"'
+                law = f'limited="true" range="0 {limit!r}" solreflimit="{2 * self.dt!r} {float(limit_dampratio)!r}"'
             tendons.append(f'<spatial name="cable_{cable.name}" {law}><site site="node_{names[a]}"/>'
                            f'<site site="node_{names[b]}"/></spatial>')
         return (
@@ -197,8 +202,8 @@ class MujocoPeer:
         return self._cable_k * np.maximum(length - self.scene.cable_rest_lengths, 0.0)
 
     def _limit_forces(self) -> np.ndarray:
-        """Limit cables: each cable's constraint force (n_cables,) N of the last step (its start for Euler
-        and implicitfast, RK4's last stage for RK4)."""
+        """Limit cables: each cable's constraint force (n_cables,) N applied over the last Euler or
+        implicitfast step (computed at its start)."""
         d = self.data
         out = np.zeros(len(self._tendons))
         index = {t: c for c, t in enumerate(self._tendons)}
@@ -213,7 +218,8 @@ class MujocoPeer:
 
         MuJoCo does not report a tendon's impulse: it is integrated here from the tensions at step
         boundaries by the trapezoid rule for spring cables (second order), and as constraint force times
-        step for limit cables."""
+        step for limit cables; NaN for limit cables under RK4, whose constraint forces of the four stages
+        MuJoCo does not keep."""
         mj, m, d = self._mj, self.model, self.data
         self.reset()
         e0 = self.energy()
@@ -233,6 +239,8 @@ class MujocoPeer:
                 impulse += self._limit_forces()
             if (k + 1) % every == 0:
                 de = max(de, abs(self.energy() - e0))
+        if not elastic and self.integrator == "RK4":
+            impulse[:] = np.nan
         final = Final(self.positions(), self.velocities(), self.dt * impulse)
         return final, max(de, abs(self.energy() - e0))
 

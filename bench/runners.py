@@ -1,0 +1,163 @@
+"""Simulator configurations run through the same sweep: tensegrity_sim's methods and MuJoCo's integrators.
+
+A runner makes a :class:`Session` for a case and a step; a session can ``advance`` (the timed part:
+stepping only, nothing measured) and ``measure`` (the same run again with the bookkeeping: final state,
+each cable's impulse, energy deviation). Adding a method, a QP backend or a contact setting to the
+benchmarks is adding a runner to :func:`tensegrity_runners`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import tensegrity_sim as ts
+
+from .cases import Case
+from .reference import Final
+
+__all__ = ["Measured", "TensegrityRunner", "MujocoRunner", "tensegrity_runners", "mujoco_runners",
+           "mujoco_available"]
+
+WARMUP_STEPS = 300
+
+
+@dataclass(frozen=True)
+class Measured:
+    """What one measured run gives: the final state (positions, velocities, impulses over the run) and
+    the largest deviation of the total energy from its initial value over the samples, J (NaN for a
+    model that does not conserve energy)."""
+
+    final: Final
+    energy_error: float
+
+
+@dataclass(frozen=True)
+class TensegrityRunner:
+    """tensegrity_sim with ``method`` and extra ``Simulator`` keyword ``options`` (a QP backend, contact
+    detection...); ``variant`` names the configuration in tables and plots."""
+
+    method: str
+    variant: str
+    options: dict = field(default_factory=dict)
+    simulator: str = "tensegrity_sim"
+
+    @property
+    def model(self) -> str:
+        return self.method
+
+    @property
+    def label(self) -> str:
+        return f"{self.simulator} {self.variant}"
+
+    def session(self, case: Case, dt: float) -> "TensegritySession":
+        return TensegritySession(ts.Simulator(case.scene, method=self.method, dt=dt, **self.options),
+                                 int(round(case.duration / dt)), energy=self.model == "elastic")
+
+
+class TensegritySession:
+    def __init__(self, sim: ts.Simulator, steps: int, energy: bool):
+        self.sim, self.steps, self._energy = sim, steps, energy
+
+    def warmup(self) -> None:
+        for _ in range(min(self.steps, WARMUP_STEPS)):
+            self.sim.step()
+
+    def reset(self) -> None:
+        self.sim.reset()
+
+    def advance(self) -> None:
+        step = self.sim.step
+        for _ in range(self.steps):
+            step()
+
+    @property
+    def unstable(self) -> bool:
+        return not np.all(np.isfinite(self.sim.positions))
+
+    def measure(self, samples: int = 100) -> Measured:
+        sim = self.sim
+        sim.reset()
+        e0 = sim.energy()["total"]
+        every = max(1, self.steps // samples)
+        impulses = np.zeros(len(sim.scene.cables))
+        de = 0.0
+        for k in range(self.steps):
+            impulses += sim.step().impulses
+            if self._energy and (k + 1) % every == 0:
+                de = max(de, abs(sim.energy()["total"] - e0))
+        de = max(de, abs(sim.energy()["total"] - e0)) if self._energy else float("nan")
+        return Measured(Final(sim.positions, sim.velocities, impulses), de)
+
+
+@dataclass(frozen=True)
+class MujocoRunner:
+    """MuJoCo with ``integrator`` on the same structure (see :mod:`bench.mujoco_peer`);
+    ``limit_dampratio`` for the inextensible cables' soft limits."""
+
+    integrator: str
+    model: str = "elastic"
+    limit_dampratio: float = 1.0
+    simulator: str = "MuJoCo"
+
+    @property
+    def variant(self) -> str:
+        if self.model == "elastic":
+            return self.integrator
+        return f"{self.integrator} limit zeta={self.limit_dampratio:g}"
+
+    @property
+    def label(self) -> str:
+        return f"{self.simulator} {self.variant}"
+
+    def session(self, case: Case, dt: float) -> "MujocoSession":
+        from .mujoco_peer import MujocoPeer
+        peer = MujocoPeer(case.scene, model=self.model, dt=dt, integrator=self.integrator,
+                          limit_dampratio=self.limit_dampratio)
+        return MujocoSession(peer, int(round(case.duration / dt)), energy=self.model == "elastic")
+
+
+class MujocoSession:
+    def __init__(self, peer, steps: int, energy: bool):
+        self.peer, self.steps, self._energy = peer, steps, energy
+
+    def warmup(self) -> None:
+        self.peer.advance(min(self.steps, WARMUP_STEPS))
+
+    def reset(self) -> None:
+        self.peer.reset()
+
+    def advance(self) -> None:
+        self.peer.advance(self.steps)
+
+    @property
+    def unstable(self) -> bool:
+        return self.peer.unstable or not np.all(np.isfinite(self.peer.positions()))
+
+    def measure(self, samples: int = 100) -> Measured:
+        final, de = self.peer.run_measured(self.steps, samples)
+        return Measured(final, de if self._energy else float("nan"))
+
+
+def mujoco_available() -> bool:
+    try:
+        import mujoco  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def tensegrity_runners() -> list[TensegrityRunner]:
+    """Every tensegrity_sim configuration of the sweep, for the methods this checkout has."""
+    runners = [TensegrityRunner("elastic", "elastic")]
+    return [r for r in runners if r.method in ts.METHODS]
+
+
+def mujoco_runners() -> list[MujocoRunner]:
+    """MuJoCo's Euler, implicitfast and RK4 with spring cables, and with limit cables at damping ratios
+    1 (MuJoCo's default) and 30 (nearly inelastic snaps); empty without ``mujoco``."""
+    if not mujoco_available():
+        return []
+    from .mujoco_peer import INTEGRATORS
+    return ([MujocoRunner(integrator) for integrator in INTEGRATORS]
+            + [MujocoRunner(integrator, "inextensible", zeta) for zeta in (1.0, 30.0) for integrator in INTEGRATORS])

@@ -1,0 +1,220 @@
+"""Work-precision: error against wall time per simulated second, for every case, simulator and step.
+
+For each case and cable model a reference final state is fixed first (closed form; DOP853 restarted
+at switches for the elastic model; the step-halving limit of tensegrity_sim for the inextensible one),
+then every runner is swept over steps ``dt``: the time is the minimum of ``repeats`` runs after a
+warm-up (stepping only), the errors come from one more run with the bookkeeping:
+
+* ``pos_err_m``: largest node-position error at the final time, m;
+* ``imp_err_Ns``: largest error of a cable's impulse summed over the run, N*s (it contains the snaps);
+* ``energy_err_J``: largest deviation of the total energy from its initial value, J (elastic model
+  only: it conserves energy; the inextensible model dissipates at every snap).
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .cases import Case
+from .reference import ElasticReference, Final
+from .runners import TensegrityRunner
+from .timing import best_time
+
+__all__ = ["Reference", "reference_for", "halving_limit", "sweep", "time_to_reach", "FIELDS"]
+
+DTS_FULL = (1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5, 1e-5)
+DTS_MUJOCO_EXTRA = (5e-6, 2e-6)          # MuJoCo is cheap per step: its curves go further down
+DTS_QUICK = (1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4)
+
+FIELDS = ["case", "model", "simulator", "variant", "dt", "steps", "status", "wall_s", "wall_per_sim_s",
+          "steps_per_s", "pos_err_m", "imp_err_Ns", "energy_err_J"]
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A reference final state, how it was obtained and how accurate it is (m, estimated)."""
+
+    final: Final
+    source: str
+    accuracy_m: float
+    convergence: list[dict]     # rows of a convergence check, shown in the report
+
+
+def halving_limit(runner: TensegrityRunner, case: Case, dt0: float, levels: int) -> tuple[Final, list[dict]]:
+    """The step-halving limit of ``runner`` on ``case``: runs at ``dt0 / 2**j``, ``j < levels``.
+
+    Returns the finest run's final state and, per level, the change from the previous level (m, N*s)
+    and the observed order ``log2(change_prev / change)``; the finest run's error is estimated by its
+    last change divided by ``2**p - 1`` (Richardson), which is what ``accuracy_m`` reports.
+    """
+    rows, prev, prev_change = [], None, None
+    for j in range(levels):
+        dt = dt0 / 2 ** j
+        final = runner.session(case, dt).measure(samples=1).final
+        row = {"dt": dt, "pos_change_m": math.nan, "imp_change_Ns": math.nan, "order": math.nan}
+        if prev is not None:
+            change = float(np.max(np.linalg.norm(final.positions - prev.positions, axis=1)))
+            row["pos_change_m"] = change
+            row["imp_change_Ns"] = float(np.max(np.abs(final.impulses - prev.impulses)))
+            if prev_change and change > 0:
+                row["order"] = math.log2(prev_change / change)
+            prev_change = change
+        rows.append(row)
+        prev = final
+    return prev, rows
+
+
+def _halving_accuracy(rows: list[dict]) -> float:
+    last = rows[-1]
+    p = last["order"] if np.isfinite(last["order"]) and last["order"] > 0.5 else 1.0
+    return last["pos_change_m"] / (2 ** p - 1)
+
+
+def reference_for(case: Case, model: str, *, quick: bool = False) -> Reference | None:
+    """The reference of ``case`` in ``model``, or None when this checkout has no way to make one."""
+    if case.exact is not None:
+        return Reference(case.exact(model), "closed form", 0.0, [])
+    if model == "elastic":
+        ref = ElasticReference(case.scene)
+        final = ref.solve(case.duration)
+        checks = []
+        for label, kwargs in (("rtol 1e-10", {"rtol": 1e-10, "atol": 1e-10}),
+                              ("max_step / 4", {"max_step": 0.025 / _omega(case)})):
+            other = ref.solve(case.duration, **kwargs)
+            checks.append({"check": label, "pos_change_m": _pos_diff(other, final),
+                           "imp_change_Ns": float(np.max(np.abs(other.impulses - final.impulses)))})
+        # the simulator's own step-halving limit, as a check of that procedure where DOP853 exists
+        levels = 4 if quick else 7
+        halved, rows = halving_limit(TensegrityRunner("elastic", "elastic"), case, 1e-3, levels)
+        checks.append({"check": f"tensegrity_sim elastic at dt={rows[-1]['dt']:.3g} s (halving limit)",
+                       "pos_change_m": _pos_diff(halved, final),
+                       "imp_change_Ns": float(np.max(np.abs(halved.impulses - final.impulses)))})
+        accuracy = max(c["pos_change_m"] for c in checks[:2])
+        return Reference(final, f"DOP853 rtol=atol=1e-12, restarted at {final.switches} switches, "
+                                f"rigid-strut drift {ref.strut_drift(final):.1e}", accuracy, checks)
+    import tensegrity_sim as ts
+    if model in ts.METHODS:
+        final, rows = halving_limit(TensegrityRunner(model, model), case, 1e-3, 5 if quick else 9)
+        return Reference(final, f"step-halving limit of tensegrity_sim {model} (dt -> {rows[-1]['dt']:.3g} s)",
+                         _halving_accuracy(rows), rows)
+    return None
+
+
+def _omega(case: Case) -> float:
+    from tensegrity_sim.system import System
+    return System(case.scene).max_frequency(case.scene.positions, include_cables=True)
+
+
+def _pos_diff(a: Final, b: Final) -> float:
+    return float(np.max(np.linalg.norm(a.positions - b.positions, axis=1)))
+
+
+def sweep(cases, runners, references: dict, *, quick: bool, repeats: int, progress=None) -> list[dict]:
+    """Run every runner on every case it has a reference for, at every step of its grid; one row each
+    (see :data:`FIELDS`). Steps a method refuses (stability limit) are rows with status ``refused``."""
+    jobs = []
+    for case in cases:
+        for runner in runners:
+            if runner.model not in case.models or references.get((case.name, runner.model)) is None:
+                continue
+            dts = DTS_QUICK if quick else DTS_FULL + (DTS_MUJOCO_EXTRA if runner.simulator == "MuJoCo" else ())
+            jobs += [(case, runner, dt) for dt in dts]
+    if progress is not None:
+        progress.reset(total=len(jobs))
+    rows = []
+    for case, runner, dt in jobs:
+        rows.append(_one(case, runner, dt, references[(case.name, runner.model)], repeats))
+        if progress is not None:
+            progress.set_postfix_str(f"{case.name} {runner.label} dt={dt:g}", refresh=False)
+            progress.update()
+    return rows
+
+
+def _one(case: Case, runner, dt: float, ref: Reference, repeats: int) -> dict:
+    row = {"case": case.name, "model": runner.model, "simulator": runner.simulator, "variant": runner.variant,
+           "dt": dt, "steps": int(round(case.duration / dt))}
+    nan = {k: math.nan for k in ("wall_s", "wall_per_sim_s", "steps_per_s", "pos_err_m", "imp_err_Ns",
+                                  "energy_err_J")}
+    try:
+        session = runner.session(case, dt)
+    except ValueError as exc:
+        return {**row, "status": f"refused: {exc}", **nan}
+    wall = best_time(session.advance, setup=session.reset, warmup=session.warmup, repeats=repeats)
+    if session.unstable:
+        return {**row, "status": "unstable", **nan}
+    measured = session.measure()
+    if not np.all(np.isfinite(measured.final.positions)):
+        return {**row, "status": "unstable", **nan}
+    return {**row, "status": "ok", "wall_s": wall, "wall_per_sim_s": wall / case.duration,
+            "steps_per_s": row["steps"] / wall,
+            "pos_err_m": _pos_diff(measured.final, ref.final),
+            "imp_err_Ns": float(np.max(np.abs(measured.final.impulses - ref.final.impulses))),
+            "energy_err_J": measured.energy_error}
+
+
+def time_to_reach(rows: list[dict], error: float, metric: str = "pos_err_m") -> float:
+    """Wall time per simulated second (s) a configuration needs to reach ``error``: on its Pareto
+    front (points sorted by time, each more accurate than every faster one), log-log interpolated
+    between the last point above ``error`` and the first at or below it. NaN if never reached."""
+    pts = sorted((r["wall_per_sim_s"], r[metric]) for r in rows
+                 if r["status"] == "ok" and np.isfinite(r[metric]) and r[metric] > 0)
+    front = []
+    for t, e in pts:
+        if not front or e < front[-1][1]:
+            front.append((t, e))
+    for i, (t, e) in enumerate(front):
+        if e <= error:
+            if i == 0:
+                return t
+            t0, e0 = front[i - 1]
+            w = (math.log(error) - math.log(e0)) / (math.log(e) - math.log(e0))
+            return math.exp(math.log(t0) + w * (math.log(t) - math.log(t0)))
+    return math.nan
+
+
+def write_csv(path: Path, rows: list[dict], fields: list[str]) -> None:
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+
+
+def plot(case: Case, model: str, rows: list[dict], ref: Reference, path: Path) -> None:
+    """Work-precision diagram of one case and model: position, impulse and energy error against wall
+    time per simulated second, one line per configuration, the 1 ms point ringed."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    metrics = [("pos_err_m", "final position error (m)"), ("imp_err_Ns", "impulse error (N·s)")]
+    if model == "elastic":
+        metrics.append(("energy_err_J", "max energy error (J)"))
+    fig, axes = plt.subplots(1, len(metrics), figsize=(4.2 * len(metrics), 3.6), squeeze=False)
+    labels = sorted({(r["simulator"], r["variant"]) for r in rows})
+    for ax, (metric, title) in zip(axes[0], metrics):
+        for sim, variant in labels:
+            pts = sorted((r["wall_per_sim_s"], r[metric], r["dt"]) for r in rows
+                         if (r["simulator"], r["variant"]) == (sim, variant) and r["status"] == "ok"
+                         and np.isfinite(r[metric]) and r[metric] > 0)
+            if not pts:
+                continue
+            t, e, dt = map(np.array, zip(*pts))
+            style = "-o" if sim == "tensegrity_sim" else "--s"
+            line, = ax.loglog(t, e, style, ms=3.5, lw=1.2, label=f"{sim} {variant}")
+            ms = np.isclose(dt, 1e-3)
+            ax.loglog(t[ms], e[ms], "o", mfc="none", mec=line.get_color(), ms=10)
+        if metric == "pos_err_m" and ref.accuracy_m > 0:
+            ax.axhline(ref.accuracy_m, color="grey", lw=0.8, ls=":", label="reference accuracy")
+        ax.set_xlabel("wall time per simulated second (s)")
+        ax.set_title(title, fontsize=9)
+        ax.grid(True, which="both", lw=0.3)
+    axes[0][0].legend(fontsize=6.5)
+    fig.suptitle(f"{case.name} ({model} cables): ringed = dt 1 ms", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
