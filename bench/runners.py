@@ -50,9 +50,12 @@ class TensegrityRunner:
     def label(self) -> str:
         return f"{self.simulator} {self.variant}"
 
+    def simulator_for(self, scene: ts.Scene, dt: float) -> ts.Simulator:
+        return ts.Simulator(scene, method=self.method, dt=dt, **self.options)
+
     def session(self, case: Case, dt: float) -> "TensegritySession":
-        return TensegritySession(ts.Simulator(case.scene, method=self.method, dt=dt, **self.options),
-                                 int(round(case.duration / dt)), energy=self.model == "elastic")
+        return TensegritySession(self.simulator_for(case.scene, dt), int(round(case.duration / dt)),
+                                 energy=self.model == "elastic")
 
 
 class TensegritySession:

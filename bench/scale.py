@@ -1,0 +1,173 @@
+"""Cost per step against structure size, real-time factors, and steps/s beside MuJoCo in one process.
+
+* Scale: towers of 1 to 100 stages (``6 s`` nodes, ``27 s - 15`` members), without gravity (a uniform
+  tower of more than 15 stages buckles under its own weight), dt = 1 ms, every tensegrity_sim
+  configuration and MuJoCo's Euler and RK4; the growth exponent ``p`` of ``cost ~ members^p`` is the
+  least-squares slope in log-log over the towers of 10 stages and more (below that the fixed per-step
+  overhead dominates), and over all sizes.
+* Real time: the real-time factor (simulated seconds per wall second) of the built-in scenes at
+  500 Hz and 1 kHz.
+* Throughput: steps/s of both simulators on the same scenes at dt = 1 ms, measured in this process,
+  and their ratio.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+import tensegrity_sim as ts
+from tensegrity_sim import formfinding
+
+from .runners import mujoco_available
+from .timing import best_time
+
+__all__ = ["STAGES_FULL", "STAGES_QUICK", "tower_scene", "scale_rows", "growth_exponent", "realtime_rows",
+           "throughput_rows", "plot_scale"]
+
+STAGES_FULL = (1, 2, 3, 5, 7, 10, 15, 20, 30, 50, 70, 100)
+STAGES_QUICK = (1, 3, 10, 30)
+TARGET_SECONDS = 0.25      # each timed run lasts about this long
+REPEATS = 3
+
+
+def tower_scene(stages: int) -> ts.Scene:
+    return ts.Scene.from_dict(formfinding.tower(stages, gravity=(0.0, 0.0, 0.0)))
+
+
+def _time_per_step(step_n, reset) -> float:
+    """Best-of-``REPEATS`` wall time per step (s) of ``step_n(n)``, with ``n`` calibrated so that a run
+    lasts about ``TARGET_SECONDS``."""
+    reset()
+    probe = best_time(lambda: step_n(20), repeats=1) / 20
+    n = max(20, int(TARGET_SECONDS / max(probe, 1e-7)))
+    return best_time(lambda: step_n(n), setup=reset, repeats=REPEATS) / n
+
+
+def _ours_per_step(sim: ts.Simulator) -> float:
+    def step_n(n):
+        step = sim.step
+        for _ in range(n):
+            step()
+    return _time_per_step(step_n, sim.reset)
+
+
+def _mujoco_per_step(scene: ts.Scene, dt: float, integrator: str, model: str = "elastic") -> float:
+    from .mujoco_peer import MujocoPeer
+    peer = MujocoPeer(scene, model=model, dt=dt, integrator=integrator)
+    return _time_per_step(peer.advance, peer.reset)
+
+
+def _configs(runners, with_mujoco: bool):
+    """(simulator, variant, per_step(scene, dt)) for every configuration timed."""
+    out = [("tensegrity_sim", r.variant, lambda scene, dt, r=r: _ours_per_step(r.simulator_for(scene, dt)))
+           for r in runners]
+    if with_mujoco and mujoco_available():
+        out += [("MuJoCo", integ, lambda scene, dt, integ=integ: _mujoco_per_step(scene, dt, integ))
+                for integ in ("Euler", "RK4")]
+    return out
+
+
+def scale_rows(runners, stages=STAGES_FULL, progress=None) -> list[dict]:
+    """One row per tower size and configuration: stages, nodes, members, us_per_step (NaN if refused)."""
+    configs = _configs(runners, with_mujoco=True)
+    if progress is not None:
+        progress.reset(total=len(stages) * len(configs))
+    rows = []
+    for s in stages:
+        scene = tower_scene(s)
+        for simulator, variant, per_step in configs:
+            row = {"stages": s, "nodes": len(scene.nodes), "members": len(scene.struts) + len(scene.cables),
+                   "simulator": simulator, "variant": variant}
+            try:
+                row["us_per_step"] = 1e6 * per_step(scene, 1e-3)
+                row["status"] = "ok"
+            except ValueError as exc:
+                row["us_per_step"], row["status"] = math.nan, f"refused: {exc}"
+            rows.append(row)
+            if progress is not None:
+                progress.set_postfix_str(f"tower{s} {simulator} {variant}", refresh=False)
+                progress.update()
+    return rows
+
+
+def growth_exponent(rows: list[dict], simulator: str, variant: str, min_stages: int = 10) -> float:
+    """Slope of log(us_per_step) against log(members) over towers of ``min_stages`` stages or more."""
+    pts = [(r["members"], r["us_per_step"]) for r in rows if (r["simulator"], r["variant"]) == (simulator, variant)
+           and r["stages"] >= min_stages and np.isfinite(r["us_per_step"])]
+    if len(pts) < 2:
+        return math.nan
+    m, c = map(np.array, zip(*pts))
+    return float(np.polyfit(np.log(m), np.log(c), 1)[0])
+
+
+def realtime_rows(runners, rates=(500.0, 1000.0)) -> list[dict]:
+    """Real-time factor of every built-in scene, configuration and step rate (Hz)."""
+    rows = []
+    for name in ts.builtin_scenes():
+        scene = ts.load_scene(name)
+        for r in runners:
+            for rate in rates:
+                dt = 1.0 / rate
+                row = {"scene": name, "simulator": "tensegrity_sim", "variant": r.variant, "rate_hz": rate}
+                try:
+                    per_step = _ours_per_step(r.simulator_for(scene, dt))
+                    row.update(us_per_step=1e6 * per_step, realtime_factor=dt / per_step, status="ok")
+                except ValueError as exc:
+                    row.update(us_per_step=math.nan, realtime_factor=math.nan, status=f"refused: {exc}")
+                rows.append(row)
+    return rows
+
+
+def throughput_rows(scenes: dict, runners, progress=None) -> list[dict]:
+    """Steps/s at dt = 1 ms of tensegrity_sim and MuJoCo on each of ``scenes`` ({name: Scene}), in this
+    process, one after the other; ``ratio`` is tensegrity_sim's steps/s over that MuJoCo integrator's."""
+    configs = _configs(runners, with_mujoco=False)
+    integrators = ("Euler", "implicitfast", "RK4") if mujoco_available() else ()
+    if progress is not None:
+        progress.reset(total=len(scenes) * (len(configs) + len(integrators)))
+    rows = []
+    for name, scene in scenes.items():
+        ours = {}
+        for simulator, variant, per_step in configs:
+            try:
+                ours[variant] = 1.0 / per_step(scene, 1e-3)
+            except ValueError:
+                ours[variant] = math.nan
+            rows.append({"scene": name, "simulator": simulator, "variant": variant, "steps_per_s": ours[variant],
+                         "vs": "", "ratio": math.nan})
+            if progress is not None:
+                progress.update()
+        for integ in integrators:
+            sps = 1.0 / _mujoco_per_step(scene, 1e-3, integ)
+            for variant, value in ours.items():
+                rows.append({"scene": name, "simulator": "MuJoCo", "variant": integ, "steps_per_s": sps,
+                             "vs": f"tensegrity_sim {variant}", "ratio": value / sps})
+            if progress is not None:
+                progress.update()
+    return rows
+
+
+def plot_scale(rows: list[dict], path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 4.0))
+    for simulator, variant in sorted({(r["simulator"], r["variant"]) for r in rows}):
+        pts = sorted((r["members"], r["us_per_step"]) for r in rows
+                     if (r["simulator"], r["variant"]) == (simulator, variant) and np.isfinite(r["us_per_step"]))
+        if not pts:
+            continue
+        m, c = map(np.array, zip(*pts))
+        p = growth_exponent(rows, simulator, variant)
+        style = "-o" if simulator == "tensegrity_sim" else "--s"
+        ax.loglog(m, c, style, ms=3.5, label=f"{simulator} {variant} (p = {p:.2f})")
+    ax.set_xlabel("members (towers of 1 to 100 stages)")
+    ax.set_ylabel("wall time per step (µs)")
+    ax.set_title("cost per step, dt = 1 ms; p: slope over >= 10 stages", fontsize=9)
+    ax.grid(True, which="both", lw=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
