@@ -35,7 +35,7 @@ from ..results import ContactEvent, StepResult
 from ..simulator import Simulator
 from . import messages as M
 
-__all__ = ["Qos", "TopicSpec", "TOPICS", "NodeSettings", "SimNodeLogic", "stamp_ns", "encode_contacts",
+__all__ = ["Qos", "TopicSpec", "TOPICS", "SERVICES", "NodeSettings", "SimNodeLogic", "stamp_ns", "encode_contacts",
            "decode_contacts", "RUNTIME_PARAMETERS"]
 
 
@@ -73,6 +73,10 @@ TOPICS: dict[str, TopicSpec] = {
     "markers": TopicSpec("~/markers", "visualization_msgs/msg/MarkerArray", "out", Qos()),
     "diagnostics": TopicSpec("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "out", Qos()),
 }
+
+
+# std_srvs/Trigger services: name (under the node, ~/name) -> the SimNodeLogic method answering it
+SERVICES: dict[str, str] = {"reset": "reset", "pause": "pause", "resume": "resume", "step": "single_step"}
 
 
 def resolve_topic(name: str, node_name: str) -> str:

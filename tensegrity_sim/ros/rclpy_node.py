@@ -27,7 +27,7 @@ from ..scene import load_scene
 from ..simulator import Simulator
 from . import messages as M
 from .log import LogRecorder, SignalLatch, log_file_path
-from .node_logic import RUNTIME_PARAMETERS, TOPICS, NodeSettings, Qos, SimNodeLogic
+from .node_logic import RUNTIME_PARAMETERS, SERVICES, TOPICS, NodeSettings, Qos, SimNodeLogic
 
 __all__ = ["SimNode", "main"]
 
@@ -71,10 +71,10 @@ class SimNode(Node):
             if spec.direction == "in":
                 self.create_subscription(M.message_class(spec.typename), spec.name,
                                          lambda msg, key=key: self.logic.receive(key, msg), _qos(spec.qos))
-        for name, action in (("reset", self.logic.reset), ("pause", self.logic.pause),
-                             ("resume", self.logic.resume), ("step", self.logic.single_step)):
-            self.create_service(Trigger, f"~/{name}", lambda request, response, action=action:
-                                self._answer(action, response))
+        for name, method in SERVICES.items():
+            action = getattr(self.logic, method)
+            self.create_service(Trigger, f"~/{name}",
+                                lambda request, response, action=action: self._answer(action, response))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(1.0 / settings.step_rate, self.logic.tick, clock=steady)
         self.create_timer(DIAGNOSTICS_PERIOD, self.logic.publish_diagnostics, clock=steady)

@@ -99,9 +99,16 @@ def _reading(path: Path):
         raise LogError(f"{path}: not a readable MCAP file: {exc}") from None
 
 
+_RUN_INFO_KEYS = ("dt", "method", "method_reason", "method_settings", "node_settings", "package_version",
+                  "scene_name", "scene_yaml", "topics")
+
+
 def _run_info(reader, path: Path) -> dict[str, str]:
     for record in reader.iter_metadata():
         if record.name == RUN_INFO:
+            missing = [k for k in _RUN_INFO_KEYS if k not in record.metadata]
+            if missing:
+                raise LogError(f"{path}: {RUN_INFO!r} metadata lacks {', '.join(missing)}")
             return dict(record.metadata)
     raise LogError(f"{path}: no {RUN_INFO!r} metadata: not a tensegrity_sim log")
 
