@@ -126,7 +126,7 @@ def main(args=None) -> None:
                 latch.raise_if_signalled()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass  # SIGTERM raises SystemExit(143) through here, after the log is finished below
-    except ValueError as exc:  # a bad parameter or scene: say which, exit 2
+    except (ValueError, OSError) as exc:  # a bad parameter or scene, an unwritable log: say which, exit 2
         print(f"sim_node: error: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
     finally:
