@@ -54,8 +54,9 @@ def new(typename: str, **fields):
 
 
 def float64s(values) -> np.ndarray | array.array:
-    """A ``float64[]`` field from anything array-like, without changing a bit."""
-    a = np.ascontiguousarray(values, dtype=np.float64).reshape(-1)
+    """A ``float64[]`` field from anything array-like, without changing a bit (a copy: the message does
+    not share memory with the caller's array)."""
+    a = np.array(values, dtype=np.float64).reshape(-1)
     if BACKEND == "rclpy":
         out = array.array("d")
         out.frombytes(a.tobytes())
