@@ -172,7 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument("--log", nargs="?", const=DEFAULT_LOG_DIR, metavar="FILE",
                      help="write an MCAP log (the node's topics): FILE.mcap, or a directory for a timestamped "
-                          f"file; without a value {DEFAULT_LOG_DIR}/<scene>_<time>.mcap")
+                          f"file; without a value {DEFAULT_LOG_DIR}/<scene>_<time>.mcap (give SCENE before it)")
     run.set_defaults(func=_cmd_run)
 
     rep = verbs.add_parser("replay", help="re-simulate a log and check it bit for bit",

@@ -2,6 +2,7 @@
 with the schema text in the file) and ``rosbags`` (rosbag2's reader logic, QoS parsing included)."""
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -17,10 +18,10 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.rosbag2 import Reader as RosbagsReader
 
 import tensegrity_sim as ts
-from tensegrity_sim.cli import simulate
+from tensegrity_sim.cli import main, simulate
 from tensegrity_sim.commands import parse_commands
 from tensegrity_sim.ros import messages as M
-from tensegrity_sim.ros.log import LogRecorder, LogWriter, log_file_path
+from tensegrity_sim.ros.log import LogRecorder, LogWriter, SignalLatch, log_file_path
 from tensegrity_sim.ros.node_logic import TOPICS, NodeSettings, SimNodeLogic
 from tensegrity_sim.ros.offline import CommandDriver
 from tensegrity_sim.ros.replay import replay
@@ -229,3 +230,28 @@ def test_interrupted_run_leaves_a_finished_log(tmp_path, signum, status):
     with RosbagsReader(path) as reader:
         assert reader.message_count == count
     assert replay(path).ok
+
+
+def test_run_log_without_a_value_goes_to_bags(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "prism.yaml").write_text(yaml.safe_dump(prism_dict()))
+    assert main(["run", "prism.yaml", "--duration", "0.05", "--quiet", "--log"]) == 0
+    (log,) = (tmp_path / "bags").iterdir()
+    assert re.fullmatch(r"prism_\d{8}-\d{6}\.mcap", log.name)
+    assert f"log              bags/{log.name}" in capsys.readouterr().out
+    assert replay(log).ok
+
+
+def test_signal_latch_raises_at_the_safe_point_only():
+    with pytest.raises(KeyboardInterrupt):
+        with SignalLatch() as latch:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.01)  # the handler has run: nothing raised yet
+            assert latch.signum == signal.SIGINT
+            latch.raise_if_signalled()
+    with pytest.raises(SystemExit) as exit_:
+        with SignalLatch():
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.01)
+    assert exit_.value.code == 128 + signal.SIGTERM  # raised on leaving the block, not lost
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers restored

@@ -214,6 +214,8 @@ class SignalLatch:
             self._previous[s] = signal.signal(s, self._handler)
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, *exc) -> None:
         for s, handler in self._previous.items():
             signal.signal(s, handler)
+        if exc_type is None:  # a signal that came after the last safe point is not lost
+            self.raise_if_signalled()
