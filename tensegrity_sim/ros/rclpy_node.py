@@ -64,7 +64,7 @@ class SimNode(Node):
         if path is not None:
             self.recorder = LogRecorder(path, self.logic.channels(), self.logic.run_info())
             self.logic.recorder = self.recorder
-        self._publishers = {
+        self._outputs = {
             key: self.create_publisher(M.message_class(spec.typename), spec.name, _qos(spec.qos))
             for key, spec in TOPICS.items() if spec.direction == "out"}
         for key, spec in TOPICS.items():
@@ -85,7 +85,7 @@ class SimNode(Node):
             f"log: {path if path is not None else 'off'}")
 
     def _publish(self, key: str, message) -> None:
-        self._publishers[key].publish(message)
+        self._outputs[key].publish(message)
 
     @staticmethod
     def _answer(action, response):
