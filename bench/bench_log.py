@@ -14,13 +14,16 @@ best of ``--repeats`` runs after a warm-up:
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
-import time
 from pathlib import Path
 
-import tensegrity_sim as ts
-from tensegrity_sim.ros.log import LogRecorder
-from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run as a script: this checkout first
+
+import tensegrity_sim as ts  # noqa: E402
+from bench.timing import time_runs  # noqa: E402
+from tensegrity_sim.ros.log import LogRecorder  # noqa: E402
+from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic  # noqa: E402
 
 DT = 1e-3
 PUBLISH_RATE = 100.0
@@ -28,13 +31,7 @@ PUBLISH_RATE = 100.0
 
 def per_step(run, steps: int, repeats: int) -> float:
     """Best time per step, s, of ``run(steps)`` over ``repeats`` runs."""
-    run(min(steps, 500))  # warm-up
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        run(steps)
-        best = min(best, time.perf_counter() - start)
-    return best / steps
+    return time_runs(lambda: run(steps), warmup=lambda: run(min(steps, 500)), repeats=repeats).best / steps
 
 
 def measure(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> tuple[float, float, float]:

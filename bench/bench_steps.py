@@ -6,10 +6,14 @@ asserts a time. Each figure is the best of ``--repeats`` timed runs after a warm
 from __future__ import annotations
 
 import argparse
-import time
+import sys
+from pathlib import Path
 
-import tensegrity_sim as ts
-from tensegrity_sim import formfinding
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run as a script: this checkout first
+
+import tensegrity_sim as ts  # noqa: E402
+from bench.timing import time_runs  # noqa: E402
+from tensegrity_sim import formfinding  # noqa: E402
 
 
 def scenes():
@@ -22,15 +26,12 @@ def scenes():
 
 def steps_per_second(scene, method, dt, steps, repeats):
     sim = ts.Simulator(scene, method=method, dt=dt)
-    sim.run(steps=min(steps, 500))  # warm-up
-    best = float("inf")
-    for _ in range(repeats):
-        sim.reset()
-        start = time.perf_counter()
+
+    def run():
         for _ in range(steps):
             sim.step()
-        best = min(best, time.perf_counter() - start)
-    return steps / best
+    return steps / time_runs(run, setup=sim.reset, warmup=lambda: sim.run(steps=min(steps, 500)),
+                             repeats=repeats).best
 
 
 def main():

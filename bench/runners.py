@@ -7,6 +7,7 @@ benchmarks is adding a runner to :func:`tensegrity_runners`.
 """
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -143,11 +144,7 @@ class MujocoSession:
 
 
 def mujoco_available() -> bool:
-    try:
-        import mujoco  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    return importlib.util.find_spec("mujoco") is not None
 
 
 def tensegrity_runners() -> list[TensegrityRunner]:

@@ -20,7 +20,7 @@ import tensegrity_sim as ts
 from tensegrity_sim import formfinding
 
 from .runners import mujoco_available
-from .timing import best_time
+from .timing import Timing, time_runs
 
 __all__ = ["STAGES_FULL", "STAGES_QUICK", "tower_scene", "scale_rows", "growth_exponent", "realtime_rows",
            "throughput_rows", "plot_scale"]
@@ -35,16 +35,16 @@ def tower_scene(stages: int) -> ts.Scene:
     return ts.Scene.from_dict(formfinding.tower(stages, gravity=(0.0, 0.0, 0.0)))
 
 
-def _time_per_step(step_n, reset) -> float:
-    """Best-of-``REPEATS`` wall time per step (s) of ``step_n(n)``, with ``n`` calibrated so that a run
-    lasts about ``TARGET_SECONDS``."""
+def _time_per_step(step_n, reset) -> Timing:
+    """Wall times per step (s) of ``REPEATS`` runs of ``step_n(n)``, with ``n`` calibrated so that a
+    run lasts about ``TARGET_SECONDS``."""
     reset()
-    probe = best_time(lambda: step_n(20), repeats=1) / 20
+    probe = time_runs(lambda: step_n(20), repeats=1).best / 20
     n = max(20, int(TARGET_SECONDS / max(probe, 1e-7)))
-    return best_time(lambda: step_n(n), setup=reset, repeats=REPEATS) / n
+    return time_runs(lambda: step_n(n), setup=reset, repeats=REPEATS).per(n)
 
 
-def _ours_per_step(sim: ts.Simulator) -> float:
+def _ours_per_step(sim: ts.Simulator) -> Timing:
     def step_n(n):
         step = sim.step
         for _ in range(n):
@@ -52,7 +52,7 @@ def _ours_per_step(sim: ts.Simulator) -> float:
     return _time_per_step(step_n, sim.reset)
 
 
-def _mujoco_per_step(scene: ts.Scene, dt: float, integrator: str, model: str = "elastic") -> float:
+def _mujoco_per_step(scene: ts.Scene, dt: float, integrator: str, model: str = "elastic") -> Timing:
     from .mujoco_peer import MujocoPeer
     peer = MujocoPeer(scene, model=model, dt=dt, integrator=integrator)
     return _time_per_step(peer.advance, peer.reset)
@@ -80,10 +80,10 @@ def scale_rows(runners, stages=STAGES_FULL, progress=None) -> list[dict]:
             row = {"stages": s, "nodes": len(scene.nodes), "members": len(scene.struts) + len(scene.cables),
                    "simulator": simulator, "variant": variant}
             try:
-                row["us_per_step"] = 1e6 * per_step(scene, 1e-3)
-                row["status"] = "ok"
+                timing = per_step(scene, 1e-3)
+                row.update(us_per_step=1e6 * timing.best, us_per_step_median=1e6 * timing.median, status="ok")
             except ValueError as exc:
-                row["us_per_step"], row["status"] = math.nan, f"refused: {exc}"
+                row.update(us_per_step=math.nan, us_per_step_median=math.nan, status=f"refused: {exc}")
             rows.append(row)
             if progress is not None:
                 progress.set_postfix_str(f"tower{s} {simulator} {variant}", refresh=False)
@@ -111,38 +111,46 @@ def realtime_rows(runners, rates=(500.0, 1000.0)) -> list[dict]:
                 dt = 1.0 / rate
                 row = {"scene": name, "simulator": "tensegrity_sim", "variant": r.variant, "rate_hz": rate}
                 try:
-                    per_step = _ours_per_step(r.simulator_for(scene, dt))
-                    row.update(us_per_step=1e6 * per_step, realtime_factor=dt / per_step, status="ok")
+                    timing = _ours_per_step(r.simulator_for(scene, dt))
+                    row.update(us_per_step=1e6 * timing.best, realtime_factor=dt / timing.best,
+                               realtime_factor_median=dt / timing.median, status="ok")
                 except ValueError as exc:
-                    row.update(us_per_step=math.nan, realtime_factor=math.nan, status=f"refused: {exc}")
+                    row.update(us_per_step=math.nan, realtime_factor=math.nan, realtime_factor_median=math.nan,
+                               status=f"refused: {exc}")
                 rows.append(row)
     return rows
 
 
 def throughput_rows(scenes: dict, runners, progress=None) -> list[dict]:
-    """Steps/s at dt = 1 ms of tensegrity_sim and MuJoCo on each of ``scenes`` ({name: Scene}), in this
-    process, one after the other; ``ratio`` is tensegrity_sim's steps/s over that MuJoCo integrator's."""
+    """Steps/s at dt = 1 ms (best and median of the runs) of tensegrity_sim and MuJoCo on each of
+    ``scenes`` ({name: Scene}), in this process, one after the other; ``ratio`` is tensegrity_sim's
+    best steps/s over that MuJoCo integrator's, ``ratio_median`` the same with medians."""
     configs = _configs(runners, with_mujoco=False)
     integrators = ("Euler", "implicitfast", "RK4") if mujoco_available() else ()
     if progress is not None:
         progress.reset(total=len(scenes) * (len(configs) + len(integrators)))
     rows = []
+    nan = (math.nan, math.nan)
     for name, scene in scenes.items():
         ours = {}
         for simulator, variant, per_step in configs:
             try:
-                ours[variant] = 1.0 / per_step(scene, 1e-3)
+                timing = per_step(scene, 1e-3)
+                ours[variant] = (1.0 / timing.best, 1.0 / timing.median)
             except ValueError:
-                ours[variant] = math.nan
-            rows.append({"scene": name, "simulator": simulator, "variant": variant, "steps_per_s": ours[variant],
-                         "vs": "", "ratio": math.nan})
+                ours[variant] = nan
+            rows.append({"scene": name, "simulator": simulator, "variant": variant, "steps_per_s": ours[variant][0],
+                         "steps_per_s_median": ours[variant][1], "vs": "", "ratio": math.nan,
+                         "ratio_median": math.nan})
             if progress is not None:
                 progress.update()
         for integ in integrators:
-            sps = 1.0 / _mujoco_per_step(scene, 1e-3, integ)
-            for variant, value in ours.items():
-                rows.append({"scene": name, "simulator": "MuJoCo", "variant": integ, "steps_per_s": sps,
-                             "vs": f"tensegrity_sim {variant}", "ratio": value / sps})
+            timing = _mujoco_per_step(scene, 1e-3, integ)
+            best, median = 1.0 / timing.best, 1.0 / timing.median
+            for variant, (ours_best, ours_median) in ours.items():
+                rows.append({"scene": name, "simulator": "MuJoCo", "variant": integ, "steps_per_s": best,
+                             "steps_per_s_median": median, "vs": f"tensegrity_sim {variant}",
+                             "ratio": ours_best / best, "ratio_median": ours_median / median})
             if progress is not None:
                 progress.update()
     return rows

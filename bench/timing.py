@@ -1,20 +1,41 @@
-"""The one timing utility of the benchmarks: the best of several runs after a warm-up."""
+"""The one timing utility of the benchmarks: several timed runs after a warm-up."""
 from __future__ import annotations
 
+import statistics
 import time
+from dataclasses import dataclass
 from typing import Callable
 
-__all__ = ["best_time"]
+__all__ = ["Timing", "time_runs"]
 
 
-def best_time(run: Callable[[], object], *, setup: Callable[[], object] | None = None,
-              warmup: Callable[[], object] | None = None, repeats: int = 3) -> float:
-    """Minimum wall time (s) of ``run()`` over ``repeats`` calls.
+@dataclass(frozen=True)
+class Timing:
+    """Wall times (s) of the timed runs. ``best`` (the minimum) is what comparisons use: on a shared
+    machine every disturbance only ever adds time; ``median`` shows how noisy the machine was."""
+
+    runs: tuple[float, ...]
+
+    @property
+    def best(self) -> float:
+        return min(self.runs)
+
+    @property
+    def median(self) -> float:
+        return statistics.median(self.runs)
+
+    def per(self, n: int) -> "Timing":
+        """The same timings divided by ``n`` (per step)."""
+        return Timing(tuple(t / n for t in self.runs))
+
+
+def time_runs(run: Callable[[], object], *, setup: Callable[[], object] | None = None,
+              warmup: Callable[[], object] | None = None, repeats: int = 3) -> Timing:
+    """Time ``run()`` ``repeats`` times.
 
     ``warmup()`` (default: ``setup(); run()``) is called once first and not timed, so caches, lazy
-    imports and branch predictors are warm; ``setup()`` is called, untimed, before every timed run
-    (e.g. a reset to the initial state). The minimum, not the mean, because on a shared machine every
-    disturbance only ever adds time.
+    imports and allocations are warm; ``setup()`` is called, untimed, before every timed run (e.g. a
+    reset to the initial state).
     """
     if warmup is None:
         if setup is not None:
@@ -22,11 +43,11 @@ def best_time(run: Callable[[], object], *, setup: Callable[[], object] | None =
         run()
     else:
         warmup()
-    best = float("inf")
+    runs = []
     for _ in range(repeats):
         if setup is not None:
             setup()
         start = time.perf_counter()
         run()
-        best = min(best, time.perf_counter() - start)
-    return best
+        runs.append(time.perf_counter() - start)
+    return Timing(tuple(runs))

@@ -22,7 +22,7 @@ import numpy as np
 from .cases import Case
 from .reference import ElasticReference, Final
 from .runners import TensegrityRunner
-from .timing import best_time
+from .timing import time_runs
 
 __all__ = ["Reference", "reference_for", "halving_limit", "sweep", "time_to_reach", "FIELDS"]
 
@@ -36,12 +36,17 @@ FIELDS = ["case", "model", "simulator", "variant", "dt", "steps", "status", "wal
 
 @dataclass(frozen=True)
 class Reference:
-    """A reference final state, how it was obtained and how accurate it is (m, estimated)."""
+    """A reference final state, how it was obtained and how accurate it is (m, estimated).
+
+    ``checks``: rows (check, pos_change_m, imp_change_Ns) comparing it with variations of itself or
+    with another way to the same limit; ``halving``: the step-halving rows of tensegrity_sim (see
+    :func:`halving_limit`), the reference itself for the inextensible model, a cross-check otherwise."""
 
     final: Final
     source: str
     accuracy_m: float
-    convergence: list[dict]     # rows of a convergence check, shown in the report
+    checks: list[dict]
+    halving: list[dict]
 
 
 def halving_limit(runner: TensegrityRunner, case: Case, dt0: float, levels: int) -> tuple[Final, list[dict]]:
@@ -77,7 +82,7 @@ def _halving_accuracy(rows: list[dict]) -> float:
 def reference_for(case: Case, model: str, *, quick: bool = False) -> Reference | None:
     """The reference of ``case`` in ``model``, or None when this checkout has no way to make one."""
     if case.exact is not None:
-        return Reference(case.exact(model), "closed form", 0.0, [])
+        return Reference(case.exact(model), "closed form", 0.0, [], [])
     if model == "elastic":
         ref = ElasticReference(case.scene)
         final = ref.solve(case.duration)
@@ -95,13 +100,29 @@ def reference_for(case: Case, model: str, *, quick: bool = False) -> Reference |
                        "imp_change_Ns": float(np.max(np.abs(halved.impulses - final.impulses)))})
         accuracy = max(c["pos_change_m"] for c in checks[:2])
         return Reference(final, f"DOP853 rtol=atol=1e-12, restarted at {final.switches} switches, "
-                                f"rigid-strut drift {ref.strut_drift(final):.1e}", accuracy, checks)
+                                f"rigid-strut drift {ref.strut_drift(final):.1e}", accuracy, checks, rows)
     import tensegrity_sim as ts
     if model in ts.METHODS:
         final, rows = halving_limit(TensegrityRunner(model, model), case, 1e-3, 5 if quick else 9)
         return Reference(final, f"step-halving limit of tensegrity_sim {model} (dt -> {rows[-1]['dt']:.3g} s)",
-                         _halving_accuracy(rows), rows)
+                         _halving_accuracy(rows), [], rows)
     return None
+
+
+REFERENCE_FIELDS = ["case", "model", "source", "accuracy_m", "check", "dt", "pos_change_m", "imp_change_Ns", "order"]
+
+
+def reference_rows(references: dict) -> list[dict]:
+    """The references and their checks and halving rows, flat, for a CSV."""
+    out = []
+    for (case, model), ref in references.items():
+        if ref is None:
+            continue
+        head = {"case": case, "model": model, "source": ref.source, "accuracy_m": ref.accuracy_m}
+        out.append(head)
+        out += [{**head, **c} for c in ref.checks]
+        out += [{**head, "check": "step halving", **h} for h in ref.halving]
+    return out
 
 
 def _omega(case: Case) -> float:
@@ -143,7 +164,7 @@ def _one(case: Case, runner, dt: float, ref: Reference, repeats: int) -> dict:
         session = runner.session(case, dt)
     except ValueError as exc:
         return {**row, "status": f"refused: {exc}", **nan}
-    wall = best_time(session.advance, setup=session.reset, warmup=session.warmup, repeats=repeats)
+    wall = time_runs(session.advance, setup=session.reset, warmup=session.warmup, repeats=repeats).best
     if session.unstable:
         return {**row, "status": "unstable", **nan}
     measured = session.measure()
@@ -174,6 +195,30 @@ def time_to_reach(rows: list[dict], error: float, metric: str = "pos_err_m") -> 
             w = (math.log(error) - math.log(e0)) / (math.log(e) - math.log(e0))
             return math.exp(math.log(t0) + w * (math.log(t) - math.log(t0)))
     return math.nan
+
+
+def plot_halving(references: dict, path: Path) -> None:
+    """Step-halving convergence of tensegrity_sim on every case that has halving rows: the change of
+    the final positions from one step to half of it, against the step."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 4.0))
+    for (case, model), ref in references.items():
+        if ref is None or not ref.halving:
+            continue
+        pts = [(h["dt"], h["pos_change_m"]) for h in ref.halving if np.isfinite(h["pos_change_m"])]
+        dt, change = map(np.array, zip(*pts))
+        ax.loglog(dt, change, "-o", ms=3.5, label=f"{case} ({model}), last order {ref.halving[-1]['order']:.2f}")
+    ax.set_xlabel("dt (s)")
+    ax.set_ylabel("|x(dt) - x(2 dt)| at the final time (m)")
+    ax.set_title("tensegrity_sim step-halving convergence", fontsize=9)
+    ax.grid(True, which="both", lw=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
 
 
 def write_csv(path: Path, rows: list[dict], fields: list[str]) -> None:

@@ -1,0 +1,298 @@
+"""The Markdown report of a benchmark run: machine, versions, the closing-note figures, then details."""
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import os
+import platform
+import subprocess
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+import tensegrity_sim as ts
+
+from .scale import growth_exponent
+from .work_precision import time_to_reach
+
+__all__ = ["write"]
+
+ONE_MS = 1e-3
+
+
+def _g(x, digits=2) -> str:
+    """A number for a table: 3 significant digits in scientific notation, '-' for NaN."""
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return f"{x:.{digits}e}"
+
+
+def _n(x) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{x:,.0f}"
+
+
+def _table(header: list[str], rows: list[list]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def _machine() -> list[str]:
+    cpu = platform.processor() or "?"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    root = Path(__file__).resolve().parents[1]
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True,
+                                text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               capture_output=True, text=True, check=True).stdout.strip()
+        commit += " (with uncommitted changes)" if dirty else ""
+    except (OSError, subprocess.CalledProcessError):
+        commit = "?"
+    versions = []
+    for pkg in ("numpy", "scipy", "mujoco", "matplotlib"):
+        try:
+            versions.append(f"{pkg} {metadata.version(pkg)}")
+        except metadata.PackageNotFoundError:
+            versions.append(f"{pkg} (not installed)")
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (math.nan,) * 3
+    return [
+        f"- CPU: {cpu}, {os.cpu_count()} logical cores; load average at the end {load[0]:.1f} / {load[1]:.1f} / "
+        f"{load[2]:.1f} (1/5/15 min: other work was running, so every time is the minimum of several runs "
+        "and comparisons are ratios measured in this one process)",
+        f"- {platform.system()} {platform.release()}, Python {platform.python_version()}",
+        f"- tensegrity_sim {ts.__version__} at commit {commit}; methods: {', '.join(sorted(ts.METHODS))}",
+        "- " + ", ".join(versions),
+    ]
+
+
+def _order(rows: list[dict], floor: float) -> float:
+    """Observed order: slope of log(pos error) against log(dt) over the runs with an error above
+    100 x ``floor`` (the reference's accuracy)."""
+    pts = [(r["dt"], r["pos_err_m"]) for r in rows if r["status"] == "ok" and np.isfinite(r["pos_err_m"])
+           and r["pos_err_m"] > max(100 * floor, 1e-13)]
+    if len(pts) < 3:
+        return math.nan
+    dt, err = map(np.array, zip(*pts))
+    return float(np.polyfit(np.log(dt), np.log(err), 1)[0])
+
+
+def _configs(rows):
+    return sorted({(r["simulator"], r["variant"]) for r in rows}, key=lambda c: (c[0] != "tensegrity_sim", c))
+
+
+def _at(rows, simulator, variant, dt=ONE_MS):
+    for r in rows:
+        if (r["simulator"], r["variant"]) == (simulator, variant) and math.isclose(r["dt"], dt):
+            return r
+    return None
+
+
+def _matched(rows, references, cases) -> list[dict]:
+    """Per case and model, for each tensegrity_sim configuration: the wall time it needs for its own
+    1-ms error and for 1e-6 m, the best MuJoCo integrator's time for the same errors, and the ratio."""
+    out = []
+    for case in cases:
+        for model in case.models:
+            sub = [r for r in rows if r["case"] == case.name and r["model"] == model]
+            peers = [c for c in _configs(sub) if c[0] == "MuJoCo"]
+            for sim, variant in [c for c in _configs(sub) if c[0] == "tensegrity_sim"]:
+                mine = [r for r in sub if (r["simulator"], r["variant"]) == (sim, variant)]
+                at = _at(mine, sim, variant)
+                levels = [("its 1 ms error", at["pos_err_m"] if at and at["status"] == "ok" else math.nan), ("1e-6 m", 1e-6)]
+                for label, eps in levels:
+                    if not math.isfinite(eps):
+                        continue
+                    t_mine = time_to_reach(mine, eps)
+                    best = (math.nan, "-")
+                    for p in peers:
+                        t = time_to_reach([r for r in sub if (r["simulator"], r["variant"]) == p], eps)
+                        if math.isfinite(t) and not t >= best[0]:
+                            best = (t, p[1])
+                    out.append({"case": case.name, "model": model, "variant": variant, "level": label, "error": eps,
+                                "t_mine": t_mine, "t_peer": best[0], "peer": best[1],
+                                "ratio": t_mine / best[0] if math.isfinite(best[0]) else math.nan})
+    return out
+
+
+def write(path: Path, *, quick: bool, elapsed_s: float, cases, references, rows, throughput, size_rows, realtime,
+          hard, peer_checks, runners) -> None:
+    w = []
+    cmd = "python3 bench/run_all.py" + (" --quick" if quick else "")
+    w.append("# Benchmark report\n")
+    w.append(f"Generated by `{cmd}` on {_dt.date.today().isoformat()} in {elapsed_s / 60:.1f} min. Every figure "
+             "below comes from this run; the CSV files beside this report hold all of them.\n")
+    if quick:
+        w.append("**Quick run: coarse step grids, few sizes, short horizons. A sanity check, not the published "
+                 "figures.**\n")
+    w.append("## Machine and versions\n")
+    w.append("\n".join(_machine()))
+
+    # ------------------------------------------------------------------ closing-note figures
+    w.append("\n## Summary\n")
+    w.append("### Error at dt = 1 ms and the time it takes\n")
+    w.append("Errors against each case's reference (below); time = wall time per simulated second, the "
+             "minimum of several runs after a warm-up, stepping only.\n\n")
+    body = []
+    for case in cases:
+        for model in case.models:
+            sub = [r for r in rows if r["case"] == case.name and r["model"] == model]
+            for sim, variant in _configs(sub):
+                r = _at(sub, sim, variant)
+                if r is None:
+                    continue
+                if r["status"] != "ok":
+                    body.append([case.name, model, f"{sim} {variant}", r["status"].split(":")[0], "", "", "", ""])
+                    continue
+                body.append([case.name, model, f"{sim} {variant}", _g(r["pos_err_m"]), _g(r["imp_err_Ns"]),
+                             _g(r["energy_err_J"]), _g(r["wall_per_sim_s"]), _n(r["steps_per_s"])])
+    w.append(_table(["case", "cables", "configuration", "position error (m)", "impulse error (N·s)",
+                     "energy error (J)", "wall s per sim s", "steps/s"], body))
+
+    matched = _matched(rows, references, cases)
+    w.append("\n### Matched-error wall time against MuJoCo\n")
+    w.append("The wall time per simulated second tensegrity_sim needs to reach an error (its own error at "
+             "1 ms, and 1e-6 m), against the fastest MuJoCo integrator to reach the same error (log-log "
+             "interpolation on each configuration's Pareto front). Ratio > 1: MuJoCo is faster.\n\n")
+    w.append(_table(["case", "cables", "configuration", "error level", "error (m)", "tensegrity_sim (s)",
+                     "MuJoCo (s)", "MuJoCo integrator", "ratio"],
+                    [[m["case"], m["model"], m["variant"], m["level"], _g(m["error"]), _g(m["t_mine"]),
+                      _g(m["t_peer"]), m["peer"], f"{m['ratio']:.1f}" if math.isfinite(m["ratio"]) else "not reached"]
+                     for m in matched]))
+
+    w.append("\n### Steps per second beside MuJoCo (dt = 1 ms, same process)\n")
+    w.append("Best (and median) of 3 runs of about 0.25 s each; ratio = tensegrity_sim / MuJoCo (< 1: MuJoCo "
+             "takes more steps per second).\n\n")
+    body = []
+    for t in throughput:
+        if t["simulator"] == "MuJoCo":
+            body.append([t["scene"], f"MuJoCo {t['variant']}", f"{_n(t['steps_per_s'])} ({_n(t['steps_per_s_median'])})",
+                         f"{t['vs']}: {t['ratio']:.3f} ({t['ratio_median']:.3f})"])
+        else:
+            body.append([t["scene"], f"{t['simulator']} {t['variant']}",
+                         f"{_n(t['steps_per_s'])} ({_n(t['steps_per_s_median'])})", ""])
+    w.append(_table(["scene", "simulator", "steps/s best (median)", "ratio best (median)"], body))
+
+    w.append("\n### Growth exponents\n")
+    w.append("Cost per step ~ members^p on towers (see Scale): p fitted over towers of 10 stages or more, "
+             "and over all sizes.\n\n")
+    body = []
+    for sim, variant in sorted({(r["simulator"], r["variant"]) for r in size_rows}):
+        body.append([f"{sim} {variant}", f"{growth_exponent(size_rows, sim, variant):.2f}",
+                     f"{growth_exponent(size_rows, sim, variant, min_stages=0):.2f}"])
+    w.append(_table(["configuration", "p (>= 10 stages)", "p (all)"], body))
+
+    w.append("\n### Hard cases that fail\n")
+    fails = [h for h in hard if h["verdict"] == "FAIL"]
+    lines = [f"- {h['case']} ({h['variant']}, {h['setting']}): {h['figure']}" for h in fails] or \
+        ["None of the cases run failed."]
+    lines += [f"- not run: {h['case']} ({h['variant']}): {h['figure']}" for h in hard if h["verdict"] == "n/a"]
+    w.append("\n".join(lines))
+    missing = []
+    if "inextensible" not in ts.METHODS:
+        missing.append("the inextensible method and its QP backends (issue 3): its sweeps, references by "
+                       "step halving and hard-case rows")
+    missing.append("contact detection on/off in the scale study (issue 4)" if not _has_contacts(runners) else "")
+    missing = [m for m in missing if m]
+    if missing:
+        w.append("\nNot in this checkout, so not measured: " + "; ".join(missing) + ". They plug in as extra "
+                 "runners in `bench/runners.py`.\n")
+
+    # ------------------------------------------------------------------ details
+    w.append("\n## Work-precision\n")
+    w.append("Each case runs every configuration over steps from 10 ms down (where stable) to 10 µs "
+             "(MuJoCo to 2 µs). Errors: largest node-position error at the final time; largest error of a "
+             "cable's impulse summed over the run (it contains every snap); largest deviation of the total "
+             "energy (elastic cables only: the model conserves it). Ringed points: dt = 1 ms.\n")
+    for case in cases:
+        for model in case.models:
+            ref = references.get((case.name, model))
+            sub = [r for r in rows if r["case"] == case.name and r["model"] == model]
+            if not sub:
+                continue
+            w.append(f"\n### {case.name}, {model} cables\n")
+            w.append(f"{case.summary}. Duration {case.duration:g} s. Reference: {ref.source}"
+                     + (f", accuracy about {_g(ref.accuracy_m)} m" if ref.accuracy_m else "") + ".\n\n")
+            w.append(f"![{case.name} {model}](wp_{case.name}_{model}.png)\n\n")
+            body = []
+            for sim, variant in _configs(sub):
+                mine = [r for r in sub if (r["simulator"], r["variant"]) == (sim, variant)]
+                ok = [r for r in mine if r["status"] == "ok"]
+                best = min(ok, key=lambda r: r["pos_err_m"]) if ok else None
+                failed = sorted({r["status"].split(":")[0] + f" at {r['dt']:g}" for r in mine if r["status"] != "ok"})
+                body.append([f"{sim} {variant}", f"{_order(mine, ref.accuracy_m):.2f}",
+                             _g(best["pos_err_m"]) if best else "-", f"{best['dt']:g}" if best else "-",
+                             ", ".join(failed) or ""])
+            w.append(_table(["configuration", "observed order", "smallest error (m)", "at dt (s)", "not run"], body))
+
+    w.append("\n## References\n")
+    w.append("Elastic cables: scipy's DOP853 (rtol = atol = 1e-12) with the set of taut cables fixed between "
+             "switches and restarted at every switch (`bench/reference.py`); rigid struts by Lagrange "
+             "multipliers at the acceleration level. Checks: the same with rtol 1e-10, with a quarter of the "
+             "step bound, and tensegrity_sim's own step-halving limit, whose convergence is plotted below "
+             "(for the inextensible model that limit is the reference).\n\n")
+    body = []
+    for (case, model), ref in references.items():
+        if ref is None or not ref.checks:
+            continue
+        for c in ref.checks:
+            body.append([case, model, c["check"], _g(c["pos_change_m"]), _g(c["imp_change_Ns"])])
+    w.append(_table(["case", "cables", "compared with", "position difference (m)", "impulse difference (N·s)"], body))
+    w.append("\n![step halving](reference_convergence.png)\n")
+
+    w.append("\n## The MuJoCo peer\n")
+    w.append("`bench/mujoco_peer.py`: rigid struts are free bodies carrying the two end masses; other nodes "
+             "are point masses on three slide joints; elastic struts are tendon springs; elastic cables are "
+             "tendons with a dead band `springlength=\"0 L\"`; inextensible cables are limited tendons "
+             "`range=\"0 L\"` (soft constraints, `solreflimit=\"2dt zeta\"`); contacts off, no damping. "
+             "`test/test_peers.py` asserts that both simulators converge to the same trajectory.\n\n")
+    notes = []
+    if peer_checks:
+        eff = ", ".join(f"{k:g}: {_g(v)} m" for k, v in peer_checks["axial_inertia"].items())
+        notes.append(f"- Axial inertia of a rigid strut (MuJoCo needs it > 0; relative to the transverse one): final "
+                 f"positions of the thrown icosahedron after 1 s differ from the 1e-3 run by {eff}. No tendon "
+                 "acts off a strut's axis, so it has no effect beyond round-off.")
+        notes.append(f"- MuJoCo's semi-implicit Euler and tensegrity_sim's velocity Verlet obey the same two-step "
+                 f"recurrence for positions; from a state of zero acceleration they coincide: on the kicked tower "
+                 f"(1 s, 1 ms, hundreds of switches) the final positions differ by {_g(peer_checks['euler_verlet_gap_m'])} m. "
+                 "Their velocities differ by half a step, hence Euler's first-order energy error.")
+    notes.append("- Limited tendons with MuJoCo's default damping ratio 1 rebound from a snap with a restitution of "
+             "about 0.1 whatever the step (the soft constraint's time constant scales with dt); a damping ratio "
+             "of 30 is close to inelastic. Both are in the sweeps. Their impulse under RK4 is not measurable "
+             "(MuJoCo keeps only the last stage's constraint forces).")
+    w.append("\n".join(notes))
+
+    w.append("\n## Scale and real time\n")
+    w.append("![scale](scale.png)\n\n")
+    configs = sorted({(r["simulator"], r["variant"]) for r in size_rows})
+    stages = sorted({r["stages"] for r in size_rows})
+    body = []
+    for s in stages:
+        sub = {(r["simulator"], r["variant"]): r for r in size_rows if r["stages"] == s}
+        first = next(iter(sub.values()))
+        body.append([s, first["nodes"], first["members"]] + [_n(sub[c]["us_per_step"]) if c in sub else "-" for c in configs])
+    w.append(_table(["stages", "nodes", "members"] + [f"{a} {b} (µs/step)" for a, b in configs], body))
+    w.append("\nReal-time factor (simulated s per wall s; best of 3, median in brackets) of the built-in "
+             "scenes:\n\n")
+    w.append(_table(["scene", "configuration", "rate (Hz)", "µs/step", "real-time factor"],
+                    [[r["scene"], f"{r['simulator']} {r['variant']}", f"{r['rate_hz']:g}", _n(r["us_per_step"]),
+                      f"{r['realtime_factor']:.1f} ({r['realtime_factor_median']:.1f})" if r["status"] == "ok"
+                      else r["status"][:80]] for r in realtime]))
+
+    w.append("\n## Hard cases\n")
+    w.append("`bench/hard_cases.py`: each verdict and the figure behind it.\n\n")
+    w.append(_table(["case", "configuration", "setting", "verdict", "figure"],
+                    [[h["case"], f"{h['simulator']} {h['variant']}", h["setting"], h["verdict"], h["figure"]]
+                     for h in hard]))
+    path.write_text("\n\n".join(x.strip("\n") for x in w) + "\n")
+
+
+def _has_contacts(runners) -> bool:
+    return any("contact" in r.variant for r in runners)
