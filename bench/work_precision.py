@@ -19,6 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+import tensegrity_sim as ts
+from tensegrity_sim.system import System
+
 from .cases import Case
 from .reference import ElasticReference, Final
 from .runners import TensegrityRunner
@@ -101,7 +104,6 @@ def reference_for(case: Case, model: str, *, quick: bool = False) -> Reference |
         accuracy = max(c["pos_change_m"] for c in checks[:2])
         return Reference(final, f"DOP853 rtol=atol=1e-12, restarted at {final.switches} switches, "
                                 f"rigid-strut drift {ref.strut_drift(final):.1e}", accuracy, checks, rows)
-    import tensegrity_sim as ts
     if model in ts.METHODS:
         final, rows = halving_limit(TensegrityRunner(model, model), case, 1e-3, 5 if quick else 9)
         return Reference(final, f"step-halving limit of tensegrity_sim {model} (dt -> {rows[-1]['dt']:.3g} s)",
@@ -126,7 +128,6 @@ def reference_rows(references: dict) -> list[dict]:
 
 
 def _omega(case: Case) -> float:
-    from tensegrity_sim.system import System
     return System(case.scene).max_frequency(case.scene.positions, include_cables=True)
 
 

@@ -89,3 +89,16 @@ def test_reference_finds_switches_between_its_steps():
     coarse = ref.solve(1.0, max_step=1.0 / omega)
     assert fine.switches == coarse.switches == 33
     assert _distance(fine.positions, coarse.positions) < 1e-10
+
+
+@pytest.mark.parametrize("name", ["deadband", "snap_pair"])
+def test_closed_forms_of_the_benchmark_cases(name):
+    """The benchmarks' exact solutions (bench/analytic.py) against the simulator at a small step: final
+    positions and each cable's impulse summed over the run (the snap pair's is 2 mu v_rel = 3 N*s)."""
+    from bench.cases import work_precision_cases
+    case = next(c for c in work_precision_cases() if c.name == name)
+    exact = case.exact("elastic")
+    sim = ts.Simulator(case.scene, method="elastic", dt=1e-4)
+    traj = sim.run(duration=case.duration)
+    assert _distance(sim.positions, exact.positions) < 1e-6
+    np.testing.assert_allclose(traj.impulses.sum(axis=0), exact.impulses, atol=1e-5)
