@@ -40,6 +40,7 @@ from .reference import Final
 __all__ = ["INTEGRATORS", "MujocoPeer", "axial_inertia_effect"]
 
 INTEGRATORS = ("Euler", "implicitfast", "RK4")
+_CHUNK = 20_000     # steps per rollout call in run_measured (bounds the memory of the recorded states)
 
 
 def _fmt(values) -> str:
@@ -114,7 +115,7 @@ class MujocoPeer:
                 f'<inertial pos="0 0 0" mass="{float(m2.sum())!r}" fullinertia="{_fmt(full)}"/>'
                 f'<site name="node_{names[a]}" pos="{_fmt(r[0])}"/><site name="node_{names[b]}" pos="{_fmt(r[1])}"/>'
                 "</body>")
-        tendons = []
+        tendons, sensors = [], []
         moving = sys.free[sys.ends].any(axis=1)
         for i in np.flatnonzero(~sys.rigid & moving[: sys.n_struts]):
             a, b = sys.strut_ends[i]
@@ -131,12 +132,15 @@ class MujocoPeer:
                 law = f'limited="true" range="0 {limit!r}" solreflimit="{2 * self.dt!r} {float(limit_dampratio)!r}"'
             tendons.append(f'<spatial name="cable_{cable.name}" {law}><site site="node_{names[a]}"/>'
                            f'<site site="node_{names[b]}"/></spatial>')
+            # what run_measured integrates into the cable's impulse; switched off while timing
+            kind = "tendonpos" if self.cable_model == "elastic" else "tendonlimitfrc"
+            sensors.append(f'<{kind} tendon="cable_{cable.name}"/>')
         return (
             f'<mujoco model="{scene.name}"><compiler angle="radian"/>'
             f'<option timestep="{self.dt!r}" integrator="{integrator}" gravity="{_fmt(scene.gravity)}">'
             '<flag contact="disable"/></option>'
             f'<worldbody>{"".join(world)}{"".join(bodies)}</worldbody>'
-            f'<tendon>{"".join(tendons)}</tendon></mujoco>')
+            f'<tendon>{"".join(tendons)}</tendon><sensor>{"".join(sensors)}</sensor></mujoco>')
 
     # ------------------------------------------------------------------------------- state
     def reset(self) -> None:
@@ -161,8 +165,11 @@ class MujocoPeer:
         mj.mj_forward(m, d)
 
     def advance(self, steps: int) -> None:
-        """``steps`` steps in MuJoCo's C loop (no Python per step)."""
+        """``steps`` steps in MuJoCo's C loop (no Python per step), sensors off: this is what is timed."""
+        flag = int(self._mj.mjtDisableBit.mjDSBL_SENSOR)
+        self.model.opt.disableflags |= flag
         self._mj.mj_step(self.model, self.data, nstep=steps)
+        self.model.opt.disableflags &= ~flag
 
     @property
     def unstable(self) -> bool:
@@ -193,53 +200,51 @@ class MujocoPeer:
         m.opt.enableflags &= ~flag
         return float(d.energy.sum())
 
-    def _cable_tensions(self) -> np.ndarray:
-        """Spring cables: each cable's tension (n_cables,) N in the current state, from the node positions
-        (read after ``mj_kinematics``; MuJoCo's own ``ten_length`` after an RK4 step holds its last stage)."""
-        x = self.data.site_xpos[self._sites]
-        ends = self.system.cable_ends
-        length = np.linalg.norm(x[ends[:, 1]] - x[ends[:, 0]], axis=1)
-        return self._cable_k * np.maximum(length - self.scene.cable_rest_lengths, 0.0)
-
-    def _limit_forces(self) -> np.ndarray:
-        """Limit cables: each cable's constraint force (n_cables,) N applied over the last Euler or
-        implicitfast step (computed at its start)."""
-        d = self.data
-        out = np.zeros(len(self._tendons))
-        index = {t: c for c, t in enumerate(self._tendons)}
-        rows = np.flatnonzero(d.efc_type[: d.nefc] == self._mj.mjtConstraint.mjCNSTR_LIMIT_TENDON)
-        for row in rows:
-            out[index[d.efc_id[row]]] += d.efc_force[row]
-        return out
+    def _cable_forces(self, sensed: np.ndarray) -> np.ndarray:
+        """Each cable's force (k, n_cables) N from the cable sensors' readings (k, n_cables): tension
+        ``k max(0, l - L)`` from the tendon lengths of spring cables, the limit force of limit cables."""
+        if self.cable_model == "elastic":
+            return self._cable_k * np.maximum(sensed - self.scene.cable_rest_lengths, 0.0)
+        return sensed
 
     def run_measured(self, steps: int, samples: int = 100) -> tuple[Final, float]:
-        """From the initial state, ``steps`` steps one by one; returns the final state with each cable's
-        impulse, and the largest energy deviation (J) over ``samples`` evenly spaced checks.
+        """From the initial state, ``steps`` steps; returns the final state with each cable's impulse, and
+        the largest energy deviation (J) over ``samples`` evenly spaced checks.
 
-        MuJoCo does not report a tendon's impulse: it is integrated here from the tensions at step
-        boundaries by the trapezoid rule for spring cables (second order), and as constraint force times
-        step for limit cables; NaN for limit cables under RK4, whose constraint forces of the four stages
-        MuJoCo does not keep."""
+        The steps run in MuJoCo's ``rollout`` (C, in chunks), which records every step's state and the
+        cable sensors, read at each step's start (a tendon length, or a limit force). MuJoCo does not
+        report a tendon's impulse: it is integrated from those readings, by the trapezoid rule for
+        spring cables (second order), as force times step for limit cables (exact for Euler and
+        implicitfast, whose constraint force is computed once, at the start of the step; NaN under RK4,
+        whose four stages' forces MuJoCo does not keep)."""
+        from mujoco import rollout
+
         mj, m, d = self._mj, self.model, self.data
         self.reset()
         e0 = self.energy()
+        spec = mj.mjtState.mjSTATE_FULLPHYSICS
+        state = np.empty(mj.mj_stateSize(m, spec))
+        mj.mj_getState(m, d, state, spec)
         every = max(1, steps // samples)
-        de = 0.0
-        elastic = self.cable_model == "elastic"
+        de, done = 0.0, 0
         impulse = np.zeros(len(self._tendons))
-        before = self._cable_tensions() if elastic else None
-        for k in range(steps):
-            mj.mj_step(m, d)
-            if elastic:
-                mj.mj_kinematics(m, d)
-                after = self._cable_tensions()
-                impulse += 0.5 * (before + after)
-                before = after
-            else:
-                impulse += self._limit_forces()
-            if (k + 1) % every == 0:
+        first = None
+        while done < steps:
+            n = min(_CHUNK, steps - done)
+            states, sensed = rollout.rollout(m, d, state[None], nstep=n)
+            forces = self._cable_forces(sensed[0])
+            first = forces[0] if first is None else first
+            impulse += forces.sum(axis=0)
+            for k in range(every - 1 - done % every, n, every):
+                mj.mj_setState(m, d, states[0, k], spec)
                 de = max(de, abs(self.energy() - e0))
-        if not elastic and self.integrator == "RK4":
+            state = states[0, -1]
+            done += n
+        mj.mj_setState(m, d, state, spec)
+        mj.mj_forward(m, d)
+        if self.cable_model == "elastic":   # trapezoid: half weight on the first and the final reading
+            impulse += 0.5 * (self._cable_forces(d.sensordata[None])[0] - first)
+        elif self.integrator == "RK4":
             impulse[:] = np.nan
         final = Final(self.positions(), self.velocities(), self.dt * impulse)
         return final, max(de, abs(self.energy() - e0))
