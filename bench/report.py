@@ -265,8 +265,10 @@ def write(path: Path, *, quick: bool, elapsed_s: float, cases, references, rows,
                  "Their velocities differ by half a step, hence Euler's first-order energy error.")
     notes.append("- Limited tendons with MuJoCo's default damping ratio 1 rebound from a snap with a restitution of "
              "about 0.1 whatever the step (the soft constraint's time constant scales with dt); a damping ratio "
-             "of 30 is close to inelastic. Both are in the sweeps. Their impulse under RK4 is not measurable "
-             "(MuJoCo keeps only the last stage's constraint forces).")
+             "of 30 is close to inelastic. Both are in the sweeps, with Euler and RK4 (implicitfast is Euler to the "
+             "bit when nothing depends on velocity, as the elastic sweeps show). Impulses are integrated from "
+             "MuJoCo's tendon sensors at each step's start; a limit cable's impulse under RK4, whose four "
+             "stages' forces MuJoCo does not keep, is not measured.")
     w.append("\n".join(notes))
 
     w.append("\n## Scale and real time\n")
