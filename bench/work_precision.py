@@ -173,10 +173,13 @@ def _one(case: Case, runner, dt: float, ref: Reference, repeats: int) -> dict:
         session = runner.session(case, dt)
     except ValueError as exc:
         return {**row, "status": f"refused: {exc}", **nan}
-    wall = time_runs(session.advance, setup=session.reset, warmup=session.warmup, repeats=repeats).best
-    if session.unstable:
-        return {**row, "status": "unstable", **nan}
-    measured = session.measure()
+    try:
+        wall = time_runs(session.advance, setup=session.reset, warmup=session.warmup, repeats=repeats).best
+        if session.unstable:
+            return {**row, "status": "unstable", **nan}
+        measured = session.measure()
+    except Exception as exc:     # a step that fails (a QP backend's error) is a result, not a crash
+        return {**row, "status": f"failed: {type(exc).__name__}: {exc}", **nan}
     if not np.all(np.isfinite(measured.final.positions)):
         return {**row, "status": "unstable", **nan}
     return {**row, "status": "ok", "wall_s": wall, "wall_per_sim_s": wall / case.duration,
