@@ -1,12 +1,14 @@
 """What MCAP logging costs, per step, at 1 kHz stepping and 100 Hz publishing.
 
 Run: ``python bench/bench_log.py [SCENE ...] [--steps N] [--repeats R]`` (default: the built-in scenes).
-For each scene (dt = 1 ms, publish_rate = 100 Hz, so one publication every 10 steps) it times, per step,
-best of ``--repeats`` runs after a warm-up:
+For each scene (dt = 1 ms, publish_rate = 100 Hz, so one publication every 10 steps; marker_rate 10 Hz,
+so markers with every 10th publication) it times, per step, best of ``--repeats`` runs after a warm-up:
 
 * ``bare``: ``Simulator.step()`` alone;
-* ``node``: the node logic stepping and building every output message at 100 Hz, sent nowhere;
-* ``node+log``: the same, every input and output also serialised to CDR and written to an MCAP file.
+* ``node``: the node logic stepping and publishing every output at 100 Hz to a transport that takes
+  message objects (as rclpy's publishers do) and drops them: the node without a log;
+* ``node+log``: the same, every input and output also written to an MCAP file;
+* ``run --log``: the node logic with no transport and a log, as ``tensegrity-sim run --log`` runs.
 
 ``log`` = node+log - node is the logging cost; it is printed against the node's step time and against the
 1 ms a step may take at 1 kHz. Never asserts a time.
@@ -37,7 +39,8 @@ def per_step(run, steps: int, repeats: int) -> float:
     return best / steps
 
 
-def measure(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> tuple[float, float, float]:
+def measure(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> tuple[float, float, float, float]:
+    """Seconds per step: bare, node, node+log, run --log (see the module docstring)."""
     settings = NodeSettings(scene=scene.name, dt=DT, publish_rate=PUBLISH_RATE)
 
     def bare(n):
@@ -45,8 +48,9 @@ def measure(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> tuple[fl
         for _ in range(n):
             sim.step()
 
-    def node(n, log=False):
-        logic = SimNodeLogic(ts.Simulator(scene, dt=DT), settings)
+    def node(n, transport=True, log=False):
+        logic = SimNodeLogic(ts.Simulator(scene, dt=DT), settings,
+                             transport=(lambda key, message: None) if transport else None)
         recorder = LogRecorder(folder / f"{scene.name}.mcap", logic.channels(), logic.run_info()) if log else None
         logic.recorder = recorder
         for _ in range(n):
@@ -57,7 +61,8 @@ def measure(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> tuple[fl
             recorder.finish()
 
     return (per_step(bare, steps, repeats), per_step(node, steps, repeats),
-            per_step(lambda n: node(n, log=True), steps, repeats))
+            per_step(lambda n: node(n, log=True), steps, repeats),
+            per_step(lambda n: node(n, transport=False, log=True), steps, repeats))
 
 
 def main():
@@ -67,16 +72,19 @@ def main():
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
     names = args.scenes or list(ts.builtin_scenes())
-    print(f"dt = {DT * 1e3:g} ms, publish every {NodeSettings(dt=DT, publish_rate=PUBLISH_RATE).publish_every} "
-          f"steps; times per step, best of {args.repeats} x {args.steps} steps")
-    print(f"{'scene':<14}{'bare':>10}{'node':>10}{'node+log':>10}{'log':>10}  {'log/node':>9}  {'log/1ms':>8}")
+    settings = NodeSettings(dt=DT, publish_rate=PUBLISH_RATE)
+    print(f"dt = {DT * 1e3:g} ms, publish every {settings.publish_every} steps, markers every "
+          f"{settings.markers_every} publications; times per step, best of {args.repeats} x {args.steps} steps")
+    print(f"{'scene':<14}{'bare':>10}{'node':>10}{'node+log':>10}{'log':>10}  {'log/node':>9}  {'log/1ms':>8}"
+          f"  {'run --log':>10}")
     with tempfile.TemporaryDirectory() as folder:
         for name in names:
             scene = ts.load_scene(name)
-            bare, node, logged = measure(scene, args.steps, args.repeats, Path(folder))
+            bare, node, logged, offline = measure(scene, args.steps, args.repeats, Path(folder))
             log = logged - node
             print(f"{scene.name:<14}{bare * 1e6:>8.1f}us{node * 1e6:>8.1f}us{logged * 1e6:>8.1f}us"
-                  f"{log * 1e6:>8.1f}us  {100 * log / node:>8.1f}%  {100 * log / DT:>7.2f}%", flush=True)
+                  f"{log * 1e6:>8.1f}us  {100 * log / node:>8.1f}%  {100 * log / DT:>7.2f}%"
+                  f"  {offline * 1e6:>8.1f}us", flush=True)
 
 
 if __name__ == "__main__":

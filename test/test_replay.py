@@ -50,12 +50,13 @@ def rewrite(src, dst, alter=None, run_info=None):
         counts = {}
         with LogWriter(dst, channels, {**info, **(run_info or {})}) as writer:
             for _, c, message in reader.iter_messages(log_time_order=False):
-                msg = M.deserialize(message.data, summary.schemas[c.schema_id].name)
+                typename = summary.schemas[c.schema_id].name
+                msg = M.deserialize(message.data, typename)
                 index = counts[c.topic] = counts.get(c.topic, -1) + 1
                 if alter is not None:
                     msg = alter(c.topic, index, msg)
                 if msg is not None:
-                    writer.write(c.topic, msg, message.log_time)
+                    writer.write(c.topic, M.serialize(msg, typename), message.log_time)
 
 
 def test_replay_reproduces_a_run_with_commands(logged, capsys):
