@@ -86,8 +86,8 @@ class CdrTemplate:
     leading axis of one entry per element for a path with ``[]`` (``"poses[].position"`` of n poses:
     ``(n, 3)``). The lengths of sequences are those of the prototype: they are constants too.
 
-    Raises ``ValueError`` for an unknown field, a slot that is a string or mixes types, or (a bug in the
-    walk, never expected) a layout that disagrees with rosbags' bytes.
+    Raises ``ValueError`` for an unknown field, a slot that holds a string or mixes types, or (a bug in
+    the walk, never expected) a layout that disagrees with rosbags' bytes.
     """
 
     def __init__(self, typename: str, fields: Mapping | None, slots: Sequence[str], store=TYPESTORE):
@@ -125,8 +125,6 @@ class CdrTemplate:
         if node == Nodetype.BASE:
             kind = detail[0]
             if kind == "string":
-                if match is not None:
-                    raise ValueError(f"{self.typename}: slot {path!r} holds a string (slots hold numbers)")
                 return _align(pos, 4) + 4 + len(value.encode()) + 1
             size = np.dtype(_DTYPES[kind]).itemsize
             pos = _align(pos, size)
@@ -173,7 +171,8 @@ def _align(pos: int, size: int) -> int:
 
 
 def _resolve(typename: str, path: str, store) -> None:
-    """Check that ``path`` names a field of ``typename`` (``[]`` only after sequences and arrays)."""
+    """Check that ``path`` names a field of ``typename`` (``[]`` only after sequences and arrays) that
+    holds no string."""
     desc = (Nodetype.NAME, typename)
     for part in path.split("."):
         name, brackets = part.removesuffix("[]"), part.endswith("[]")
@@ -185,3 +184,14 @@ def _resolve(typename: str, path: str, store) -> None:
             if desc[0] not in (Nodetype.SEQUENCE, Nodetype.ARRAY):
                 raise ValueError(f"{typename}: slot {path!r}: {name!r} is not a sequence or array")
             desc = desc[1][0]
+    if _holds_string(desc, store):
+        raise ValueError(f"{typename}: slot {path!r} holds a string (slots hold numbers)")
+
+
+def _holds_string(desc, store) -> bool:
+    node, detail = desc
+    if node == Nodetype.BASE:
+        return detail[0] == "string"
+    if node == Nodetype.NAME:
+        return any(_holds_string(d, store) for _, d in store.fielddefs[detail][1])
+    return _holds_string(detail[0], store)
