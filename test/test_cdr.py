@@ -91,7 +91,8 @@ def test_marker_with_float32_bool_and_nested_constants(k, ns):
     points, colors, scale = rng.normal(size=(k, 3)), rng.uniform(size=(k, 4)), rng.uniform(size=3)
     template = CdrTemplate("visualization_msgs/msg/Marker", {
         "header": {"frame_id": "world"}, "ns": ns, "id": 3, "type": 5, "pose": {"orientation": {"w": 1.0}},
-        "frame_locked": True, "points": [{}] * k, "colors": [{}] * k, "text": "label", "mesh_use_embedded_materials": True},
+        "frame_locked": True, "points": [{}] * k, "colors": [{}] * k, "text": "label",
+        "mesh_use_embedded_materials": True},
         (*STAMP, "scale", "points[]", "colors[]"))
     empty_header = header(0, 0, "")
     expected = reference(new(

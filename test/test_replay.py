@@ -78,7 +78,8 @@ def test_copy_without_changes_replays(logged, tmp_path):
     contents = []
     for path in (logged, tmp_path / "copy.mcap"):
         with open(path, "rb") as f:
-            contents.append([(c.topic, m.log_time, m.data) for _, c, m in make_reader(f).iter_messages(log_time_order=False)])
+            messages = make_reader(f).iter_messages(log_time_order=False)
+            contents.append([(c.topic, m.log_time, m.data) for _, c, m in messages])
     assert len(contents[0]) > 150 and contents[0] == contents[1]
     assert replay(tmp_path / "copy.mcap").ok
 
