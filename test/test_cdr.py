@@ -112,6 +112,42 @@ def test_marker_with_float32_bool_and_nested_constants(k, ns):
     assert template.encode(3, 4, scale, points, colors) == expected
 
 
+def marker(stamp, ns, points, colors=None):
+    """A visualization_msgs/Marker with every other field zero or empty."""
+    return new("visualization_msgs/msg/Marker", header=header(*stamp, "world"), ns=ns, id=0, type=0, action=0,
+               pose=new("geometry_msgs/msg/Pose", position=new("geometry_msgs/msg/Point", x=0.0, y=0.0, z=0.0),
+                        orientation=new("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=0.0)),
+               scale=new("geometry_msgs/msg/Vector3", x=0.0, y=0.0, z=0.0),
+               color=new("std_msgs/msg/ColorRGBA", r=0.0, g=0.0, b=0.0, a=0.0),
+               lifetime=new("builtin_interfaces/msg/Duration", sec=0, nanosec=0), frame_locked=False,
+               points=[new("geometry_msgs/msg/Point", x=a, y=b, z=c) for a, b, c in points.tolist()],
+               colors=[] if colors is None else [new("std_msgs/msg/ColorRGBA", r=r, g=g, b=b, a=a)
+                                                 for r, g, b, a in colors.tolist()],
+               texture_resource="", texture=new("sensor_msgs/msg/CompressedImage", header=header(0, 0, ""), format="",
+                                                data=np.zeros(0, dtype=np.uint8)),
+               uv_coordinates=[], text="", mesh_resource="",
+               mesh_file=new("visualization_msgs/msg/MeshFile", filename="", data=np.zeros(0, dtype=np.uint8)),
+               mesh_use_embedded_materials=False)
+
+
+@pytest.mark.parametrize("counts", [(2, 5), (1, 0), (3, 1), (0, 4)])
+def test_indexed_slots_in_markers_of_different_sizes(counts):
+    """A MarkerArray whose markers have different point counts and namespace lengths, so that their
+    numbers are not a fixed stride apart: slots by element index."""
+    rng = np.random.default_rng(sum(counts))
+    a, b = (rng.normal(size=(k, 3)) for k in counts)
+    colors = rng.uniform(size=(counts[1], 4))
+    template = CdrTemplate("visualization_msgs/msg/MarkerArray", {"markers": [
+        {"header": {"frame_id": "world"}, "ns": "a", "points": [{}] * counts[0]},
+        {"header": {"frame_id": "world"}, "ns": "cables", "points": [{}] * counts[1], "colors": [{}] * counts[1]}]},
+        ("markers[0].header.stamp.sec", "markers[0].header.stamp.nanosec", "markers[0].points[]",
+         "markers[1].header.stamp.sec", "markers[1].header.stamp.nanosec", "markers[1].points[]",
+         "markers[1].colors[]"))
+    expected = reference(new("visualization_msgs/msg/MarkerArray", markers=[
+        marker((5, 6), "a", a), marker((7, 8), "cables", b, colors)]), "visualization_msgs/msg/MarkerArray")
+    assert template.encode(5, 6, a, 7, 8, b, colors) == expected
+
+
 def test_fixed_size_arrays_and_small_integers():
     """NavSatFix: an int8 and a uint16 before the float64s, a float64[9] array, a uint8 after it."""
     rng = np.random.default_rng(5)
@@ -153,6 +189,8 @@ def test_prototype_defaults():
                                                               "'poses.position': no field 'position' there"),
     ("geometry_msgs/msg/PoseArray", None, ("header[]",), "geometry_msgs/msg/PoseArray: slot 'header[]': "
                                                          "'header' is not a sequence or array"),
+    ("geometry_msgs/msg/PoseArray", None, ("header[0].stamp",),
+     "geometry_msgs/msg/PoseArray: slot 'header[0].stamp': 'header' is not a sequence or array"),
     ("geometry_msgs/msg/PoseArray", None, ("header.frame_id",), "geometry_msgs/msg/PoseArray: slot "
                                                                "'header.frame_id' holds a string (slots hold numbers)"),
     ("geometry_msgs/msg/PoseArray", None, ("header.stamp",), "geometry_msgs/msg/PoseArray: slot 'header.stamp' "

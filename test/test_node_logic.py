@@ -323,17 +323,18 @@ class BytesRecorder:
 def test_log_and_raw_transport_get_the_messages_bytes(monkeypatch, scene, frame_id):
     """Every output and input the log records, and every output a raw transport gets, is byte for byte
     the message object the transport gets, serialised by rosbags (clock, poses, cable states and
-    impulses come from the templates; markers, contacts, diagnostics and inputs from the objects)."""
+    impulses, markers of several shapes come from templates; contacts, diagnostics and inputs from the
+    objects)."""
     logics = {}
     for raw in (False, True):
         sent = []
         logic = SimNodeLogic(ts.Simulator(scene, method="elastic", dt=1e-3),
-                             NodeSettings(scene=scene.name, frame_id=frame_id, marker_rate=50.0),
+                             NodeSettings(scene=scene.name, frame_id=frame_id, marker_rate=100.0),
                              transport=lambda key, msg, sent=sent: sent.append((key, msg)), raw_transport=raw,
                              clock=FakeClock())
         logic.recorder = None if raw else BytesRecorder()
         script = {3: [contact("begin", scene.strut_names[0], scene.cable_names[-1], 0.0025, 1)],
-                  27: [contact("end", scene.strut_names[0], scene.cable_names[-1], 0.0265, 2)]}
+                  57: [contact("end", scene.strut_names[0], scene.cable_names[-1], 0.0565, 2)]}
         real_step = logic.sim.step
 
         def step_with_contacts(real_step=real_step, logic=logic):
@@ -341,7 +342,7 @@ def test_log_and_raw_transport_get_the_messages_bytes(monkeypatch, scene, frame_
             return replace(r, contacts=tuple(script.get(logic.sim.step_count, ())))
 
         monkeypatch.setattr(logic.sim, "step", step_with_contacts)
-        for k in range(60):
+        for k in range(120):
             if k == 15:
                 logic.receive("cable_rest_lengths", rest_lengths_msg([scene.cable_names[1]], [0.3]))
                 logic.receive("external_wrench", wrench_msg("nope", [0.0, 0.0, 5.0]))  # refused, still logged
@@ -352,7 +353,10 @@ def test_log_and_raw_transport_get_the_messages_bytes(monkeypatch, scene, frame_
         logics[raw] = (logic, sent)
     (logic, sent), (_, raw_sent) = logics[False], logics[True]
     outputs = [(logic.topic_names[key], M.serialize(msg, TOPICS[key].typename)) for key, msg in sent]
-    assert [k for k, _ in sent].count("contacts") == 2 and [k for k, _ in sent].count("markers") == 3
+    assert [k for k, _ in sent].count("contacts") == 2 and [k for k, _ in sent].count("markers") == 12
+    shapes = {tuple((m.ns, m.action, len(m.points), len(m.colors)) for m in msg.markers)
+              for key, msg in sent if key == "markers"}
+    assert len(shapes) >= 3  # with and without contacts, and the one that deletes them
     assert [(logic.topic_names[k], data) for k, data in raw_sent] == outputs
     inputs = [(logic.topic_names["cable_rest_lengths"], M.serialize(rest_lengths_msg([scene.cable_names[1]], [0.3]),
                                                                     TOPICS["cable_rest_lengths"].typename)),

@@ -26,6 +26,7 @@ CDR (DDS, rclpy's ``publish`` of bytes) can use the same bytes the log gets.
 """
 from __future__ import annotations
 
+import re
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -80,7 +81,8 @@ class CdrTemplate:
     ``prototype(typename, fields)`` only in the numbers at ``slots``.
 
     slots: field paths, dotted (``"header.stamp.sec"``), with ``[]`` after a sequence or array field for
-    each of its elements (``"poses[].position"``). A slot holds numbers of one primitive type, and
+    each of its elements (``"poses[].position"``) or ``[i]`` for element i (``"markers[2].points[]"``).
+    A slot holds numbers of one primitive type, and
     :meth:`encode` takes one array-like per slot, in order, shaped as the slot: ``()`` for a primitive
     field, ``(k,)`` for a sequence or array of k primitives or a message of k primitive fields, and a
     leading axis of one entry per element for a path with ``[]`` (``"poses[].position"`` of n poses:
@@ -98,6 +100,8 @@ class CdrTemplate:
         self._buffer = bytearray(store.serialize_cdr(message, typename))
         for slot in self.slots:
             _resolve(typename, slot, store)
+        # the walk names element i of a sequence "name[i]"; a slot's "[]" stands for any i
+        self._patterns = [(re.compile(re.escape(slot).replace(r"\[\]", r"\[\d+\]")), slot) for slot in self.slots]
         # slot -> one (field description, [(body offset, primitive), ...]) per place the path matched
         self._matches: dict[str, list[tuple[object, list[tuple[int, str]]]]] = {s: [] for s in self.slots}
         end = self._walk((Nodetype.NAME, typename), message, 0, "", None)
@@ -118,9 +122,11 @@ class CdrTemplate:
     def _walk(self, desc, value, pos: int, path: str, match: list | None) -> int:
         """The body offset after ``value`` (a field of description ``desc``) written at ``pos``; the
         (offset, primitive) of every primitive under a slot path go to that slot's matches."""
-        if match is None and path in self._matches:
-            match = []
-            self._matches[path].append((desc, match))
+        if match is None:
+            slot = next((slot for pattern, slot in self._patterns if pattern.fullmatch(path)), None)
+            if slot is not None:
+                match = []
+                self._matches[slot].append((desc, match))
         node, detail = desc
         if node == Nodetype.BASE:
             kind = detail[0]
@@ -138,8 +144,8 @@ class CdrTemplate:
         element, _ = detail
         if node == Nodetype.SEQUENCE:
             pos = _align(pos, 4) + 4
-        for item in value:
-            pos = self._walk(element, item, pos, f"{path}[]", match)
+        for i, item in enumerate(value):
+            pos = self._walk(element, item, pos, f"{path}[{i}]", match)
         return pos
 
     def _view(self, slot: str) -> np.ndarray | None:
@@ -171,11 +177,11 @@ def _align(pos: int, size: int) -> int:
 
 
 def _resolve(typename: str, path: str, store) -> None:
-    """Check that ``path`` names a field of ``typename`` (``[]`` only after sequences and arrays) that
-    holds no string."""
+    """Check that ``path`` names a field of ``typename`` (``[]`` or ``[i]`` only after sequences and
+    arrays) that holds no string."""
     desc = (Nodetype.NAME, typename)
     for part in path.split("."):
-        name, brackets = part.removesuffix("[]"), part.endswith("[]")
+        name, brackets = re.fullmatch(r"(.*?)(\[\d*\])?", part).groups()
         fields = dict(store.fielddefs[desc[1]][1]) if desc[0] == Nodetype.NAME else {}
         if name not in fields:
             raise ValueError(f"{typename}: slot {path!r}: no field {name!r} there")

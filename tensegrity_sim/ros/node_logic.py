@@ -9,9 +9,10 @@
   publishers, a DDS writer, a list in a test), or as CDR bytes to a raw transport, and as CDR bytes to
   an optional recorder (the MCAP log). Between two publications the cable impulses of every step are
   summed and every contact event is queued, so publishing slower than stepping loses nothing. The
-  outputs of every publication (clock, poses, cable states and impulses) are encoded straight from the
-  arrays by :class:`~.cdr.CdrTemplate` objects built once per node, so logging costs little; message
-  objects are built only for a transport that takes them, and nothing at all when no one listens;
+  outputs of every publication (clock, poses, cable states and impulses) and the markers are encoded
+  straight from the arrays by :class:`~.cdr.CdrTemplate` objects (built once per node, and once per
+  marker shape), so logging costs little; message objects are built only for a transport that takes
+  them, and nothing at all when no one listens;
 * the **services** (reset, pause, resume, single step) are plain methods returning ``(success, message)``.
 
 Topics are named by key (``"node_poses"``...); :data:`TOPICS` gives their names, types, direction and
@@ -173,6 +174,7 @@ RUNTIME_PARAMETERS = tuple(f.name for f in fields(NodeSettings) if f.metadata.ge
 # --------------------------------------------------------------------------- markers
 _LINE_LIST, _CUBE_LIST, _SPHERE_LIST = 5, 6, 7
 _ADD, _DELETE = 0, 2
+_MARKER_SHAPES_KEPT = 64  # MarkerArray templates a node keeps (a shape: the markers and their point counts)
 
 
 class _MarkerStyle:
@@ -180,6 +182,8 @@ class _MarkerStyle:
     built once (building message objects is most of what publishing costs)."""
 
     def __init__(self, ns: str, marker_id: int, kind: int, scale: float, color: tuple):
+        self.spec = {"ns": ns, "id": marker_id, "type": kind, "pose": {"orientation": {"w": 1.0}},
+                     "scale": dict.fromkeys("xyz", scale), "color": dict(zip("rgba", color))}
         empty_header = M.header(0, "")
         self.fields = dict(
             ns=ns, id=marker_id, type=kind,
@@ -193,11 +197,18 @@ class _MarkerStyle:
             mesh_file=M.new("visualization_msgs/msg/MeshFile", filename="", data=M.uint8s()),
             mesh_use_embedded_materials=False)
 
-    def marker(self, header, points: np.ndarray | None, colors: list | None = None):
-        """ADD with ``points`` (k, 3) m (and per-point ``colors``), or DELETE when ``points`` is None."""
+    def marker(self, header, points: np.ndarray | None, colors: np.ndarray | None = None):
+        """ADD with ``points`` (k, 3) m (and per-point ``colors`` (k, 4) RGBA), or DELETE when ``points``
+        is None."""
         return M.new("visualization_msgs/msg/Marker", header=header, action=_DELETE if points is None else _ADD,
                      points=[] if points is None else [M.point(*p) for p in points.tolist()],
-                     colors=colors or [], **self.fields)
+                     colors=[] if colors is None else [M.color(*c) for c in colors.tolist()], **self.fields)
+
+    def prototype(self, frame_id: str, points: int | None, colored: bool) -> dict:
+        """The fields of :meth:`marker` for :func:`~.cdr.prototype`: ``points`` points (None: DELETE), as
+        many colours if ``colored``; the stamp, points and colours are left to slots."""
+        return {**self.spec, "header": {"frame_id": frame_id}, "action": _DELETE if points is None else _ADD,
+                "points": [{}] * (points or 0), "colors": [{}] * (points or 0) if colored else []}
 
 
 # --------------------------------------------------------------------------- contacts encoding
@@ -286,6 +297,7 @@ class SimNodeLogic:
             "contacts": _MarkerStyle("contacts", 4, _SPHERE_LIST, 3.0 * strut_width, (1.0, 0.0, 0.0, 1.0)),
         }
         self._templates = self._cdr_templates()
+        self._marker_templates: dict[tuple, CdrTemplate] = {}  # marker shape -> template, oldest use first
         # counters for diagnostics and the summary
         self.refused = {k: 0 for k in self._inputs}
         self.received = {k: 0 for k in self._inputs}
@@ -524,21 +536,22 @@ class SimNodeLogic:
 
     def _outputs(self, keys: list[str], ns: int, r: StepResult) -> list[tuple[str, object, bytes | None]]:
         """(key, message object or None, CDR bytes or None) of the outputs ``keys``: objects where the
-        transport takes them (and for markers and contacts, which are serialised from them), bytes from
-        the templates where the log or a raw transport takes them."""
+        transport takes them (and for contacts, which are serialised from them), bytes from the templates
+        where the log or a raw transport takes them."""
         sys = self.sim.system
         _, length, n = sys.geometry(r.positions, sys.cable_ends)
         rate = sys.member_rates(r.velocities, n, sys.cable_ends)
         takes_objects = self._transport is not None and not self._raw
         messages = {}
-        if takes_objects or "markers" in keys or "contacts" in keys:
+        if takes_objects or "contacts" in keys:
             header = M.header(ns, self.settings.frame_id)
             if takes_objects:
                 messages = self._messages(ns, header, r.positions, length, rate, r.tensions, self._impulse_sum)
-            if "markers" in keys:
-                messages["markers"] = self._markers(header, r)
             if "contacts" in keys:
                 messages["contacts"] = encode_contacts(self._contact_queue, header)
+        markers = self._marker_content(r) if "markers" in keys else None
+        if takes_objects and markers is not None:
+            messages["markers"] = self._markers(header, markers)
         data = {}
         if self.recorder is not None or self._raw:
             sec, nanosec = divmod(ns, 1_000_000_000)
@@ -547,6 +560,8 @@ class SimNodeLogic:
                     "node_poses": t["node_poses"].encode(sec, nanosec, r.positions),
                     "cable_states": t["cable_states"].encode(sec, nanosec, length, rate, r.tensions),
                     "cable_impulses": t["cable_impulses"].encode(sec, nanosec, self._impulse_sum)}
+            if markers is not None:
+                data["markers"] = self._marker_bytes(sec, nanosec, markers)
         return [(key, messages.get(key), data.get(key)) for key in keys]
 
     def _messages(self, ns: int, header, positions, length, rate, tensions, impulses) -> dict:
@@ -569,21 +584,22 @@ class SimNodeLogic:
         if self._transport is not None:
             self._transport(key, data if self._raw else message)
 
-    def _markers(self, header, r: StepResult):
-        """Struts (thick blue lines); taut cables (lines coloured blue -> red by tension, red = the largest
-        tension seen so far); slack cables (thin grey lines); supports (grey cubes at fixed nodes); active
-        contacts (red spheres at both closest points). A namespace with nothing to show is deleted once,
-        then left out."""
+    def _marker_content(self, r: StepResult) -> list[tuple[str, np.ndarray | None, np.ndarray | None]]:
+        """The markers of one MarkerArray, as (namespace, points (k, 3) m or None to delete it, colours
+        (k, 4) RGBA or None): struts (thick blue lines); taut cables (lines coloured blue -> red by
+        tension, red = the largest tension seen so far); slack cables (thin grey lines); supports (grey
+        cubes at fixed nodes); active contacts (red spheres at both closest points). A namespace with
+        nothing to show is deleted once, then left out."""
         sys = self.sim.system
         x = r.positions
         taut = ~r.slack
         self._tension_scale = max(self._tension_scale, float(r.tensions.max(initial=0.0)))
-        level = r.tensions[taut] / self._tension_scale if self._tension_scale > 0 else r.tensions[taut]
+        level = np.repeat(r.tensions[taut] / self._tension_scale if self._tension_scale > 0 else r.tensions[taut], 2)
         contacts = [p for e in self._active_contacts.values() for p in (e.point_a, e.point_b)]
         content = {
             "struts": (x[sys.strut_ends].reshape(-1, 3), None),
             "cables": (x[sys.cable_ends[taut]].reshape(-1, 3),
-                       [M.color(t, 0.2, 1.0 - t) for t in np.repeat(level, 2).tolist()]),
+                       np.column_stack([level, np.full_like(level, 0.2), 1.0 - level, np.ones_like(level)])),
             "slack_cables": (x[sys.cable_ends[r.slack]].reshape(-1, 3), None),
             "supports": (x[~sys.free], None),
             "contacts": (np.array(contacts, dtype=float).reshape(-1, 3), None),
@@ -591,12 +607,43 @@ class SimNodeLogic:
         markers = []
         for ns, (points, colors) in content.items():
             if len(points):
-                markers.append(self._marker_styles[ns].marker(header, points, colors))
+                markers.append((ns, points, colors))
                 self._shown.add(ns)
             elif ns in self._shown:
-                markers.append(self._marker_styles[ns].marker(header, None))
+                markers.append((ns, None, None))
                 self._shown.discard(ns)
-        return M.new("visualization_msgs/msg/MarkerArray", markers=markers)
+        return markers
+
+    def _markers(self, header, markers: list):
+        """The MarkerArray object of :meth:`_marker_content`'s ``markers``."""
+        return M.new("visualization_msgs/msg/MarkerArray",
+                     markers=[self._marker_styles[ns].marker(header, points, colors) for ns, points, colors in markers])
+
+    def _marker_bytes(self, sec: int, nanosec: int, markers: list) -> bytes:
+        """The CDR bytes of :meth:`_markers`. Which markers there are and how many points each has (its
+        shape) changes with the slack cables and the contacts, so there is one template per shape, made
+        when the shape is first seen (a few rosbags serialisations' worth) and kept
+        (:data:`_MARKER_SHAPES_KEPT` of them, the oldest forgotten first)."""
+        shape = tuple((ns, None if points is None else len(points)) for ns, points, _ in markers)
+        template = self._marker_templates.pop(shape, None)
+        if template is None:
+            fields, slots = [], []
+            for i, (ns, points, colors) in enumerate(markers):
+                fields.append(self._marker_styles[ns].prototype(
+                    self.settings.frame_id, None if points is None else len(points), colors is not None))
+                slots += [f"markers[{i}].header.stamp.sec", f"markers[{i}].header.stamp.nanosec"]
+                if points is not None:
+                    slots.append(f"markers[{i}].points[]")
+                if colors is not None:
+                    slots.append(f"markers[{i}].colors[]")
+            template = CdrTemplate(TOPICS["markers"].typename, {"markers": fields}, slots)
+            if len(self._marker_templates) >= _MARKER_SHAPES_KEPT:
+                self._marker_templates.pop(next(iter(self._marker_templates)))
+        self._marker_templates[shape] = template  # (re)inserted last: the most recently used
+        values = []
+        for _, points, colors in markers:
+            values += [sec, nanosec] + [a for a in (points, colors) if a is not None]
+        return template.encode(*values)
 
     # ------------------------------------------------------------------ services
     def pause(self) -> tuple[bool, str]:
