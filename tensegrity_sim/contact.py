@@ -503,10 +503,10 @@ class ContactDetector:
         self._inside[due], self._gap_ref[due], self._snap[due] = inside, gap_end, p1
         if not pair.size:
             return ()
-        order = np.lexsort((self._key[due[pair]], tau))
-        pair, tau, begin = pair[order], tau[order], begin[order]
-        pa, pb, normal, gap, _, _ = _contact_geometry(_interpolate(p0[pair], p1[pair], tau), radii[pair])
         time = t0 + tau * dt
+        order = np.lexsort((self._key[due[pair]], time))     # time order; simultaneous ones in pair order
+        pair, tau, begin, time = pair[order], tau[order], begin[order], time[order]
+        pa, pb, normal, gap, _, _ = _contact_geometry(_interpolate(p0[pair], p1[pair], tau), radii[pair])
         events = []
         for k in range(len(pair)):
             p = due[pair[k]]
