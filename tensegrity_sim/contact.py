@@ -4,11 +4,13 @@ begin and end. Detection only: nothing here pushes members apart.
 **Model.** A member is a capsule: the segment between its two nodes, thickened by its radius. Two members
 that share no node are in contact while the *gap* ``g = |segment distance| - r_a - r_b`` is negative
 (the distance is below the sum of the radii). A contact *begins* when ``g`` becomes negative and *ends*
-when it is back at ``>= 0``; each is a :class:`~tensegrity_sim.results.ContactEvent` with the time, the
-closest points, the unit normal from member a to member b and the gap (≈ 0 at a begin or an end inside a
-step; the initial penetration for a pair that already overlaps when the simulation starts, reported as a
-begin at that step's start time). While a contact lasts no further event is emitted;
-:meth:`ContactDetector.active` gives every ongoing contact with its current (negative) gap.
+when it is back at ``>= 0`` (strictly: at ``CHATTER`` times the pair's size, far above round-off, so
+that members sliding along each other at touching distance do not chatter). Each is a
+:class:`~tensegrity_sim.results.ContactEvent` with the time, the closest points, the unit normal from
+member a to member b and the gap (≈ 0 at a begin or an end inside a step; the initial penetration for a
+pair that already overlaps when the simulation starts, reported as a begin at that step's start time).
+While a contact lasts no further event is emitted; :meth:`ContactDetector.active` gives every ongoing
+contact with its current (negative) gap.
 
 **Motion within a step.** The simulator hands over the node positions at the start and at the end of a
 step; in between every node moves on the straight line between them, ``x(τ) = (1-τ) x0 + τ x1`` with
@@ -70,11 +72,13 @@ __all__ = ["ActiveContact", "ContactDetector", "closest_points", "transitions", 
 
 TAU_TOLERANCE = 1e-9    # width (fraction of the step) to which a crossing is bracketed before interpolation
 RESOLUTION = 1e-7       # after a crossing, the search for the next one starts this much later (step fraction)
+CHATTER = 1e-12         # an end needs the gap back at this x (r_a + r_b + largest end-point coordinate), m
 MAX_ROUNDS = 100        # safety bound on the search loop
 # Where a round samples its window, as fractions of it: log-spaced towards both ends (where a crossing
-# or a just-crossed one makes the certified reaches short) and evenly in between.
-_FRACTIONS = np.unique(np.concatenate([[0.0], np.geomspace(1e-8, 1.0, 150),
-                                       1.0 - np.geomspace(1e-8, 1.0, 150), np.linspace(0.0, 1.0, 33)]))
+# or a just-crossed one makes the certified reaches short) and evenly in between. The first interval
+# is narrower than TAU_TOLERANCE, so a round that cannot certify it steps over it: every round progresses.
+_FRACTIONS = np.unique(np.concatenate([[0.0], np.geomspace(1e-12, 1.0, 200),
+                                       1.0 - np.geomspace(1e-12, 1.0, 200), np.linspace(0.0, 1.0, 33)]))
 _AROUND = np.array([-1e-2, -1e-4, -1e-6, -1e-8, 0.0, 1e-8, 1e-6, 1e-4, 1e-2])
 SKIN_FRACTION = 0.1     # default skin of the pair list, as a fraction of the median checked member length
 _SQRT3 = float(np.sqrt(3.0))  # |d|_2 <= sqrt(3) |d|_inf for a 3-vector
@@ -241,8 +245,11 @@ def transitions(p0: np.ndarray, p1: np.ndarray, radii_sum: np.ndarray, inside: n
     """
     inside = np.array(inside, dtype=bool)
     disp = p1 - p0
+    ends = np.stack([p0, p1])
+    # an end needs the gap at CHATTER x the pair's size: above its round-off, so no begin-end chatter
+    margin = CHATTER * (radii_sum + np.abs(ends).max(axis=(0, 2, 3)))
     # (2, n): at tau = 0 and 1, each judged by its own gap's sign (a crossing at 1 is caught below)
-    gap, forward, backward = _reaches(np.stack([p0, p1]), disp, radii_sum, None)
+    gap, forward, backward = _reaches(ends, disp, radii_sum, None)
     found_pair, found_tau, found_begin = [], [], []
     starts = ~inside & (gap[0] < 0)
     if starts.any():
@@ -251,11 +258,11 @@ def transitions(p0: np.ndarray, p1: np.ndarray, radii_sum: np.ndarray, inside: n
         found_begin.append(np.ones(int(starts.sum()), dtype=bool))
         inside |= starts
     # the whole step at once: the same side at both ends, and their reaches overlap?
-    sure = (inside == (gap[1] < 0)) & (forward[0] + backward[1] >= 1.0)
+    sure = ~_crossed(np.where(inside, -gap[1], gap[1]), inside, margin) & (forward[0] + backward[1] >= 1.0)
     todo = np.flatnonzero(~sure)
     if todo.size:
-        pair, tau, begin, inside_todo = _search(p0[todo], p1[todo], radii_sum[todo], inside[todo],
-                                                gap[0, todo], gap[1, todo])
+        pair, tau, begin, inside_todo = _search(p0[todo], p1[todo], radii_sum[todo], margin[todo],
+                                                inside[todo], gap[0, todo], gap[1, todo])
         found_pair.append(todo[pair])
         found_tau.append(tau)
         found_begin.append(begin)
@@ -266,12 +273,12 @@ def transitions(p0: np.ndarray, p1: np.ndarray, radii_sum: np.ndarray, inside: n
             gap[1])
 
 
-def _crossed(h: np.ndarray, inside: np.ndarray) -> np.ndarray:
-    """Has a sample ``h = ±gap`` crossed over? A begin is ``gap < 0``; an end is ``gap >= 0``."""
-    return np.where(inside, h <= 0, h < 0)
+def _crossed(h: np.ndarray, inside: np.ndarray, margin: np.ndarray) -> np.ndarray:
+    """Has a sample ``h = ±gap`` crossed over? A begin is ``gap < 0``; an end is ``gap >= margin``."""
+    return np.where(inside, h <= -margin, h < 0)
 
 
-def _search(p0, p1, radii_sum, inside, gap0, gap1):
+def _search(p0, p1, radii_sum, margin, inside, gap0, gap1):
     """The certified search of the module docstring, for pairs (n,) that may change state in the step.
 
     Per pair: everything before ``a`` is certified to be on the current side, and each round samples
@@ -284,7 +291,7 @@ def _search(p0, p1, radii_sum, inside, gap0, gap1):
     disp = p1 - p0
     a, b = np.zeros(n), np.ones(n)
     h_a, h_b = sign * gap0, sign * gap1
-    crossed_b = _crossed(h_b, inside)
+    crossed_b = _crossed(h_b, inside, margin)
     out_pair, out_tau, out_begin = [], [], []
     live = np.arange(n)
     rounds = 0
@@ -302,7 +309,7 @@ def _search(p0, p1, radii_sum, inside, gap0, gap1):
         g, forward, backward = _reaches(_interpolate(p0[live], p1[live], times), disp[live, None],
                                         radii_sum[live, None], ins[:, None])
         h = sign[live, None] * g
-        crossed = _crossed(h, ins[:, None])
+        crossed = _crossed(h, ins[:, None], margin[live, None])
         at_a = crossed[:, 0]
         # the first sample on the other side brackets the first crossing
         j = np.argmax(crossed, axis=1)
@@ -324,7 +331,7 @@ def _search(p0, p1, radii_sum, inside, gap0, gap1):
         if event.any():
             ev, k = np.flatnonzero(event), live[event]
             span = h_a[k] - h_b[k]
-            share = np.divide(h_a[k], span, out=np.ones(ev.size), where=span > 0)
+            share = np.clip(np.divide(h_a[k], span, out=np.ones(ev.size), where=span > 0), 0.0, 1.0)
             when = np.where(at_a[ev], A[ev], a[k] + (b[k] - a[k]) * share)
             out_pair.append(k)
             out_tau.append(when)
@@ -333,14 +340,15 @@ def _search(p0, p1, radii_sum, inside, gap0, gap1):
             inside[k] = ~ins[ev]
             sign[k] = -sign[k]
             a[k] = np.minimum(np.where(at_a[ev], A[ev], b[k]) + RESOLUTION, 1.0)
+            h_a[k] = -np.where(at_a[ev], h[ev, 0], h_b[k])
             b[k] = 1.0
             h_b[k] = sign[k] * gap1[k]
-            crossed_b[k] = _crossed(h_b[k], inside[k])
+            crossed_b[k] = _crossed(h_b[k], inside[k], margin[k])
         live = live[(a[live] < b[live]) | (crossed_b[live] & (a[live] == b[live]))]
     if live.size:
         # The round bound was hit (non-finite positions, or a graze held at the resolution limit):
         # settle the state from the step's end so that begins and ends still pair up.
-        flip = inside[live] != (gap1[live] < 0)
+        flip = np.where(inside[live], gap1[live] >= margin[live], gap1[live] < 0)
         out_pair.append(live[flip])
         out_tau.append(np.ones(int(flip.sum())))
         out_begin.append(~inside[live[flip]])
@@ -500,7 +508,9 @@ class ContactDetector:
         p0, p1 = x0[nodes], x1[nodes]
         radii = self._radii_sum[due]
         pair, tau, begin, inside, gap_end = transitions(p0, p1, radii, self._inside[due])
-        self._inside[due], self._gap_ref[due], self._snap[due] = inside, gap_end, p1
+        # a pair in contact is examined every step (its end may need only a round-off of motion)
+        self._inside[due], self._snap[due] = inside, p1
+        self._gap_ref[due] = np.where(inside, -np.inf, gap_end)
         if not pair.size:
             return ()
         time = t0 + tau * dt
