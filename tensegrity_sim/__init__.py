@@ -12,6 +12,7 @@ from .simulator import Simulator
 __version__ = "0.1.0"
 
 __all__ = [
-    "METHODS", "ActiveContact", "Cable", "ClassKWarning", "ContactEvent", "Node", "Scene", "SceneError", "Simulator",
+    "METHODS", "Cable", "ClassKWarning", "ContactEvent", "Node", "Scene", "SceneError", "Simulator",
     "StepResult", "Strut", "Trajectory", "builtin_scenes", "load_scene", "__version__",
+    "ActiveContact",
 ]
