@@ -11,7 +11,7 @@ import yaml
 
 import tensegrity_sim as ts
 from tensegrity_sim.cli import main
-from tensegrity_sim.contact import ContactDetector, closest_points, transitions
+from tensegrity_sim.contact import ContactDetector, closest_points, make_detector, transitions
 from tensegrity_sim.system import System
 
 
@@ -241,9 +241,15 @@ def test_fixed_pairs_and_zero_radius_never_checked():
     for node in d["nodes"]:
         node["fixed"] = True
         node.pop("velocity", None)
-    assert ts.Simulator(ts.Scene.from_dict(d), dt=1e-3).run(steps=3).contacts == []
+    scene = ts.Scene.from_dict(d)
+    assert ts.Simulator(scene, dt=1e-3).run(steps=3).contacts == []
     d = crossing_dict(0.05, 10.0, ra=0.0)
     assert ts.Simulator(ts.Scene.from_dict(d), dt=1e-3).run(steps=20).contacts == []
+    # nothing left to check, so no detector at all (no cost); likewise when no kind is asked for
+    assert make_detector(System(scene), ("strut_strut",)) is None
+    assert make_detector(System(ts.Scene.from_dict(d)), ("strut_strut",)) is None
+    assert make_detector(System(ts.Scene.from_dict(crossing_dict())), ()) is None
+    assert make_detector(System(ts.Scene.from_dict(crossing_dict())), ("strut_strut",)) is not None
 
 
 def test_initial_overlap_begins_at_time_zero_and_reset_repeats_it():
