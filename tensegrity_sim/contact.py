@@ -27,7 +27,7 @@ their reaches overlap.
 
 **Time of contact** (:func:`transitions`). A pair whose reaches from the step's two ends overlap needs
 nothing more (most pairs). The others are searched together, as arrays, a few rounds each: a round
-samples the unexamined part ``[a, b]`` of the step (about 340 times per pair: log-spaced towards both
+samples the unexamined part ``[a, b]`` of the step (about 440 times per pair: log-spaced towards both
 ends, evenly in between, and around the regula-falsi estimate of a bracketed crossing), moves ``a``
 over every certified interval and ``b`` back to the first sample found on the other side. A crossing
 is bracketed to ``TAU_TOLERANCE`` of the step and its time interpolated linearly inside that bracket:
@@ -72,7 +72,7 @@ __all__ = ["ActiveContact", "ContactDetector", "closest_points", "transitions", 
 
 TAU_TOLERANCE = 1e-9    # width (fraction of the step) to which a crossing is bracketed before interpolation
 RESOLUTION = 1e-7       # after a crossing, the search for the next one starts this much later (step fraction)
-CHATTER = 1e-12         # an end needs the gap back at this x (r_a + r_b + largest end-point coordinate), m
+CHATTER = 1e-12         # an end needs the gap back at CHATTER x (r_a + r_b + largest end-point |coordinate|)
 MAX_ROUNDS = 100        # safety bound on the search loop
 # Where a round samples its window, as fractions of it: log-spaced towards both ends (where a crossing
 # or a just-crossed one makes the certified reaches short) and evenly in between. The first interval
