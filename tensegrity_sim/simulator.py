@@ -5,6 +5,7 @@ leaves the simulator exactly as it was. The methods behind it never check anythi
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Mapping
 
 import numpy as np
@@ -34,19 +35,22 @@ class Simulator:
     ``method``: "elastic", "inextensible" or "auto" (then ``method_reason`` says why).
     ``dt``: the fixed step, s.
     ``contacts``: member kinds to check for contact (see ``scene.CONTACT_KINDS``), overriding the
-    scene's ``contact: kinds``; ``()`` switches detection off. ``contact_kinds`` is what is in use.
+    scene's ``contact: kinds`` (``self.scene`` is then the scene with that override); ``()`` switches
+    detection off. ``contact_kinds`` is what is in use.
     """
 
     def __init__(self, scene: Scene, method: str = "auto", dt: float = 1e-3, *, contacts=None):
         if not isinstance(scene, Scene):
             raise ValueError(f"scene must be a Scene (see load_scene), got {type(scene).__name__}")
+        if contacts is not None:
+            # the scene as run: a log embedding it (and a replay of that log) checks the same pairs
+            scene = replace(scene, contact_kinds=contact_kinds(contacts, "contacts"))
         self.scene = scene
         self.dt = _check_dt(dt)
-        self.contact_kinds = scene.contact_kinds if contacts is None else contact_kinds(contacts, "contacts")
         self.system = System(scene)
         self._method, self.method_reason = make_method(self.system, method, self.dt)
         # None when nothing can be in contact: then detection costs nothing at all
-        self._contacts = make_detector(self.system, self.contact_kinds)
+        self._contacts = make_detector(self.system, scene.contact_kinds)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
         self.reset()
@@ -161,6 +165,11 @@ class Simulator:
             slack=self.slack(),
             contacts=contacts,
         )
+
+    @property
+    def contact_kinds(self) -> tuple[str, ...]:
+        """The member kinds contact detection checks (the scene's, or the ``contacts`` override)."""
+        return self.scene.contact_kinds
 
     def active_contacts(self) -> tuple[ActiveContact, ...]:
         """Every contact going on now (begun, not yet ended), with its current gap (negative while the

@@ -495,3 +495,18 @@ def test_cli_summary_counts_contacts(tmp_path, capsys):
     assert "contacts         0 events" in capsys.readouterr().out
     assert main(["run", str(path), "--duration", "0.02", "--quiet", "--contacts", "strut_ground"]) == 2
     assert "contacts: unknown member kind 'strut_ground'" in capsys.readouterr().err
+
+
+def test_logged_run_with_an_override_replays(tmp_path, capsys):
+    """``run --contacts`` overrides the scene's kinds; the log embeds the scene as run, so a replay
+    checks the same pairs and reproduces the contact messages (off in the file, on for the run)."""
+    from tensegrity_sim.ros.replay import replay
+
+    path, log = tmp_path / "crossing.yaml", tmp_path / "run.mcap"
+    path.write_text(yaml.safe_dump(crossing_dict(0.05, 10.0, extra={"contact": {"kinds": []}})))
+    assert main(["run", str(path), "--duration", "0.02", "--quiet", "--contacts", "strut_strut",
+                 "--log", str(log)]) == 0
+    assert "contacts         2 events (1 begin, 1 end) between 1 member pairs" in capsys.readouterr().out
+    report = replay(log)
+    assert report.ok and report.compared["/tensegrity_sim/contacts"] == 1  # both events, one message
+
