@@ -52,10 +52,11 @@ only members with a radius > 0, and never two members that share a node or whose
 The remaining pairs go through a sort-and-sweep of axis-aligned boxes (along the axis of widest spread)
 inflated by the radii and by a *skin* (by default 10 % of the median checked member length); that list is
 valid until some node has moved by more than the skin, and is rebuilt then, so its cost is paid rarely and
-grows with the number of nearby pairs. Each listed pair keeps its gap at the last time it was evaluated
-and is re-evaluated only when its members may have moved by that much since; and while no node has moved
-more than half the smallest such margin since the last check, a step costs one array comparison over the
-nodes. When a scene checks nothing, the simulator builds no detector at all.
+grows with the number of nearby pairs. Each listed pair keeps how far it was from changing state when
+last examined (its gap, or while in contact its penetration) and is examined again only when its members
+may have moved by that much since (then together with the pairs past half of theirs: one batch costs
+about what one pair does); while no node has moved more than half the smallest such margin since the
+last check, a step costs one array comparison over the nodes. When a scene checks nothing, the simulator builds no detector at all.
 """
 from __future__ import annotations
 
@@ -442,17 +443,17 @@ class ContactDetector:
         k = len(key)
         i, j = key // self.system.n_members, key % self.system.n_members
         inside, since = np.zeros(k, dtype=bool), np.full(k, np.nan)
-        snap, gap_ref = np.zeros((k, 4, 3)), np.full(k, -np.inf)  # -inf: evaluate at the next step
+        snap, budget = np.zeros((k, 4, 3)), np.full(k, -np.inf)  # -inf: evaluate at the next step
         if keep_state and len(self._key):
             where = np.searchsorted(self._key, key)
             where = np.minimum(where, len(self._key) - 1)
             old = self._key[where] == key
             inside[old], since[old] = self._inside[where[old]], self._since[where[old]]
-            snap[old], gap_ref[old] = self._snap[where[old]], self._gap_ref[where[old]]
+            snap[old], budget[old] = self._snap[where[old]], self._budget[where[old]]
         self._key, self._i, self._j = key, i, j
         self._ends = np.concatenate([self.system.ends[i], self.system.ends[j]], axis=1)  # (k, 4) nodes
         self._radii_sum = self._radius[i] + self._radius[j]
-        self._inside, self._since, self._snap, self._gap_ref = inside, since, snap, gap_ref
+        self._inside, self._since, self._snap, self._budget = inside, since, snap, budget
         self._x_list = x1.copy()
 
     # ------------------------------------------------------------------ stepping
@@ -487,11 +488,14 @@ class ContactDetector:
             shift = now - self._snap
             shift = np.sqrt(_dot(shift, shift))
             reach = np.maximum(shift[:, 0], shift[:, 1]) + np.maximum(shift[:, 2], shift[:, 3])
-            due = np.flatnonzero(self._gap_ref - reach <= 0)
-            if due.size:
+            left = self._budget - reach
+            if np.any(left <= 0):
+                # Examine the pairs that must be, and with them those past half their budget: one
+                # batch costs about what a single pair does, and it spares the next few steps.
+                due = np.flatnonzero((left <= 0) | (left < 0.5 * self._budget))
                 events = self._evaluate(due, x0, x1, t0, dt)
-                reach[due] = 0.0
-            margin = 0.5 * float(np.min(self._gap_ref - reach))
+                left[due] = self._budget[due]
+            margin = 0.5 * float(np.min(left))
         else:
             margin = np.inf
         # From here on: a node may move by `margin` before some listed pair could touch, and by the
@@ -508,9 +512,10 @@ class ContactDetector:
         p0, p1 = x0[nodes], x1[nodes]
         radii = self._radii_sum[due]
         pair, tau, begin, inside, gap_end = transitions(p0, p1, radii, self._inside[due])
-        # a pair in contact is examined every step (its end may need only a round-off of motion)
+        # how far from changing state: out of contact the gap, in contact the penetration (an end needs
+        # the gap back at >= 0); until the members have moved that much, the pair needs no look
         self._inside[due], self._snap[due] = inside, p1
-        self._gap_ref[due] = np.where(inside, -np.inf, gap_end)
+        self._budget[due] = np.where(inside, -gap_end, gap_end)
         if not pair.size:
             return ()
         time = t0 + tau * dt
