@@ -27,7 +27,7 @@ their reaches overlap.
 
 **Time of contact** (:func:`transitions`). A pair whose reaches from the step's two ends overlap needs
 nothing more (most pairs). The others are searched together, as arrays, a few rounds each: a round
-samples the unexamined part ``[a, b]`` of the step (about 440 times per pair: log-spaced towards both
+samples the unexamined part ``[a, b]`` of the step (about 240 times per pair: log-spaced towards both
 ends, evenly in between, and around the regula-falsi estimate of a bracketed crossing), moves ``a``
 over every certified interval and ``b`` back to the first sample found on the other side. A crossing
 is bracketed to ``TAU_TOLERANCE`` of the step and its time interpolated linearly inside that bracket:
@@ -78,8 +78,8 @@ MAX_ROUNDS = 100        # safety bound on the search loop
 # Where a round samples its window, as fractions of it: log-spaced towards both ends (where a crossing
 # or a just-crossed one makes the certified reaches short) and evenly in between. The first interval
 # is narrower than TAU_TOLERANCE, so a round that cannot certify it steps over it: every round progresses.
-_FRACTIONS = np.unique(np.concatenate([[0.0], np.geomspace(1e-12, 1.0, 200),
-                                       1.0 - np.geomspace(1e-12, 1.0, 200), np.linspace(0.0, 1.0, 33)]))
+_FRACTIONS = np.unique(np.concatenate([[0.0], np.geomspace(1e-12, 1.0, 100),
+                                       1.0 - np.geomspace(1e-12, 1.0, 100), np.linspace(0.0, 1.0, 33)]))
 _AROUND = np.array([-1e-2, -1e-4, -1e-6, -1e-8, 0.0, 1e-8, 1e-6, 1e-4, 1e-2])
 SKIN_FRACTION = 0.1     # default skin of the pair list, as a fraction of the median checked member length
 _SQRT3 = float(np.sqrt(3.0))  # |d|_2 <= sqrt(3) |d|_inf for a 3-vector
