@@ -165,8 +165,8 @@ def _interpolate(p0: np.ndarray, p1: np.ndarray, tau: np.ndarray) -> np.ndarray:
 
 
 def _contact_geometry(ends: np.ndarray, radii_sum: np.ndarray):
-    """Closest points ``pa``, ``pb`` (n, 3), unit normals from a to b (n, 3), gaps (n,) and the closest
-    points' parameters ``s``, ``t`` (n,) of capsule pairs ``ends`` (n, 4, 3).
+    """Closest points ``pa``, ``pb`` (n, 3) m, unit normals from a to b (n, 3) and gaps (n,) m of capsule
+    pairs ``ends`` (n, 4, 3).
 
     Where the segments intersect (no direction between the closest points) the normal is along
     ``d_a x d_b`` (any perpendicular of ``d_a`` for parallel ones), turned towards b's midpoint."""
@@ -190,7 +190,7 @@ def _contact_geometry(ends: np.ndarray, radii_sum: np.ndarray):
     # (only two coincident zero-length members leave no direction at all: then +z)
     normal = np.where((length > 0)[:, None], normal / np.where(length > 0, length, 1.0)[:, None],
                       [0.0, 0.0, 1.0])
-    return pa, pb, normal, dist - radii_sum, s, t
+    return pa, pb, normal, dist - radii_sum
 
 
 def _reaches(ends, disp, radii_sum, inside):
@@ -281,6 +281,10 @@ def _crossed(h: np.ndarray, inside: np.ndarray, margin: np.ndarray) -> np.ndarra
 
 def _search(p0, p1, radii_sum, margin, inside, gap0, gap1):
     """The certified search of the module docstring, for pairs (n,) that may change state in the step.
+
+    ``p0``, ``p1`` (n, 4, 3) m, ``radii_sum`` (n,) m, ``margin`` (n,) m (an end needs the gap at it),
+    ``inside`` (n,) bool at the start, ``gap0``, ``gap1`` (n,) m at the step's start and end. Returns
+    ``(pair, tau, begin, inside_end)`` as :func:`transitions` does.
 
     Per pair: everything before ``a`` is certified to be on the current side, and each round samples
     ``[a, b]``, where ``b`` is the step's end or the first time found on the other side
@@ -521,7 +525,7 @@ class ContactDetector:
         time = t0 + tau * dt
         order = np.lexsort((self._key[due[pair]], time))     # time order; simultaneous ones in pair order
         pair, tau, begin, time = pair[order], tau[order], begin[order], time[order]
-        pa, pb, normal, gap, _, _ = _contact_geometry(_interpolate(p0[pair], p1[pair], tau), radii[pair])
+        pa, pb, normal, gap = _contact_geometry(_interpolate(p0[pair], p1[pair], tau), radii[pair])
         events = []
         for k in range(len(pair)):
             p = due[pair[k]]
@@ -537,7 +541,7 @@ class ContactDetector:
         idx = np.flatnonzero(self._inside)
         if not idx.size:
             return ()
-        pa, pb, normal, gap, _, _ = _contact_geometry(positions[self._ends[idx]], self._radii_sum[idx])
+        pa, pb, normal, gap = _contact_geometry(positions[self._ends[idx]], self._radii_sum[idx])
         return tuple(ActiveContact((self.names[self._i[p]], self.names[self._j[p]]), float(self._since[p]),
                                    pa[k], pb[k], normal[k], float(gap[k])) for k, p in enumerate(idx))
 
