@@ -18,14 +18,19 @@ checks struts against struts (the default), the second every member kind. Each f
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 
-import tensegrity_sim as ts
-from tensegrity_sim import formfinding
-from tensegrity_sim.contact import closest_points
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run as a script: this checkout first
+
+import tensegrity_sim as ts  # noqa: E402
+from bench.timing import time_runs  # noqa: E402
+from tensegrity_sim import formfinding  # noqa: E402
+from tensegrity_sim.contact import closest_points  # noqa: E402
 
 
 def scenes():
@@ -64,15 +69,11 @@ def variant(mapping, setting: str, shake: float, seed: int = 0):
 def step_time(scene, steps, repeats, dt):
     """Best time per step (s) without contact detection, over ``repeats`` runs after a warm-up."""
     sim = ts.Simulator(scene, method="elastic", dt=dt, contacts=())
-    sim.run(steps=min(steps, 300))
-    best = float("inf")
-    for _ in range(repeats):
-        sim.reset()
-        start = time.perf_counter()
+
+    def run():
         for _ in range(steps):
             sim.step()
-        best = min(best, time.perf_counter() - start)
-    return best / steps
+    return time_runs(run, setup=sim.reset, warmup=lambda: sim.run(steps=min(steps, 300)), repeats=repeats).best / steps
 
 
 def detection_time(scene, kinds, steps, repeats, dt):

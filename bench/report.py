@@ -123,7 +123,7 @@ def _matched(rows, references, cases) -> list[dict]:
 
 
 def write(path: Path, *, quick: bool, elapsed_s: float, cases, references, rows, throughput, size_rows, realtime,
-          hard, peer_checks, runners) -> None:
+          hard, peer_checks) -> None:
     w = []
     cmd = "python3 bench/run_all.py" + (" --quick" if quick else "")
     w.append("# Benchmark report\n")
@@ -195,15 +195,10 @@ def write(path: Path, *, quick: bool, elapsed_s: float, cases, references, rows,
         ["None of the cases run failed."]
     lines += [f"- not run: {h['case']} ({h['variant']}): {h['figure']}" for h in hard if h["verdict"] == "n/a"]
     w.append("\n".join(lines))
-    missing = []
     if "inextensible" not in ts.METHODS:
-        missing.append("the inextensible method and its QP backends (issue 3): its sweeps, references by "
-                       "step halving and hard-case rows")
-    missing.append("contact detection on/off in the scale study (issue 4)" if not _has_contacts(runners) else "")
-    missing = [m for m in missing if m]
-    if missing:
-        w.append("\nNot in this checkout, so not measured: " + "; ".join(missing) + ". They plug in as extra "
-                 "runners in `bench/runners.py`.\n")
+        w.append("Not in this checkout, so not measured: the inextensible method and its QP backends "
+                 "(issue 3): its sweeps, references by step halving and hard-case rows. They plug in as "
+                 "extra runners in `bench/runners.py`.")
 
     # ------------------------------------------------------------------ details
     w.append("\n## Work-precision\n")
@@ -295,6 +290,3 @@ def write(path: Path, *, quick: bool, elapsed_s: float, cases, references, rows,
                      for h in hard]))
     path.write_text("\n\n".join(x.strip("\n") for x in w) + "\n")
 
-
-def _has_contacts(runners) -> bool:
-    return any("contact" in r.variant for r in runners)

@@ -21,7 +21,7 @@ import tensegrity_sim as ts  # noqa: E402
 from bench import hard_cases, report, scale, work_precision  # noqa: E402
 from bench.cases import work_precision_cases  # noqa: E402
 from bench.mujoco_peer import axial_inertia_effect  # noqa: E402
-from bench.runners import mujoco_available, mujoco_runners, tensegrity_runners  # noqa: E402
+from bench.runners import mujoco_available, mujoco_runners, scale_runners, tensegrity_runners  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -87,15 +87,16 @@ def main(argv=None) -> int:
     bar.set_postfix_str("")
     scenes = {name: ts.load_scene(name) for name in ts.builtin_scenes()}
     scenes.update({c.name: c.scene for c in cases if c.exact is None})
-    throughput = scale.throughput_rows(scenes, ours, progress=bar)
+    throughput = scale.throughput_rows(scenes, scale_runners(), progress=bar)
     work_precision.write_csv(out / "throughput.csv", throughput, list(throughput[0]))
 
     bar.set_description("scale")
     bar.set_postfix_str("")
-    size_rows = scale.scale_rows(ours, scale.STAGES_QUICK if args.quick else scale.STAGES_FULL, progress=bar)
+    size_rows = scale.scale_rows(scale_runners(), scale.STAGES_QUICK if args.quick else scale.STAGES_FULL,
+                                 progress=bar)
     work_precision.write_csv(out / "scale.csv", size_rows, list(size_rows[0]))
     scale.plot_scale(size_rows, out / "scale.png")
-    realtime = scale.realtime_rows(ours)
+    realtime = scale.realtime_rows(scale_runners())
     work_precision.write_csv(out / "realtime.csv", realtime, list(realtime[0]))
 
     bar.set_description("hard cases")
@@ -109,7 +110,7 @@ def main(argv=None) -> int:
     bar.close()
     report.write(out / "REPORT.md", quick=args.quick, elapsed_s=time.time() - start, cases=cases,
                  references=references, rows=rows, throughput=throughput, size_rows=size_rows, realtime=realtime,
-                 hard=hard, peer_checks=peer_checks, runners=ours)
+                 hard=hard, peer_checks=peer_checks)
     print(f"wrote {out}/REPORT.md in {(time.time() - start) / 60:.1f} min")
     return 0
 

@@ -13,12 +13,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import tensegrity_sim as ts
+from tensegrity_sim.scene import CONTACT_KINDS
 
 from .cases import Case
 from .reference import Final
 
-__all__ = ["Measured", "TensegrityRunner", "MujocoRunner", "tensegrity_runners", "mujoco_runners",
-           "mujoco_available"]
+__all__ = ["Measured", "TensegrityRunner", "MujocoRunner", "tensegrity_runners", "scale_runners",
+           "mujoco_runners", "mujoco_available"]
 
 WARMUP_STEPS = 300
 
@@ -147,10 +148,21 @@ def mujoco_available() -> bool:
     return importlib.util.find_spec("mujoco") is not None
 
 
+NO_CONTACTS = {"contacts": ()}
+ALL_CONTACTS = {"contacts": CONTACT_KINDS}
+
+
 def tensegrity_runners() -> list[TensegrityRunner]:
-    """Every tensegrity_sim configuration of the sweep, for the methods this checkout has."""
-    runners = [TensegrityRunner("elastic", "elastic")]
-    return [r for r in runners if r.method in ts.METHODS]
+    """The tensegrity_sim configurations of the work-precision sweep: every method (and QP backend)
+    this checkout has, without contact detection (MuJoCo's contacts are off too)."""
+    return [TensegrityRunner("elastic", "elastic", NO_CONTACTS)]
+
+
+def scale_runners() -> list[TensegrityRunner]:
+    """The configurations of the scale study: each method with its default settings, with contact
+    detection off and on for every member kind."""
+    return [TensegrityRunner("elastic", "elastic", NO_CONTACTS),
+            TensegrityRunner("elastic", "elastic +contacts", ALL_CONTACTS)]
 
 
 def mujoco_runners() -> list[MujocoRunner]:
