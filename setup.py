@@ -18,6 +18,13 @@ INSTALL_REQUIRES = [
 EXTRAS_REQUIRE = {
     "test": [
         "pytest==9.0.3",
+        "cyclonedds==11.0.1",  # the DDS transport's end-to-end tests run in CI
+        "rosbags==0.11.9",
+    ],
+    # Live topics without a ROS install (tensegrity-sim serve --transport dds).
+    "dds": [
+        "cyclonedds==11.0.1",
+        "rosbags==0.11.9",
     ],
     "bench": [
         "matplotlib==3.11.2",

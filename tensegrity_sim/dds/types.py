@@ -1,0 +1,111 @@
+"""DDS types generated from ROS 2 message definitions, named the way ROS 2 names them on the wire.
+
+A ROS 2 message ``pkg/msg/Type`` travels over DDS as a keyless, final (``@final``) struct named
+``pkg::msg::dds_::Type_``, encoded in XCDR1 (plain CDR), on a topic whose name is the ROS name with
+``rt`` prefixed (``/tensegrity_sim/node_poses`` -> ``rt/tensegrity_sim/node_poses``). Endpoints carry
+the type's RIHS01 hash in their USER_DATA as ``typehash=RIHS01_<hex>;``.
+
+Nothing here copies a message layout by hand: the structs are generated from the field definitions of
+a rosbags typestore (by default ROS 2 Jazzy, the definitions the MCAP log uses), and the hash is the
+typestore's ``hash_rihs01`` (the same computation as ``rosidl``'s type description hash).
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from cyclonedds.idl import IdlStruct, make_idl_struct
+from cyclonedds.idl import types as t
+from cyclonedds.idl.annotations import final
+from rosbags.interfaces import Nodetype
+from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.store import Typestore
+
+__all__ = ["DdsType", "JAZZY", "dds_topic_name", "dds_type"]
+
+JAZZY: Typestore = get_typestore(Stores.ROS2_JAZZY)
+
+# ROS 2 primitive -> IDL primitive, as rosidl maps them (``char`` is uint8 and ``byte`` is octet in ROS 2).
+_PRIMITIVES = {
+    "bool": bool, "byte": t.byte, "char": t.uint8,
+    "int8": t.int8, "uint8": t.uint8, "int16": t.int16, "uint16": t.uint16,
+    "int32": t.int32, "uint32": t.uint32, "int64": t.int64, "uint64": t.uint64,
+    "float32": t.float32, "float64": t.float64, "string": str,
+}
+_ROS_NAME = re.compile(r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+@dataclass(frozen=True)
+class DdsType:
+    """One ROS 2 message type as DDS sees it.
+
+    msgtype: the ROS name, ``pkg/msg/Type``. dds_name: ``pkg::msg::dds_::Type_``.
+    idl: the generated cyclonedds struct (keyless, final, nested types generated alike).
+    type_hash: ``RIHS01_<sha256 hex>``, what Jazzy puts in USER_DATA.
+    """
+
+    msgtype: str
+    dds_name: str
+    idl: type[IdlStruct]
+    type_hash: str
+
+    @property
+    def user_data(self) -> bytes:
+        """The USER_DATA of a ROS 2 Jazzy reader or writer of this type."""
+        return f"typehash={self.type_hash};".encode()
+
+
+def dds_type_name(msgtype: str) -> str:
+    """``pkg/msg/Type`` -> ``pkg::msg::dds_::Type_`` (the rosidl_typesupport naming)."""
+    pkg, kind, name = msgtype.split("/")
+    return f"{pkg}::{kind}::dds_::{name}_"
+
+
+def dds_topic_name(ros_topic: str) -> str:
+    """A fully qualified ROS topic name (``/ns/name``) -> its DDS topic (``rt/ns/name``).
+
+    Raises ValueError for a name that is not absolute or not a valid ROS name.
+    """
+    if not isinstance(ros_topic, str) or not ros_topic.startswith("/") or not _ROS_NAME.match(ros_topic):
+        raise ValueError(f"topic must be a fully qualified ROS name like /ns/name, got {ros_topic!r}")
+    return "rt" + ros_topic
+
+
+_CACHE: dict[tuple[Typestore, str], DdsType] = {}  # keyed by the store itself: ids can be reused
+
+
+def dds_type(msgtype: str, typestore: Typestore = JAZZY) -> DdsType:
+    """The DDS type of ``msgtype`` (``pkg/msg/Type``), generated once per typestore and cached.
+
+    Raises ValueError for a type the typestore does not define.
+    """
+    key = (typestore, msgtype)
+    if key not in _CACHE:
+        if msgtype not in typestore.fielddefs:
+            raise ValueError(f"message type {msgtype!r} is not defined in the typestore")
+        _CACHE[key] = DdsType(msgtype, dds_type_name(msgtype), _idl_struct(msgtype, typestore),
+                              typestore.hash_rihs01(msgtype))
+    return _CACHE[key]
+
+
+def _idl_struct(msgtype: str, typestore: Typestore) -> type[IdlStruct]:
+    """Generate the IDL struct of ``msgtype`` and, recursively, of the types it nests."""
+    _, fields = typestore.fielddefs[msgtype]
+    members = {name: _idl_member(desc, typestore) for name, desc in fields}
+    struct = make_idl_struct(msgtype.rsplit("/", 1)[1] + "_", dds_type_name(msgtype), members)
+    return final(struct)
+
+
+def _idl_member(desc, typestore: Typestore):
+    """The cyclonedds annotation of one rosbags field description ``(Nodetype, detail)``."""
+    node, detail = desc
+    if node == Nodetype.BASE:
+        name, bound = detail
+        return t.bounded_str[bound] if name == "string" and bound else _PRIMITIVES[name]
+    if node == Nodetype.NAME:
+        return dds_type(detail, typestore).idl
+    element, count = detail
+    if node == Nodetype.ARRAY:
+        return t.array[_idl_member(element, typestore), count]
+    # A sequence: bounded when count > 0.
+    return t.sequence[_idl_member(element, typestore), count] if count else t.sequence[_idl_member(element, typestore)]
