@@ -127,12 +127,16 @@ class Reader(_Endpoint):
             raise DDSException(got, f"taking from {self.topic}")
         return [data for data, info in got if info.valid_data]
 
-    def take_messages(self, max_samples: int = 256) -> tuple[list, list[str]]:
-        """Decode what :meth:`take` returns: (messages, one reason per sample that does not decode)."""
+    def take_messages(self, max_samples: int = 256, deserialize=None) -> tuple[list, list[str]]:
+        """Decode what :meth:`take` returns: (messages, one reason per sample that does not decode).
+
+        ``deserialize(data, msgtype)`` decodes; default: the participant's typestore.
+        """
+        deserialize = deserialize or self._typestore.deserialize_cdr
         messages, refused = [], []
         for data in self.take(max_samples):
             try:
-                messages.append(self._typestore.deserialize_cdr(data, self.type.msgtype))
+                messages.append(deserialize(data, self.type.msgtype))
             # Bytes from the network are untrusted: whatever the decoder raises on them refuses
             # that sample and nothing else.
             except Exception as exc:  # noqa: BLE001

@@ -1,0 +1,152 @@
+"""The node over DDS, for machines without ROS 2 (``tensegrity-sim serve --transport dds``).
+
+The same :class:`~tensegrity_sim.ros.node_logic.SimNodeLogic` as the rclpy node does all the work; this
+module only carries its messages, on the same topics with the same types and QoS, through the
+ROS-compatible DDS participant of :mod:`tensegrity_sim.dds`, so a ROS 2 Jazzy machine on the same domain
+and network sees and drives it like the rclpy node. What differs, because DDS alone cannot do it:
+
+* **services**: a ROS 2 service pairs a request with its reply by a correlation id that each ROS
+  middleware carries its own way (rmw_cyclonedds in a header inside the payload, rmw_fastrtps, Jazzy's
+  default, in RTPS inline QoS that the Cyclone DDS Python binding cannot write), so a service offered
+  here would answer some ROS machines and not others. The services are offered as a topic instead:
+  ``~/command`` (std_msgs/msg/String) takes ``reset``, ``pause``, ``resume``, ``step`` and
+  ``set NAME VALUE`` (a runtime parameter), and ``~/command_result`` (std_msgs/msg/String) answers each
+  with ``"<command>: ok: <message>"`` or ``"<command>: failed: <message>"``.
+* **parameters** are given at start (the command line); the runtime ones change with ``set``.
+* **log output** goes to the Python logger (stderr), not to ``/rosout``.
+* a sample that does not even decode is refused here with a logged reason (rmw drops those silently).
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from typing import Callable
+
+from ..dds import DEFAULT_INTERFACE, Participant, QosProfile
+from ..scene import load_scene
+from ..simulator import Simulator
+from . import messages as M
+from .log import LogRecorder, SignalLatch, log_file_path
+from .node_logic import RUNTIME_PARAMETERS, TOPICS, NodeSettings, Qos, SimNodeLogic, resolve_topic
+
+__all__ = ["COMMAND_TOPIC", "RESULT_TOPIC", "DdsTransport", "run_command", "serve", "spin"]
+
+COMMAND_TOPIC = "~/command"
+RESULT_TOPIC = "~/command_result"
+_STRING = "std_msgs/msg/String"
+DIAGNOSTICS_PERIOD = 1.0  # s of wall-clock time between two /diagnostics
+
+
+def qos_profile(qos: Qos) -> QosProfile:
+    """The node logic's QoS as the DDS participant's."""
+    return QosProfile(reliable=qos.reliability == "reliable", depth=qos.depth,
+                      transient_local=qos.durability == "transient_local")
+
+
+class DdsTransport:
+    """Writers for the node's outputs, readers for its inputs and for ``~/command``.
+
+    ``transport(key, message)`` is the logic's output callback; :meth:`poll` feeds it what arrived.
+    """
+
+    def __init__(self, participant: Participant, node_name: str):
+        self.participant = participant
+        self.node_name = node_name
+        self.writers, self.readers = {}, {}
+        for key, spec in TOPICS.items():
+            make = participant.writer if spec.direction == "out" else participant.reader
+            endpoints = self.writers if spec.direction == "out" else self.readers
+            endpoints[key] = make(resolve_topic(spec.name, node_name), spec.typename, qos_profile(spec.qos))
+        self.commands = participant.reader(resolve_topic(COMMAND_TOPIC, node_name), _STRING)
+        self.results = participant.writer(resolve_topic(RESULT_TOPIC, node_name), _STRING)
+        self.undecodable = 0
+
+    def __call__(self, key: str, message) -> None:
+        writer = self.writers[key]
+        writer.write_cdr(M.serialize(message, writer.type.msgtype))
+
+    def poll(self, logic: SimNodeLogic, log: logging.Logger) -> None:
+        """Hand every input that arrived to the logic, and run every command, in arrival order per topic."""
+        for key, reader in self.readers.items():
+            messages, refused = reader.take_messages(deserialize=M.deserialize)
+            self._refuse(refused, log)
+            for message in messages:
+                logic.receive(key, message)
+        messages, refused = self.commands.take_messages(deserialize=M.deserialize)
+        self._refuse(refused, log)
+        for message in messages:
+            self.results.write_cdr(M.serialize(M.new(_STRING, data=run_command(logic, message.data)), _STRING))
+
+    def _refuse(self, refused: list[str], log: logging.Logger) -> None:
+        self.undecodable += len(refused)
+        for reason in refused:
+            log.warning(f"refused: {reason}")
+
+
+def run_command(logic: SimNodeLogic, text: str) -> str:
+    """Run one ``~/command`` and return its ``~/command_result`` text (see the module docstring)."""
+    words = text.split()
+    actions: dict[str, Callable[[], tuple[bool, str]]] = {
+        "reset": logic.reset, "pause": logic.pause, "resume": logic.resume, "step": logic.single_step}
+    if len(words) == 1 and words[0] in actions:
+        ok, message = actions[words[0]]()
+    elif len(words) == 3 and words[0] == "set":
+        name, value = words[1], words[2]
+        try:
+            logic.update(**{name: float(value)})
+            ok, message = True, f"{name} = {getattr(logic.settings, name)!r}"
+        except (ValueError, TypeError) as exc:
+            ok, message = False, str(exc)
+    else:
+        ok, message = False, (f"unknown command (commands: {', '.join(actions)}, "
+                              f"set NAME VALUE with NAME in {', '.join(RUNTIME_PARAMETERS)})")
+    return f"{text.strip()}: {'ok' if ok else 'failed'}: {message}"
+
+
+def serve(settings: NodeSettings, *, domain_id: int = 0, interface: str = DEFAULT_INTERFACE,
+          duration: float | None = None, log: logging.Logger | None = None) -> list[str]:
+    """Run the node over DDS until SIGINT/SIGTERM (or ``duration`` s of simulated time); return the
+    summary lines. The log, if any, is finished and every DDS entity deleted however it ends."""
+    log = log or logging.getLogger("tensegrity_sim")
+    sim = Simulator(load_scene(settings.scene), method=settings.method, dt=settings.dt)
+    namespace, _, name = settings.node_name.rpartition("/")
+    path = log_file_path(settings.log_path, sim.scene.name)
+    with SignalLatch() as latch, \
+            Participant(domain_id=domain_id, interface=interface, node_name=name, namespace=namespace or "/") as dds:
+        transport = DdsTransport(dds, settings.node_name)
+        logic = SimNodeLogic(sim, settings, transport=transport, logger=log)
+        with LogRecorder(path, logic.channels(), logic.run_info()) if path else contextlib.nullcontext() as recorder:
+            logic.recorder = recorder
+            log.info(f"serving {sim.scene.name} ({sim.method}, dt = {sim.dt:g} s) over DDS on domain {domain_id}, "
+                     f"interface {interface}" + (f"; logging to {path}" if path else ""))
+            spin(logic, transport, latch=latch, log=log, stop_time=duration)
+        lines = logic.summary() + [f"{'undecodable_samples':<27} {transport.undecodable}"]
+        if recorder is not None:
+            lines += [f"{'log':<27} {', '.join(map(str, recorder.paths))}"]
+    return lines
+
+
+def spin(logic: SimNodeLogic, transport: DdsTransport, *, latch: SignalLatch, log: logging.Logger,
+         stop_time: float | None = None, clock: Callable[[], float] = time.monotonic,
+         sleep: Callable[[float], None] = time.sleep) -> None:
+    """The node's single thread: every ``1/step_rate`` s of wall-clock time take the inputs, run the
+    steps due (:meth:`SimNodeLogic.tick`), and once a second publish ``/diagnostics``; until SIGINT or
+    SIGTERM (caught by ``latch``: the normal way to stop a server) or ``stop_time`` s of simulated time."""
+    next_tick = clock()
+    next_diagnostics = next_tick + DIAGNOSTICS_PERIOD
+    while latch.signum is None and (stop_time is None or logic.sim.time < stop_time):
+        transport.poll(logic, log)
+        logic.tick()
+        now = clock()
+        if now >= next_diagnostics:
+            logic.publish_diagnostics()
+            next_diagnostics = now + DIAGNOSTICS_PERIOD
+        # Ticks keep an absolute cadence; the logic's own schedule decides how many steps each runs,
+        # so a late tick is caught up in steps, not in extra ticks.
+        next_tick += 1.0 / logic.settings.step_rate
+        delay = next_tick - clock()
+        if delay > 0:
+            sleep(delay)
+        else:
+            next_tick = clock()
