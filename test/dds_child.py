@@ -5,6 +5,7 @@ itself within its deadline:
 
     python dds_child.py publish DOMAIN COUNT   publish COUNT known JointStates and PoseArrays
     python dds_child.py observe DOMAIN SECONDS print, as JSON lines, what a ROS 2 graph sees
+    python dds_child.py control DOMAIN ACTIONS  drive the simulator node: see :func:`control`
 """
 import contextlib
 import json
@@ -121,11 +122,96 @@ def observe(domain: int, seconds: float) -> None:
             time.sleep(0.05)
 
 
+NODE = "/tensegrity_sim"
+NODE_OUTPUTS = {  # what the controller listens to, as the node documents it
+    "clock": ("/clock", "rosgraph_msgs/msg/Clock"),
+    "node_poses": (f"{NODE}/node_poses", "geometry_msgs/msg/PoseArray"),
+    "cable_states": (f"{NODE}/cable_states", "sensor_msgs/msg/JointState"),
+    "cable_impulses": (f"{NODE}/cable_impulses", "sensor_msgs/msg/JointState"),
+    "contacts": (f"{NODE}/contacts", "diagnostic_msgs/msg/DiagnosticArray"),
+    "command_result": (f"{NODE}/command_result", "std_msgs/msg/String"),
+}
+NODE_INPUTS = {
+    "cable_rest_lengths": (f"{NODE}/cable_rest_lengths", "sensor_msgs/msg/JointState"),
+    "external_wrench": (f"{NODE}/external_wrench", "geometry_msgs/msg/WrenchStamped"),
+    "command": (f"{NODE}/command", "std_msgs/msg/String"),
+}
+
+
+def rest_lengths(names, position, velocity=()):
+    return T["sensor_msgs/msg/JointState"](header=header(0), name=list(names), position=np.array(position, float),
+                                           velocity=np.array(velocity, float), effort=np.array([]))
+
+
+def wrench(node, force, torque=(0.0, 0.0, 0.0)):
+    vector = T["geometry_msgs/msg/Vector3"]
+    h = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=node)
+    return T["geometry_msgs/msg/WrenchStamped"](header=h, wrench=T["geometry_msgs/msg/Wrench"](
+        force=vector(*map(float, force)), torque=vector(*map(float, torque))))
+
+
+def control(domain: int, actions: list) -> None:
+    """Wait until the node publishes, then run ``actions`` in order, listening all along; print every
+    sample received as a JSON line ``{"key", "cdr" (hex), "received" (monotonic s)}``, after checking
+    that rosbags decodes it. Actions (JSON):
+
+    ``{"sleep": s}``; ``{"rest": [names, position(, velocity)]}``; ``{"wrench": [node, force(, torque)]}``;
+    ``{"command": text}``; ``{"cdr": [input key, hex]}`` sends raw bytes; ``{"wrong_type": input key}``
+    publishes a std_msgs/String on that topic; ``{"mark": label}`` prints ``{"mark", "at"}``.
+    """
+    with Participant(domain_id=domain) as p:
+        readers = {k: p.reader(topic, typename, QosProfile(depth=1000)) for k, (topic, typename) in NODE_OUTPUTS.items()}
+        writers = {k: p.writer(topic, typename) for k, (topic, typename) in NODE_INPUTS.items()}
+        strangers = {}
+
+        def drain(seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while True:
+                for key, reader in readers.items():
+                    for data in reader.take():
+                        JAZZY.deserialize_cdr(data, NODE_OUTPUTS[key][1])  # must decode, or the child fails
+                        print(json.dumps({"key": key, "cdr": data.hex(), "received": time.monotonic()}))
+                if time.monotonic() >= end:
+                    return
+                p.wait(min(0.01, max(end - time.monotonic(), 0.0)))
+
+        deadline = time.monotonic() + 15
+        while not readers["cable_states"].matched or not all(w.matched for w in writers.values()):
+            if time.monotonic() > deadline:
+                sys.exit("the node did not appear within 15 s")
+            time.sleep(0.01)
+        drain(0.2)
+        for action in actions:
+            (kind, arg), = action.items()
+            if kind == "sleep":
+                drain(arg)
+            elif kind == "rest":
+                writers["cable_rest_lengths"].write(rest_lengths(*arg))
+            elif kind == "wrench":
+                writers["external_wrench"].write(wrench(*arg))
+            elif kind == "command":
+                writers["command"].write(T["std_msgs/msg/String"](data=arg))
+            elif kind == "cdr":
+                writers[arg[0]].write_cdr(bytes.fromhex(arg[1]))
+            elif kind == "wrong_type":
+                strangers[arg] = p.writer(NODE_INPUTS[arg][0], "std_msgs/msg/String")
+                time.sleep(0.5)  # time to be discovered (and refused by type)
+                strangers[arg].write(T["std_msgs/msg/String"](data="not a JointState"))
+            elif kind == "mark":
+                print(json.dumps({"mark": arg, "at": time.monotonic()}))
+            else:
+                sys.exit(f"unknown action {kind!r}")
+            sys.stdout.flush()
+        drain(0.3)
+
+
 if __name__ == "__main__":
     role, domain = sys.argv[1], int(sys.argv[2])
     if role == "publish":
         publish(domain, int(sys.argv[3]))
     elif role == "observe":
         observe(domain, float(sys.argv[3]))
+    elif role == "control":
+        control(domain, json.loads(sys.argv[3]))
     else:
         sys.exit(f"unknown role {role!r}")

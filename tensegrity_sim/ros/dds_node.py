@@ -28,14 +28,14 @@ from ..scene import load_scene
 from ..simulator import Simulator
 from . import messages as M
 from .log import LogRecorder, SignalLatch, log_file_path
-from .node_logic import RUNTIME_PARAMETERS, TOPICS, NodeSettings, Qos, SimNodeLogic, resolve_topic
+from .node_logic import RUNTIME_PARAMETERS, SERVICES, TOPICS, NodeSettings, Qos, SimNodeLogic, resolve_topic
 
 __all__ = ["COMMAND_TOPIC", "RESULT_TOPIC", "DdsTransport", "run_command", "serve", "spin"]
 
 COMMAND_TOPIC = "~/command"
 RESULT_TOPIC = "~/command_result"
 _STRING = "std_msgs/msg/String"
-DIAGNOSTICS_PERIOD = 1.0  # s of wall-clock time between two /diagnostics
+DIAGNOSTICS_PERIOD = 1.0  # s of wall-clock time between two /diagnostics, as the rclpy node
 
 
 def qos_profile(qos: Qos) -> QosProfile:
@@ -87,10 +87,8 @@ class DdsTransport:
 def run_command(logic: SimNodeLogic, text: str) -> str:
     """Run one ``~/command`` and return its ``~/command_result`` text (see the module docstring)."""
     words = text.split()
-    actions: dict[str, Callable[[], tuple[bool, str]]] = {
-        "reset": logic.reset, "pause": logic.pause, "resume": logic.resume, "step": logic.single_step}
-    if len(words) == 1 and words[0] in actions:
-        ok, message = actions[words[0]]()
+    if len(words) == 1 and words[0] in SERVICES:
+        ok, message = getattr(logic, SERVICES[words[0]])()
     elif len(words) == 3 and words[0] == "set":
         name, value = words[1], words[2]
         try:
@@ -99,28 +97,29 @@ def run_command(logic: SimNodeLogic, text: str) -> str:
         except (ValueError, TypeError) as exc:
             ok, message = False, str(exc)
     else:
-        ok, message = False, (f"unknown command (commands: {', '.join(actions)}, "
+        ok, message = False, (f"unknown command (commands: {', '.join(SERVICES)}, "
                               f"set NAME VALUE with NAME in {', '.join(RUNTIME_PARAMETERS)})")
     return f"{text.strip()}: {'ok' if ok else 'failed'}: {message}"
 
 
 def serve(settings: NodeSettings, *, domain_id: int = 0, interface: str = DEFAULT_INTERFACE,
-          duration: float | None = None, log: logging.Logger | None = None) -> list[str]:
-    """Run the node over DDS until SIGINT/SIGTERM (or ``duration`` s of simulated time); return the
-    summary lines. The log, if any, is finished and every DDS entity deleted however it ends."""
+          log: logging.Logger | None = None) -> list[str]:
+    """Run the node over DDS until SIGINT or SIGTERM; return the summary lines. The log, if any, is
+    finished and every DDS entity deleted however it ends."""
     log = log or logging.getLogger("tensegrity_sim")
     sim = Simulator(load_scene(settings.scene), method=settings.method, dt=settings.dt)
     namespace, _, name = settings.node_name.rpartition("/")
     path = log_file_path(settings.log_path, sim.scene.name)
-    with SignalLatch() as latch, \
-            Participant(domain_id=domain_id, interface=interface, node_name=name, namespace=namespace or "/") as dds:
+    # The DDS types come from the very typestore the messages and the log use.
+    with SignalLatch() as latch, Participant(domain_id=domain_id, interface=interface, typestore=M.TYPESTORE,
+                                             node_name=name, namespace=namespace or "/") as dds:
         transport = DdsTransport(dds, settings.node_name)
         logic = SimNodeLogic(sim, settings, transport=transport, logger=log)
         with LogRecorder(path, logic.channels(), logic.run_info()) if path else contextlib.nullcontext() as recorder:
             logic.recorder = recorder
             log.info(f"serving {sim.scene.name} ({sim.method}, dt = {sim.dt:g} s) over DDS on domain {domain_id}, "
                      f"interface {interface}" + (f"; logging to {path}" if path else ""))
-            spin(logic, transport, latch=latch, log=log, stop_time=duration)
+            spin(logic, transport, latch=latch, log=log)
         lines = logic.summary() + [f"{'undecodable_samples':<27} {transport.undecodable}"]
         if recorder is not None:
             lines += [f"{'log':<27} {', '.join(map(str, recorder.paths))}"]
@@ -128,14 +127,13 @@ def serve(settings: NodeSettings, *, domain_id: int = 0, interface: str = DEFAUL
 
 
 def spin(logic: SimNodeLogic, transport: DdsTransport, *, latch: SignalLatch, log: logging.Logger,
-         stop_time: float | None = None, clock: Callable[[], float] = time.monotonic,
-         sleep: Callable[[float], None] = time.sleep) -> None:
-    """The node's single thread: every ``1/step_rate`` s of wall-clock time take the inputs, run the
-    steps due (:meth:`SimNodeLogic.tick`), and once a second publish ``/diagnostics``; until SIGINT or
-    SIGTERM (caught by ``latch``: the normal way to stop a server) or ``stop_time`` s of simulated time."""
+         clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> None:
+    """The node's single thread, as the rclpy node's executor: every ``1/step_rate`` s of wall-clock time
+    take the inputs, run the steps due (:meth:`SimNodeLogic.tick`), and once a second publish
+    ``/diagnostics``; until SIGINT or SIGTERM (caught by ``latch``: the normal way to stop a server)."""
     next_tick = clock()
     next_diagnostics = next_tick + DIAGNOSTICS_PERIOD
-    while latch.signum is None and (stop_time is None or logic.sim.time < stop_time):
+    while latch.signum is None:
         transport.poll(logic, log)
         logic.tick()
         now = clock()
