@@ -28,10 +28,11 @@ from pathlib import Path
 import numpy as np
 
 import tensegrity_sim as ts
-from tensegrity_sim.dds import JAZZY, Participant
+from tensegrity_sim.ros.dds import Participant
+from tensegrity_sim.ros.messages import TYPESTORE
 
 ROOT = Path(__file__).resolve().parents[1]
-T = JAZZY.types
+T = TYPESTORE.types
 
 
 def rest_command(cable: str, length: float):

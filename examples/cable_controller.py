@@ -24,9 +24,10 @@ import time
 
 import numpy as np
 
-from tensegrity_sim.dds import JAZZY, Participant
+from tensegrity_sim.ros.dds import Participant
+from tensegrity_sim.ros.messages import TYPESTORE
 
-T = JAZZY.types
+T = TYPESTORE.types
 PUSH_TIME = 0.2  # s
 
 

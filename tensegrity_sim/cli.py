@@ -170,11 +170,11 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         return 0
     import logging
 
-    from .dds import DEFAULT_INTERFACE
+    from .ros.dds import DEFAULT_INTERFACE
     from .ros.dds_node import serve  # needs the "dds" extra (cyclonedds)
 
     logging.basicConfig(level=logging.INFO, format="[%(levelname)s] %(name)s: %(message)s")
-    print("\n".join(serve(settings, domain_id=args.domain_id, interface=args.interface or DEFAULT_INTERFACE)))
+    serve(settings, domain_id=args.domain_id, interface=args.interface or DEFAULT_INTERFACE)
     return 0
 
 

@@ -18,9 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tensegrity_sim.dds import JAZZY, Participant, QosProfile, Reader, dds_type
+from tensegrity_sim.ros.dds import Participant, QosProfile, Reader, dds_type
+from tensegrity_sim.ros.messages import TYPESTORE
 
-T = JAZZY.types
+T = TYPESTORE.types
 JOINTS = "/dds_test/joint_states"
 POSES = "/dds_test/poses"
 
@@ -113,7 +114,7 @@ def observe(domain: int, seconds: float) -> None:
                             use_cdrv0_representation=True),
                     }), flush=True)
             for raw in discovery.take():
-                info = JAZZY.deserialize_cdr(raw, "rmw_dds_common/msg/ParticipantEntitiesInfo")
+                info = TYPESTORE.deserialize_cdr(raw, "rmw_dds_common/msg/ParticipantEntitiesInfo")
                 print(json.dumps({"kind": "node", "participant": bytes(info.gid.data).hex(), "nodes": [
                     {"name": n.node_name, "namespace": n.node_namespace,
                      "readers": [bytes(g.data).hex() for g in n.reader_gid_seq],
@@ -169,7 +170,7 @@ def control(domain: int, actions: list) -> None:
             while True:
                 for key, reader in readers.items():
                     for data in reader.take():
-                        JAZZY.deserialize_cdr(data, NODE_OUTPUTS[key][1])  # must decode, or the child fails
+                        TYPESTORE.deserialize_cdr(data, NODE_OUTPUTS[key][1])  # must decode, or the child fails
                         print(json.dumps({"key": key, "cdr": data.hex(), "received": time.monotonic()}))
                 if time.monotonic() >= end:
                     return

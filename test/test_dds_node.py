@@ -2,6 +2,7 @@
 processes on their own domain over loopback; everything the controller receives is decoded by rosbags
 (in the controller and here) and checked against closed forms, the node's own log and its replay."""
 import contextlib
+import importlib.util
 import json
 import os
 import signal
@@ -13,7 +14,7 @@ from mcap.reader import make_reader
 
 import tensegrity_sim as ts
 from dds_child import NODE, NODE_OUTPUTS, random_domain, rest_lengths, spawn
-from tensegrity_sim.dds import JAZZY
+from tensegrity_sim.ros.messages import TYPESTORE
 from tensegrity_sim.ros.replay import replay
 
 CHILD = "test/dds_child.py"
@@ -46,7 +47,7 @@ def control(domain: int, actions: list, timeout: float = 60) -> tuple[dict, dict
             marks[record["mark"]] = record["at"]
         else:
             data = bytes.fromhex(record["cdr"])
-            received[record["key"]].append((JAZZY.deserialize_cdr(data, NODE_OUTPUTS[record["key"]][1]), data,
+            received[record["key"]].append((TYPESTORE.deserialize_cdr(data, NODE_OUTPUTS[record["key"]][1]), data,
                                             record["received"]))
     return received, marks
 
@@ -93,10 +94,10 @@ def test_a_controller_process_drives_the_simulator_process(tmp_path):
     log_messages = logged(log)
     (t_wrench, wrench_cdr), = log_messages[f"{NODE}/external_wrench"]
     (t_rest, rest_cdr), = log_messages[f"{NODE}/cable_rest_lengths"]
-    wrench = JAZZY.deserialize_cdr(wrench_cdr, "geometry_msgs/msg/WrenchStamped")
+    wrench = TYPESTORE.deserialize_cdr(wrench_cdr, "geometry_msgs/msg/WrenchStamped")
     assert wrench.header.frame_id == "n3" and [wrench.wrench.force.x, wrench.wrench.force.y,
                                               wrench.wrench.force.z] == force.tolist()
-    rest = JAZZY.deserialize_cdr(rest_cdr, "sensor_msgs/msg/JointState")
+    rest = TYPESTORE.deserialize_cdr(rest_cdr, "sensor_msgs/msg/JointState")
     assert list(rest.name) == ["c0"] and rest.position.tolist() == [0.9 * c0_rest]
     assert replay(log).ok
 
@@ -158,7 +159,7 @@ def test_a_controller_process_drives_the_simulator_process(tmp_path):
 def test_bad_messages_from_the_network_are_refused_and_the_node_keeps_going(tmp_path):
     domain = random_domain()
     c0 = PRISM.cables[0].rest_length
-    garbled = bytearray(JAZZY.serialize_cdr(rest_lengths(["c0"], [0.5]), "sensor_msgs/msg/JointState"))
+    garbled = bytearray(TYPESTORE.serialize_cdr(rest_lengths(["c0"], [0.5]), "sensor_msgs/msg/JointState"))
     at = garbled.index(b"c0")
     garbled[at:at + 2] = b"\xff\xfe"  # valid CDR, invalid UTF-8: DDS passes it, a decoder must refuse it
     actions = [
@@ -222,18 +223,18 @@ def test_services_are_commands_on_a_topic(tmp_path):
     assert np.allclose(np.diff(resumed[1:restart]), 0.02, rtol=0, atol=1e-9)
     assert resumed[restart] < 0.05
     # The reset started a second log file; both are finished and replay.
-    files = summary(out)["log"].split(", ")
+    files = [line.split(None, 1)[1] for line in out.splitlines() if line.startswith("log ")]
     assert len(files) == 2 and all(replay(f).ok for f in files)
 
 
 def test_start_up_and_shut_down_are_clean(tmp_path):
     domain, log = random_domain(), tmp_path / "run.mcap"
-    # SIGTERM stops a server like Ctrl-C: status 0, summary printed, log finished and complete.
+    # SIGTERM stops a server as it stops the rclpy node: status 128 + 15, summary printed, log finished.
     with serving(domain, "prism3", "--log-path", str(log)) as server:
         control(domain, [{"sleep": 0.2}])
         server.send_signal(signal.SIGTERM)
         out, err = server.communicate(timeout=30)
-    assert server.returncode == 0, err
+    assert server.returncode == 143, err
     assert f"log                         {log}" in out
     assert replay(log).ok
     with open(log, "rb") as f:
@@ -241,9 +242,13 @@ def test_start_up_and_shut_down_are_clean(tmp_path):
         counts = reader.get_summary().statistics.channel_message_counts
     assert sum(counts.values()) > 0
     # A bad interface or domain is refused at start with the reason, before anything runs.
-    for args, reason in ((("--interface", "nonexistent0"), "no network interface named 'nonexistent0'"),
-                         (("--domain-id", "999"), "domain_id must be a whole number in [0, 232], got 999")):
-        with spawn("-m", "tensegrity_sim.cli", "serve", "--transport", "dds", "--log-path", "", *args) as bad:
+    refusals = [(("--transport", "dds", "--interface", "nonexistent0"), "no network interface named 'nonexistent0'"),
+                (("--transport", "dds", "--domain-id", "999"), "domain_id must be a whole number in [0, 232], got 999"),
+                (("--transport", "dds", "--publish-rate", "0"), "parameter 'publish_rate': must be > 0")]
+    if importlib.util.find_spec("rclpy") is None:
+        refusals.append((("--transport", "rclpy"), "--transport rclpy: rclpy does not import here"))
+    for args, reason in refusals:
+        with spawn("-m", "tensegrity_sim.cli", "serve", "--log-path", "", *args) as bad:
             out, err = bad.communicate(timeout=30)
         assert bad.returncode == 2 and reason in err
     # Nothing of this test is left running.

@@ -9,8 +9,9 @@ import pytest
 from rosbags.interfaces import Nodetype
 
 from dds_child import JOINTS, POSES, joint_state, pose_array, random_domain, spawn
-from tensegrity_sim.dds import (JAZZY, MAX_DOMAIN_ID, Participant, QosProfile, check_domain_id, cyclone_config,
-                                dds_topic_name, dds_type)
+from tensegrity_sim.ros.dds import (MAX_DOMAIN_ID, Participant, QosProfile, check_domain_id, cyclone_config,
+                                    dds_topic_name, dds_type)
+from tensegrity_sim.ros.messages import TYPESTORE
 
 CHILD = "test/dds_child.py"
 
@@ -81,13 +82,13 @@ def _random_message(msgtype, rng):
             return array(element_detail[0], n)
         return [_random_message(element_detail, rng) for _ in range(n)]
 
-    return JAZZY.types[msgtype](**{name: field(desc) for name, desc in JAZZY.fielddefs[msgtype][1]})
+    return TYPESTORE.types[msgtype](**{name: field(desc) for name, desc in TYPESTORE.fielddefs[msgtype][1]})
 
 
 def _same_content(ours, theirs, where):
     """rosbags' decoded message against cyclonedds' decoded struct, field by field."""
     if hasattr(ours, "__msgtype__"):
-        for name in JAZZY.fielddefs[ours.__msgtype__][1]:
+        for name in TYPESTORE.fielddefs[ours.__msgtype__][1]:
             _same_content(getattr(ours, name[0]), getattr(theirs, name[0]), f"{where}.{name[0]}")
     elif isinstance(ours, (list, np.ndarray)) and len(ours) and hasattr(ours[0], "__msgtype__"):
         assert len(ours) == len(theirs), where
@@ -108,10 +109,10 @@ def test_every_jazzy_message_type_decodes_alike_in_rosbags_and_cyclonedds(seed):
     the generated layouts are the ROS layouts (a float read as an int, a missing or reordered field,
     a wrong bound would all show)."""
     rng = np.random.default_rng(seed)
-    assert len(JAZZY.fielddefs) > 150
-    for msgtype in sorted(JAZZY.fielddefs):
+    assert len(TYPESTORE.fielddefs) > 150
+    for msgtype in sorted(TYPESTORE.fielddefs):
         message = _random_message(msgtype, rng)
-        data = bytes(JAZZY.serialize_cdr(message, msgtype))
+        data = bytes(TYPESTORE.serialize_cdr(message, msgtype))
         theirs = dds_type(msgtype).idl.deserialize(data)
         _same_content(message, theirs, msgtype)
         assert theirs.serialize() == data, msgtype  # XCDR1, little endian, same header
@@ -167,7 +168,7 @@ def test_a_ros_graph_sees_ros_names_types_hashes_qos_and_the_node():
     assert endpoints[guids["poses"]] == {
         "kind": "publication", "guid": guids["poses"], "topic": "rt/probe/node_poses",
         "type": "geometry_msgs::msg::dds_::PoseArray_",
-        "user_data": f"typehash={JAZZY.hash_rihs01('geometry_msgs/msg/PoseArray')};",
+        "user_data": f"typehash={TYPESTORE.hash_rihs01('geometry_msgs/msg/PoseArray')};",
         "reliable": True, "transient_local": False, "depth": 10, "xcdr1_only": True}
     assert endpoints[guids["clock"]]["topic"] == "rt/clock"
     assert endpoints[guids["clock"]]["type"] == "rosgraph_msgs::msg::dds_::Clock_"

@@ -23,7 +23,7 @@ import logging
 import time
 from typing import Callable
 
-from ..dds import DEFAULT_INTERFACE, Participant, QosProfile
+from .dds import DEFAULT_INTERFACE, Participant, QosProfile
 from ..scene import load_scene
 from ..simulator import Simulator
 from . import messages as M
@@ -103,37 +103,43 @@ def run_command(logic: SimNodeLogic, text: str) -> str:
 
 
 def serve(settings: NodeSettings, *, domain_id: int = 0, interface: str = DEFAULT_INTERFACE,
-          log: logging.Logger | None = None) -> list[str]:
-    """Run the node over DDS until SIGINT or SIGTERM; return the summary lines. The log, if any, is
-    finished and every DDS entity deleted however it ends."""
+          log: logging.Logger | None = None) -> None:
+    """Run the node over DDS until SIGINT or SIGTERM, then print the summary, as the rclpy node does:
+    SIGINT returns, SIGTERM leaves as ``SystemExit(143)``. However it ends, the log (if any) is finished
+    and every DDS entity is deleted."""
     log = log or logging.getLogger("tensegrity_sim")
     sim = Simulator(load_scene(settings.scene), method=settings.method, dt=settings.dt)
     namespace, _, name = settings.node_name.rpartition("/")
     path = log_file_path(settings.log_path, sim.scene.name)
-    # The DDS types come from the very typestore the messages and the log use.
-    with SignalLatch() as latch, Participant(domain_id=domain_id, interface=interface, typestore=M.TYPESTORE,
-                                             node_name=name, namespace=namespace or "/") as dds:
-        transport = DdsTransport(dds, settings.node_name)
-        logic = SimNodeLogic(sim, settings, transport=transport, logger=log)
-        with LogRecorder(path, logic.channels(), logic.run_info()) if path else contextlib.nullcontext() as recorder:
+    try:
+        with SignalLatch() as latch, Participant(domain_id=domain_id, interface=interface, node_name=name,
+                                                 namespace=namespace or "/") as dds:
+            transport = DdsTransport(dds, settings.node_name)
+            logic = SimNodeLogic(sim, settings, transport=transport, logger=log)
+            recorder = LogRecorder(path, logic.channels(), logic.run_info()) if path else None
             logic.recorder = recorder
-            log.info(f"serving {sim.scene.name} ({sim.method}, dt = {sim.dt:g} s) over DDS on domain {domain_id}, "
-                     f"interface {interface}" + (f"; logging to {path}" if path else ""))
-            spin(logic, transport, latch=latch, log=log)
-        lines = logic.summary() + [f"{'undecodable_samples':<27} {transport.undecodable}"]
-        if recorder is not None:
-            lines += [f"{'log':<27} {', '.join(map(str, recorder.paths))}"]
-    return lines
+            try:
+                with recorder or contextlib.nullcontext():
+                    log.info(f"serving {sim.scene.name} ({sim.method}, dt = {sim.dt:g} s) over DDS on domain "
+                             f"{domain_id}, interface {interface}" + (f"; logging to {path}" if path else ""))
+                    spin(logic, transport, latch=latch, log=log)
+            finally:
+                lines = logic.summary() + [f"{'undecodable_samples':<27} {transport.undecodable}"]
+                lines += [f"{'log':<27} {p}" for p in (recorder.paths if recorder else [])]
+                print("\n".join(lines), flush=True)
+    except KeyboardInterrupt:
+        pass  # Ctrl-C is how a server is stopped
 
 
 def spin(logic: SimNodeLogic, transport: DdsTransport, *, latch: SignalLatch, log: logging.Logger,
          clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> None:
     """The node's single thread, as the rclpy node's executor: every ``1/step_rate`` s of wall-clock time
     take the inputs, run the steps due (:meth:`SimNodeLogic.tick`), and once a second publish
-    ``/diagnostics``; until SIGINT or SIGTERM (caught by ``latch``: the normal way to stop a server)."""
+    ``/diagnostics``; until SIGINT or SIGTERM, which ``latch`` raises here, between two ticks."""
     next_tick = clock()
     next_diagnostics = next_tick + DIAGNOSTICS_PERIOD
-    while latch.signum is None:
+    while True:
+        latch.raise_if_signalled()
         transport.poll(logic, log)
         logic.tick()
         now = clock()

@@ -30,7 +30,8 @@ from cyclonedds._clayer import ddspy_take, ddspy_write
 from rosbags.typesys.store import Typestore
 
 from .config import DEFAULT_INTERFACE, check_domain_id, cyclone_config
-from .types import JAZZY, DdsType, dds_topic_name, dds_type
+from ..messages import TYPESTORE
+from .types import DdsType, dds_topic_name, dds_type
 
 __all__ = ["DEFAULT_QOS", "Participant", "QosProfile", "Reader", "Writer"]
 
@@ -153,7 +154,7 @@ class Participant:
     """
 
     def __init__(self, *, domain_id: int = 0, interface: str = DEFAULT_INTERFACE,
-                 typestore: Typestore = JAZZY, node_name: str | None = None, namespace: str = "/"):
+                 typestore: Typestore = TYPESTORE, node_name: str | None = None, namespace: str = "/"):
         self.domain_id = check_domain_id(domain_id)
         self.interface = interface
         self.typestore = typestore

@@ -6,8 +6,9 @@ A ROS 2 message ``pkg/msg/Type`` travels over DDS as a keyless, final (``@final`
 the type's RIHS01 hash in their USER_DATA as ``typehash=RIHS01_<hex>;``.
 
 Nothing here copies a message layout by hand: the structs are generated from the field definitions of
-a rosbags typestore (by default ROS 2 Jazzy, the definitions the MCAP log uses), and the hash is the
-typestore's ``hash_rihs01`` (the same computation as ``rosidl``'s type description hash).
+a rosbags typestore (by default :data:`~tensegrity_sim.ros.messages.TYPESTORE`, ROS 2 Jazzy, the one the
+node's messages and the MCAP log use), and the hash is the typestore's ``hash_rihs01`` (the same
+computation as ``rosidl``'s type-description hash).
 """
 from __future__ import annotations
 
@@ -18,12 +19,11 @@ from cyclonedds.idl import IdlStruct, make_idl_struct
 from cyclonedds.idl import types as t
 from cyclonedds.idl.annotations import final
 from rosbags.interfaces import Nodetype
-from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-__all__ = ["DdsType", "JAZZY", "dds_topic_name", "dds_type"]
+from ..messages import TYPESTORE
 
-JAZZY: Typestore = get_typestore(Stores.ROS2_JAZZY)
+__all__ = ["DdsType", "dds_topic_name", "dds_type"]
 
 # ROS 2 primitive -> IDL primitive, as rosidl maps them (``char`` is uint8 and ``byte`` is octet in ROS 2).
 _PRIMITIVES = {
@@ -74,7 +74,7 @@ def dds_topic_name(ros_topic: str) -> str:
 _CACHE: dict[tuple[Typestore, str], DdsType] = {}  # keyed by the store itself: ids can be reused
 
 
-def dds_type(msgtype: str, typestore: Typestore = JAZZY) -> DdsType:
+def dds_type(msgtype: str, typestore: Typestore = TYPESTORE) -> DdsType:
     """The DDS type of ``msgtype`` (``pkg/msg/Type``), generated once per typestore and cached.
 
     Raises ValueError for a type the typestore does not define.
