@@ -80,8 +80,10 @@ class FakeRecorder:
 
 
 def make_logic(scene: ts.Scene, clock=None, method: str = "elastic", **settings):
-    """(node logic, list of (key, message) it sent, its logger) for ``scene`` at dt = 1 ms."""
+    """(node logic, list of (key, message) it sent, its logger) for ``scene`` at dt = 1 ms.
+    Markers go out with every publication unless ``marker_rate`` is given."""
     sent: list = []
+    settings.setdefault("marker_rate", settings.get("publish_rate", NodeSettings.publish_rate))
     logger = ListLogger()
     sim = ts.Simulator(scene, method=method, dt=settings.pop("dt", 1e-3))
     logic = SimNodeLogic(sim, NodeSettings(scene=scene.name, dt=sim.dt, **settings),

@@ -43,7 +43,7 @@ def run(tmp_path_factory):
     path = tmp_path_factory.mktemp("log") / "run.mcap"
     sim = ts.Simulator(scene, method="elastic", dt=1e-3)
     sent, received = [], []
-    logic = SimNodeLogic(sim, NodeSettings(scene="prism", dt=1e-3),
+    logic = SimNodeLogic(sim, NodeSettings(scene="prism", dt=1e-3, marker_rate=100.0),
                          transport=lambda key, msg: sent.append((key, msg, logic.stamp_ns())))
     take = logic.receive
 
@@ -183,7 +183,7 @@ def test_log_file_path(tmp_path):
 
 def test_reset_starts_a_new_complete_log(tmp_path):
     scene = prism()
-    logic = SimNodeLogic(ts.Simulator(scene, method="elastic", dt=1e-3), NodeSettings(scene="prism"))
+    logic = SimNodeLogic(ts.Simulator(scene, method="elastic", dt=1e-3), NodeSettings(scene="prism", marker_rate=100.0))
     with LogRecorder(tmp_path / "node.mcap", logic.channels(), logic.run_info()) as recorder:
         logic.recorder = recorder
         for _ in range(25):

@@ -435,3 +435,18 @@ def test_diagnostics_warn_while_overrunning():
     values = {kv.key: kv.value for kv in reports[0].values}
     assert values["overruns"] == "1" and values["steps"] == "3" and values["max_lag_ms"] == "7.0"
     assert reports[0].message.startswith("1 overrun(s) since the last report")
+
+
+def test_markers_go_out_at_marker_rate():
+    """publish_rate 100 Hz, marker_rate 25 Hz: a MarkerArray with every 4th publication, the first one
+    included, and the count restarts on reset."""
+    logic, sent, _ = make_logic(ts.load_scene("prism3"), publish_rate=100.0, marker_rate=25.0)
+    assert logic.settings.markers_every == 4
+    for _ in range(120):
+        logic.step()
+        if logic.publication_due:
+            logic.publish()
+    keys = [k for k, _ in sent]
+    assert keys.count("node_poses") == 12 and keys.count("markers") == 3
+    stamps = [stamp_of(m.markers[0]) for k, m in sent if k == "markers"]
+    assert stamps == [10_000_000, 50_000_000, 90_000_000]

@@ -61,8 +61,9 @@ def rewrite(src, dst, alter=None, run_info=None):
 def test_replay_reproduces_a_run_with_commands(logged, capsys):
     report = replay(logged)
     assert report.ok and report.steps == 300 and report.notes == []
-    assert report.compared == {t: 30 for t in ("/clock", "/tensegrity_sim/node_poses", "/tensegrity_sim/cable_states",
-                                               "/tensegrity_sim/cable_impulses", "/tensegrity_sim/markers")}
+    assert report.compared == {**{t: 30 for t in ("/clock", "/tensegrity_sim/node_poses", "/tensegrity_sim/cable_states",
+                                                  "/tensegrity_sim/cable_impulses")},
+                               "/tensegrity_sim/markers": 3}  # marker_rate 10 Hz: publications 0, 10, 20
     assert report.inputs["/tensegrity_sim/external_wrench"] == 3
     assert report.inputs["/tensegrity_sim/cable_rest_lengths"] > 50  # a ramp: a message every step
     assert main(["replay", str(logged)]) == 0
@@ -108,10 +109,10 @@ def message_time(msg):
 
 def test_dropped_message_is_caught(logged, tmp_path):
     rewrite(logged, tmp_path / "dropped.mcap",
-            lambda topic, index, msg: None if topic == "/tensegrity_sim/markers" and index == 3 else msg)
+            lambda topic, index, msg: None if topic == "/tensegrity_sim/markers" and index == 1 else msg)
     m = replay(tmp_path / "dropped.mcap").mismatch
     assert (m.step, m.topic, m.field, m.logged, m.replayed) == (
-        40, "/tensegrity_sim/markers", "message", "none", "a message")
+        110, "/tensegrity_sim/markers", "message", "none", "a message")
 
 
 def test_summed_impulses_are_checked(logged, tmp_path):
@@ -157,7 +158,7 @@ def test_node_run_with_pauses_single_steps_refusals_and_rate_limit_replays(tmp_p
     and rate-limited inputs, a runtime publish-rate change) is reproduced from its log."""
     clock = FakeClock(t=0.0)
     sim = ts.Simulator(prism(gravity=9.81), method="elastic", dt=1e-3)
-    logic = SimNodeLogic(sim, NodeSettings(scene="prism", max_rest_length_rate=0.5), clock=clock,
+    logic = SimNodeLogic(sim, NodeSettings(scene="prism", max_rest_length_rate=0.5, marker_rate=100.0), clock=clock,
                          logger=type("Quiet", (), {"warning": lambda self, text: None})())
     path = tmp_path / "node.mcap"
     with LogRecorder(path, logic.channels(), logic.run_info()) as recorder:

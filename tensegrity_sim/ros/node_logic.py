@@ -110,6 +110,10 @@ class NodeSettings:
     publish_rate: float = field(default=100.0, metadata=_doc(
         "outputs per second of simulated time, Hz; at most 1/dt (rounded to a whole number of steps)",
         runtime=True))
+    marker_rate: float = field(default=10.0, metadata=_doc(
+        "markers per second of simulated time, Hz: every round(publish_rate / marker_rate)-th publication "
+        "(a display needs no more, and a MarkerArray costs more to serialise than all other outputs)",
+        runtime=True))
     real_time_factor: float = field(default=1.0, metadata=_doc(
         "simulated seconds per wall-clock second; 0 = as fast as possible", runtime=True))
     frame_id: str = field(default="world", metadata=_doc("frame of node_poses and markers"))
@@ -131,6 +135,7 @@ class NodeSettings:
             raise ValueError(f"parameter 'node_name': must be fully qualified (start with /), got "
                              f"{self.node_name!r}")
         for name, minimum, strict in (("dt", 0.0, True), ("step_rate", 0.0, True), ("publish_rate", 0.0, True),
+                                      ("marker_rate", 0.0, True),
                                       ("real_time_factor", 0.0, False), ("max_rest_length_rate", 0.0, False)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -146,6 +151,11 @@ class NodeSettings:
     def publish_every(self) -> int:
         """Steps between two publications: ``round(1 / (publish_rate dt))``, at least 1."""
         return max(1, int(round(1.0 / (self.publish_rate * self.dt))))
+
+    @property
+    def markers_every(self) -> int:
+        """Publications between two marker arrays: ``round(publish_rate / marker_rate)``, at least 1."""
+        return max(1, int(round(self.publish_rate / self.marker_rate)))
 
     @property
     def parameters(self) -> dict:
@@ -290,6 +300,7 @@ class SimNodeLogic:
         self._shown: set[str] = set()                # marker namespaces on screen
         self._last: StepResult | None = None
         self._since_publish = 0
+        self._until_markers = 0                      # publications to go until the next marker array
 
     def _anchor(self) -> None:
         """Restart the real-time schedule here: step ``k`` is due at ``t0 + (k - k0) dt / rtf``."""
@@ -470,8 +481,11 @@ class SimNodeLogic:
             ("node_poses", self._poses(header, r.positions)),
             ("cable_states", M.joint_state(header, self._cable_names, length, rate, r.tensions)),
             ("cable_impulses", M.joint_state(header, self._cable_names, effort=self._impulse_sum)),
-            ("markers", self._markers(header, r)),
         ]
+        if self._until_markers == 0:
+            outputs.append(("markers", self._markers(header, r)))
+            self._until_markers = self.settings.markers_every
+        self._until_markers -= 1
         if events:
             outputs.append(("contacts", encode_contacts(events, header)))
         self._impulse_sum = np.zeros_like(self._impulse_sum)
