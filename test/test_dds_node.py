@@ -175,8 +175,8 @@ def test_bad_messages_from_the_network_are_refused_and_the_node_keeps_going(tmp_
         {"wrong_type": "cable_rest_lengths"},        # another type on the topic: DDS does not match it
         {"command": "explode"}, {"command": "set dt 0.5"}, {"command": "set publish_rate -3"},
         {"sleep": 0.3}, {"mark": "good"},
-        {"rest": [["c0"], [0.9 * c0]]},              # and a good one still works
-        {"sleep": 0.3},
+        {"rest": [["c0"], [0.9 * c0]]},              # and good ones still work
+        {"sleep": 0.3}, {"command": "set publish_rate 50"}, {"mark": "slower"}, {"sleep": 0.3},
     ]
     with serving(domain, "prism3", "--log-path", "") as server:
         received, marks = control(domain, actions)
@@ -193,9 +193,12 @@ def test_bad_messages_from_the_network_are_refused_and_the_node_keeps_going(tmp_
     assert results[0].startswith("explode: failed: unknown command")
     assert results[1] == "set dt 0.5: failed: parameter 'dt' is read-only while running (restart the node)"
     assert results[2].startswith("set publish_rate -3: failed: parameter 'publish_rate': must be > 0")
+    assert results[3] == "set publish_rate 50: ok: publish_rate = 50.0"
+    slower = [stamp(m) for m, _, t in received["cable_states"] if t > marks["slower"] + 0.05]
+    assert len(slower) > 3 and np.allclose(np.diff(slower), 0.02, rtol=0, atol=1e-9)
     # Nothing bad changed anything (the prism stayed in its equilibrium); the good command after them did.
     before = [m.effort[0] for m, _, t in received["cable_states"] if t < marks["good"]]
-    after = [m.effort[0] for m, _, t in received["cable_states"] if t > marks["good"]]
+    after = [m.effort[0] for m, _, t in received["cable_states"] if marks["good"] < t < marks["slower"]]
     assert np.allclose(before, before[0], rtol=1e-9, atol=0)
     assert max(after) > before[0] + 50
 
@@ -203,24 +206,23 @@ def test_bad_messages_from_the_network_are_refused_and_the_node_keeps_going(tmp_
 def test_services_are_commands_on_a_topic(tmp_path):
     domain, log = random_domain(), tmp_path / "run.mcap"
     actions = [{"sleep": 0.2}, {"command": "pause"}, {"sleep": 0.3}, {"mark": "paused"},
-               {"command": "step"}, {"command": "step"}, {"sleep": 0.3}, {"command": "set publish_rate 50"},
+               {"command": "step"}, {"command": "step"}, {"sleep": 0.3},
                {"command": "resume"}, {"sleep": 0.3}, {"command": "reset"}, {"sleep": 0.2}]
     with serving(domain, "prism3", "--log-path", str(log)) as server:
         received, marks = control(domain, actions)
         out, _ = finish(server)
     results = [m.data for m, _, _ in received["command_result"]]
     assert [r.split(":")[0:2] for r in results] == [["pause", " ok"], ["step", " ok"], ["step", " ok"],
-                                                     ["set publish_rate 50", " ok"], ["resume", " ok"],
-                                                     ["reset", " ok"]]
+                                                     ["resume", " ok"], ["reset", " ok"]]
     clock = [(m.clock.sec + 1e-9 * m.clock.nanosec, t) for m, _, t in received["clock"]]
     paused_at = float(results[0].split("paused at t = ")[1].split()[0])
     assert all(s <= paused_at for s, t in clock if t < marks["paused"])  # no publication while paused
-    # Each single step publishes at once, one dt later; then 50 Hz (20 ms); then time restarts at 0.
+    # Each single step publishes at once, one dt later; then every 10 ms again; then time restarts at 0.
     after = [s for s, t in clock if t > marks["paused"]]
     assert np.allclose(after[:2], [paused_at + DT, paused_at + 2 * DT], rtol=0, atol=1e-9)
     resumed = np.array(after[2:])
     restart = int(np.flatnonzero(np.diff(resumed) < 0)[0]) + 1
-    assert np.allclose(np.diff(resumed[1:restart]), 0.02, rtol=0, atol=1e-9)
+    assert np.allclose(np.diff(resumed[1:restart]), 0.01, rtol=0, atol=1e-9)
     assert resumed[restart] < 0.05
     # The reset started a second log file; both are finished and replay.
     files = [line.split(None, 1)[1] for line in out.splitlines() if line.startswith("log ")]
