@@ -264,3 +264,20 @@ def _cmdline(pid: str) -> str:
         return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
     except OSError:
         return ""
+
+
+def test_the_example_controller_makes_cables_go_slack_and_snap():
+    domain = random_domain()
+    with serving(domain, "prism3", "--log-path", "") as server:
+        with spawn("examples/cable_controller.py", "--domain-id", str(domain), "--cables", "c0,c1,c2",
+                   "--period", "0.6", "--duration", "1.5", "--push", "n3", "0", "0", "5") as example:
+            out, err = example.communicate(timeout=60)
+        finish(server)
+    assert example.returncode == 0, err
+    assert "pushing n3 with [0.0, 0.0, 5.0] N" in out
+    slack = {line.split()[4] for line in out.splitlines() if line.endswith("goes slack")}
+    snaps = [line.split() for line in out.splitlines() if "snaps taut" in line]
+    assert slack == {"c0", "c1", "c2"}  # let out by 15 %, every driven cable goes slack
+    assert {s[4] for s in snaps} <= slack and snaps  # ... and snaps taut again when reeled in
+    for s in snaps:  # "t = T s  cX snaps taut: F N, impulse J N s since the previous state"
+        assert float(s[7]) > 0 and float(s[10]) > 0
