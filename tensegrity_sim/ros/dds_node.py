@@ -2,7 +2,7 @@
 
 The same :class:`~tensegrity_sim.ros.node_logic.SimNodeLogic` as the rclpy node does all the work; this
 module only carries its messages, on the same topics with the same types and QoS, through the
-ROS-compatible DDS participant of :mod:`tensegrity_sim.dds`, so a ROS 2 Jazzy machine on the same domain
+ROS-compatible DDS participant of :mod:`tensegrity_sim.ros.dds`, so a ROS 2 Jazzy machine on the same domain
 and network sees and drives it like the rclpy node. What differs, because DDS alone cannot do it:
 
 * **services**: a ROS 2 service pairs a request with its reply by a correlation id that each ROS
@@ -51,8 +51,6 @@ class DdsTransport:
     """
 
     def __init__(self, participant: Participant, node_name: str):
-        self.participant = participant
-        self.node_name = node_name
         self.writers, self.readers = {}, {}
         for key, spec in TOPICS.items():
             make = participant.writer if spec.direction == "out" else participant.reader
@@ -69,19 +67,18 @@ class DdsTransport:
     def poll(self, logic: SimNodeLogic, log: logging.Logger) -> None:
         """Hand every input that arrived to the logic, and run every command, in arrival order per topic."""
         for key, reader in self.readers.items():
-            messages, refused = reader.take_messages(deserialize=M.deserialize)
-            self._refuse(refused, log)
-            for message in messages:
+            for message in self._take(reader, log):
                 logic.receive(key, message)
-        messages, refused = self.commands.take_messages(deserialize=M.deserialize)
-        self._refuse(refused, log)
-        for message in messages:
+        for message in self._take(self.commands, log):
             self.results.write_cdr(M.serialize(M.new(_STRING, data=run_command(logic, message.data)), _STRING))
 
-    def _refuse(self, refused: list[str], log: logging.Logger) -> None:
+    def _take(self, reader, log: logging.Logger) -> list:
+        """The messages a reader holds; each sample that does not decode is refused (logged, counted)."""
+        messages, refused = reader.take_messages(deserialize=M.deserialize)
         self.undecodable += len(refused)
         for reason in refused:
-            log.warning(f"refused: {reason}")
+            log.warning(f"{reader.topic}: refused: {reason}")  # as the node logic words a refusal
+        return messages
 
 
 def run_command(logic: SimNodeLogic, text: str) -> str:
@@ -90,16 +87,26 @@ def run_command(logic: SimNodeLogic, text: str) -> str:
     if len(words) == 1 and words[0] in SERVICES:
         ok, message = getattr(logic, SERVICES[words[0]])()
     elif len(words) == 3 and words[0] == "set":
-        name, value = words[1], words[2]
-        try:
-            logic.update(**{name: float(value)})
-            ok, message = True, f"{name} = {getattr(logic.settings, name)!r}"
-        except (ValueError, TypeError) as exc:
-            ok, message = False, str(exc)
+        ok, message = _set_parameter(logic, words[1], words[2])
     else:
         ok, message = False, (f"unknown command (commands: {', '.join(SERVICES)}, "
                               f"set NAME VALUE with NAME in {', '.join(RUNTIME_PARAMETERS)})")
     return f"{text.strip()}: {'ok' if ok else 'failed'}: {message}"
+
+
+def _set_parameter(logic: SimNodeLogic, name: str, text: str) -> tuple[bool, str]:
+    """``set NAME VALUE``: what the rclpy node's set-parameters callback does, for a number."""
+    if name not in logic.settings.parameters:
+        return False, f"unknown parameter {name!r} (runtime parameters: {', '.join(RUNTIME_PARAMETERS)})"
+    try:
+        value = float(text)
+    except ValueError:
+        return False, f"parameter {name!r}: not a number: {text!r}"
+    try:
+        logic.update(**{name: value})
+    except ValueError as exc:
+        return False, str(exc)
+    return True, f"{name} = {getattr(logic.settings, name)!r}"
 
 
 def serve(settings: NodeSettings, *, domain_id: int = 0, interface: str = DEFAULT_INTERFACE,

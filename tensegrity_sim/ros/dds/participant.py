@@ -29,8 +29,8 @@ from cyclonedds.util import duration
 from cyclonedds._clayer import ddspy_take, ddspy_write
 from rosbags.typesys.store import Typestore
 
-from .config import DEFAULT_INTERFACE, check_domain_id, cyclone_config
 from ..messages import TYPESTORE
+from .config import DEFAULT_INTERFACE, check_domain_id, cyclone_config
 from .types import DdsType, dds_topic_name, dds_type
 
 __all__ = ["DEFAULT_QOS", "Participant", "QosProfile", "Reader", "Writer"]
@@ -141,7 +141,7 @@ class Reader(_Endpoint):
             # Bytes from the network are untrusted: whatever the decoder raises on them refuses
             # that sample and nothing else.
             except Exception as exc:  # noqa: BLE001
-                refused.append(f"{self.topic}: undecodable {self.type.msgtype} ({len(data)} bytes): {exc}")
+                refused.append(f"undecodable {self.type.msgtype} ({len(data)} bytes): {exc}")
         return messages, refused
 
 
@@ -156,7 +156,6 @@ class Participant:
     def __init__(self, *, domain_id: int = 0, interface: str = DEFAULT_INTERFACE,
                  typestore: Typestore = TYPESTORE, node_name: str | None = None, namespace: str = "/"):
         self.domain_id = check_domain_id(domain_id)
-        self.interface = interface
         self.typestore = typestore
         config = cyclone_config(interface)
         try:
@@ -165,6 +164,7 @@ class Participant:
             self.dds = DomainParticipant(self.domain_id, qos=Qos(Policy.Userdata(b"enclave=/;")))
         except DDSException as exc:
             raise ValueError(f"cannot start DDS on domain {domain_id} over interface {interface!r}: {exc}") from None
+        self._closed = False
         self._endpoints: list[Writer | Reader] = []
         self._waitset = WaitSet(self.dds)
         self._node = None
@@ -173,7 +173,6 @@ class Participant:
             # rmw_dds_common's own topic keeps its bare name (no "rt/"), and is not the node's.
             self._discovery = Writer(self, _DISCOVERY_TOPIC, _DISCOVERY_TOPIC, dds_type(_DISCOVERY_TYPE, typestore),
                                      QosProfile(depth=1, transient_local=True))
-        self._closed = False
 
     @property
     def guid(self) -> bytes:

@@ -32,7 +32,7 @@ _PRIMITIVES = {
     "int32": t.int32, "uint32": t.uint32, "int64": t.int64, "uint64": t.uint64,
     "float32": t.float32, "float64": t.float64, "string": str,
 }
-_ROS_NAME = re.compile(r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
+_ROS_NAME = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)+$")  # fully qualified: /ns/name
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,7 @@ def dds_topic_name(ros_topic: str) -> str:
 
     Raises ValueError for a name that is not absolute or not a valid ROS name.
     """
-    if not isinstance(ros_topic, str) or not ros_topic.startswith("/") or not _ROS_NAME.match(ros_topic):
+    if not isinstance(ros_topic, str) or not _ROS_NAME.match(ros_topic):
         raise ValueError(f"topic must be a fully qualified ROS name like /ns/name, got {ros_topic!r}")
     return "rt" + ros_topic
 
