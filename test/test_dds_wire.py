@@ -150,6 +150,25 @@ def test_bad_interface_and_domain_are_refused_with_the_reason():
         Participant(domain_id=random_domain(), interface="nonexistent0")
 
 
+def test_participants_of_one_process_share_its_domain():
+    """Cyclone configures a domain once per process: a second participant joins it (and they talk);
+    another configuration of the same domain is refused while it is in use; the last one out deletes it."""
+    domain = random_domain()
+    with Participant(domain_id=domain) as a, Participant(domain_id=domain) as b:
+        writer = a.writer("/shared", "std_msgs/msg/String")
+        reader = b.reader("/shared", "std_msgs/msg/String")
+        while not writer.matched:
+            b.wait(0.01)
+        writer.write(TYPESTORE.types["std_msgs/msg/String"](data="hello"))
+        assert b.wait(5.0)
+        assert [m.data for m in reader.take_messages()[0]] == ["hello"]
+        with pytest.raises(ValueError, match=f"domain {domain} is already in use in this process over interface "
+                                             "'lo', not '127.0.0.1'"):
+            Participant(domain_id=domain, interface="127.0.0.1")
+    with Participant(domain_id=domain, interface="127.0.0.1") as c:  # free again: any configuration
+        assert c.domain_id == domain
+
+
 # --------------------------------------------------------------------------- across processes
 def test_a_ros_graph_sees_ros_names_types_hashes_qos_and_the_node():
     """What a ROS 2 machine's graph learns from discovery, read by another process."""

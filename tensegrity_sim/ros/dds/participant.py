@@ -157,12 +157,13 @@ class Participant:
                  typestore: Typestore = TYPESTORE, node_name: str | None = None, namespace: str = "/"):
         self.domain_id = check_domain_id(domain_id)
         self.typestore = typestore
-        config = cyclone_config(interface)
+        self._closed = True  # until the participant exists
+        _domains.acquire(self.domain_id, cyclone_config(interface), interface)
         try:
-            self._domain = Domain(self.domain_id, config)
             # Jazzy participants carry their security enclave; "/" is the default one.
             self.dds = DomainParticipant(self.domain_id, qos=Qos(Policy.Userdata(b"enclave=/;")))
         except DDSException as exc:
+            _domains.release(self.domain_id)
             raise ValueError(f"cannot start DDS on domain {domain_id} over interface {interface!r}: {exc}") from None
         self._closed = False
         self._endpoints: list[Writer | Reader] = []
@@ -193,13 +194,14 @@ class Participant:
         return self._waitset.wait(duration(seconds=max(timeout, 0.0))) > 0
 
     def close(self) -> None:
-        """Delete the participant and everything in it. Idempotent."""
+        """Delete the participant and everything in it (which says so on the network). Idempotent."""
         if self._closed:
             return
         self._closed = True
-        # Deleting the domain deletes its participant, topics, readers and writers (and says so on
-        # the network); dropping the Python handles afterwards is then a no-op.
-        self._domain.__del__()
+        # The binding deletes an entity, and everything under it, when its handle goes; dropping the
+        # Python handles of the children afterwards is then a no-op.
+        self.dds.__del__()
+        _domains.release(self.domain_id)
 
     def __enter__(self) -> "Participant":
         return self
@@ -226,6 +228,38 @@ class Participant:
         )
         msg = ts.types[_DISCOVERY_TYPE](gid=gid(data=_gid(self.guid)), node_entities_info_seq=[node])
         self._discovery.write(msg)
+
+
+class _Domains:
+    """The Cyclone domains of this process, one per domain id, shared by its participants and deleted
+    with the last of them (as rmw_cyclonedds does): Cyclone configures a domain once per process."""
+
+    def __init__(self):
+        self._open: dict[int, tuple[Domain, str, str, int]] = {}  # id -> (domain, config, interface, users)
+
+    def acquire(self, domain_id: int, config: str, interface: str) -> None:
+        if domain_id in self._open:
+            domain, held, held_interface, users = self._open[domain_id]
+            if held != config:
+                raise ValueError(f"domain {domain_id} is already in use in this process over interface "
+                                 f"{held_interface!r}, not {interface!r}")
+            self._open[domain_id] = (domain, held, held_interface, users + 1)
+            return
+        try:
+            self._open[domain_id] = (Domain(domain_id, config), config, interface, 1)
+        except DDSException as exc:
+            raise ValueError(f"cannot start DDS on domain {domain_id} over interface {interface!r}: {exc}") from None
+
+    def release(self, domain_id: int) -> None:
+        domain, config, interface, users = self._open[domain_id]
+        if users > 1:
+            self._open[domain_id] = (domain, config, interface, users - 1)
+        else:
+            del self._open[domain_id]
+            domain.__del__()
+
+
+_domains = _Domains()
 
 
 def _gid(guid: bytes):
