@@ -25,9 +25,12 @@ from ..messages import TYPESTORE
 
 __all__ = ["DdsType", "dds_topic_name", "dds_type"]
 
-# ROS 2 primitive -> IDL primitive, as rosidl maps them (``char`` is uint8 and ``byte`` is octet in ROS 2).
+# ROS 2 primitive -> IDL primitive. ``char`` is uint8, as in rosidl. ``byte`` is octet in rosidl's IDL but
+# uint8 in the XTypes type information that rmw_cyclonedds builds (its dynamic types, in releases after
+# Jazzy's, which sends none and matches by type name only): a peer that compares type information
+# compares it with that, and the two encode alike (one byte).
 _PRIMITIVES = {
-    "bool": bool, "byte": t.byte, "char": t.uint8,
+    "bool": bool, "byte": t.uint8, "char": t.uint8,
     "int8": t.int8, "uint8": t.uint8, "int16": t.int16, "uint16": t.uint16,
     "int32": t.int32, "uint32": t.uint32, "int64": t.int64, "uint64": t.uint64,
     "float32": t.float32, "float64": t.float64, "string": str,
