@@ -28,18 +28,15 @@ from pathlib import Path
 import numpy as np
 
 import tensegrity_sim as ts
+from tensegrity_sim.ros import messages as M
 from tensegrity_sim.ros.dds import Participant
-from tensegrity_sim.ros.messages import TYPESTORE
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBE_STIFFNESS = 1000.0  # N/m
-T = TYPESTORE.types
 
 
 def rest_command(cable: str, length: float):
-    h = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="")
-    return T["sensor_msgs/msg/JointState"](header=h, name=[cable], position=np.array([length]),
-                                           velocity=np.array([]), effort=np.array([]))
+    return M.joint_state(M.header(0, ""), [cable], position=[length])
 
 
 def main() -> int:

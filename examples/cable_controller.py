@@ -24,10 +24,9 @@ import time
 
 import numpy as np
 
+from tensegrity_sim.ros import messages as M
 from tensegrity_sim.ros.dds import Participant
-from tensegrity_sim.ros.messages import TYPESTORE
 
-T = TYPESTORE.types
 PUSH_TIME = 0.2  # s
 
 
@@ -35,24 +34,14 @@ def _stamp(msg) -> tuple[int, int]:
     return msg.header.stamp.sec, msg.header.stamp.nanosec
 
 
-def header(frame_id: str = ""):
-    now = time.time_ns()
-    return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=now // 10**9, nanosec=now % 10**9),
-                                    frame_id=frame_id)
-
-
 def rest_length_command(names: list[str], lengths: np.ndarray):
     """sensor_msgs/JointState: ``name`` = cables, ``position`` = rest lengths, m."""
-    return T["sensor_msgs/msg/JointState"](header=header(), name=list(names), position=np.asarray(lengths, float),
-                                           velocity=np.array([]), effort=np.array([]))
+    return M.joint_state(M.header(time.time_ns(), ""), names, position=lengths)
 
 
 def wrench_command(node: str, force):
     """geometry_msgs/WrenchStamped on ``node`` (the frame id), ``force`` N in world axes."""
-    vector = T["geometry_msgs/msg/Vector3"]
-    return T["geometry_msgs/msg/WrenchStamped"](
-        header=header(node), wrench=T["geometry_msgs/msg/Wrench"](force=vector(*map(float, force)),
-                                                                 torque=vector(x=0.0, y=0.0, z=0.0)))
+    return M.wrench_stamped(M.header(time.time_ns(), node), force)
 
 
 def main(argv: list[str] | None = None) -> int:

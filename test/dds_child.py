@@ -18,10 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from tensegrity_sim.ros import messages as M
 from tensegrity_sim.ros.dds import Participant, QosProfile, Reader, dds_type
 from tensegrity_sim.ros.messages import TYPESTORE
-
-T = TYPESTORE.types
 JOINTS = "/dds_test/joint_states"
 POSES = "/dds_test/poses"
 
@@ -53,25 +52,19 @@ def spawn(*args: str, timeout: float = 30.0):
         proc.stderr.close()
 
 
-def header(i: int):
-    return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=i, nanosec=1000 * i),
-                                    frame_id=f"frame_{i}")
-
-
 def joint_state(i: int):
     """The i-th JointState the publisher sends; a test rebuilds it to compare."""
     k = np.arange(3.0)
-    return T["sensor_msgs/msg/JointState"](header=header(i), name=[f"j{n}" for n in range(3)],
-                                           position=i + k / 10, velocity=-k, effort=np.array([]))
+    return M.joint_state(M.header(i * 10**9 + 1000 * i, f"frame_{i}"), [f"j{n}" for n in range(3)],
+                         position=i + k / 10, velocity=-k)
 
 
 def pose_array(i: int):
     """The i-th PoseArray: pose n at (i, n, -n) with a unit quaternion."""
-    pose, point, quat = T["geometry_msgs/msg/Pose"], T["geometry_msgs/msg/Point"], T["geometry_msgs/msg/Quaternion"]
-    return T["geometry_msgs/msg/PoseArray"](
-        header=header(i),
-        poses=[pose(position=point(x=float(i), y=float(n), z=-float(n)), orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0))
-               for n in range(4)])
+    identity = M.new("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0)
+    return M.new("geometry_msgs/msg/PoseArray", header=M.header(i * 10**9 + 1000 * i, f"frame_{i}"),
+                 poses=[M.new("geometry_msgs/msg/Pose", position=M.point(float(i), float(n), -float(n)),
+                              orientation=identity) for n in range(4)])
 
 
 def publish(domain: int, count: int) -> None:
@@ -140,15 +133,7 @@ NODE_INPUTS = {
 
 
 def rest_lengths(names, position, velocity=()):
-    return T["sensor_msgs/msg/JointState"](header=header(0), name=list(names), position=np.array(position, float),
-                                           velocity=np.array(velocity, float), effort=np.array([]))
-
-
-def wrench(node, force, torque=(0.0, 0.0, 0.0)):
-    vector = T["geometry_msgs/msg/Vector3"]
-    h = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=node)
-    return T["geometry_msgs/msg/WrenchStamped"](header=h, wrench=T["geometry_msgs/msg/Wrench"](
-        force=vector(*map(float, force)), torque=vector(*map(float, torque))))
+    return M.joint_state(M.header(0, ""), names, position=position, velocity=velocity)
 
 
 def control(domain: int, actions: list) -> None:
@@ -189,15 +174,16 @@ def control(domain: int, actions: list) -> None:
             elif kind == "rest":
                 writers["cable_rest_lengths"].write(rest_lengths(*arg))
             elif kind == "wrench":
-                writers["external_wrench"].write(wrench(*arg))
+                node, force, *torque = arg
+                writers["external_wrench"].write(M.wrench_stamped(M.header(0, node), force, *torque))
             elif kind == "command":
-                writers["command"].write(T["std_msgs/msg/String"](data=arg))
+                writers["command"].write(M.new("std_msgs/msg/String", data=arg))
             elif kind == "cdr":
                 writers[arg[0]].write_cdr(bytes.fromhex(arg[1]))
             elif kind == "wrong_type":
                 strangers[arg] = p.writer(NODE_INPUTS[arg][0], "std_msgs/msg/String")
                 time.sleep(0.5)  # time to be discovered (and refused by type)
-                strangers[arg].write(T["std_msgs/msg/String"](data="not a JointState"))
+                strangers[arg].write(M.new("std_msgs/msg/String", data="not a JointState"))
             elif kind == "mark":
                 print(json.dumps({"mark": arg, "at": time.monotonic()}))
             else:

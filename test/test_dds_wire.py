@@ -11,6 +11,7 @@ from rosbags.interfaces import Nodetype
 from dds_child import JOINTS, POSES, joint_state, pose_array, random_domain, spawn
 from tensegrity_sim.ros.dds import (MAX_DOMAIN_ID, Participant, QosProfile, check_domain_id, cyclone_config,
                                     dds_topic_name, dds_type)
+from tensegrity_sim.ros import messages as M
 from tensegrity_sim.ros.messages import TYPESTORE
 
 CHILD = "test/dds_child.py"
@@ -159,7 +160,7 @@ def test_participants_of_one_process_share_its_domain():
         reader = b.reader("/shared", "std_msgs/msg/String")
         while not writer.matched:
             b.wait(0.01)
-        writer.write(TYPESTORE.types["std_msgs/msg/String"](data="hello"))
+        writer.write(M.new("std_msgs/msg/String", data="hello"))
         assert b.wait(5.0)
         assert [m.data for m in reader.take_messages()[0]] == ["hello"]
         with pytest.raises(ValueError, match=f"domain {domain} is already in use in this process over interface "

@@ -61,8 +61,7 @@ class DdsTransport:
         self.undecodable = 0
 
     def __call__(self, key: str, message) -> None:
-        writer = self.writers[key]
-        writer.write_cdr(M.serialize(message, writer.type.msgtype))
+        self.writers[key].write(message)
 
     def poll(self, logic: SimNodeLogic, log: logging.Logger) -> None:
         """Hand every input that arrived to the logic, and run every command, in arrival order per topic."""
@@ -70,11 +69,11 @@ class DdsTransport:
             for message in self._take(reader, log):
                 logic.receive(key, message)
         for message in self._take(self.commands, log):
-            self.results.write_cdr(M.serialize(M.new(_STRING, data=run_command(logic, message.data)), _STRING))
+            self.results.write(M.new(_STRING, data=run_command(logic, message.data)))
 
     def _take(self, reader, log: logging.Logger) -> list:
         """The messages a reader holds; each sample that does not decode is refused (logged, counted)."""
-        messages, refused = reader.take_messages(deserialize=M.deserialize)
+        messages, refused = reader.take_messages()
         self.undecodable += len(refused)
         for reason in refused:
             log.warning(f"{reader.topic}: refused: {reason}")  # as the node logic words a refusal

@@ -1,8 +1,9 @@
 """A DDS participant that speaks ROS 2 (Jazzy) on the wire, without a ROS install.
 
-Writers send CDR bytes whose layout is the generated type's (see ``types``): the transport serializes
-with the same rosbags typestore the MCAP log uses, so what goes on the wire is byte for byte what goes
-in the log. Readers hand back the raw CDR of every sample; ``take_messages`` decodes it and refuses,
+Writers send CDR bytes whose layout is the generated type's (see ``types``), serialized by
+:mod:`~tensegrity_sim.ros.messages` as the MCAP log serializes them, so what goes on the wire is byte for
+byte what goes in the log; messages are that module's (rclpy's classes where rclpy imports, else
+rosbags'). Readers hand back the raw CDR of every sample; ``take_messages`` decodes it and refuses,
 with a reason, whatever does not decode, since a network peer can send anything.
 
 Endpoint QoS follows rmw_cyclonedds: history, reliability and durability from the ROS profile,
@@ -27,9 +28,7 @@ from cyclonedds.util import duration
 # The binding's own write/take of serialized samples: DataWriter.write and DataReader.take would
 # force every message through cyclonedds' Python (de)serializer objects; these take and give bytes.
 from cyclonedds._clayer import ddspy_take, ddspy_write
-from rosbags.typesys.store import Typestore
-
-from ..messages import TYPESTORE
+from .. import messages as M
 from .config import DEFAULT_INTERFACE, check_domain_id, cyclone_config
 from .types import DdsType, dds_topic_name, dds_type
 
@@ -76,7 +75,6 @@ class _Endpoint:
     def __init__(self, participant: "Participant", topic: str, dds_topic: str, dds: DdsType, qos: QosProfile,
                  entity):
         self.topic, self.type, self.qos = topic, dds, qos
-        self._typestore = participant.typestore
         self._entity = entity(participant.dds, Topic(participant.dds, dds_topic, dds.idl),
                               qos.to_cyclone(dds.user_data))
 
@@ -98,8 +96,8 @@ class Writer(_Endpoint):
         return len(self._entity.get_matched_subscriptions())
 
     def write(self, message) -> None:
-        """Serialize a typestore message object and send it."""
-        self.write_cdr(bytes(self._typestore.serialize_cdr(message, self.type.msgtype)))
+        """Serialize a message (of :mod:`~tensegrity_sim.ros.messages`) and send it."""
+        self.write_cdr(M.serialize(message, self.type.msgtype))
 
     def write_cdr(self, data: bytes) -> None:
         """Send one serialized sample: the 4-byte encapsulation header (CDR_LE or CDR_BE) then the body."""
@@ -128,16 +126,12 @@ class Reader(_Endpoint):
             raise DDSException(got, f"taking from {self.topic}")
         return [data for data, info in got if info.valid_data]
 
-    def take_messages(self, max_samples: int = 256, deserialize=None) -> tuple[list, list[str]]:
-        """Decode what :meth:`take` returns: (messages, one reason per sample that does not decode).
-
-        ``deserialize(data, msgtype)`` decodes; default: the participant's typestore.
-        """
-        deserialize = deserialize or self._typestore.deserialize_cdr
+    def take_messages(self, max_samples: int = 256) -> tuple[list, list[str]]:
+        """Decode what :meth:`take` returns: (messages, one reason per sample that does not decode)."""
         messages, refused = [], []
         for data in self.take(max_samples):
             try:
-                messages.append(deserialize(data, self.type.msgtype))
+                messages.append(M.deserialize(data, self.type.msgtype))
             # Bytes from the network are untrusted: whatever the decoder raises on them refuses
             # that sample and nothing else.
             except Exception as exc:  # noqa: BLE001
@@ -153,10 +147,9 @@ class Participant:
     peers at once that they are gone.
     """
 
-    def __init__(self, *, domain_id: int = 0, interface: str = DEFAULT_INTERFACE,
-                 typestore: Typestore = TYPESTORE, node_name: str | None = None, namespace: str = "/"):
+    def __init__(self, *, domain_id: int = 0, interface: str = DEFAULT_INTERFACE, node_name: str | None = None,
+                 namespace: str = "/"):
         self.domain_id = check_domain_id(domain_id)
-        self.typestore = typestore
         self._closed = True  # until the participant exists
         _domains.acquire(self.domain_id, cyclone_config(interface), interface)
         try:
@@ -172,7 +165,7 @@ class Participant:
         if node_name is not None:
             self._node = (namespace, node_name)
             # rmw_dds_common's own topic keeps its bare name (no "rt/"), and is not the node's.
-            self._discovery = Writer(self, _DISCOVERY_TOPIC, _DISCOVERY_TOPIC, dds_type(_DISCOVERY_TYPE, typestore),
+            self._discovery = Writer(self, _DISCOVERY_TOPIC, _DISCOVERY_TOPIC, dds_type(_DISCOVERY_TYPE),
                                      QosProfile(depth=1, transient_local=True))
 
     @property
@@ -181,11 +174,11 @@ class Participant:
 
     def writer(self, topic: str, msgtype: str, qos: QosProfile = DEFAULT_QOS) -> Writer:
         """A writer of ``msgtype`` (``pkg/msg/Type``) on the fully qualified ROS topic ``topic``."""
-        return self._add(Writer(self, topic, dds_topic_name(topic), dds_type(msgtype, self.typestore), qos))
+        return self._add(Writer(self, topic, dds_topic_name(topic), dds_type(msgtype), qos))
 
     def reader(self, topic: str, msgtype: str, qos: QosProfile = DEFAULT_QOS) -> Reader:
         """A reader of ``msgtype`` on ``topic``; :meth:`wait` wakes when it has data."""
-        reader = self._add(Reader(self, topic, dds_topic_name(topic), dds_type(msgtype, self.typestore), qos))
+        reader = self._add(Reader(self, topic, dds_topic_name(topic), dds_type(msgtype), qos))
         self._waitset.attach(reader.condition)
         return reader
 
@@ -217,17 +210,11 @@ class Participant:
 
     def _announce(self) -> None:
         """Publish which readers and writers belong to the node (rmw_dds_common's graph protocol)."""
-        ts = self.typestore
-        gid = ts.types["rmw_dds_common/msg/Gid"]
-        info = ts.types["rmw_dds_common/msg/NodeEntitiesInfo"]
         namespace, name = self._node
-        node = info(
-            node_namespace=namespace, node_name=name,
-            reader_gid_seq=[gid(data=_gid(e.guid)) for e in self._endpoints if isinstance(e, Reader)],
-            writer_gid_seq=[gid(data=_gid(e.guid)) for e in self._endpoints if isinstance(e, Writer)],
-        )
-        msg = ts.types[_DISCOVERY_TYPE](gid=gid(data=_gid(self.guid)), node_entities_info_seq=[node])
-        self._discovery.write(msg)
+        node = M.new("rmw_dds_common/msg/NodeEntitiesInfo", node_namespace=namespace, node_name=name,
+                     reader_gid_seq=[_gid(e.guid) for e in self._endpoints if isinstance(e, Reader)],
+                     writer_gid_seq=[_gid(e.guid) for e in self._endpoints if isinstance(e, Writer)])
+        self._discovery.write(M.new(_DISCOVERY_TYPE, gid=_gid(self.guid), node_entities_info_seq=[node]))
 
 
 class _Domains:
@@ -264,4 +251,4 @@ _domains = _Domains()
 
 def _gid(guid: bytes):
     """A GUID as rmw_dds_common/msg/Gid (``char[16] data``)."""
-    return np.frombuffer(guid, dtype=np.uint8)
+    return M.new("rmw_dds_common/msg/Gid", data=np.frombuffer(guid, dtype=np.uint8))

@@ -6,20 +6,20 @@ A ROS 2 message ``pkg/msg/Type`` travels over DDS as a keyless, final (``@final`
 the type's RIHS01 hash in their USER_DATA as ``typehash=RIHS01_<hex>;``.
 
 Nothing here copies a message layout by hand: the structs are generated from the field definitions of
-a rosbags typestore (by default :data:`~tensegrity_sim.ros.messages.TYPESTORE`, ROS 2 Jazzy, the one the
-node's messages and the MCAP log use), and the hash is the typestore's ``hash_rihs01`` (the same
-computation as ``rosidl``'s type-description hash).
+:data:`~tensegrity_sim.ros.messages.TYPESTORE` (rosbags' ROS 2 Jazzy store, the one the node's messages
+and the MCAP log use), and the hash is its ``hash_rihs01`` (the same computation as ``rosidl``'s
+type-description hash).
 """
 from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import cache
 
 from cyclonedds.idl import IdlStruct, make_idl_struct
 from cyclonedds.idl import types as t
 from cyclonedds.idl.annotations import final
 from rosbags.interfaces import Nodetype
-from rosbags.typesys.store import Typestore
 
 from ..messages import TYPESTORE
 
@@ -74,41 +74,31 @@ def dds_topic_name(ros_topic: str) -> str:
     return "rt" + ros_topic
 
 
-_CACHE: dict[tuple[Typestore, str], DdsType] = {}  # keyed by the store itself: ids can be reused
+@cache
+def dds_type(msgtype: str) -> DdsType:
+    """The DDS type of ``msgtype`` (``pkg/msg/Type``), generated once. ValueError for an unknown type."""
+    if msgtype not in TYPESTORE.fielddefs:
+        raise ValueError(f"message type {msgtype!r} is not defined in the typestore")
+    return DdsType(msgtype, dds_type_name(msgtype), _idl_struct(msgtype), TYPESTORE.hash_rihs01(msgtype))
 
 
-def dds_type(msgtype: str, typestore: Typestore = TYPESTORE) -> DdsType:
-    """The DDS type of ``msgtype`` (``pkg/msg/Type``), generated once per typestore and cached.
-
-    Raises ValueError for a type the typestore does not define.
-    """
-    key = (typestore, msgtype)
-    if key not in _CACHE:
-        if msgtype not in typestore.fielddefs:
-            raise ValueError(f"message type {msgtype!r} is not defined in the typestore")
-        _CACHE[key] = DdsType(msgtype, dds_type_name(msgtype), _idl_struct(msgtype, typestore),
-                              typestore.hash_rihs01(msgtype))
-    return _CACHE[key]
+def _idl_struct(msgtype: str) -> type[IdlStruct]:
+    """Generate the IDL struct of ``msgtype`` and, through :func:`dds_type`, of the types it nests."""
+    _, fields = TYPESTORE.fielddefs[msgtype]
+    members = {name: _idl_member(desc) for name, desc in fields}
+    return final(make_idl_struct(msgtype.rsplit("/", 1)[1] + "_", dds_type_name(msgtype), members))
 
 
-def _idl_struct(msgtype: str, typestore: Typestore) -> type[IdlStruct]:
-    """Generate the IDL struct of ``msgtype`` and, recursively, of the types it nests."""
-    _, fields = typestore.fielddefs[msgtype]
-    members = {name: _idl_member(desc, typestore) for name, desc in fields}
-    struct = make_idl_struct(msgtype.rsplit("/", 1)[1] + "_", dds_type_name(msgtype), members)
-    return final(struct)
-
-
-def _idl_member(desc, typestore: Typestore):
+def _idl_member(desc):
     """The cyclonedds annotation of one rosbags field description ``(Nodetype, detail)``."""
     node, detail = desc
     if node == Nodetype.BASE:
         name, bound = detail
         return t.bounded_str[bound] if name == "string" and bound else _PRIMITIVES[name]
     if node == Nodetype.NAME:
-        return dds_type(detail, typestore).idl
+        return dds_type(detail).idl
     element, count = detail
     if node == Nodetype.ARRAY:
-        return t.array[_idl_member(element, typestore), count]
+        return t.array[_idl_member(element), count]
     # A sequence: bounded when count > 0.
-    return t.sequence[_idl_member(element, typestore), count] if count else t.sequence[_idl_member(element, typestore)]
+    return t.sequence[_idl_member(element), count] if count else t.sequence[_idl_member(element)]
