@@ -47,7 +47,8 @@ def qos_profile(qos: Qos) -> QosProfile:
 class DdsTransport:
     """Writers for the node's outputs, readers for its inputs and for ``~/command``.
 
-    ``transport(key, message)`` is the logic's output callback; :meth:`poll` feeds it what arrived.
+    ``transport(key, data)`` is the logic's raw output callback (CDR bytes); :meth:`poll` feeds the logic
+    what arrived.
     """
 
     def __init__(self, participant: Participant, node_name: str):
@@ -60,8 +61,9 @@ class DdsTransport:
         self.results = participant.writer(resolve_topic(RESULT_TOPIC, node_name), _STRING)
         self.undecodable = 0
 
-    def __call__(self, key: str, message) -> None:
-        self.writers[key].write(message)
+    def __call__(self, key: str, data: bytes) -> None:
+        """The logic's raw transport: an output's CDR bytes, the very bytes the log records."""
+        self.writers[key].write_cdr(data)
 
     def poll(self, logic: SimNodeLogic, log: logging.Logger) -> None:
         """Hand every input that arrived to the logic, and run every command, in arrival order per topic."""
@@ -121,7 +123,7 @@ def serve(settings: NodeSettings, *, domain_id: int = 0, interface: str = DEFAUL
         with SignalLatch() as latch, Participant(domain_id=domain_id, interface=interface, node_name=name,
                                                  namespace=namespace or "/") as dds:
             transport = DdsTransport(dds, settings.node_name)
-            logic = SimNodeLogic(sim, settings, transport=transport, logger=log)
+            logic = SimNodeLogic(sim, settings, transport=transport, raw_transport=True, logger=log)
             recorder = LogRecorder(path, logic.channels(), logic.run_info()) if path else None
             logic.recorder = recorder
             try:
