@@ -3,6 +3,7 @@
 The numerical core (scene, system, methods, simulator) imports nothing from ROS, MCAP or file
 formats beyond the scene loader.
 """
+from .contact import ActiveContact
 from .methods import METHODS
 from .results import ContactEvent, StepResult, Trajectory
 from .scene import Cable, ClassKWarning, Node, Scene, SceneError, Strut, builtin_scenes, load_scene
@@ -13,4 +14,5 @@ __version__ = "0.1.0"
 __all__ = [
     "METHODS", "Cable", "ClassKWarning", "ContactEvent", "Node", "Scene", "SceneError", "Simulator",
     "StepResult", "Strut", "Trajectory", "builtin_scenes", "load_scene", "__version__",
+    "ActiveContact",
 ]

@@ -38,6 +38,8 @@ class RunSummary:
     max_tension_cable: str = ""
     switches: int = 0
     contacts: int = 0
+    contact_begins: int = 0
+    contact_pairs: int = 0
     energy_start: float = 0.0
     energy_end: float = 0.0
     extra: dict = field(default_factory=dict)
@@ -55,7 +57,8 @@ class RunSummary:
             f"{self.sim_time / self.wall_time if self.wall_time > 0 else float('inf'):.1f})",
             f"max tension      {self.max_tension:.6g} N ({self.max_tension_cable or '-'})",
             f"slack/taut       {self.switches} switches",
-            f"contacts         {self.contacts} events",
+            f"contacts         {self.contacts} events ({self.contact_begins} begin, "
+            f"{self.contacts - self.contact_begins} end) between {self.contact_pairs} member pairs",
             f"energy           {self.energy_start:.9g} J -> {self.energy_end:.9g} J "
             f"(drift {drift:+.3e} J, {drift / scale:+.3e} relative)",
         ]
@@ -76,7 +79,7 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
     energy_start = sim.energy()["total"]
     max_t, max_cable = 0.0, -1
     switches = 0
-    contacts = 0
+    contacts, begins, pairs = 0, 0, set()
     slack_prev = sim.slack()
     last_forces = None
     bar = tqdm(total=steps, unit="step", disable=not progress, mininterval=0.5)
@@ -100,6 +103,9 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
             switches += int(np.count_nonzero(r.slack != slack_prev))
             slack_prev = r.slack
             contacts += len(r.contacts)
+            for event in r.contacts:
+                begins += event.kind == "begin"
+                pairs.add(event.members)
             if on_step is not None:
                 on_step(r)
             bar.update()
@@ -110,14 +116,15 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
         scene=sim.scene.name, method=sim.method, method_reason=sim.method_reason, dt=sim.dt,
         steps=steps, sim_time=sim.time, wall_time=wall, max_tension=max_t,
         max_tension_cable=sim.scene.cable_names[max_cable] if max_cable >= 0 else "",
-        switches=switches, contacts=contacts, energy_start=energy_start,
+        switches=switches, contacts=contacts, contact_begins=begins, contact_pairs=len(pairs),
+        energy_start=energy_start,
         energy_end=sim.energy()["total"],
     )
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
-    sim = Simulator(scene, method=args.method, dt=args.dt)
+    sim = Simulator(scene, method=args.method, dt=args.dt, contacts=args.contacts)
     commands = load_commands(args.commands, scene) if args.commands else None
     steps = int(round(args.duration / sim.dt))
     print(f"method: {sim.method_reason}")
@@ -217,6 +224,10 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _contact_kinds(text: str) -> list[str]:
+    return [] if text == "none" else text.split(",")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tensegrity-sim",
                                      description="Tensegrity dynamics with slack and snapping cables.")
@@ -230,6 +241,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--dt", type=_positive_float, default=1e-3, help="step, s (default: 0.001)")
     run.add_argument("--duration", type=_positive_float, default=10.0, help="simulated time, s (default: 10)")
     run.add_argument("--commands", help="a rest-length/force schedule (YAML; see tensegrity_sim.commands)")
+    run.add_argument("--contacts", type=_contact_kinds, default=None, metavar="KINDS",
+                     help="member pairs to check for contact, comma-separated (strut_strut, strut_cable, "
+                          "cable_cable) or 'none' (default: the scene's contact: kinds)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument("--log", nargs="?", const=DEFAULT_LOG_DIR, metavar="FILE",
                      help="write an MCAP log (the node's topics): FILE.mcap, or a directory for a timestamped "

@@ -289,3 +289,46 @@ def test_the_example_controller_makes_cables_go_slack_and_snap():
     assert {s[4] for s in snaps} <= slack and snaps  # ... and snaps taut again when reeled in
     for s in snaps:  # "t = T s  cX snaps taut: F N, impulse J N s since the previous state"
         assert float(s[7]) > 0 and float(s[10]) > 0
+
+
+CROSSING = {  # strut sA flies at 0.5 m/s through the fixed strut sB: contact from 0.12 s to 0.28 s
+    "name": "crossing",
+    "nodes": [{"name": "a0", "position": [-0.1, 0.0, -0.5], "mass": 0.5, "velocity": [0.5, 0.0, 0.0]},
+              {"name": "a1", "position": [-0.1, 0.0, 0.5], "mass": 0.5, "velocity": [0.5, 0.0, 0.0]},
+              {"name": "b0", "position": [0.0, -0.5, 0.0], "fixed": True},
+              {"name": "b1", "position": [0.0, 0.5, 0.0], "fixed": True}],
+    "struts": [{"name": "sA", "nodes": ["a0", "a1"], "stiffness": 1.0e4, "radius": 0.02},
+               {"name": "sB", "nodes": ["b0", "b1"], "stiffness": 1.0e4, "radius": 0.02}],
+}
+
+
+def test_contact_events_reach_the_controller(tmp_path):
+    """Contacts as msg_docs/contacts.md documents them, parsed here from the rosbags-decoded messages,
+    against the closed form: sA's axis crosses sB's at x = -0.1 + 0.5 t, so the capsules (radii 0.02)
+    touch from x = -0.04 to x = +0.04, t = 0.12 s to 0.28 s, at the origin, normal +-x."""
+    scene = tmp_path / "crossing.yaml"
+    scene.write_text(ts.Scene.from_dict(CROSSING).to_yaml())
+    domain = random_domain()
+    # By the mark the first run's contacts are over; the reset replays them from t = 0.
+    actions = [{"sleep": 0.5}, {"mark": "reset"}, {"command": "reset"}, {"sleep": 0.6}]
+    with serving(domain, str(scene), "--log-path", "") as server:
+        received, marks = control(domain, actions)
+        finish(server)
+    events = []
+    for m, _, t in received["contacts"]:
+        if t < marks["reset"]:
+            continue
+        for status in m.status:
+            values = {kv.key: kv.value for kv in status.values}
+            assert status.name == f"contact {values['member_a']} {values['member_b']}"
+            assert status.message == values["kind"]
+            events.append((stamp(m), values))
+    assert [(v["kind"], v["member_a"], v["member_b"]) for _, v in events] == [("begin", "sA", "sB"),
+                                                                               ("end", "sA", "sB")]
+    for (published, v), t, side in zip(events, (0.12, 0.28), (-1.0, 1.0)):
+        assert float(v["time"]) == pytest.approx(t, abs=1e-9)
+        assert published - 0.01 < float(v["time"]) <= published + 1e-12  # reported in its publication
+        assert np.allclose(json.loads(v["point_a"]), [0.04 * side, 0.0, 0.0], atol=1e-9)
+        assert np.allclose(json.loads(v["point_b"]), [0.0, 0.0, 0.0], atol=1e-9)
+        assert np.allclose(json.loads(v["normal"]), [-side, 0.0, 0.0], atol=1e-9)
+        assert abs(float(v["distance"])) < 1e-9

@@ -59,12 +59,26 @@ def rewrite(src, dst, alter=None, run_info=None):
                     writer.write(c.topic, M.serialize(msg, typename), message.log_time)
 
 
+def plain_contacts():
+    """The contact events of the logged run, from a plain Simulator with the same commands, per step."""
+    scene = ts.Scene.from_dict(prism_dict(gravity=9.81))
+    sim = ts.Simulator(scene, method="elastic", dt=1e-3)
+    events = []
+    simulate(sim, 300, parse_commands(COMMANDS, scene), on_step=lambda r: events.append(r.contacts))
+    return events
+
+
 def test_replay_reproduces_a_run_with_commands(logged, capsys):
     report = replay(logged)
     assert report.ok and report.steps == 300 and report.notes == []
+    # a contacts message at each publication (every 10 steps) whose steps had contact events
+    steps = plain_contacts()
+    with_contacts = sum(any(steps[k:k + 10]) for k in range(0, 300, 10))
+    assert with_contacts > 0  # the prism collapses through itself
     assert report.compared == {**{t: 30 for t in ("/clock", "/tensegrity_sim/node_poses", "/tensegrity_sim/cable_states",
                                                   "/tensegrity_sim/cable_impulses")},
-                               "/tensegrity_sim/markers": 3}  # marker_rate 10 Hz: publications 0, 10, 20
+                               "/tensegrity_sim/markers": 3,  # marker_rate 10 Hz: publications 0, 10, 20
+                               "/tensegrity_sim/contacts": with_contacts}
     assert report.inputs["/tensegrity_sim/external_wrench"] == 3
     assert report.inputs["/tensegrity_sim/cable_rest_lengths"] > 50  # a ramp: a message every step
     assert main(["replay", str(logged)]) == 0
@@ -219,4 +233,7 @@ def test_info_reports_counts_and_slack_statistics(logged, capsys):
     out = capsys.readouterr().out
     assert "/tensegrity_sim/node_poses" in out and "geometry_msgs/msg/PoseArray" in out
     assert "sim time         0.000000 s to 0.300000 s (300 steps)" in out
-    assert "contacts         0 begin, 0 end, 0 member pairs" in out
+    events = [e for step in plain_contacts() for e in step]
+    begins = sum(e.kind == "begin" for e in events)
+    assert f"contacts         {begins} begin, {len(events) - begins} end, {len({e.members for e in events})} " \
+           f"member pairs, smallest distance {min(e.distance for e in events):.6g} m" in out
