@@ -22,7 +22,12 @@ EXTRAS_REQUIRE = {
     "test": [
         "pytest==9.0.3",
         "mcap-ros2-support==0.6.0",  # an independent reader of the logs
+        "cyclonedds==11.0.1",  # the DDS transport's end-to-end tests run in CI
         "mujoco==4.0.0",      # test/test_peers.py cross-checks the elastic method against MuJoCo
+    ],
+    # Live topics without a ROS install (tensegrity-sim serve --transport dds).
+    "dds": [
+        "cyclonedds==11.0.1",
     ],
     "bench": [
         "matplotlib==3.11.2",

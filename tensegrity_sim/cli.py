@@ -2,6 +2,9 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import json
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -153,6 +156,64 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_serve(args: argparse.Namespace) -> int:
+    from .ros.node_logic import NodeSettings
+
+    settings = NodeSettings(**{name: getattr(args, name) for name in NodeSettings().parameters})  # checks them
+    rclpy_found = importlib.util.find_spec("rclpy") is not None
+    transport = ("rclpy" if rclpy_found else "dds") if args.transport == "auto" else args.transport
+    if transport == "rclpy":
+        if not rclpy_found:
+            raise ValueError("--transport rclpy: rclpy does not import here (source ROS 2 Jazzy, or use "
+                             "--transport dds)")
+        if args.interface is not None:
+            raise ValueError("--interface is for --transport dds (configure the ROS middleware instead)")
+        from .ros import rclpy_node
+
+        os.environ["ROS_DOMAIN_ID"] = str(args.domain_id)
+        # The node's parameters as ROS arguments; JSON is YAML, which ROS parses parameter values as.
+        rclpy_node.main(["tensegrity-sim", "--ros-args", *[a for name, value in settings.parameters.items()
+                                                            for a in ("-p", f"{name}:={json.dumps(value)}")]])
+        return 0
+    import logging
+
+    from .ros.dds import DEFAULT_INTERFACE
+    from .ros.dds_node import serve  # needs the "dds" extra (cyclonedds)
+
+    logging.basicConfig(level=logging.INFO, format="[%(levelname)s] %(name)s: %(message)s")
+    serve(settings, domain_id=args.domain_id, interface=args.interface or DEFAULT_INTERFACE)
+    return 0
+
+
+def _add_serve(verbs) -> None:
+    """``serve``: its node parameters are NodeSettings' fields, with their defaults and descriptions."""
+    from dataclasses import fields
+
+    from .ros.node_logic import NodeSettings
+
+    serve = verbs.add_parser(
+        "serve", help="run the simulator live as the ROS 2 node (rclpy, or DDS without ROS)",
+        description="Run the tensegrity_sim node live: rclpy where it imports, otherwise (or with --transport "
+                    "dds) plain DDS that a ROS 2 Jazzy machine on the same domain and network sees as the node. "
+                    "Stop with Ctrl-C (the log is finished).")
+    serve.add_argument("scene", nargs="?", default=NodeSettings.scene,
+                       help=f"a built-in scene name or a YAML file (default: {NodeSettings.scene})")
+    for f in fields(NodeSettings):
+        if f.name in ("scene", "node_name"):
+            continue
+        # NodeSettings validates the values (a bad one is a ValueError naming the parameter)
+        serve.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=type(f.default), default=f.default,
+                           help=f"{f.metadata['doc']} (default: {f.default!r})")
+    serve.add_argument("--transport", choices=("auto", "rclpy", "dds"), default="auto",
+                       help="rclpy if it imports, else DDS (default: auto)")
+    serve.add_argument("--domain-id", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0")),
+                       help="DDS domain, ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID or 0)")
+    serve.add_argument("--interface",
+                       help="DDS transport: network interface name or address, or 'auto' (default: lo, this "
+                            "host only; a ROS 2 machine elsewhere needs the interface towards it)")
+    serve.set_defaults(func=_cmd_serve)
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -201,6 +262,7 @@ def build_parser() -> argparse.ArgumentParser:
                                         "slack/snap and contact statistics.")
     info.add_argument("log", help="an MCAP log written by tensegrity-sim run --log or the node")
     info.set_defaults(func=_cmd_info)
+    _add_serve(verbs)
     return parser
 
 
