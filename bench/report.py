@@ -168,17 +168,21 @@ def write(path: Path, *, quick: bool, elapsed_s: float, cases, references, rows,
                      for m in matched]))
 
     w.append("\n### Steps per second beside MuJoCo (dt = 1 ms, same process)\n")
-    w.append("Best (and median) of 3 runs of about 0.25 s each; ratio = tensegrity_sim / MuJoCo (< 1: MuJoCo "
-             "takes more steps per second).\n\n")
+    w.append("Steps/s: best of 3 runs of about 0.25 s each (median in brackets); ratio = tensegrity_sim's "
+             "steps/s / MuJoCo's (< 1: MuJoCo takes more steps per second), from the best runs (medians in "
+             "brackets). '+contacts': member-contact detection on for every member kind (MuJoCo's is off).\n\n")
+    peers = sorted({t["variant"] for t in throughput if t["simulator"] == "MuJoCo"},
+                   key=lambda v: ("Euler", "implicitfast", "RK4").index(v) if v in ("Euler", "implicitfast", "RK4") else 9)
     body = []
-    for t in throughput:
-        if t["simulator"] == "MuJoCo":
-            body.append([t["scene"], f"MuJoCo {t['variant']}", f"{_n(t['steps_per_s'])} ({_n(t['steps_per_s_median'])})",
-                         f"{t['vs']}: {t['ratio']:.3f} ({t['ratio_median']:.3f})"])
-        else:
-            body.append([t["scene"], f"{t['simulator']} {t['variant']}",
-                         f"{_n(t['steps_per_s'])} ({_n(t['steps_per_s_median'])})", ""])
-    w.append(_table(["scene", "simulator", "steps/s best (median)", "ratio best (median)"], body))
+    for t in [t for t in throughput if t["simulator"] != "MuJoCo"]:
+        row = [t["scene"], f"{t['simulator']} {t['variant']}", f"{_n(t['steps_per_s'])} ({_n(t['steps_per_s_median'])})"]
+        for peer in peers:
+            match = [u for u in throughput if u["simulator"] == "MuJoCo" and u["variant"] == peer
+                     and u["scene"] == t["scene"] and u["vs"] == f"{t['simulator']} {t['variant']}"]
+            row.append(f"{_n(match[0]['steps_per_s'])}: {match[0]['ratio']:.3f} ({match[0]['ratio_median']:.3f})"
+                       if match else "-")
+        body.append(row)
+    w.append(_table(["scene", "configuration", "steps/s"] + [f"MuJoCo {p} steps/s: ratio" for p in peers], body))
 
     w.append("\n### Growth exponents\n")
     w.append("Cost per step ~ members^p on towers (see Scale): p fitted over towers of 10 stages or more, "
