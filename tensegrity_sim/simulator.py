@@ -32,15 +32,17 @@ class Simulator:
 
     ``method``: "elastic", "inextensible" or "auto" (then ``method_reason`` says why).
     ``dt``: the fixed step, s.
+    ``solver``: the QP backend of the inextensible method (``methods.qp.SOLVERS``; default "daqp");
+    ``method_settings`` reports the one in use.
     """
 
-    def __init__(self, scene: Scene, method: str = "auto", dt: float = 1e-3):
+    def __init__(self, scene: Scene, method: str = "auto", dt: float = 1e-3, *, solver: str | None = None):
         if not isinstance(scene, Scene):
             raise ValueError(f"scene must be a Scene (see load_scene), got {type(scene).__name__}")
         self.scene = scene
         self.dt = _check_dt(dt)
         self.system = System(scene)
-        self._method, self.method_reason = make_method(self.system, method, self.dt)
+        self._method, self.method_reason = make_method(self.system, method, self.dt, solver=solver)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
         self.reset()
@@ -153,9 +155,8 @@ class Simulator:
         )
 
     def slack(self) -> np.ndarray:
-        """(n_cables,) bool: cables shorter than their rest length now."""
-        _, length, _ = self.system.geometry(self._state.positions, self.system.cable_ends)
-        return length < self._state.rest_lengths
+        """(n_cables,) bool: the cables slack now, in the method's model."""
+        return self._method.slack(self._state.positions, self._state.rest_lengths)
 
     def run(self, duration: float | None = None, *, steps: int | None = None, callback=None) -> Trajectory:
         """Run ``steps`` steps, or ``round(duration / dt)``; returns them stacked.

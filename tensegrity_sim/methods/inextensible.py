@@ -1,0 +1,326 @@
+"""Method 1 of physics.md §3: inextensible cables (stiffness -> infinity), Moreau's midpoint time-stepping
+with one QP over the cables that can be taut, elastic or rigid struts.
+
+One step of ``h`` from ``(x_i, v_i)`` is one or a few *sub-steps*, each of Moreau's midpoint form::
+
+    x_m = x_i + tau/2 v_i;   v0 = v_i + tau M^-1 F(x_m);   v_f = QP(v0; rows at x_m);   x_f = x_m + tau/2 v_f
+
+``F`` holds gravity, external forces and the elastic struts' forces at the midpoint (explicit, so
+``h < 2 / omega_struts`` is required and checked at start-up). The QP (``methods/qp.py``) is
+``min 1/2 (v - v0)^T M (v - v0)`` with one row ``b_i(x_m)^T v`` per member that can be taut during the
+sub-step: ``<= r_i`` for a cable, ``= r_i`` for a rigid strut. Its multipliers are the cable impulses.
+
+**Rows and their targets.** A cable is a row when it could reach its length limit by the sub-step's
+end, ``l_m + tau/2 |u0| >= L (1 - LIMIT_TOL)`` (``u0`` its ends' relative free velocity); when no cable
+qualifies and there is no rigid strut, no QP is solved. A row's target is not 0 but the rate that puts
+the member exactly at its limit at ``x_f``::
+
+    r = (2 / tau) (sqrt(L^2 - (tau/2)^2 |u_perp|^2) - l_m)
+
+(``u_perp``: the ends' relative velocity across the member, which the member's own impulse does not
+change). For a member that is taut this steers it back to its limit by the step's end, so drift cannot
+accumulate (the velocity-level scheme alone lengthens a swinging pendulum by ``h^2 v^2 / 2L`` per
+step); for a slack cable it is the gap-closing rate, so a cable that would overshoot inside the
+sub-step is stopped exactly at its limit. The targets only change the multipliers, which act along
+the members at ``x_m``: linear and angular momentum stay exact.
+
+**Snaps.** Steering a cable that is at its limit *while its ends still separate* would push it back
+(a rebound: effective restitution near 1, the Baumgarte failure of physics.md §3). So a snap is a
+separate event, located inside the step and resolved by an impact:
+
+1. *Locate it.* For each slack cable whose ends' free path (constant free acceleration) crosses its
+   limit during the sub-step, the crossing time is found by Newton's method; the sub-step is cut at the
+   earliest crossing (at most ``MAX_EVENTS`` per step; later ones are caught by their gap-closing
+   rows and resolved at the next step's start).
+2. *Impact.* At the configuration where it happens, every cable at its limit whose ends separate and
+   which was not already holding (not active at its limit in the previous sub-step) gets Moreau's
+   impact law: ``min 1/2 |v+ - v-|_M^2`` with ``b^T v+ <= 0`` for those cables (perfectly inelastic:
+   zero separation speed, no push), ``b^T v+ <= max(b^T v-, 0)`` for cables that were holding, and
+   ``b^T v+ = b^T v-`` for rigid struts (they transmit the impulse, their rate is kept). Several
+   cables snapping at the same instant are resolved together.
+3. The rest of the step is another sub-step, in which the snapped cable is taut.
+
+Because the impact acts at its own configuration and every sub-step's impulses at that sub-step's
+midpoint, momentum is exact through snaps. Impacts only remove kinetic energy. A holding cable's
+steering is energy-conserving for a single cable (its midpoint step then keeps the length exactly
+at both ends of the step), so energy is not created by the stabiliser.
+
+**Prestress.** A scene written for elastic cables has them stretched by ``tension / k`` at rest. The
+method takes each cable's length limit as its rest length plus that stretch at load time
+(``length_offsets``), keeps the offset when rest lengths are commanded, warns once
+(:class:`LengthOffsetWarning`) and reports the offsets in ``describe()``. No cable strain is stored:
+``strain_energy`` counts the elastic struts only. In a structure whose taut cables and rigid struts
+carry a self-stress, the impulses are not unique (any multiple of the self-stress can be added without
+changing any velocity); the QP backend returns one of them, e.g. zero for a free icosahedron at rest.
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from ..system import System
+from .base import MethodStep, State, StepMethod
+from .qp import QPError, Rows, make_solver
+from .rigid import RigidStruts
+
+__all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_EVENTS"]
+
+LIMIT_TOL = 1e-9     # relative: a cable within LIMIT_TOL * L of its limit is at it (taut, not slack)
+MAX_EVENTS = 8       # snap events located inside one step
+_MIN_EVENT = 1e-6    # an event closer than this fraction of dt to the sub-step's start is not split off
+_NEWTON_ITER = 4     # Newton iterations for a snap time (the start point is exact for a straight path)
+_LANDING_TOL = 1e-11  # relative: a binding row must end within this of its member's limit ...
+_LANDING_ITER = 4     # ... after at most this many solves per sub-step
+
+
+class LengthOffsetWarning(UserWarning):
+    """The inextensible method lengthened cable limits by their prestress stretch at load time."""
+
+
+class InextensibleMethod(StepMethod):
+    name = "inextensible"
+    options = ("solver",)
+
+    def __init__(self, system: System, dt: float, *, solver: str | None = None):
+        super().__init__(system, dt)
+        scene = system.scene
+        self.omega_struts = system.max_frequency(scene.positions, include_cables=False)
+        if self.omega_struts * self.dt >= 2.0:
+            raise ValueError(
+                f"dt={self.dt!r} s is beyond the stability limit of the elastic struts, which the inextensible "
+                f"method treats explicitly: dt must be < 2/omega_struts = {2.0 / self.omega_struts:.6g} s "
+                f"(omega_struts = {self.omega_struts:.6g} rad/s); use a smaller dt or rigid struts")
+        _, length0, _ = system.geometry(scene.positions, system.cable_ends)
+        self.length_offsets = np.maximum(length0 - scene.cable_rest_lengths, 0.0)
+        if np.any(self.length_offsets > 0):
+            worst = int(np.argmax(self.length_offsets))
+            warnings.warn(
+                f"inextensible cables: {int(np.count_nonzero(self.length_offsets))} cables start longer than "
+                f"their rest length (prestress); their length limits are rest length + that stretch (largest "
+                f"{self.length_offsets[worst]:.6g} m, {scene.cable_names[worst]!r}), kept when rest lengths "
+                f"are commanded", LengthOffsetWarning, stacklevel=4)
+        free = system.free
+        self._free = free
+        index = np.full(system.n_nodes, -1)
+        index[free] = np.arange(int(free.sum()))
+        self._inv_mass = system.inv_mass[:, None]
+        self.solver = make_solver(solver, system.masses[free])
+        # The member table of the QP rows: the rigid struts that move (equalities), then every cable.
+        self.rigid = RigidStruts(system)
+        self._n_eq = self.rigid.count
+        self._ends = np.vstack([self.rigid.ends, system.cable_ends])
+        self._row_nodes = index[self._ends]
+        self._rigid_lengths = np.sqrt(self.rigid.length_sq)
+        self._cables_move = free[system.cable_ends].any(axis=1)
+        elastic = ~system.rigid
+        self._elastic_ends = system.strut_ends[elastic]
+        self._elastic_k = system.stiffness[: system.n_struts][elastic]
+        self._elastic_rest = system.strut_rest[elastic]
+        self._elastic_incidence = system.incidence_matrix(self._elastic_ends)
+        self._holding = np.zeros(system.n_cables, dtype=bool)
+        self._end_geometry = None   # (positions, cable vectors, lengths) at the last step's end
+
+    # ------------------------------------------------------------------ contract
+    def invalidate(self) -> None:
+        self._holding = np.zeros(self.system.n_cables, dtype=bool)
+        self._end_geometry = None
+
+    def _cable_geometry(self, x):
+        """Cable vectors (n_cables, 3) and lengths (n_cables,) at ``x``, reusing the last step's end
+        (the simulator commits that very array, so identity means the same positions)."""
+        cached = self._end_geometry
+        if cached is not None and cached[0] is x:
+            return cached[1], cached[2]
+        ends = self.system.cable_ends
+        d = x[ends[:, 1]] - x[ends[:, 0]]
+        return d, np.sqrt(np.einsum("ij,ij->i", d, d))
+
+    def prepare(self, state: State) -> None:
+        """Initial velocities that would stretch a rigid strut lose that component (momentum unchanged).
+        Initial velocities that stretch a taut cable are an impact at t = 0, resolved by the first step."""
+        if self.rigid.count:
+            state.velocities = state.velocities + self.rigid.project_velocities(state.positions, state.velocities)
+
+    def limits(self, rest_lengths: np.ndarray) -> np.ndarray:
+        """Cable length limits (n_cables,) m: rest lengths plus the prestress offsets."""
+        return rest_lengths + self.length_offsets
+
+    def slack(self, positions: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
+        _, length = self._cable_geometry(positions)
+        return length < self.limits(rest_lengths) * (1.0 - LIMIT_TOL)
+
+    def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
+        """Elastic struts only: an inextensible cable stores no strain energy (J)."""
+        if not len(self._elastic_ends):
+            return 0.0
+        _, length, _ = self.system.geometry(positions, self._elastic_ends)
+        e = length - self._elastic_rest
+        return float(0.5 * np.sum(self._elastic_k * e * e))
+
+    def describe(self) -> dict:
+        offsets = self.length_offsets
+        return {"method": self.name, "dt": self.dt, **self.solver.describe(), "limit_tol": LIMIT_TOL,
+                "max_events": MAX_EVENTS, "omega_struts": self.omega_struts,
+                "length_offsets": {name: float(o) for name, o in zip(self.system.scene.cable_names, offsets)
+                                   if o > 0}}
+
+    # ------------------------------------------------------------------ step
+    def _step_impl(self, state: State) -> MethodStep:
+        sys = self.system
+        x, v = state.positions, state.velocities
+        limits = self.limits(state.rest_lengths)
+        floor = limits * (1.0 - LIMIT_TOL)
+        f_ext = sys.gravity_force + state.external_forces * sys.free[:, None]
+        impulses = np.zeros(sys.n_cables)
+        holding = self._holding
+        remaining = self.dt
+        for event in range(MAX_EVENTS + 1):
+            d, length = self._cable_geometry(x)
+            at_limit = (length >= floor) & self._cables_move
+            maybe = at_limit & ~holding
+            if maybe.any():
+                v, y = self._impact(x, v, d, length, limits, at_limit, maybe, holding)
+                if y is not None:
+                    impulses[at_limit] += y
+            tau = remaining
+            x_m, v0 = self._free_motion(x, v, tau, f_ext)
+            cut = False
+            if event < MAX_EVENTS and not at_limit.all():
+                theta = self._first_snap(d, limits, v, v0, tau, ~at_limit & self._cables_move)
+                cut = _MIN_EVENT * self.dt < theta * tau < tau - _MIN_EVENT * self.dt
+                if cut:
+                    tau = theta * tau
+                    x_m, v0 = self._free_motion(x, v, tau, f_ext)
+            x, v, y, active = self._midpoint(x_m, v, v0, tau, limits, floor, holding)
+            impulses += y
+            holding = active & at_limit
+            if not cut:
+                break
+            remaining -= tau
+        self._holding = holding
+        self._end_geometry = None
+        self._end_geometry = (x, *self._cable_geometry(x))
+        return MethodStep(x, v, impulses)
+
+    def _free_motion(self, x, v, tau, f_ext):
+        """Midpoint ``x_m`` (N, 3) and free velocity ``v0 = v + tau M^-1 F(x_m)`` (N, 3)."""
+        x_m = x + (0.5 * tau) * v
+        force = f_ext
+        if len(self._elastic_ends):
+            _, length, n = self.system.geometry(x_m, self._elastic_ends)
+            tension = self._elastic_k * (length - self._elastic_rest)
+            force = force + self._elastic_incidence @ (tension[:, None] * n)
+        return x_m, v + tau * self._inv_mass * force
+
+    def _first_snap(self, d, limits, v, v0, tau, slack) -> float:
+        """Fraction of the sub-step (0, 1] at which the first ``slack`` cable reaches its limit on the
+        free path ``d(t) = d + t tau u + (t tau)^2 a / 2`` of its ends (1.0 if none does)."""
+        ends = self.system.cable_ends[slack]
+        d, lim = d[slack], limits[slack]
+        u = v[ends[:, 1]] - v[ends[:, 0]]
+        u_mean = 0.5 * (u + v0[ends[:, 1]] - v0[ends[:, 0]])
+        d_end = d + tau * u_mean
+        cross = np.einsum("ij,ij->i", d_end, d_end) > lim * lim
+        if not cross.any():
+            return 1.0
+        d, u, u_mean, lim = d[cross], u[cross], u_mean[cross], lim[cross]
+        acc = 2.0 * (u_mean - u) / tau
+        # start: the crossing of the straight path d + t tau u_mean (exact at t = 1), small root form
+        b = np.einsum("ij,ij->i", d, u_mean) * tau
+        a = np.einsum("ij,ij->i", u_mean, u_mean) * tau * tau
+        c = np.einsum("ij,ij->i", d, d) - lim * lim
+        t = np.clip(-c / (b + np.sqrt(np.maximum(b * b - a * c, 0.0))), 0.0, 1.0)
+        for _ in range(_NEWTON_ITER):
+            p = d + (t * tau)[:, None] * u + (0.5 * (t * tau) ** 2)[:, None] * acc
+            dp = tau * u + (t * tau * tau)[:, None] * acc
+            g = np.einsum("ij,ij->i", p, p) - lim * lim
+            slope = 2.0 * np.einsum("ij,ij->i", p, dp)
+            t = np.clip(t - g / np.where(slope > 0, slope, np.inf), 0.0, 1.0)
+        return float(t.min())
+
+    def _midpoint(self, x_m, v, v0, tau, limits, floor, holding):
+        """Moreau's midpoint sub-step from ``x_m`` with free velocity ``v0``: returns ``x_f``, ``v_f``
+        (N, 3), the cable impulses (n_cables,) N*s and which cables were active (bool)."""
+        n_eq = self._n_eq
+        ends = self._ends
+        d = x_m[ends[:, 1]] - x_m[ends[:, 0]]
+        length = np.sqrt(np.einsum("ij,ij->i", d, d))
+        n = d / length[:, None]
+        u0 = v0[ends[n_eq:, 1]] - v0[ends[n_eq:, 0]]
+        reach = length[n_eq:] + (0.5 * tau) * np.sqrt(np.einsum("ij,ij->i", u0, u0))
+        rows_mask = np.concatenate([np.ones(n_eq, dtype=bool), (reach >= floor) & self._cables_move])
+        impulses = np.zeros(len(limits))
+        if not rows_mask.any():   # nothing can be taut: free motion, no QP
+            return x_m + (0.5 * tau) * v0, v0, impulses, np.zeros(len(limits), dtype=bool)
+        every = rows_mask.all()
+        sel = slice(None) if every else np.flatnonzero(rows_mask)
+        m_ends, m_length, m_n = ends[sel], length[sel], n[sel]
+        m_limits = np.concatenate([self._rigid_lengths, limits])[sel]
+        rows = Rows(self._row_nodes[sel], m_n, self._targets(v, m_ends, m_length, m_n, m_limits, tau), n_eq)
+        warm = np.concatenate([np.ones(n_eq, dtype=bool), holding])[sel]
+        # The targets need the relative velocity across each member at the sub-step's end, which the
+        # other members' impulses change: start from the velocity at the start (exact at rest) and
+        # iterate on the solution until every binding row lands on its limit (usually one more solve).
+        # The landing error is below (tau^2 / 8 L) |u_f^2 - u^2|, so it is only checked when the
+        # velocities changed enough for that bound to exceed the tolerance.
+        v_f = np.zeros_like(v0)
+        tol = _LANDING_TOL * (2.0 / tau) * m_limits
+        bound = (0.125 * tau * tau / float(m_limits.min()))
+        for _ in range(_LANDING_ITER):
+            v_free, y = self.solver.solve(v0[self._free], rows, warm)
+            v_f[self._free] = v_free
+            change = float(np.max(np.abs(v_f - v)))
+            if bound * 4.0 * change * (change + 2.0 * float(np.max(np.abs(v)))) <= _LANDING_TOL * float(m_limits.min()):
+                break
+            targets = self._targets(v_f, m_ends, m_length, m_n, m_limits, tau)
+            miss = rows.rates(v_free) - targets
+            warm = y > 0
+            warm[:n_eq] = True
+            if not np.any(np.where(warm, np.abs(miss), miss) > tol):
+                break
+            rows.targets = targets
+            v = v_f.copy()
+        y_cables = y[n_eq:]
+        if every:
+            impulses = y_cables
+        else:
+            impulses[sel[n_eq:] - n_eq] = y_cables
+        return x_m + (0.5 * tau) * v_f, v_f, impulses, impulses > 0
+
+    @staticmethod
+    def _targets(v, ends, length, n, limits, tau):
+        """Rates (k,) m/s that put each member exactly at its limit at the sub-step's end, given the
+        relative velocity across it (the part its own impulse does not change)."""
+        u = v[ends[:, 1]] - v[ends[:, 0]]
+        un = np.einsum("ij,ij->i", u, n)
+        across2 = np.einsum("ij,ij->i", u, u) - un * un
+        half = 0.5 * tau
+        return (np.sqrt(np.maximum(limits * limits - half * half * across2, 0.0)) - length) / half
+
+    def _impact(self, x, v, d, length, limits, at_limit, maybe, holding):
+        """Moreau's impact law at ``x`` for the cables at their limit (``maybe``: those not holding)
+        whose ends separate; returns ``v+`` (N, 3) and the impulses of the cables ``at_limit``, or
+        ``v`` and None when none snaps."""
+        ends = self.system.cable_ends
+        n = d / length[:, None]
+        rate = self.system.member_rates(v, n, ends)
+        # separating faster than would stretch it beyond the tolerance within a step: a snap
+        snapping = maybe & (rate * self.dt > LIMIT_TOL * limits)
+        if not snapping.any():
+            return v, None
+        cables = np.flatnonzero(at_limit)
+        n_eq = self._n_eq
+        targets = np.where(holding[cables], np.maximum(rate[cables], 0.0), 0.0)
+        directions = n[cables]
+        if n_eq:
+            _, _, n_rigid = self.system.geometry(x, self.rigid.ends)
+            directions = np.vstack([n_rigid, directions])
+            targets = np.concatenate([self.system.member_rates(v, n_rigid, self.rigid.ends), targets])
+        sel = np.concatenate([np.arange(n_eq), n_eq + cables])
+        rows = Rows(self._row_nodes[sel], directions, targets, n_eq)
+        warm = np.concatenate([np.ones(n_eq, dtype=bool), snapping[cables]])
+        v_free, y = self.solver.solve(v[self._free], rows, warm)
+        v_plus = np.zeros_like(v)
+        v_plus[self._free] = v_free
+        return v_plus, y[n_eq:]
