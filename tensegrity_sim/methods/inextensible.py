@@ -257,30 +257,38 @@ class InextensibleMethod(StepMethod):
         sel = slice(None) if every else np.flatnonzero(rows_mask)
         m_ends, m_length, m_n = ends[sel], length[sel], n[sel]
         m_limits = np.concatenate([self._rigid_lengths, limits])[sel]
-        rows = Rows(self._row_nodes[sel], m_n, self._targets(v, m_ends, m_length, m_n, m_limits, tau), n_eq)
+        # The constraint impulses' work over the sub-step is -1/2 sum y (r + b.v_i) (trapezoidal
+        # velocity). A rigid strut's target is the reversal -b.v_i of its rate at the midpoint, so its
+        # impulse does no work whatever its sign; a cable's target is never below that reversal (its
+        # impulse is a tension), so it never does positive work either. Then v_f = -v_i is always
+        # feasible (the QP cannot be infeasible) and the stabiliser never creates energy; where the
+        # cap binds, the member ends off its limit by (tau/2)^2 |u_f^2 - u_i^2| / 2L, bounded.
+        u_i = v[m_ends[:, 1]] - v[m_ends[:, 0]]
+        reverse = -np.einsum("ij,ij->i", u_i, m_n)
+        rows = Rows(self._row_nodes[sel], m_n, self._capped(v, m_ends, m_length, m_n, m_limits, tau, reverse, n_eq),
+                    n_eq)
         warm = np.concatenate([np.ones(n_eq, dtype=bool), holding])[sel]
-        # The targets need the relative velocity across each member at the sub-step's end, which the
+        # The cable targets need the relative velocity across each cable at the sub-step's end, which the
         # other members' impulses change: start from the velocity at the start (exact at rest) and
-        # iterate on the solution until every binding row lands on its limit (usually one more solve).
+        # iterate on the solution until every binding row lands on its target (usually one more solve).
         # The landing error is below (tau^2 / 8 L) |u_f^2 - u^2|, so it is only checked when the
         # velocities changed enough for that bound to exceed the tolerance.
         v_f = np.zeros_like(v0)
         tol = _LANDING_TOL * (2.0 / tau) * m_limits
-        bound = (0.125 * tau * tau / float(m_limits.min()))
+        bound = 0.5 * tau * tau / float(m_limits.min())
         for _ in range(_LANDING_ITER):
             v_free, y = self.solver.solve(v0[self._free], rows, warm)
             v_f[self._free] = v_free
             change = float(np.max(np.abs(v_f - v)))
-            if bound * 4.0 * change * (change + 2.0 * float(np.max(np.abs(v)))) <= _LANDING_TOL * float(m_limits.min()):
+            if bound * change * (change + 2.0 * float(np.max(np.abs(v)))) <= _LANDING_TOL * float(m_limits.min()):
                 break
-            targets = self._targets(v_f, m_ends, m_length, m_n, m_limits, tau)
+            targets = self._capped(v_f, m_ends, m_length, m_n, m_limits, tau, reverse, n_eq)
             miss = rows.rates(v_free) - targets
             warm = y > 0
             warm[:n_eq] = True
             if not np.any(np.where(warm, np.abs(miss), miss) > tol):
                 break
             rows.targets = targets
-            v = v_f.copy()
         y_cables = y[n_eq:]
         if every:
             impulses = y_cables
@@ -289,19 +297,24 @@ class InextensibleMethod(StepMethod):
         return x_m + (0.5 * tau) * v_f, v_f, impulses, impulses > 0
 
     @staticmethod
-    def _targets(v, ends, length, n, limits, tau):
-        """Rates (k,) m/s that put each member exactly at its limit at the sub-step's end, given the
-        relative velocity across it (the part its own impulse does not change)."""
-        u = v[ends[:, 1]] - v[ends[:, 0]]
-        un = np.einsum("ij,ij->i", u, n)
+    def _capped(v, ends, length, n, limits, tau, reverse, n_eq):
+        """Row targets (k,) m/s: for a cable, the rate that puts it exactly at its limit at the
+        sub-step's end given the relative velocity ``v`` across it (the part its own impulse does not
+        change), but never below ``reverse``; for a rigid strut (the first ``n_eq`` rows), ``reverse``."""
+        u = v[ends[n_eq:, 1]] - v[ends[n_eq:, 0]]
+        un = np.einsum("ij,ij->i", u, n[n_eq:])
         across2 = np.einsum("ij,ij->i", u, u) - un * un
         half = 0.5 * tau
-        return (np.sqrt(np.maximum(limits * limits - half * half * across2, 0.0)) - length) / half
+        lim = limits[n_eq:]
+        land = (np.sqrt(np.maximum(lim * lim - half * half * across2, 0.0)) - length[n_eq:]) / half
+        return np.concatenate([reverse[:n_eq], np.maximum(land, reverse[n_eq:])])
 
     def _impact(self, x, v, d, length, limits, at_limit, maybe, holding):
-        """Moreau's impact law at ``x`` for the cables at their limit (``maybe``: those not holding)
-        whose ends separate; returns ``v+`` (N, 3) and the impulses of the cables ``at_limit``, or
-        ``v`` and None when none snaps."""
+        """Moreau's impact law at ``x`` when a cable at its limit that was not holding (``maybe``)
+        separates: ``v+ = argmin |v+ - v|_M`` with ``b^T v+ <= 0`` for every cable at its limit and
+        ``b^T v+ = 0`` for the rigid struts. The admissible set is a cone, so the projection never
+        increases the kinetic energy. Returns ``v+`` (N, 3) and the impulses of the cables ``at_limit``,
+        or ``v`` and None when no cable snaps."""
         ends = self.system.cable_ends
         n = d / length[:, None]
         rate = self.system.member_rates(v, n, ends)
@@ -311,15 +324,12 @@ class InextensibleMethod(StepMethod):
             return v, None
         cables = np.flatnonzero(at_limit)
         n_eq = self._n_eq
-        targets = np.where(holding[cables], np.maximum(rate[cables], 0.0), 0.0)
         directions = n[cables]
         if n_eq:
-            _, _, n_rigid = self.system.geometry(x, self.rigid.ends)
-            directions = np.vstack([n_rigid, directions])
-            targets = np.concatenate([self.system.member_rates(v, n_rigid, self.rigid.ends), targets])
+            directions = np.vstack([self.system.geometry(x, self.rigid.ends)[2], directions])
         sel = np.concatenate([np.arange(n_eq), n_eq + cables])
-        rows = Rows(self._row_nodes[sel], directions, targets, n_eq)
-        warm = np.concatenate([np.ones(n_eq, dtype=bool), snapping[cables]])
+        rows = Rows(self._row_nodes[sel], directions, np.zeros(len(sel)), n_eq)
+        warm = np.concatenate([np.ones(n_eq, dtype=bool), snapping[cables] | holding[cables]])
         v_free, y = self.solver.solve(v[self._free], rows, warm)
         v_plus = np.zeros_like(v)
         v_plus[self._free] = v_free

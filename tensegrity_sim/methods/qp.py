@@ -156,7 +156,7 @@ class DaqpSolver(QPSolver):
     # An active-set method solves the KKT system of its final working set to round-off and reports
     # infeasibility or an iteration limit in its exit flag, which is checked instead.
     verify = False
-    settings = {"primal_tol": 1e-12, "dual_tol": 1e-12, "iter_limit": 10_000}
+    settings = {"primal_tol": 1e-12, "dual_tol": 1e-12, "sing_tol": 1e-14, "iter_limit": 10_000}
     _STATUS = {-1: "infeasible", -2: "cycling", -3: "unbounded", -4: "iteration limit",
                -5: "non-convex", -6: "initial working set overdetermined", -7: "time limit"}
 
