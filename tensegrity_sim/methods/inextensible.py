@@ -109,10 +109,13 @@ class InextensibleMethod(StepMethod):
         # The member table of the QP rows: the rigid struts that move (equalities), then every cable.
         self.rigid = RigidStruts(system)
         self._n_eq = self.rigid.count
-        self._ends = np.vstack([self.rigid.ends, system.cable_ends])
-        self._row_nodes = index[self._ends]
+        ends = np.vstack([self.rigid.ends, system.cable_ends])
+        self._a, self._b = ends[:, 0].copy(), ends[:, 1].copy()
+        self._ca, self._cb = system.cable_ends[:, 0].copy(), system.cable_ends[:, 1].copy()
+        self._row_nodes = index[ends]
         self._rigid_lengths = np.sqrt(self.rigid.length_sq)
         self._cables_move = free[system.cable_ends].any(axis=1)
+        self._all_rows = np.ones(self._n_eq + system.n_cables, dtype=bool)
         elastic = ~system.rigid
         self._elastic_ends = system.strut_ends[elastic]
         self._elastic_k = system.stiffness[: system.n_struts][elastic]
@@ -120,27 +123,19 @@ class InextensibleMethod(StepMethod):
         self._elastic_incidence = system.incidence_matrix(self._elastic_ends)
         self._holding = np.zeros(system.n_cables, dtype=bool)
         self._end_geometry = None   # (positions, cable vectors, lengths) at the last step's end
+        self._last_rest = scene.cable_rest_lengths
 
     # ------------------------------------------------------------------ contract
     def invalidate(self) -> None:
         self._holding = np.zeros(self.system.n_cables, dtype=bool)
         self._end_geometry = None
 
-    def _cable_geometry(self, x):
-        """Cable vectors (n_cables, 3) and lengths (n_cables,) at ``x``, reusing the last step's end
-        (the simulator commits that very array, so identity means the same positions)."""
-        cached = self._end_geometry
-        if cached is not None and cached[0] is x:
-            return cached[1], cached[2]
-        ends = self.system.cable_ends
-        d = x[ends[:, 1]] - x[ends[:, 0]]
-        return d, np.sqrt(np.einsum("ij,ij->i", d, d))
-
     def prepare(self, state: State) -> None:
         """Initial velocities that would stretch a rigid strut lose that component (momentum unchanged).
         Initial velocities that stretch a taut cable are an impact at t = 0, resolved by the first step."""
         if self.rigid.count:
             state.velocities = state.velocities + self.rigid.project_velocities(state.positions, state.velocities)
+        self._last_rest = state.rest_lengths.copy()
 
     def limits(self, rest_lengths: np.ndarray) -> np.ndarray:
         """Cable length limits (n_cables,) m: rest lengths plus the prestress offsets."""
@@ -166,13 +161,23 @@ class InextensibleMethod(StepMethod):
                                    if o > 0}}
 
     # ------------------------------------------------------------------ step
+    def _cable_geometry(self, x):
+        """Cable vectors (n_cables, 3) and lengths (n_cables,) at ``x``, reusing the last step's end
+        (the simulator commits that very array, so identity means the same positions)."""
+        cached = self._end_geometry
+        if cached is not None and cached[0] is x:
+            return cached[1], cached[2]
+        d = x[self._cb] - x[self._ca]
+        return d, np.sqrt(np.einsum("ij,ij->i", d, d))
+
     def _step_impl(self, state: State) -> MethodStep:
-        sys = self.system
         x, v = state.positions, state.velocities
         limits = self.limits(state.rest_lengths)
         floor = limits * (1.0 - LIMIT_TOL)
-        f_ext = sys.gravity_force + state.external_forces * sys.free[:, None]
-        impulses = np.zeros(sys.n_cables)
+        # a commanded shortening since the last step is a reel-in at that rate (m/s, <= 0)
+        reel = np.minimum(state.rest_lengths - self._last_rest, 0.0) / self.dt
+        f_ext = self.system.gravity_force + state.external_forces
+        impulses = np.zeros(self.system.n_cables)
         holding = self._holding
         remaining = self.dt
         for event in range(MAX_EVENTS + 1):
@@ -192,13 +197,14 @@ class InextensibleMethod(StepMethod):
                 if cut:
                     tau = theta * tau
                     x_m, v0 = self._free_motion(x, v, tau, f_ext)
-            x, v, y, active = self._midpoint(x_m, v, v0, tau, limits, floor, holding)
+            x, v, y = self._midpoint(x_m, v, v0, tau, limits, floor, reel, holding)
             impulses += y
-            holding = active & at_limit
+            holding = (y > 0) & at_limit
             if not cut:
                 break
             remaining -= tau
         self._holding = holding
+        self._last_rest = state.rest_lengths
         self._end_geometry = None
         self._end_geometry = (x, *self._cable_geometry(x))
         return MethodStep(x, v, impulses)
@@ -216,10 +222,10 @@ class InextensibleMethod(StepMethod):
     def _first_snap(self, d, limits, v, v0, tau, slack) -> float:
         """Fraction of the sub-step (0, 1] at which the first ``slack`` cable reaches its limit on the
         free path ``d(t) = d + t tau u + (t tau)^2 a / 2`` of its ends (1.0 if none does)."""
-        ends = self.system.cable_ends[slack]
+        a_end, b_end = self._ca[slack], self._cb[slack]
         d, lim = d[slack], limits[slack]
-        u = v[ends[:, 1]] - v[ends[:, 0]]
-        u_mean = 0.5 * (u + v0[ends[:, 1]] - v0[ends[:, 0]])
+        u = v[b_end] - v[a_end]
+        u_mean = 0.5 * (u + v0[b_end] - v0[a_end])
         d_end = d + tau * u_mean
         cross = np.einsum("ij,ij->i", d_end, d_end) > lim * lim
         if not cross.any():
@@ -239,75 +245,79 @@ class InextensibleMethod(StepMethod):
             t = np.clip(t - g / np.where(slope > 0, slope, np.inf), 0.0, 1.0)
         return float(t.min())
 
-    def _midpoint(self, x_m, v, v0, tau, limits, floor, holding):
+    def _midpoint(self, x_m, v, v0, tau, limits, floor, reel, holding):
         """Moreau's midpoint sub-step from ``x_m`` with free velocity ``v0``: returns ``x_f``, ``v_f``
-        (N, 3), the cable impulses (n_cables,) N*s and which cables were active (bool)."""
+        (N, 3) and the cable impulses (n_cables,) N*s."""
         n_eq = self._n_eq
-        ends = self._ends
-        d = x_m[ends[:, 1]] - x_m[ends[:, 0]]
+        d = x_m[self._b] - x_m[self._a]
         length = np.sqrt(np.einsum("ij,ij->i", d, d))
         n = d / length[:, None]
-        u0 = v0[ends[n_eq:, 1]] - v0[ends[n_eq:, 0]]
+        u0 = v0[self._cb] - v0[self._ca]
         reach = length[n_eq:] + (0.5 * tau) * np.sqrt(np.einsum("ij,ij->i", u0, u0))
-        rows_mask = np.concatenate([np.ones(n_eq, dtype=bool), (reach >= floor) & self._cables_move])
+        cables = (reach >= floor) & self._cables_move
         impulses = np.zeros(len(limits))
-        if not rows_mask.any():   # nothing can be taut: free motion, no QP
-            return x_m + (0.5 * tau) * v0, v0, impulses, np.zeros(len(limits), dtype=bool)
-        every = rows_mask.all()
-        sel = slice(None) if every else np.flatnonzero(rows_mask)
-        m_ends, m_length, m_n = ends[sel], length[sel], n[sel]
+        if not n_eq and not cables.any():   # nothing can be taut: free motion, no QP
+            return x_m + (0.5 * tau) * v0, v0, impulses
+        rows_mask = self._all_rows.copy()
+        rows_mask[n_eq:] = cables
+        sel = slice(None) if rows_mask.all() else np.flatnonzero(rows_mask)
+        a, b, m_length, m_n = self._a[sel], self._b[sel], length[sel], n[sel]
         m_limits = np.concatenate([self._rigid_lengths, limits])[sel]
         # The constraint impulses' work over the sub-step is -1/2 sum y (r + b.v_i) (trapezoidal
         # velocity). A rigid strut's target is the reversal -b.v_i of its rate at the midpoint, so its
         # impulse does no work whatever its sign; a cable's target is never below that reversal (its
         # impulse is a tension), so it never does positive work either. Then v_f = -v_i is always
         # feasible (the QP cannot be infeasible) and the stabiliser never creates energy; where the
-        # cap binds, the member ends off its limit by (tau/2)^2 |u_f^2 - u_i^2| / 2L, bounded.
-        u_i = v[m_ends[:, 1]] - v[m_ends[:, 0]]
-        reverse = -np.einsum("ij,ij->i", u_i, m_n)
-        rows = Rows(self._row_nodes[sel], m_n, self._capped(v, m_ends, m_length, m_n, m_limits, tau, reverse, n_eq),
+        # cap binds, the member ends off its limit by (tau/2)^2 |u_f^2 - u_i^2| / 2L, bounded. A cable
+        # being reeled in may pull faster, by twice the reel-in rate: that work is the motor's.
+        u = v[b] - v[a]
+        un = np.einsum("ij,ij->i", u, m_n)
+        floor_rate = -un
+        floor_rate[n_eq:] += 2.0 * np.concatenate([np.zeros(n_eq), reel])[sel][n_eq:]
+        rows = Rows(self._row_nodes[sel], m_n, self._targets(u, un, m_length, m_limits, tau, floor_rate, n_eq),
                     n_eq)
-        warm = np.concatenate([np.ones(n_eq, dtype=bool), holding])[sel]
+        warm = np.concatenate([self._all_rows[:n_eq], holding])[sel]
         # The cable targets need the relative velocity across each cable at the sub-step's end, which the
         # other members' impulses change: start from the velocity at the start (exact at rest) and
         # iterate on the solution until every binding row lands on its target (usually one more solve).
         # The landing error is below (tau^2 / 8 L) |u_f^2 - u^2|, so it is only checked when the
         # velocities changed enough for that bound to exceed the tolerance.
         v_f = np.zeros_like(v0)
-        tol = _LANDING_TOL * (2.0 / tau) * m_limits
-        bound = 0.5 * tau * tau / float(m_limits.min())
+        shortest = float(m_limits.min())
         for _ in range(_LANDING_ITER):
             v_free, y = self.solver.solve(v0[self._free], rows, warm)
             v_f[self._free] = v_free
             change = float(np.max(np.abs(v_f - v)))
-            if bound * change * (change + 2.0 * float(np.max(np.abs(v)))) <= _LANDING_TOL * float(m_limits.min()):
+            if 0.5 * tau * tau * change * (change + 2.0 * float(np.max(np.abs(v)))) <= _LANDING_TOL * shortest * shortest:
                 break
-            targets = self._capped(v_f, m_ends, m_length, m_n, m_limits, tau, reverse, n_eq)
+            u = v_f[b] - v_f[a]
+            targets = self._targets(u, np.einsum("ij,ij->i", u, m_n), m_length, m_limits, tau, floor_rate, n_eq)
             miss = rows.rates(v_free) - targets
             warm = y > 0
             warm[:n_eq] = True
-            if not np.any(np.where(warm, np.abs(miss), miss) > tol):
+            if not np.any(np.where(warm, np.abs(miss), miss) > _LANDING_TOL * (2.0 / tau) * m_limits):
                 break
             rows.targets = targets
-        y_cables = y[n_eq:]
-        if every:
-            impulses = y_cables
+            v = v_f.copy()
+        if isinstance(sel, slice):
+            impulses = y[n_eq:]
         else:
-            impulses[sel[n_eq:] - n_eq] = y_cables
-        return x_m + (0.5 * tau) * v_f, v_f, impulses, impulses > 0
+            impulses[sel[n_eq:] - n_eq] = y[n_eq:]
+        return x_m + (0.5 * tau) * v_f, v_f, impulses
 
     @staticmethod
-    def _capped(v, ends, length, n, limits, tau, reverse, n_eq):
-        """Row targets (k,) m/s: for a cable, the rate that puts it exactly at its limit at the
-        sub-step's end given the relative velocity ``v`` across it (the part its own impulse does not
-        change), but never below ``reverse``; for a rigid strut (the first ``n_eq`` rows), ``reverse``."""
-        u = v[ends[n_eq:, 1]] - v[ends[n_eq:, 0]]
-        un = np.einsum("ij,ij->i", u, n[n_eq:])
-        across2 = np.einsum("ij,ij->i", u, u) - un * un
+    def _targets(u, un, length, limits, tau, floor_rate, n_eq):
+        """Row targets (k,) m/s. A cable's is the rate that puts it exactly at its limit at the sub-step's
+        end given the relative velocity ``u`` (k, 3) of its ends across it (the part its own impulse
+        does not change; ``un`` is the part along it), but never below ``floor_rate``; a rigid strut's
+        (the first ``n_eq`` rows) is ``floor_rate``."""
+        across2 = np.einsum("ij,ij->i", u[n_eq:], u[n_eq:]) - un[n_eq:] ** 2
         half = 0.5 * tau
         lim = limits[n_eq:]
         land = (np.sqrt(np.maximum(lim * lim - half * half * across2, 0.0)) - length[n_eq:]) / half
-        return np.concatenate([reverse[:n_eq], np.maximum(land, reverse[n_eq:])])
+        targets = floor_rate.copy()
+        np.maximum(land, floor_rate[n_eq:], out=targets[n_eq:])
+        return targets
 
     def _impact(self, x, v, d, length, limits, at_limit, maybe, holding):
         """Moreau's impact law at ``x`` when a cable at its limit that was not holding (``maybe``)

@@ -218,7 +218,7 @@ class OsqpSolver(QPSolver):
             self._pattern = pattern
         else:
             self._workspace.update(q=q, l=lower, u=r, Ax=a.data)
-        res = self._workspace.solve()
+        res = self._workspace.solve(raise_error=False)   # failures are judged from the status below
         if res.info.status_val not in (1, 2):  # solved / solved inaccurate (then _check judges it)
             raise QPError(self.name, res.info.status, f"after {res.info.iter} ADMM iterations")
         return np.asarray(res.x, dtype=float), np.asarray(res.y, dtype=float)
