@@ -14,10 +14,14 @@ INSTALL_REQUIRES = [
     "scipy==1.17.1",
     "PyYAML==6.0.3",
     "tqdm==4.70.1",
+    # MCAP logs and ROS 2 Jazzy message types without ROS (tensegrity_sim.ros)
+    "mcap==1.6.0",
+    "rosbags==0.11.9",
 ]
 EXTRAS_REQUIRE = {
     "test": [
         "pytest==9.0.3",
+        "mcap-ros2-support==0.6.0",  # an independent reader of the logs
     ],
     "bench": [
         "matplotlib==3.11.2",
@@ -32,6 +36,9 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/msg_docs", glob("msg_docs/*.md")),
     ],
     python_requires=">=3.10",
     install_requires=INSTALL_REQUIRES,
@@ -45,6 +52,7 @@ setup(
     entry_points={
         "console_scripts": [
             "tensegrity-sim = tensegrity_sim.cli:main",
+            "sim_node = tensegrity_sim.ros.rclpy_node:main",
         ],
     },
 )

@@ -17,6 +17,7 @@ __all__ = ["main", "RunSummary", "simulate"]
 
 DEFAULT_SCENE = "prism3"
 PROGRESS_MIN_STEPS = 20_000  # runs shorter than this finish too quickly to need a progress bar
+DEFAULT_LOG_DIR = "bags"     # run --log without a value: bags/<scene>_<time>.mcap
 
 
 @dataclass
@@ -60,11 +61,14 @@ class RunSummary:
 
 
 def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None, *,
-             progress: bool = False, on_step=None) -> RunSummary:
+             progress: bool = False, on_step=None, driver=None) -> RunSummary:
     """Run ``steps`` steps applying ``commands`` before each step; return the summary.
 
-    ``on_step(result)`` sees every step (the logger uses it).
+    ``on_step(result)`` sees every step. ``driver``, if given, takes the commands and does the steps
+    instead of ``sim`` (same ``set_rest_lengths``/``set_external_forces``/``step``): the node logic's
+    :class:`~tensegrity_sim.ros.offline.CommandDriver`, which logs them.
     """
+    target = sim if driver is None else driver
     base_rest = sim.rest_lengths
     energy_start = sim.energy()["total"]
     max_t, max_cable = 0.0, -1
@@ -80,12 +84,12 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
                 t = sim.time
                 rest = commands.rest_lengths_at(t, base_rest)
                 if not np.array_equal(rest, sim.rest_lengths):
-                    sim.set_rest_lengths(rest)
+                    target.set_rest_lengths(rest)
                 forces = commands.forces_at(t)
                 if forces is not None and forces is not last_forces:
-                    sim.set_external_forces(forces)
+                    target.set_external_forces(forces)
                     last_forces = forces
-            r = sim.step()
+            r = target.step()
             if r.tensions.size:
                 k = int(np.argmax(r.tensions))
                 if r.tensions[k] > max_t:
@@ -114,8 +118,31 @@ def _cmd_run(args: argparse.Namespace) -> int:
     commands = load_commands(args.commands, scene) if args.commands else None
     steps = int(round(args.duration / sim.dt))
     print(f"method: {sim.method_reason}")
-    summary = simulate(sim, steps, commands, progress=steps >= PROGRESS_MIN_STEPS and not args.quiet)
+    progress = steps >= PROGRESS_MIN_STEPS and not args.quiet
+    if args.log is None:
+        summary = simulate(sim, steps, commands, progress=progress)
+    else:
+        from .ros.offline import logged_run  # only logging needs mcap and rosbags
+
+        with logged_run(sim, args.log) as driver:
+            summary = simulate(sim, steps, commands, progress=progress, driver=driver)
+        summary.extra["log"] = driver.path
     print("\n".join(summary.lines()))
+    return 0
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from .ros.replay import replay
+
+    report = replay(args.log)
+    print("\n".join(report.lines()))
+    return 0 if report.ok else 1
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    from .ros.replay import log_info
+
+    print("\n".join(log_info(args.log)))
     return 0
 
 
@@ -143,7 +170,23 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--duration", type=_positive_float, default=10.0, help="simulated time, s (default: 10)")
     run.add_argument("--commands", help="a rest-length/force schedule (YAML; see tensegrity_sim.commands)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.add_argument("--log", nargs="?", const=DEFAULT_LOG_DIR, metavar="FILE",
+                     help="write an MCAP log (the node's topics): FILE.mcap, or a directory for a timestamped "
+                          f"file; without a value {DEFAULT_LOG_DIR}/<scene>_<time>.mcap (give SCENE before it)")
     run.set_defaults(func=_cmd_run)
+
+    rep = verbs.add_parser("replay", help="re-simulate a log and check it bit for bit",
+                           description="Re-simulate a log from the scene, settings and inputs stored in it and "
+                                       "check that every logged state is reproduced bit for bit; on a mismatch, "
+                                       "name the first step, topic and field that differ (exit status 1).")
+    rep.add_argument("log", help="an MCAP log written by tensegrity-sim run --log or the node")
+    rep.set_defaults(func=_cmd_replay)
+
+    info = verbs.add_parser("info", help="summarise a log",
+                            description="Summarise a log: scene, settings, duration, topics and message counts, "
+                                        "slack/snap and contact statistics.")
+    info.add_argument("log", help="an MCAP log written by tensegrity-sim run --log or the node")
+    info.set_defaults(func=_cmd_info)
     return parser
 
 

@@ -1,0 +1,648 @@
+"""Form-finding for the built-in scenes: prestressed tensegrities that start in exact static equilibrium.
+
+Every built-in scene must sit still when simulated, so positions and rest lengths are not typed by hand:
+the geometry is chosen first and the member forces are solved from the equilibrium matrix (the force
+method), then each elastic member's rest length is set so that its constitutive law reproduces that force:
+``L = l - t/k`` (cables: ``t > 0`` so ``L < l``; elastic struts: ``t < 0`` so ``L > l``).
+
+- :func:`prism` -- the 3-strut twisted prism (simplex); its self-stress is the one-dimensional null space
+  of the equilibrium matrix (SVD) at the classic 150-degree twist.
+- :func:`icosahedron` -- the 6-strut, 24-cable expanded octahedron (SUPERball-like) with rigid struts;
+  self-stress from the SVD null space, all 24 cables equally tensioned.
+- :func:`tower` -- stacked twisted prisms on a fixed base under gravity; the member forces that balance
+  gravity exactly at the chosen geometry, with every cable at least ``prestress`` taut and every strut
+  compressed, come from a linear programme over the (statically indeterminate) equilibrium equations.
+- :func:`equilibrium_residual`, :func:`member_forces` -- independent checks of a scene mapping.
+
+Conventions (contract section 1, physics section 1): SI units; member force ``t`` is tension-positive; the
+member (a, b) pushes node a with ``+t (x_b - x_a)/l`` and node b with the opposite; cables carry
+``k max(0, l - L)``, elastic struts ``k (l - L)``, rigid struts whatever equilibrium needs.
+
+``python -m tensegrity_sim.formfinding`` regenerates ``scenes/prism3.yaml``, ``scenes/icosahedron.yaml``
+and ``scenes/tower.yaml`` next to this file.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from scipy.optimize import linprog
+
+__all__ = [
+    "prism",
+    "icosahedron",
+    "tower",
+    "equilibrium_residual",
+    "member_forces",
+    "write_builtin_scenes",
+]
+
+# Relative size below which a singular value of the equilibrium matrix counts as zero (a self-stress).
+_NULL_TOL = 1e-10
+
+
+# --------------------------------------------------------------------------------------------------------
+# Linear algebra of pin-jointed frameworks
+# --------------------------------------------------------------------------------------------------------
+
+def _unit_vectors(X: np.ndarray, members: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lengths (m) and unit vectors from end a to end b of every member; ``members`` is (m, 2) int."""
+    d = X[members[:, 1]] - X[members[:, 0]]
+    l = np.linalg.norm(d, axis=1)
+    return l, d / l[:, None]
+
+
+def _equilibrium_matrix(X: np.ndarray, members: np.ndarray, free: np.ndarray) -> sp.csr_matrix:
+    """Sparse equilibrium matrix ``A`` (3F x m) on the free nodes.
+
+    Column i holds the force that a unit tension in member i puts on the free nodes, so the net internal
+    force is ``A @ t`` (N) and static equilibrium under external loads ``f`` reads ``A t + f = 0``.
+    ``free`` maps node index -> row block (or -1 for a fixed node).
+    """
+    _, n = _unit_vectors(X, members)
+    rows, cols, vals = [], [], []
+    m = np.arange(len(members))
+    for end, sign in ((0, 1.0), (1, -1.0)):
+        blk = free[members[:, end]]
+        ok = blk >= 0
+        for c in range(3):
+            rows.append(3 * blk[ok] + c)
+            cols.append(m[ok])
+            vals.append(sign * n[ok, c])
+    nfree = int((free >= 0).sum())
+    return sp.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * nfree, len(members))
+    )
+
+
+def _tangent_stiffness(X, members, t, k, free) -> np.ndarray:
+    """Dense tangent stiffness (N/m) on the free degrees of freedom.
+
+    Per member: material part ``k n n^T`` plus geometric part ``(t/l)(I - n n^T)``; a compressed strut's
+    geometric part is negative, which is what can make a heavy tower buckle.
+    """
+    l, n = _unit_vectors(X, members)
+    eye = np.eye(3)
+    blocks = k[:, None, None] * n[:, :, None] * n[:, None, :] + (t / l)[:, None, None] * (
+        eye - n[:, :, None] * n[:, None, :]
+    )
+    nfree = int((free >= 0).sum())
+    K = np.zeros((3 * nfree, 3 * nfree))
+    for p_end in (0, 1):
+        for q_end in (0, 1):
+            sign = 1.0 if p_end == q_end else -1.0
+            bp, bq = free[members[:, p_end]], free[members[:, q_end]]
+            for i in np.nonzero((bp >= 0) & (bq >= 0))[0]:
+                K[3 * bp[i]:3 * bp[i] + 3, 3 * bq[i]:3 * bq[i] + 3] += sign * blocks[i]
+    return K
+
+
+def _rigid_body_basis(X: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (3N x 6) of the rigid-body motions of a free-floating node set."""
+    N = len(X)
+    c = X - X.mean(axis=0)
+    B = np.zeros((3 * N, 6))
+    for a in range(3):
+        B[a::3, a] = 1.0
+        e = np.zeros(3)
+        e[a] = 1.0
+        B[:, 3 + a] = np.cross(e, c).ravel()
+    q, _ = np.linalg.qr(B)
+    return q
+
+
+def _min_stiffness_eigenvalue(K: np.ndarray, rigid_basis: np.ndarray | None = None) -> float:
+    """Smallest eigenvalue (N/m) of K, restricted to motions orthogonal to ``rigid_basis`` if given."""
+    if rigid_basis is not None:
+        # Project onto the complement of the rigid-body modes, which carry no stiffness by construction.
+        P = np.linalg.svd(rigid_basis, full_matrices=True)[0][:, rigid_basis.shape[1]:]
+        K = P.T @ K @ P
+    return float(np.linalg.eigvalsh(0.5 * (K + K.T))[0])
+
+
+def _self_stress(A: np.ndarray) -> np.ndarray:
+    """The single self-stress (unit vector of member forces) of a framework, from the SVD null space of A.
+
+    Raises if the null space is not exactly one-dimensional: the built-ins rely on a unique prestress mode.
+    """
+    _, s, Vt = np.linalg.svd(A)
+    m = A.shape[1]
+    s_full = np.zeros(m)
+    s_full[: len(s)] = s
+    null = np.nonzero(s_full < _NULL_TOL * s_full[0])[0]
+    if len(null) != 1:
+        raise RuntimeError(f"expected a 1-D self-stress, found {len(null)} (singular values {s_full})")
+    return Vt[null[0]]
+
+
+def _segment_distances(P0, P1, Q0, Q1) -> np.ndarray:
+    """Vectorised distance (m) between segments P0-P1 and Q0-Q1 (arrays of shape (k, 3))."""
+    d1, d2, r = P1 - P0, Q1 - Q0, P0 - Q0
+    a = np.einsum("ij,ij->i", d1, d1)
+    e = np.einsum("ij,ij->i", d2, d2)
+    b = np.einsum("ij,ij->i", d1, d2)
+    c = np.einsum("ij,ij->i", d1, r)
+    f = np.einsum("ij,ij->i", d2, r)
+    den = a * e - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(den > 1e-14 * a * e, np.clip((b * f - c * e) / den, 0.0, 1.0), 0.0)
+        tt = (b * s + f) / e
+        s = np.where(tt < 0.0, np.clip(-c / a, 0.0, 1.0), np.where(tt > 1.0, np.clip((b - c) / a, 0.0, 1.0), s))
+    tt = np.clip(tt, 0.0, 1.0)
+    return np.linalg.norm(P0 + s[:, None] * d1 - (Q0 + tt[:, None] * d2), axis=1)
+
+
+def _min_clearance(X, members, radii) -> float:
+    """Smallest surface gap (m) between two members that share no node (negative: they overlap)."""
+    members = np.asarray(members)
+    i, j = np.triu_indices(len(members), 1)
+    share = (members[i, 0, None] == members[j]).any(axis=1) | (members[i, 1, None] == members[j]).any(axis=1)
+    i, j = i[~share], j[~share]
+    if len(i) == 0:
+        return math.inf
+    # Cheap bounding-sphere cull first, so a 100-stage tower is checked in well under a second.
+    mid = 0.5 * (X[members[:, 0]] + X[members[:, 1]])
+    half = 0.5 * np.linalg.norm(X[members[:, 1]] - X[members[:, 0]], axis=1) + radii
+    near = np.linalg.norm(mid[i] - mid[j], axis=1) < half[i] + half[j]
+    i, j = i[near], j[near]
+    if len(i) == 0:
+        return math.inf
+    d = _segment_distances(X[members[i, 0]], X[members[i, 1]], X[members[j, 0]], X[members[j, 1]])
+    return float((d - radii[i] - radii[j]).min())
+
+
+# --------------------------------------------------------------------------------------------------------
+# Scene assembly
+# --------------------------------------------------------------------------------------------------------
+
+def _floats(v) -> list[float]:
+    """Plain Python floats (yaml.safe_dump refuses numpy scalars; repr keeps full precision)."""
+    return [float(x) for x in v]
+
+
+def _scene(name, X, gravity, masses, fixed, struts, cables) -> dict:
+    """Assemble a contract-section-1 mapping.
+
+    ``struts``/``cables``: lists of dicts with keys a, b, stiffness ("rigid" or N/m), rest_length (m),
+    radius (m). All mass sits on the nodes (strut mass 0), so the loader's half-and-half lumping is moot.
+    """
+    nodes = []
+    for p, x in enumerate(X):
+        node = {"name": f"n{p}", "position": _floats(x), "mass": float(masses[p])}
+        if fixed[p]:
+            node["fixed"] = True
+        nodes.append(node)
+
+    def member(prefix, i, m):
+        return {
+            "name": f"{prefix}{i}",
+            "nodes": [f"n{m['a']}", f"n{m['b']}"],
+            "stiffness": m["stiffness"] if m["stiffness"] == "rigid" else float(m["stiffness"]),
+            "rest_length": float(m["rest_length"]),
+            "radius": float(m["radius"]),
+        }
+
+    return {
+        "name": name,
+        "gravity": _floats(gravity),
+        "nodes": nodes,
+        "struts": [member("s", i, m) for i, m in enumerate(struts)],
+        "cables": [member("c", i, m) for i, m in enumerate(cables)],
+    }
+
+
+def _rest_lengths(l: np.ndarray, t: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Rest lengths (m) such that ``k (l - L) = t`` reproduces the solved force; refuses L <= 0."""
+    L = l - t / k
+    if np.any(L <= 0.0):
+        raise ValueError("prestress too high for the stiffness: a rest length would be <= 0")
+    return L
+
+
+# --------------------------------------------------------------------------------------------------------
+# Built-ins
+# --------------------------------------------------------------------------------------------------------
+
+def prism(
+    strut_length: float = 1.0,
+    radius: float = 0.4,
+    twist_deg: float = 150.0,
+    cable_tension: float = 40.0,
+    node_mass: float = 0.5,
+    strut_stiffness: float = 2.0e4,
+    cable_stiffness: float = 2.0e3,
+    strut_radius: float = 0.015,
+    cable_radius: float = 0.003,
+    name: str = "prism3",
+) -> dict:
+    """The 3-strut twisted prism (simplex), free-floating, no gravity, in exact self-equilibrium.
+
+    Bottom triangle ``n0..n2`` at z = 0 and top triangle ``n3..n5`` on circles of ``radius`` (m); top node j
+    is rotated by ``twist_deg`` from bottom node j and strut j joins them; the height is chosen so every
+    strut is ``strut_length`` (m) long. Cables: bottom ring, top ring, and the three side cables joining
+    bottom node j+1 to top node j. The twist must be 150 degrees (the simplex condition) for a self-stress
+    to exist; it is taken from the SVD null space of the equilibrium matrix and scaled so that the most
+    tensioned cable carries ``cable_tension`` (N). Elastic struts (N/m) get ``L = l - t/k > l``.
+    """
+    a = math.radians(twist_deg)
+    chord = 2.0 * radius * math.sin(a / 2.0)
+    if chord >= strut_length:
+        raise ValueError("radius too large for the strut length")
+    h = math.sqrt(strut_length**2 - chord**2)
+    th = [2.0 * math.pi * j / 3.0 for j in range(3)]
+    X = np.array(
+        [[radius * math.cos(t), radius * math.sin(t), 0.0] for t in th]
+        + [[radius * math.cos(t + a), radius * math.sin(t + a), h] for t in th]
+    )
+    struts = [(j, 3 + j) for j in range(3)]
+    cables = (
+        [(j, (j + 1) % 3) for j in range(3)]
+        + [(3 + j, 3 + (j + 1) % 3) for j in range(3)]
+        + [((j + 1) % 3, 3 + j) for j in range(3)]
+    )
+    members = np.array(struts + cables)
+    free = np.arange(6)
+    A = _equilibrium_matrix(X, members, free).toarray()
+    s = _self_stress(A)
+    ns = len(struts)
+    # The null vector's sign is arbitrary; orient it so cables pull, then check struts push.
+    s = s if s[ns:].sum() > 0 else -s
+    t = s * (cable_tension / s[ns:].max())
+    if t[ns:].min() <= 0.0 or t[:ns].max() >= 0.0:
+        raise RuntimeError("self-stress is not a proper prestress (cables must pull, struts push)")
+    l, _ = _unit_vectors(X, members)
+    k = np.r_[np.full(ns, strut_stiffness), np.full(len(cables), cable_stiffness)]
+    L = _rest_lengths(l, t, k)
+    K = _tangent_stiffness(X, members, t, k, free)
+    if _min_stiffness_eigenvalue(K, _rigid_body_basis(X)) <= 0.0:
+        raise RuntimeError("prism equilibrium is not stable")
+    def mk(i, kk, r):
+        return {"a": members[i, 0], "b": members[i, 1], "stiffness": kk, "rest_length": L[i], "radius": r}
+
+    return _scene(
+        name,
+        X,
+        (0.0, 0.0, 0.0),
+        np.full(6, node_mass),
+        np.zeros(6, bool),
+        [mk(i, strut_stiffness, strut_radius) for i in range(ns)],
+        [mk(ns + i, cable_stiffness, cable_radius) for i in range(len(cables))],
+    )
+
+
+def icosahedron(
+    strut_length: float = 1.684,
+    strut_mass: float = 3.5,
+    cable_tension: float = 80.0,
+    cable_stiffness: float = 613.0,
+    strut_radius: float = 0.025,
+    cable_radius: float = 0.003,
+    name: str = "icosahedron",
+) -> dict:
+    """The 6-strut, 24-cable expanded octahedron (SUPERball-like), rigid struts, no gravity, free-floating.
+
+    Three pairs of parallel struts along x, y, z (``strut_length`` m), each pair separated by half the strut
+    length and centred on the origin: nodes ``(+-b, 0, +-a)``, ``(+-a, +-b, 0)``, ``(0, +-a, +-b)`` with
+    ``b = strut_length/2``, ``a = b/2``. In this symmetric geometry all 24 cables have length
+    ``b*sqrt(3/2)`` and the equilibrium matrix has a 1-D self-stress (SVD null space), in which all cables
+    carry the same tension, scaled to ``cable_tension`` (N). Each strut's ``strut_mass`` (kg) is lumped half
+    on each end node. Cable rest length ``L = l - t/k``.
+    """
+    b = 0.5 * strut_length
+    a = 0.5 * b
+    X = []
+    for s1 in (1.0, -1.0):  # strut along x at (y=0, z=s1*a): nodes (+b, 0, s1 a), (-b, 0, s1 a)
+        X += [[b, 0.0, s1 * a], [-b, 0.0, s1 * a]]
+    for s1 in (1.0, -1.0):  # along y at (z=0, x=s1*a)
+        X += [[s1 * a, b, 0.0], [s1 * a, -b, 0.0]]
+    for s1 in (1.0, -1.0):  # along z at (x=0, y=s1*a)
+        X += [[0.0, s1 * a, b], [0.0, s1 * a, -b]]
+    X = np.array(X)
+    struts = [(2 * i, 2 * i + 1) for i in range(6)]
+    # Each node's four cables go to the nearest nodes not on its own strut pair (distance b*sqrt(3/2)).
+    D = np.linalg.norm(X[:, None] - X[None], axis=2)
+    lc = b * math.sqrt(1.5)
+    cables = [(p, q) for p in range(12) for q in range(p + 1, 12) if abs(D[p, q] - lc) < 1e-9 * lc]
+    if len(cables) != 24:
+        raise RuntimeError(f"expected 24 cables, found {len(cables)}")
+    members = np.array(struts + cables)
+    free = np.arange(12)
+    A = _equilibrium_matrix(X, members, free).toarray()
+    s = _self_stress(A)
+    ns = 6
+    s = s if s[ns:].sum() > 0 else -s
+    t = s * (cable_tension / s[ns:].max())
+    if t[ns:].min() <= 0.0 or t[:ns].max() >= 0.0:
+        raise RuntimeError("self-stress is not a proper prestress")
+    l, _ = _unit_vectors(X, members)
+    Lc = _rest_lengths(l[ns:], t[ns:], np.full(24, cable_stiffness))
+    # Stability with rigid struts: emulate rigidity by a very stiff strut in the tangent stiffness.
+    k = np.r_[np.full(ns, 1e9), np.full(24, cable_stiffness)]
+    if _min_stiffness_eigenvalue(_tangent_stiffness(X, members, t, k, free), _rigid_body_basis(X)) <= 0.0:
+        raise RuntimeError("icosahedron equilibrium is not stable")
+    return _scene(
+        name,
+        X,
+        (0.0, 0.0, 0.0),
+        np.full(12, 0.5 * strut_mass),
+        np.zeros(12, bool),
+        [
+            {"a": p, "b": q, "stiffness": "rigid", "rest_length": l[i], "radius": strut_radius}
+            for i, (p, q) in enumerate(struts)
+        ],
+        [
+            {"a": p, "b": q, "stiffness": cable_stiffness, "rest_length": Lc[i], "radius": cable_radius}
+            for i, (p, q) in enumerate(cables)
+        ],
+    )
+
+
+def _tower_topology(stages, radius, height, overlap, twist, shift):
+    """Geometry and members of the stacked-prism tower (see :func:`tower`)."""
+    X = []
+    pitch = height - overlap
+    for k in range(stages):
+        rot = k * (twist + shift)
+        for j in range(3):
+            th = 2.0 * math.pi * j / 3.0 + rot
+            X.append([radius * math.cos(th), radius * math.sin(th), k * pitch])
+        for j in range(3):
+            th = 2.0 * math.pi * j / 3.0 + rot + twist
+            X.append([radius * math.cos(th), radius * math.sin(th), k * pitch + height])
+    X = np.array(X)
+    struts, cables = [], []
+    for k in range(stages):
+        B = [6 * k + j for j in range(3)]
+        T = [6 * k + 3 + j for j in range(3)]
+        for j in range(3):
+            struts.append((B[j], T[j]))
+        for j in range(3):
+            if k > 0:  # the base ring joins two fixed nodes: it would carry nothing, so it is left out
+                cables.append((B[j], B[(j + 1) % 3]))
+            cables.append((T[j], T[(j + 1) % 3]))
+            # Both side cables: with twist > 150 degrees each stage then has a prestress in which both are
+            # taut, and the stage is kinematically determinate (no soft mechanism for gravity to excite).
+            cables.append((B[j], T[(j + 1) % 3]))
+            cables.append((B[(j + 1) % 3], T[j]))
+        if k > 0:
+            Tp = [6 * (k - 1) + 3 + j for j in range(3)]
+            Bp = [6 * (k - 1) + j for j in range(3)]
+            for j in range(3):
+                # Overlap zig-zag: this stage's bottom node hangs on the two nearest top nodes below it ...
+                d = np.linalg.norm(X[Tp] - X[B[j]], axis=1)
+                for q in np.argsort(d, kind="stable")[:2]:
+                    cables.append((Tp[q], B[j]))
+            for j in range(3):
+                # ... and, so the interface can carry a self-stress (its cables must not all pull the same
+                # way), the previous top node ties up to the nearest top node of this stage and this
+                # bottom node ties down to the nearest bottom node of the previous stage.
+                d = np.linalg.norm(X[T] - X[Tp[j]], axis=1)
+                cables.append((Tp[j], T[int(np.argmin(d))]))
+                d = np.linalg.norm(X[Bp] - X[B[j]], axis=1)
+                cables.append((Bp[int(np.argmin(d))], B[j]))
+    return X, np.array(struts), np.array(cables)
+
+
+def tower(
+    stages: int = 3,
+    radius: float = 0.5,
+    stage_height: float = 0.8,
+    overlap: float = 0.3,
+    twist_deg: float = 165.0,
+    shift_deg: float = 60.0,
+    node_mass: float = 0.5,
+    strut_stiffness: float = 4.0e4,
+    cable_stiffness: float = 1.0e4,
+    prestress: float = 20.0,
+    gravity=(0.0, 0.0, -9.81),
+    strut_radius: float = 0.015,
+    cable_radius: float = 0.003,
+    check_stability: bool = True,
+    name: str | None = None,
+) -> dict:
+    """A tower of ``stages`` stacked twisted prisms on a fixed base, in exact static equilibrium.
+
+    Topology: stage k has its own six nodes (bottom ``n{6k}..n{6k+2}``, top ``n{6k+3}..n{6k+5}``), so every
+    node has exactly one strut; ``6*stages`` nodes, ``3*stages`` struts, ``24*stages - 15`` cables; the
+    three bottom nodes of stage 0 are fixed. Each stage is a prism of ``radius`` (m), height
+    ``stage_height`` (m), top rotated by ``twist_deg`` (> 150) from its bottom, with top ring, bottom ring
+    (not for the fixed base) and two side cables per face. Stage k+1 starts ``stage_height - overlap`` (m)
+    above stage k, rotated by ``twist_deg + shift_deg``; its bottom nodes hang on the two nearest top nodes
+    of stage k, plus one tie from each stage-k top node up to stage k+1's top and one from each stage-(k+1)
+    bottom node down to stage k's bottom.
+
+    Form-finding (force method): at this geometry the equilibrium matrix has full row rank with
+    ``9*stages - 6`` independent self-stresses to spare, so a linear programme picks the member forces
+    that balance ``node_mass * gravity`` exactly, keep every cable at least ``prestress`` (N) taut and
+    every strut at least ``prestress`` compressed, with the least total cable tension times length; a
+    minimum-norm correction then removes the LP's tolerance-level residual. Rest lengths ``L = l - t/k``
+    (``strut_stiffness``, ``cable_stiffness`` in N/m).
+
+    With ``check_stability`` the tangent stiffness on the free nodes is checked positive definite. Under
+    full gravity a uniform tower eventually buckles under its own weight (the negative geometric stiffness
+    of ever more compressed struts beats the bending stiffness), with the defaults beyond 15 stages:
+    the equilibrium is still exact but unstable, and a ``RuntimeWarning`` says so. Pass
+    ``gravity=(0, 0, 0)`` for a tall prestress-only tower, which is stable at any height.
+    """
+    if not isinstance(stages, (int, np.integer)) or stages < 1:
+        raise ValueError(f"stages must be an integer >= 1, got {stages!r}")
+    stages = int(stages)
+    gravity = np.asarray(gravity, float)
+    X, struts, cables = _tower_topology(
+        stages, radius, stage_height, overlap, math.radians(twist_deg), math.radians(shift_deg)
+    )
+    members = np.vstack([struts, cables])
+    ns, nc = len(struts), len(cables)
+    N = len(X)
+    fixed = np.zeros(N, bool)
+    fixed[:3] = True
+    free = np.full(N, -1)
+    free[~fixed] = np.arange(N - 3)
+    A = _equilibrium_matrix(X, members, free)
+    f = np.tile(node_mass * gravity, N - 3)  # external load on the free nodes, N
+
+    l, _ = _unit_vectors(X, members)
+    cost = np.r_[np.zeros(ns), l[ns:]]  # least cable "material": sum of tension x length
+    bounds = [(None, -prestress)] * ns + [(prestress, None)] * nc
+    res = linprog(cost, A_eq=A, b_eq=-f, bounds=bounds, method="highs")
+    if res.status != 0:
+        raise RuntimeError(f"tower form-finding LP failed: {res.message}")
+    t = res.x
+    # Polish to round-off: t += A^T (A A^T)^-1 r (A has full row rank), the smallest change that zeroes
+    # the residual; the LP's tolerance is ~1e-9 relative, far inside the prestress margins.
+    AAt = (A @ A.T).tocsc()
+    for _ in range(3):
+        r = -f - A @ t
+        t = t + A.T @ spla.spsolve(AAt, r)
+    if t[ns:].min() < 0.5 * prestress or t[:ns].max() > -0.5 * prestress:
+        raise RuntimeError("tower form-finding lost its tension/compression margins while polishing")
+
+    k = np.r_[np.full(ns, strut_stiffness), np.full(nc, cable_stiffness)]
+    L = _rest_lengths(l, t, k)
+    if check_stability:
+        Kt = _tangent_stiffness(X, members, t, k, free)
+        try:
+            np.linalg.cholesky(0.5 * (Kt + Kt.T))
+        except np.linalg.LinAlgError:
+            lam = float(np.linalg.eigvalsh(0.5 * (Kt + Kt.T))[0])
+            warnings.warn(
+                f"tower({stages}): the equilibrium is exact but unstable under gravity {gravity.tolist()} "
+                f"(smallest tangent-stiffness eigenvalue {lam:.3g} N/m): the tower buckles under its own "
+                "weight; use fewer stages, a wider or stiffer tower, or no gravity",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+    def mk(i, kk, r):
+        return {"a": members[i, 0], "b": members[i, 1], "stiffness": kk, "rest_length": L[i], "radius": r}
+
+    return _scene(
+        name or ("tower" if stages == 3 else f"tower{stages}"),
+        X,
+        gravity,
+        np.full(N, node_mass),
+        fixed,
+        [mk(i, strut_stiffness, strut_radius) for i in range(ns)],
+        [mk(ns + i, cable_stiffness, cable_radius) for i in range(nc)],
+    )
+
+
+# --------------------------------------------------------------------------------------------------------
+# Independent checks on a scene mapping
+# --------------------------------------------------------------------------------------------------------
+
+def _parse(scene: dict):
+    """Arrays from a contract-section-1 mapping: positions, total nodal masses, fixed flags, members."""
+    nodes = scene["nodes"]
+    index = {n["name"]: i for i, n in enumerate(nodes)}
+    X = np.array([n["position"] for n in nodes], float)
+    mass = np.array([float(n.get("mass", 0.0) or 0.0) for n in nodes])
+    fixed = np.array([bool(n.get("fixed", False)) for n in nodes])
+    members, kind, k, L = [], [], [], []
+    for group in ("struts", "cables"):
+        for m in scene.get(group) or []:
+            a, b = index[m["nodes"][0]], index[m["nodes"][1]]
+            members.append((a, b))
+            rigid = group == "struts" and m["stiffness"] == "rigid"
+            kind.append("rigid" if rigid else group[:-1])
+            k.append(0.0 if rigid else float(m["stiffness"]))
+            rest = m.get("rest_length")
+            L.append(float(np.linalg.norm(X[b] - X[a])) if rest is None else float(rest))
+            if group == "struts" and m.get("mass"):  # lumped half to each end, as the loader does
+                mass[a] += 0.5 * float(m["mass"])
+                mass[b] += 0.5 * float(m["mass"])
+    return X, mass, fixed, np.array(members, int).reshape(-1, 2), np.array(kind), np.array(k), np.array(L)
+
+
+def _forces(scene: dict):
+    """Member forces (N, tension positive; rigid struts solved by least squares) and free-node residuals."""
+    X, mass, fixed, members, kind, k, L = _parse(scene)
+    g = np.asarray(scene.get("gravity") or (0.0, 0.0, 0.0), float)
+    l, _ = _unit_vectors(X, members)
+    t = np.where(kind == "cable", k * np.maximum(0.0, l - L), k * (l - L))
+    free = np.full(len(X), -1)
+    free[~fixed] = np.arange(int((~fixed).sum()))
+    A = _equilibrium_matrix(X, members, free).toarray()
+    rigid = kind == "rigid"
+    F = (mass[~fixed, None] * g).ravel() + A[:, ~rigid] @ t[~rigid]
+    if rigid.any():
+        t[rigid] = np.linalg.lstsq(A[:, rigid], -F, rcond=None)[0]
+        F = F + A[:, rigid] @ t[rigid]
+    return t, F.reshape(-1, 3), kind
+
+
+def member_forces(scene: dict) -> dict:
+    """Axial force (N, tension positive) of every member of a scene mapping at its given geometry.
+
+    Elastic members from their constitutive law; rigid struts from the least-squares solution of
+    equilibrium at the free nodes. Returns ``{"struts": {name: t}, "cables": {name: t}}``.
+    """
+    t, _, _ = _forces(scene)
+    names = [m["name"] for m in scene.get("struts") or []] + [m["name"] for m in scene.get("cables") or []]
+    ns = len(scene.get("struts") or [])
+    return {
+        "struts": {n: float(v) for n, v in zip(names[:ns], t[:ns])},
+        "cables": {n: float(v) for n, v in zip(names[ns:], t[ns:])},
+    }
+
+
+def equilibrium_residual(scene: dict) -> float:
+    """Largest norm (N) of the net force on any free node of a scene mapping at rest at its positions.
+
+    Gravity on the lumped masses, cable ``k max(0, l - L)``, elastic strut ``k (l - L)``, and rigid-strut
+    forces chosen by least squares (so a rigid scene is judged by whether *some* strut forces balance it).
+    """
+    _, F, _ = _forces(scene)
+    return float(np.linalg.norm(F, axis=1).max()) if len(F) else 0.0
+
+
+# --------------------------------------------------------------------------------------------------------
+# Writing the built-in scene files
+# --------------------------------------------------------------------------------------------------------
+
+_HEADER = (
+    "# GENERATED FILE - do not edit by hand.\n"
+    "# Regenerate with:  python -m tensegrity_sim.formfinding\n"
+    "# (tensegrity_sim/formfinding.py, function {func}). Positions and rest lengths come from form-finding\n"
+    "# and are written with full float precision so the scene starts in exact static equilibrium.\n"
+)
+
+
+def _dump(scene: dict, path: Path, func: str, notes: str) -> None:
+    import yaml  # only needed for writing files
+
+    text = _HEADER.format(func=func) + "".join(f"# {line}\n" for line in notes.splitlines())
+    text += yaml.safe_dump(scene, default_flow_style=None, sort_keys=False, width=120)
+    path.write_text(text)
+
+
+def write_builtin_scenes(directory: str | Path | None = None) -> dict[str, float]:
+    """(Re)write prism3.yaml, icosahedron.yaml and tower.yaml; returns each file's equilibrium residual (N)."""
+    directory = Path(directory) if directory is not None else Path(__file__).resolve().parent / "scenes"
+    directory.mkdir(parents=True, exist_ok=True)
+    out = {}
+    specs = [
+        (
+            "prism3.yaml",
+            "prism()",
+            prism(),
+            "3-strut twisted prism (simplex), 150 deg twist, free-floating, no gravity. Node mass 0.5 kg.\n"
+            "Struts 1.0 m, elastic 2.0e4 N/m; cables 2.0e3 N/m; self-stress from the SVD null space,\n"
+            "scaled so the most tensioned cable carries 40 N.",
+        ),
+        (
+            "icosahedron.yaml",
+            "icosahedron()",
+            icosahedron(),
+            "6-strut, 24-cable expanded octahedron (SUPERball-like), free-floating, no gravity.\n"
+            "Rigid struts 1.684 m, 3.5 kg each lumped as 1.75 kg per end node; cables 613 N/m.\n"
+            "Prestress: every cable carries 80 N (rest length = length - 80/613 m).",
+        ),
+        (
+            "tower.yaml",
+            "tower(3)",
+            tower(3),
+            "3-stage tower of twisted prisms, base nodes fixed, gravity -9.81 m/s^2 along z.\n"
+            "Node mass 0.5 kg; struts elastic 4.0e4 N/m; cables 1.0e4 N/m; member forces from a linear\n"
+            "programme: exact equilibrium with gravity, every cable >= 20 N, every strut <= -20 N.",
+        ),
+    ]
+    for fname, func, scene, notes in specs:
+        _dump(scene, directory / fname, func, notes)
+        out[fname] = equilibrium_residual(scene)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    for fname, r in write_builtin_scenes().items():
+        print(f"{fname}: max free-node residual force {r:.3e} N")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,625 @@
+"""The whole behaviour of the ``tensegrity_sim`` node (contract §4, ``msg_docs/``), without rclpy.
+
+:class:`SimNodeLogic` owns a :class:`~tensegrity_sim.Simulator` and does everything the node does:
+
+* **inputs** arrive as message objects through :meth:`SimNodeLogic.receive`; each is validated whole
+  and either applied or refused with a reason (logged), leaving the state exactly as it was;
+* **stepping** follows a real-time schedule on an injected monotonic clock (:meth:`~SimNodeLogic.tick`);
+* **outputs** are built as ROS 2 messages and handed to a ``transport(key, message)`` callback (rclpy's
+  publishers, a DDS writer, a list in a test) and to an optional recorder (the MCAP log). Between two
+  publications the cable impulses of every step are summed and every contact event is queued, so
+  publishing slower than stepping loses nothing;
+* the **services** (reset, pause, resume, single step) are plain methods returning ``(success, message)``.
+
+Topics are named by key (``"node_poses"``...); :data:`TOPICS` gives their names, types, direction and
+QoS. The node is single-threaded (one executor thread calls everything), so nothing here locks.
+
+Publication is decided by the caller of :meth:`~SimNodeLogic.step` and :meth:`~SimNodeLogic.publish`
+(the real-time :meth:`~SimNodeLogic.tick`, the single-step service, the offline runner, the replay), so a
+replay can publish exactly where a log did.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass, field, fields, replace
+from datetime import datetime, timezone
+from typing import Callable
+
+import numpy as np
+
+from .. import __version__
+from ..results import ContactEvent, StepResult
+from ..simulator import Simulator
+from . import messages as M
+
+__all__ = ["Qos", "TopicSpec", "TOPICS", "SERVICES", "NodeSettings", "SimNodeLogic", "stamp_ns", "encode_contacts",
+           "decode_contacts", "RUNTIME_PARAMETERS"]
+
+
+# --------------------------------------------------------------------------- topics
+@dataclass(frozen=True)
+class Qos:
+    """The QoS a topic is offered (publisher) or requested (subscription) with."""
+
+    reliability: str = "reliable"     # "reliable" | "best_effort"
+    depth: int = 10                   # history: keep_last(depth)
+    durability: str = "volatile"      # "volatile" | "transient_local"
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """name: relative to the node (``~/x``) or absolute (``/clock``); typename: "pkg/msg/Name";
+    direction: "in" (subscribed) or "out" (published)."""
+
+    name: str
+    typename: str
+    direction: str
+    qos: Qos
+
+
+# Impulses and contact events are sums and events: a subscriber that needs every one has room for one
+# second of publications at 100 Hz before the publisher's history overwrites anything.
+TOPICS: dict[str, TopicSpec] = {
+    "cable_rest_lengths": TopicSpec("~/cable_rest_lengths", "sensor_msgs/msg/JointState", "in", Qos()),
+    "external_wrench": TopicSpec("~/external_wrench", "geometry_msgs/msg/WrenchStamped", "in", Qos()),
+    "clock": TopicSpec("/clock", "rosgraph_msgs/msg/Clock", "out", Qos(depth=1)),
+    "node_poses": TopicSpec("~/node_poses", "geometry_msgs/msg/PoseArray", "out", Qos()),
+    "cable_states": TopicSpec("~/cable_states", "sensor_msgs/msg/JointState", "out", Qos()),
+    "cable_impulses": TopicSpec("~/cable_impulses", "sensor_msgs/msg/JointState", "out", Qos(depth=100)),
+    "contacts": TopicSpec("~/contacts", "diagnostic_msgs/msg/DiagnosticArray", "out", Qos(depth=100)),
+    "markers": TopicSpec("~/markers", "visualization_msgs/msg/MarkerArray", "out", Qos()),
+    "diagnostics": TopicSpec("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "out", Qos()),
+}
+
+
+# std_srvs/Trigger services: name (under the node, ~/name) -> the SimNodeLogic method answering it
+SERVICES: dict[str, str] = {"reset": "reset", "pause": "pause", "resume": "resume", "step": "single_step"}
+
+
+def resolve_topic(name: str, node_name: str) -> str:
+    """``~/x`` under the node's fully qualified name (``/ns/node``); absolute names unchanged."""
+    return node_name.rstrip("/") + name[1:] if name.startswith("~/") else name
+
+
+def stamp_ns(seconds: float) -> int:
+    """Simulation time (s) as integer nanoseconds, the unit of every stamp and log time."""
+    return int(round(seconds * 1e9))
+
+
+# --------------------------------------------------------------------------- parameters
+def _doc(text: str, runtime: bool = False) -> dict:
+    return {"doc": text, "runtime": runtime}
+
+
+@dataclass(frozen=True)
+class NodeSettings:
+    """The node's parameters, validated on construction (a bad one raises ``ValueError`` naming it).
+
+    ``fields(NodeSettings)`` is the parameter list: the rclpy node declares them with these defaults and
+    descriptions, ``config/sim_node.yaml`` and ``msg_docs/parameters.md`` list them.
+    """
+
+    scene: str = field(default="prism3", metadata=_doc("built-in scene name or path to a scene YAML file"))
+    method: str = field(default="auto", metadata=_doc("stepping method: elastic | inextensible | auto"))
+    dt: float = field(default=1e-3, metadata=_doc("simulated time per step, s"))
+    step_rate: float = field(default=1000.0, metadata=_doc(
+        "rate of the stepping timer, Hz of wall-clock (steady) time; each tick runs the steps due"))
+    publish_rate: float = field(default=100.0, metadata=_doc(
+        "outputs per second of simulated time, Hz; at most 1/dt (rounded to a whole number of steps)",
+        runtime=True))
+    marker_rate: float = field(default=10.0, metadata=_doc(
+        "markers per second of simulated time, Hz: every round(publish_rate / marker_rate)-th publication "
+        "(a display needs no more, and a MarkerArray costs more to serialise than all other outputs)",
+        runtime=True))
+    real_time_factor: float = field(default=1.0, metadata=_doc(
+        "simulated seconds per wall-clock second; 0 = as fast as possible", runtime=True))
+    frame_id: str = field(default="world", metadata=_doc("frame of node_poses and markers"))
+    log_path: str = field(default="bags", metadata=_doc(
+        "MCAP log: a .mcap file, a directory (a timestamped file in it), or empty for no log"))
+    max_rest_length_rate: float = field(default=0.0, metadata=_doc(
+        "fastest a rest length may change, m/s (a motor reels at a finite speed); 0 = no limit"))
+    node_name: str = field(default="/tensegrity_sim", metadata=_doc(
+        "fully qualified node name, the prefix of ~/ topics (set by the node, not a parameter)"))
+
+    def __post_init__(self):
+        for name in ("scene", "method", "frame_id", "node_name"):
+            value = getattr(self, name)
+            if not isinstance(value, str) or not value:
+                raise ValueError(f"parameter {name!r}: must be a non-empty string, got {value!r}")
+        if not isinstance(self.log_path, str):
+            raise ValueError(f"parameter 'log_path': must be a string, got {self.log_path!r}")
+        if not self.node_name.startswith("/"):
+            raise ValueError(f"parameter 'node_name': must be fully qualified (start with /), got "
+                             f"{self.node_name!r}")
+        for name, minimum, strict in (("dt", 0.0, True), ("step_rate", 0.0, True), ("publish_rate", 0.0, True),
+                                      ("marker_rate", 0.0, True),
+                                      ("real_time_factor", 0.0, False), ("max_rest_length_rate", 0.0, False)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"parameter {name!r}: must be a finite number, got {value!r}")
+            if value < minimum or (strict and value == minimum):
+                raise ValueError(f"parameter {name!r}: must be {'>' if strict else '>='} {minimum:g}, got {value!r}")
+            object.__setattr__(self, name, float(value))
+        if self.publish_rate * self.dt > 1.0 + 1e-12:
+            raise ValueError(f"parameter 'publish_rate': must be at most 1/dt = {1.0 / self.dt:g} Hz (one "
+                             f"publication per step), got {self.publish_rate!r}")
+
+    @property
+    def publish_every(self) -> int:
+        """Steps between two publications: ``round(1 / (publish_rate dt))``, at least 1."""
+        return max(1, int(round(1.0 / (self.publish_rate * self.dt))))
+
+    @property
+    def markers_every(self) -> int:
+        """Publications between two marker arrays: ``round(publish_rate / marker_rate)``, at least 1."""
+        return max(1, int(round(self.publish_rate / self.marker_rate)))
+
+    @property
+    def parameters(self) -> dict:
+        """The ROS parameters (every field but ``node_name``) and their values."""
+        return {k: v for k, v in asdict(self).items() if k != "node_name"}
+
+
+RUNTIME_PARAMETERS = tuple(f.name for f in fields(NodeSettings) if f.metadata.get("runtime"))
+
+
+# --------------------------------------------------------------------------- markers
+_LINE_LIST, _CUBE_LIST, _SPHERE_LIST = 5, 6, 7
+_ADD, _DELETE = 0, 2
+
+
+class _MarkerStyle:
+    """What never changes in a marker of one namespace: its fields but the header, action and points,
+    built once (building message objects is most of what publishing costs)."""
+
+    def __init__(self, ns: str, marker_id: int, kind: int, scale: float, color: tuple):
+        empty_header = M.header(0, "")
+        self.fields = dict(
+            ns=ns, id=marker_id, type=kind,
+            pose=M.new("geometry_msgs/msg/Pose", position=M.point(0.0, 0.0, 0.0),
+                       orientation=M.new("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0)),
+            scale=M.vector3(scale, scale, scale), color=M.color(*color),
+            lifetime=M.new("builtin_interfaces/msg/Duration", sec=0, nanosec=0), frame_locked=False,
+            texture_resource="",
+            texture=M.new("sensor_msgs/msg/CompressedImage", header=empty_header, format="", data=M.uint8s()),
+            uv_coordinates=[], text="", mesh_resource="",
+            mesh_file=M.new("visualization_msgs/msg/MeshFile", filename="", data=M.uint8s()),
+            mesh_use_embedded_materials=False)
+
+    def marker(self, header, points: np.ndarray | None, colors: list | None = None):
+        """ADD with ``points`` (k, 3) m (and per-point ``colors``), or DELETE when ``points`` is None."""
+        return M.new("visualization_msgs/msg/Marker", header=header, action=_DELETE if points is None else _ADD,
+                     points=[] if points is None else [M.point(*p) for p in points.tolist()],
+                     colors=colors or [], **self.fields)
+
+
+# --------------------------------------------------------------------------- contacts encoding
+def encode_contacts(events: list[ContactEvent], header):
+    """``~/contacts`` (diagnostic_msgs/DiagnosticArray): one ``DiagnosticStatus`` per event, in time order.
+
+    ``name`` = ``"contact <member_a> <member_b>"``, ``message`` = kind, ``level`` = OK, and ``values``
+    (key/value strings, numbers written so that ``float()`` / ``json.loads`` give back the exact float64):
+    ``kind`` (begin|end), ``member_a``, ``member_b``, ``time`` (s), ``point_a``, ``point_b`` ([x, y, z] m),
+    ``normal`` ([x, y, z], unit, a to b), ``distance`` (m, negative = penetration).
+    """
+    status = []
+    for e in events:
+        values = {
+            "kind": e.kind, "member_a": e.members[0], "member_b": e.members[1], "time": repr(float(e.time)),
+            "point_a": json.dumps(np.asarray(e.point_a, dtype=float).tolist()),
+            "point_b": json.dumps(np.asarray(e.point_b, dtype=float).tolist()),
+            "normal": json.dumps(np.asarray(e.normal, dtype=float).tolist()),
+            "distance": repr(float(e.distance)),
+        }
+        status.append(M.new("diagnostic_msgs/msg/DiagnosticStatus", level=M.byte(0),
+                            name=f"contact {e.members[0]} {e.members[1]}", message=e.kind, hardware_id="",
+                            values=M.key_values(values)))
+    return M.new("diagnostic_msgs/msg/DiagnosticArray", header=header, status=status)
+
+
+def decode_contacts(message) -> list[ContactEvent]:
+    """The contact events of a ``~/contacts`` message (the inverse of :func:`encode_contacts`)."""
+    out = []
+    for status in message.status:
+        v = {kv.key: kv.value for kv in status.values}
+        out.append(ContactEvent(kind=v["kind"], members=(v["member_a"], v["member_b"]), time=float(v["time"]),
+                                point_a=np.array(json.loads(v["point_a"])),
+                                point_b=np.array(json.loads(v["point_b"])),
+                                normal=np.array(json.loads(v["normal"])), distance=float(v["distance"])))
+    return out
+
+
+# --------------------------------------------------------------------------- the node logic
+Transport = Callable[[str, object], None]
+
+
+class SimNodeLogic:
+    """Everything the node does, driven by its caller (see the module docstring).
+
+    sim: the simulator (its scene, method and dt). settings: :class:`NodeSettings`.
+    transport(key, message): sends an output; None sends nothing (offline, replay tests).
+    clock(): monotonic wall-clock seconds (``time.monotonic``; a fake one in tests).
+    logger: where refusals and warnings go (a ``logging.Logger``-like object).
+    recorder: an object with ``record(topic_name, message, log_time_ns)`` and ``restart()`` (the MCAP
+    log, :class:`~tensegrity_sim.ros.log.LogRecorder`), or None; it can be attached after construction.
+    """
+
+    def __init__(self, sim: Simulator, settings: NodeSettings, *, transport: Transport | None = None,
+                 clock: Callable[[], float] = time.monotonic, logger=None, recorder=None):
+        self.sim = sim
+        self.settings = settings
+        self.recorder = recorder
+        self._transport = transport
+        self._clock = clock
+        self._log = logger if logger is not None else logging.getLogger("tensegrity_sim")
+        self.topic_names = {k: resolve_topic(s.name, settings.node_name) for k, s in TOPICS.items()}
+        scene = sim.scene
+        self._cable_names = list(scene.cable_names)
+        self._cable_index = {n: i for i, n in enumerate(scene.cable_names)}
+        self._node_index = {n: i for i, n in enumerate(scene.node_names)}
+        self._inputs = {"cable_rest_lengths": self._apply_rest_lengths, "external_wrench": self._apply_wrench}
+        # Marker sizes: the members' radii where the scene gives them, else a fraction of its size.
+        x0 = scene.positions
+        size = float(np.linalg.norm(x0.max(axis=0) - x0.min(axis=0))) or 1.0
+        strut_r = max((s.radius for s in scene.struts), default=0.0)
+        cable_r = max((c.radius for c in scene.cables), default=0.0)
+        strut_width = 2 * strut_r if strut_r > 0 else 0.01 * size
+        cable_width = 2 * cable_r if cable_r > 0 else 0.004 * size
+        self._marker_styles = {
+            "struts": _MarkerStyle("struts", 0, _LINE_LIST, strut_width, (0.25, 0.4, 0.8, 1.0)),
+            "cables": _MarkerStyle("cables", 1, _LINE_LIST, cable_width, (1.0, 1.0, 1.0, 1.0)),
+            "slack_cables": _MarkerStyle("slack_cables", 2, _LINE_LIST, 0.5 * cable_width, (0.6, 0.6, 0.6, 0.5)),
+            "supports": _MarkerStyle("supports", 3, _CUBE_LIST, 3.0 * strut_width, (0.5, 0.5, 0.5, 1.0)),
+            "contacts": _MarkerStyle("contacts", 4, _SPHERE_LIST, 3.0 * strut_width, (1.0, 0.0, 0.0, 1.0)),
+        }
+        # counters for diagnostics and the summary
+        self.refused = {k: 0 for k in self._inputs}
+        self.received = {k: 0 for k in self._inputs}
+        self.overruns = 0
+        self.max_lag = 0.0          # wall-clock s behind the schedule, the worst seen
+        self.publications = 0
+        self._steps_run = 0
+        self._started = clock()
+        self._overruns_reported = 0
+        self.paused = False
+        self._clear()
+        self._anchor()
+
+    # ------------------------------------------------------------------ state kept between publications
+    def _clear(self) -> None:
+        n_cables = len(self._cable_names)
+        self._target = self.sim.rest_lengths        # commanded rest lengths (rate limiting moves towards them)
+        self._applied = self._target.copy()          # rest lengths the simulator has
+        self._impulse_sum = np.zeros(n_cables)       # N*s since the previous publication
+        self._contact_queue: list[ContactEvent] = []  # events since the previous publication
+        self._active_contacts: dict[tuple[str, str], ContactEvent] = {}  # for the markers
+        self._tension_scale = 0.0                    # the largest tension seen: red in the markers
+        self._shown: set[str] = set()                # marker namespaces on screen
+        self._last: StepResult | None = None
+        self._since_publish = 0
+        self._until_markers = 0                      # publications to go until the next marker array
+
+    def _anchor(self) -> None:
+        """Restart the real-time schedule here: step ``k`` is due at ``t0 + (k - k0) dt / rtf``."""
+        self._anchor_time = self._clock()
+        self._anchor_step = self.sim.step_count
+
+    # ------------------------------------------------------------------ info
+    def stamp_ns(self) -> int:
+        """The simulation time now, ns."""
+        return stamp_ns(self.sim.time)
+
+    def channels(self) -> list[tuple[str, str, Qos]]:
+        """(topic name, type, QoS) of every topic, inputs first: what a log registers."""
+        return [(self.topic_names[k], s.typename, s.qos) for k, s in TOPICS.items()]
+
+    def run_info(self) -> dict[str, str]:
+        """Everything a log must embed to be re-run alone (strings, for MCAP metadata)."""
+        sim = self.sim
+        return {
+            "format": "tensegrity_sim-log/1",
+            "package_version": __version__,
+            "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "scene_name": sim.scene.name,
+            "scene_yaml": sim.scene.to_yaml(),
+            "method": sim.method,
+            "method_reason": sim.method_reason,
+            "dt": repr(sim.dt),
+            "method_settings": json.dumps(sim.method_settings, sort_keys=True, default=_jsonable),
+            "node_settings": json.dumps(asdict(self.settings), sort_keys=True),
+            "topics": json.dumps({k: self.topic_names[k] for k in TOPICS}, sort_keys=True),
+        }
+
+    # ------------------------------------------------------------------ inputs
+    def receive(self, key: str, message) -> str | None:
+        """Take one message of input topic ``key``; returns None if it was applied, else the reason it was
+        refused (also logged). A refused message changes nothing. Every message is recorded, refused or
+        not, at the simulation time it arrived (it acts from the next step on)."""
+        self._record(key, message, self.stamp_ns())
+        self.received[key] += 1
+        try:
+            self._inputs[key](message)
+        except ValueError as exc:
+            self.refused[key] += 1
+            self._log.warning(f"{self.topic_names[key]}: refused: {exc}")
+            return str(exc)
+        return None
+
+    def _apply_rest_lengths(self, msg) -> None:
+        names = list(msg.name)
+        position = np.asarray(msg.position, dtype=float)
+        if not names:
+            raise ValueError("name is empty: no cable to set")
+        if position.shape != (len(names),):
+            raise ValueError(f"position has {position.size} values for {len(names)} names")
+        for name in ("velocity", "effort"):
+            n = len(getattr(msg, name))
+            if n not in (0, len(names)):
+                raise ValueError(f"{name} has {n} values for {len(names)} names (must be empty or match)")
+        unknown = [n for n in names if n not in self._cable_index]
+        if unknown:
+            raise ValueError(f"unknown cable {unknown[0]!r} (cables: {', '.join(self._cable_names)})")
+        if len(set(names)) != len(names):
+            twice = next(n for n in names if names.count(n) > 1)
+            raise ValueError(f"cable {twice!r} is named more than once")
+        bad = np.flatnonzero(~np.isfinite(position) | (position <= 0))
+        if bad.size:
+            i = int(bad[0])
+            raise ValueError(f"position[{i}] ({names[i]!r}): a rest length must be finite and > 0 m, "
+                             f"got {float(position[i])!r}")
+        target = self._target.copy()
+        target[[self._cable_index[n] for n in names]] = position
+        if self.settings.max_rest_length_rate == 0.0:
+            self.sim.set_rest_lengths(target)
+            self._applied = target.copy()
+        self._target = target
+
+    def _apply_wrench(self, msg) -> None:
+        node = msg.header.frame_id
+        if node not in self._node_index:
+            raise ValueError(f"header.frame_id {node!r} is not a node of the scene "
+                             f"(nodes: {', '.join(self._node_index)})")
+        f, tq = msg.wrench.force, msg.wrench.torque
+        force = [f.x, f.y, f.z]
+        torque = [tq.x, tq.y, tq.z]
+        if not all(math.isfinite(v) for v in force):
+            raise ValueError(f"wrench.force must be finite, got {force}")
+        if any(v != 0.0 for v in torque):  # NaN != 0 too
+            raise ValueError(f"wrench.torque must be zero (a node is a point and takes no torque), got {torque}")
+        self.sim.set_external_forces({node: force})
+
+    # ------------------------------------------------------------------ stepping
+    def step(self) -> StepResult:
+        """One simulation step: move rate-limited rest lengths towards their targets, step, and add the
+        step's impulses and contact events to what the next publication reports."""
+        rate = self.settings.max_rest_length_rate
+        if rate > 0.0 and not np.array_equal(self._applied, self._target):
+            max_change = rate * self.sim.dt
+            diff = self._target - self._applied
+            # land exactly on the target (applied + diff may round off it)
+            self._applied = np.where(np.abs(diff) <= max_change, self._target,
+                                     self._applied + np.copysign(max_change, diff))
+            self.sim.set_rest_lengths(self._applied)
+        r = self.sim.step()
+        self._impulse_sum += r.impulses
+        self._contact_queue.extend(r.contacts)
+        self._last = r
+        self._since_publish += 1
+        self._steps_run += 1
+        return r
+
+    @property
+    def publication_due(self) -> bool:
+        return self._since_publish >= self.settings.publish_every
+
+    def tick(self) -> int:
+        """Run the steps that are due on the real-time schedule (publishing whenever due); returns how
+        many ran. Called by the node's steady-time timer at ``step_rate``.
+
+        Step ``k`` is due at ``t0 + (k - k0) dt / rtf`` on the steady clock (absolute times, so the rate
+        does not drift). A tick runs at most twice its nominal share of steps, so a late tick catches up
+        without starving the executor. A tick that ends more than one tick period behind the schedule is
+        an overrun: counted, reported in diagnostics and the summary, and the lag is kept (the node
+        catches up later, or runs slower than real time, visibly). With ``real_time_factor == 0`` a tick
+        steps for one tick period, as fast as possible.
+        """
+        if self.paused:
+            return 0
+        s = self.settings
+        period = 1.0 / s.step_rate
+        start = self._clock()
+        done = 0
+        if s.real_time_factor == 0.0:
+            while True:
+                self._advance()
+                done += 1
+                if self._clock() - start >= period:
+                    return done
+        steps_per_second = s.real_time_factor / s.dt
+        due = self._anchor_step + math.floor((start - self._anchor_time) * steps_per_second)
+        cap = max(1, math.ceil(2.0 * steps_per_second * period))
+        for _ in range(min(due - self.sim.step_count, cap)):
+            self._advance()
+            done += 1
+        # steps already due that this tick could not run: more than one tick's worth is an overrun
+        behind = (self._anchor_step + math.floor((self._clock() - self._anchor_time) * steps_per_second)
+                  - self.sim.step_count)
+        if behind > steps_per_second * period:
+            self.overruns += 1
+            self.max_lag = max(self.max_lag, behind / steps_per_second)
+        return done
+
+    def _advance(self) -> None:
+        self.step()
+        if self.publication_due:
+            self.publish()
+
+    # ------------------------------------------------------------------ outputs
+    def publish(self) -> None:
+        """Send and record one message on every output topic (``contacts`` only if events are queued),
+        stamped with the simulation time, then start summing afresh. Nothing before the first step."""
+        r = self._last
+        if r is None:
+            return
+        ns = self.stamp_ns()
+        frame = self.settings.frame_id
+        header = M.header(ns, frame)
+        sys = self.sim.system
+        _, length, n = sys.geometry(r.positions, sys.cable_ends)
+        rate = sys.member_rates(r.velocities, n, sys.cable_ends)
+        events = self._contact_queue
+        for e in events:
+            if e.kind == "begin":
+                self._active_contacts[e.members] = e
+            else:
+                self._active_contacts.pop(e.members, None)
+        outputs = [
+            ("clock", M.new("rosgraph_msgs/msg/Clock", clock=M.time(ns))),
+            ("node_poses", self._poses(header, r.positions)),
+            ("cable_states", M.joint_state(header, self._cable_names, length, rate, r.tensions)),
+            ("cable_impulses", M.joint_state(header, self._cable_names, effort=self._impulse_sum)),
+        ]
+        if self._until_markers == 0:
+            outputs.append(("markers", self._markers(header, r)))
+            self._until_markers = self.settings.markers_every
+        self._until_markers -= 1
+        if events:
+            outputs.append(("contacts", encode_contacts(events, header)))
+        self._impulse_sum = np.zeros_like(self._impulse_sum)
+        self._contact_queue = []
+        self._since_publish = 0
+        self.publications += 1
+        for key, message in outputs:
+            self._send(key, message, ns)
+
+    def _send(self, key: str, message, ns: int) -> None:
+        self._record(key, message, ns)
+        if self._transport is not None:
+            self._transport(key, message)
+
+    def _record(self, key: str, message, ns: int) -> None:
+        if self.recorder is not None:
+            self.recorder.record(self.topic_names[key], message, ns)
+
+    @staticmethod
+    def _poses(header, positions: np.ndarray):
+        q = M.new("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0)
+        poses = [M.new("geometry_msgs/msg/Pose", position=M.point(*p), orientation=q) for p in positions.tolist()]
+        return M.new("geometry_msgs/msg/PoseArray", header=header, poses=poses)
+
+    def _markers(self, header, r: StepResult):
+        """Struts (thick blue lines); taut cables (lines coloured blue -> red by tension, red = the largest
+        tension seen so far); slack cables (thin grey lines); supports (grey cubes at fixed nodes); active
+        contacts (red spheres at both closest points). A namespace with nothing to show is deleted once,
+        then left out."""
+        sys = self.sim.system
+        x = r.positions
+        taut = ~r.slack
+        self._tension_scale = max(self._tension_scale, float(r.tensions.max(initial=0.0)))
+        level = r.tensions[taut] / self._tension_scale if self._tension_scale > 0 else r.tensions[taut]
+        contacts = [p for e in self._active_contacts.values() for p in (e.point_a, e.point_b)]
+        content = {
+            "struts": (x[sys.strut_ends].reshape(-1, 3), None),
+            "cables": (x[sys.cable_ends[taut]].reshape(-1, 3),
+                       [M.color(t, 0.2, 1.0 - t) for t in np.repeat(level, 2).tolist()]),
+            "slack_cables": (x[sys.cable_ends[r.slack]].reshape(-1, 3), None),
+            "supports": (x[~sys.free], None),
+            "contacts": (np.array(contacts, dtype=float).reshape(-1, 3), None),
+        }
+        markers = []
+        for ns, (points, colors) in content.items():
+            if len(points):
+                markers.append(self._marker_styles[ns].marker(header, points, colors))
+                self._shown.add(ns)
+            elif ns in self._shown:
+                markers.append(self._marker_styles[ns].marker(header, None))
+                self._shown.discard(ns)
+        return M.new("visualization_msgs/msg/MarkerArray", markers=markers)
+
+    # ------------------------------------------------------------------ services
+    def pause(self) -> tuple[bool, str]:
+        if self.paused:
+            return False, "already paused"
+        self.paused = True
+        return True, f"paused at t = {self.sim.time:.6f} s"
+
+    def resume(self) -> tuple[bool, str]:
+        if not self.paused:
+            return False, "not paused"
+        self.paused = False
+        self._anchor()  # the paused time is not owed: the schedule restarts now
+        return True, f"resumed at t = {self.sim.time:.6f} s"
+
+    def single_step(self) -> tuple[bool, str]:
+        """While paused: one step, then publish (so the new state is seen at once)."""
+        if not self.paused:
+            return False, "not paused: call pause first"
+        self.step()
+        self.publish()
+        return True, f"stepped to t = {self.sim.time:.6f} s"
+
+    def reset(self) -> tuple[bool, str]:
+        """Back to the scene's initial state (time 0, initial rest lengths, no external force). A log
+        holds one run from the initial state, so the recorder starts a new file."""
+        self.sim.reset()
+        self._clear()
+        self._anchor()
+        text = "reset to the scene's initial state"
+        if self.recorder is not None:
+            text += f"; now logging to {self.recorder.restart()}"
+        return True, text
+
+    def update(self, **changes) -> NodeSettings:
+        """Change runtime parameters (:data:`RUNTIME_PARAMETERS`); ``ValueError`` names a bad one and
+        changes nothing."""
+        fixed = sorted(set(changes) - set(RUNTIME_PARAMETERS))
+        if fixed:
+            raise ValueError(f"parameter {fixed[0]!r} is read-only while running (restart the node)")
+        self.settings = replace(self.settings, **changes)
+        self._anchor()
+        return self.settings
+
+    # ------------------------------------------------------------------ reporting
+    def publish_diagnostics(self) -> None:
+        """Send (and record) ``/diagnostics``: WARN while overruns keep happening, else OK."""
+        new_overruns = self.overruns - self._overruns_reported
+        self._overruns_reported = self.overruns
+        level = 1 if new_overruns else 0
+        text = (f"{new_overruns} overrun(s) since the last report: the node cannot keep the real-time "
+                f"factor" if new_overruns else ("paused" if self.paused else "stepping"))
+        values = {k: str(v) for k, v in self.statistics().items()}
+        status = M.new("diagnostic_msgs/msg/DiagnosticStatus", level=M.byte(level),
+                       name=f"{self.settings.node_name.lstrip('/')}: stepping", message=text,
+                       hardware_id=self.sim.scene.name, values=M.key_values(values))
+        ns = self.stamp_ns()
+        self._send("diagnostics", M.new("diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
+                                        status=[status]), ns)
+
+    def statistics(self) -> dict:
+        """Counters for diagnostics and the summary."""
+        wall = self._clock() - self._started
+        return {
+            "steps": self._steps_run, "sim_time_s": round(self.sim.time, 9),
+            "real_time_factor_achieved": round(self._steps_run * self.sim.dt / wall, 4) if wall > 0 else 0.0,
+            "real_time_factor_target": self.settings.real_time_factor,
+            "overruns": self.overruns, "max_lag_ms": round(1e3 * self.max_lag, 3),
+            "publications": self.publications,
+            "refused_rest_lengths": self.refused["cable_rest_lengths"],
+            "refused_wrenches": self.refused["external_wrench"], "paused": self.paused,
+        }
+
+    def summary(self) -> list[str]:
+        """What the node prints on exit."""
+        return [f"{k:<27} {v}" for k, v in self.statistics().items()]
+
+
+def _jsonable(value):
+    """JSON for numpy scalars and arrays in method settings."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"method_settings: {type(value).__name__} is not JSON-serialisable")

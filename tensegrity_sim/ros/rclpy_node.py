@@ -1,0 +1,140 @@
+"""The ``tensegrity_sim`` ROS 2 node: rclpy wiring around :class:`~.node_logic.SimNodeLogic`.
+
+The only module that imports rclpy. Everything the node does is in the node logic; this file declares
+the parameters, creates the publishers, subscriptions, services and timers, and converts between ROS
+callbacks and the logic's methods. Entry point: ``ros2 run tensegrity_sim sim_node`` (``main``).
+
+Timers run on the steady clock, so the node never waits for the ``/clock`` it publishes itself (even
+with ``use_sim_time``). SIGINT and SIGTERM stop the spin loop between callbacks; the log is then finished
+and the summary printed.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import fields
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from std_srvs.srv import Trigger
+
+from ..scene import load_scene
+from ..simulator import Simulator
+from . import messages as M
+from .log import LogRecorder, SignalLatch, log_file_path
+from .node_logic import RUNTIME_PARAMETERS, SERVICES, TOPICS, NodeSettings, Qos, SimNodeLogic
+
+__all__ = ["SimNode", "main"]
+
+NODE_NAME = "tensegrity_sim"
+DIAGNOSTICS_PERIOD = 1.0  # s of wall-clock time
+
+
+def _qos(q: Qos) -> QoSProfile:
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=q.depth,
+                      reliability=ReliabilityPolicy.RELIABLE if q.reliability == "reliable"
+                      else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.VOLATILE if q.durability == "volatile"
+                      else DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class SimNode(Node):
+    """Parameters, topics and services of ``msg_docs/``; behaviour in :class:`SimNodeLogic`."""
+
+    def __init__(self, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        for f in fields(NodeSettings):
+            if f.name != "node_name":
+                # numbers typed dynamically so that "dt:=1" (an integer) is accepted; NodeSettings checks
+                self.declare_parameter(f.name, f.default, ParameterDescriptor(
+                    description=f.metadata["doc"], read_only=not f.metadata["runtime"],
+                    dynamic_typing=isinstance(f.default, float)))
+        values = {name: self.get_parameter(name).value for name in NodeSettings().parameters}
+        settings = NodeSettings(**values, node_name=self.get_fully_qualified_name())
+        sim = Simulator(load_scene(settings.scene), method=settings.method, dt=settings.dt)
+        self.logic = SimNodeLogic(sim, settings, transport=self._publish, clock=time.monotonic,
+                                  logger=self.get_logger())
+        self.recorder = None
+        path = log_file_path(settings.log_path, sim.scene.name)
+        if path is not None:
+            self.recorder = LogRecorder(path, self.logic.channels(), self.logic.run_info())
+            self.logic.recorder = self.recorder
+        self._outputs = {
+            key: self.create_publisher(M.message_class(spec.typename), spec.name, _qos(spec.qos))
+            for key, spec in TOPICS.items() if spec.direction == "out"}
+        for key, spec in TOPICS.items():
+            if spec.direction == "in":
+                self.create_subscription(M.message_class(spec.typename), spec.name,
+                                         lambda msg, key=key: self.logic.receive(key, msg), _qos(spec.qos))
+        for name, method in SERVICES.items():
+            action = getattr(self.logic, method)
+            self.create_service(Trigger, f"~/{name}",
+                                lambda request, response, action=action: self._answer(action, response))
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(1.0 / settings.step_rate, self.logic.tick, clock=steady)
+        self.create_timer(DIAGNOSTICS_PERIOD, self.logic.publish_diagnostics, clock=steady)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.get_logger().info(
+            f"scene {sim.scene.name}: {sim.method_reason}; dt {sim.dt:g} s, publishing every "
+            f"{settings.publish_every} steps, real-time factor {settings.real_time_factor:g}; "
+            f"log: {path if path is not None else 'off'}")
+
+    def _publish(self, key: str, message) -> None:
+        self._outputs[key].publish(message)
+
+    @staticmethod
+    def _answer(action, response):
+        response.success, response.message = action()
+        return response
+
+    def _on_set_parameters(self, parameters) -> SetParametersResult:
+        changes = {p.name: p.value for p in parameters if p.name in RUNTIME_PARAMETERS}
+        try:
+            self.logic.update(**changes)
+        except ValueError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def close(self) -> None:
+        """Finish the log and print the summary (on every way out of ``main``)."""
+        if self.recorder is not None:
+            self.recorder.finish()
+        summary = self.logic.summary()
+        if self.recorder is not None:
+            summary += [f"{'log':<27} {p}" for p in self.recorder.paths]
+        print("\n".join(summary), flush=True)
+
+
+def main(args=None) -> None:
+    """``ros2 run tensegrity_sim sim_node``. rclpy's own signal handlers are off: SIGINT and SIGTERM only
+    latch, and the spin loop stops between callbacks, so the log is never cut inside a write. (Plain
+    ``init``/``try_shutdown`` rather than ``with rclpy.init()``, which not every Jazzy rclpy has.)"""
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    try:
+        with SignalLatch() as latch:
+            node = SimNode()
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
+            while rclpy.ok():
+                executor.spin_once(timeout_sec=0.1)
+                latch.raise_if_signalled()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass  # SIGTERM raises SystemExit(143) through here, after the log is finished below
+    except (ValueError, OSError) as exc:  # a bad parameter or scene, an unwritable log: say which, exit 2
+        print(f"sim_node: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,109 @@
+"""Scenes, fakes and message builders shared by the tests of tensegrity_sim.ros."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+import tensegrity_sim as ts
+from tensegrity_sim.ros import messages as M
+from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic
+
+
+def prism_dict(fixed_base: bool = False, gravity: float = 0.0, stretch: float = 0.95) -> dict:
+    """A 3-strut twisted prism, not in equilibrium: cable rest lengths are ``stretch`` times the initial
+    lengths, so it starts moving at once and some cables go slack and snap. ``fixed_base`` fixes n0."""
+    r, h = 0.4, 0.6
+    nodes = []
+    for i in range(3):
+        a = 2 * math.pi * i / 3
+        nodes.append({"name": f"n{i}", "position": [r * math.cos(a), r * math.sin(a), 0.0], "mass": 0.5})
+    for i in range(3):
+        a = 2 * math.pi * i / 3 + math.radians(150)
+        nodes.append({"name": f"n{i + 3}", "position": [r * math.cos(a), r * math.sin(a), h], "mass": 0.5})
+    if fixed_base:
+        nodes[0] = {"name": "n0", "position": nodes[0]["position"], "fixed": True}
+    pos = {n["name"]: np.array(n["position"]) for n in nodes}
+
+    def length(a, b):
+        return float(np.linalg.norm(pos[a] - pos[b]))
+
+    struts = [{"name": f"s{i}", "nodes": [f"n{i}", f"n{(i + 1) % 3 + 3}"], "stiffness": 2.0e4, "radius": 0.01}
+              for i in range(3)]
+    pairs = [("n0", "n1"), ("n1", "n2"), ("n2", "n0"), ("n3", "n4"), ("n4", "n5"), ("n5", "n3"),
+             ("n0", "n3"), ("n1", "n4"), ("n2", "n5")]
+    cables = [{"name": f"c{k}", "nodes": list(p), "stiffness": 2.0e3, "rest_length": stretch * length(*p),
+               "radius": 0.002} for k, p in enumerate(pairs)]
+    return {"name": "prism", "gravity": [0.0, 0.0, -gravity], "nodes": nodes, "struts": struts, "cables": cables}
+
+
+def prism(**kwargs) -> ts.Scene:
+    return ts.Scene.from_dict(prism_dict(**kwargs))
+
+
+class FakeClock:
+    """A monotonic clock under the test's control: ``t`` s, advancing ``per_read`` s at every read."""
+
+    def __init__(self, t: float = 100.0, per_read: float = 0.0):
+        self.t = t
+        self.per_read = per_read
+
+    def __call__(self) -> float:
+        t = self.t
+        self.t += self.per_read
+        return t
+
+
+class ListLogger:
+    """Collects what the node logic logs."""
+
+    def __init__(self):
+        self.warnings: list[str] = []
+
+    def warning(self, text: str) -> None:
+        self.warnings.append(text)
+
+
+class FakeRecorder:
+    """Records what the node logic records, in memory."""
+
+    def __init__(self):
+        self.records: list[tuple[str, object, int]] = []
+        self.restarts = 0
+
+    def record(self, topic, message, log_time_ns):
+        self.records.append((topic, message, log_time_ns))
+
+    def restart(self):
+        self.restarts += 1
+        return f"restart{self.restarts}.mcap"
+
+
+def make_logic(scene: ts.Scene, clock=None, method: str = "elastic", **settings):
+    """(node logic, list of (key, message) it sent, its logger) for ``scene`` at dt = 1 ms.
+    Markers go out with every publication unless ``marker_rate`` is given."""
+    sent: list = []
+    settings.setdefault("marker_rate", settings.get("publish_rate", NodeSettings.publish_rate))
+    logger = ListLogger()
+    sim = ts.Simulator(scene, method=method, dt=settings.pop("dt", 1e-3))
+    logic = SimNodeLogic(sim, NodeSettings(scene=scene.name, dt=sim.dt, **settings),
+                         transport=lambda key, msg: sent.append((key, msg)), clock=clock or FakeClock(),
+                         logger=logger)
+    return logic, sent, logger
+
+
+def rest_lengths_msg(names, values, velocity=(), effort=()):
+    return M.joint_state(M.header(0, ""), names, values, velocity, effort)
+
+
+def wrench_msg(node, force, torque=(0.0, 0.0, 0.0)):
+    return M.wrench_stamped(M.header(0, node), force, torque)
+
+
+def positions_of(pose_array) -> np.ndarray:
+    return np.array([[p.position.x, p.position.y, p.position.z] for p in pose_array.poses])
+
+
+def stamp_of(message) -> int:
+    stamp = message.header.stamp
+    return stamp.sec * 1_000_000_000 + stamp.nanosec

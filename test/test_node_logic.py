@@ -1,0 +1,452 @@
+"""The node's behaviour without rclpy: real simulator, real (rosbags Jazzy) message objects.
+
+Outputs are checked against a plain Simulator run side by side (bit for bit where the node only copies,
+to round-off where it derives); refused inputs against a twin that never saw them.
+"""
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import tensegrity_sim as ts
+from tensegrity_sim.results import ContactEvent
+from tensegrity_sim.ros import messages as M
+from tensegrity_sim.ros.node_logic import TOPICS, NodeSettings, decode_contacts, encode_contacts
+from ros_helpers import (FakeClock, FakeRecorder, make_logic, positions_of, prism, rest_lengths_msg, stamp_of,
+                         wrench_msg)
+
+
+# --------------------------------------------------------------------------- settings
+@pytest.mark.parametrize("dt, rate, every", [(1e-3, 100.0, 10), (1e-3, 1000.0, 1), (1e-3, 30.0, 33),
+                                             (2e-3, 100.0, 5), (1e-4, 100.0, 100)])
+def test_publish_every_rounds_to_whole_steps(dt, rate, every):
+    assert NodeSettings(dt=dt, publish_rate=rate).publish_every == every
+
+
+BAD_SETTINGS = [
+    ({"dt": 0.0}, "parameter 'dt': must be > 0, got 0.0"),
+    ({"dt": math.nan}, "parameter 'dt': must be a finite number, got nan"),
+    ({"dt": "1"}, "parameter 'dt': must be a finite number, got '1'"),
+    ({"step_rate": -5.0}, "parameter 'step_rate': must be > 0, got -5.0"),
+    ({"real_time_factor": -1.0}, "parameter 'real_time_factor': must be >= 0, got -1.0"),
+    ({"real_time_factor": True}, "parameter 'real_time_factor': must be a finite number, got True"),
+    ({"publish_rate": 2000.0}, "parameter 'publish_rate': must be at most 1/dt = 1000 Hz (one publication "
+                               "per step), got 2000.0"),
+    ({"max_rest_length_rate": math.inf}, "parameter 'max_rest_length_rate': must be a finite number, got inf"),
+    ({"frame_id": ""}, "parameter 'frame_id': must be a non-empty string, got ''"),
+    ({"log_path": None}, "parameter 'log_path': must be a string, got None"),
+    ({"node_name": "tensegrity_sim"}, "parameter 'node_name': must be fully qualified (start with /), got "
+                                      "'tensegrity_sim'"),
+]
+
+
+@pytest.mark.parametrize("changes, message", BAD_SETTINGS, ids=[m for _, m in BAD_SETTINGS])
+def test_bad_settings_name_the_parameter(changes, message):
+    with pytest.raises(ValueError) as err:
+        NodeSettings(**changes)
+    assert str(err.value) == message
+
+
+def test_integer_parameters_become_floats():
+    s = NodeSettings(dt=1, publish_rate=1, step_rate=1000)
+    assert isinstance(s.dt, float) and s.dt == 1.0 and s.publish_every == 1
+
+
+# --------------------------------------------------------------------------- outputs
+def publications(sent):
+    """[(key -> message)] per publication, in order (a publication starts with the clock)."""
+    out = []
+    for key, msg in sent:
+        if key == "clock":
+            out.append({})
+        out[-1][key] = msg
+    return out
+
+
+@pytest.mark.parametrize("publish_rate", [100.0, 1000.0, 30.0])
+def test_outputs_match_a_plain_simulator(publish_rate):
+    scene = prism(gravity=9.81)
+    logic, sent, _ = make_logic(scene, publish_rate=publish_rate)
+    every = logic.settings.publish_every
+    plain = ts.Simulator(scene, method="elastic", dt=1e-3)
+    expected = []
+    impulse = np.zeros(len(scene.cables))
+    for k in range(1, 201):
+        logic.step()
+        r = plain.step()
+        impulse = impulse + r.impulses
+        if logic.publication_due:
+            logic.publish()
+            expected.append((k, r, impulse))
+            impulse = np.zeros(len(scene.cables))
+    pubs = publications(sent)
+    assert len(pubs) == len(expected) == 200 // every
+    names = list(scene.cable_names)
+    for pub, (k, r, impulse) in zip(pubs, expected):
+        ns = round(k * 1e-3 * 1e9)
+        clock = pub["clock"].clock
+        assert clock.sec * 10**9 + clock.nanosec == ns
+        poses, states, impulses = pub["node_poses"], pub["cable_states"], pub["cable_impulses"]
+        assert {stamp_of(poses), stamp_of(states), stamp_of(impulses)} == {ns}
+        assert poses.header.frame_id == "world"
+        np.testing.assert_array_equal(positions_of(poses), r.positions)
+        assert all((p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w) == (0, 0, 0, 1)
+                   for p in poses.poses)
+        assert list(states.name) == names and list(impulses.name) == names
+        d = r.positions[plain.system.cable_ends[:, 1]] - r.positions[plain.system.cable_ends[:, 0]]
+        length = np.linalg.norm(d, axis=1)
+        rate = np.sum((r.velocities[plain.system.cable_ends[:, 1]] - r.velocities[plain.system.cable_ends[:, 0]])
+                      * d, axis=1) / length
+        np.testing.assert_allclose(states.position, length, rtol=1e-15)
+        np.testing.assert_allclose(states.velocity, rate, rtol=1e-12, atol=1e-15)
+        np.testing.assert_array_equal(states.effort, r.tensions)
+        # impulses summed over exactly the steps since the previous publication, in step order
+        np.testing.assert_array_equal(impulses.effort, impulse)
+        assert len(impulses.position) == 0 and len(impulses.velocity) == 0
+        assert "contacts" not in pub
+
+
+def test_no_impulse_lost_over_a_run():
+    """The published sums add up to the whole run's impulse (round-off only), whatever the decimation."""
+    scene = prism()
+    totals = []
+    for rate in (1000.0, 100.0, 7.0):
+        logic, sent, _ = make_logic(scene, publish_rate=rate)
+        for _ in range(420):
+            logic.step()
+            if logic.publication_due:
+                logic.publish()
+        logic.publish()  # the remainder
+        totals.append(sum(np.asarray(m.effort) for k, m in sent if k == "cable_impulses"))
+    traj = ts.Simulator(scene, method="elastic", dt=1e-3).run(steps=420)
+    for total in totals:
+        np.testing.assert_allclose(total, traj.impulses.sum(axis=0), rtol=1e-13)
+    assert np.any(traj.slack) and np.any(~traj.slack)  # cables went slack and taut: snaps were summed
+
+
+def test_nothing_published_before_the_first_step():
+    logic, sent, _ = make_logic(prism())
+    logic.publish()
+    assert sent == []
+
+
+# --------------------------------------------------------------------------- inputs
+def snapshot(sim):
+    return (sim.time, sim.positions, sim.velocities, sim.rest_lengths, sim.external_forces)
+
+
+BAD_INPUTS = [
+    ("cable_rest_lengths", rest_lengths_msg([], []), "name is empty: no cable to set"),
+    ("cable_rest_lengths", rest_lengths_msg(["c0", "c1"], [0.5]), "position has 1 values for 2 names"),
+    ("cable_rest_lengths", rest_lengths_msg(["c0", "zz"], [0.5, 0.5]),
+     "unknown cable 'zz' (cables: c0, c1, c2, c3, c4, c5, c6, c7, c8)"),
+    ("cable_rest_lengths", rest_lengths_msg(["c0", "c0"], [0.5, 0.6]), "cable 'c0' is named more than once"),
+    ("cable_rest_lengths", rest_lengths_msg(["c0", "c1"], [0.5, math.nan]),
+     "position[1] ('c1'): a rest length must be finite and > 0 m, got nan"),
+    ("cable_rest_lengths", rest_lengths_msg(["c2"], [math.inf]),
+     "position[0] ('c2'): a rest length must be finite and > 0 m, got inf"),
+    ("cable_rest_lengths", rest_lengths_msg(["c2"], [0.0]),
+     "position[0] ('c2'): a rest length must be finite and > 0 m, got 0.0"),
+    ("cable_rest_lengths", rest_lengths_msg(["c0", "c2"], [0.5, -0.1]),
+     "position[1] ('c2'): a rest length must be finite and > 0 m, got -0.1"),
+    ("cable_rest_lengths", rest_lengths_msg(["c0"], [0.5], velocity=[1.0, 2.0]),
+     "velocity has 2 values for 1 names (must be empty or match)"),
+    ("cable_rest_lengths", rest_lengths_msg(["c0"], [0.5], effort=[1.0, 2.0]),
+     "effort has 2 values for 1 names (must be empty or match)"),
+    ("external_wrench", wrench_msg("ghost", [0.0, 0.0, 1.0]),
+     "header.frame_id 'ghost' is not a node of the scene (nodes: n0, n1, n2, n3, n4, n5)"),
+    ("external_wrench", wrench_msg("n1", [0.0, math.nan, 1.0]), "wrench.force must be finite, got [0.0, nan, 1.0]"),
+    ("external_wrench", wrench_msg("n1", [math.inf, 0.0, 1.0]), "wrench.force must be finite, got [inf, 0.0, 1.0]"),
+    ("external_wrench", wrench_msg("n1", [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]),
+     "wrench.torque must be zero (a node is a point and takes no torque), got [0.0, 0.0, 1.0]"),
+    ("external_wrench", wrench_msg("n1", [0.0, 0.0, 1.0], [math.nan, 0.0, 0.0]),
+     "wrench.torque must be zero (a node is a point and takes no torque), got [nan, 0.0, 0.0]"),
+]
+
+
+@pytest.mark.parametrize("key, message, reason", BAD_INPUTS, ids=[r for _, _, r in BAD_INPUTS])
+@pytest.mark.parametrize("rate_limit", [0.0, 1.0])
+def test_refused_input_changes_nothing(key, message, reason, rate_limit):
+    """Refused whole with the reason logged; the state, and so every later output, is exactly that of a
+    twin that never saw the message (15 steps in: the impulse sum of the next publication is open)."""
+    scene = prism()
+    logic, sent, logger = make_logic(scene, max_rest_length_rate=rate_limit)
+    twin, twin_sent, _ = make_logic(scene, max_rest_length_rate=rate_limit)
+    for node in (logic, twin):
+        node.receive("cable_rest_lengths", rest_lengths_msg(["c4"], [0.5]))
+        for _ in range(15):
+            node.step()
+            if node.publication_due:
+                node.publish()
+    before = snapshot(logic.sim)
+    assert logic.receive(key, message) == reason
+    assert logger.warnings == [f"/tensegrity_sim/{key}: refused: {reason}"]
+    assert logic.refused[key] == 1 and logic.received[key] == 2 - (key == "external_wrench")
+    for a, b in zip(before, snapshot(logic.sim)):
+        np.testing.assert_array_equal(a, b)
+    for node in (logic, twin):
+        for _ in range(25):
+            node.step()
+            if node.publication_due:
+                node.publish()
+    assert len(sent) == len(twin_sent) == 20
+    for (k1, m1), (k2, m2) in zip(sent, twin_sent):
+        assert k1 == k2
+        assert M.serialize(m1, TOPICS[k1].typename) == M.serialize(m2, TOPICS[k2].typename)
+
+
+def test_accepted_inputs_act_from_the_next_step():
+    """Rest lengths and a force taken as messages evolve exactly like the same calls on a Simulator;
+    the force is held until replaced, and a zero force clears it."""
+    scene = prism()
+    logic, _, logger = make_logic(scene)
+    plain = ts.Simulator(scene, method="elastic", dt=1e-3)
+    for _ in range(5):
+        logic.step(), plain.step()
+    assert logic.receive("cable_rest_lengths", rest_lengths_msg(["c1", "c6"], [0.55, 0.5])) is None
+    assert logic.receive("external_wrench", wrench_msg("n4", [1.0, -2.0, 30.0])) is None
+    plain.set_rest_lengths({"c1": 0.55, "c6": 0.5})
+    plain.set_external_forces({"n4": [1.0, -2.0, 30.0]})
+    for _ in range(30):
+        np.testing.assert_array_equal(logic.step().positions, plain.step().positions)
+    np.testing.assert_array_equal(logic.sim.external_forces[4], [1.0, -2.0, 30.0])
+    assert logic.receive("external_wrench", wrench_msg("n4", [0.0, 0.0, 0.0])) is None
+    assert not np.any(logic.sim.external_forces)
+    assert logger.warnings == []
+
+
+def test_wrench_impulse_balance():
+    """Σ m Δv = dt Σ f over steps with a held force on a free structure (contract §2)."""
+    scene = prism()
+    logic, _, _ = make_logic(scene)
+    logic.receive("external_wrench", wrench_msg("n2", [3.0, 0.0, -4.0]))
+    p0 = logic.sim.momentum()[0]
+    for _ in range(50):
+        logic.step()
+    np.testing.assert_allclose(logic.sim.momentum()[0] - p0, [0.15, 0.0, -0.2], rtol=1e-12, atol=1e-14)
+
+
+def test_rest_length_rate_limit():
+    """At 2 m/s and dt = 1 ms a rest length moves 2 mm per step towards its target and lands on it
+    exactly; a new command replaces the target."""
+    scene = prism()
+    logic, _, _ = make_logic(scene, max_rest_length_rate=2.0)
+    start = scene.cable_rest_lengths[3]
+    logic.receive("cable_rest_lengths", rest_lengths_msg(["c3"], [start - 0.05]))
+    assert logic.sim.rest_lengths[3] == start  # not before the next step
+    seen = []
+    for _ in range(30):
+        logic.step()
+        seen.append(logic.sim.rest_lengths[3])
+    np.testing.assert_allclose(seen[:25], start - 0.002 * np.arange(1, 26), rtol=0, atol=1e-15)
+    assert seen[24] == seen[29] == start - 0.05
+    others = np.delete(logic.sim.rest_lengths, 3)
+    np.testing.assert_array_equal(others, np.delete(scene.cable_rest_lengths, 3))
+    logic.receive("cable_rest_lengths", rest_lengths_msg(["c3"], [start]))
+    for _ in range(3):
+        logic.step()
+    assert logic.sim.rest_lengths[3] == pytest.approx(start - 0.05 + 0.006, abs=1e-15)
+
+
+# --------------------------------------------------------------------------- contacts
+def contact(kind, a, b, t, seed):
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=3)
+    return ContactEvent(kind, (a, b), t, rng.normal(size=3), rng.normal(size=3), n / np.linalg.norm(n),
+                        float(rng.normal() * 1e-3))
+
+
+def test_contact_events_are_never_dropped(monkeypatch):
+    """Synthetic events (contact detection is not wired into the step yet) in steps 3 (two), 10 (the step
+    of a publication), 11 and 27: every one comes out once, in order, exactly, in the publication after
+    its step; the marker shows a contact from its begin to its end."""
+    scene = prism()
+    logic, sent, _ = make_logic(scene)
+    script = {3: [contact("begin", "s0", "c7", 0.0025, 1), contact("begin", "s1", "c8", 0.0027, 2)],
+              10: [contact("end", "s1", "c8", 0.0095, 3)], 11: [contact("begin", "s2", "c3", 0.0105, 4)],
+              27: [contact("end", "s0", "c7", 0.0261, 5), contact("end", "s2", "c3", 0.0262, 6)]}
+    real_step = logic.sim.step
+
+    def step_with_contacts():
+        r = real_step()
+        return replace(r, contacts=tuple(script.get(logic.sim.step_count, ())))
+
+    monkeypatch.setattr(logic.sim, "step", step_with_contacts)
+    for _ in range(40):
+        logic.step()
+        if logic.publication_due:
+            logic.publish()
+    got = [(stamp_of(m), e) for k, m in sent if k == "contacts" for e in decode_contacts(m)]
+    expected = [e for k in sorted(script) for e in script[k]]
+    assert len(got) == len(expected) == 6
+    for (stamp, e), x in zip(got, expected):
+        assert (e.kind, e.members, e.time, e.distance) == (x.kind, x.members, x.time, x.distance)
+        for f in ("point_a", "point_b", "normal"):
+            np.testing.assert_array_equal(getattr(e, f), getattr(x, f))
+        assert stamp == 10_000_000 * math.ceil(x.time / 0.01 + 1e-9)  # the publication after its step
+    markers = [{m.ns: m for m in msg.markers} for k, msg in sent if k == "markers"]
+    shown = [len(m["contacts"].points) if "contacts" in m and m["contacts"].action == 0 else None for m in markers]
+    deleted = ["contacts" in m and m["contacts"].action == 2 for m in markers]
+    assert shown == [2, 4, None, None]  # s0-c7 from step 3, s2-c3 from step 11, both ended in step 27
+    assert deleted == [False, False, True, False]
+
+
+def test_contact_encoding_keeps_every_bit():
+    events = [ContactEvent("begin", ("s0", "c1"), 1 / 3, np.array([1e-300, -0.0, 2 / 7]),
+                           np.array([np.pi, -np.e, 1e300]), np.array([0.6, 0.8, 0.0]), -1 / 7)]
+    msg = M.deserialize(M.serialize(encode_contacts(events, M.header(5, "world")),
+                                    "diagnostic_msgs/msg/DiagnosticArray"), "diagnostic_msgs/msg/DiagnosticArray")
+    (e,) = decode_contacts(msg)
+    x = events[0]
+    assert (e.kind, e.members, e.time, e.distance) == (x.kind, x.members, x.time, x.distance)
+    for f in ("point_a", "point_b", "normal"):
+        assert getattr(e, f).tobytes() == getattr(x, f).tobytes()
+    status = msg.status[0]
+    assert (status.name, status.message) == ("contact s0 c1", "begin")
+
+
+# --------------------------------------------------------------------------- markers
+def test_markers_show_struts_taut_and_slack_cables_and_supports():
+    scene = prism(fixed_base=True, gravity=9.81)
+    logic, sent, _ = make_logic(scene, publish_rate=1000.0)
+    logic.receive("cable_rest_lengths", rest_lengths_msg(["c0"], [5.0]))  # far too long: slack
+    r = logic.step()
+    logic.publish()
+    markers = {m.ns: m for m in sent[-1][1].markers}
+    assert set(markers) == {"struts", "cables", "slack_cables", "supports"}
+    sys = logic.sim.system
+    pts = {ns: np.array([[p.x, p.y, p.z] for p in m.points]) for ns, m in markers.items()}
+    np.testing.assert_array_equal(pts["struts"], r.positions[sys.strut_ends].reshape(-1, 3))
+    np.testing.assert_array_equal(pts["slack_cables"], r.positions[sys.cable_ends[r.slack]].reshape(-1, 3))
+    np.testing.assert_array_equal(pts["cables"], r.positions[sys.cable_ends[~r.slack]].reshape(-1, 3))
+    np.testing.assert_array_equal(pts["supports"], r.positions[[0]])
+    assert r.slack[0] and markers["slack_cables"].scale.x == pytest.approx(0.002)  # half of 2 x radius
+    assert markers["struts"].scale.x == pytest.approx(0.02)
+    colors = np.array([[c.r, c.g, c.b] for c in markers["cables"].colors])
+    tension = np.repeat(r.tensions[~r.slack], 2)
+    i = int(np.argmax(tension))
+    assert colors.shape == (len(tension), 3) and colors[i, 0] == 1.0 and colors[i, 2] == 0.0  # red: largest
+
+
+# --------------------------------------------------------------------------- scheduling
+def run_ticks(logic, clock, times):
+    counts = []
+    for t in times:
+        clock.t = t
+        logic.tick()
+        counts.append(logic.sim.step_count)
+    return counts
+
+
+def test_steps_follow_the_steady_clock_without_drift():
+    """Jittered ticks at 1 kHz (±0.3 ms): the step count is always floor(elapsed / dt), so the rate
+    never drifts, and no overrun is counted."""
+    clock = FakeClock(t=50.0)
+    logic, _, _ = make_logic(prism(), clock=clock)
+    rng = np.random.default_rng(0)
+    times = 50.0 + 1e-3 * (np.arange(1, 3001) + rng.uniform(-0.3, 0.3, 3000))
+    counts = run_ticks(logic, clock, times)
+    assert counts == [math.floor((t - 50.0) * 1000.0) for t in times]
+    assert logic.overruns == 0
+
+
+def test_late_tick_catches_up_at_twice_the_rate_and_counts_overruns():
+    clock = FakeClock(t=0.0)
+    logic, _, _ = make_logic(prism(), clock=clock)
+    times = [1e-3 * k + 1e-7 for k in (1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 15, 16, 17, 18, 19)]
+    counts = run_ticks(logic, clock, times)
+    assert counts == [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 14, 16, 18, 19]
+    assert logic.overruns == 2  # ends 3 and 2 steps behind; 1 step behind is within a tick
+    assert logic.max_lag == pytest.approx(3e-3)
+
+
+def test_real_time_factor_scales_the_schedule():
+    clock = FakeClock(t=0.0)
+    logic, _, _ = make_logic(prism(), clock=clock, real_time_factor=2.5)
+    counts = run_ticks(logic, clock, [1e-3 * k + 1e-7 for k in range(1, 9)])
+    assert counts == [math.floor(2.5 * k) for k in range(1, 9)]
+
+
+def test_as_fast_as_possible_steps_for_one_tick_period():
+    clock = FakeClock(t=0.0, per_read=0.25e-3)  # every clock read costs 0.25 ms
+    logic, _, _ = make_logic(prism(), clock=clock, real_time_factor=0.0)
+    assert logic.tick() == 4 and logic.tick() == 4
+
+
+def test_pause_single_step_resume():
+    clock = FakeClock(t=0.0)
+    logic, sent, _ = make_logic(prism(), clock=clock)
+    run_ticks(logic, clock, [1e-3 + 1e-7, 2e-3 + 1e-7])
+    assert logic.pause() == (True, "paused at t = 0.002000 s")
+    assert logic.pause() == (False, "already paused")
+    assert run_ticks(logic, clock, [0.5, 0.6]) == [2, 2]
+    n = len(sent)
+    assert logic.single_step() == (True, "stepped to t = 0.003000 s")
+    assert [k for k, _ in sent[n:]] == ["clock", "node_poses", "cable_states", "cable_impulses", "markers"]
+    assert logic.resume() == (True, "resumed at t = 0.003000 s")
+    assert logic.resume() == (False, "not paused")
+    assert logic.single_step() == (False, "not paused: call pause first")
+    # the paused time is not caught up: one step per millisecond from the resume on
+    assert run_ticks(logic, clock, [0.6 + 1e-3 * k + 1e-7 for k in (1, 2, 3)]) == [4, 5, 6]
+
+
+def test_reset_returns_to_the_scene_and_restarts_the_log():
+    scene = prism()
+    logic, sent, _ = make_logic(scene)
+    logic.recorder = recorder = FakeRecorder()
+    logic.receive("cable_rest_lengths", rest_lengths_msg(["c0"], [0.3]))
+    logic.receive("external_wrench", wrench_msg("n1", [0.0, 0.0, 5.0]))
+    for _ in range(17):
+        logic.step()
+    assert logic.reset() == (True, "reset to the scene's initial state; now logging to restart1.mcap")
+    assert recorder.restarts == 1 and logic.sim.time == 0.0
+    np.testing.assert_array_equal(logic.sim.positions, scene.positions)
+    np.testing.assert_array_equal(logic.sim.rest_lengths, scene.cable_rest_lengths)
+    assert not np.any(logic.sim.external_forces)
+    for _ in range(10):
+        logic.step()
+    logic.publish()
+    plain = ts.Simulator(scene, method="elastic", dt=1e-3).run(steps=10)
+    np.testing.assert_array_equal(sent[-2][1].effort, sum(plain.impulses[k] for k in range(10)))
+    assert stamp_of(sent[-2][1]) == 10_000_000
+
+
+def test_runtime_parameters():
+    logic, _, _ = make_logic(prism())
+    assert logic.update(real_time_factor=2.0).real_time_factor == 2.0
+    with pytest.raises(ValueError, match=r"^parameter 'dt' is read-only while running \(restart the node\)$"):
+        logic.update(dt=0.1)
+    with pytest.raises(ValueError, match="^parameter 'publish_rate': must be > 0, got -1.0$"):
+        logic.update(publish_rate=-1.0)
+    assert logic.settings.publish_rate == 100.0 and logic.settings.real_time_factor == 2.0
+
+
+def test_diagnostics_warn_while_overrunning():
+    clock = FakeClock(t=0.0)
+    logic, sent, _ = make_logic(prism(), clock=clock)
+    run_ticks(logic, clock, [1e-3 + 1e-7, 10e-3 + 1e-7])  # 2 steps at most: 7 behind, an overrun
+    logic.publish_diagnostics()
+    logic.update(real_time_factor=1.0)  # restarts the schedule: on time again
+    run_ticks(logic, clock, [11e-3 + 1e-7])
+    logic.publish_diagnostics()
+    reports = [m.status[0] for k, m in sent if k == "diagnostics"]
+    assert [r.level for r in reports] == [M.byte(1), M.byte(0)]
+    values = {kv.key: kv.value for kv in reports[0].values}
+    assert values["overruns"] == "1" and values["steps"] == "3" and values["max_lag_ms"] == "7.0"
+    assert reports[0].message.startswith("1 overrun(s) since the last report")
+
+
+def test_markers_go_out_at_marker_rate():
+    """publish_rate 100 Hz, marker_rate 25 Hz: a MarkerArray with every 4th publication, the first one
+    included, and the count restarts on reset."""
+    logic, sent, _ = make_logic(ts.load_scene("prism3"), publish_rate=100.0, marker_rate=25.0)
+    assert logic.settings.markers_every == 4
+    for _ in range(120):
+        logic.step()
+        if logic.publication_due:
+            logic.publish()
+    keys = [k for k, _ in sent]
+    assert keys.count("node_poses") == 12 and keys.count("markers") == 3
+    stamps = [stamp_of(m.markers[0]) for k, m in sent if k == "markers"]
+    assert stamps == [10_000_000, 50_000_000, 90_000_000]

@@ -1,0 +1,213 @@
+"""Replay: a log alone re-runs its simulation bit for bit, and any alteration is caught and located."""
+import json
+
+import numpy as np
+import pytest
+import yaml
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+import tensegrity_sim as ts
+from tensegrity_sim.cli import main, simulate
+from tensegrity_sim.commands import parse_commands
+from tensegrity_sim.ros import messages as M
+from tensegrity_sim.ros.log import RUN_INFO, LogRecorder, LogWriter
+from tensegrity_sim.ros.node_logic import Qos, NodeSettings, SimNodeLogic
+from tensegrity_sim.ros.replay import LogError, log_info, replay
+from ros_helpers import FakeClock, prism, prism_dict, rest_lengths_msg, wrench_msg
+
+COMMANDS = [
+    {"time": 0.0, "rest_lengths": {"c0": 0.55, "c4": 0.6}},
+    {"time": 0.05, "rest_lengths": {"c0": 0.45}, "forces": {"n3": [0.0, 0.0, 20.0]}},
+    {"time": 0.12, "forces": {"n3": [0.0, 0.0, 0.0], "n1": [2.0, 0.0, 0.0]}},
+]
+
+
+@pytest.fixture(scope="module")
+def logged(tmp_path_factory):
+    """A 0.3 s run of the prism with rest-length and force commands, logged by ``tensegrity-sim run``."""
+    folder = tmp_path_factory.mktemp("replay")
+    scene_file, commands, log = folder / "prism.yaml", folder / "commands.yaml", folder / "run.mcap"
+    scene_file.write_text(yaml.safe_dump(prism_dict(gravity=9.81)))
+    commands.write_text(yaml.safe_dump(COMMANDS))
+    assert main(["run", str(scene_file), "--duration", "0.3", "--method", "elastic", "--commands", str(commands),
+                 "--log", str(log), "--quiet"]) == 0
+    return log
+
+
+def rewrite(src, dst, alter=None, run_info=None):
+    """Copy a log message by message (decoded and re-encoded: identical bytes), through ``alter(topic, index,
+    message)`` (return None to drop it), with ``run_info`` changes."""
+    with open(src, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        info = next(m.metadata for m in reader.iter_metadata() if m.name == RUN_INFO)
+        channels = []
+        for c in summary.channels.values():
+            q = yaml.safe_load(c.metadata["offered_qos_profiles"])[0]
+            channels.append((c.topic, summary.schemas[c.schema_id].name, Qos(q["reliability"], q["depth"],
+                                                                             q["durability"])))
+        counts = {}
+        with LogWriter(dst, channels, {**info, **(run_info or {})}) as writer:
+            for _, c, message in reader.iter_messages(log_time_order=False):
+                msg = M.deserialize(message.data, summary.schemas[c.schema_id].name)
+                index = counts[c.topic] = counts.get(c.topic, -1) + 1
+                if alter is not None:
+                    msg = alter(c.topic, index, msg)
+                if msg is not None:
+                    writer.write(c.topic, msg, message.log_time)
+
+
+def test_replay_reproduces_a_run_with_commands(logged, capsys):
+    report = replay(logged)
+    assert report.ok and report.steps == 300 and report.notes == []
+    assert report.compared == {**{t: 30 for t in ("/clock", "/tensegrity_sim/node_poses", "/tensegrity_sim/cable_states",
+                                                  "/tensegrity_sim/cable_impulses")},
+                               "/tensegrity_sim/markers": 3}  # marker_rate 10 Hz: publications 0, 10, 20
+    assert report.inputs["/tensegrity_sim/external_wrench"] == 3
+    assert report.inputs["/tensegrity_sim/cable_rest_lengths"] > 50  # a ramp: a message every step
+    assert main(["replay", str(logged)]) == 0
+    assert "result           every logged state reproduced bit for bit" in capsys.readouterr().out
+
+
+def test_copy_without_changes_replays(logged, tmp_path):
+    rewrite(logged, tmp_path / "copy.mcap")
+    assert replay(tmp_path / "copy.mcap").ok
+
+
+def test_altered_state_is_caught_at_its_step(logged, tmp_path, capsys):
+    def alter(topic, index, msg):
+        if topic == "/tensegrity_sim/node_poses" and index == 6:  # the 7th publication: step 70
+            msg.poses[2].position.z = float(np.nextafter(msg.poses[2].position.z, np.inf))  # one ulp
+        return msg
+
+    rewrite(logged, tmp_path / "altered.mcap", alter)
+    report = replay(tmp_path / "altered.mcap")
+    m = report.mismatch
+    assert (m.step, m.time_ns, m.topic, m.field) == (70, 70_000_000, "/tensegrity_sim/node_poses", "poses[2].position.z")
+    assert float(m.logged) == np.nextafter(float(m.replayed), np.inf)
+    assert main(["replay", str(tmp_path / "altered.mcap")]) == 1
+    assert "MISMATCH at step 70 (t = 0.070000000 s), /tensegrity_sim/node_poses: poses[2].position.z" in \
+        capsys.readouterr().out
+
+
+def test_altered_input_is_caught_at_the_next_publication(logged, tmp_path):
+    def alter(topic, index, msg):
+        if topic == "/tensegrity_sim/cable_rest_lengths" and index == 30:  # the ramp at t = 30 ms
+            assert message_time(msg) == 30_000_000
+            msg.position = msg.position * 0.5  # short enough to be taut: it pulls
+        return msg
+
+    rewrite(logged, tmp_path / "input.mcap", alter)
+    m = replay(tmp_path / "input.mcap").mismatch
+    assert (m.step, m.topic) == (40, "/tensegrity_sim/node_poses") and m.field.startswith("poses[")
+
+
+def message_time(msg):
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def test_dropped_message_is_caught(logged, tmp_path):
+    rewrite(logged, tmp_path / "dropped.mcap",
+            lambda topic, index, msg: None if topic == "/tensegrity_sim/markers" and index == 1 else msg)
+    m = replay(tmp_path / "dropped.mcap").mismatch
+    assert (m.step, m.topic, m.field, m.logged, m.replayed) == (
+        110, "/tensegrity_sim/markers", "message", "none", "a message")
+
+
+def test_summed_impulses_are_checked(logged, tmp_path):
+    def alter(topic, index, msg):
+        if topic == "/tensegrity_sim/cable_impulses" and index == 20:
+            msg.effort = msg.effort * (1 + 1e-15)
+        return msg
+
+    rewrite(logged, tmp_path / "impulses.mcap", alter)
+    m = replay(tmp_path / "impulses.mcap").mismatch
+    assert (m.step, m.topic) == (210, "/tensegrity_sim/cable_impulses") and m.field.startswith("effort[")
+
+
+def test_settings_that_cannot_be_reproduced_are_refused(logged, tmp_path):
+    rewrite(logged, tmp_path / "settings.mcap", run_info={"method_settings": json.dumps({"dt": 0.001,
+                                                                                          "method": "exotic"})})
+    with pytest.raises(LogError, match=r"method settings .*exotic.* cannot be reproduced"):
+        replay(tmp_path / "settings.mcap")
+
+
+def test_not_a_log(tmp_path):
+    (tmp_path / "x.mcap").write_bytes(b"not an mcap file at all")
+    with pytest.raises(LogError, match="not a readable MCAP file"):
+        replay(tmp_path / "x.mcap")
+    with pytest.raises(LogError, match="cannot read"):
+        replay(tmp_path / "missing.mcap")
+    with open(tmp_path / "other.mcap", "wb") as f:
+        writer = Writer(f)
+        writer.start(profile="ros2")
+        writer.finish()
+    with pytest.raises(LogError, match="no 'tensegrity_sim' metadata: not a tensegrity_sim log"):
+        replay(tmp_path / "other.mcap")
+    with LogWriter(tmp_path / "partial.mcap", [], {"method": "elastic"}):
+        pass
+    with pytest.raises(LogError, match="'tensegrity_sim' metadata lacks dt, method_reason, method_settings, "
+                                       "node_settings, package_version, scene_name, scene_yaml, topics"):
+        log_info(tmp_path / "partial.mcap")
+    assert main(["replay", str(tmp_path / "missing.mcap")]) == 2
+
+
+def test_node_run_with_pauses_single_steps_refusals_and_rate_limit_replays(tmp_path):
+    """What the real-time node does (ticks on a clock, pause, single steps while paused, resume, refused
+    and rate-limited inputs, a runtime publish-rate change) is reproduced from its log."""
+    clock = FakeClock(t=0.0)
+    sim = ts.Simulator(prism(gravity=9.81), method="elastic", dt=1e-3)
+    logic = SimNodeLogic(sim, NodeSettings(scene="prism", max_rest_length_rate=0.5, marker_rate=100.0), clock=clock,
+                         logger=type("Quiet", (), {"warning": lambda self, text: None})())
+    path = tmp_path / "node.mcap"
+    with LogRecorder(path, logic.channels(), logic.run_info()) as recorder:
+        logic.recorder = recorder
+        rng = np.random.default_rng(3)
+        for k in range(1, 400):
+            clock.t = 1e-3 * k + rng.uniform(0, 0.9e-3)
+            logic.tick()
+            if k == 40:
+                logic.receive("cable_rest_lengths", rest_lengths_msg(["c2", "c5"], [0.5, 0.7]))
+            if k == 60:
+                logic.receive("cable_rest_lengths", rest_lengths_msg(["c2", "zz"], [0.1, 0.7]))  # refused
+                logic.receive("external_wrench", wrench_msg("n5", [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]))  # refused
+                logic.receive("external_wrench", wrench_msg("n5", [0.0, 1.0, 3.0]))
+            if k == 100:
+                logic.pause()
+            if k in (110, 115, 116):
+                logic.single_step()
+            if k == 150:
+                logic.resume()
+                logic.update(publish_rate=40.0)
+            if k % 97 == 0:
+                logic.publish_diagnostics()
+        logic.publish()  # end on a publication: the replay steps up to the last logged message
+    report = replay(path)
+    assert report.ok, report.mismatch
+    assert report.steps == sim.step_count and report.notes[0].startswith("2 input message(s) refused again")
+    assert report.compared["/tensegrity_sim/node_poses"] == logic.publications
+
+
+def test_info_reports_counts_and_slack_statistics(logged, capsys):
+    """The slack and snap statistics of ``info`` against a plain Simulator run with the same commands."""
+    scene = ts.Scene.from_dict(prism_dict(gravity=9.81))
+    sim = ts.Simulator(scene, method="elastic", dt=1e-3)
+    tensions = []
+    simulate(sim, 300, parse_commands(COMMANDS, scene), on_step=lambda r: tensions.append(r.tensions))
+    published = np.array(tensions)[9::10]
+    slack = published == 0.0
+    snaps = int(np.count_nonzero(slack[:-1] & ~slack[1:]))
+    assert 0 < snaps and slack.any()
+    lines = log_info(logged)
+    assert f"snaps            {snaps} slack-to-taut changes" in lines
+    share = ", ".join(f"{n} {100.0 * c / 30:.0f}%" for n, c in zip(scene.cable_names, slack.sum(axis=0)) if c)
+    assert f"slack            {share} (of 30 cable_states messages)" in lines
+    k = np.unravel_index(np.argmax(published), published.shape)
+    assert f"max tension      {published[k]:.6g} N ({scene.cable_names[k[1]]} at t = {(k[0] + 1) * 0.01:.6f} s)" \
+        in lines
+    assert main(["info", str(logged)]) == 0
+    out = capsys.readouterr().out
+    assert "/tensegrity_sim/node_poses" in out and "geometry_msgs/msg/PoseArray" in out
+    assert "sim time         0.000000 s to 0.300000 s (300 steps)" in out
+    assert "contacts         0 begin, 0 end, 0 member pairs" in out

@@ -1,0 +1,186 @@
+"""Static checks of the ROS 2 package, since colcon cannot run here: package.xml, setup.cfg, setup.py's
+entry points and data files, the config, the launch file, msg_docs, and who imports what."""
+import ast
+import configparser
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from dataclasses import fields
+from pathlib import Path
+
+import pytest
+import setuptools
+import yaml
+
+import tensegrity_sim as ts
+from tensegrity_sim.ros.node_logic import SERVICES, TOPICS, NodeSettings, SimNodeLogic
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "tensegrity_sim"
+
+
+@pytest.fixture(scope="module")
+def setup_kwargs(monkeypatch_module):
+    """The arguments setup.py passes to setuptools.setup, run from the package root."""
+    captured = {}
+    monkeypatch_module.setattr(setuptools, "setup", lambda **kw: captured.update(kw))
+    monkeypatch_module.chdir(ROOT)
+    exec(compile((ROOT / "setup.py").read_text(), "setup.py", "exec"), {"__name__": "__main__"})
+    return captured
+
+
+@pytest.fixture(scope="module")
+def monkeypatch_module():
+    with pytest.MonkeyPatch.context() as mp:
+        yield mp
+
+
+def imported_modules(path: Path, top_level_only: bool = False) -> set[str]:
+    """Absolute module names a file imports (relative imports resolved against the package)."""
+    tree = ast.parse(path.read_text())
+    nodes = tree.body if top_level_only else list(ast.walk(tree))
+    package = ".".join(path.relative_to(ROOT).with_suffix("").parts[:-1])
+    out = set()
+    for node in nodes:
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                out.add(f"{base}.{node.module}" if node.module else base)
+            else:
+                out.add(node.module)
+    return out
+
+
+def ros_packages_imported(path: Path) -> set[str]:
+    stdlib_and_ours = set(sys.stdlib_module_names) | {"tensegrity_sim", "numpy"}
+    return {m.split(".")[0] for m in imported_modules(path)} - stdlib_and_ours
+
+
+# --------------------------------------------------------------------------- package.xml
+def test_package_xml_format3_and_dependencies(setup_kwargs):
+    root = ET.parse(ROOT / "package.xml").getroot()
+    assert root.tag == "package" and root.get("format") == "3"
+    assert root.findtext("name") == "tensegrity_sim"
+    assert root.findtext("version") == ts.__version__ == setup_kwargs["version"]
+    for tag in ("description", "maintainer", "license"):
+        assert root.findtext(tag).strip()
+    assert root.find("export").findtext("build_type") == "ament_python"
+    exec_depends = {e.text for e in root.findall("exec_depend")}
+    message_packages = {spec.typename.split("/")[0] for spec in TOPICS.values()}
+    node_imports = ros_packages_imported(PACKAGE / "ros" / "rclpy_node.py")
+    launch_imports = ros_packages_imported(ROOT / "launch" / "sim.launch.py")
+    assert {"rclpy", "std_srvs", "rcl_interfaces", "launch", "launch_ros"} <= node_imports | launch_imports
+    missing = (message_packages | node_imports | launch_imports | {"std_msgs", "builtin_interfaces"}) - exec_depends
+    assert not missing, f"package.xml lacks exec_depend {sorted(missing)}"
+    assert {"python3-numpy", "python3-scipy", "python3-yaml", "python3-tqdm"} <= exec_depends
+    assert "python3-pytest" in {e.text for e in root.findall("test_depend")}
+    assert (ROOT / "resource" / "tensegrity_sim").is_file()
+
+
+# --------------------------------------------------------------------------- setup.cfg / setup.py
+def test_setup_cfg_puts_scripts_where_ros2_run_looks():
+    cfg = configparser.ConfigParser(interpolation=None)
+    cfg.read(ROOT / "setup.cfg")
+    assert cfg["develop"]["script_dir"] == "$base/lib/tensegrity_sim"
+    assert cfg["install"]["install_scripts"] == "$base/lib/tensegrity_sim"
+
+
+def test_entry_points(setup_kwargs):
+    scripts = dict(s.replace(" ", "").split("=") for s in setup_kwargs["entry_points"]["console_scripts"])
+    assert scripts == {"tensegrity-sim": "tensegrity_sim.cli:main", "sim_node": "tensegrity_sim.ros.rclpy_node:main"}
+    tree = ast.parse((PACKAGE / "ros" / "rclpy_node.py").read_text())
+    main = [n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "main"]
+    assert len(main) == 1 and main[0].args.args[0].arg == "args"  # ros2 run calls main() with no argument
+
+
+def test_data_files_install_launch_config_msg_docs(setup_kwargs):
+    installed = {}
+    for target, files in setup_kwargs["data_files"]:
+        installed.setdefault(target, set()).update(files)
+    assert installed["share/ament_index/resource_index/packages"] == {"resource/tensegrity_sim"}
+    assert "package.xml" in installed["share/tensegrity_sim"]
+    for folder, pattern in (("launch", "*.launch.py"), ("config", "*.yaml"), ("msg_docs", "*.md")):
+        on_disk = {str(p.relative_to(ROOT)) for p in (ROOT / folder).iterdir()}
+        assert installed[f"share/tensegrity_sim/{folder}"] == on_disk and on_disk, folder
+        assert all(Path(f).match(pattern) for f in on_disk)
+
+
+def test_dependencies_pinned(setup_kwargs):
+    requirements = setup_kwargs["install_requires"] + [r for extra in setup_kwargs["extras_require"].values()
+                                                       for r in extra]
+    assert all("==" in r for r in requirements)
+    names = {r.split("==")[0] for r in requirements}
+    assert {"mcap", "rosbags", "mcap-ros2-support"} <= names
+
+
+# --------------------------------------------------------------------------- config, launch
+def test_config_lists_every_parameter_with_its_default():
+    params = yaml.safe_load((ROOT / "config" / "sim_node.yaml").read_text())["tensegrity_sim"]["ros__parameters"]
+    assert params == NodeSettings().parameters
+    assert NodeSettings(**params) == NodeSettings()
+
+
+def test_launch_file_runs_sim_node_with_the_config():
+    tree = ast.parse((ROOT / "launch" / "sim.launch.py").read_text())
+    calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "Node"]
+    assert len(calls) == 1
+    kw = {k.arg: k.value for k in calls[0].keywords}
+    assert {k: ast.literal_eval(kw[k]) for k in ("package", "executable", "name")} == {
+        "package": "tensegrity_sim", "executable": "sim_node", "name": "tensegrity_sim"}
+    strings = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)}
+    assert {"config", "sim_node.yaml"} <= strings and (ROOT / "config" / "sim_node.yaml").is_file()
+    overrides = [n for n in ast.walk(kw["parameters"]) if isinstance(n, ast.Dict)]
+    names = {ast.literal_eval(k) for d in overrides for k in d.keys}
+    assert names and names <= set(NodeSettings().parameters)
+    assert "generate_launch_description" in {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
+
+
+# --------------------------------------------------------------------------- msg_docs
+def test_msg_docs_one_page_per_topic():
+    index = (ROOT / "msg_docs" / "README.md").read_text()
+    for key, spec in TOPICS.items():
+        page = ROOT / "msg_docs" / f"{key}.md"
+        text = page.read_text()
+        assert f"`{spec.name}`" in text.splitlines()[0] and f"`{spec.typename}`" in text, key
+        assert f"({key}.md)" in index and f"`{spec.typename}`" in index
+        assert "QoS" in text and ("Example" in text or key == "diagnostics" or key == "markers"), key
+
+
+def test_msg_docs_services_and_parameters():
+    services = (ROOT / "msg_docs" / "services.md").read_text()
+    for name, method in SERVICES.items():
+        assert f"`~/{name}`" in services and callable(getattr(SimNodeLogic, method))
+    parameters = (ROOT / "msg_docs" / "parameters.md").read_text()
+    for f in fields(NodeSettings):
+        if f.name != "node_name":
+            assert f"| `{f.name}` |" in parameters and f"`{f.default}`" in parameters, f.name
+
+
+# --------------------------------------------------------------------------- who imports what
+def test_core_imports_no_ros_no_mcap():
+    """The numerical core never imports the ROS side, rosbags, mcap or rclpy; cli.py only lazily."""
+    forbidden = ("tensegrity_sim.ros", "rosbags", "mcap", "rclpy")
+    for path in PACKAGE.rglob("*.py"):
+        if "ros" in path.relative_to(PACKAGE).parts:
+            continue
+        modules = imported_modules(path, top_level_only=path.name == "cli.py")
+        bad = sorted(m for m in modules if m.startswith(forbidden))
+        assert not bad, f"{path.relative_to(ROOT)} imports {bad}"
+    code = "import sys, tensegrity_sim, tensegrity_sim.cli; print(sorted(m for m in sys.modules " \
+           "if m.startswith(('tensegrity_sim.ros', 'rosbags', 'mcap', 'rclpy'))))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    assert out.stdout.strip() == "[]"
+
+
+def test_only_the_node_imports_rclpy():
+    for path in (PACKAGE / "ros").glob("*.py"):
+        ros = {m for m in imported_modules(path) if m.split(".")[0] in
+               {"rclpy", "rcl_interfaces", "std_srvs", "std_msgs", "sensor_msgs", "geometry_msgs"}}
+        if path.name == "rclpy_node.py":
+            assert "rclpy" in ros
+        elif path.name == "messages.py":
+            assert ros == {"rclpy.serialization"}  # the one-source switch, inside try/except ImportError
+        else:
+            assert not ros, path.name
