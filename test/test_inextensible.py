@@ -334,3 +334,24 @@ def one_cable(k, m=1.0, gravity=0.0, velocity=0.0):
 ])
 def test_auto_rule(k, gravity, velocity, dt, method, reason):
     assert choose_method(one_cable(k, gravity=gravity, velocity=velocity), dt) == (method, reason)
+
+
+def test_cli_auto_picks_inextensible_and_a_solver_run_replays(tmp_path, capsys):
+    """`run` prints the auto rule's reason; a logged run with a chosen backend and rest-length ramps
+    (reel-ins) replays bit for bit from the log alone."""
+    import yaml
+    from tensegrity_sim.cli import main
+    from ros_helpers import prism_dict
+
+    d = prism_dict(gravity=9.81, stretch=1.0)
+    for c in d["cables"]:
+        del c["stiffness"]
+    scene_file, commands, log = tmp_path / "prism.yaml", tmp_path / "commands.yaml", tmp_path / "run.mcap"
+    scene_file.write_text(yaml.safe_dump(d))
+    commands.write_text(yaml.safe_dump([{"time": 0.0, "rest_lengths": {"c6": 0.72}},
+                                        {"time": 0.1, "rest_lengths": {"c6": 0.70}}]))
+    assert main(["run", str(scene_file), "--duration", "0.2", "--solver", "nnls", "--commands", str(commands),
+                 "--log", str(log), "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "method: inextensible: cables without a stiffness (c0, c1, c2, c3, c4, c5, c6, c7, c8)" in out
+    assert main(["replay", str(log)]) == 0
