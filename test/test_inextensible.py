@@ -403,3 +403,25 @@ def test_cli_auto_picks_inextensible_and_a_solver_run_replays(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "method: inextensible: cables without a stiffness (c0, c1, c2, c3, c4, c5, c6, c7, c8)" in out
     assert main(["replay", str(log)]) == 0
+
+
+def test_reeling_in_a_locked_structure_is_a_clear_error():
+    """The icosahedron with rigid struts and inextensible cables is locked by its self-stress: no
+    cable can shorten. Commanding it is refused at the step, with the reason, and changes nothing."""
+    with pytest.warns(LengthOffsetWarning):
+        sim = ts.Simulator(ts.load_scene("icosahedron"), method="inextensible", dt=1e-3)
+    sim.run(steps=5)
+    sim.set_rest_lengths({"c0": sim.rest_lengths[0] - 1e-4})
+    x = sim.positions
+    with pytest.raises(qp.QPError, match=r"failed \(infeasible\): .*the commanded shortening of c0 cannot be "
+                                         r"followed: the taut cables and rigid struts lock the structure"):
+        sim.step()
+    assert sim.step_count == 5
+    np.testing.assert_array_equal(sim.positions, x)
+    # an elastic-strut structure gives: the prism follows the same command
+    with pytest.warns(LengthOffsetWarning):
+        prism = ts.Simulator(ts.load_scene("prism3"), method="inextensible", dt=1e-3)
+    prism.set_rest_lengths({"c0": prism.rest_lengths[0] - 1e-4})
+    prism.step()
+    _, length, _ = prism.system.geometry(prism.positions, prism.system.cable_ends)
+    assert length[0] == pytest.approx(prism._method.limits(prism.rest_lengths)[0], rel=1e-9)

@@ -285,7 +285,16 @@ class InextensibleMethod(StepMethod):
         v_f = np.zeros_like(v0)
         shortest = float(m_limits.min())
         for _ in range(_LANDING_ITER):
-            v_free, y = self.solver.solve(v0[self._free], rows, warm)
+            try:
+                v_free, y = self.solver.solve(v0[self._free], rows, warm)
+            except QPError as exc:
+                if not np.any(reel < 0):
+                    raise
+                # only a reel-in can make the rows infeasible (without one, v_f = -v_i meets them all)
+                names = ", ".join(np.asarray(self.system.scene.cable_names)[reel < 0])
+                raise QPError(exc.solver, exc.status, f"{exc.detail}; the commanded shortening of {names} cannot "
+                              f"be followed: the taut cables and rigid struts lock the structure (they carry a "
+                              f"self-stress), so no cable can shorten unless another member gives") from exc
             v_f[self._free] = v_free
             change = float(np.max(np.abs(v_f - v)))
             if 0.5 * tau * tau * change * (change + 2.0 * float(np.max(np.abs(v)))) <= _LANDING_TOL * shortest * shortest:

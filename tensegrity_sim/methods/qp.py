@@ -98,6 +98,7 @@ class QPError(RuntimeError):
         super().__init__(f"QP solver {solver!r} failed ({status}): {message}")
         self.solver = solver
         self.status = status
+        self.detail = message
 
 
 class QPSolver:
