@@ -1,57 +1,63 @@
 """Method 1 of physics.md §3: inextensible cables (stiffness -> infinity), Moreau's midpoint time-stepping
 with one QP over the cables that can be taut, elastic or rigid struts.
 
-One step of ``h`` from ``(x_i, v_i)`` is one or a few *sub-steps*, each of Moreau's midpoint form::
+One step of ``h`` from ``(x_i, v_i)`` is one sub-step, or a few when cables snap inside it, each of
+Moreau's midpoint form::
 
     x_m = x_i + tau/2 v_i;   v0 = v_i + tau M^-1 F(x_m);   v_f = QP(v0; rows at x_m);   x_f = x_m + tau/2 v_f
 
-``F`` holds gravity, external forces and the elastic struts' forces at the midpoint (explicit, so
+``F`` holds gravity, the external forces and the elastic struts' forces at the midpoint (explicit, so
 ``h < 2 / omega_struts`` is required and checked at start-up). The QP (``methods/qp.py``) is
-``min 1/2 (v - v0)^T M (v - v0)`` with one row ``b_i(x_m)^T v`` per member that can be taut during the
+``min 1/2 (v - v0)^T M (v - v0)`` with one row ``b_i(x_m)^T v`` per member that can be taut in the
 sub-step: ``<= r_i`` for a cable, ``= r_i`` for a rigid strut. Its multipliers are the cable impulses.
 
-**Rows and their targets.** A cable is a row when it could reach its length limit by the sub-step's
-end, ``l_m + tau/2 |u0| >= L (1 - LIMIT_TOL)`` (``u0`` its ends' relative free velocity); when no cable
-qualifies and there is no rigid strut, no QP is solved. A row's target is not 0 but the rate that puts
-the member exactly at its limit at ``x_f``::
+**Rows.** A cable is a row when it could reach its length limit by the sub-step's end,
+``l_m + tau/2 |u0| >= L (1 - LIMIT_TOL)`` (``u0``: its ends' relative free velocity), a documented
+superset of the seed's ``e(x_m) >= 0`` that also stops a cable about to overshoot. With no such cable
+and no rigid strut, no QP is solved.
+
+**Targets: the drift stabiliser.** The velocity-level scheme alone (targets 0) lengthens a swinging
+cable by ``h^2 v^2 / 2L`` per step. A cable's target is instead the rate that lands it exactly on its
+limit at ``x_f``::
 
     r = (2 / tau) (sqrt(L^2 - (tau/2)^2 |u_perp|^2) - l_m)
 
-(``u_perp``: the ends' relative velocity across the member, which the member's own impulse does not
-change). For a member that is taut this steers it back to its limit by the step's end, so drift cannot
-accumulate (the velocity-level scheme alone lengthens a swinging pendulum by ``h^2 v^2 / 2L`` per
-step); for a slack cable it is the gap-closing rate, so a cable that would overshoot inside the
-sub-step is stopped exactly at its limit. The targets only change the multipliers, which act along
-the members at ``x_m``: linear and angular momentum stay exact.
+where ``u_perp`` is its ends' relative velocity across it at the sub-step's end (the part its own
+impulse does not change; other members' impulses do, so it is iterated to convergence, one extra solve
+while things move). The targets only change impulses along the members at ``x_m``, so linear and
+angular momentum stay exact. Two caps keep the stabiliser from creating energy:
 
-**Snaps.** Steering a cable that is at its limit *while its ends still separate* would push it back
-(a rebound: effective restitution near 1, the Baumgarte failure of physics.md §3). So a snap is a
-separate event, located inside the step and resolved by an impact:
+* the impulses' work over a sub-step is ``-1/2 sum y_i (r_i + b_i.v_i)``, so a cable's target is never
+  below the reversal ``-b_i.v_i`` of its rate at the midpoint (its ``y_i >= 0``), and a rigid strut's
+  target is that reversal (its ``y_i`` has either sign). Then no impulse does positive work, and
+  ``v_f = -v_i`` meets every row, so the QP is never infeasible. Where a cap binds the member lands
+  ``(tau/2)^2 |u_f^2 - u_i^2| / 2L`` off its limit, a bounded error that is not carried forward;
+* a commanded shortening is a reel-in at ``change / h``; the cable may pull faster by twice that rate
+  (the motor's work), so a ramp of rest lengths is followed exactly, and a jump is a reel-in in one step.
+
+**Snaps.** Steering a cable back while its ends still separate would push them apart again (a
+rebound: effective restitution up to 0.96 for Baumgarte with gamma = 1, see the tests). A snap is an
+event instead, located inside the step and resolved where it happens:
 
 1. *Locate it.* For each slack cable whose ends' free path (constant free acceleration) crosses its
    limit during the sub-step, the crossing time is found by Newton's method; the sub-step is cut at the
-   earliest crossing (at most ``MAX_EVENTS`` per step; later ones are caught by their gap-closing
+   earliest crossing (at most ``MAX_EVENTS`` per step; later ones are stopped at their limit by their
    rows and resolved at the next step's start).
-2. *Impact.* At the configuration where it happens, every cable at its limit whose ends separate and
-   which was not already holding (not active at its limit in the previous sub-step) gets Moreau's
-   impact law: ``min 1/2 |v+ - v-|_M^2`` with ``b^T v+ <= 0`` for those cables (perfectly inelastic:
-   zero separation speed, no push), ``b^T v+ <= max(b^T v-, 0)`` for cables that were holding, and
-   ``b^T v+ = b^T v-`` for rigid struts (they transmit the impulse, their rate is kept). Several
-   cables snapping at the same instant are resolved together.
+2. *Impact.* At that configuration, if a cable at its limit that was not already holding (active at
+   its limit in the previous sub-step) separates, Moreau's impact law: ``v+ = argmin |v+ - v|_M`` with
+   ``b^T v+ <= 0`` for every cable at its limit and ``b^T v+ = 0`` for the rigid struts. Perfectly
+   inelastic, no push; simultaneous snaps are resolved together; the admissible set is a cone, so the
+   kinetic energy cannot grow.
 3. The rest of the step is another sub-step, in which the snapped cable is taut.
 
-Because the impact acts at its own configuration and every sub-step's impulses at that sub-step's
-midpoint, momentum is exact through snaps. Impacts only remove kinetic energy. A holding cable's
-steering is energy-conserving for a single cable (its midpoint step then keeps the length exactly
-at both ends of the step), so energy is not created by the stabiliser.
-
-**Prestress.** A scene written for elastic cables has them stretched by ``tension / k`` at rest. The
-method takes each cable's length limit as its rest length plus that stretch at load time
-(``length_offsets``), keeps the offset when rest lengths are commanded, warns once
+**Prestress.** A scene written for elastic cables has them longer than their rest lengths by
+``tension / k``. The method takes each cable's length limit as its rest length plus that stretch at load
+time (``length_offsets``), keeps the offset when rest lengths are commanded, warns
 (:class:`LengthOffsetWarning`) and reports the offsets in ``describe()``. No cable strain is stored:
-``strain_energy`` counts the elastic struts only. In a structure whose taut cables and rigid struts
-carry a self-stress, the impulses are not unique (any multiple of the self-stress can be added without
-changing any velocity); the QP backend returns one of them, e.g. zero for a free icosahedron at rest.
+``strain_energy`` counts the elastic struts only. When the taut cables and rigid struts carry a
+self-stress (the icosahedron with rigid struts) the structure is locked: the impulses are not unique
+(any multiple of the self-stress can be added; the backend returns one, zero for a free icosahedron at
+rest), and a cable cannot be reeled in, which is reported as a :class:`~.qp.QPError` naming it.
 """
 from __future__ import annotations
 

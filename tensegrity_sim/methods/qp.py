@@ -14,14 +14,14 @@ The problem is often degenerate, and every backend must cope: a prestressed stru
 taut has a self-stress, i.e. dependent rows and a singular Delassus matrix ``W = A M^-1 A^T``, and so has
 a scene with duplicated cables. ``v`` is then unique but ``y`` is not.
 
-Measured (``python bench/bench_qp.py``; the numbers are in the module docstring of that script and in
-the closing note of issue 3): DAQP, a dual active-set method warm-started from the previous step's
-active set, matches quadprog to ~1e-14 relative in ``v`` at node-mass ratios up to 1e4 and is the
-fastest on every built-in scene, so it is the default. OSQP (ADMM) at its default tolerances is off by
-up to 1e-2..1 relative at mass ratio 1e4 and even with tight tolerances and polishing stalls on the
-singular problems of prestressed structures; it stays available by name. The Delassus problem as
-non-negative least squares (scipy's Lawson-Hanson NNLS on a rank-revealing factor of ``W``) is as
-accurate as DAQP but several times slower.
+Measured with ``python bench/bench_steps.py --accuracy`` (the QPs of rattling built-in scenes, node
+masses 1e4 apart, each solved again by quadprog): DAQP, a dual active-set method warm-started from the
+previous step's active set, agrees to 4e-16..2e-10 relative in velocity and is the fastest per QP on
+the built-ins, so it is the default; its tolerances are tightened (see :class:`DaqpSolver`). The
+Delassus problem as non-negative least squares agrees to 1e-9 on well-conditioned problems but only to
+2e-2 on the near-singular ones of a locked structure: forming ``W`` squares the conditioning. OSQP
+(ADMM) with eps 1e-10 and polishing reaches 1e-8..5e-7 and hits its iteration limit on the
+icosahedron; at its default tolerances it is off by 0.2..0.7. Both stay available by name.
 
 A backend that fails (infeasible rows, iteration limit, non-finite or infeasible output) raises
 :class:`QPError` with a status and a message; it never returns a wrong answer silently.
@@ -191,7 +191,8 @@ class DaqpSolver(QPSolver):
 class OsqpSolver(QPSolver):
     """OSQP (ADMM, sparse), tightened: eps 1e-10, polishing, warm start from the previous solution, and
     ``update()`` of the matrix values (a numerical re-factorisation, no new symbolic one) whenever the
-    rows are the same members as in the previous call."""
+    rows are the same members as in the previous call. OSQP 1.1 prints "Polishing not needed" on every
+    solve without active rows, whatever ``verbose`` says (osqp/osqp#785)."""
 
     name = "osqp"
     settings = {"eps_abs": 1e-10, "eps_rel": 1e-10, "polishing": True, "max_iter": 200_000,
