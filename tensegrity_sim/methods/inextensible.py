@@ -130,6 +130,7 @@ class InextensibleMethod(StepMethod):
         self._holding = np.zeros(system.n_cables, dtype=bool)
         self._end_geometry = None   # (positions, cable vectors, lengths) at the last step's end
         self._last_rest = scene.cable_rest_lengths
+        self._no_reel = np.zeros(system.n_cables)
 
     # ------------------------------------------------------------------ contract
     def invalidate(self) -> None:
@@ -180,8 +181,12 @@ class InextensibleMethod(StepMethod):
         x, v = state.positions, state.velocities
         limits = self.limits(state.rest_lengths)
         floor = limits * (1.0 - LIMIT_TOL)
-        # a commanded shortening since the last step is a reel-in at that rate (m/s, <= 0)
-        reel = np.minimum(state.rest_lengths - self._last_rest, 0.0) / self.dt
+        # a commanded shortening since the last step is a reel-in at that rate (m/s, <= 0); the
+        # simulator replaces the rest-length array when it is commanded, so the same array means none
+        if state.rest_lengths is self._last_rest:
+            reel = self._no_reel
+        else:
+            reel = np.minimum(state.rest_lengths - self._last_rest, 0.0) / self.dt
         f_ext = self.system.gravity_force + state.external_forces
         impulses = np.zeros(self.system.n_cables)
         holding = self._holding
@@ -190,7 +195,7 @@ class InextensibleMethod(StepMethod):
             d, length = self._cable_geometry(x)
             at_limit = (length >= floor) & self._cables_move
             maybe = at_limit & ~holding
-            if maybe.any():
+            if maybe.any() and v.any():
                 v, y = self._impact(x, v, d, length, limits, at_limit, maybe, holding)
                 if y is not None:
                     impulses[at_limit] += y
@@ -261,40 +266,42 @@ class InextensibleMethod(StepMethod):
         u0 = v0[self._cb] - v0[self._ca]
         reach = length[n_eq:] + (0.5 * tau) * np.sqrt(np.einsum("ij,ij->i", u0, u0))
         cables = (reach >= floor) & self._cables_move
-        impulses = np.zeros(len(limits))
-        if not n_eq and not cables.any():   # nothing can be taut: free motion, no QP
-            return x_m + (0.5 * tau) * v0, v0, impulses
-        rows_mask = self._all_rows.copy()
-        rows_mask[n_eq:] = cables
-        sel = slice(None) if rows_mask.all() else np.flatnonzero(rows_mask)
+        if not (n_eq or cables.any()):   # nothing can be taut: free motion, no QP
+            return x_m + (0.5 * tau) * v0, v0, np.zeros(len(limits))
+        sel = slice(None) if cables.all() else np.concatenate([np.arange(n_eq), n_eq + np.flatnonzero(cables)])
         a, b, m_length, m_n = self._a[sel], self._b[sel], length[sel], n[sel]
         m_limits = np.concatenate([self._rigid_lengths, limits])[sel]
-        # The constraint impulses' work over the sub-step is -1/2 sum y (r + b.v_i) (trapezoidal
-        # velocity). A rigid strut's target is the reversal -b.v_i of its rate at the midpoint, so its
-        # impulse does no work whatever its sign; a cable's target is never below that reversal (its
-        # impulse is a tension), so it never does positive work either. Then v_f = -v_i is always
-        # feasible (the QP cannot be infeasible) and the stabiliser never creates energy; where the
-        # cap binds, the member ends off its limit by (tau/2)^2 |u_f^2 - u_i^2| / 2L, bounded. A cable
-        # being reeled in may pull faster, by twice the reel-in rate: that work is the motor's.
+        # The impulses' work over the sub-step is -1/2 sum y (r + b.v_i): no row may ask for less than
+        # the reversal -b.v_i of its midpoint rate (module docstring), except by a reel-in's rate.
         u = v[b] - v[a]
         un = np.einsum("ij,ij->i", u, m_n)
         floor_rate = -un
-        floor_rate[n_eq:] += 2.0 * np.concatenate([np.zeros(n_eq), reel])[sel][n_eq:]
+        if reel.any():
+            floor_rate[n_eq:] += 2.0 * reel[cables]
         rows = Rows(self._row_nodes[sel], m_n, self._targets(u, un, m_length, m_limits, tau, floor_rate, n_eq),
                     n_eq)
-        warm = np.concatenate([self._all_rows[:n_eq], holding])[sel]
-        # The cable targets need the relative velocity across each cable at the sub-step's end, which the
-        # other members' impulses change: start from the velocity at the start (exact at rest) and
-        # iterate on the solution until every binding row lands on its target (usually one more solve).
-        # The landing error is below (tau^2 / 8 L) |u_f^2 - u^2|, so it is only checked when the
-        # velocities changed enough for that bound to exceed the tolerance.
+        warm = np.concatenate([self._all_rows[:n_eq], holding[cables]])
+        v_f, y = self._land(v, v0, rows, warm, a, b, m_length, m_limits, tau, floor_rate, reel)
+        impulses = np.zeros(len(limits))
+        impulses[cables] = y[n_eq:]
+        return x_m + (0.5 * tau) * v_f, v_f, impulses
+
+    def _land(self, v, v0, rows, warm, a, b, length, limits, tau, floor_rate, reel):
+        """Solve the sub-step's QP so that every binding row lands on its target.
+
+        The cable targets need the relative velocity across each cable at the sub-step's end, which the
+        other members' impulses change: start from the velocity at the start (exact at rest) and
+        iterate on the solution (usually one more solve while things move). The landing error is below
+        (tau^2 / 8 L) |u_f^2 - u^2|, so it is only checked when the velocities changed enough for that
+        bound to exceed the tolerance. Returns ``v_f`` (N, 3) and the multipliers (k,)."""
+        n_eq = rows.n_eq
         v_f = np.zeros_like(v0)
-        shortest = float(m_limits.min())
+        shortest = float(limits.min())
         for _ in range(_LANDING_ITER):
             try:
                 v_free, y = self.solver.solve(v0[self._free], rows, warm)
             except QPError as exc:
-                if not np.any(reel < 0):
+                if not (reel < 0).any():
                     raise
                 # only a reel-in can make the rows infeasible (without one, v_f = -v_i meets them all)
                 names = ", ".join(np.asarray(self.system.scene.cable_names)[reel < 0])
@@ -302,23 +309,20 @@ class InextensibleMethod(StepMethod):
                               f"be followed: the taut cables and rigid struts lock the structure (they carry a "
                               f"self-stress), so no cable can shorten unless another member gives") from exc
             v_f[self._free] = v_free
-            change = float(np.max(np.abs(v_f - v)))
-            if 0.5 * tau * tau * change * (change + 2.0 * float(np.max(np.abs(v)))) <= _LANDING_TOL * shortest * shortest:
+            change = float(np.abs(v_f - v).max())
+            if 0.5 * tau * tau * change * (change + 2.0 * float(np.abs(v).max())) <= _LANDING_TOL * shortest ** 2:
                 break
             u = v_f[b] - v_f[a]
-            targets = self._targets(u, np.einsum("ij,ij->i", u, m_n), m_length, m_limits, tau, floor_rate, n_eq)
+            targets = self._targets(u, np.einsum("ij,ij->i", u, rows.directions), length, limits, tau, floor_rate,
+                                    n_eq)
             miss = rows.rates(v_free) - targets
             warm = y > 0
             warm[:n_eq] = True
-            if not np.any(np.where(warm, np.abs(miss), miss) > _LANDING_TOL * (2.0 / tau) * m_limits):
+            if not (np.where(warm, np.abs(miss), miss) > _LANDING_TOL * (2.0 / tau) * limits).any():
                 break
             rows.targets = targets
             v = v_f.copy()
-        if isinstance(sel, slice):
-            impulses = y[n_eq:]
-        else:
-            impulses[sel[n_eq:] - n_eq] = y[n_eq:]
-        return x_m + (0.5 * tau) * v_f, v_f, impulses
+        return v_f, y
 
     @staticmethod
     def _targets(u, un, length, limits, tau, floor_rate, n_eq):

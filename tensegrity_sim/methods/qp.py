@@ -128,7 +128,7 @@ class QPSolver:
 
     def _check(self, v, y, v0, rows: Rows) -> None:
         """Refuse non-finite output, and (if ``verify``) output that violates a row."""
-        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(y))):
+        if not (np.isfinite(v).all() and np.isfinite(y).all()):
             raise QPError(self.name, "non-finite", "the solution contains NaN or inf")
         if not self.verify:
             return
@@ -172,9 +172,7 @@ class DaqpSolver(QPSolver):
         k, n_eq, r = len(rows), rows.n_eq, rows.targets
         lower = np.full(k, -1e30)
         lower[:n_eq] = r[:n_eq]
-        sense = np.zeros(k, dtype=np.int32)
-        if warm is not None:
-            sense[warm] = 1
+        sense = np.zeros(k, dtype=np.int32) if warm is None else warm.astype(np.int32)   # 1: start active
         sense[:n_eq] = 5
         a_scaled = rows.dense(self.n_free) / self._sqrt_mass
         z, _, flag, info = self._daqp.solve(self._hessian, -self._sqrt_mass * v0, a_scaled, r, lower, sense,
