@@ -142,7 +142,7 @@ class InextensibleMethod(StepMethod):
         Initial velocities that stretch a taut cable are an impact at t = 0, resolved by the first step."""
         if self.rigid.count:
             state.velocities = state.velocities + self.rigid.project_velocities(state.positions, state.velocities)
-        self._last_rest = state.rest_lengths.copy()
+        self._last_rest = state.rest_lengths
 
     def limits(self, rest_lengths: np.ndarray) -> np.ndarray:
         """Cable length limits (n_cables,) m: rest lengths plus the prestress offsets."""
