@@ -115,13 +115,10 @@ class InextensibleMethod(StepMethod):
         # The member table of the QP rows: the rigid struts that move (equalities), then every cable.
         self.rigid = RigidStruts(system)
         self._n_eq = self.rigid.count
-        ends = np.vstack([self.rigid.ends, system.cable_ends])
-        self._a, self._b = ends[:, 0].copy(), ends[:, 1].copy()
-        self._ca, self._cb = system.cable_ends[:, 0].copy(), system.cable_ends[:, 1].copy()
-        self._row_nodes = index[ends]
+        self._ends = np.vstack([self.rigid.ends, system.cable_ends])
+        self._row_nodes = index[self._ends]
         self._rigid_lengths = np.sqrt(self.rigid.length_sq)
         self._cables_move = free[system.cable_ends].any(axis=1)
-        self._all_rows = np.ones(self._n_eq + system.n_cables, dtype=bool)
         elastic = ~system.rigid
         self._elastic_ends = system.strut_ends[elastic]
         self._elastic_k = system.stiffness[: system.n_struts][elastic]
@@ -149,6 +146,7 @@ class InextensibleMethod(StepMethod):
         return rest_lengths + self.length_offsets
 
     def slack(self, positions: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
+        """(n_cables,) bool: shorter than the length limit by more than ``LIMIT_TOL`` (relative)."""
         _, length = self._cable_geometry(positions)
         return length < self.limits(rest_lengths) * (1.0 - LIMIT_TOL)
 
@@ -174,8 +172,8 @@ class InextensibleMethod(StepMethod):
         cached = self._end_geometry
         if cached is not None and cached[0] is x:
             return cached[1], cached[2]
-        d = x[self._cb] - x[self._ca]
-        return d, np.sqrt(np.einsum("ij,ij->i", d, d))
+        d, length, _ = self.system.geometry(x, self.system.cable_ends)
+        return d, length
 
     def _step_impl(self, state: State) -> MethodStep:
         x, v = state.positions, state.velocities
@@ -233,10 +231,10 @@ class InextensibleMethod(StepMethod):
     def _first_snap(self, d, limits, v, v0, tau, slack) -> float:
         """Fraction of the sub-step (0, 1] at which the first ``slack`` cable reaches its limit on the
         free path ``d(t) = d + t tau u + (t tau)^2 a / 2`` of its ends (1.0 if none does)."""
-        a_end, b_end = self._ca[slack], self._cb[slack]
+        ends = self.system.cable_ends[slack]
         d, lim = d[slack], limits[slack]
-        u = v[b_end] - v[a_end]
-        u_mean = 0.5 * (u + v0[b_end] - v0[a_end])
+        u = v[ends[:, 1]] - v[ends[:, 0]]
+        u_mean = 0.5 * (u + v0[ends[:, 1]] - v0[ends[:, 0]])
         d_end = d + tau * u_mean
         cross = np.einsum("ij,ij->i", d_end, d_end) > lim * lim
         if not cross.any():
@@ -260,33 +258,32 @@ class InextensibleMethod(StepMethod):
         """Moreau's midpoint sub-step from ``x_m`` with free velocity ``v0``: returns ``x_f``, ``v_f``
         (N, 3) and the cable impulses (n_cables,) N*s."""
         n_eq = self._n_eq
-        d = x_m[self._b] - x_m[self._a]
-        length = np.sqrt(np.einsum("ij,ij->i", d, d))
-        n = d / length[:, None]
-        u0 = v0[self._cb] - v0[self._ca]
+        _, length, n = self.system.geometry(x_m, self._ends)
+        ends = self.system.cable_ends
+        u0 = v0[ends[:, 1]] - v0[ends[:, 0]]
         reach = length[n_eq:] + (0.5 * tau) * np.sqrt(np.einsum("ij,ij->i", u0, u0))
         cables = (reach >= floor) & self._cables_move
         if not (n_eq or cables.any()):   # nothing can be taut: free motion, no QP
             return x_m + (0.5 * tau) * v0, v0, np.zeros(len(limits))
         sel = slice(None) if cables.all() else np.concatenate([np.arange(n_eq), n_eq + np.flatnonzero(cables)])
-        a, b, m_length, m_n = self._a[sel], self._b[sel], length[sel], n[sel]
+        m_ends, m_length, m_n = self._ends[sel], length[sel], n[sel]
         m_limits = np.concatenate([self._rigid_lengths, limits])[sel]
         # The impulses' work over the sub-step is -1/2 sum y (r + b.v_i): no row may ask for less than
         # the reversal -b.v_i of its midpoint rate (module docstring), except by a reel-in's rate.
-        u = v[b] - v[a]
+        u = v[m_ends[:, 1]] - v[m_ends[:, 0]]
         un = np.einsum("ij,ij->i", u, m_n)
         floor_rate = -un
         if reel.any():
             floor_rate[n_eq:] += 2.0 * reel[cables]
         rows = Rows(self._row_nodes[sel], m_n, self._targets(u, un, m_length, m_limits, tau, floor_rate, n_eq),
                     n_eq)
-        warm = np.concatenate([self._all_rows[:n_eq], holding[cables]])
-        v_f, y = self._land(v, v0, rows, warm, a, b, m_length, m_limits, tau, floor_rate, reel)
+        warm = np.concatenate([np.ones(n_eq, dtype=bool), holding[cables]])
+        v_f, y = self._land(v, v0, rows, warm, m_ends, m_length, m_limits, tau, floor_rate, reel)
         impulses = np.zeros(len(limits))
         impulses[cables] = y[n_eq:]
         return x_m + (0.5 * tau) * v_f, v_f, impulses
 
-    def _land(self, v, v0, rows, warm, a, b, length, limits, tau, floor_rate, reel):
+    def _land(self, v, v0, rows, warm, ends, length, limits, tau, floor_rate, reel):
         """Solve the sub-step's QP so that every binding row lands on its target.
 
         The cable targets need the relative velocity across each cable at the sub-step's end, which the
@@ -312,7 +309,7 @@ class InextensibleMethod(StepMethod):
             change = float(np.abs(v_f - v).max())
             if 0.5 * tau * tau * change * (change + 2.0 * float(np.abs(v).max())) <= _LANDING_TOL * shortest ** 2:
                 break
-            u = v_f[b] - v_f[a]
+            u = v_f[ends[:, 1]] - v_f[ends[:, 0]]
             targets = self._targets(u, np.einsum("ij,ij->i", u, rows.directions), length, limits, tau, floor_rate,
                                     n_eq)
             miss = rows.rates(v_free) - targets
