@@ -105,3 +105,16 @@ def test_rows_dense_and_rates_agree():
     v = np.random.default_rng(1).normal(size=v0.shape)
     np.testing.assert_allclose(rows.rates(v), rows.dense(len(mass)) @ v.ravel(), rtol=1e-13, atol=1e-15)
     np.testing.assert_array_equal(rows.sparse(len(mass)).toarray(), rows.dense(len(mass)))
+
+
+def test_a_poor_answer_is_refused_not_returned():
+    """OSQP at its own default tolerances (eps 1e-3) is off by ~1e-1 at mass ratio 1e4: the check of the
+    optimality conditions refuses its answers instead of passing them on."""
+    class LooseOsqp(qp.OsqpSolver):
+        settings = {}
+
+    for seed in range(4):
+        v0, mass, rows = random_problem(seed, mass_ratio=1e4)
+        with pytest.raises(qp.QPError) as err:
+            LooseOsqp(mass).solve(v0, rows)
+        assert err.value.status in ("infeasible output", "inaccurate output")

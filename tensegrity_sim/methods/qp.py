@@ -23,8 +23,10 @@ Delassus problem as non-negative least squares agrees to 1e-9 on well-conditione
 (ADMM) with eps 1e-10 and polishing reaches 1e-8..5e-7 and hits its iteration limit on the
 icosahedron; at its default tolerances it is off by 0.2..0.7. Both stay available by name.
 
-A backend that fails (infeasible rows, iteration limit, non-finite or infeasible output) raises
-:class:`QPError` with a status and a message; it never returns a wrong answer silently.
+A backend that fails (infeasible rows, iteration limit) raises :class:`QPError` with a status and a
+message. The answers of the backends that may return a poor one (``verify``: OSQP, NNLS) are checked
+against the optimality conditions, to ``1e-7`` relative, and refused if they fail them; DAQP's exit flag
+is trusted (an active-set method solves the KKT system of its final working set to round-off).
 """
 from __future__ import annotations
 
@@ -35,9 +37,8 @@ import numpy as np
 __all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SOLVERS",
            "DEFAULT_SOLVER", "make_solver"]
 
-# A returned velocity may violate a row by at most _FEASIBILITY_TOL relative to the problem's velocity
-# scale, plus _VELOCITY_FLOOR m/s, before the answer is refused as garbage. DAQP and NNLS are at ~1e-14;
-# this only catches failures.
+# A returned answer may miss the optimality conditions by at most _FEASIBILITY_TOL relative to the
+# problem's velocity (impulse) scale, plus _VELOCITY_FLOOR m/s, before it is refused.
 _FEASIBILITY_TOL = 1e-7
 _VELOCITY_FLOOR = 1e-12
 
@@ -127,19 +128,33 @@ class QPSolver:
         raise NotImplementedError
 
     def _check(self, v, y, v0, rows: Rows) -> None:
-        """Refuse non-finite output, and (if ``verify``) output that violates a row."""
+        """Refuse non-finite output, and (if ``verify``) output that is not a solution: infeasible
+        velocities, or multipliers that are not impulses along the rows (stationarity), pull on an
+        inequality row or act on a row that is not at its target (complementarity)."""
         if not (np.isfinite(v).all() and np.isfinite(y).all()):
             raise QPError(self.name, "non-finite", "the solution contains NaN or inf")
         if not self.verify:
             return
+        n_eq = rows.n_eq
         scale = max(float(np.max(np.abs(v0), initial=0.0)), float(np.max(np.abs(rows.targets), initial=0.0)))
+        tol = _FEASIBILITY_TOL * scale + _VELOCITY_FLOOR
         res = rows.rates(v) - rows.targets
-        viol = max(float(np.max(np.abs(res[: rows.n_eq]), initial=0.0)),
-                   float(np.max(res[rows.n_eq:], initial=0.0)))
-        if viol > _FEASIBILITY_TOL * scale + _VELOCITY_FLOOR:
+        viol = max(float(np.max(np.abs(res[:n_eq]), initial=0.0)), float(np.max(res[n_eq:], initial=0.0)))
+        if viol > tol:
             raise QPError(self.name, "infeasible output",
                           f"the returned velocities violate a constraint by {viol:.3g} m/s "
                           f"(velocity scale {scale:.3g} m/s)")
+        change = self.mass * (v.ravel() - v0.ravel())
+        impulse = max(float(np.max(np.abs(change), initial=0.0)), float(np.max(np.abs(y), initial=0.0)), 1e-300)
+        stationarity = float(np.max(np.abs(change + rows.dense(self.n_free).T @ y), initial=0.0))
+        acting = y[n_eq:] > _FEASIBILITY_TOL * impulse
+        slack = float(np.max(-res[n_eq:][acting], initial=0.0))
+        if (stationarity > _FEASIBILITY_TOL * impulse or np.any(y[n_eq:] < -_FEASIBILITY_TOL * impulse)
+                or slack > tol):
+            raise QPError(self.name, "inaccurate output",
+                          f"not a solution: impulses off the rows by {stationarity:.3g} N*s, smallest inequality "
+                          f"impulse {float(np.min(y[n_eq:], initial=0.0)):.3g} N*s, an acting row {slack:.3g} m/s "
+                          f"short of its target (impulse scale {impulse:.3g} N*s, velocity scale {scale:.3g} m/s)")
 
     def describe(self) -> dict:
         return {"solver": self.name}
