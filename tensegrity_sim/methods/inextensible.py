@@ -214,8 +214,7 @@ class InextensibleMethod(StepMethod):
             remaining -= tau
         self._holding = holding
         self._last_rest = state.rest_lengths
-        self._end_geometry = None
-        self._end_geometry = (x, *self._cable_geometry(x))
+        self._end_geometry = (x, *self._cable_geometry(x))   # x is a new array: computed, not cached
         return MethodStep(x, v, impulses)
 
     def _free_motion(self, x, v, tau, f_ext):
