@@ -145,7 +145,8 @@ class QPSolver:
                           f"the returned velocities violate a constraint by {viol:.3g} m/s "
                           f"(velocity scale {scale:.3g} m/s)")
         change = self.mass * (v.ravel() - v0.ravel())
-        impulse = max(float(np.max(np.abs(change), initial=0.0)), float(np.max(np.abs(y), initial=0.0)), 1e-300)
+        impulse = max(float(np.max(np.abs(self.mass * v0.ravel()), initial=0.0)),
+                      float(np.max(np.abs(change), initial=0.0)), float(np.max(np.abs(y), initial=0.0)), 1e-300)
         stationarity = float(np.max(np.abs(change + rows.dense(self.n_free).T @ y), initial=0.0))
         acting = y[n_eq:] > _FEASIBILITY_TOL * impulse
         slack = float(np.max(-res[n_eq:][acting], initial=0.0))
