@@ -26,6 +26,11 @@ EXTRAS_REQUIRE = {
         "pytest==9.0.3",
         "mcap-ros2-support==0.6.0",  # an independent reader of the logs
         "quadprog==0.1.14",  # an independent QP solver to check the QP backends against
+        "cyclonedds==11.0.1",  # the DDS transport's end-to-end tests run in CI
+    ],
+    # Live topics without a ROS install (tensegrity-sim serve --transport dds).
+    "dds": [
+        "cyclonedds==11.0.1",
     ],
     "bench": [
         "matplotlib==3.11.2",

@@ -1,15 +1,21 @@
 """What MCAP logging costs, per step, at 1 kHz stepping and 100 Hz publishing.
 
 Run: ``python bench/bench_log.py [SCENE ...] [--steps N] [--repeats R]`` (default: the built-in scenes).
-For each scene (dt = 1 ms, publish_rate = 100 Hz, so one publication every 10 steps) it times, per step,
-best of ``--repeats`` runs after a warm-up:
+For each scene (dt = 1 ms, publish_rate = 100 Hz, so one publication every 10 steps; marker_rate 10 Hz,
+so markers with every 10th publication) it times, per step, best of ``--repeats`` runs of ``--steps``
+steps after a warm-up (the four configurations taking turns):
 
 * ``bare``: ``Simulator.step()`` alone;
-* ``node``: the node logic stepping and building every output message at 100 Hz, sent nowhere;
-* ``node+log``: the same, every input and output also serialised to CDR and written to an MCAP file.
+* ``node``: the node logic stepping and publishing every output at 100 Hz to a transport that takes
+  message objects (as rclpy's publishers do) and drops them: the node without a log;
+* ``node+log``: the same, every input and output also written to an MCAP file;
+* ``run --log``: the node logic with no transport and a log, as ``tensegrity-sim run --log`` runs.
 
 ``log`` = node+log - node is the logging cost; it is printed against the node's step time and against the
-1 ms a step may take at 1 kHz. Never asserts a time.
+1 ms a step may take at 1 kHz. Opening a log (run info, schemas, channels) and finishing it (rosbag2
+metadata, summary) happen once per file, not per step: they are timed apart (``open+finish``, ms per
+file) and left out of the per-step times. Times are CPU time of this process (``time.process_time``),
+not wall-clock time, so that other work on a shared machine does not count. Never asserts a time.
 """
 from __future__ import annotations
 
@@ -26,38 +32,61 @@ DT = 1e-3
 PUBLISH_RATE = 100.0
 
 
-def per_step(run, steps: int, repeats: int) -> float:
-    """Best time per step, s, of ``run(steps)`` over ``repeats`` runs."""
-    run(min(steps, 500))  # warm-up
-    best = float("inf")
+def best_per_step(configs: dict, steps: int, repeats: int) -> dict[str, float]:
+    """Best CPU time per step, s, of each configuration over ``repeats`` runs of ``steps`` steps. A
+    configuration is ``make() -> (run, close)``; only ``run(steps)`` is timed. The configurations take
+    turns, run by run, so that a machine shared with other work slows them alike."""
+    for make in configs.values():  # warm-up
+        run, close = make()
+        run(min(steps, 500))
+        close()
+    best = dict.fromkeys(configs, float("inf"))
     for _ in range(repeats):
-        start = time.perf_counter()
-        run(steps)
-        best = min(best, time.perf_counter() - start)
-    return best / steps
+        for name, make in configs.items():
+            run, close = make()
+            start = time.process_time()
+            run(steps)
+            best[name] = min(best[name], time.process_time() - start)
+            close()
+    return {name: t / steps for name, t in best.items()}
 
 
-def measure(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> tuple[float, float, float]:
+def measure(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> dict[str, float]:
+    """Seconds per step of bare, node, node+log and run --log, and seconds per file of open+finish (see
+    the module docstring)."""
     settings = NodeSettings(scene=scene.name, dt=DT, publish_rate=PUBLISH_RATE)
+    path = folder / f"{scene.name}.mcap"
 
-    def bare(n):
+    def bare():
         sim = ts.Simulator(scene, dt=DT)
-        for _ in range(n):
-            sim.step()
 
-    def node(n, log=False):
-        logic = SimNodeLogic(ts.Simulator(scene, dt=DT), settings)
-        recorder = LogRecorder(folder / f"{scene.name}.mcap", logic.channels(), logic.run_info()) if log else None
+        def run(n):
+            for _ in range(n):
+                sim.step()
+        return run, lambda: None
+
+    def node(transport=True, log=False):
+        logic = SimNodeLogic(ts.Simulator(scene, dt=DT), settings,
+                             transport=(lambda key, message: None) if transport else None)
+        recorder = LogRecorder(path, logic.channels(), logic.run_info()) if log else None
         logic.recorder = recorder
-        for _ in range(n):
-            logic.step()
-            if logic.publication_due:
-                logic.publish()
-        if recorder is not None:
-            recorder.finish()
 
-    return (per_step(bare, steps, repeats), per_step(node, steps, repeats),
-            per_step(lambda n: node(n, log=True), steps, repeats))
+        def run(n):
+            for _ in range(n):
+                logic.step()
+                if logic.publication_due:
+                    logic.publish()
+        return run, (recorder.finish if recorder is not None else lambda: None)
+
+    def open_finish() -> float:
+        logic = SimNodeLogic(ts.Simulator(scene, dt=DT), settings)
+        start = time.process_time()
+        LogRecorder(path, logic.channels(), logic.run_info()).finish()
+        return time.process_time() - start
+
+    times = best_per_step({"bare": bare, "node": node, "node+log": lambda: node(log=True),
+                           "run --log": lambda: node(transport=False, log=True)}, steps, repeats)
+    return {**times, "open+finish": min(open_finish() for _ in range(repeats))}
 
 
 def main():
@@ -67,16 +96,19 @@ def main():
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
     names = args.scenes or list(ts.builtin_scenes())
-    print(f"dt = {DT * 1e3:g} ms, publish every {NodeSettings(dt=DT, publish_rate=PUBLISH_RATE).publish_every} "
-          f"steps; times per step, best of {args.repeats} x {args.steps} steps")
-    print(f"{'scene':<14}{'bare':>10}{'node':>10}{'node+log':>10}{'log':>10}  {'log/node':>9}  {'log/1ms':>8}")
+    settings = NodeSettings(dt=DT, publish_rate=PUBLISH_RATE)
+    print(f"dt = {DT * 1e3:g} ms, publish every {settings.publish_every} steps, markers every "
+          f"{settings.markers_every} publications; times per step, best of {args.repeats} x {args.steps} steps")
+    print(f"{'scene':<14}{'bare':>10}{'node':>10}{'node+log':>10}{'log':>10}  {'log/node':>9}  {'log/1ms':>8}"
+          f"  {'run --log':>10}  {'open+finish':>12}")
     with tempfile.TemporaryDirectory() as folder:
         for name in names:
             scene = ts.load_scene(name)
-            bare, node, logged = measure(scene, args.steps, args.repeats, Path(folder))
-            log = logged - node
-            print(f"{scene.name:<14}{bare * 1e6:>8.1f}us{node * 1e6:>8.1f}us{logged * 1e6:>8.1f}us"
-                  f"{log * 1e6:>8.1f}us  {100 * log / node:>8.1f}%  {100 * log / DT:>7.2f}%", flush=True)
+            t = measure(scene, args.steps, args.repeats, Path(folder))
+            log = t["node+log"] - t["node"]
+            print(f"{scene.name:<14}{t['bare'] * 1e6:>8.1f}us{t['node'] * 1e6:>8.1f}us{t['node+log'] * 1e6:>8.1f}us"
+                  f"{log * 1e6:>8.1f}us  {100 * log / t['node']:>8.1f}%  {100 * log / DT:>7.2f}%"
+                  f"  {t['run --log'] * 1e6:>8.1f}us  {t['open+finish'] * 1e3:>10.1f}ms", flush=True)
 
 
 if __name__ == "__main__":

@@ -2,6 +2,9 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import json
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -36,6 +39,8 @@ class RunSummary:
     max_tension_cable: str = ""
     switches: int = 0
     contacts: int = 0
+    contact_begins: int = 0
+    contact_pairs: int = 0
     energy_start: float = 0.0
     energy_end: float = 0.0
     extra: dict = field(default_factory=dict)
@@ -53,7 +58,8 @@ class RunSummary:
             f"{self.sim_time / self.wall_time if self.wall_time > 0 else float('inf'):.1f})",
             f"max tension      {self.max_tension:.6g} N ({self.max_tension_cable or '-'})",
             f"slack/taut       {self.switches} switches",
-            f"contacts         {self.contacts} events",
+            f"contacts         {self.contacts} events ({self.contact_begins} begin, "
+            f"{self.contacts - self.contact_begins} end) between {self.contact_pairs} member pairs",
             f"energy           {self.energy_start:.9g} J -> {self.energy_end:.9g} J "
             f"(drift {drift:+.3e} J, {drift / scale:+.3e} relative)",
         ]
@@ -74,7 +80,7 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
     energy_start = sim.energy()["total"]
     max_t, max_cable = 0.0, -1
     switches = 0
-    contacts = 0
+    contacts, begins, pairs = 0, 0, set()
     slack_prev = sim.slack()
     last_forces = None
     bar = tqdm(total=steps, unit="step", disable=not progress, mininterval=0.5)
@@ -98,6 +104,9 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
             switches += int(np.count_nonzero(r.slack != slack_prev))
             slack_prev = r.slack
             contacts += len(r.contacts)
+            for event in r.contacts:
+                begins += event.kind == "begin"
+                pairs.add(event.members)
             if on_step is not None:
                 on_step(r)
             bar.update()
@@ -108,14 +117,15 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
         scene=sim.scene.name, method=sim.method, method_reason=sim.method_reason, dt=sim.dt,
         steps=steps, sim_time=sim.time, wall_time=wall, max_tension=max_t,
         max_tension_cable=sim.scene.cable_names[max_cable] if max_cable >= 0 else "",
-        switches=switches, contacts=contacts, energy_start=energy_start,
+        switches=switches, contacts=contacts, contact_begins=begins, contact_pairs=len(pairs),
+        energy_start=energy_start,
         energy_end=sim.energy()["total"],
     )
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
-    sim = Simulator(scene, method=args.method, dt=args.dt, solver=args.solver)
+    sim = Simulator(scene, method=args.method, dt=args.dt, contacts=args.contacts, solver=args.solver)
     commands = load_commands(args.commands, scene) if args.commands else None
     steps = int(round(args.duration / sim.dt))
     print(f"method: {sim.method_reason}")
@@ -147,6 +157,64 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_serve(args: argparse.Namespace) -> int:
+    from .ros.node_logic import NodeSettings
+
+    settings = NodeSettings(**{name: getattr(args, name) for name in NodeSettings().parameters})  # checks them
+    rclpy_found = importlib.util.find_spec("rclpy") is not None
+    transport = ("rclpy" if rclpy_found else "dds") if args.transport == "auto" else args.transport
+    if transport == "rclpy":
+        if not rclpy_found:
+            raise ValueError("--transport rclpy: rclpy does not import here (source ROS 2 Jazzy, or use "
+                             "--transport dds)")
+        if args.interface is not None:
+            raise ValueError("--interface is for --transport dds (configure the ROS middleware instead)")
+        from .ros import rclpy_node
+
+        os.environ["ROS_DOMAIN_ID"] = str(args.domain_id)
+        # The node's parameters as ROS arguments; JSON is YAML, which ROS parses parameter values as.
+        rclpy_node.main(["tensegrity-sim", "--ros-args", *[a for name, value in settings.parameters.items()
+                                                            for a in ("-p", f"{name}:={json.dumps(value)}")]])
+        return 0
+    import logging
+
+    from .ros.dds import DEFAULT_INTERFACE
+    from .ros.dds_node import serve  # needs the "dds" extra (cyclonedds)
+
+    logging.basicConfig(level=logging.INFO, format="[%(levelname)s] %(name)s: %(message)s")
+    serve(settings, domain_id=args.domain_id, interface=args.interface or DEFAULT_INTERFACE)
+    return 0
+
+
+def _add_serve(verbs) -> None:
+    """``serve``: its node parameters are NodeSettings' fields, with their defaults and descriptions."""
+    from dataclasses import fields
+
+    from .ros.node_logic import NodeSettings
+
+    serve = verbs.add_parser(
+        "serve", help="run the simulator live as the ROS 2 node (rclpy, or DDS without ROS)",
+        description="Run the tensegrity_sim node live: rclpy where it imports, otherwise (or with --transport "
+                    "dds) plain DDS that a ROS 2 Jazzy machine on the same domain and network sees as the node. "
+                    "Stop with Ctrl-C (the log is finished).")
+    serve.add_argument("scene", nargs="?", default=NodeSettings.scene,
+                       help=f"a built-in scene name or a YAML file (default: {NodeSettings.scene})")
+    for f in fields(NodeSettings):
+        if f.name in ("scene", "node_name"):
+            continue
+        # NodeSettings validates the values (a bad one is a ValueError naming the parameter)
+        serve.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=type(f.default), default=f.default,
+                           help=f"{f.metadata['doc']} (default: {f.default!r})")
+    serve.add_argument("--transport", choices=("auto", "rclpy", "dds"), default="auto",
+                       help="rclpy if it imports, else DDS (default: auto)")
+    serve.add_argument("--domain-id", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0")),
+                       help="DDS domain, ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID or 0)")
+    serve.add_argument("--interface",
+                       help="DDS transport: network interface name or address, or 'auto' (default: lo, this "
+                            "host only; a ROS 2 machine elsewhere needs the interface towards it)")
+    serve.set_defaults(func=_cmd_serve)
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -155,6 +223,10 @@ def _positive_float(text: str) -> float:
     if not np.isfinite(value) or value <= 0:
         raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text!r}")
     return value
+
+
+def _contact_kinds(text: str) -> list[str]:
+    return [] if text == "none" else text.split(",")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -172,6 +244,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--dt", type=_positive_float, default=1e-3, help="step, s (default: 0.001)")
     run.add_argument("--duration", type=_positive_float, default=10.0, help="simulated time, s (default: 10)")
     run.add_argument("--commands", help="a rest-length/force schedule (YAML; see tensegrity_sim.commands)")
+    run.add_argument("--contacts", type=_contact_kinds, default=None, metavar="KINDS",
+                     help="member pairs to check for contact, comma-separated (strut_strut, strut_cable, "
+                          "cable_cable) or 'none' (default: the scene's contact: kinds)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.add_argument("--log", nargs="?", const=DEFAULT_LOG_DIR, metavar="FILE",
                      help="write an MCAP log (the node's topics): FILE.mcap, or a directory for a timestamped "
@@ -190,6 +265,7 @@ def build_parser() -> argparse.ArgumentParser:
                                         "slack/snap and contact statistics.")
     info.add_argument("log", help="an MCAP log written by tensegrity-sim run --log or the node")
     info.set_defaults(func=_cmd_info)
+    _add_serve(verbs)
     return parser
 
 

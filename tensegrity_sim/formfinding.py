@@ -34,6 +34,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.optimize import linprog
 
+from .contact import closest_points
+
 __all__ = [
     "prism",
     "icosahedron",
@@ -141,23 +143,6 @@ def _self_stress(A: np.ndarray) -> np.ndarray:
     return Vt[null[0]]
 
 
-def _segment_distances(P0, P1, Q0, Q1) -> np.ndarray:
-    """Vectorised distance (m) between segments P0-P1 and Q0-Q1 (arrays of shape (k, 3))."""
-    d1, d2, r = P1 - P0, Q1 - Q0, P0 - Q0
-    a = np.einsum("ij,ij->i", d1, d1)
-    e = np.einsum("ij,ij->i", d2, d2)
-    b = np.einsum("ij,ij->i", d1, d2)
-    c = np.einsum("ij,ij->i", d1, r)
-    f = np.einsum("ij,ij->i", d2, r)
-    den = a * e - b * b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(den > 1e-14 * a * e, np.clip((b * f - c * e) / den, 0.0, 1.0), 0.0)
-        tt = (b * s + f) / e
-        s = np.where(tt < 0.0, np.clip(-c / a, 0.0, 1.0), np.where(tt > 1.0, np.clip((b - c) / a, 0.0, 1.0), s))
-    tt = np.clip(tt, 0.0, 1.0)
-    return np.linalg.norm(P0 + s[:, None] * d1 - (Q0 + tt[:, None] * d2), axis=1)
-
-
 def _min_clearance(X, members, radii) -> float:
     """Smallest surface gap (m) between two members that share no node (negative: they overlap)."""
     members = np.asarray(members)
@@ -173,7 +158,7 @@ def _min_clearance(X, members, radii) -> float:
     i, j = i[near], j[near]
     if len(i) == 0:
         return math.inf
-    d = _segment_distances(X[members[i, 0]], X[members[i, 1]], X[members[j, 0]], X[members[j, 1]])
+    d = closest_points(X[members[i, 0]], X[members[i, 1]], X[members[j, 0]], X[members[j, 1]])[0]
     return float((d - radii[i] - radii[j]).min())
 
 

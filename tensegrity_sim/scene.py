@@ -30,6 +30,9 @@ __all__ = [
     "Scene",
     "load_scene",
     "builtin_scenes",
+    "CONTACT_KINDS",
+    "DEFAULT_CONTACT_KINDS",
+    "contact_kinds",
 ]
 
 _NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -148,7 +151,29 @@ def _bool(ctx: _Context, where: str, fld: str, value: Any) -> bool:
     return value
 
 
-_TOP_KEYS = {"name", "gravity", "nodes", "struts", "cables"}
+# Member pairs that contact detection can check (physics.md section 5); a scene picks some with its
+# optional ``contact: {kinds: [...]}`` key. Struts against struts by default: thin cables rarely matter.
+CONTACT_KINDS = ("strut_strut", "strut_cable", "cable_cable")
+DEFAULT_CONTACT_KINDS = ("strut_strut",)
+
+
+def contact_kinds(value: Any, fld: str) -> tuple[str, ...]:
+    """The member kinds of a list such as ``["strut_cable", "strut_strut"]``, in the order of
+    :data:`CONTACT_KINDS`; an empty list checks nothing. Raises ``ValueError`` whose message starts
+    with ``fld``."""
+    allowed = ", ".join(CONTACT_KINDS)
+    if not isinstance(value, (list, tuple)):
+        raise ValueError(f"{fld} must be a list of member kinds ({allowed}), got {value!r}")
+    for i, kind in enumerate(value):
+        if not isinstance(kind, str) or kind not in CONTACT_KINDS:
+            raise ValueError(f"{fld}: unknown member kind {kind!r} (allowed: {allowed})")
+        if kind in value[:i]:
+            raise ValueError(f"{fld}: duplicate member kind {kind!r}")
+    return tuple(k for k in CONTACT_KINDS if k in value)
+
+
+_TOP_KEYS = {"name", "gravity", "nodes", "struts", "cables", "contact"}
+_CONTACT_KEYS = {"kinds"}
 _NODE_KEYS = {"name", "position", "mass", "velocity", "fixed"}
 _STRUT_KEYS = {"name", "nodes", "stiffness", "rest_length", "mass", "radius"}
 _CABLE_KEYS = {"name", "nodes", "stiffness", "rest_length", "damping", "radius"}
@@ -167,6 +192,7 @@ class Scene:
     nodes: tuple[Node, ...]
     struts: tuple[Strut, ...]
     cables: tuple[Cable, ...]
+    contact_kinds: tuple[str, ...] = DEFAULT_CONTACT_KINDS  # member pairs contact detection checks
     source: str = field(default="", compare=False)
 
     # ----------------------------------------------------------------- names
@@ -238,11 +264,21 @@ class Scene:
         struts = cls._parse_members(ctx, "struts", mapping.get("struts", []), nodes, member_names)
         cables = cls._parse_members(ctx, "cables", mapping.get("cables", []), nodes, member_names)
 
+        kinds = cls._parse_contact(ctx, mapping.get("contact", {}))
+
         scene = cls(name=name, gravity=gravity, nodes=tuple(nodes), struts=tuple(struts),
-                    cables=tuple(cables), source=source)
+                    cables=tuple(cables), contact_kinds=kinds, source=source)
         scene._check_masses(ctx)
         scene._warn_class_k()
         return scene
+
+    @staticmethod
+    def _parse_contact(ctx: _Context, raw: Any) -> tuple[str, ...]:
+        _check_keys(ctx, "contact", raw, _CONTACT_KEYS, set())
+        try:
+            return contact_kinds(raw.get("kinds", list(DEFAULT_CONTACT_KINDS)), "kinds")
+        except ValueError as exc:
+            raise ctx.error("contact", str(exc)) from None
 
     @staticmethod
     def _parse_nodes(ctx: _Context, raw_nodes: Any) -> list[Node]:
@@ -344,7 +380,7 @@ class Scene:
             d["fixed"] = n.fixed
             return d
 
-        return {
+        out = {
             "name": self.name,
             "gravity": list(self.gravity),
             "nodes": [node(n) for n in self.nodes],
@@ -356,6 +392,9 @@ class Scene:
                         "rest_length": c.rest_length, "damping": c.damping, "radius": c.radius}
                        for c in self.cables],
         }
+        if self.contact_kinds != DEFAULT_CONTACT_KINDS:  # scenes that keep the default stay as they were
+            out["contact"] = {"kinds": list(self.contact_kinds)}
+        return out
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.to_dict(), sort_keys=False)

@@ -5,13 +5,15 @@ leaves the simulator exactly as it was. The methods behind it never check anythi
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Mapping
 
 import numpy as np
 
+from .contact import ActiveContact, make_detector
 from .methods import State, make_method
 from .results import StepResult, Trajectory
-from .scene import Scene
+from .scene import Scene, contact_kinds
 from .system import System
 
 __all__ = ["Simulator"]
@@ -32,17 +34,26 @@ class Simulator:
 
     ``method``: "elastic", "inextensible" or "auto" (then ``method_reason`` says why).
     ``dt``: the fixed step, s.
+    ``contacts``: member kinds to check for contact (see ``scene.CONTACT_KINDS``), overriding the
+    scene's ``contact: kinds`` (``self.scene`` is then the scene with that override); ``()`` switches
+    detection off. ``contact_kinds`` is what is in use.
     ``solver``: the QP backend of the inextensible method (``methods.qp.SOLVERS``; default "daqp");
     ``method_settings`` reports the one in use.
     """
 
-    def __init__(self, scene: Scene, method: str = "auto", dt: float = 1e-3, *, solver: str | None = None):
+    def __init__(self, scene: Scene, method: str = "auto", dt: float = 1e-3, *, contacts=None,
+                 solver: str | None = None):
         if not isinstance(scene, Scene):
             raise ValueError(f"scene must be a Scene (see load_scene), got {type(scene).__name__}")
+        if contacts is not None:
+            # the scene as run: a log embedding it (and a replay of that log) checks the same pairs
+            scene = replace(scene, contact_kinds=contact_kinds(contacts, "contacts"))
         self.scene = scene
         self.dt = _check_dt(dt)
         self.system = System(scene)
         self._method, self.method_reason = make_method(self.system, method, self.dt, solver=solver)
+        # None when nothing can be in contact: then detection costs nothing at all
+        self._contacts = make_detector(self.system, scene.contact_kinds)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
         self.reset()
@@ -54,6 +65,8 @@ class Simulator:
         self._state = State(s.positions, s.velocities, s.cable_rest_lengths, np.zeros((len(s.nodes), 3)))
         self._method.prepare(self._state)
         self._method.invalidate()
+        if self._contacts is not None:
+            self._contacts.reset(self._state.positions)
 
     @property
     def method(self) -> str:
@@ -142,6 +155,8 @@ class Simulator:
         """Advance one step of ``dt``."""
         out = self._method.step(self._state)
         st = self._state
+        contacts = () if self._contacts is None else self._contacts.step(st.positions, out.positions,
+                                                                          self.time, self.dt)
         st.positions, st.velocities = out.positions, out.velocities
         st.step_count += 1
         return StepResult(
@@ -151,8 +166,18 @@ class Simulator:
             impulses=out.impulses,
             tensions=out.impulses / self.dt,
             slack=self.slack(),
-            contacts=(),
+            contacts=contacts,
         )
+
+    @property
+    def contact_kinds(self) -> tuple[str, ...]:
+        """The member kinds contact detection checks (the scene's, or the ``contacts`` override)."""
+        return self.scene.contact_kinds
+
+    def active_contacts(self) -> tuple[ActiveContact, ...]:
+        """Every contact going on now (begun, not yet ended), with its current gap (negative while the
+        members overlap) and closest points: the events only mark begins and ends."""
+        return () if self._contacts is None else self._contacts.active(self._state.positions)
 
     def slack(self) -> np.ndarray:
         """(n_cables,) bool: the cables slack now, in the method's model."""

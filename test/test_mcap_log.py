@@ -158,7 +158,7 @@ def test_writer_finishes_once_and_on_exceptions(tmp_path):
     spec = TOPICS["clock"]
     with pytest.raises(RuntimeError):
         with LogWriter(path, [("/clock", spec.typename, spec.qos)], {"a": "b"}) as writer:
-            writer.write("/clock", M.new(spec.typename, clock=M.time(5)), 5)
+            writer.write("/clock", M.serialize(M.new(spec.typename, clock=M.time(5)), spec.typename), 5)
             raise RuntimeError("boom")
     size = path.stat().st_size
     writer.finish()

@@ -12,7 +12,7 @@ import pytest
 import tensegrity_sim as ts
 from tensegrity_sim.results import ContactEvent
 from tensegrity_sim.ros import messages as M
-from tensegrity_sim.ros.node_logic import TOPICS, NodeSettings, decode_contacts, encode_contacts
+from tensegrity_sim.ros.node_logic import TOPICS, NodeSettings, SimNodeLogic, decode_contacts, encode_contacts
 from ros_helpers import (FakeClock, FakeRecorder, make_logic, positions_of, prism, rest_lengths_msg, stamp_of,
                          wrench_msg)
 
@@ -72,18 +72,21 @@ def test_outputs_match_a_plain_simulator(publish_rate):
     plain = ts.Simulator(scene, method="elastic", dt=1e-3)
     expected = []
     impulse = np.zeros(len(scene.cables))
+    events = []
     for k in range(1, 201):
         logic.step()
         r = plain.step()
         impulse = impulse + r.impulses
+        events += r.contacts
         if logic.publication_due:
             logic.publish()
-            expected.append((k, r, impulse))
+            expected.append((k, r, impulse, events))
             impulse = np.zeros(len(scene.cables))
+            events = []
     pubs = publications(sent)
     assert len(pubs) == len(expected) == 200 // every
     names = list(scene.cable_names)
-    for pub, (k, r, impulse) in zip(pubs, expected):
+    for pub, (k, r, impulse, events) in zip(pubs, expected):
         ns = round(k * 1e-3 * 1e9)
         clock = pub["clock"].clock
         assert clock.sec * 10**9 + clock.nanosec == ns
@@ -104,7 +107,11 @@ def test_outputs_match_a_plain_simulator(publish_rate):
         # impulses summed over exactly the steps since the previous publication, in step order
         np.testing.assert_array_equal(impulses.effort, impulse)
         assert len(impulses.position) == 0 and len(impulses.velocity) == 0
-        assert "contacts" not in pub
+        # the contact events of exactly those steps (the prism collapses through itself), or no message
+        published = decode_contacts(pub["contacts"]) if "contacts" in pub else []
+        assert [(e.kind, e.members, e.time, e.distance) for e in published] == \
+            [(e.kind, e.members, e.time, e.distance) for e in events]
+    assert any("contacts" in pub for pub in pubs)
 
 
 def test_no_impulse_lost_over_a_run():
@@ -304,6 +311,68 @@ def test_contact_encoding_keeps_every_bit():
         assert getattr(e, f).tobytes() == getattr(x, f).tobytes()
     status = msg.status[0]
     assert (status.name, status.message) == ("contact s0 c1", "begin")
+
+
+# --------------------------------------------------------------------------- bytes for the log
+class BytesRecorder:
+    """Keeps the (topic, CDR bytes, log time) the node logic records."""
+
+    def __init__(self):
+        self.records = []
+
+    def record(self, topic, data, log_time_ns):
+        assert isinstance(data, bytes)
+        self.records.append((topic, data, log_time_ns))
+
+
+@pytest.mark.parametrize("scene, frame_id", [(prism(gravity=9.81), "world"), (ts.load_scene("icosahedron"), "map"),
+                                             (ts.load_scene("tower"), "b")])
+def test_log_and_raw_transport_get_the_messages_bytes(monkeypatch, scene, frame_id):
+    """Every output and input the log records, and every output a raw transport gets, is byte for byte
+    the message object the transport gets, serialised by rosbags (clock, poses, cable states and
+    impulses, markers of several shapes come from templates; contacts, diagnostics and inputs from the
+    objects)."""
+    logics = {}
+    for raw in (False, True):
+        sent = []
+        logic = SimNodeLogic(ts.Simulator(scene, method="elastic", dt=1e-3),
+                             NodeSettings(scene=scene.name, frame_id=frame_id, marker_rate=100.0),
+                             transport=lambda key, msg, sent=sent: sent.append((key, msg)), raw_transport=raw,
+                             clock=FakeClock())
+        logic.recorder = None if raw else BytesRecorder()
+        script = {3: [contact("begin", scene.strut_names[0], scene.cable_names[-1], 0.0025, 1)],
+                  57: [contact("end", scene.strut_names[0], scene.cable_names[-1], 0.0565, 2)]}
+        real_step = logic.sim.step
+
+        def step_with_contacts(real_step=real_step, logic=logic):
+            r = real_step()
+            return replace(r, contacts=tuple(script.get(logic.sim.step_count, ())))
+
+        monkeypatch.setattr(logic.sim, "step", step_with_contacts)
+        for k in range(120):
+            if k == 15:
+                logic.receive("cable_rest_lengths", rest_lengths_msg([scene.cable_names[1]], [0.3]))
+                logic.receive("external_wrench", wrench_msg("nope", [0.0, 0.0, 5.0]))  # refused, still logged
+            logic.step()
+            if logic.publication_due:
+                logic.publish()
+        logic.publish_diagnostics()
+        logics[raw] = (logic, sent)
+    (logic, sent), (_, raw_sent) = logics[False], logics[True]
+    outputs = [(logic.topic_names[key], M.serialize(msg, TOPICS[key].typename)) for key, msg in sent]
+    assert [k for k, _ in sent].count("contacts") == 2 and [k for k, _ in sent].count("markers") == 12
+    shapes = {tuple((m.ns, m.action, len(m.points), len(m.colors)) for m in msg.markers)
+              for key, msg in sent if key == "markers"}
+    assert len(shapes) >= 3  # with and without contacts, and the one that deletes them
+    assert [(logic.topic_names[k], data) for k, data in raw_sent] == outputs
+    inputs = [(logic.topic_names["cable_rest_lengths"], M.serialize(rest_lengths_msg([scene.cable_names[1]], [0.3]),
+                                                                    TOPICS["cable_rest_lengths"].typename)),
+              (logic.topic_names["external_wrench"], M.serialize(wrench_msg("nope", [0.0, 0.0, 5.0]),
+                                                                 TOPICS["external_wrench"].typename))]
+    records = logic.recorder.records
+    assert [(topic, data) for topic, data, _ in records if topic not in dict(inputs)] == outputs
+    assert [(topic, data, t) for topic, data, t in records if topic in dict(inputs)] == \
+        [(topic, data, 15_000_000) for topic, data in inputs]
 
 
 # --------------------------------------------------------------------------- markers

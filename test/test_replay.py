@@ -50,20 +50,35 @@ def rewrite(src, dst, alter=None, run_info=None):
         counts = {}
         with LogWriter(dst, channels, {**info, **(run_info or {})}) as writer:
             for _, c, message in reader.iter_messages(log_time_order=False):
-                msg = M.deserialize(message.data, summary.schemas[c.schema_id].name)
+                typename = summary.schemas[c.schema_id].name
+                msg = M.deserialize(message.data, typename)
                 index = counts[c.topic] = counts.get(c.topic, -1) + 1
                 if alter is not None:
                     msg = alter(c.topic, index, msg)
                 if msg is not None:
-                    writer.write(c.topic, msg, message.log_time)
+                    writer.write(c.topic, M.serialize(msg, typename), message.log_time)
+
+
+def plain_contacts():
+    """The contact events of the logged run, from a plain Simulator with the same commands, per step."""
+    scene = ts.Scene.from_dict(prism_dict(gravity=9.81))
+    sim = ts.Simulator(scene, method="elastic", dt=1e-3)
+    events = []
+    simulate(sim, 300, parse_commands(COMMANDS, scene), on_step=lambda r: events.append(r.contacts))
+    return events
 
 
 def test_replay_reproduces_a_run_with_commands(logged, capsys):
     report = replay(logged)
     assert report.ok and report.steps == 300 and report.notes == []
+    # a contacts message at each publication (every 10 steps) whose steps had contact events
+    steps = plain_contacts()
+    with_contacts = sum(any(steps[k:k + 10]) for k in range(0, 300, 10))
+    assert with_contacts > 0  # the prism collapses through itself
     assert report.compared == {**{t: 30 for t in ("/clock", "/tensegrity_sim/node_poses", "/tensegrity_sim/cable_states",
                                                   "/tensegrity_sim/cable_impulses")},
-                               "/tensegrity_sim/markers": 3}  # marker_rate 10 Hz: publications 0, 10, 20
+                               "/tensegrity_sim/markers": 3,  # marker_rate 10 Hz: publications 0, 10, 20
+                               "/tensegrity_sim/contacts": with_contacts}
     assert report.inputs["/tensegrity_sim/external_wrench"] == 3
     assert report.inputs["/tensegrity_sim/cable_rest_lengths"] > 50  # a ramp: a message every step
     assert main(["replay", str(logged)]) == 0
@@ -71,7 +86,15 @@ def test_replay_reproduces_a_run_with_commands(logged, capsys):
 
 
 def test_copy_without_changes_replays(logged, tmp_path):
+    """A copy decoded and re-encoded by rosbags is the log byte for byte, every message (so what the
+    node's templates wrote is what rosbags writes), and replays."""
     rewrite(logged, tmp_path / "copy.mcap")
+    contents = []
+    for path in (logged, tmp_path / "copy.mcap"):
+        with open(path, "rb") as f:
+            messages = make_reader(f).iter_messages(log_time_order=False)
+            contents.append([(c.topic, m.log_time, m.data) for _, c, m in messages])
+    assert len(contents[0]) > 150 and contents[0] == contents[1]
     assert replay(tmp_path / "copy.mcap").ok
 
 
@@ -210,4 +233,7 @@ def test_info_reports_counts_and_slack_statistics(logged, capsys):
     out = capsys.readouterr().out
     assert "/tensegrity_sim/node_poses" in out and "geometry_msgs/msg/PoseArray" in out
     assert "sim time         0.000000 s to 0.300000 s (300 steps)" in out
-    assert "contacts         0 begin, 0 end, 0 member pairs" in out
+    events = [e for step in plain_contacts() for e in step]
+    begins = sum(e.kind == "begin" for e in events)
+    assert f"contacts         {begins} begin, {len(events) - begins} end, {len({e.members for e in events})} " \
+           f"member pairs, smallest distance {min(e.distance for e in events):.6g} m" in out

@@ -8,6 +8,8 @@ ROS installed:
 * :mod:`.node_logic` — the whole behaviour of the node (input validation, real-time scheduling on an
   injected clock, publish decimation, impulse summing, contact queueing, services, output messages),
   with no rclpy and no transport: inputs come in as message objects, outputs leave through a callback.
+* :mod:`.cdr` — CDR bytes of the high-rate outputs written straight from numpy arrays (templates whose
+  layout comes from the type store), for the log and for transports that send raw CDR.
 * :mod:`.log` — MCAP logs (profile ``ros2``, CDR, ``ros2msg`` schemas) that ``ros2 bag info`` and
   Foxglove open, with the scene and settings embedded.
 * :mod:`.replay` — re-simulate a log and check it bit for bit; summarise a log.

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import signal
 from datetime import datetime
+from functools import cache
 from pathlib import Path
 from typing import Iterable, Mapping
 
@@ -39,15 +40,19 @@ ROSBAG2_METADATA_VERSION = 9  # Jazzy
 _INFINITE = {"sec": 9223372036, "nsec": 854775807}  # RMW_DURATION_INFINITE, as rosbag2 records it
 
 
+def _qos_profile(qos: Qos) -> dict:
+    """One QoS profile in rosbag2's version-9 spelling (enum names as strings, durations as sec/nsec);
+    new dicts at every call, so YAML never writes them as aliases of each other."""
+    return {"history": "keep_last", "depth": qos.depth, "reliability": qos.reliability,
+            "durability": qos.durability, "deadline": dict(_INFINITE), "lifespan": dict(_INFINITE),
+            "liveliness": "automatic", "liveliness_lease_duration": dict(_INFINITE),
+            "avoid_ros_namespace_conventions": False}
+
+
+@cache  # pure-Python YAML is slow, and a node has a handful of distinct QoS
 def qos_profiles_yaml(qos: Qos) -> str:
-    """The ``offered_qos_profiles`` channel metadata: a YAML list of one profile, in rosbag2's version-9
-    spelling (enum names as strings, durations as sec/nsec)."""
-    return yaml.safe_dump([{
-        "history": "keep_last", "depth": qos.depth, "reliability": qos.reliability,
-        "durability": qos.durability, "deadline": dict(_INFINITE), "lifespan": dict(_INFINITE),
-        "liveliness": "automatic", "liveliness_lease_duration": dict(_INFINITE),
-        "avoid_ros_namespace_conventions": False,
-    }], sort_keys=False)
+    """The ``offered_qos_profiles`` channel metadata: a YAML list of one profile (:func:`_qos_profile`)."""
+    return yaml.safe_dump([_qos_profile(qos)], sort_keys=False)
 
 
 def log_file_path(spec: str, scene_name: str, now: datetime | None = None) -> Path | None:
@@ -95,11 +100,12 @@ class LogWriter:
         self._end = 0
         self._finished = False
 
-    def write(self, topic: str, message, log_time_ns: int) -> None:
-        """Append ``message`` (a message object of the topic's type) at ``log_time_ns``."""
-        channel_id, typename, _ = self._channels[topic]
+    def write(self, topic: str, data: bytes, log_time_ns: int) -> None:
+        """Append ``data`` (a message of the topic's type in CDR, encapsulation header first, as
+        :func:`.messages.serialize` gives it) at ``log_time_ns``."""
+        channel_id = self._channels[topic][0]
         self._writer.add_message(channel_id=channel_id, log_time=log_time_ns, publish_time=log_time_ns,
-                                 data=M.serialize(message, typename), sequence=self.counts[topic])
+                                 data=data, sequence=self.counts[topic])
         self.counts[topic] += 1
         if self._start is None:
             self._start = log_time_ns
@@ -129,7 +135,7 @@ class LogWriter:
             "topics_with_message_count": [{
                 "topic_metadata": {
                     "name": topic, "type": typename, "serialization_format": "cdr",
-                    "offered_qos_profiles": yaml.safe_load(qos_profiles_yaml(qos)),
+                    "offered_qos_profiles": [_qos_profile(qos)],
                     "type_description_hash": M.type_hash(typename),
                 },
                 "message_count": self.counts[topic],
@@ -168,8 +174,9 @@ class LogRecorder:
     def path(self) -> Path:
         return self.paths[-1]
 
-    def record(self, topic: str, message, log_time_ns: int) -> None:
-        self._writer.write(topic, message, log_time_ns)
+    def record(self, topic: str, data: bytes, log_time_ns: int) -> None:
+        """Append CDR ``data`` on ``topic`` at ``log_time_ns`` (see :meth:`LogWriter.write`)."""
+        self._writer.write(topic, data, log_time_ns)
 
     def restart(self) -> Path:
         self._writer.finish()

@@ -6,9 +6,13 @@
   and either applied or refused with a reason (logged), leaving the state exactly as it was;
 * **stepping** follows a real-time schedule on an injected monotonic clock (:meth:`~SimNodeLogic.tick`);
 * **outputs** are built as ROS 2 messages and handed to a ``transport(key, message)`` callback (rclpy's
-  publishers, a DDS writer, a list in a test) and to an optional recorder (the MCAP log). Between two
-  publications the cable impulses of every step are summed and every contact event is queued, so
-  publishing slower than stepping loses nothing;
+  publishers, a DDS writer, a list in a test), or as CDR bytes to a raw transport, and as CDR bytes to
+  an optional recorder (the MCAP log). Between two publications the cable impulses of every step are
+  summed and every contact event is queued, so publishing slower than stepping loses nothing. The
+  outputs of every publication (clock, poses, cable states and impulses) and the markers are encoded
+  straight from the arrays by :class:`~.cdr.CdrTemplate` objects (built once per node, and once per
+  marker shape), so logging costs little; message objects are built only for a transport that takes
+  them, and nothing at all when no one listens;
 * the **services** (reset, pause, resume, single step) are plain methods returning ``(success, message)``.
 
 Topics are named by key (``"node_poses"``...); :data:`TOPICS` gives their names, types, direction and
@@ -34,6 +38,7 @@ from .. import __version__
 from ..results import ContactEvent, StepResult
 from ..simulator import Simulator
 from . import messages as M
+from .cdr import CdrTemplate
 
 __all__ = ["Qos", "TopicSpec", "TOPICS", "SERVICES", "NodeSettings", "SimNodeLogic", "stamp_ns", "encode_contacts",
            "decode_contacts", "RUNTIME_PARAMETERS"]
@@ -169,6 +174,7 @@ RUNTIME_PARAMETERS = tuple(f.name for f in fields(NodeSettings) if f.metadata.ge
 # --------------------------------------------------------------------------- markers
 _LINE_LIST, _CUBE_LIST, _SPHERE_LIST = 5, 6, 7
 _ADD, _DELETE = 0, 2
+_MARKER_SHAPES_KEPT = 64  # MarkerArray templates a node keeps (a shape: the markers and their point counts)
 
 
 class _MarkerStyle:
@@ -176,6 +182,8 @@ class _MarkerStyle:
     built once (building message objects is most of what publishing costs)."""
 
     def __init__(self, ns: str, marker_id: int, kind: int, scale: float, color: tuple):
+        self.spec = {"ns": ns, "id": marker_id, "type": kind, "pose": {"orientation": {"w": 1.0}},
+                     "scale": dict.fromkeys("xyz", scale), "color": dict(zip("rgba", color))}
         empty_header = M.header(0, "")
         self.fields = dict(
             ns=ns, id=marker_id, type=kind,
@@ -189,11 +197,18 @@ class _MarkerStyle:
             mesh_file=M.new("visualization_msgs/msg/MeshFile", filename="", data=M.uint8s()),
             mesh_use_embedded_materials=False)
 
-    def marker(self, header, points: np.ndarray | None, colors: list | None = None):
-        """ADD with ``points`` (k, 3) m (and per-point ``colors``), or DELETE when ``points`` is None."""
+    def marker(self, header, points: np.ndarray | None, colors: np.ndarray | None = None):
+        """ADD with ``points`` (k, 3) m (and per-point ``colors`` (k, 4) RGBA), or DELETE when ``points``
+        is None."""
         return M.new("visualization_msgs/msg/Marker", header=header, action=_DELETE if points is None else _ADD,
                      points=[] if points is None else [M.point(*p) for p in points.tolist()],
-                     colors=colors or [], **self.fields)
+                     colors=[] if colors is None else [M.color(*c) for c in colors.tolist()], **self.fields)
+
+    def prototype(self, frame_id: str, points: int | None, colored: bool) -> dict:
+        """The fields of :meth:`marker` for :func:`~.cdr.prototype`: ``points`` points (None: DELETE), as
+        many colours if ``colored``; the stamp, points and colours are left to slots."""
+        return {**self.spec, "header": {"frame_id": frame_id}, "action": _DELETE if points is None else _ADD,
+                "points": [{}] * (points or 0), "colors": [{}] * (points or 0) if colored else []}
 
 
 # --------------------------------------------------------------------------- contacts encoding
@@ -241,18 +256,24 @@ class SimNodeLogic:
 
     sim: the simulator (its scene, method and dt). settings: :class:`NodeSettings`.
     transport(key, message): sends an output; None sends nothing (offline, replay tests).
+    raw_transport: the transport takes the CDR bytes (``bytes``, encapsulation header first) of every
+    output instead of a message object: for a transport that sends raw CDR (a DDS writer, rclpy's
+    ``publish`` of bytes) and for the replay; an output is then encoded once, for it and the log alike.
     clock(): monotonic wall-clock seconds (``time.monotonic``; a fake one in tests).
     logger: where refusals and warnings go (a ``logging.Logger``-like object).
-    recorder: an object with ``record(topic_name, message, log_time_ns)`` and ``restart()`` (the MCAP
-    log, :class:`~tensegrity_sim.ros.log.LogRecorder`), or None; it can be attached after construction.
+    recorder: an object with ``record(topic_name, data, log_time_ns)`` (``data``: the message's CDR bytes)
+    and ``restart()`` (the MCAP log, :class:`~tensegrity_sim.ros.log.LogRecorder`), or None; it can be
+    attached after construction.
     """
 
     def __init__(self, sim: Simulator, settings: NodeSettings, *, transport: Transport | None = None,
-                 clock: Callable[[], float] = time.monotonic, logger=None, recorder=None):
+                 raw_transport: bool = False, clock: Callable[[], float] = time.monotonic, logger=None,
+                 recorder=None):
         self.sim = sim
         self.settings = settings
         self.recorder = recorder
         self._transport = transport
+        self._raw = raw_transport
         self._clock = clock
         self._log = logger if logger is not None else logging.getLogger("tensegrity_sim")
         self.topic_names = {k: resolve_topic(s.name, settings.node_name) for k, s in TOPICS.items()}
@@ -275,6 +296,8 @@ class SimNodeLogic:
             "supports": _MarkerStyle("supports", 3, _CUBE_LIST, 3.0 * strut_width, (0.5, 0.5, 0.5, 1.0)),
             "contacts": _MarkerStyle("contacts", 4, _SPHERE_LIST, 3.0 * strut_width, (1.0, 0.0, 0.0, 1.0)),
         }
+        self._templates = self._cdr_templates()
+        self._marker_templates: dict[tuple, CdrTemplate] = {}  # marker shape -> template, oldest use first
         # counters for diagnostics and the summary
         self.refused = {k: 0 for k in self._inputs}
         self.received = {k: 0 for k in self._inputs}
@@ -287,6 +310,29 @@ class SimNodeLogic:
         self.paused = False
         self._clear()
         self._anchor()
+
+    def _cdr_templates(self) -> dict[str, CdrTemplate]:
+        """CDR encoders of the outputs sent at every publication. What never changes in them is fixed here
+        (the frame id, which is not a runtime parameter, the cable names, the number of nodes and cables,
+        the identity orientation of the poses); the slots take the stamp and the arrays, in the order
+        :meth:`publish` gives them: clock (sec, nanosec); node_poses (sec, nanosec, positions (N, 3) m);
+        cable_states (sec, nanosec, lengths m, rates m/s, tensions N, each (n_cables,));
+        cable_impulses (sec, nanosec, impulse sums (n_cables,) N*s). They encode the messages
+        :meth:`_messages` builds, byte for byte (the tests check it)."""
+        header = {"frame_id": self.settings.frame_id}
+        stamp = ("header.stamp.sec", "header.stamp.nanosec")
+        zeros = np.zeros(len(self._cable_names))
+        return {
+            "clock": CdrTemplate(TOPICS["clock"].typename, {}, ("clock.sec", "clock.nanosec")),
+            "node_poses": CdrTemplate(TOPICS["node_poses"].typename, {
+                "header": header, "poses": [{"orientation": {"w": 1.0}}] * len(self.sim.scene.node_names)},
+                (*stamp, "poses[].position")),
+            "cable_states": CdrTemplate(TOPICS["cable_states"].typename, {
+                "header": header, "name": self._cable_names, "position": zeros, "velocity": zeros, "effort": zeros},
+                (*stamp, "position", "velocity", "effort")),
+            "cable_impulses": CdrTemplate(TOPICS["cable_impulses"].typename, {
+                "header": header, "name": self._cable_names, "effort": zeros}, (*stamp, "effort")),
+        }
 
     # ------------------------------------------------------------------ state kept between publications
     def _clear(self) -> None:
@@ -338,7 +384,8 @@ class SimNodeLogic:
         """Take one message of input topic ``key``; returns None if it was applied, else the reason it was
         refused (also logged). A refused message changes nothing. Every message is recorded, refused or
         not, at the simulation time it arrived (it acts from the next step on)."""
-        self._record(key, message, self.stamp_ns())
+        if self.recorder is not None:
+            self.recorder.record(self.topic_names[key], M.serialize(message, TOPICS[key].typename), self.stamp_ns())
         self.received[key] += 1
         try:
             self._inputs[key](message)
@@ -459,72 +506,100 @@ class SimNodeLogic:
 
     # ------------------------------------------------------------------ outputs
     def publish(self) -> None:
-        """Send and record one message on every output topic (``contacts`` only if events are queued),
-        stamped with the simulation time, then start summing afresh. Nothing before the first step."""
+        """Send and record one message on every output topic (``markers`` at every ``markers_every``-th
+        publication, ``contacts`` only if events are queued), stamped with the simulation time, then start
+        summing afresh. Nothing before the first step; no message is made when no one listens."""
         r = self._last
         if r is None:
             return
         ns = self.stamp_ns()
-        frame = self.settings.frame_id
-        header = M.header(ns, frame)
-        sys = self.sim.system
-        _, length, n = sys.geometry(r.positions, sys.cable_ends)
-        rate = sys.member_rates(r.velocities, n, sys.cable_ends)
         events = self._contact_queue
         for e in events:
             if e.kind == "begin":
                 self._active_contacts[e.members] = e
             else:
                 self._active_contacts.pop(e.members, None)
-        outputs = [
-            ("clock", M.new("rosgraph_msgs/msg/Clock", clock=M.time(ns))),
-            ("node_poses", self._poses(header, r.positions)),
-            ("cable_states", M.joint_state(header, self._cable_names, length, rate, r.tensions)),
-            ("cable_impulses", M.joint_state(header, self._cable_names, effort=self._impulse_sum)),
-        ]
+        keys = ["clock", "node_poses", "cable_states", "cable_impulses"]
         if self._until_markers == 0:
-            outputs.append(("markers", self._markers(header, r)))
+            keys.append("markers")
             self._until_markers = self.settings.markers_every
         self._until_markers -= 1
         if events:
-            outputs.append(("contacts", encode_contacts(events, header)))
+            keys.append("contacts")
+        outputs = self._outputs(keys, ns, r) if self._transport is not None or self.recorder is not None else []
         self._impulse_sum = np.zeros_like(self._impulse_sum)
         self._contact_queue = []
         self._since_publish = 0
         self.publications += 1
-        for key, message in outputs:
-            self._send(key, message, ns)
+        for key, message, data in outputs:
+            self._send(key, ns, message, data)
 
-    def _send(self, key: str, message, ns: int) -> None:
-        self._record(key, message, ns)
-        if self._transport is not None:
-            self._transport(key, message)
+    def _outputs(self, keys: list[str], ns: int, r: StepResult) -> list[tuple[str, object, bytes | None]]:
+        """(key, message object or None, CDR bytes or None) of the outputs ``keys``: objects where the
+        transport takes them (and for contacts, which are serialised from them), bytes from the templates
+        where the log or a raw transport takes them."""
+        sys = self.sim.system
+        _, length, n = sys.geometry(r.positions, sys.cable_ends)
+        rate = sys.member_rates(r.velocities, n, sys.cable_ends)
+        takes_objects = self._transport is not None and not self._raw
+        messages = {}
+        if takes_objects or "contacts" in keys:
+            header = M.header(ns, self.settings.frame_id)
+            if takes_objects:
+                messages = self._messages(ns, header, r.positions, length, rate, r.tensions, self._impulse_sum)
+            if "contacts" in keys:
+                messages["contacts"] = encode_contacts(self._contact_queue, header)
+        markers = self._marker_content(r) if "markers" in keys else None
+        if takes_objects and markers is not None:
+            messages["markers"] = self._markers(header, markers)
+        data = {}
+        if self.recorder is not None or self._raw:
+            sec, nanosec = divmod(ns, 1_000_000_000)
+            t = self._templates
+            data = {"clock": t["clock"].encode(sec, nanosec),
+                    "node_poses": t["node_poses"].encode(sec, nanosec, r.positions),
+                    "cable_states": t["cable_states"].encode(sec, nanosec, length, rate, r.tensions),
+                    "cable_impulses": t["cable_impulses"].encode(sec, nanosec, self._impulse_sum)}
+            if markers is not None:
+                data["markers"] = self._marker_bytes(sec, nanosec, markers)
+        return [(key, messages.get(key), data.get(key)) for key in keys]
 
-    def _record(self, key: str, message, ns: int) -> None:
-        if self.recorder is not None:
-            self.recorder.record(self.topic_names[key], message, ns)
-
-    @staticmethod
-    def _poses(header, positions: np.ndarray):
+    def _messages(self, ns: int, header, positions, length, rate, tensions, impulses) -> dict:
+        """The message objects of clock, node_poses, cable_states and cable_impulses (the arrays as in
+        :meth:`_cdr_templates`); ``header``: stamped ``ns``, in the node's frame."""
         q = M.new("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0)
         poses = [M.new("geometry_msgs/msg/Pose", position=M.point(*p), orientation=q) for p in positions.tolist()]
-        return M.new("geometry_msgs/msg/PoseArray", header=header, poses=poses)
+        return {"clock": M.new("rosgraph_msgs/msg/Clock", clock=M.time(ns)),
+                "node_poses": M.new("geometry_msgs/msg/PoseArray", header=header, poses=poses),
+                "cable_states": M.joint_state(header, self._cable_names, length, rate, tensions),
+                "cable_impulses": M.joint_state(header, self._cable_names, effort=impulses)}
 
-    def _markers(self, header, r: StepResult):
-        """Struts (thick blue lines); taut cables (lines coloured blue -> red by tension, red = the largest
-        tension seen so far); slack cables (thin grey lines); supports (grey cubes at fixed nodes); active
-        contacts (red spheres at both closest points). A namespace with nothing to show is deleted once,
-        then left out."""
+    def _send(self, key: str, ns: int, message, data: bytes | None = None) -> None:
+        """Record and send one output at ``ns``: ``message``, its object (None if only bytes are taken),
+        ``data``, its CDR bytes (serialised from ``message`` when None and needed)."""
+        if data is None and (self.recorder is not None or self._raw):
+            data = M.serialize(message, TOPICS[key].typename)
+        if self.recorder is not None:
+            self.recorder.record(self.topic_names[key], data, ns)
+        if self._transport is not None:
+            self._transport(key, data if self._raw else message)
+
+    def _marker_content(self, r: StepResult) -> list[tuple[str, np.ndarray | None, np.ndarray | None]]:
+        """The markers of one MarkerArray, as (namespace, points (k, 3) m or None to delete it, colours
+        (k, 4) RGBA or None): struts (thick blue lines); taut cables (lines coloured blue -> red by
+        tension, red = the largest tension seen so far); slack cables (thin grey lines); supports (grey
+        cubes at fixed nodes); active contacts (red spheres at both closest points). A namespace with
+        nothing to show is deleted once, then left out."""
         sys = self.sim.system
         x = r.positions
         taut = ~r.slack
         self._tension_scale = max(self._tension_scale, float(r.tensions.max(initial=0.0)))
-        level = r.tensions[taut] / self._tension_scale if self._tension_scale > 0 else r.tensions[taut]
+        level = np.repeat(r.tensions[taut] / self._tension_scale if self._tension_scale > 0 else r.tensions[taut], 2)
         contacts = [p for e in self._active_contacts.values() for p in (e.point_a, e.point_b)]
         content = {
             "struts": (x[sys.strut_ends].reshape(-1, 3), None),
             "cables": (x[sys.cable_ends[taut]].reshape(-1, 3),
-                       [M.color(t, 0.2, 1.0 - t) for t in np.repeat(level, 2).tolist()]),
+                       np.column_stack([level, np.full_like(level, 0.2), 1.0 - level, np.ones_like(level)])),
             "slack_cables": (x[sys.cable_ends[r.slack]].reshape(-1, 3), None),
             "supports": (x[~sys.free], None),
             "contacts": (np.array(contacts, dtype=float).reshape(-1, 3), None),
@@ -532,12 +607,43 @@ class SimNodeLogic:
         markers = []
         for ns, (points, colors) in content.items():
             if len(points):
-                markers.append(self._marker_styles[ns].marker(header, points, colors))
+                markers.append((ns, points, colors))
                 self._shown.add(ns)
             elif ns in self._shown:
-                markers.append(self._marker_styles[ns].marker(header, None))
+                markers.append((ns, None, None))
                 self._shown.discard(ns)
-        return M.new("visualization_msgs/msg/MarkerArray", markers=markers)
+        return markers
+
+    def _markers(self, header, markers: list):
+        """The MarkerArray object of :meth:`_marker_content`'s ``markers``."""
+        return M.new("visualization_msgs/msg/MarkerArray",
+                     markers=[self._marker_styles[ns].marker(header, points, colors) for ns, points, colors in markers])
+
+    def _marker_bytes(self, sec: int, nanosec: int, markers: list) -> bytes:
+        """The CDR bytes of :meth:`_markers`. Which markers there are and how many points each has (its
+        shape) changes with the slack cables and the contacts, so there is one template per shape, made
+        when the shape is first seen (a few rosbags serialisations' worth) and kept
+        (:data:`_MARKER_SHAPES_KEPT` of them, the oldest forgotten first)."""
+        shape = tuple((ns, None if points is None else len(points)) for ns, points, _ in markers)
+        template = self._marker_templates.pop(shape, None)
+        if template is None:
+            fields, slots = [], []
+            for i, (ns, points, colors) in enumerate(markers):
+                fields.append(self._marker_styles[ns].prototype(
+                    self.settings.frame_id, None if points is None else len(points), colors is not None))
+                slots += [f"markers[{i}].header.stamp.sec", f"markers[{i}].header.stamp.nanosec"]
+                if points is not None:
+                    slots.append(f"markers[{i}].points[]")
+                if colors is not None:
+                    slots.append(f"markers[{i}].colors[]")
+            template = CdrTemplate(TOPICS["markers"].typename, {"markers": fields}, slots)
+            if len(self._marker_templates) >= _MARKER_SHAPES_KEPT:
+                self._marker_templates.pop(next(iter(self._marker_templates)))
+        self._marker_templates[shape] = template  # (re)inserted last: the most recently used
+        values = []
+        for _, points, colors in markers:
+            values += [sec, nanosec] + [a for a in (points, colors) if a is not None]
+        return template.encode(*values)
 
     # ------------------------------------------------------------------ services
     def pause(self) -> tuple[bool, str]:
@@ -595,8 +701,8 @@ class SimNodeLogic:
                        name=f"{self.settings.node_name.lstrip('/')}: stepping", message=text,
                        hardware_id=self.sim.scene.name, values=M.key_values(values))
         ns = self.stamp_ns()
-        self._send("diagnostics", M.new("diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
-                                        status=[status]), ns)
+        self._send("diagnostics", ns, M.new("diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
+                                            status=[status]))
 
     def statistics(self) -> dict:
         """Counters for diagnostics and the summary."""

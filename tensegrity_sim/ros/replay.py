@@ -182,8 +182,8 @@ def replay(path: str | Path) -> ReplayReport:
         sim, settings = _rebuild(info, path)
         pending: deque = deque()
         refusals = _Refusals()
-        logic = SimNodeLogic(sim, settings, transport=lambda key, message: pending.append((key, message)),
-                             logger=refusals)
+        logic = SimNodeLogic(sim, settings, transport=lambda key, data: pending.append((key, data)),
+                             raw_transport=True, logger=refusals)
         key_of = {name: key for key, name in logic.topic_names.items()}
 
         def advance_to(t_ns: int, topic: str) -> bool:
@@ -217,12 +217,11 @@ def replay(path: str | Path) -> ReplayReport:
                 if not advance_to(t, channel.topic):
                     break
                 logic.publish()
-            got_key, got = pending.popleft()
+            got_key, replayed = pending.popleft()
             if got_key != key:
                 report.mismatch = Mismatch(sim.step_count, t, logic.topic_names[got_key], "message", "none",
                                            "a message")
                 break
-            replayed = M.serialize(got, spec.typename)
             if replayed != bytes(message.data):
                 diff = _first_difference(M.deserialize(message.data, spec.typename),
                                          M.deserialize(replayed, spec.typename))
