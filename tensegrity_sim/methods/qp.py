@@ -17,11 +17,13 @@ a scene with duplicated cables. ``v`` is then unique but ``y`` is not.
 Measured with ``python bench/bench_steps.py --accuracy`` (the QPs of rattling built-in scenes, node
 masses 1e4 apart, each solved again by quadprog): DAQP, a dual active-set method warm-started from the
 previous step's active set, agrees to 4e-16..2e-10 relative in velocity and is the fastest per QP on
-the built-ins, so it is the default; its tolerances are tightened (see :class:`DaqpSolver`). The
-Delassus problem as non-negative least squares agrees to 1e-9 on well-conditioned problems but only to
-2e-2 on the near-singular ones of a locked structure: forming ``W`` squares the conditioning. OSQP
-(ADMM) with eps 1e-10 and polishing reaches 1e-8..5e-7 and hits its iteration limit on the
-icosahedron; at its default tolerances it is off by 0.2..0.7. Both stay available by name.
+the built-ins (15-450 us), so it is the default; its tolerances are tightened (see :class:`DaqpSolver`).
+The Delassus problem as non-negative least squares agrees to 6e-11..3e-9 on well-conditioned problems
+but only to 3e-2 on the near-singular ones of a locked structure (forming ``W`` squares the
+conditioning), and is 2-60 times slower. OSQP (ADMM) with eps 1e-10 and polishing reaches 3e-13..1e-8
+but stops at its iteration limit, or reports a false infeasibility, on the icosahedron; at its default
+tolerances it is off by 0.1..0.8. Both stay available by name. DAQP is dense: on a 50-stage tower
+(1335 rows) sparse OSQP steps 6 times faster.
 
 A backend that fails (infeasible rows, iteration limit) raises :class:`QPError` with a status and a
 message. The answers of the backends that may return a poor one (``verify``: OSQP, NNLS) are checked
