@@ -14,6 +14,9 @@ INSTALL_REQUIRES = [
     "scipy==1.17.1",
     "PyYAML==6.0.3",
     "tqdm==4.70.1",
+    # QP backends of the inextensible method (tensegrity_sim.methods.qp): DAQP is the default
+    "daqp==0.11.0",
+    "osqp==1.1.3",
     # MCAP logs and ROS 2 Jazzy message types without ROS (tensegrity_sim.ros)
     "mcap==1.6.0",
     "rosbags==0.11.9",
@@ -22,6 +25,7 @@ EXTRAS_REQUIRE = {
     "test": [
         "pytest==9.0.3",
         "mcap-ros2-support==0.6.0",  # an independent reader of the logs
+        "quadprog==0.1.14",  # an independent QP solver to check the QP backends against
         "cyclonedds==11.0.1",  # the DDS transport's end-to-end tests run in CI
         "mujoco==4.0.0",      # test/test_peers.py cross-checks the elastic method against MuJoCo
     ],

@@ -5,6 +5,8 @@ formats beyond the scene loader.
 """
 from .contact import ActiveContact
 from .methods import METHODS
+from .methods.inextensible import LengthOffsetWarning
+from .methods.qp import SOLVERS, QPError
 from .results import ContactEvent, StepResult, Trajectory
 from .scene import Cable, ClassKWarning, Node, Scene, SceneError, Strut, builtin_scenes, load_scene
 from .simulator import Simulator
@@ -13,6 +15,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "METHODS", "Cable", "ClassKWarning", "ContactEvent", "Node", "Scene", "SceneError", "Simulator",
-    "StepResult", "Strut", "Trajectory", "builtin_scenes", "load_scene", "__version__",
+    "LengthOffsetWarning", "QPError", "SOLVERS", "StepResult", "Strut", "Trajectory", "builtin_scenes",
+    "load_scene", "__version__",
     "ActiveContact",
 ]

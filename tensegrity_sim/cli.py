@@ -13,6 +13,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .commands import CommandError, CommandSchedule, load_commands
+from .methods.qp import DEFAULT_SOLVER, SOLVERS, QPError
 from .scene import SceneError, load_scene
 from .simulator import Simulator
 
@@ -124,7 +125,7 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
 
 def _cmd_run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
-    sim = Simulator(scene, method=args.method, dt=args.dt, contacts=args.contacts)
+    sim = Simulator(scene, method=args.method, dt=args.dt, contacts=args.contacts, solver=args.solver)
     commands = load_commands(args.commands, scene) if args.commands else None
     steps = int(round(args.duration / sim.dt))
     print(f"method: {sim.method_reason}")
@@ -238,6 +239,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("scene", nargs="?", default=DEFAULT_SCENE,
                      help=f"a built-in scene name or a YAML file (default: {DEFAULT_SCENE})")
     run.add_argument("--method", default="auto", help="elastic | inextensible | auto (default: auto)")
+    run.add_argument("--solver", choices=sorted(SOLVERS), default=None,
+                     help=f"QP backend of the inextensible method (default: {DEFAULT_SOLVER})")
     run.add_argument("--dt", type=_positive_float, default=1e-3, help="step, s (default: 0.001)")
     run.add_argument("--duration", type=_positive_float, default=10.0, help="simulated time, s (default: 10)")
     run.add_argument("--commands", help="a rest-length/force schedule (YAML; see tensegrity_sim.commands)")
@@ -271,7 +274,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (SceneError, CommandError, ValueError) as exc:
+    except (SceneError, CommandError, ValueError, QPError) as exc:
         print(f"tensegrity-sim {args.verb}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -37,9 +37,12 @@ class Simulator:
     ``contacts``: member kinds to check for contact (see ``scene.CONTACT_KINDS``), overriding the
     scene's ``contact: kinds`` (``self.scene`` is then the scene with that override); ``()`` switches
     detection off. ``contact_kinds`` is what is in use.
+    ``solver``: the QP backend of the inextensible method (``methods.qp.SOLVERS``; default "daqp");
+    ``method_settings`` reports the one in use.
     """
 
-    def __init__(self, scene: Scene, method: str = "auto", dt: float = 1e-3, *, contacts=None):
+    def __init__(self, scene: Scene, method: str = "auto", dt: float = 1e-3, *, contacts=None,
+                 solver: str | None = None):
         if not isinstance(scene, Scene):
             raise ValueError(f"scene must be a Scene (see load_scene), got {type(scene).__name__}")
         if contacts is not None:
@@ -48,7 +51,7 @@ class Simulator:
         self.scene = scene
         self.dt = _check_dt(dt)
         self.system = System(scene)
-        self._method, self.method_reason = make_method(self.system, method, self.dt)
+        self._method, self.method_reason = make_method(self.system, method, self.dt, solver=solver)
         # None when nothing can be in contact: then detection costs nothing at all
         self._contacts = make_detector(self.system, scene.contact_kinds)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
@@ -177,9 +180,8 @@ class Simulator:
         return () if self._contacts is None else self._contacts.active(self._state.positions)
 
     def slack(self) -> np.ndarray:
-        """(n_cables,) bool: cables shorter than their rest length now."""
-        _, length, _ = self.system.geometry(self._state.positions, self.system.cable_ends)
-        return length < self._state.rest_lengths
+        """(n_cables,) bool: the cables slack now, in the method's model."""
+        return self._method.slack(self._state.positions, self._state.rest_lengths)
 
     def run(self, duration: float | None = None, *, steps: int | None = None, callback=None) -> Trajectory:
         """Run ``steps`` steps, or ``round(duration / dt)``; returns them stacked.

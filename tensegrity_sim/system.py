@@ -91,17 +91,19 @@ class System:
         return np.einsum("ij,ij->i", v[ends[:, 1]] - v[ends[:, 0]], n)
 
     # ------------------------------------------------------------------ stability
-    def max_frequency(self, x: np.ndarray, include_cables: bool) -> float:
+    def max_frequency(self, x: np.ndarray, include_cables: bool, include_struts: bool = True) -> float:
         """Highest natural angular frequency (rad/s) of the elastic members at configuration ``x``.
 
-        The axial stiffness matrix ``K = sum_i k_i b_i b_i^T`` of the elastic struts (and of every cable
-        with a stiffness, as if taut, when ``include_cables``) mass-scaled to ``M^-1/2 K M^-1/2`` on the
-        free nodes; its largest eigenvalue is ``omega_max^2``. An explicit central-difference or
-        midpoint step is stable only for ``dt < 2 / omega_max``.
+        The axial stiffness matrix ``K = sum_i k_i b_i b_i^T`` of the elastic struts (unless not
+        ``include_struts``) and of every cable with a stiffness, as if taut (when ``include_cables``),
+        mass-scaled to ``M^-1/2 K M^-1/2`` on the free nodes; its largest eigenvalue is ``omega_max^2``.
+        An explicit central-difference or midpoint step is stable only for ``dt < 2 / omega_max``.
         """
         k = self.stiffness.copy()
         if not include_cables:
             k[self.n_struts:] = 0.0
+        if not include_struts:
+            k[: self.n_struts] = 0.0
         k = np.nan_to_num(k, nan=0.0)
         keep = k > 0
         if not keep.any():

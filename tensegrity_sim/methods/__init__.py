@@ -1,28 +1,99 @@
 """Stepping methods, picked by name from :data:`METHODS`; ``"auto"`` is :func:`choose_method`."""
 from __future__ import annotations
 
+import numpy as np
+
 from ..system import System
 from .base import MethodStep, State, StepMethod
 from .elastic import ElasticMethod
+from .inextensible import InextensibleMethod
+from .qp import SOLVERS
 
-__all__ = ["METHODS", "choose_method", "make_method", "State", "MethodStep", "StepMethod"]
+__all__ = ["METHODS", "SOLVERS", "choose_method", "make_method", "State", "MethodStep", "StepMethod"]
 
 METHODS: dict[str, type[StepMethod]] = {
     ElasticMethod.name: ElasticMethod,
+    InextensibleMethod.name: InextensibleMethod,
 }
 
 
+# The auto rule's two thresholds (README, "Methods"):
+RESOLVED = 0.5      # omega * dt at or below which the step resolves a vibration (>= 12.6 steps per period)
+SEPARATION = 10.0   # a cable vibration this many times faster than the scene's other time scales is instantaneous
+
+
+def scene_frequency(system: System) -> tuple[float, str]:
+    """The fastest time scale of the scene apart from the cables' axial vibration, as an angular
+    frequency (rad/s), and what sets it: the elastic struts' axial vibration, a pendulum swing of the
+    shortest cable under gravity, or the initial motion (relative speed / length of a member)."""
+    scene, x = system.scene, system.scene.positions
+    g = float(np.linalg.norm(scene.gravity))
+    candidates = [(system.max_frequency(x, include_cables=False), "the elastic struts' axial vibration")]
+    if g > 0 and system.n_cables:
+        candidates.append((float(np.sqrt(g / np.min(scene.cable_rest_lengths))), "a pendulum swing under gravity"))
+    if system.n_members:
+        _, length, _ = system.geometry(x)
+        v = scene.velocities
+        rel = np.linalg.norm(v[system.ends[:, 1]] - v[system.ends[:, 0]], axis=1)
+        candidates.append((float(np.max(rel / length)), "the initial motion"))
+    return max(candidates, key=lambda c: c[0])
+
+
 def choose_method(system: System, dt: float) -> tuple[str, str]:
-    """The method ``"auto"`` resolves to for this scene and step, and the reason, in one sentence."""
-    return "elastic", "elastic: the only method available"
+    """The method ``"auto"`` resolves to for this scene and step, and the reason, in one sentence.
+
+    With ``omega_c`` the highest axial frequency of the cables (all taut, struts ignored) and
+    ``omega_s`` the scene's fastest other time scale (:func:`scene_frequency`):
+
+    1. a cable without a stiffness can only be inextensible;
+    2. if the elastic method would be unstable (``omega_max dt >= 2``), inextensible;
+    3. if the step resolves the cables' vibration (``omega_c dt <= RESOLVED``), elastic: it represents
+       the scene exactly and needs no QP;
+    4. otherwise the cables' vibration is under-resolved: if it is at least ``SEPARATION`` times faster
+       than everything else, the cables act as inextensible on every time scale of interest, so
+       inextensible; if not, their elasticity is part of the dynamics, so elastic.
+    """
+    if not system.n_cables:
+        return "elastic", "elastic: the scene has no cables"
+    missing = [c.name for c in system.scene.cables if c.stiffness is None]
+    if missing:
+        return "inextensible", f"inextensible: cables without a stiffness ({', '.join(missing)})"
+    x = system.scene.positions
+    omega_max = system.max_frequency(x, include_cables=True)
+    if omega_max * dt >= 2.0:
+        return "inextensible", (f"inextensible: the elastic method would be unstable "
+                                f"(omega_max*dt = {omega_max * dt:.3g} >= 2)")
+    omega_c = system.max_frequency(x, include_cables=True, include_struts=False)
+    if omega_c * dt <= RESOLVED:
+        return "elastic", (f"elastic: dt resolves the cables' axial vibration "
+                           f"(omega_cable*dt = {omega_c * dt:.3g} <= {RESOLVED:g})")
+    omega_s, what = scene_frequency(system)
+    if omega_c >= SEPARATION * omega_s:
+        return "inextensible", (f"inextensible: the cables' axial vibration is under-resolved "
+                                f"(omega_cable*dt = {omega_c * dt:.3g} > {RESOLVED:g}) and "
+                                f"{omega_c / omega_s if omega_s else float('inf'):.3g} times faster than "
+                                f"{what} ({omega_s:.3g} rad/s)")
+    return "elastic", (f"elastic: the cables' axial vibration ({omega_c:.3g} rad/s) is only "
+                       f"{omega_c / omega_s:.3g} times faster than {what}: their elasticity matters")
 
 
-def make_method(system: System, method: str, dt: float) -> tuple[StepMethod, str]:
-    """Instantiate ``method`` (a name of :data:`METHODS` or ``"auto"``); returns it and the reason."""
+def make_method(system: System, method: str, dt: float, *, solver: str | None = None) -> tuple[StepMethod, str]:
+    """Instantiate ``method`` (a name of :data:`METHODS` or ``"auto"``); returns it and the reason.
+
+    ``solver`` names a QP backend (:data:`SOLVERS`) for a method that solves QPs."""
+    if solver is not None and solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {sorted(SOLVERS)}, got {solver!r}")
     if method == "auto":
         method, reason = choose_method(system, dt)
     elif method in METHODS:
         reason = f"{method}: requested"
     else:
         raise ValueError(f"method must be one of {sorted(METHODS) + ['auto']}, got {method!r}")
-    return METHODS[method](system, dt), reason
+    cls = METHODS[method]
+    options = {}
+    if solver is not None:
+        if "solver" in cls.options:
+            options["solver"] = solver
+        elif reason.endswith("requested"):
+            raise ValueError(f"solver={solver!r} is an option of a method with a QP; method {method!r} has none")
+    return cls(system, dt, **options), reason

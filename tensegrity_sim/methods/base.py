@@ -16,6 +16,9 @@ Rules for whoever writes a new method (compare ``scipy.integrate.OdeSolver``):
 6. ``impulses`` are each cable's impulse over the step (N*s), snaps included, in cable order.
 7. ``prepare(state)`` makes an initial state consistent with the method's constraints (e.g. removes
    the part of the initial velocities that would stretch a rigid strut); it may modify ``state``.
+8. ``slack(positions, rest_lengths)`` says which cables are slack in the method's model (by default:
+   shorter than their rest length).
+9. Options (e.g. ``solver``) are keyword-only arguments of ``__init__``, listed in ``options``.
 """
 from __future__ import annotations
 
@@ -57,6 +60,7 @@ class StepMethod:
     """Base class of the stepping methods (see the module docstring for the rules)."""
 
     name: str = ""
+    options: tuple[str, ...] = ()
 
     def __init__(self, system: System, dt: float):
         self.system = system
@@ -76,6 +80,11 @@ class StepMethod:
 
     def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
         raise NotImplementedError
+
+    def slack(self, positions: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
+        """(n_cables,) bool: the cables that are slack at ``positions`` (m) for ``rest_lengths`` (m)."""
+        _, length, _ = self.system.geometry(positions, self.system.cable_ends)
+        return length < rest_lengths
 
     def describe(self) -> dict:
         """Settings of the method worth logging (solver, tolerances...)."""

@@ -116,7 +116,9 @@ def _run_info(reader, path: Path) -> dict[str, str]:
 def _rebuild(info: dict[str, str], path: Path) -> tuple[Simulator, NodeSettings]:
     """The simulator and node settings a log was written with, from the log alone."""
     scene = Scene.from_dict(yaml.safe_load(info["scene_yaml"]), source=f"{path} (embedded scene)")
-    sim = Simulator(scene, method=info["method"], dt=float(info["dt"]))
+    # the QP backend of the inextensible method is part of its settings
+    solver = json.loads(info["method_settings"]).get("solver")
+    sim = Simulator(scene, method=info["method"], dt=float(info["dt"]), solver=solver)
     mine = json.loads(json.dumps(sim.method_settings, sort_keys=True, default=_jsonable))
     if mine != json.loads(info["method_settings"]):
         raise LogError(f"{path}: method settings {info['method_settings']} cannot be reproduced: this version "

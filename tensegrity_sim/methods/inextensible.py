@@ -1,0 +1,365 @@
+"""Method 1 of physics.md §3: inextensible cables (stiffness -> infinity), Moreau's midpoint time-stepping
+with one QP over the cables that can be taut, elastic or rigid struts.
+
+One step of ``h`` from ``(x_i, v_i)`` is one sub-step, or a few when cables snap inside it, each of
+Moreau's midpoint form::
+
+    x_m = x_i + tau/2 v_i;   v0 = v_i + tau M^-1 F(x_m);   v_f = QP(v0; rows at x_m);   x_f = x_m + tau/2 v_f
+
+``F`` holds gravity, the external forces and the elastic struts' forces at the midpoint (explicit, so
+``h < 2 / omega_struts`` is required and checked at start-up). The QP (``methods/qp.py``) is
+``min 1/2 (v - v0)^T M (v - v0)`` with one row ``b_i(x_m)^T v`` per member that can be taut in the
+sub-step: ``<= r_i`` for a cable, ``= r_i`` for a rigid strut. Its multipliers are the cable impulses.
+
+**Rows.** A cable is a row when it could reach its length limit by the sub-step's end,
+``l_m + tau/2 |u0| >= L (1 - LIMIT_TOL)`` (``u0``: its ends' relative free velocity), a documented
+superset of the seed's ``e(x_m) >= 0`` that also stops a cable about to overshoot. With no such cable
+and no rigid strut, no QP is solved.
+
+**Targets: the drift stabiliser.** The velocity-level scheme alone (targets 0) lengthens a swinging
+cable by ``h^2 v^2 / 2L`` per step. A cable's target is instead the rate that lands it exactly on its
+limit at ``x_f``::
+
+    r = (2 / tau) (sqrt(L^2 - (tau/2)^2 |u_perp|^2) - l_m)
+
+where ``u_perp`` is its ends' relative velocity across it at the sub-step's end (the part its own
+impulse does not change; other members' impulses do, so it is iterated to convergence, one extra solve
+while things move). The targets only change impulses along the members at ``x_m``, so linear and
+angular momentum stay exact. Two caps keep the stabiliser from creating energy:
+
+* the impulses' work over a sub-step is ``-1/2 sum y_i (r_i + b_i.v_i)``, so a cable's target is never
+  below the reversal ``-b_i.v_i`` of its rate at the midpoint (its ``y_i >= 0``), and a rigid strut's
+  target is that reversal (its ``y_i`` has either sign). Then no impulse does positive work, and
+  ``v_f = -v_i`` meets every row, so the QP is never infeasible. Where a cap binds the member lands
+  ``(tau/2)^2 |u_f^2 - u_i^2| / 2L`` off its limit, a bounded error that is not carried forward;
+* a commanded shortening is a reel-in at ``change / h``; the cable may pull faster by twice that rate
+  (the motor's work), so a ramp of rest lengths is followed exactly, and a jump is a reel-in in one step.
+
+**Snaps.** Steering a cable back while its ends still separate would push them apart again (a
+rebound: effective restitution up to 0.96 for Baumgarte with gamma = 1, see the tests). A snap is an
+event instead, located inside the step and resolved where it happens:
+
+1. *Locate it.* For each slack cable whose ends' free path (constant free acceleration) crosses its
+   limit during the sub-step, the crossing time is found by Newton's method; the sub-step is cut at the
+   earliest crossing (at most ``MAX_EVENTS`` per step; later ones are stopped at their limit by their
+   rows and resolved at the next step's start).
+2. *Impact.* At that configuration, if a cable at its limit that was not already holding (active at
+   its limit in the previous sub-step) separates, Moreau's impact law: ``v+ = argmin |v+ - v|_M`` with
+   ``b^T v+ <= 0`` for every cable at its limit and ``b^T v+ = 0`` for the rigid struts. Perfectly
+   inelastic, no push; simultaneous snaps are resolved together; the admissible set is a cone, so the
+   kinetic energy cannot grow.
+3. The rest of the step is another sub-step, in which the snapped cable is taut.
+
+**Prestress.** A scene written for elastic cables has them longer than their rest lengths by
+``tension / k``. The method takes each cable's length limit as its rest length plus that stretch at load
+time (``length_offsets``), keeps the offset when rest lengths are commanded, warns
+(:class:`LengthOffsetWarning`) and reports the offsets in ``describe()``. No cable strain is stored:
+``strain_energy`` counts the elastic struts only. When the taut cables and rigid struts carry a
+self-stress (the icosahedron with rigid struts) the structure is locked: the impulses are not unique
+(any multiple of the self-stress can be added; the backend returns one, zero for a free icosahedron at
+rest), and a cable cannot be reeled in, which is reported as a :class:`~.qp.QPError` naming it.
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from ..system import System
+from .base import MethodStep, State, StepMethod
+from .qp import QPError, Rows, make_solver
+from .rigid import RigidStruts
+
+__all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_EVENTS"]
+
+LIMIT_TOL = 1e-9     # relative: a cable within LIMIT_TOL * L of its limit is at it (taut, not slack)
+# Snap events located inside one step; each costs an impact and a sub-step. Later snaps in the same
+# step are still stopped exactly at their limit and resolved at the next step's start. On rattling
+# built-ins (0.1 s against dt = 1e-4) locating up to 8 changed nothing beyond the trajectories'
+# chaotic spread and cost up to 1.5x (tower10); the closed-form cases need one.
+MAX_EVENTS = 2
+_MIN_EVENT = 1e-6    # an event closer than this fraction of dt to the sub-step's start is not split off
+_NEWTON_ITER = 4     # Newton iterations for a snap time (the start point is exact for a straight path)
+_LANDING_TOL = 1e-11  # relative: a binding row must end within this of its member's limit ...
+_LANDING_ITER = 4     # ... after at most this many solves per sub-step
+
+
+class LengthOffsetWarning(UserWarning):
+    """The inextensible method lengthened cable limits by their prestress stretch at load time."""
+
+
+class InextensibleMethod(StepMethod):
+    name = "inextensible"
+    options = ("solver",)
+
+    def __init__(self, system: System, dt: float, *, solver: str | None = None):
+        super().__init__(system, dt)
+        scene = system.scene
+        self.omega_struts = system.max_frequency(scene.positions, include_cables=False)
+        if self.omega_struts * self.dt >= 2.0:
+            raise ValueError(
+                f"dt={self.dt!r} s is beyond the stability limit of the elastic struts, which the inextensible "
+                f"method treats explicitly: dt must be < 2/omega_struts = {2.0 / self.omega_struts:.6g} s "
+                f"(omega_struts = {self.omega_struts:.6g} rad/s); use a smaller dt or rigid struts")
+        _, length0, _ = system.geometry(scene.positions, system.cable_ends)
+        self.length_offsets = np.maximum(length0 - scene.cable_rest_lengths, 0.0)
+        if np.any(self.length_offsets > 0):
+            worst = int(np.argmax(self.length_offsets))
+            warnings.warn(
+                f"inextensible cables: {int(np.count_nonzero(self.length_offsets))} cables start longer than "
+                f"their rest length (prestress); their length limits are rest length + that stretch (largest "
+                f"{self.length_offsets[worst]:.6g} m, {scene.cable_names[worst]!r}), kept when rest lengths "
+                f"are commanded", LengthOffsetWarning, stacklevel=4)
+        free = system.free
+        self._free = free
+        index = np.full(system.n_nodes, -1)
+        index[free] = np.arange(int(free.sum()))
+        self._inv_mass = system.inv_mass[:, None]
+        self.solver = make_solver(solver, system.masses[free])
+        # The member table of the QP rows: the rigid struts that move (equalities), then every cable.
+        self.rigid = RigidStruts(system)
+        self._n_eq = self.rigid.count
+        self._ends = np.vstack([self.rigid.ends, system.cable_ends])
+        self._row_nodes = index[self._ends]
+        self._rigid_lengths = np.sqrt(self.rigid.length_sq)
+        self._cables_move = free[system.cable_ends].any(axis=1)
+        elastic = ~system.rigid
+        self._elastic_ends = system.strut_ends[elastic]
+        self._elastic_k = system.stiffness[: system.n_struts][elastic]
+        self._elastic_rest = system.strut_rest[elastic]
+        self._elastic_incidence = system.incidence_matrix(self._elastic_ends)
+        self._holding = np.zeros(system.n_cables, dtype=bool)
+        self._end_geometry = None   # (positions, cable vectors, lengths) at the last step's end
+        self._last_rest = scene.cable_rest_lengths
+        self._no_reel = np.zeros(system.n_cables)
+
+    # ------------------------------------------------------------------ contract
+    def invalidate(self) -> None:
+        self._holding = np.zeros(self.system.n_cables, dtype=bool)
+        self._end_geometry = None
+
+    def prepare(self, state: State) -> None:
+        """Initial velocities that would stretch a rigid strut lose that component (momentum unchanged).
+        Initial velocities that stretch a taut cable are an impact at t = 0, resolved by the first step."""
+        if self.rigid.count:
+            state.velocities = state.velocities + self.rigid.project_velocities(state.positions, state.velocities)
+        self._last_rest = state.rest_lengths
+
+    def limits(self, rest_lengths: np.ndarray) -> np.ndarray:
+        """Cable length limits (n_cables,) m: rest lengths plus the prestress offsets."""
+        return rest_lengths + self.length_offsets
+
+    def slack(self, positions: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
+        """(n_cables,) bool: shorter than the length limit by more than ``LIMIT_TOL`` (relative)."""
+        _, length = self._cable_geometry(positions)
+        return length < self.limits(rest_lengths) * (1.0 - LIMIT_TOL)
+
+    def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
+        """Elastic struts only: an inextensible cable stores no strain energy (J)."""
+        if not len(self._elastic_ends):
+            return 0.0
+        _, length, _ = self.system.geometry(positions, self._elastic_ends)
+        e = length - self._elastic_rest
+        return float(0.5 * np.sum(self._elastic_k * e * e))
+
+    def describe(self) -> dict:
+        offsets = self.length_offsets
+        return {"method": self.name, "dt": self.dt, **self.solver.describe(), "limit_tol": LIMIT_TOL,
+                "max_events": MAX_EVENTS, "omega_struts": self.omega_struts,
+                "length_offsets": {name: float(o) for name, o in zip(self.system.scene.cable_names, offsets)
+                                   if o > 0}}
+
+    # ------------------------------------------------------------------ step
+    def _cable_geometry(self, x):
+        """Cable vectors (n_cables, 3) and lengths (n_cables,) at ``x``, reusing the last step's end
+        (the simulator commits that very array, so identity means the same positions)."""
+        cached = self._end_geometry
+        if cached is not None and cached[0] is x:
+            return cached[1], cached[2]
+        d, length, _ = self.system.geometry(x, self.system.cable_ends)
+        return d, length
+
+    def _step_impl(self, state: State) -> MethodStep:
+        x, v = state.positions, state.velocities
+        limits = self.limits(state.rest_lengths)
+        floor = limits * (1.0 - LIMIT_TOL)
+        # a commanded shortening since the last step is a reel-in at that rate (m/s, <= 0); the
+        # simulator replaces the rest-length array when it is commanded, so the same array means none
+        if state.rest_lengths is self._last_rest:
+            reel = self._no_reel
+        else:
+            reel = np.minimum(state.rest_lengths - self._last_rest, 0.0) / self.dt
+        f_ext = self.system.gravity_force + state.external_forces
+        impulses = np.zeros(self.system.n_cables)
+        holding = self._holding
+        remaining = self.dt
+        for event in range(MAX_EVENTS + 1):
+            d, length = self._cable_geometry(x)
+            at_limit = (length >= floor) & self._cables_move
+            maybe = at_limit & ~holding
+            if maybe.any() and v.any():
+                v, y = self._impact(x, v, d, length, limits, at_limit, maybe, holding)
+                if y is not None:
+                    impulses[at_limit] += y
+            tau = remaining
+            x_m, v0 = self._free_motion(x, v, tau, f_ext)
+            cut = False
+            if event < MAX_EVENTS and not at_limit.all():
+                theta = self._first_snap(d, limits, v, v0, tau, ~at_limit & self._cables_move)
+                cut = _MIN_EVENT * self.dt < theta * tau < tau - _MIN_EVENT * self.dt
+                if cut:
+                    tau = theta * tau
+                    x_m, v0 = self._free_motion(x, v, tau, f_ext)
+            x, v, y = self._midpoint(x_m, v, v0, tau, limits, floor, reel, holding)
+            impulses += y
+            holding = (y > 0) & at_limit
+            if not cut:
+                break
+            remaining -= tau
+        self._holding = holding
+        self._last_rest = state.rest_lengths
+        self._end_geometry = (x, *self._cable_geometry(x))   # x is a new array: computed, not cached
+        return MethodStep(x, v, impulses)
+
+    def _free_motion(self, x, v, tau, f_ext):
+        """Midpoint ``x_m`` (N, 3) and free velocity ``v0 = v + tau M^-1 F(x_m)`` (N, 3)."""
+        x_m = x + (0.5 * tau) * v
+        force = f_ext
+        if len(self._elastic_ends):
+            _, length, n = self.system.geometry(x_m, self._elastic_ends)
+            tension = self._elastic_k * (length - self._elastic_rest)
+            force = force + self._elastic_incidence @ (tension[:, None] * n)
+        return x_m, v + tau * self._inv_mass * force
+
+    def _first_snap(self, d, limits, v, v0, tau, slack) -> float:
+        """Fraction of the sub-step (0, 1] at which the first ``slack`` cable reaches its limit on the
+        free path ``d(t) = d + t tau u + (t tau)^2 a / 2`` of its ends (1.0 if none does)."""
+        ends = self.system.cable_ends[slack]
+        d, lim = d[slack], limits[slack]
+        u = v[ends[:, 1]] - v[ends[:, 0]]
+        u_mean = 0.5 * (u + v0[ends[:, 1]] - v0[ends[:, 0]])
+        d_end = d + tau * u_mean
+        cross = np.einsum("ij,ij->i", d_end, d_end) > lim * lim
+        if not cross.any():
+            return 1.0
+        d, u, u_mean, lim = d[cross], u[cross], u_mean[cross], lim[cross]
+        acc = 2.0 * (u_mean - u) / tau
+        # start: the crossing of the straight path d + t tau u_mean (exact at t = 1), small root form
+        b = np.einsum("ij,ij->i", d, u_mean) * tau
+        a = np.einsum("ij,ij->i", u_mean, u_mean) * tau * tau
+        c = np.einsum("ij,ij->i", d, d) - lim * lim
+        t = np.clip(-c / (b + np.sqrt(np.maximum(b * b - a * c, 0.0))), 0.0, 1.0)
+        for _ in range(_NEWTON_ITER):
+            p = d + (t * tau)[:, None] * u + (0.5 * (t * tau) ** 2)[:, None] * acc
+            dp = tau * u + (t * tau * tau)[:, None] * acc
+            g = np.einsum("ij,ij->i", p, p) - lim * lim
+            slope = 2.0 * np.einsum("ij,ij->i", p, dp)
+            t = np.clip(t - g / np.where(slope > 0, slope, np.inf), 0.0, 1.0)
+        return float(t.min())
+
+    def _midpoint(self, x_m, v, v0, tau, limits, floor, reel, holding):
+        """Moreau's midpoint sub-step from ``x_m`` with free velocity ``v0``: returns ``x_f``, ``v_f``
+        (N, 3) and the cable impulses (n_cables,) N*s."""
+        n_eq = self._n_eq
+        _, length, n = self.system.geometry(x_m, self._ends)
+        ends = self.system.cable_ends
+        u0 = v0[ends[:, 1]] - v0[ends[:, 0]]
+        reach = length[n_eq:] + (0.5 * tau) * np.sqrt(np.einsum("ij,ij->i", u0, u0))
+        cables = (reach >= floor) & self._cables_move
+        if not (n_eq or cables.any()):   # nothing can be taut: free motion, no QP
+            return x_m + (0.5 * tau) * v0, v0, np.zeros(len(limits))
+        sel = slice(None) if cables.all() else np.concatenate([np.arange(n_eq), n_eq + np.flatnonzero(cables)])
+        m_ends, m_length, m_n = self._ends[sel], length[sel], n[sel]
+        m_limits = np.concatenate([self._rigid_lengths, limits])[sel]
+        # The impulses' work over the sub-step is -1/2 sum y (r + b.v_i): no row may ask for less than
+        # the reversal -b.v_i of its midpoint rate (module docstring), except by a reel-in's rate.
+        u = v[m_ends[:, 1]] - v[m_ends[:, 0]]
+        un = np.einsum("ij,ij->i", u, m_n)
+        floor_rate = -un
+        if reel.any():
+            floor_rate[n_eq:] += 2.0 * reel[cables]
+        rows = Rows(self._row_nodes[sel], m_n, self._targets(u, un, m_length, m_limits, tau, floor_rate, n_eq),
+                    n_eq)
+        warm = np.concatenate([np.ones(n_eq, dtype=bool), holding[cables]])
+        v_f, y = self._land(v, v0, rows, warm, m_ends, m_length, m_limits, tau, floor_rate, reel)
+        impulses = np.zeros(len(limits))
+        impulses[cables] = y[n_eq:]
+        return x_m + (0.5 * tau) * v_f, v_f, impulses
+
+    def _land(self, v, v0, rows, warm, ends, length, limits, tau, floor_rate, reel):
+        """Solve the sub-step's QP so that every binding row lands on its target.
+
+        The cable targets need the relative velocity across each cable at the sub-step's end, which the
+        other members' impulses change: start from the velocity at the start (exact at rest) and
+        iterate on the solution (usually one more solve while things move). The landing error is below
+        (tau^2 / 8 L) |u_f^2 - u^2|, so it is only checked when the velocities changed enough for that
+        bound to exceed the tolerance. Returns ``v_f`` (N, 3) and the multipliers (k,)."""
+        n_eq = rows.n_eq
+        v_f = np.zeros_like(v0)
+        shortest = float(limits.min())
+        for _ in range(_LANDING_ITER):
+            try:
+                v_free, y = self.solver.solve(v0[self._free], rows, warm)
+            except QPError as exc:
+                if not (reel < 0).any():
+                    raise
+                # only a reel-in can make the rows infeasible (without one, v_f = -v_i meets them all)
+                names = ", ".join(np.asarray(self.system.scene.cable_names)[reel < 0])
+                raise QPError(exc.solver, exc.status, f"{exc.detail}; the commanded shortening of {names} cannot "
+                              f"be followed: the taut cables and rigid struts lock the structure (they carry a "
+                              f"self-stress), so no cable can shorten unless another member gives") from exc
+            v_f[self._free] = v_free
+            change = float(np.abs(v_f - v).max())
+            if 0.5 * tau * tau * change * (change + 2.0 * float(np.abs(v).max())) <= _LANDING_TOL * shortest ** 2:
+                break
+            u = v_f[ends[:, 1]] - v_f[ends[:, 0]]
+            targets = self._targets(u, np.einsum("ij,ij->i", u, rows.directions), length, limits, tau, floor_rate,
+                                    n_eq)
+            miss = rows.rates(v_free) - targets
+            warm = y > 0
+            warm[:n_eq] = True
+            if not (np.where(warm, np.abs(miss), miss) > _LANDING_TOL * (2.0 / tau) * limits).any():
+                break
+            rows.targets = targets
+            v = v_f.copy()
+        return v_f, y
+
+    @staticmethod
+    def _targets(u, un, length, limits, tau, floor_rate, n_eq):
+        """Row targets (k,) m/s. A cable's is the rate that puts it exactly at its limit at the sub-step's
+        end given the relative velocity ``u`` (k, 3) of its ends across it (the part its own impulse
+        does not change; ``un`` is the part along it), but never below ``floor_rate``; a rigid strut's
+        (the first ``n_eq`` rows) is ``floor_rate``."""
+        across2 = np.einsum("ij,ij->i", u[n_eq:], u[n_eq:]) - un[n_eq:] ** 2
+        half = 0.5 * tau
+        lim = limits[n_eq:]
+        land = (np.sqrt(np.maximum(lim * lim - half * half * across2, 0.0)) - length[n_eq:]) / half
+        targets = floor_rate.copy()
+        np.maximum(land, floor_rate[n_eq:], out=targets[n_eq:])
+        return targets
+
+    def _impact(self, x, v, d, length, limits, at_limit, maybe, holding):
+        """Moreau's impact law at ``x`` when a cable at its limit that was not holding (``maybe``)
+        separates: ``v+ = argmin |v+ - v|_M`` with ``b^T v+ <= 0`` for every cable at its limit and
+        ``b^T v+ = 0`` for the rigid struts. The admissible set is a cone, so the projection never
+        increases the kinetic energy. Returns ``v+`` (N, 3) and the impulses of the cables ``at_limit``,
+        or ``v`` and None when no cable snaps."""
+        ends = self.system.cable_ends
+        n = d / length[:, None]
+        rate = self.system.member_rates(v, n, ends)
+        # separating faster than would stretch it beyond the tolerance within a step: a snap
+        snapping = maybe & (rate * self.dt > LIMIT_TOL * limits)
+        if not snapping.any():
+            return v, None
+        cables = np.flatnonzero(at_limit)
+        n_eq = self._n_eq
+        directions = n[cables]
+        if n_eq:
+            directions = np.vstack([self.system.geometry(x, self.rigid.ends)[2], directions])
+        sel = np.concatenate([np.arange(n_eq), n_eq + cables])
+        rows = Rows(self._row_nodes[sel], directions, np.zeros(len(sel)), n_eq)
+        warm = np.concatenate([np.ones(n_eq, dtype=bool), snapping[cables] | holding[cables]])
+        v_free, y = self.solver.solve(v[self._free], rows, warm)
+        v_plus = np.zeros_like(v)
+        v_plus[self._free] = v_free
+        return v_plus, y[n_eq:]

@@ -1,0 +1,312 @@
+"""QP backends for the velocity step of the inextensible method, picked by name from :data:`SOLVERS`.
+
+Every backend solves the same problem (physics.md §3, written around the free velocity)::
+
+    min_v  1/2 (v - v0)^T M (v - v0)   s.t.   A[:n_eq] v = r[:n_eq],   A[n_eq:] v <= r[n_eq:]
+
+over the velocities ``v`` of the free nodes, with ``M`` the lumped (diagonal) mass and
+``v0 = v_i + h M^-1 F_m`` the free velocity, so the linear term is the seed's ``-(M v_i + h F_m)^T v``.
+Each row ``i`` of ``A`` is a member's compatibility vector ``b_i^T``: ``-n_i`` at node ``a_i``, ``+n_i`` at
+node ``b_i``. A backend returns ``v`` and the multipliers ``y`` with ``M (v - v0) = -A^T y`` and ``y >= 0``
+on the inequality rows: a row's multiplier is its member's impulse (N*s, tension positive).
+
+The problem is often degenerate, and every backend must cope: a prestressed structure with all members
+taut has a self-stress, i.e. dependent rows and a singular Delassus matrix ``W = A M^-1 A^T``, and so has
+a scene with duplicated cables. ``v`` is then unique but ``y`` is not.
+
+Measured with ``python bench/bench_steps.py --accuracy`` (the QPs of rattling built-in scenes, node
+masses 1e4 apart, each solved again by quadprog): DAQP, a dual active-set method warm-started from the
+previous step's active set, agrees to 4e-16..2e-10 relative in velocity and is the fastest per QP on
+the built-ins (15-450 us), so it is the default; its tolerances are tightened (see :class:`DaqpSolver`).
+The Delassus problem as non-negative least squares agrees to 6e-11..3e-9 on well-conditioned problems
+but only to 3e-2 on the near-singular ones of a locked structure (forming ``W`` squares the
+conditioning), and is 2-60 times slower. OSQP (ADMM) with eps 1e-10 and polishing reaches 3e-13..1e-8
+but stops at its iteration limit, or reports a false infeasibility, on the icosahedron; at its default
+tolerances it is off by 0.1..0.8. Both stay available by name. DAQP is dense: on a 50-stage tower
+(1335 rows) sparse OSQP steps 6 times faster.
+
+A backend that fails (infeasible rows, iteration limit) raises :class:`QPError` with a status and a
+message. The answers of the backends that may return a poor one (``verify``: OSQP, NNLS) are checked
+against the optimality conditions, to ``1e-7`` relative, and refused if they fail them; DAQP's exit flag
+is trusted (an active-set method solves the KKT system of its final working set to round-off).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SOLVERS",
+           "DEFAULT_SOLVER", "make_solver"]
+
+# A returned answer may miss the optimality conditions by at most _FEASIBILITY_TOL relative to the
+# problem's velocity (impulse) scale, plus _VELOCITY_FLOOR m/s, before it is refused.
+_FEASIBILITY_TOL = 1e-7
+_VELOCITY_FLOOR = 1e-12
+
+
+@dataclass
+class Rows:
+    """Constraint rows of one QP (k rows, equality rows first).
+
+    nodes: (k, 2) int, the free-node index of each member end, -1 for a fixed node.
+    directions: (k, 3) unit vectors ``n_i`` (from end a to end b).
+    targets: (k,) m/s, the right-hand sides ``r``.
+    n_eq: how many leading rows are equalities.
+    """
+
+    nodes: np.ndarray
+    directions: np.ndarray
+    targets: np.ndarray
+    n_eq: int
+
+    def __len__(self) -> int:
+        return len(self.targets)
+
+    def _columns(self, n_free: int) -> np.ndarray:
+        """(k, 2, 3) column of each entry; a fixed end's entries go to a scratch block ``n_free``."""
+        return 3 * np.where(self.nodes < 0, n_free, self.nodes)[:, :, None] + np.arange(3)
+
+    def dense(self, n_free: int) -> np.ndarray:
+        """The (k, 3 n_free) matrix ``A``."""
+        k = len(self.targets)
+        a = np.zeros((k, 3 * n_free + 3))
+        cols = self._columns(n_free)
+        row = np.arange(k)[:, None]
+        a[row, cols[:, 0]] = -self.directions
+        a[row, cols[:, 1]] = self.directions
+        return np.ascontiguousarray(a[:, :-3])
+
+    def sparse(self, n_free: int):
+        """``A`` as a scipy CSC matrix that stores all six entries of every row, even exact zeros, so
+        its pattern depends only on which members the rows are."""
+        import scipy.sparse as sp
+        k = len(self.targets)
+        cols = self._columns(n_free).reshape(k, 6)
+        vals = np.concatenate([-self.directions, self.directions], axis=1)
+        keep = cols < 3 * n_free
+        rows = np.broadcast_to(np.arange(k)[:, None], (k, 6))
+        return sp.csc_matrix((vals[keep], (rows[keep], cols[keep])), shape=(k, 3 * n_free))
+
+    def rates(self, v: np.ndarray) -> np.ndarray:
+        """``A v`` (k,) m/s for velocities ``v`` (n_free, 3) of the free nodes."""
+        vv = np.vstack([v, np.zeros((1, 3))])
+        return np.einsum("ij,ij->i", vv[self.nodes[:, 1]] - vv[self.nodes[:, 0]], self.directions)
+
+
+class QPError(RuntimeError):
+    """A QP backend failed; ``status`` is the backend's status, the message says what happened."""
+
+    def __init__(self, solver: str, status: str, message: str):
+        super().__init__(f"QP solver {solver!r} failed ({status}): {message}")
+        self.solver = solver
+        self.status = status
+        self.detail = message
+
+
+class QPSolver:
+    """Base class of the backends. ``mass``: (n_free,) kg of the free nodes, fixed for a run."""
+
+    name = ""
+    verify = True   # recheck feasibility of every answer (backends that may return a poor one)
+
+    def __init__(self, mass: np.ndarray):
+        self.n_free = len(mass)
+        self.mass = np.repeat(np.asarray(mass, dtype=float), 3)   # (3 n_free,) per degree of freedom
+        self.inv_mass = 1.0 / self.mass
+
+    def solve(self, v0: np.ndarray, rows: Rows, warm: np.ndarray | None = None):
+        """Solve the QP. ``v0``: (n_free, 3) m/s. ``warm``: (k,) bool, rows believed active (a hint).
+
+        Returns ``v`` (n_free, 3) m/s and ``y`` (k,) N*s. Raises :class:`QPError` on failure.
+        """
+        v, y = self._solve(v0.reshape(-1), rows, warm)
+        v = v.reshape(-1, 3)
+        self._check(v, y, v0, rows)
+        return v, y
+
+    def _solve(self, v0: np.ndarray, rows: Rows, warm):
+        """Backend-specific: ``v`` (3 n_free,) and ``y`` (k,)."""
+        raise NotImplementedError
+
+    def _check(self, v, y, v0, rows: Rows) -> None:
+        """Refuse non-finite output, and (if ``verify``) output that is not a solution: infeasible
+        velocities, or multipliers that are not impulses along the rows (stationarity), pull on an
+        inequality row or act on a row that is not at its target (complementarity)."""
+        if not (np.isfinite(v).all() and np.isfinite(y).all()):
+            raise QPError(self.name, "non-finite", "the solution contains NaN or inf")
+        if not self.verify:
+            return
+        n_eq = rows.n_eq
+        scale = max(float(np.max(np.abs(v0), initial=0.0)), float(np.max(np.abs(rows.targets), initial=0.0)))
+        tol = _FEASIBILITY_TOL * scale + _VELOCITY_FLOOR
+        res = rows.rates(v) - rows.targets
+        viol = max(float(np.max(np.abs(res[:n_eq]), initial=0.0)), float(np.max(res[n_eq:], initial=0.0)))
+        if viol > tol:
+            raise QPError(self.name, "infeasible output",
+                          f"the returned velocities violate a constraint by {viol:.3g} m/s "
+                          f"(velocity scale {scale:.3g} m/s)")
+        change = self.mass * (v.ravel() - v0.ravel())
+        impulse = max(float(np.max(np.abs(self.mass * v0.ravel()), initial=0.0)),
+                      float(np.max(np.abs(change), initial=0.0)), float(np.max(np.abs(y), initial=0.0)), 1e-300)
+        stationarity = float(np.max(np.abs(change + rows.dense(self.n_free).T @ y), initial=0.0))
+        acting = y[n_eq:] > _FEASIBILITY_TOL * impulse
+        slack = float(np.max(-res[n_eq:][acting], initial=0.0))
+        if (stationarity > _FEASIBILITY_TOL * impulse or np.any(y[n_eq:] < -_FEASIBILITY_TOL * impulse)
+                or slack > tol):
+            raise QPError(self.name, "inaccurate output",
+                          f"not a solution: impulses off the rows by {stationarity:.3g} N*s, smallest inequality "
+                          f"impulse {float(np.min(y[n_eq:], initial=0.0)):.3g} N*s, an acting row {slack:.3g} m/s "
+                          f"short of its target (impulse scale {impulse:.3g} N*s, velocity scale {scale:.3g} m/s)")
+
+    def describe(self) -> dict:
+        return {"solver": self.name}
+
+
+class DaqpSolver(QPSolver):
+    """DAQP (dual active set, recursive LDL^T updates), warm-started from the previous active set.
+
+    The problem is passed mass-scaled (``z = M^1/2 v``, Hessian = identity) so DAQP's setup factorises a
+    trivial matrix. ``primal_tol`` is tightened from DAQP's 1e-6 to 1e-12 m/s: a row violated by less
+    than ``primal_tol`` is never activated, and that error goes straight into the velocities.
+    """
+
+    name = "daqp"
+    # An active-set method solves the KKT system of its final working set to round-off and reports
+    # infeasibility or an iteration limit in its exit flag, which is checked instead.
+    verify = False
+    settings = {"primal_tol": 1e-12, "dual_tol": 1e-12, "sing_tol": 1e-14, "iter_limit": 10_000}
+    _STATUS = {-1: "infeasible", -2: "cycling", -3: "unbounded", -4: "iteration limit",
+               -5: "non-convex", -6: "initial working set overdetermined", -7: "time limit"}
+
+    def __init__(self, mass):
+        import daqp  # imported here so that a broken optional backend fails only when it is asked for
+        super().__init__(mass)
+        self._daqp = daqp
+        self._sqrt_mass = np.sqrt(self.mass)
+        self._hessian = np.eye(len(self.mass))
+
+    def _solve(self, v0, rows, warm):
+        k, n_eq, r = len(rows), rows.n_eq, rows.targets
+        lower = np.full(k, -1e30)
+        lower[:n_eq] = r[:n_eq]
+        sense = np.zeros(k, dtype=np.int32) if warm is None else warm.astype(np.int32)   # 1: start active
+        sense[:n_eq] = 5
+        a_scaled = rows.dense(self.n_free) / self._sqrt_mass
+        z, _, flag, info = self._daqp.solve(self._hessian, -self._sqrt_mass * v0, a_scaled, r, lower, sense,
+                                            **self.settings)
+        if flag < 1:
+            raise QPError(self.name, self._STATUS.get(flag, f"exitflag {flag}"),
+                          f"after {info['iterations']} iterations on {k} rows")
+        return z / self._sqrt_mass, np.asarray(info["lam"], dtype=float)
+
+    def describe(self) -> dict:
+        return {"solver": self.name, **self.settings}
+
+
+class OsqpSolver(QPSolver):
+    """OSQP (ADMM, sparse), tightened: eps 1e-10, polishing, warm start from the previous solution, and
+    ``update()`` of the matrix values (a numerical re-factorisation, no new symbolic one) whenever the
+    rows are the same members as in the previous call. OSQP 1.1 prints "Polishing not needed" on every
+    solve without active rows, whatever ``verbose`` says (osqp/osqp#785)."""
+
+    name = "osqp"
+    settings = {"eps_abs": 1e-10, "eps_rel": 1e-10, "polishing": True, "max_iter": 200_000,
+                "warm_starting": True}
+
+    def __init__(self, mass):
+        import osqp
+        import scipy.sparse as sp
+        super().__init__(mass)
+        self._osqp = osqp
+        self._hessian = sp.diags(self.mass).tocsc()
+        self._workspace = None
+        self._pattern = None
+
+    def _solve(self, v0, rows, warm):
+        r, n_eq = rows.targets, rows.n_eq
+        lower = np.full(len(r), -np.inf)
+        lower[:n_eq] = r[:n_eq]
+        a = rows.sparse(self.n_free)
+        pattern = (a.shape, a.indptr.tobytes(), a.indices.tobytes())
+        q = -self.mass * v0
+        if self._workspace is None or pattern != self._pattern:
+            self._workspace = self._osqp.OSQP()
+            self._workspace.setup(self._hessian, q, a, lower, r, verbose=False, **self.settings)
+            self._pattern = pattern
+        else:
+            self._workspace.update(q=q, l=lower, u=r, Ax=a.data)
+        res = self._workspace.solve(raise_error=False)   # failures are judged from the status below
+        if res.info.status_val not in (1, 2):  # solved / solved inaccurate (then _check judges it)
+            raise QPError(self.name, res.info.status, f"after {res.info.iter} ADMM iterations")
+        return np.asarray(res.x, dtype=float), np.asarray(res.y, dtype=float)
+
+    def describe(self) -> dict:
+        return {"solver": self.name, **self.settings}
+
+
+class NnlsSolver(QPSolver):
+    """The dual (Delassus) problem as non-negative least squares.
+
+    With ``W = A M^-1 A^T`` and ``c = A v0 - r`` the multipliers solve ``min 1/2 y^T W y - c^T y``,
+    ``y >= 0`` on the inequality rows. The equality rows are eliminated by a Schur complement; the rest,
+    ``min 1/2 l^T S l - c^T l`` with ``S = R^T R``, is ``min |R l - d|``, ``l >= 0``, ``R^T d = c``
+    (scipy's Lawson-Hanson NNLS). ``S`` is singular for every prestressed structure (its self-stress)
+    and for duplicated cables, and ``c`` need not lie in its range, so ``S`` is regularised by
+    ``regularisation * mean(diag S)`` before its Cholesky factor is taken: that moves the multipliers
+    only along ``S``'s null space (which does not change ``v``) and ``v`` by a relative amount of the
+    order of the regularisation.
+    """
+
+    name = "nnls"
+    regularisation = 1e-13
+
+    def __init__(self, mass):
+        import scipy.linalg as sl
+        from scipy.optimize import nnls
+        super().__init__(mass)
+        self._nnls = nnls
+        self._cholesky = sl.cholesky
+        self._triangular = sl.solve_triangular
+
+    def _regularised(self, s):
+        return s + (self.regularisation * max(float(np.mean(np.diag(s))), 1e-300)) * np.eye(len(s))
+
+    def _solve(self, v0, rows, warm):
+        r, n_eq = rows.targets, rows.n_eq
+        a = rows.dense(self.n_free)
+        w = (a * self.inv_mass) @ a.T
+        c = a @ v0 - r
+        y = np.zeros(len(r))
+        if n_eq:
+            w_ee_inv = np.linalg.inv(self._regularised(w[:n_eq, :n_eq]))
+            x = w_ee_inv @ w[:n_eq, n_eq:]
+            s = w[n_eq:, n_eq:] - w[n_eq:, :n_eq] @ x
+            ct = c[n_eq:] - x.T @ c[:n_eq]
+        else:
+            s, ct = w, c
+        if len(r) > n_eq:
+            root = self._cholesky(self._regularised(0.5 * (s + s.T)))
+            y[n_eq:], _ = self._nnls(root, self._triangular(root, ct, trans="T"), maxiter=50 * len(r))
+        if n_eq:
+            y[:n_eq] = w_ee_inv @ (c[:n_eq] - w[:n_eq, n_eq:] @ y[n_eq:])
+        return v0 - self.inv_mass * (a.T @ y), y
+
+    def describe(self) -> dict:
+        return {"solver": self.name, "regularisation": self.regularisation}
+
+
+SOLVERS: dict[str, type[QPSolver]] = {
+    DaqpSolver.name: DaqpSolver,
+    OsqpSolver.name: OsqpSolver,
+    NnlsSolver.name: NnlsSolver,
+}
+DEFAULT_SOLVER = DaqpSolver.name
+
+
+def make_solver(name: str | None, mass: np.ndarray) -> QPSolver:
+    """The backend called ``name`` (default :data:`DEFAULT_SOLVER`) for free-node masses ``mass`` (kg)."""
+    name = DEFAULT_SOLVER if name is None else name
+    if name not in SOLVERS:
+        raise ValueError(f"solver must be one of {sorted(SOLVERS)}, got {name!r}")
+    return SOLVERS[name](mass)
