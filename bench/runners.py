@@ -18,8 +18,8 @@ from tensegrity_sim.scene import CONTACT_KINDS
 from .cases import Case
 from .reference import Final
 
-__all__ = ["Measured", "TensegrityRunner", "MujocoRunner", "tensegrity_runners", "scale_runners",
-           "mujoco_runners", "mujoco_available"]
+__all__ = ["Measured", "TensegrityRunner", "MujocoRunner", "tensegrity_runners", "default_runners",
+           "scale_runners", "mujoco_runners", "mujoco_available"]
 
 WARMUP_STEPS = 300
 
@@ -153,16 +153,26 @@ ALL_CONTACTS = {"contacts": CONTACT_KINDS}
 
 
 def tensegrity_runners() -> list[TensegrityRunner]:
-    """The tensegrity_sim configurations of the work-precision sweep: every method (and QP backend)
-    this checkout has, without contact detection (MuJoCo's contacts are off too)."""
-    return [TensegrityRunner("elastic", "elastic", NO_CONTACTS)]
+    """The tensegrity_sim configurations of the work-precision sweep: every method, the inextensible
+    one with every QP backend, all without contact detection (MuJoCo's contacts are off too)."""
+    runners = [TensegrityRunner("elastic", "elastic", NO_CONTACTS)]
+    runners += [TensegrityRunner("inextensible", f"inextensible {name}", {**NO_CONTACTS, "solver": name})
+                for name in ts.SOLVERS]
+    return runners
+
+
+def default_runners(contacts: bool = False) -> list[TensegrityRunner]:
+    """Each method with its default settings (the inextensible one with its default QP backend),
+    contact detection off, or on for every member kind with ``contacts``."""
+    if contacts:
+        return [TensegrityRunner(method, f"{method} +contacts", ALL_CONTACTS) for method in ("elastic", "inextensible")]
+    return [TensegrityRunner(method, method, NO_CONTACTS) for method in ("elastic", "inextensible")]
 
 
 def scale_runners() -> list[TensegrityRunner]:
-    """The configurations of the scale study: each method with its default settings, with contact
-    detection off and on for every member kind."""
-    return [TensegrityRunner("elastic", "elastic", NO_CONTACTS),
-            TensegrityRunner("elastic", "elastic +contacts", ALL_CONTACTS)]
+    """The configurations of the scale and real-time studies: each method with its defaults, with
+    contact detection off and on."""
+    return default_runners() + default_runners(contacts=True)
 
 
 def mujoco_runners() -> list[MujocoRunner]:

@@ -39,8 +39,8 @@ def _time_per_step(step_n, reset) -> Timing:
     """Wall times per step (s) of ``REPEATS`` runs of ``step_n(n)``, with ``n`` calibrated so that a
     run lasts about ``TARGET_SECONDS``."""
     reset()
-    probe = time_runs(lambda: step_n(20), repeats=1).best / 20
-    n = max(20, int(TARGET_SECONDS / max(probe, 1e-7)))
+    probe = time_runs(lambda: step_n(5), repeats=1).best / 5
+    n = max(5, int(TARGET_SECONDS / max(probe, 1e-7)))
     return time_runs(lambda: step_n(n), setup=reset, repeats=REPEATS).per(n)
 
 

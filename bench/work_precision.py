@@ -24,7 +24,7 @@ from tensegrity_sim.system import System
 
 from .cases import Case
 from .reference import ElasticReference, Final
-from .runners import TensegrityRunner
+from .runners import NO_CONTACTS, TensegrityRunner
 from .timing import time_runs
 
 __all__ = ["Reference", "reference_for", "halving_limit", "sweep", "time_to_reach", "FIELDS"]
@@ -32,7 +32,8 @@ __all__ = ["Reference", "reference_for", "halving_limit", "sweep", "time_to_reac
 DTS_FULL = (1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5, 1e-5)
 DTS_MUJOCO_EXTRA = (5e-6, 2e-6)          # MuJoCo is cheap per step: its curves go further down
 DTS_QUICK = (1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4)
-LONG_RUN_S = 3.0
+LONG_RUN_S = 3.0          # a run expected to last longer is timed once
+MAX_RUN_S = 20.0          # a run expected to last longer is skipped (3 s with --quick)
 
 FIELDS = ["case", "model", "simulator", "variant", "dt", "steps", "status", "wall_s", "wall_per_sim_s",
           "steps_per_s", "pos_err_m", "imp_err_Ns", "energy_err_J"]
@@ -98,7 +99,7 @@ def reference_for(case: Case, model: str, *, quick: bool = False) -> Reference |
                            "imp_change_Ns": float(np.max(np.abs(other.impulses - final.impulses)))})
         # the simulator's own step-halving limit, as a check of that procedure where DOP853 exists
         levels = 4 if quick else 7
-        halved, rows = halving_limit(TensegrityRunner("elastic", "elastic"), case, 1e-3, levels)
+        halved, rows = halving_limit(TensegrityRunner("elastic", "elastic", NO_CONTACTS), case, 1e-3, levels)
         checks.append({"check": f"tensegrity_sim elastic at dt={rows[-1]['dt']:.3g} s (halving limit)",
                        "pos_change_m": _pos_diff(halved, final),
                        "imp_change_Ns": float(np.max(np.abs(halved.impulses - final.impulses)))})
@@ -106,7 +107,7 @@ def reference_for(case: Case, model: str, *, quick: bool = False) -> Reference |
         return Reference(final, f"DOP853 rtol=atol=1e-12, restarted at {final.switches} switches, "
                                 f"rigid-strut drift {ref.strut_drift(final):.1e}", accuracy, checks, rows)
     if model in ts.METHODS:
-        final, rows = halving_limit(TensegrityRunner(model, model), case, 1e-3, 5 if quick else 9)
+        final, rows = halving_limit(TensegrityRunner(model, model, NO_CONTACTS), case, 1e-3, 5 if quick else 8)
         return Reference(final, f"step-halving limit of tensegrity_sim {model} (dt -> {rows[-1]['dt']:.3g} s)",
                          _halving_accuracy(rows), [], rows)
     return None
@@ -150,10 +151,19 @@ def sweep(cases, runners, references: dict, *, quick: bool, repeats: int, progre
         progress.reset(total=len(jobs))
     rows, last = [], {}
     for case, runner, dt in jobs:
-        # a run expected to last over LONG_RUN_S (from the previous, larger step) is timed once: the
-        # noise of a long run is small against its length, and the full sweep must fit in the hour
+        # the time a run will take, from the previous, larger step: over LONG_RUN_S it is timed once (the
+        # noise of a long run is small against its length), over the budget it is skipped, so that the
+        # full sweep fits in the hour (the QP backends' smallest steps would not)
         key = (case.name, runner.label)
         expected = last[key][0] * last[key][1] / dt if key in last else 0.0
+        if expected > (3.0 if quick else MAX_RUN_S):
+            rows.append({"case": case.name, "model": runner.model, "simulator": runner.simulator,
+                         "variant": runner.variant, "dt": dt, "steps": int(round(case.duration / dt)),
+                         "status": f"skipped: expected {expected:.0f} s per run",
+                         **{k: math.nan for k in FIELDS[7:]}})
+            if progress is not None:
+                progress.update()
+            continue
         row = _one(case, runner, dt, references[(case.name, runner.model)], repeats if expected < LONG_RUN_S else 1)
         rows.append(row)
         if row["status"] == "ok":
