@@ -218,7 +218,8 @@ def write(path: Path, *, quick: bool, elapsed_s: float, cases, references, rows,
                 continue
             w.append(f"\n### {case.name}, {model} cables\n")
             w.append(f"{case.summary}. Duration {case.duration:g} s. Reference: {ref.source}"
-                     + (f", accuracy about {_g(ref.accuracy_m)} m" if ref.accuracy_m else "") + ".\n\n")
+                     + (f", accuracy about {_g(ref.accuracy_m)} m" if ref.accuracy_m else "") + "."
+                     + (f" Impulses: {case.impulse_note}." if case.impulse_note else "") + "\n\n")
             w.append(f"![{case.name} {model}](wp_{case.name}_{model}.png)\n\n")
             body = []
             for sim, variant in _configs(sub):
