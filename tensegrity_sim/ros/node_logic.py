@@ -284,7 +284,7 @@ class SimNodeLogic:
     logger: where refusals, warnings (``warning``) and the reason of a pause after a failed step (``error``)
     go (a ``logging.Logger``-like object).
     recorder: an object with ``record(topic_name, data, log_time_ns)`` (``data``: the message's CDR bytes)
-    and ``restart()`` (the MCAP log, :class:`~tensegrity_sim.ros.log.LogRecorder`), or None; it can be
+    and ``restart(run_info)`` (the MCAP log, :class:`~tensegrity_sim.ros.log.LogRecorder`), or None; it can be
     attached after construction.
     """
 
