@@ -42,7 +42,7 @@ def rk4_energies(sc, dt, steps, every):
     x, v = state.positions.copy(), state.velocities.copy()
 
     def acc(x, v):
-        return method.accelerations(x, v, state)[0]
+        return method.accelerations(x, v, state).acc
 
     out = []
     for k in range(steps):

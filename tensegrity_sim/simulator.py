@@ -165,7 +165,7 @@ class Simulator:
             velocities=out.velocities.copy(),
             impulses=out.impulses,
             tensions=out.impulses / self.dt,
-            slack=self.slack(),
+            slack=self.slack() if out.slack is None else out.slack,
             contacts=contacts,
         )
 

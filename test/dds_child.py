@@ -124,6 +124,7 @@ NODE_OUTPUTS = {  # what the controller listens to, as the node documents it
     "cable_impulses": (f"{NODE}/cable_impulses", "sensor_msgs/msg/JointState"),
     "contacts": (f"{NODE}/contacts", "diagnostic_msgs/msg/DiagnosticArray"),
     "command_result": (f"{NODE}/command_result", "std_msgs/msg/String"),
+    "parameter_events": ("/parameter_events", "rcl_interfaces/msg/ParameterEvent"),
 }
 NODE_INPUTS = {
     "cable_rest_lengths": (f"{NODE}/cable_rest_lengths", "sensor_msgs/msg/JointState"),

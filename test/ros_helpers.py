@@ -1,13 +1,16 @@
-"""Scenes, fakes and message builders shared by the tests of tensegrity_sim.ros."""
+"""Scenes, fakes, message builders and a log rewriter shared by the tests of tensegrity_sim.ros."""
 from __future__ import annotations
 
 import math
 
 import numpy as np
+import yaml
+from mcap.reader import make_reader
 
 import tensegrity_sim as ts
 from tensegrity_sim.ros import messages as M
-from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic
+from tensegrity_sim.ros.log import RUN_INFO, LogWriter
+from tensegrity_sim.ros.node_logic import NodeSettings, Qos, SimNodeLogic
 
 
 def prism_dict(fixed_base: bool = False, gravity: float = 0.0, stretch: float = 0.95) -> dict:
@@ -59,9 +62,13 @@ class ListLogger:
 
     def __init__(self):
         self.warnings: list[str] = []
+        self.errors: list[str] = []
 
     def warning(self, text: str) -> None:
         self.warnings.append(text)
+
+    def error(self, text: str) -> None:
+        self.errors.append(text)
 
 
 class FakeRecorder:
@@ -74,8 +81,9 @@ class FakeRecorder:
     def record(self, topic, message, log_time_ns):
         self.records.append((topic, message, log_time_ns))
 
-    def restart(self):
+    def restart(self, run_info):
         self.restarts += 1
+        self.run_info = run_info
         return f"restart{self.restarts}.mcap"
 
 
@@ -107,3 +115,27 @@ def positions_of(pose_array) -> np.ndarray:
 def stamp_of(message) -> int:
     stamp = message.header.stamp
     return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def rewrite(src, dst, alter=None, run_info=None):
+    """Copy a log message by message (decoded and re-encoded: identical bytes), through ``alter(topic, index,
+    message)`` (return None to drop it), with ``run_info`` changes."""
+    with open(src, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        info = next(m.metadata for m in reader.iter_metadata() if m.name == RUN_INFO)
+        channels = []
+        for c in summary.channels.values():
+            q = yaml.safe_load(c.metadata["offered_qos_profiles"])[0]
+            channels.append((c.topic, summary.schemas[c.schema_id].name, Qos(q["reliability"], q["depth"],
+                                                                             q["durability"])))
+        counts = {}
+        with LogWriter(dst, channels, {**info, **(run_info or {})}) as writer:
+            for _, c, message in reader.iter_messages(log_time_order=False):
+                typename = summary.schemas[c.schema_id].name
+                msg = M.deserialize(message.data, typename)
+                index = counts[c.topic] = counts.get(c.topic, -1) + 1
+                if alter is not None:
+                    msg = alter(c.topic, index, msg)
+                if msg is not None:
+                    writer.write(c.topic, M.serialize(msg, typename), message.log_time)

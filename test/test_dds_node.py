@@ -10,12 +10,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from mcap.reader import make_reader
 
 import tensegrity_sim as ts
 from dds_child import NODE, NODE_OUTPUTS, random_domain, rest_lengths, spawn
 from tensegrity_sim.ros.messages import TYPESTORE
 from tensegrity_sim.ros.node_logic import RUNTIME_PARAMETERS
+from tensegrity_sim.ros.log import RUN_INFO
 from tensegrity_sim.ros.replay import replay
 
 CHILD = "test/dds_child.py"
@@ -160,7 +162,7 @@ def test_a_controller_process_drives_the_simulator_process(tmp_path):
 
 
 def test_bad_messages_from_the_network_are_refused_and_the_node_keeps_going(tmp_path):
-    domain = random_domain()
+    domain, log = random_domain(), tmp_path / "run.mcap"
     c0 = PRISM.cables[0].rest_length
     garbled = bytearray(TYPESTORE.serialize_cdr(rest_lengths(["c0"], [0.5]), "sensor_msgs/msg/JointState"))
     at = garbled.index(b"c0")
@@ -182,7 +184,7 @@ def test_bad_messages_from_the_network_are_refused_and_the_node_keeps_going(tmp_
         {"rest": [["c0"], [0.9 * c0]]},              # and good ones still work
         {"sleep": 0.3}, {"command": "set publish_rate 50"}, {"mark": "slower"}, {"sleep": 0.3},
     ]
-    with serving(domain, "prism3", "--log-path", "") as server:
+    with serving(domain, "prism3", "--log-path", str(log)) as server:
         received, marks = control(domain, actions)
         assert server.poll() is None  # alive
         out, err = finish(server)
@@ -209,6 +211,13 @@ def test_bad_messages_from_the_network_are_refused_and_the_node_keeps_going(tmp_
     after = [m.effort[0] for m, _, t in received["cable_states"] if marks["good"] < t < marks["slower"]]
     assert np.allclose(before, before[0], rtol=1e-9, atol=0)
     assert max(after) > before[0] + 50
+    # The accepted change went out on /parameter_events, the bytes the log holds; the log, refusals and
+    # parameter change included, replays bit for bit.
+    ((event, data, _),) = received["parameter_events"]
+    assert event.node == NODE and [(p.name, p.value.type, p.value.double_value)
+                                   for p in event.changed_parameters] == [("publish_rate", 3, 50.0)]
+    assert logged(log)["/parameter_events"] == [(event.stamp.sec * 10**9 + event.stamp.nanosec, data)]
+    assert replay(log).ok
 
 
 def test_services_are_commands_on_a_topic(tmp_path):
@@ -254,7 +263,9 @@ def test_start_up_and_shut_down_are_clean(tmp_path):
     # A bad interface or domain is refused at start with the reason, before anything runs.
     refusals = [(("--transport", "dds", "--interface", "nonexistent0"), "no network interface named 'nonexistent0'"),
                 (("--transport", "dds", "--domain-id", "999"), "domain_id must be a whole number in [0, 232], got 999"),
-                (("--transport", "dds", "--publish-rate", "0"), "parameter 'publish_rate': must be > 0")]
+                (("--transport", "dds", "--publish-rate", "0"), "parameter 'publish_rate': must be > 0"),
+                (("--transport", "dds", "--solver", "cplex"), "parameter 'solver': must be one of daqp, osqp, nnls, "
+                                                              "auto or empty, got 'cplex'")]
     if importlib.util.find_spec("rclpy") is None:
         refusals.append((("--transport", "rclpy"), "--transport rclpy: rclpy does not import here"))
     for args, reason in refusals:
@@ -265,6 +276,26 @@ def test_start_up_and_shut_down_are_clean(tmp_path):
     mine = [pid for pid in os.listdir("/proc") if pid.isdigit() and _cmdline(pid).count(str(domain))
             and "--domain-id" in _cmdline(pid)]
     assert mine == []
+
+
+@pytest.mark.filterwarnings("ignore::tensegrity_sim.LengthOffsetWarning")  # the icosahedron is prestressed
+def test_serve_builds_the_simulator_from_its_parameters_and_the_scene(tmp_path):
+    """--method and --solver reach the simulator, and so do the scene's contact kinds: the log embeds
+    what ran (the method's settings, the node's, the scene as run), and replays."""
+    d = ts.load_scene("icosahedron").to_dict()
+    d["contact"] = {"kinds": ["strut_strut", "strut_cable"]}
+    scene, log, domain = tmp_path / "ico.yaml", tmp_path / "run.mcap", random_domain()
+    scene.write_text(ts.Scene.from_dict(d).to_yaml())
+    with serving(domain, str(scene), "--method", "inextensible", "--solver", "nnls", "--log-path", str(log)) as server:
+        control(domain, [{"sleep": 0.3}])
+        finish(server)
+    with open(log, "rb") as f:
+        info = next(r.metadata for r in make_reader(f).iter_metadata() if r.name == RUN_INFO)
+    assert info["method"] == "inextensible" and json.loads(info["method_settings"])["solver"] == "nnls"
+    assert json.loads(info["node_settings"])["solver"] == "nnls"
+    assert ts.Scene.from_dict(yaml.safe_load(info["scene_yaml"])).contact_kinds == ("strut_strut", "strut_cable")
+    result = replay(log)
+    assert result.ok and result.steps > 50
 
 
 def _cmdline(pid: str) -> str:

@@ -36,6 +36,8 @@ BAD_SETTINGS = [
     ({"max_rest_length_rate": math.inf}, "parameter 'max_rest_length_rate': must be a finite number, got inf"),
     ({"frame_id": ""}, "parameter 'frame_id': must be a non-empty string, got ''"),
     ({"log_path": None}, "parameter 'log_path': must be a string, got None"),
+    ({"solver": "cplex"}, "parameter 'solver': must be one of daqp, osqp, nnls, auto or empty, got 'cplex'"),
+    ({"solver": None}, "parameter 'solver': must be one of daqp, osqp, nnls, auto or empty, got None"),
     ({"node_name": "tensegrity_sim"}, "parameter 'node_name': must be fully qualified (start with /), got "
                                       "'tensegrity_sim'"),
 ]
@@ -46,6 +48,16 @@ def test_bad_settings_name_the_parameter(changes, message):
     with pytest.raises(ValueError) as err:
         NodeSettings(**changes)
     assert str(err.value) == message
+
+
+@pytest.mark.filterwarnings("ignore::tensegrity_sim.LengthOffsetWarning")  # the prism is prestressed
+@pytest.mark.parametrize("solver, qp_solver", [("auto", None), ("", None), ("daqp", "daqp"), ("osqp", "osqp"),
+                                               ("nnls", "nnls")])
+def test_solver_parameter_names_the_simulators_backend(solver, qp_solver):
+    settings = NodeSettings(method="inextensible", solver=solver)
+    assert settings.qp_solver == qp_solver
+    sim = ts.Simulator(prism(), method=settings.method, solver=settings.qp_solver)
+    assert sim.method_settings["solver"] == (qp_solver or "daqp")
 
 
 def test_integer_parameters_become_floats():
@@ -482,13 +494,26 @@ def test_reset_returns_to_the_scene_and_restarts_the_log():
 
 
 def test_runtime_parameters():
-    logic, _, _ = make_logic(prism())
-    assert logic.update(real_time_factor=2.0).real_time_factor == 2.0
+    """An accepted change goes out on /parameter_events, stamped with the simulation time, with the
+    values as the node took them (an integer becomes the double it is); a refused one sends nothing."""
+    logic, sent, _ = make_logic(prism())
+    for _ in range(7):
+        logic.step()
+    assert logic.update(real_time_factor=2, marker_rate=5.0).real_time_factor == 2.0
     with pytest.raises(ValueError, match=r"^parameter 'dt' is read-only while running \(restart the node\)$"):
         logic.update(dt=0.1)
+    with pytest.raises(ValueError, match=r"^parameter 'solver' is read-only while running \(restart the node\)$"):
+        logic.update(solver="osqp")
     with pytest.raises(ValueError, match="^parameter 'publish_rate': must be > 0, got -1.0$"):
         logic.update(publish_rate=-1.0)
+    assert logic.update() == logic.settings  # nothing changed: no event
     assert logic.settings.publish_rate == 100.0 and logic.settings.real_time_factor == 2.0
+    (event,) = [m for k, m in sent if k == "parameter_events"]
+    assert (event.stamp.sec, event.stamp.nanosec, event.node) == (0, 7_000_000, "/tensegrity_sim")
+    assert [(p.name, p.value.type, p.value.double_value) for p in event.changed_parameters] == [
+        ("real_time_factor", 3, 2.0), ("marker_rate", 3, 5.0)]
+    assert M.parameter_changes(event) == {"real_time_factor": 2.0, "marker_rate": 5.0}
+    assert isinstance(event.changed_parameters[0].value.double_value, float)
 
 
 def test_diagnostics_warn_while_overrunning():

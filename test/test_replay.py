@@ -12,9 +12,9 @@ from tensegrity_sim.cli import main, simulate
 from tensegrity_sim.commands import parse_commands
 from tensegrity_sim.ros import messages as M
 from tensegrity_sim.ros.log import RUN_INFO, LogRecorder, LogWriter
-from tensegrity_sim.ros.node_logic import Qos, NodeSettings, SimNodeLogic
+from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic
 from tensegrity_sim.ros.replay import LogError, log_info, replay
-from ros_helpers import FakeClock, prism, prism_dict, rest_lengths_msg, wrench_msg
+from ros_helpers import FakeClock, prism, prism_dict, rest_lengths_msg, rewrite, wrench_msg
 
 COMMANDS = [
     {"time": 0.0, "rest_lengths": {"c0": 0.55, "c4": 0.6}},
@@ -33,30 +33,6 @@ def logged(tmp_path_factory):
     assert main(["run", str(scene_file), "--duration", "0.3", "--method", "elastic", "--commands", str(commands),
                  "--log", str(log), "--quiet"]) == 0
     return log
-
-
-def rewrite(src, dst, alter=None, run_info=None):
-    """Copy a log message by message (decoded and re-encoded: identical bytes), through ``alter(topic, index,
-    message)`` (return None to drop it), with ``run_info`` changes."""
-    with open(src, "rb") as f:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        info = next(m.metadata for m in reader.iter_metadata() if m.name == RUN_INFO)
-        channels = []
-        for c in summary.channels.values():
-            q = yaml.safe_load(c.metadata["offered_qos_profiles"])[0]
-            channels.append((c.topic, summary.schemas[c.schema_id].name, Qos(q["reliability"], q["depth"],
-                                                                             q["durability"])))
-        counts = {}
-        with LogWriter(dst, channels, {**info, **(run_info or {})}) as writer:
-            for _, c, message in reader.iter_messages(log_time_order=False):
-                typename = summary.schemas[c.schema_id].name
-                msg = M.deserialize(message.data, typename)
-                index = counts[c.topic] = counts.get(c.topic, -1) + 1
-                if alter is not None:
-                    msg = alter(c.topic, index, msg)
-                if msg is not None:
-                    writer.write(c.topic, M.serialize(msg, typename), message.log_time)
 
 
 def plain_contacts():
@@ -237,3 +213,92 @@ def test_info_reports_counts_and_slack_statistics(logged, capsys):
     begins = sum(e.kind == "begin" for e in events)
     assert f"contacts         {begins} begin, {len(events) - begins} end, {len({e.members for e in events})} " \
            f"member pairs, smallest distance {min(e.distance for e in events):.6g} m" in out
+
+
+# --------------------------------------------------------------------------- runtime parameter changes
+def node_run_with_parameter_changes(path, change=50.0):
+    """A ticked node (publish 100 Hz, markers 10 Hz) whose publish_rate becomes ``change`` at 150 ms and
+    real_time_factor 2 at 250 ms; returns the logic. Markers go out with every round(publish_rate / 10)-th
+    publication, so the change moves them."""
+    clock = FakeClock(t=0.0)
+    sim = ts.Simulator(prism(gravity=9.81), method="elastic", dt=1e-3)
+    logic = SimNodeLogic(sim, NodeSettings(scene="prism"), clock=clock)
+    with LogRecorder(path, logic.channels(), logic.run_info()) as recorder:
+        logic.recorder = recorder
+        for k in range(1, 451):
+            clock.t = 1e-3 * k + 1e-7
+            logic.tick()
+            if k == 150:
+                logic.update(publish_rate=change)
+            if k == 250:
+                logic.update(real_time_factor=2)
+    return logic
+
+
+def marker_times(path):
+    with open(path, "rb") as f:
+        return [m.log_time for _, _, m in make_reader(f).iter_messages(topics=["/tensegrity_sim/markers"])]
+
+
+def test_runtime_parameter_changes_are_logged_and_replayed(tmp_path):
+    """Each accepted change is one rcl_interfaces/ParameterEvent on /parameter_events at the simulation
+    time it took effect (the node's name, the value as the node took it), and the replay applies it
+    there: before, a log with a changed publish_rate replayed with the markers of the old rate."""
+    logic = node_run_with_parameter_changes(tmp_path / "params.mcap")
+    with open(tmp_path / "params.mcap", "rb") as f:
+        events = [(m.log_time, M.deserialize(m.data, "rcl_interfaces/msg/ParameterEvent"))
+                  for _, _, m in make_reader(f).iter_messages(topics=["/parameter_events"])]
+    assert [(t, e.stamp.sec, e.stamp.nanosec, e.node, [(p.name, p.value.type, p.value.double_value)
+                                                       for p in e.changed_parameters])
+            for t, e in events] == [(150_000_000, 0, 150_000_000, "/tensegrity_sim", [("publish_rate", 3, 50.0)]),
+                                    (250_000_000, 0, 250_000_000, "/tensegrity_sim", [("real_time_factor", 3, 2.0)])]
+    assert all(not (e.new_parameters or e.deleted_parameters) for _, e in events)
+    # at 100 Hz markers with every 10th publication (10 ms apart): 10, 110 ms; the countdown of 10 started
+    # at 110 ms is 5 publications in at 150 ms and runs out 5 more, 20 ms apart, later: 270 ms; then every
+    # 5th publication, 100 ms apart, to the end (the real-time factor leaves simulated time alone)
+    assert logic.sim.step_count == 150 + 100 + 2 * 200
+    assert marker_times(tmp_path / "params.mcap") == [t * 1_000_000 for t in (10, 110, 270, 370, 470, 570)]
+    report = replay(tmp_path / "params.mcap")
+    assert report.ok, report.mismatch
+    assert report.compared["/parameter_events"] == 2 and report.steps == logic.sim.step_count
+
+
+def test_an_altered_parameter_event_is_caught(tmp_path):
+    """publish_rate 50 -> 25 in the log: the replay, publishing where the log did (every 20 ms), puts
+    markers with every round(25 / 10) = 2nd publication from the one at 270 ms on, so the first marker
+    the run did not publish is at step 310 (the run's next is at 370 ms). A value the node would refuse
+    is named as refused, at the event."""
+    node_run_with_parameter_changes(tmp_path / "params.mcap")
+    for value, expected in ((25.0, (310, "/tensegrity_sim/markers", "message", "none", "a message")),
+                            (-1.0, (150, "/parameter_events", "changed_parameters", "a change the node took",
+                                    "refused: parameter 'publish_rate': must be > 0, got -1.0"))):
+        def alter(topic, index, msg, value=value):
+            if topic == "/parameter_events" and index == 0:
+                msg.changed_parameters[0].value.double_value = value
+            return msg
+
+        rewrite(tmp_path / "params.mcap", tmp_path / "altered.mcap", alter)
+        m = replay(tmp_path / "altered.mcap").mismatch
+        assert (m.step, m.topic, m.field, m.logged, m.replayed) == expected
+
+
+def test_a_reset_log_embeds_the_parameters_of_then(tmp_path):
+    """After a runtime change and a reset, the new file starts from the changed settings and replays."""
+    clock = FakeClock(t=0.0)
+    sim = ts.Simulator(prism(), method="elastic", dt=1e-3)
+    logic = SimNodeLogic(sim, NodeSettings(scene="prism"), clock=clock)
+    with LogRecorder(tmp_path / "run.mcap", logic.channels(), logic.run_info()) as recorder:
+        logic.recorder = recorder
+        for k in range(1, 301):
+            clock.t = 1e-3 * k + 1e-7
+            logic.tick()
+            if k == 50:
+                logic.update(publish_rate=50.0)
+            if k == 100:
+                logic.reset()
+    second = recorder.paths[1]
+    with open(second, "rb") as f:
+        info = next(r.metadata for r in make_reader(f).iter_metadata() if r.name == RUN_INFO)
+    assert json.loads(info["node_settings"])["publish_rate"] == 50.0
+    assert marker_times(second) == [t * 1_000_000 for t in (20, 120)]  # every 5th publication, 20 ms apart
+    assert replay(recorder.paths[0]).ok and replay(second).ok

@@ -49,11 +49,14 @@ class State:
 
 @dataclass(frozen=True)
 class MethodStep:
-    """One step's outcome: positions, velocities (N, 3) at the step's end; impulses (n_cables,) N*s."""
+    """One step's outcome: positions, velocities (N, 3) at the step's end; impulses (n_cables,) N*s;
+    slack (n_cables,) bool at the step's end if the method has it at hand (else the simulator asks
+    ``slack()``)."""
 
     positions: np.ndarray
     velocities: np.ndarray
     impulses: np.ndarray
+    slack: np.ndarray | None = None
 
 
 class StepMethod:

@@ -28,6 +28,8 @@ cable's impulse over the step, and ``impulses / h`` the step's mean tension.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ..system import System
@@ -35,6 +37,16 @@ from .base import MethodStep, State, StepMethod
 from .rigid import RigidStruts
 
 __all__ = ["ElasticMethod"]
+
+
+class _Forces(NamedTuple):
+    """What the step needs at one configuration: accelerations (N, 3) m/s^2, cable tensions
+    (n_cables,) N, member unit vectors (m, 3), slack cables (n_cables,) bool."""
+
+    acc: np.ndarray
+    cable_tensions: np.ndarray
+    directions: np.ndarray
+    slack: np.ndarray
 
 
 class ElasticMethod(StepMethod):
@@ -55,7 +67,7 @@ class ElasticMethod(StepMethod):
         self._damped = bool(np.any(system.cable_damping > 0))
         self._rest = np.empty(system.n_members)
         self._rest[: system.n_struts] = system.strut_rest
-        self._cache: tuple[np.ndarray, np.ndarray] | None = None
+        self._cache: _Forces | None = None
 
     def invalidate(self) -> None:
         self._cache = None
@@ -67,7 +79,8 @@ class ElasticMethod(StepMethod):
             state.velocities = state.velocities + self.rigid.project_velocities(state.positions, state.velocities)
 
     def tensions(self, x: np.ndarray, v: np.ndarray, rest_lengths: np.ndarray):
-        """Member tensions (m,) N (struts first; rigid struts 0) and unit vectors (m, 3) at ``x``."""
+        """Member tensions (m,) N (struts first; rigid struts 0), lengths (m,) m and unit vectors (m, 3)
+        at ``x``."""
         sys = self.system
         rest = self._rest
         rest[sys.n_struts:] = rest_lengths
@@ -79,31 +92,31 @@ class ElasticMethod(StepMethod):
             taut = cables > 0
             cables += np.where(taut, sys.cable_damping * rate, 0.0)
             np.maximum(cables, 0.0, out=cables)  # a damped cable never pushes
-        return t, n
+        return t, length, n
 
-    def accelerations(self, x, v, state: State):
-        t, n = self.tensions(x, v, state.rest_lengths)
-        f = self.system.assemble(t[:, None] * n) + self.system.gravity_force + state.external_forces
-        return f * self.system.inv_mass[:, None], t[self.system.n_struts:]
+    def accelerations(self, x, v, state: State) -> _Forces:
+        t, length, n = self.tensions(x, v, state.rest_lengths)
+        sys = self.system
+        f = sys.assemble(t[:, None] * n) + sys.gravity_force + state.external_forces
+        return _Forces(f * sys.inv_mass[:, None], t[sys.n_struts:], n, length[sys.n_struts:] < state.rest_lengths)
 
     def _step_impl(self, state: State) -> MethodStep:
         h = self.dt
         x, v = state.positions, state.velocities
-        if self._cache is None:
-            self._cache = self.accelerations(x, v, state)
-        acc, t_start = self._cache
-        v_half = v + (0.5 * h) * acc
+        # the forces at the step's start are the previous step's end forces, unless an input changed
+        start = self._cache if self._cache is not None else self.accelerations(x, v, state)
+        v_half = v + (0.5 * h) * start.acc
         x_new = x + h * v_half
         if self.rigid.count:
-            dx = self.rigid.project_positions(x, x_new)
+            dx = self.rigid.project_positions(x, x_new, start.directions[self.rigid.members])
             x_new += dx
             v_half += dx / h
-        acc_new, t_end = self.accelerations(x_new, v_half, state)
-        v_new = v_half + (0.5 * h) * acc_new
+        end = self.accelerations(x_new, v_half, state)
+        v_new = v_half + (0.5 * h) * end.acc
         if self.rigid.count:
-            v_new += self.rigid.project_velocities(x_new, v_new)
-        self._cache = (acc_new, t_end)
-        return MethodStep(x_new, v_new, (0.5 * h) * (t_start + t_end))
+            v_new += self.rigid.project_velocities(x_new, v_new, end.directions[self.rigid.members])
+        self._cache = end
+        return MethodStep(x_new, v_new, (0.5 * h) * (start.cable_tensions + end.cable_tensions), end.slack)
 
     def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
         sys = self.system

@@ -29,6 +29,7 @@ class RigidStruts:
         idx = np.flatnonzero(system.rigid)
         ends = system.strut_ends[idx]
         moves = system.inv_mass[ends[:, 0]] + system.inv_mass[ends[:, 1]] > 0
+        self.members = idx[moves]   # their rows in the system's member arrays (struts come first)
         self.ends = ends[moves]
         self.length_sq = system.strut_rest[idx][moves] ** 2
         self.count = len(self.ends)
@@ -44,10 +45,12 @@ class RigidStruts:
         """Node displacements (or velocity changes) (N, 3) for equal-and-opposite pushes along the struts."""
         return self._inv_mass * (self._incidence @ (strengths[:, None] * directions))
 
-    def project_positions(self, x_start: np.ndarray, x_pred: np.ndarray) -> np.ndarray:
+    def project_positions(self, x_start: np.ndarray, x_pred: np.ndarray,
+                          directions: np.ndarray | None = None) -> np.ndarray:
         """SHAKE: the displacement (N, 3) that puts ``x_pred`` back on every strut length, applied along
-        the strut directions at ``x_start`` (the constraint force acts where the step began)."""
-        _, _, n0 = self._system.geometry(x_start, self.ends)
+        the strut directions at ``x_start`` (the constraint force acts where the step began).
+        ``directions``: those unit vectors (count, 3) if the caller has them already."""
+        n0 = self._system.geometry(x_start, self.ends)[2] if directions is None else directions
         r = x_pred[self.ends[:, 1]] - x_pred[self.ends[:, 0]]
         if not self.coupled:
             p = np.einsum("ij,ij->i", r, n0)
@@ -65,9 +68,10 @@ class RigidStruts:
                 gamma -= np.linalg.solve(jac, g)
         return self._push(gamma, n0)
 
-    def project_velocities(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """RATTLE: the velocity change (N, 3) that zeroes every strut's length rate at ``x``."""
-        _, _, n = self._system.geometry(x, self.ends)
+    def project_velocities(self, x: np.ndarray, v: np.ndarray, directions: np.ndarray | None = None) -> np.ndarray:
+        """RATTLE: the velocity change (N, 3) that zeroes every strut's length rate at ``x``.
+        ``directions``: the struts' unit vectors (count, 3) at ``x`` if the caller has them already."""
+        n = self._system.geometry(x, self.ends)[2] if directions is None else directions
         rate = self._system.member_rates(v, n, self.ends)
         if not self.coupled:
             mu = rate / self._w

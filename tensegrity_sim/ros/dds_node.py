@@ -116,7 +116,7 @@ def serve(settings: NodeSettings, *, domain_id: int = 0, interface: str = DEFAUL
     SIGINT returns, SIGTERM leaves as ``SystemExit(143)``. However it ends, the log (if any) is finished
     and every DDS entity is deleted."""
     log = log or logging.getLogger("tensegrity_sim")
-    sim = Simulator(load_scene(settings.scene), method=settings.method, dt=settings.dt)
+    sim = Simulator(load_scene(settings.scene), method=settings.method, dt=settings.dt, solver=settings.qp_solver)
     namespace, _, name = settings.node_name.rpartition("/")
     path = log_file_path(settings.log_path, sim.scene.name)
     try:

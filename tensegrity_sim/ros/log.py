@@ -160,15 +160,14 @@ class LogRecorder:
     """What the node logic records through: a :class:`LogWriter` that starts a new file on reset.
 
     A log holds one run from the scene's initial state on one simulation-time axis, so a reset (which
-    sends the time back to 0) finishes the current file and opens ``<stem>_reset<n>.mcap`` beside it.
-    ``paths`` lists every file written.
+    sends the time back to 0) finishes the current file and opens ``<stem>_reset<n>.mcap`` beside it,
+    with the run info of then (runtime parameters may have changed). ``paths`` lists every file written.
     """
 
     def __init__(self, path: str | Path, channels: Iterable[tuple[str, str, Qos]], run_info: Mapping[str, str]):
         self._channels = list(channels)
-        self._run_info = dict(run_info)
         self.paths = [Path(path)]
-        self._writer = LogWriter(path, self._channels, self._run_info)
+        self._writer = LogWriter(path, self._channels, run_info)
 
     @property
     def path(self) -> Path:
@@ -178,11 +177,12 @@ class LogRecorder:
         """Append CDR ``data`` on ``topic`` at ``log_time_ns`` (see :meth:`LogWriter.write`)."""
         self._writer.write(topic, data, log_time_ns)
 
-    def restart(self) -> Path:
+    def restart(self, run_info: Mapping[str, str]) -> Path:
+        """Finish this file and start the next, embedding ``run_info``; returns its path."""
         self._writer.finish()
         first = self.paths[0]
         self.paths.append(first.with_name(f"{first.stem}_reset{len(self.paths)}{first.suffix}"))
-        self._writer = LogWriter(self.paths[-1], self._channels, self._run_info)
+        self._writer = LogWriter(self.paths[-1], self._channels, run_info)
         return self.paths[-1]
 
     def finish(self) -> None:

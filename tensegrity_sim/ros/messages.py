@@ -27,7 +27,7 @@ from rosbags.typesys import Stores, get_typestore
 
 __all__ = ["BACKEND", "TYPESTORE", "new", "message_class", "float64s", "uint8s", "byte", "serialize",
            "deserialize", "field_names", "schema_text", "type_hash", "time", "header", "point", "vector3",
-           "color", "key_values", "joint_state", "wrench_stamped"]
+           "color", "key_values", "joint_state", "wrench_stamped", "parameter_event", "parameter_changes"]
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 
@@ -148,3 +148,39 @@ def wrench_stamped(header_msg, force, torque=(0.0, 0.0, 0.0)):
     return new("geometry_msgs/msg/WrenchStamped", header=header_msg,
                wrench=new("geometry_msgs/msg/Wrench", force=vector3(*map(float, force)),
                           torque=vector3(*map(float, torque))))
+
+
+# rcl_interfaces/ParameterType: the type of each parameter value the node has, and the field that holds it
+_PARAMETER_TYPES = {bool: (1, "bool_value"), int: (2, "integer_value"), float: (3, "double_value"),
+                    str: (4, "string_value")}
+_PARAMETER_FIELDS = dict(_PARAMETER_TYPES.values())
+
+
+def _parameter_value(value):
+    """rcl_interfaces/ParameterValue holding a bool, int, float or str (the array fields empty)."""
+    kind, name = _PARAMETER_TYPES[type(value)]
+    empty = (lambda dtype: []) if BACKEND == "rclpy" else (lambda dtype: np.zeros(0, dtype))
+    values = {"bool_value": False, "integer_value": 0, "double_value": 0.0, "string_value": "", name: value}
+    return new("rcl_interfaces/msg/ParameterValue", type=kind, **values, byte_array_value=empty(np.int8),
+               bool_array_value=empty(bool), integer_array_value=empty(np.int64),
+               double_array_value=empty(np.float64), string_array_value=[])
+
+
+def parameter_event(ns: int, node: str, changed: dict):
+    """rcl_interfaces/ParameterEvent stamped ``ns``: the ``changed`` parameters (name -> value) of ``node``
+    (its fully qualified name)."""
+    return new("rcl_interfaces/msg/ParameterEvent", stamp=time(ns), node=node, new_parameters=[],
+               changed_parameters=[new("rcl_interfaces/msg/Parameter", name=k, value=_parameter_value(v))
+                                   for k, v in changed.items()], deleted_parameters=[])
+
+
+def parameter_changes(event) -> dict:
+    """The changed parameters (name -> value) of a ParameterEvent (the inverse of :func:`parameter_event`);
+    ValueError for a value of a type :func:`parameter_event` does not write."""
+    out = {}
+    for p in event.changed_parameters:
+        if p.value.type not in _PARAMETER_FIELDS:
+            raise ValueError(f"parameter {p.name!r}: value of ParameterType {p.value.type} (not bool, integer, "
+                             f"double or string)")
+        out[p.name] = getattr(p.value, _PARAMETER_FIELDS[p.value.type])
+    return out

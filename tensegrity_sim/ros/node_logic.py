@@ -13,7 +13,11 @@
   straight from the arrays by :class:`~.cdr.CdrTemplate` objects (built once per node, and once per
   marker shape), so logging costs little; message objects are built only for a transport that takes
   them, and nothing at all when no one listens;
-* the **services** (reset, pause, resume, single step) are plain methods returning ``(success, message)``.
+* the **services** (reset, pause, resume, single step) are plain methods returning ``(success, message)``;
+* a **failed step** (a :class:`~tensegrity_sim.QPError` of the inextensible method) never escapes: the
+  inputs that made it impossible are refused after the fact, or the node pauses (:meth:`SimNodeLogic.step`);
+* **runtime parameter changes** (:meth:`SimNodeLogic.update`) go out, and into the log, as
+  ``/parameter_events``, so a replay applies them where the run did.
 
 Topics are named by key (``"node_poses"``...); :data:`TOPICS` gives their names, types, direction and
 QoS. The node is single-threaded (one executor thread calls everything), so nothing here locks.
@@ -35,13 +39,14 @@ from typing import Callable
 import numpy as np
 
 from .. import __version__
+from ..methods.qp import SOLVERS, QPError
 from ..results import ContactEvent, StepResult
 from ..simulator import Simulator
 from . import messages as M
 from .cdr import CdrTemplate
 
 __all__ = ["Qos", "TopicSpec", "TOPICS", "SERVICES", "NodeSettings", "SimNodeLogic", "stamp_ns", "encode_contacts",
-           "decode_contacts", "RUNTIME_PARAMETERS"]
+           "decode_contacts", "RUNTIME_PARAMETERS", "FAILURE_STATUS"]
 
 
 # --------------------------------------------------------------------------- topics
@@ -77,6 +82,8 @@ TOPICS: dict[str, TopicSpec] = {
     "contacts": TopicSpec("~/contacts", "diagnostic_msgs/msg/DiagnosticArray", "out", Qos(depth=100)),
     "markers": TopicSpec("~/markers", "visualization_msgs/msg/MarkerArray", "out", Qos()),
     "diagnostics": TopicSpec("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "out", Qos()),
+    # rclcpp's and rclpy's parameter-events QoS (rmw_qos_profile_parameter_events): keep_last 1000
+    "parameter_events": TopicSpec("/parameter_events", "rcl_interfaces/msg/ParameterEvent", "out", Qos(depth=1000)),
 }
 
 
@@ -109,6 +116,9 @@ class NodeSettings:
 
     scene: str = field(default="prism3", metadata=_doc("built-in scene name or path to a scene YAML file"))
     method: str = field(default="auto", metadata=_doc("stepping method: elastic | inextensible | auto"))
+    solver: str = field(default="auto", metadata=_doc(
+        f"QP backend of the inextensible method: {' | '.join(SOLVERS)}, or auto (or empty) for the method's "
+        f"default"))
     dt: float = field(default=1e-3, metadata=_doc("simulated time per step, s"))
     step_rate: float = field(default=1000.0, metadata=_doc(
         "rate of the stepping timer, Hz of wall-clock (steady) time; each tick runs the steps due"))
@@ -136,6 +146,9 @@ class NodeSettings:
                 raise ValueError(f"parameter {name!r}: must be a non-empty string, got {value!r}")
         if not isinstance(self.log_path, str):
             raise ValueError(f"parameter 'log_path': must be a string, got {self.log_path!r}")
+        if self.solver not in ("auto", "", *SOLVERS):
+            raise ValueError(f"parameter 'solver': must be one of {', '.join(SOLVERS)}, auto or empty, got "
+                             f"{self.solver!r}")
         if not self.node_name.startswith("/"):
             raise ValueError(f"parameter 'node_name': must be fully qualified (start with /), got "
                              f"{self.node_name!r}")
@@ -163,12 +176,20 @@ class NodeSettings:
         return max(1, int(round(self.publish_rate / self.marker_rate)))
 
     @property
+    def qp_solver(self) -> str | None:
+        """``Simulator(..., solver=)``: the backend named, or None for the method's default."""
+        return None if self.solver in ("auto", "") else self.solver
+
+    @property
     def parameters(self) -> dict:
         """The ROS parameters (every field but ``node_name``) and their values."""
         return {k: v for k, v in asdict(self).items() if k != "node_name"}
 
 
 RUNTIME_PARAMETERS = tuple(f.name for f in fields(NodeSettings) if f.metadata.get("runtime"))
+
+# the /diagnostics status of a failed step is named "<node name>: step failed" (the periodic one "...: stepping")
+FAILURE_STATUS = "step failed"
 
 
 # --------------------------------------------------------------------------- markers
@@ -260,9 +281,10 @@ class SimNodeLogic:
     output instead of a message object: for a transport that sends raw CDR (a DDS writer, rclpy's
     ``publish`` of bytes) and for the replay; an output is then encoded once, for it and the log alike.
     clock(): monotonic wall-clock seconds (``time.monotonic``; a fake one in tests).
-    logger: where refusals and warnings go (a ``logging.Logger``-like object).
+    logger: where refusals, warnings (``warning``) and the reason of a pause after a failed step (``error``)
+    go (a ``logging.Logger``-like object).
     recorder: an object with ``record(topic_name, data, log_time_ns)`` (``data``: the message's CDR bytes)
-    and ``restart()`` (the MCAP log, :class:`~tensegrity_sim.ros.log.LogRecorder`), or None; it can be
+    and ``restart(run_info)`` (the MCAP log, :class:`~tensegrity_sim.ros.log.LogRecorder`), or None; it can be
     attached after construction.
     """
 
@@ -304,10 +326,13 @@ class SimNodeLogic:
         self.overruns = 0
         self.max_lag = 0.0          # wall-clock s behind the schedule, the worst seen
         self.publications = 0
+        self.failed_steps = 0
         self._steps_run = 0
         self._started = clock()
         self._overruns_reported = 0
         self.paused = False
+        self.failure: str | None = None          # why a failed step paused the node (None: none did)
+        self.step_error: QPError | None = None   # the last step failure
         self._clear()
         self._anchor()
 
@@ -345,6 +370,9 @@ class SimNodeLogic:
         self._tension_scale = 0.0                    # the largest tension seen: red in the markers
         self._shown: set[str] = set()                # marker namespaces on screen
         self._last: StepResult | None = None
+        # what the inputs applied since the last step changed, to undo if the step fails with them:
+        # (targets, applied rest lengths, external forces) before the first of them, and their topic keys
+        self._undo: tuple[np.ndarray, np.ndarray, np.ndarray, list[str]] | None = None
         self._since_publish = 0
         self._until_markers = 0                      # publications to go until the next marker array
 
@@ -383,16 +411,20 @@ class SimNodeLogic:
     def receive(self, key: str, message) -> str | None:
         """Take one message of input topic ``key``; returns None if it was applied, else the reason it was
         refused (also logged). A refused message changes nothing. Every message is recorded, refused or
-        not, at the simulation time it arrived (it acts from the next step on)."""
+        not, at the simulation time it arrived (it acts from the next step on). An applied message is
+        still refused after the fact if the next step fails with it (:meth:`step`)."""
         if self.recorder is not None:
             self.recorder.record(self.topic_names[key], M.serialize(message, TOPICS[key].typename), self.stamp_ns())
         self.received[key] += 1
+        undo = self._undo or (self._target, self._applied, self.sim.external_forces, [])
         try:
             self._inputs[key](message)
         except ValueError as exc:
             self.refused[key] += 1
             self._log.warning(f"{self.topic_names[key]}: refused: {exc}")
             return str(exc)
+        undo[3].append(key)
+        self._undo = undo
         return None
 
     def _apply_rest_lengths(self, msg) -> None:
@@ -439,24 +471,81 @@ class SimNodeLogic:
         self.sim.set_external_forces({node: force})
 
     # ------------------------------------------------------------------ stepping
-    def step(self) -> StepResult:
+    def step(self) -> StepResult | None:
         """One simulation step: move rate-limited rest lengths towards their targets, step, and add the
-        step's impulses and contact events to what the next publication reports."""
+        step's impulses and contact events to what the next publication reports.
+
+        Returns None if the step failed: a :class:`~tensegrity_sim.QPError`, the inextensible method finding
+        the commanded motion impossible (shortening a cable of a locked structure); the simulator is then
+        as before the step. What made it fail is given up, the first of these that applies:
+
+        1. the input messages applied since the last step: each is refused after the fact (logged and
+           counted as refused), and the rest lengths, their targets and the forces are what they were
+           before them;
+        2. this step's rate-limited move: the rest-length targets are refused after the fact, and the
+           rest lengths stay where they are (a motor that stalls);
+        3. nothing: the node pauses, :attr:`failure` says why, until it is resumed or reset.
+
+        Every failure is reported on ``/diagnostics`` at once, so the log has it (a replay attempts a step
+        there and must fail the same way). After 1 and 2 the next step tries again without what was given up.
+        """
+        before_move = None
         rate = self.settings.max_rest_length_rate
         if rate > 0.0 and not np.array_equal(self._applied, self._target):
             max_change = rate * self.sim.dt
             diff = self._target - self._applied
+            before_move = self._applied
             # land exactly on the target (applied + diff may round off it)
             self._applied = np.where(np.abs(diff) <= max_change, self._target,
                                      self._applied + np.copysign(max_change, diff))
             self.sim.set_rest_lengths(self._applied)
-        r = self.sim.step()
+        try:
+            r = self.sim.step()
+        except QPError as exc:
+            self._step_failed(exc, before_move)
+            return None
+        self._undo = None
         self._impulse_sum += r.impulses
         self._contact_queue.extend(r.contacts)
         self._last = r
         self._since_publish += 1
         self._steps_run += 1
         return r
+
+    def _step_failed(self, error: QPError, before_move: np.ndarray | None) -> None:
+        """Give up what made the step from now fail (:meth:`step`); log and report it. ``before_move``: the
+        rest lengths before the step's rate-limited move (None: no move)."""
+        self.failed_steps += 1
+        self.step_error = error
+        what = f"the step from t = {self.sim.time:.6f} s failed: {error}"
+        if self._undo is not None:
+            self._target, applied, forces, keys = self._undo
+            self.sim.set_external_forces(forces)
+            done = "the input message(s) since the previous step are refused after the fact"
+        elif before_move is not None:
+            self._target = applied = before_move
+            keys = ["cable_rest_lengths"]
+            done = "the rest-length targets are refused after the fact; the rest lengths stay where they are"
+        else:
+            self.paused = True
+            self.failure = f"{what}; paused: change the inputs and resume, or reset"
+            self._log.error(self.failure)
+            self._report_failure(2, self.failure)
+            return
+        self._undo = None
+        self._applied = applied
+        self.sim.set_rest_lengths(applied)
+        for key in keys:
+            self.refused[key] += 1
+            self._log.warning(f"{self.topic_names[key]}: refused after the fact: {what}")
+        self._report_failure(1, f"{what}; {done}")
+
+    def _report_failure(self, level: int, text: str) -> None:
+        """``/diagnostics`` of one failed step (WARN: stepping goes on; ERROR: paused), stamped with the
+        time the step started from; nothing in it depends on the wall clock, so a replay compares it."""
+        ns = self.stamp_ns()
+        self._send("diagnostics", ns, M.new("diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
+                                            status=[self._status(FAILURE_STATUS, level, text, {})]))
 
     @property
     def publication_due(self) -> bool:
@@ -471,7 +560,8 @@ class SimNodeLogic:
         without starving the executor. A tick that ends more than one tick period behind the schedule is
         an overrun: counted, reported in diagnostics and the summary, and the lag is kept (the node
         catches up later, or runs slower than real time, visibly). With ``real_time_factor == 0`` a tick
-        steps for one tick period, as fast as possible.
+        steps for one tick period, as fast as possible. A failed step (:meth:`step`) is not counted; one
+        that pauses the node ends the tick.
         """
         if self.paused:
             return 0
@@ -480,17 +570,18 @@ class SimNodeLogic:
         start = self._clock()
         done = 0
         if s.real_time_factor == 0.0:
-            while True:
-                self._advance()
-                done += 1
+            while not self.paused:   # a failed step may pause the node
+                done += self._advance()
                 if self._clock() - start >= period:
-                    return done
+                    break
+            return done
         steps_per_second = s.real_time_factor / s.dt
         due = self._anchor_step + math.floor((start - self._anchor_time) * steps_per_second)
         cap = max(1, math.ceil(2.0 * steps_per_second * period))
         for _ in range(min(due - self.sim.step_count, cap)):
-            self._advance()
-            done += 1
+            done += self._advance()
+            if self.paused:
+                return done
         # steps already due that this tick could not run: more than one tick's worth is an overrun
         behind = (self._anchor_step + math.floor((self._clock() - self._anchor_time) * steps_per_second)
                   - self.sim.step_count)
@@ -499,10 +590,13 @@ class SimNodeLogic:
             self.max_lag = max(self.max_lag, behind / steps_per_second)
         return done
 
-    def _advance(self) -> None:
-        self.step()
+    def _advance(self) -> bool:
+        """One step, and a publication if due; False if the step failed."""
+        if self.step() is None:
+            return False
         if self.publication_due:
             self.publish()
+        return True
 
     # ------------------------------------------------------------------ outputs
     def publish(self) -> None:
@@ -656,6 +750,7 @@ class SimNodeLogic:
         if not self.paused:
             return False, "not paused"
         self.paused = False
+        self.failure = None  # the next step tries again
         self._anchor()  # the paused time is not owed: the schedule restarts now
         return True, f"resumed at t = {self.sim.time:.6f} s"
 
@@ -663,7 +758,9 @@ class SimNodeLogic:
         """While paused: one step, then publish (so the new state is seen at once)."""
         if not self.paused:
             return False, "not paused: call pause first"
-        self.step()
+        if self.step() is None:
+            return False, f"step failed: {self.step_error} (see /diagnostics)"
+        self.failure = None
         self.publish()
         return True, f"stepped to t = {self.sim.time:.6f} s"
 
@@ -673,36 +770,50 @@ class SimNodeLogic:
         self.sim.reset()
         self._clear()
         self._anchor()
+        self.failure = None
         text = "reset to the scene's initial state"
-        if self.recorder is not None:
-            text += f"; now logging to {self.recorder.restart()}"
+        if self.recorder is not None:  # the new file embeds the settings in force now
+            text += f"; now logging to {self.recorder.restart(self.run_info())}"
         return True, text
 
     def update(self, **changes) -> NodeSettings:
         """Change runtime parameters (:data:`RUNTIME_PARAMETERS`); ``ValueError`` names a bad one and
-        changes nothing."""
+        changes nothing. An accepted change is sent and recorded on ``/parameter_events`` at the simulation
+        time it takes effect, with the values as validated (so a replay applies it there)."""
         fixed = sorted(set(changes) - set(RUNTIME_PARAMETERS))
         if fixed:
             raise ValueError(f"parameter {fixed[0]!r} is read-only while running (restart the node)")
         self.settings = replace(self.settings, **changes)
         self._anchor()
+        if changes:
+            ns = self.stamp_ns()
+            self._send("parameter_events", ns, M.parameter_event(
+                ns, self.settings.node_name, {name: getattr(self.settings, name) for name in changes}))
         return self.settings
 
     # ------------------------------------------------------------------ reporting
     def publish_diagnostics(self) -> None:
-        """Send (and record) ``/diagnostics``: WARN while overruns keep happening, else OK."""
+        """Send (and record) ``/diagnostics``: ERROR while a failed step keeps the node paused, WARN while
+        overruns keep happening, else OK."""
         new_overruns = self.overruns - self._overruns_reported
         self._overruns_reported = self.overruns
-        level = 1 if new_overruns else 0
-        text = (f"{new_overruns} overrun(s) since the last report: the node cannot keep the real-time "
-                f"factor" if new_overruns else ("paused" if self.paused else "stepping"))
+        if self.failure is not None:
+            level, text = 2, self.failure
+        elif new_overruns:
+            level, text = 1, (f"{new_overruns} overrun(s) since the last report: the node cannot keep the "
+                              f"real-time factor")
+        else:
+            level, text = 0, "paused" if self.paused else "stepping"
         values = {k: str(v) for k, v in self.statistics().items()}
-        status = M.new("diagnostic_msgs/msg/DiagnosticStatus", level=M.byte(level),
-                       name=f"{self.settings.node_name.lstrip('/')}: stepping", message=text,
-                       hardware_id=self.sim.scene.name, values=M.key_values(values))
         ns = self.stamp_ns()
         self._send("diagnostics", ns, M.new("diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
-                                            status=[status]))
+                                            status=[self._status("stepping", level, text, values)]))
+
+    def _status(self, what: str, level: int, text: str, values: dict):
+        """One DiagnosticStatus named ``"<node name>: <what>"``, hardware id = the scene's name."""
+        return M.new("diagnostic_msgs/msg/DiagnosticStatus", level=M.byte(level),
+                     name=f"{self.settings.node_name.lstrip('/')}: {what}", message=text,
+                     hardware_id=self.sim.scene.name, values=M.key_values(values))
 
     def statistics(self) -> dict:
         """Counters for diagnostics and the summary."""
@@ -712,7 +823,7 @@ class SimNodeLogic:
             "real_time_factor_achieved": round(self._steps_run * self.sim.dt / wall, 4) if wall > 0 else 0.0,
             "real_time_factor_target": self.settings.real_time_factor,
             "overruns": self.overruns, "max_lag_ms": round(1e3 * self.max_lag, 3),
-            "publications": self.publications,
+            "publications": self.publications, "failed_steps": self.failed_steps,
             "refused_rest_lengths": self.refused["cable_rest_lengths"],
             "refused_wrenches": self.refused["external_wrench"], "paused": self.paused,
         }

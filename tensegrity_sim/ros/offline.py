@@ -59,9 +59,13 @@ class CommandDriver:
             self._take("external_wrench", M.wrench_stamped(header, forces[i]))
 
     def step(self) -> StepResult:
+        """One step (and a publication when due). A failed step stops an offline run as it does without
+        a log: its :class:`~tensegrity_sim.QPError` is raised, after the log has recorded it."""
         if self._latch is not None:
             self._latch.raise_if_signalled()
         r = self.logic.step()
+        if r is None:
+            raise self.logic.step_error
         if self.logic.publication_due:
             self.logic.publish()
         return r
@@ -71,7 +75,8 @@ class CommandDriver:
 def logged_run(sim: Simulator, log_spec: str) -> Iterator[CommandDriver]:
     """A :class:`CommandDriver` for ``sim`` logging to ``log_spec`` (see :func:`log_file_path`); the log
     is finished when the block ends, however it ends (SIGINT and SIGTERM included)."""
-    settings = NodeSettings(scene=sim.scene.source or sim.scene.name, method=sim.method, dt=sim.dt,
+    settings = NodeSettings(scene=sim.scene.source or sim.scene.name, method=sim.method,
+                            solver=sim.method_settings.get("solver", "auto"), dt=sim.dt,
                             publish_rate=min(NodeSettings.publish_rate, 1.0 / sim.dt), log_path=log_spec)
     logic = SimNodeLogic(sim, settings)
     path = log_file_path(log_spec, sim.scene.name)

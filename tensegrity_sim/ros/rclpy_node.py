@@ -32,6 +32,9 @@ from .node_logic import RUNTIME_PARAMETERS, SERVICES, TOPICS, NodeSettings, Qos,
 __all__ = ["SimNode", "main"]
 
 NODE_NAME = "tensegrity_sim"
+# rclpy publishes every accepted parameter change itself (stamped by the node's clock, the value as set);
+# the node logic's event, stamped with simulation time, goes to the log only
+PUBLISHED_BY_RCLPY = {"parameter_events"}
 DIAGNOSTICS_PERIOD = 1.0  # s of wall-clock time
 
 
@@ -56,7 +59,8 @@ class SimNode(Node):
                     dynamic_typing=isinstance(f.default, float)))
         values = {name: self.get_parameter(name).value for name in NodeSettings().parameters}
         settings = NodeSettings(**values, node_name=self.get_fully_qualified_name())
-        sim = Simulator(load_scene(settings.scene), method=settings.method, dt=settings.dt)
+        sim = Simulator(load_scene(settings.scene), method=settings.method, dt=settings.dt,
+                        solver=settings.qp_solver)
         self.logic = SimNodeLogic(sim, settings, transport=self._publish, clock=time.monotonic,
                                   logger=self.get_logger())
         self.recorder = None
@@ -66,7 +70,7 @@ class SimNode(Node):
             self.logic.recorder = self.recorder
         self._outputs = {
             key: self.create_publisher(M.message_class(spec.typename), spec.name, _qos(spec.qos))
-            for key, spec in TOPICS.items() if spec.direction == "out"}
+            for key, spec in TOPICS.items() if spec.direction == "out" and key not in PUBLISHED_BY_RCLPY}
         for key, spec in TOPICS.items():
             if spec.direction == "in":
                 self.create_subscription(M.message_class(spec.typename), spec.name,
@@ -85,7 +89,8 @@ class SimNode(Node):
             f"log: {path if path is not None else 'off'}")
 
     def _publish(self, key: str, message) -> None:
-        self._outputs[key].publish(message)
+        if key not in PUBLISHED_BY_RCLPY:
+            self._outputs[key].publish(message)
 
     @staticmethod
     def _answer(action, response):

@@ -7,6 +7,11 @@ order, which is the order the node recorded things:
 
 * an input message: step the replay up to the message's log time, then hand it to the node logic, which
   validates it (refusing what the node refused) and applies it, as the node did;
+* a runtime parameter change (``/parameter_events``): step up to its log time and apply it, as the node
+  did; the replay's own event must then be the logged one;
+* a failed step (the ``/diagnostics`` status ``<node>: step failed``): step up to its log time and attempt
+  a step, which must fail too and be reported the same way (so what the node gave up is given up here,
+  at the same step, and a solver's warm start sees the same attempts);
 * an output message: if the replay has no publication pending, step up to the message's log time and
   publish; then the replay's next output must be on the same topic with the same content.
 
@@ -14,9 +19,9 @@ So the recorded states are every published message: clock, node poses, cable sta
 tensions), summed cable impulses, contact events and markers, at the publication times of the log
 (which also covers pauses and single steps). Content is compared as serialised CDR bytes; where the
 bytes differ the two messages are decoded and compared field by field, floats bit for bit, and the
-first difference is named: step, time, topic and field. ``/diagnostics`` (wall-clock statistics) is not
-a state and is skipped. A replay is bit for bit on the machine (numpy/BLAS build) that wrote the log;
-another build may round differently.
+first difference is named: step, time, topic and field. The periodic ``/diagnostics`` (wall-clock
+statistics) is not a state and is skipped. A replay is bit for bit on the machine (numpy/BLAS build)
+that wrote the log; another build may round differently.
 """
 from __future__ import annotations
 
@@ -38,7 +43,7 @@ from ..scene import Scene
 from ..simulator import Simulator
 from . import messages as M
 from .log import RUN_INFO
-from .node_logic import TOPICS, NodeSettings, SimNodeLogic, _jsonable, decode_contacts
+from .node_logic import FAILURE_STATUS, TOPICS, NodeSettings, SimNodeLogic, _jsonable, decode_contacts
 
 __all__ = ["LogError", "Mismatch", "ReplayReport", "replay", "log_info"]
 
@@ -165,9 +170,13 @@ class _Refusals:
 
     def __init__(self):
         self.messages: list[str] = []
+        self.errors: list[str] = []
 
     def warning(self, text: str) -> None:
         self.messages.append(text)
+
+    def error(self, text: str) -> None:
+        self.errors.append(text)
 
 
 def replay(path: str | Path) -> ReplayReport:
@@ -186,9 +195,14 @@ def replay(path: str | Path) -> ReplayReport:
                              raw_transport=True, logger=refusals)
         key_of = {name: key for key, name in logic.topic_names.items()}
 
+        failure_name = f"{settings.node_name.lstrip('/')}: {FAILURE_STATUS}"
+
         def advance_to(t_ns: int, topic: str) -> bool:
             while logic.stamp_ns() < t_ns:
-                logic.step()
+                if logic.step() is None:  # a failure the run did not have here
+                    report.mismatch = Mismatch(sim.step_count, logic.stamp_ns(), logic.topic_names["diagnostics"],
+                                               "message", "none", f"a failed step: {logic.step_error}")
+                    return False
             if logic.stamp_ns() != t_ns:
                 report.mismatch = Mismatch(sim.step_count, t_ns, topic, "log time", f"{t_ns} ns",
                                            f"no step there (replay is at {logic.stamp_ns()} ns)")
@@ -198,11 +212,13 @@ def replay(path: str | Path) -> ReplayReport:
             key = key_of.get(channel.topic)
             if key is None:
                 raise LogError(f"{path}: topic {channel.topic!r} is not one of the node's")
-            if key == "diagnostics":
-                continue
             spec = TOPICS[key]
             t = message.log_time
-            if spec.direction == "in":
+            logged = M.deserialize(message.data, spec.typename) if key in ("diagnostics", "parameter_events") else None
+            if key == "diagnostics" and not (logged.status and logged.status[0].name == failure_name):
+                continue  # the periodic report: wall-clock statistics, not a state
+            if spec.direction == "in" or logged is not None:
+                # what the run did at a time (an input, a parameter change, a failed step), not a publication
                 if pending:
                     missing = pending[0][0]
                     report.mismatch = Mismatch(sim.step_count, t, logic.topic_names[missing], "message",
@@ -210,13 +226,28 @@ def replay(path: str | Path) -> ReplayReport:
                     break
                 if not advance_to(t, channel.topic):
                     break
-                logic.receive(key, M.deserialize(message.data, spec.typename))
-                report.inputs[channel.topic] = report.inputs.get(channel.topic, 0) + 1
-                continue
-            if not pending:
+                if spec.direction == "in":
+                    logic.receive(key, M.deserialize(message.data, spec.typename))
+                    report.inputs[channel.topic] = report.inputs.get(channel.topic, 0) + 1
+                    continue
+                if key == "parameter_events":  # apply it; the replay's own event is compared below
+                    try:
+                        logic.update(**M.parameter_changes(logged))
+                    except ValueError as exc:
+                        report.mismatch = Mismatch(sim.step_count, t, channel.topic, "changed_parameters",
+                                                   "a change the node took", f"refused: {exc}")
+                        break
+                elif logic.step() is not None:  # a failed step: the replay's must fail, and report the same
+                    report.mismatch = Mismatch(sim.step_count, t, channel.topic, "message",
+                                               logged.status[0].message, "the step succeeded")
+                    break
+            elif not pending:
                 if not advance_to(t, channel.topic):
                     break
                 logic.publish()
+            if not pending:
+                report.mismatch = Mismatch(sim.step_count, t, channel.topic, "message", "a message", "none")
+                break
             got_key, replayed = pending.popleft()
             if got_key != key:
                 report.mismatch = Mismatch(sim.step_count, t, logic.topic_names[got_key], "message", "none",
@@ -232,6 +263,9 @@ def replay(path: str | Path) -> ReplayReport:
         if refusals.messages:
             report.notes.append(f"{len(refusals.messages)} input message(s) refused again, as in the run; "
                                 f"the first: {refusals.messages[0]}")
+        if refusals.errors:
+            report.notes.append(f"{len(refusals.errors)} failed step(s) paused the run again; the first: "
+                                f"{refusals.errors[0]}")
         if report.ok and pending:
             report.notes.append(f"the log ends {len(pending)} message(s) short of the last publication "
                                 f"(cut off while writing it)")
