@@ -218,7 +218,8 @@ def write(path: Path, *, meta: dict, cases, references, rows, throughput, size_r
     # ------------------------------------------------------------------ details
     w.append("\n## Work-precision\n")
     w.append("Each case runs every configuration over steps from 10 ms down (where stable) to 10 µs "
-             "(MuJoCo to 2 µs). Errors: largest node-position error at the final time; largest error of a "
+             "(MuJoCo to 2 µs), skipping a step whose run would take over 20 s (the slow QP backends' "
+             "smallest steps). Errors: largest node-position error at the final time; largest error of a "
              "cable's impulse summed over the run (it contains every snap); largest deviation of the total "
              "energy (elastic cables only: the model conserves it). Ringed points: dt = 1 ms.\n")
     for case in cases:
