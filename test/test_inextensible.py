@@ -335,7 +335,7 @@ def test_elastic_strut_step_limit_is_refused_with_the_limit():
 
 def test_solver_option_is_checked():
     scene = sling(0.0)
-    with pytest.raises(ValueError, match=r"solver must be one of \['daqp', 'nnls', 'osqp'\], got 'mosek'"):
+    with pytest.raises(ValueError, match=r"solver must be one of \['daqp', 'nnls', 'osqp', 'sparse'\], got 'mosek'"):
         ts.Simulator(scene, method="inextensible", solver="mosek")
     d = scene.to_dict()
     d["cables"][0]["stiffness"] = 100.0

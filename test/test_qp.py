@@ -14,7 +14,7 @@ from tensegrity_sim.methods import qp
 SOLVERS = sorted(qp.SOLVERS)
 # Relative accuracy in velocity each backend reaches on these problems (measured; see qp.py): OSQP, an
 # ADMM method, stops at ~1e-7 at mass ratio 1e4 even with eps 1e-10 and polishing.
-ACCURACY = {"daqp": 1e-9, "nnls": 1e-9, "osqp": 1e-6}
+ACCURACY = {"daqp": 1e-9, "nnls": 1e-9, "osqp": 1e-6, "sparse": 1e-9}
 
 
 def random_problem(seed, mass_ratio=1.0, n_free=8, n_fixed=2, n_members=18, n_eq=3, duplicates=0, star=False):
@@ -96,7 +96,7 @@ def test_infeasible_rows_raise_with_status(solver):
 
 
 def test_unknown_solver_is_refused_with_the_names():
-    with pytest.raises(ValueError, match=r"solver must be one of \['daqp', 'nnls', 'osqp'\], got 'cvx'"):
+    with pytest.raises(ValueError, match=r"solver must be one of \['daqp', 'nnls', 'osqp', 'sparse'\], got 'cvx'"):
         qp.make_solver("cvx", np.ones(2))
 
 
