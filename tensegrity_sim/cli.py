@@ -13,7 +13,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .commands import CommandError, CommandSchedule, load_commands
-from .methods.qp import DEFAULT_SOLVER, SOLVERS, QPError
+from .methods.qp import SOLVERS, SPARSE_NODES, QPError
 from .scene import SceneError, load_scene
 from .simulator import Simulator
 
@@ -240,7 +240,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"a built-in scene name or a YAML file (default: {DEFAULT_SCENE})")
     run.add_argument("--method", default="auto", help="elastic | inextensible | auto (default: auto)")
     run.add_argument("--solver", choices=sorted(SOLVERS), default=None,
-                     help=f"QP backend of the inextensible method (default: {DEFAULT_SOLVER})")
+                     help=f"QP backend of the inextensible method (default: daqp below {SPARSE_NODES} free "
+                          f"nodes, sparse from there)")
     run.add_argument("--dt", type=_positive_float, default=1e-3, help="step, s (default: 0.001)")
     run.add_argument("--duration", type=_positive_float, default=10.0, help="simulated time, s (default: 10)")
     run.add_argument("--commands", help="a rest-length/force schedule (YAML; see tensegrity_sim.commands)")

@@ -37,8 +37,8 @@ class Simulator:
     ``contacts``: member kinds to check for contact (see ``scene.CONTACT_KINDS``), overriding the
     scene's ``contact: kinds`` (``self.scene`` is then the scene with that override); ``()`` switches
     detection off. ``contact_kinds`` is what is in use.
-    ``solver``: the QP backend of the inextensible method (``methods.qp.SOLVERS``; default "daqp");
-    ``method_settings`` reports the one in use.
+    ``solver``: the QP backend of the inextensible method (``methods.qp.SOLVERS``; default: chosen by
+    size, ``methods.qp.choose_solver``); ``method_settings`` reports the one in use and why.
     """
 
     def __init__(self, scene: Scene, method: str = "auto", dt: float = 1e-3, *, contacts=None,

@@ -265,7 +265,7 @@ def test_start_up_and_shut_down_are_clean(tmp_path):
                 (("--transport", "dds", "--domain-id", "999"), "domain_id must be a whole number in [0, 232], got 999"),
                 (("--transport", "dds", "--publish-rate", "0"), "parameter 'publish_rate': must be > 0"),
                 (("--transport", "dds", "--solver", "cplex"), "parameter 'solver': must be one of daqp, osqp, nnls, "
-                                                              "auto or empty, got 'cplex'")]
+                                                              "sparse, auto or empty, got 'cplex'")]
     if importlib.util.find_spec("rclpy") is None:
         refusals.append((("--transport", "rclpy"), "--transport rclpy: rclpy does not import here"))
     for args, reason in refusals:

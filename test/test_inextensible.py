@@ -267,17 +267,20 @@ def test_prestress_offsets_keep_the_equilibrium_geometry():
     assert sim.rest_lengths[0] == 0.979 and not sim.slack()[0]
 
 
+@pytest.mark.parametrize("backend", [None, "sparse"])
 @pytest.mark.parametrize("name", ["prism3", "icosahedron"])
-def test_every_qp_of_a_dynamic_run_matches_quadprog(name, monkeypatch):
-    """Every QP that the default backend solves while a structure rattles (snaps, impacts, midpoint
-    steps; for the icosahedron a locked rigid-strut structure with singular rows) is solved again by
-    quadprog: the velocities agree to 1e-9 relative. (The trajectories themselves are compared per
-    QP, not end to end: a rattling structure amplifies round-off differences in its snap decisions.)"""
+def test_every_qp_of_a_dynamic_run_matches_quadprog(name, backend, monkeypatch):
+    """Every QP that the default backend (DAQP at this size) or the sparse one solves while a
+    structure rattles (snaps, impacts, midpoint steps; for the icosahedron a locked rigid-strut
+    structure with singular rows) is solved again by quadprog: the velocities agree to 1e-9 relative.
+    (The trajectories themselves are compared per QP, not end to end: a rattling structure amplifies
+    round-off differences in its snap decisions.)"""
     import quadprog
     scene = random_velocities(ts.load_scene(name), seed=2, scale=0.3)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LengthOffsetWarning)
-        sim = ts.Simulator(scene, method="inextensible", dt=1e-3)
+        sim = ts.Simulator(scene, method="inextensible", dt=1e-3, solver=backend)
+    assert sim.method_settings["solver"] == (backend or "daqp")
     solver = sim._method.solver
     problems = []
     solve = solver.solve
@@ -294,6 +297,47 @@ def test_every_qp_of_a_dynamic_run_matches_quadprog(name, monkeypatch):
         a = rows.dense(solver.n_free)
         ref = quadprog.solve_qp(np.diag(mass), mass * v0.ravel(), -a.T, -rows.targets, rows.n_eq)[0]
         assert np.max(np.abs(v.ravel() - ref)) <= 1e-9 * np.max(np.abs(ref))
+    if backend == "sparse":   # most of them answered by the guess, not by its DAQP fallback
+        assert solver.counts["guessed"] > solver.counts["daqp"]
+
+
+def hanging_chain(n, ratio=1.0, spacing=0.1):
+    """``n`` masses hanging in a vertical line from a fixed anchor on inextensible cables at their
+    length, masses alternately 1 kg and ``ratio`` kg."""
+    nodes = [{"name": "anchor", "position": [0.0, 0.0, 0.0], "fixed": True}]
+    nodes += [{"name": f"n{i}", "position": [0.0, 0.0, -spacing * (i + 1)], "mass": 1.0 if i % 2 else ratio}
+              for i in range(n)]
+    cables = [{"name": f"c{i}", "nodes": [nodes[i]["name"], nodes[i + 1]["name"]]} for i in range(n)]
+    return ts.Scene.from_dict({"gravity": [0.0, 0.0, -9.81], "nodes": nodes, "cables": cables})
+
+
+def test_large_structure_gets_the_sparse_backend_and_holds_its_weight():
+    """120 masses (1 kg and 1e4 kg alternately) hanging from an anchor: auto picks the sparse backend
+    (at least qp.SPARSE_NODES free nodes) and says so. The first QP goes to DAQP (under free fall only
+    the top cable is violated, and each correction of the empty guess adds one cable); every later
+    one is answered by its guess, the previous step's active set (the chain's rows are independent).
+    The chain stays at rest and every cable's impulse is the weight below it times dt, to 1e-12."""
+    h, n = 1e-3, qp.SPARSE_NODES + 20
+    sim = ts.Simulator(hanging_chain(n, ratio=1e4), method="inextensible", dt=h)
+    assert sim.method_settings["solver"] == "sparse"
+    assert sim.method_settings["solver_choice"] == f"sparse: {n} free nodes >= {qp.SPARSE_NODES}"
+    traj = sim.run(steps=200)
+    masses = sim.system.masses[1:]
+    weight_below = 9.81 * np.cumsum(masses[::-1])[::-1]
+    np.testing.assert_allclose(traj.impulses, np.broadcast_to(weight_below * h, traj.impulses.shape), rtol=1e-12)
+    assert np.max(np.abs(traj.velocities)) < 1e-12
+    assert sim._method.solver.counts == {"guessed": 199, "daqp": 1}
+
+
+@pytest.mark.parametrize("n, solver", [(1, "daqp"), (qp.SPARSE_NODES - 1, "daqp"), (qp.SPARSE_NODES, "sparse")])
+def test_backend_chosen_by_size_and_forced_by_name(n, solver):
+    reason = f"{solver}: {n} free nodes {'>=' if solver == 'sparse' else '<'} {qp.SPARSE_NODES}"
+    assert qp.choose_solver(n) == (solver, reason)
+    if n == 1:
+        sim = ts.Simulator(sling(0.0), method="inextensible")
+        assert (sim.method_settings["solver"], sim.method_settings["solver_choice"]) == (solver, reason)
+        sim = ts.Simulator(sling(0.0), method="inextensible", solver="sparse")
+        assert (sim.method_settings["solver"], sim.method_settings["solver_choice"]) == ("sparse", "sparse: requested")
 
 
 def test_no_qp_while_nothing_can_be_taut(monkeypatch):
@@ -335,7 +379,7 @@ def test_elastic_strut_step_limit_is_refused_with_the_limit():
 
 def test_solver_option_is_checked():
     scene = sling(0.0)
-    with pytest.raises(ValueError, match=r"solver must be one of \['daqp', 'nnls', 'osqp'\], got 'mosek'"):
+    with pytest.raises(ValueError, match=r"solver must be one of \['daqp', 'nnls', 'osqp', 'sparse'\], got 'mosek'"):
         ts.Simulator(scene, method="inextensible", solver="mosek")
     d = scene.to_dict()
     d["cables"][0]["stiffness"] = 100.0
@@ -410,3 +454,25 @@ def test_reeling_in_a_locked_structure_is_a_clear_error():
     prism.step()
     _, length, _ = prism.system.geometry(prism.positions, prism.system.cable_ends)
     assert length[0] == pytest.approx(prism._method.limits(prism.rest_lengths)[0], rel=1e-9)
+
+
+def test_daqp_never_returns_garbage_for_a_locked_moving_structure():
+    """Regression: reeling in a cable of the moving, locked icosahedron (rigid struts, inextensible
+    cables) once made DAQP report success with tensions of 3e18 N and speeds of 4e7 m/s. Every
+    backend's answer is now checked against the optimality conditions: the step fails with a QPError
+    naming the cable, and the simulator keeps its state."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sim = ts.Simulator(ts.load_scene("icosahedron"), method="inextensible", dt=1e-3, solver="daqp")
+    sim.set_external_forces({"n0": [30.0, 0.0, 0.0]})
+    sim.run(steps=9)
+    sim.set_external_forces({"n0": [0.0, 0.0, 0.0]})
+    sim.run(steps=20)
+    sim.set_rest_lengths({"c0": sim.rest_lengths[0] * 0.99})
+    sim.set_external_forces({"n3": [0.0, 0.0, 1.0]})
+    x, v, t = sim.positions, sim.velocities, sim.time
+    with pytest.raises(qp.QPError, match="c0 cannot be followed"):
+        sim.step()
+    np.testing.assert_array_equal(sim.positions, x)
+    np.testing.assert_array_equal(sim.velocities, v)
+    assert sim.time == t

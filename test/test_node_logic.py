@@ -36,8 +36,8 @@ BAD_SETTINGS = [
     ({"max_rest_length_rate": math.inf}, "parameter 'max_rest_length_rate': must be a finite number, got inf"),
     ({"frame_id": ""}, "parameter 'frame_id': must be a non-empty string, got ''"),
     ({"log_path": None}, "parameter 'log_path': must be a string, got None"),
-    ({"solver": "cplex"}, "parameter 'solver': must be one of daqp, osqp, nnls, auto or empty, got 'cplex'"),
-    ({"solver": None}, "parameter 'solver': must be one of daqp, osqp, nnls, auto or empty, got None"),
+    ({"solver": "cplex"}, "parameter 'solver': must be one of daqp, osqp, nnls, sparse, auto or empty, got 'cplex'"),
+    ({"solver": None}, "parameter 'solver': must be one of daqp, osqp, nnls, sparse, auto or empty, got None"),
     ({"node_name": "tensegrity_sim"}, "parameter 'node_name': must be fully qualified (start with /), got "
                                       "'tensegrity_sim'"),
 ]

@@ -67,7 +67,7 @@ import numpy as np
 
 from ..system import System
 from .base import MethodStep, State, StepMethod
-from .qp import QPError, Rows, make_solver
+from .qp import QPError, Rows, choose_solver, make_solver
 from .rigid import RigidStruts
 
 __all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_EVENTS"]
@@ -115,6 +115,8 @@ class InextensibleMethod(StepMethod):
         index = np.full(system.n_nodes, -1)
         index[free] = np.arange(int(free.sum()))
         self._inv_mass = system.inv_mass[:, None]
+        # the backend: named, or chosen by size (dense DAQP for small structures, sparse for large ones)
+        self.solver_choice = f"{solver}: requested" if solver else choose_solver(int(free.sum()))[1]
         self.solver = make_solver(solver, system.masses[free])
         # The member table of the QP rows: the rigid struts that move (equalities), then every cable.
         self.rigid = RigidStruts(system)
@@ -164,7 +166,8 @@ class InextensibleMethod(StepMethod):
 
     def describe(self) -> dict:
         offsets = self.length_offsets
-        return {"method": self.name, "dt": self.dt, **self.solver.describe(), "limit_tol": LIMIT_TOL,
+        return {"method": self.name, "dt": self.dt, **self.solver.describe(), "solver_choice": self.solver_choice,
+                "limit_tol": LIMIT_TOL,
                 "max_events": MAX_EVENTS, "omega_struts": self.omega_struts,
                 "length_offsets": {name: float(o) for name, o in zip(self.system.scene.cable_names, offsets)
                                    if o > 0}}
