@@ -24,6 +24,7 @@ INSTALL_REQUIRES = [
 EXTRAS_REQUIRE = {
     "test": [
         "pytest==9.0.3",
+        "hypothesis==6.170.15",  # property-based fuzzing of every public boundary (test/test_fuzz_*.py)
         "mcap-ros2-support==0.6.0",  # an independent reader of the logs
         "quadprog==0.1.14",  # an independent QP solver to check the QP backends against
         "cyclonedds==11.0.1",  # the DDS transport's end-to-end tests run in CI

@@ -8,11 +8,13 @@ momentum.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import eigsh
 
-from .scene import Scene
+from .scene import Scene, SceneError
 
 __all__ = ["System", "SPARSE_THRESHOLD"]
 
@@ -118,8 +120,18 @@ class System:
         cols = np.repeat(np.arange(len(ends)), 6)
         b = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols)), shape=(3 * self.n_nodes, len(ends)))
         kmat = (b @ b.T).tocsr()
-        if kmat.shape[0] <= 600:
-            lam = float(np.linalg.eigvalsh(kmat.toarray())[-1])
-        else:
-            lam = float(eigsh(kmat, k=1, which="LA", return_eigenvectors=False)[0])
+        try:
+            if not np.all(np.isfinite(kmat.data)):
+                raise np.linalg.LinAlgError
+            if kmat.shape[0] <= 600:
+                lam = float(np.linalg.eigvalsh(kmat.toarray())[-1])
+            else:
+                lam = float(eigsh(kmat, k=1, which="LA", return_eigenvectors=False)[0])
+        except (np.linalg.LinAlgError, RuntimeError):  # ARPACK reports no convergence as a RuntimeError
+            lam = math.nan
+        if not math.isfinite(lam):
+            light = int(np.argmin(np.where(self.free, self.masses, np.inf)))
+            raise SceneError(f"{self.scene.source or self.scene.name}: the members' stiffness/mass ratios are "
+                             f"beyond the float range (stiffness up to {float(np.max(k)):.3g} N/m; lightest free "
+                             f"node {self.scene.nodes[light].name!r}, {float(self.masses[light]):.3g} kg)")
         return float(np.sqrt(max(lam, 0.0)))

@@ -31,11 +31,14 @@ BAD_REST = [
     ({"nope": 1.0}, "rest_lengths: unknown name 'nope' (known: cl, cr)"),
     ({"cl": -1.0}, "rest_lengths['cl']: must be > 0, got -1.0"),
     ({"cl": 0.0}, "rest_lengths['cl']: must be > 0, got 0.0"),
-    ({"cl": math.nan}, "rest_lengths: values must be finite"),
-    ({"cl": [1.0, 2.0]}, "rest_lengths['cl']: expected a number, got shape (2,)"),
-    ({"cl": "long"}, "rest_lengths['cl']: not a number: 'long'"),
-    ([1.0, 2.0, 3.0], "rest_lengths: expected shape (2,), got (3,)"),
-    ([1.0, math.inf], "rest_lengths: values must be finite"),
+    ({"cl": math.nan}, "rest_lengths['cl'] must be finite, got nan"),
+    ({"cl": [1.0, 2.0]}, "rest_lengths['cl'] must be a number, got shape (2,)"),
+    ({"cl": "long"}, "rest_lengths['cl'] must be numbers, got 'long'"),
+    ([1.0, 2.0, 3.0], "rest_lengths must be an array of shape (2,), got shape (3,)"),
+    ([1.0, math.inf], "rest_lengths must be finite, got [1.0, inf]"),
+    ({"cl": 10 ** 400}, "rest_lengths['cl'] must be numbers, got an integer of 401 digits"),
+    ({"cl": 1j}, "rest_lengths['cl'] must be numbers, got 1j"),
+    ({("cl",): 1.0}, "rest_lengths: unknown name ('cl',) (known: cl, cr)"),
 ]
 
 
@@ -50,9 +53,11 @@ def test_bad_rest_lengths_refused_state_unchanged(sim, values, message):
 
 BAD_FORCES = [
     ({"ghost": [0, 0, 1]}, "external_forces: unknown name 'ghost' (known: left, mass, right)"),
-    ({"mass": [0, 1]}, "external_forces['mass']: expected 3 numbers, got shape (2,)"),
-    ({"mass": [0, math.nan, 1]}, "external_forces: values must be finite"),
-    (np.zeros((2, 3)), "external_forces: expected shape (3, 3), got (2, 3)"),
+    ({"mass": [0, 1]}, "external_forces['mass'] must be an array of shape (3,), got shape (2,)"),
+    ({"mass": [0, math.nan, 1]}, "external_forces['mass'] must be finite, got [0, nan, 1]"),
+    (np.zeros((2, 3)), "external_forces must be an array of shape (3, 3), got shape (2, 3)"),
+    ({"mass": [0, [1], 2]}, "external_forces['mass'] must be numbers, got [0, [1], 2]"),
+    (np.array(["a"] * 3), "external_forces must be numbers, got array(['a', 'a', 'a'], dtype='<U1')"),
 ]
 
 
