@@ -113,9 +113,13 @@ def test_reset_returns_to_the_scene():
 
 @pytest.mark.parametrize("kwargs, message", [
     ({"method": "verlet"}, "method must be one of ['elastic', "),
-    ({"dt": 0.0}, "dt must be a positive finite number of seconds, got 0.0"),
-    ({"dt": math.nan}, "dt must be a positive finite number of seconds, got nan"),
-    ({"dt": "fast"}, "dt must be a positive number of seconds, got 'fast'"),
+    ({"dt": 0.0}, "dt must be a number of seconds >= 1e-09 (stamps are integer nanoseconds), got 0.0"),
+    ({"dt": 5e-324}, "dt must be a number of seconds >= 1e-09 (stamps are integer nanoseconds), got 5e-324"),
+    ({"dt": math.nan}, "dt must be finite, got nan"),
+    ({"dt": "fast"}, "dt must be a number, got 'fast'"),
+    ({"dt": 10 ** 400}, "dt is too large for a float: an integer of 401 digits"),
+    ({"method": ["auto"]}, "method must be one of ['elastic', 'inextensible', 'auto'], got ['auto']"),
+    ({"solver": {}}, "solver must be one of ['daqp', 'nnls', 'osqp', 'sparse'], got {}"),
 ])
 def test_bad_constructor_arguments(kwargs, message):
     with pytest.raises(ValueError) as err:
