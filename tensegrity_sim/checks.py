@@ -18,7 +18,7 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
-__all__ = ["MIN_DT", "describe", "real", "time_step", "whole", "float_array", "check_memory", "read_yaml"]
+__all__ = ["MIN_DT", "describe", "real", "time_step", "whole", "float_array", "check_memory", "read_yaml", "MAX_YAML_DEPTH"]
 
 # Every stamp and log time is an integer number of nanoseconds, so a step shorter than one cannot be
 # told from the next; below it, 1/dt and impulse/dt also leave the float range for ordinary impulses.
@@ -98,7 +98,7 @@ def float_array(values: Any, name: str, shape: tuple[int, ...] | None = None) ->
     return arr
 
 
-def check_memory(nbytes: float, what: str) -> None:
+def check_memory(nbytes: int, what: str) -> None:
     """Refuse to allocate ``nbytes`` for ``what`` when it exceeds this machine's physical memory (an
     absurd request would otherwise fail in numpy, or swap the machine to a standstill)."""
     try:
@@ -106,15 +106,36 @@ def check_memory(nbytes: float, what: str) -> None:
     except (AttributeError, ValueError, OSError):  # not a POSIX system: no bound known
         return
     if nbytes > physical:
-        raise ValueError(f"{what} would need {nbytes:.3g} bytes, more than this machine's memory "
-                         f"({physical:.3g} bytes)")
+        shown = f"{nbytes:.3g}" if nbytes < 1e300 else "over 1e300"
+        raise ValueError(f"{what} would need {shown} bytes, more than this machine's memory ({physical:.3g} bytes)")
+
+
+# YAML nesting deeper than this is refused while composing (a scene or a schedule nests 4 deep): PyYAML
+# would otherwise recurse until Python's limit, spending seconds on a few kilobytes of brackets.
+MAX_YAML_DEPTH = 64
+
+
+class _BoundedLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing nesting deeper than :data:`MAX_YAML_DEPTH`."""
+
+    _depth = 0
+
+    def compose_node(self, parent, index):
+        self._depth += 1
+        try:
+            if self._depth > MAX_YAML_DEPTH:
+                raise yaml.composer.ComposerError(None, None, f"nested deeper than {MAX_YAML_DEPTH} levels",
+                                                  self.peek_event().start_mark)
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
 
 
 def read_yaml(path: str | Path, error: Callable[[str], Exception], text: str | None = None) -> Any:
     """The content of a YAML file (or of ``text``, named ``path``), as PyYAML's safe loader gives it.
 
-    Every way it can fail (unreadable, not UTF-8, not YAML, nested too deep, a value out of range) is
-    raised as ``error(message)``, the message starting with ``path``."""
+    Every way it can fail (unreadable, not UTF-8, not YAML, nested deeper than :data:`MAX_YAML_DEPTH`, a
+    value PyYAML cannot build) is raised as ``error(message)``, the message starting with ``path``."""
     if text is None:
         try:
             raw = Path(path).read_bytes()
@@ -125,10 +146,8 @@ def read_yaml(path: str | Path, error: Callable[[str], Exception], text: str | N
         except UnicodeDecodeError as exc:
             raise error(f"{path}: not UTF-8 text (byte {exc.start}: {raw[exc.start:exc.start + 1]!r})") from None
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_BoundedLoader)  # noqa: S506 (a SafeLoader)
     except yaml.YAMLError as exc:
         raise error(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
-    except RecursionError:
-        raise error(f"{path}: nested too deeply to read") from None
     except (ValueError, OverflowError, TypeError) as exc:  # a tagged value PyYAML cannot build (a date...)
         raise error(f"{path}: a value cannot be read: {exc}") from None

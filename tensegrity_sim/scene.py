@@ -229,9 +229,10 @@ class Scene:
         """Lumped node masses, (N,) kg: each node's own mass plus half of every strut touching it."""
         index = {n.name: i for i, n in enumerate(self.nodes)}
         m = np.array([n.mass for n in self.nodes], dtype=float)
-        for s in self.struts:
-            for end in s.nodes:
-                m[index[end]] += 0.5 * s.mass
+        with np.errstate(over="ignore"):  # a sum beyond the float range is refused by from_dict
+            for s in self.struts:
+                for end in s.nodes:
+                    m[index[end]] += 0.5 * s.mass
         return m
 
     @property
@@ -327,12 +328,13 @@ class Scene:
                 raise ctx.error(where, f"nodes: a member cannot join node {ends[0]!r} to itself")
             pa = np.array(by_name[ends[0]].position)
             pb = np.array(by_name[ends[1]].position)
-            length = float(np.linalg.norm(pb - pa))
+            with np.errstate(over="ignore"):  # an overflowing distance is refused below
+                length = float(np.linalg.norm(pb - pa))
             if length == 0.0:
                 raise ctx.error(where, f"nodes: zero-length member ({ends[0]!r} and {ends[1]!r} coincide)")
             if not math.isfinite(length):  # the ends' coordinates are finite, their distance overflows
                 raise ctx.error(where, f"nodes: the distance from {ends[0]!r} to {ends[1]!r} overflows the float "
-                                       f"range (ends at {list(pa)} and {list(pb)} m)")
+                                       f"range (ends at {pa.tolist()} and {pb.tolist()} m)")
             stiffness_raw = raw.get("stiffness")
             if kind == "struts" and isinstance(stiffness_raw, str) and stiffness_raw == RIGID:
                 stiffness: float | None = math.inf

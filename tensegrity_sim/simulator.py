@@ -215,7 +215,7 @@ class Simulator:
         if callback is not None and not callable(callback):
             raise ValueError(f"callback must be callable, got {describe(callback)}")
         n, nc = len(self.scene.nodes), len(self.scene.cables)
-        check_memory(steps * (8.0 + 48.0 * n + 17.0 * nc), f"run: the trajectory of {steps} steps")
+        check_memory(steps * (8 + 48 * n + 17 * nc), f"run: the trajectory of {describe(steps)} steps")
         time = np.empty(steps)
         pos = np.empty((steps, n, 3))
         vel = np.empty((steps, n, 3))
