@@ -32,7 +32,9 @@ def non_finite_report(scene: Scene, state: State, dt: float, positions: np.ndarr
     """Why a step from ``state`` gave non-finite ``positions``/``velocities`` (N, 3) or ``impulses``
     (n_cables,): the first node or cable affected, and the largest of each input (force, speed, coordinate,
     rest length), the one that was absurd among them. Only called once a step has failed."""
-    bad_nodes = np.flatnonzero(~np.all(np.isfinite(positions) & np.isfinite(velocities), axis=1))
+    bad = ~np.all(np.isfinite(positions) & np.isfinite(velocities), axis=1)
+    # free nodes first: a fixed node's values turn NaN only through 0 * inf, the free one's did first
+    bad_nodes = np.concatenate([np.flatnonzero(bad & ~scene.fixed), np.flatnonzero(bad & scene.fixed)])
     bad_cables = np.flatnonzero(~np.isfinite(impulses))
     where = []
     if bad_nodes.size:

@@ -28,7 +28,14 @@ BAD_SETTINGS = [
     ({"dt": 0.0}, "parameter 'dt': must be > 0, got 0.0"),
     ({"dt": math.nan}, "parameter 'dt': must be a finite number, got nan"),
     ({"dt": "1"}, "parameter 'dt': must be a finite number, got '1'"),
-    ({"step_rate": -5.0}, "parameter 'step_rate': must be > 0, got -5.0"),
+    ({"step_rate": -5.0}, "parameter 'step_rate': must be >= 1e-06, got -5.0"),
+    # issue 13: absurd values that made tick() raise or run for seconds, or escaped as another exception
+    ({"step_rate": 5e-324}, "parameter 'step_rate': must be >= 1e-06, got 5e-324"),
+    ({"publish_rate": 1e-300}, "parameter 'publish_rate': must be >= 1e-06, got 1e-300"),
+    ({"real_time_factor": 1e300}, "parameter 'real_time_factor': must be <= 1e+06, got 1e+300"),
+    ({"dt": 5e-324}, "parameter 'dt': must be >= 1e-09 s (stamps are integer nanoseconds), got 5e-324"),
+    ({"dt": 10 ** 400}, "parameter 'dt': must be a finite number, got an integer of 401 digits"),
+    ({"marker_rate": [1.0]}, "parameter 'marker_rate': must be a finite number, got [1.0]"),
     ({"real_time_factor": -1.0}, "parameter 'real_time_factor': must be >= 0, got -1.0"),
     ({"real_time_factor": True}, "parameter 'real_time_factor': must be a finite number, got True"),
     ({"publish_rate": 2000.0}, "parameter 'publish_rate': must be at most 1/dt = 1000 Hz (one publication "
@@ -504,7 +511,7 @@ def test_runtime_parameters():
         logic.update(dt=0.1)
     with pytest.raises(ValueError, match=r"^parameter 'solver' is read-only while running \(restart the node\)$"):
         logic.update(solver="osqp")
-    with pytest.raises(ValueError, match="^parameter 'publish_rate': must be > 0, got -1.0$"):
+    with pytest.raises(ValueError, match="^parameter 'publish_rate': must be >= 1e-06, got -1.0$"):
         logic.update(publish_rate=-1.0)
     assert logic.update() == logic.settings  # nothing changed: no event
     assert logic.settings.publish_rate == 100.0 and logic.settings.real_time_factor == 2.0

@@ -271,7 +271,7 @@ def test_an_altered_parameter_event_is_caught(tmp_path):
     node_run_with_parameter_changes(tmp_path / "params.mcap")
     for value, expected in ((25.0, (310, "/tensegrity_sim/markers", "message", "none", "a message")),
                             (-1.0, (150, "/parameter_events", "changed_parameters", "a change the node took",
-                                    "refused: parameter 'publish_rate': must be > 0, got -1.0"))):
+                                    "refused: parameter 'publish_rate': must be >= 1e-06, got -1.0"))):
         def alter(topic, index, msg, value=value):
             if topic == "/parameter_events" and index == 0:
                 msg.changed_parameters[0].value.double_value = value

@@ -169,3 +169,48 @@ def test_external_force_impulse_balance(method):
     p1, _ = sim.momentum()
     np.testing.assert_allclose(p1 - p0, 300 * 1e-3 * f.sum(axis=0), rtol=1e-11)
     assert traj.slack.any()
+
+
+def test_non_finite_step_is_refused_and_changes_nothing(sim):
+    """Issue 13: a finite but absurd force used to turn the positions into NaN silently. Now the step
+    raises NonFiniteError naming the node and the input, the state is as before, and once the force is
+    taken back the run goes on exactly as a twin's that never had it."""
+    twin = ts.Simulator(sim.scene, method=sim.method, dt=sim.dt)
+    twin.run(steps=sim.step_count + 5)
+    sim.run(steps=5)
+    sim.set_external_forces({"mass": [1e300, 0.0, 0.0]})
+    before = snapshot(sim)
+    with pytest.warns(RuntimeWarning), pytest.raises(ts.NonFiniteError) as err:
+        sim.step()
+    assert str(err.value) == (
+        "the step from t = 0.015000 s gave non-finite values at node 'mass' (and 2 more) and cable 'cl' (and 1 "
+        "more) (inputs: largest external force 1e+300 N at node 'mass'; largest speed 0.5 m/s at node 'mass'; "
+        "largest coordinate 1 m at node 'left'; longest rest length 1.1 m of cable 'cl'; dt 0.001 s); the state "
+        "is as before the step")
+    assert isinstance(err.value, ts.StepError)
+    assert_unchanged(before, sim)
+    sim.set_external_forces({"mass": [0.0, 0.0, 0.0]})
+    a, b = sim.run(steps=20), twin.run(steps=20)
+    np.testing.assert_array_equal(a.positions, b.positions)
+    np.testing.assert_array_equal(a.impulses, b.impulses)
+
+
+BAD_RUNS = [
+    ({"steps": 10 ** 400}, "run: the trajectory of an integer of 401 digits steps would need over 1e300 bytes, "
+                           "more than this machine's memory"),
+    ({"steps": math.inf}, "steps must be a whole number >= 0, got inf"),
+    ({"steps": "3"}, "steps must be a whole number >= 0, got '3'"),
+    ({"steps": 2.5}, "steps must be a whole number >= 0, got 2.5"),
+    ({"duration": 1e300}, "run: the trajectory of"),
+    ({"duration": [1.0]}, "duration must be a number, got [1.0]"),
+    ({"steps": 2, "callback": "print"}, "callback must be callable, got 'print'"),
+]
+
+
+@pytest.mark.parametrize("kwargs, message", BAD_RUNS, ids=[m for _, m in BAD_RUNS])
+def test_bad_run_arguments_refused_before_any_step(sim, kwargs, message):
+    before = snapshot(sim)
+    with pytest.raises(ValueError) as err:
+        sim.run(**kwargs)
+    assert str(err.value).startswith(message)
+    assert_unchanged(before, sim)

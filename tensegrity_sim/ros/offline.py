@@ -60,7 +60,7 @@ class CommandDriver:
 
     def step(self) -> StepResult:
         """One step (and a publication when due). A failed step stops an offline run as it does without
-        a log: its :class:`~tensegrity_sim.QPError` is raised, after the log has recorded it."""
+        a log: its :class:`~tensegrity_sim.StepError` is raised, after the log has recorded it."""
         if self._latch is not None:
             self._latch.raise_if_signalled()
         r = self.logic.step()
