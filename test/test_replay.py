@@ -134,7 +134,7 @@ def test_settings_that_cannot_be_reproduced_are_refused(logged, tmp_path):
 
 def test_not_a_log(tmp_path):
     (tmp_path / "x.mcap").write_bytes(b"not an mcap file at all")
-    with pytest.raises(LogError, match="not a readable MCAP file"):
+    with pytest.raises(LogError, match=r"x\.mcap: not an MCAP file \(it does not start with the MCAP magic\)$"):
         replay(tmp_path / "x.mcap")
     with pytest.raises(LogError, match="cannot read"):
         replay(tmp_path / "missing.mcap")
