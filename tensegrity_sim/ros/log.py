@@ -30,6 +30,7 @@ crash would leave it, and can be recovered.
 """
 from __future__ import annotations
 
+import errno
 import os
 import signal
 import time
@@ -79,12 +80,13 @@ def qos_profiles_yaml(qos: Qos) -> str:
 
 
 def log_file_path(spec: str, scene_name: str, now: datetime | None = None) -> Path | None:
-    """Where a log goes: ``spec`` ending in ``.mcap`` is the file; any other non-empty ``spec`` is a
-    directory that gets ``<scene>_<YYYYmmdd-HHMMSS>.mcap`` (``_1``, ``_2``... if taken); "" means no log."""
+    """Where a log goes: ``spec`` ending in ``.mcap``, or naming something that exists and is not a
+    directory (``/dev/null``), is the file; any other non-empty ``spec`` is a directory that gets
+    ``<scene>_<YYYYmmdd-HHMMSS>.mcap`` (``_1``, ``_2``... if taken); "" means no log."""
     if not spec:
         return None
     path = Path(spec)
-    if path.suffix == ".mcap":
+    if path.suffix == ".mcap" or (path.exists() and not path.is_dir()):
         return path
     stem = f"{scene_name}_{(now or datetime.now()):%Y%m%d-%H%M%S}"
     candidate, n = path / f"{stem}.mcap", 0
@@ -113,6 +115,9 @@ class LogWriter:
         self._finished = False
         self._file = None
         try:
+            blocking = next((p for p in self.path.parents if p.exists() and not p.is_dir()), None)
+            if blocking is not None:  # mkdir would only say "File exists"
+                raise NotADirectoryError(errno.ENOTDIR, f"{blocking} is not a directory")
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._file = open(self.path, "wb")
             self._writer = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.NONE,

@@ -8,8 +8,10 @@ progress, so :class:`LogReader` walks the data section itself, with mcap's recor
 * a record that ends past the end of an unfinished file is where the writer was cut off: reading stops
   there and :attr:`LogReader.unfinished` says what was read (a finished file, one that ends in the MCAP
   magic, has no such excuse: there it is corruption);
-* every chunk's CRC is checked, and the data section's CRC at its end; a record that fails a check or does
-  not parse raises :class:`LogCorruptError` with its byte offset and the topics it holds.
+* a finished file's data-section and summary CRCs are checked first, so a damaged record is found before
+  anything of the file is used; every chunk's CRC is checked as it is read; a record that fails a check or
+  does not parse raises :class:`LogCorruptError` with its byte offset and the topics it holds. (An
+  unfinished file has no data-section CRC yet: its chunks are checked, the records between them are not.)
 
 :func:`recover` copies what an unfinished log holds into a finished log (:class:`~.log.LogWriter`: summary,
 statistics, rosbag2 metadata), which every MCAP reader opens.
@@ -41,6 +43,8 @@ _PARSERS = {Opcode.HEADER: Header.read, Opcode.SCHEMA: Schema.read, Opcode.CHANN
             Opcode.CHUNK: Chunk.read, Opcode.METADATA: Metadata.read, Opcode.DATA_END: DataEnd.read,
             Opcode.FOOTER: Footer.read}
 _RECORD_HEADER = 9  # opcode (1 byte) and length (8 bytes)
+_FOOTER = _RECORD_HEADER + 8 + 8 + 4   # summary start, summary offset start, summary CRC
+_DATA_END = _RECORD_HEADER + 4         # data section CRC
 
 
 class LogError(ValueError):
@@ -88,8 +92,26 @@ class LogReader:
         if self._file.read(MAGIC_SIZE) != MCAP0_MAGIC:
             self._file.close()
             raise LogError(f"{self.path}: not an MCAP file (it does not start with the MCAP magic)")
-        self._file.seek(self.size - MAGIC_SIZE)
-        self.finished = self.size >= 2 * MAGIC_SIZE and self._file.read(MAGIC_SIZE) == MCAP0_MAGIC
+        self.finished = False  # a finished file also ends in the magic
+        if self.size >= 2 * MAGIC_SIZE:
+            self._file.seek(self.size - MAGIC_SIZE)
+            self.finished = self._file.read(MAGIC_SIZE) == MCAP0_MAGIC
+        try:
+            if self.finished:
+                self._check_sections()
+            self._start()
+            # up to the first chunk (header, run info), and that chunk's schemas and channels: the writer
+            # registers every channel before the first message
+            for offset, record in self._records:
+                if isinstance(record, Chunk):
+                    self._pending = (offset, self._unpack(offset, record))
+                    break
+        except LogError:
+            self._file.close()
+            raise
+
+    def _start(self) -> None:
+        """Back to the first record."""
         self._file.seek(MAGIC_SIZE)
         self._crc = zlib.crc32(MCAP0_MAGIC)
         self.offset = MAGIC_SIZE       # bytes read and checked so far
@@ -100,16 +122,44 @@ class LogReader:
         self.messages_read = 0
         self._pending: tuple[int, list] | None = None
         self._records = self._top_level()
-        try:
-            # up to the first chunk (header, run info), and that chunk's schemas and channels: the writer
-            # registers every channel before the first message
+
+    def _crc_of(self, start: int, end: int) -> int:
+        """CRC-32 of the file's bytes ``[start, end)``."""
+        self._file.seek(start)
+        crc, left = 0, end - start
+        while left > 0:
+            block = self._file.read(min(left, 1 << 20))
+            if not block:
+                break
+            crc, left = zlib.crc32(block, crc), left - len(block)
+        return crc
+
+    def _check_sections(self) -> None:
+        """A finished file: its data section and its summary against their CRCs (in the data end record and
+        the footer). A damaged data section is then walked chunk by chunk to name the damaged record."""
+        footer_at = self.size - MAGIC_SIZE - _FOOTER
+        self._file.seek(footer_at)
+        footer = self._file.read(_FOOTER)
+        if footer_at < MAGIC_SIZE or footer[0] != Opcode.FOOTER:
+            raise self._corrupt(max(footer_at, 0), "the footer is damaged")
+        summary_start, _, summary_crc = struct.unpack_from("<QQI", footer, _RECORD_HEADER)
+        data_end_at = (summary_start or footer_at) - _DATA_END
+        if not MAGIC_SIZE <= data_end_at <= footer_at - _DATA_END:
+            raise self._corrupt(footer_at, f"the footer is damaged (summary start {summary_start})")
+        self._file.seek(data_end_at)
+        data_end = self._file.read(_DATA_END)
+        if data_end[0] != Opcode.DATA_END:
+            raise self._corrupt(data_end_at, "the data end record is damaged")
+        stored = struct.unpack_from("<I", data_end, _RECORD_HEADER)[0]
+        if stored and self._crc_of(0, data_end_at) != stored:
+            # walk it: a damaged chunk raises with its place and topics, else the data end's check does
+            self._start()
             for offset, record in self._records:
                 if isinstance(record, Chunk):
-                    self._pending = (offset, self._unpack(offset, record))
-                    break
-        except LogError:
-            self._file.close()
-            raise
+                    self._unpack(offset, record)
+        if summary_start and summary_crc and self._crc_of(summary_start, footer_at + _FOOTER - 4) != summary_crc:
+            raise self._corrupt(summary_start, "the summary section (indexes, statistics) fails its CRC: other "
+                                               "readers may misread the file (tensegrity-sim recover rewrites it)")
 
     def __enter__(self) -> "LogReader":
         return self
@@ -140,7 +190,8 @@ class LogReader:
                 record = self._parse(offset, opcode, body)
                 if record.data_section_crc not in (0, self._crc):
                     raise self._corrupt(offset, f"the data section fails its CRC (stored {record.data_section_crc:#010x}"
-                                                f", computed {self._crc:#010x})")
+                                                f", computed {self._crc:#010x}) while every chunk passes its own: a "
+                                                f"record outside the chunks (the header, the run info) is damaged")
                 self.offset += _RECORD_HEADER + length
                 return
             self._crc = zlib.crc32(body, zlib.crc32(head, self._crc))

@@ -80,6 +80,8 @@ def logged_run(sim: Simulator, log_spec: str) -> Iterator[CommandDriver]:
                             publish_rate=min(NodeSettings.publish_rate, 1.0 / sim.dt), log_path=log_spec)
     logic = SimNodeLogic(sim, settings)
     path = log_file_path(log_spec, sim.scene.name)
+    if path is None:
+        raise ValueError("--log: an empty path (give a .mcap file or a directory)")
     with SignalLatch() as latch, LogRecorder(path, logic.channels(), logic.run_info()) as recorder:
         logic.recorder = recorder
         yield CommandDriver(logic, latch)

@@ -247,7 +247,12 @@ def replay(path: str | Path) -> ReplayReport:
     """Re-simulate the log at ``path`` from what it holds and compare every published message."""
     path = Path(path)
     report = ReplayReport(path)
-    with LogReader(path) as reader:
+    try:
+        reader = LogReader(path)
+    except LogCorruptError as exc:  # found before anything is used: a finished log's CRCs
+        report.corrupt = str(exc).removeprefix(f"{path}: ")
+        return report
+    with reader:
         info = _run_info(reader, path)
         if info.get("package_version") != __version__:
             report.notes.append(f"written by tensegrity_sim {info.get('package_version')}, "
