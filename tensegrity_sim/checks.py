@@ -149,5 +149,7 @@ def read_yaml(path: str | Path, error: Callable[[str], Exception], text: str | N
         return yaml.load(text, Loader=_BoundedLoader)  # noqa: S506 (a SafeLoader)
     except yaml.YAMLError as exc:
         raise error(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
-    except (ValueError, OverflowError, TypeError) as exc:  # a tagged value PyYAML cannot build (a date...)
-        raise error(f"{path}: a value cannot be read: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - PyYAML's constructors raise what a value's conversion raises:
+        # ValueError for a date out of range, OverflowError for a long sexagesimal number, AttributeError
+        # for a malformed !!timestamp
+        raise error(f"{path}: a value cannot be read ({type(exc).__name__}: {' '.join(str(exc).split())})") from None

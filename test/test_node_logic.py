@@ -462,6 +462,18 @@ def test_as_fast_as_possible_steps_for_one_tick_period():
     assert logic.tick() == 4 and logic.tick() == 4
 
 
+def test_no_tick_runs_longer_than_its_wall_clock_bound():
+    """Issue 13: an absurd real-time factor or a slow tick rate made tick() raise or run for seconds. Every
+    step here costs 10 ms of the clock: a 1 Hz tick at the largest real-time factor is owed a million
+    steps, and runs 0.1 s (TICK_WALL_LIMIT) of them, then reports the overrun."""
+    clock = FakeClock(t=0.0, per_read=0.01)
+    logic, _, _ = make_logic(prism(), clock=clock, real_time_factor=1e6, step_rate=1.0)
+    clock.t = 1.0
+    assert logic.tick() == 10 and logic.overruns == 1
+    logic.update(real_time_factor=0.0)  # as fast as possible: one tick period, at most 0.1 s
+    assert logic.tick() == 10
+
+
 def test_pause_single_step_resume():
     clock = FakeClock(t=0.0)
     logic, sent, _ = make_logic(prism(), clock=clock)

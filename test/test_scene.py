@@ -98,6 +98,20 @@ def test_deep_yaml_refused_naming_the_file(tmp_path, text):
         ts.load_scene(path)
 
 
+@pytest.mark.parametrize("text, reason", [
+    ("name: 1" + ":00" * 200 + ".0", "(OverflowError: int too large to convert to float)"),
+    ("name: !!timestamp 99999-01-01", "(AttributeError: 'NoneType' object has no attribute 'groupdict')"),
+    ("name: 0000-01-01", "(ValueError: year 0 is out of range)"),
+], ids=["sexagesimal", "timestamp", "year-0"])
+def test_values_pyyaml_cannot_build_are_refused_naming_the_file(tmp_path, text, reason):
+    """Issue 13: these escaped from PyYAML as OverflowError, AttributeError and ValueError."""
+    path = tmp_path / "odd.yaml"
+    path.write_text(text)
+    with pytest.raises(ts.SceneError) as err:
+        ts.load_scene(path)
+    assert str(err.value) == f"{path}: a value cannot be read {reason}"
+
+
 def test_non_utf8_file_refused_naming_the_file(tmp_path):
     path = tmp_path / "latin1.yaml"
     path.write_bytes("name: caf\u00e9\n".encode("latin-1"))
