@@ -12,16 +12,16 @@ steps after a warm-up (the four configurations taking turns):
 * ``run --log``: the node logic with no transport and a log, as ``tensegrity-sim run --log`` runs.
 
 ``log`` = node+log - node is the logging cost; it is printed against the node's step time and against the
-1 ms a step may take at 1 kHz.
+1 ms a step may take at 1 kHz. Opening a log (run info, schemas, channels) and finishing it (rosbag2
+metadata, summary) happen once per file, not per step: they are timed apart (``open+finish``, ms per
+file) and left out of the per-step times. Times are CPU time of this process (``time.process_time``),
+not wall-clock time, so that other work on a shared machine does not count. Never asserts a time.
 
 ``--crash-safety`` instead compares, per step, the log as written before issue 13 (mcap's 1 MiB chunks,
 no flush until the end) with the crash-safe log (``log.CHUNK_SIZE`` chunks, a write-out and fsync every
 ``log.FLUSH_PERIOD`` s): the difference against the node's step time is the price of bounding what a crash
 loses. These are wall-clock times (``time.perf_counter``, an fsync waits for the disk, which CPU time
-would not show), best of ``--repeats`` runs taking turns, each run long enough to flush several times. Opening a log (run info, schemas, channels) and finishing it (rosbag2
-metadata, summary) happen once per file, not per step: they are timed apart (``open+finish``, ms per
-file) and left out of the per-step times. Times are CPU time of this process (``time.process_time``),
-not wall-clock time, so that other work on a shared machine does not count. Never asserts a time.
+would not show), best of ``--repeats`` runs taking turns, each run long enough to flush several times.
 """
 from __future__ import annotations
 

@@ -15,7 +15,8 @@ __version__ = "0.1.0"
 
 __all__ = [
     "METHODS", "Cable", "ClassKWarning", "ContactEvent", "Node", "Scene", "SceneError", "Simulator",
-    "LengthOffsetWarning", "NonFiniteError", "QPError", "StepError", "SOLVERS", "StepResult", "Strut", "Trajectory", "builtin_scenes",
+    "LengthOffsetWarning", "NonFiniteError", "QPError", "StepError", "SOLVERS", "StepResult", "Strut", "Trajectory",
+    "builtin_scenes",
     "load_scene", "__version__",
     "ActiveContact",
 ]

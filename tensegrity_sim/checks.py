@@ -18,7 +18,8 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
-__all__ = ["MIN_DT", "describe", "real", "time_step", "whole", "float_array", "check_memory", "read_yaml", "MAX_YAML_DEPTH"]
+__all__ = ["MIN_DT", "MAX_YAML_DEPTH", "describe", "real", "time_step", "whole", "float_array", "check_memory",
+           "read_yaml"]
 
 # Every stamp and log time is an integer number of nanoseconds, so a step shorter than one cannot be
 # told from the next; below it, 1/dt and impulse/dt also leave the float range for ordinary impulses.

@@ -62,8 +62,8 @@ def non_finite_report(scene: Scene, state: State, dt: float, positions: np.ndarr
     if state.rest_lengths.size:
         k = int(np.argmax(state.rest_lengths))
         inputs.append(f"longest rest length {float(state.rest_lengths[k]):.3g} m of cable {scene.cable_names[k]!r}")
-    return (f"the step from t = {state.step_count * dt:.6f} s gave non-finite values at {' and '.join(where) or 'a sum'}"
-            f" (inputs: {'; '.join(inputs) or 'none'}; dt {dt:g} s); the state is as before the step")
+    return (f"the step from t = {state.step_count * dt:.6f} s gave non-finite values at "
+            f"{' and '.join(where) or 'a sum'} (inputs: {'; '.join(inputs) or 'none'}; dt {dt:g} s); the state is as before the step")
 
 
 class Simulator:

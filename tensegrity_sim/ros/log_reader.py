@@ -189,9 +189,10 @@ class LogReader:
             if opcode == Opcode.DATA_END:
                 record = self._parse(offset, opcode, body)
                 if record.data_section_crc not in (0, self._crc):
-                    raise self._corrupt(offset, f"the data section fails its CRC (stored {record.data_section_crc:#010x}"
-                                                f", computed {self._crc:#010x}) while every chunk passes its own: a "
-                                                f"record outside the chunks (the header, the run info) is damaged")
+                    raise self._corrupt(offset, f"the data section fails its CRC (stored "
+                                                f"{record.data_section_crc:#010x}, computed {self._crc:#010x}) while "
+                                                f"every chunk passes its own: a record outside the chunks (the header, "
+                                                f"the run info) is damaged")
                 self.offset += _RECORD_HEADER + length
                 return
             self._crc = zlib.crc32(body, zlib.crc32(head, self._crc))

@@ -510,7 +510,8 @@ class SimNodeLogic:
 
         Returns None if the step failed (a :class:`~tensegrity_sim.StepError`): a QP error, the inextensible
         method finding the commanded motion impossible (shortening a cable of a locked structure), or a
-        result that is not finite (an absurd force); the simulator is then as before the step. What made it fail is given up, the first of these that applies:
+        result that is not finite (an absurd force); the simulator is then as before the step. What made it
+        fail is given up, the first of these that applies:
 
         1. the input messages applied since the last step: each is refused after the fact (logged and
            counted as refused), and the rest lengths, their targets and the forces are what they were
