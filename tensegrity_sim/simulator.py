@@ -220,7 +220,10 @@ class Simulator:
             d = real(duration, "duration")
             if d < 0:
                 raise ValueError(f"duration must be a finite number of seconds >= 0, got {duration!r}")
-            steps = whole(round(d / self.dt), "duration / dt")
+            ratio = d / self.dt
+            if not math.isfinite(ratio):  # round() would raise OverflowError
+                raise ValueError(f"duration / dt = {duration!r} / {self.dt!r} s is beyond the float range")
+            steps = whole(round(ratio), "duration / dt")
         steps = whole(steps, "steps")
         if callback is not None and not callable(callback):
             raise ValueError(f"callback must be callable, got {describe(callback)}")

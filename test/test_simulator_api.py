@@ -203,12 +203,16 @@ BAD_RUNS = [
     ({"steps": 2.5}, "steps must be a whole number >= 0, got 2.5"),
     ({"duration": 1e300}, "run: the trajectory of"),
     ({"duration": [1.0]}, "duration must be a number, got [1.0]"),
+    ({"duration": 9e307, "dt_": 1e-9}, "duration / dt = 9e+307 / 1e-09 s is beyond the float range"),
     ({"steps": 2, "callback": "print"}, "callback must be callable, got 'print'"),
 ]
 
 
 @pytest.mark.parametrize("kwargs, message", BAD_RUNS, ids=[m for _, m in BAD_RUNS])
 def test_bad_run_arguments_refused_before_any_step(sim, kwargs, message):
+    kwargs = dict(kwargs)
+    if "dt_" in kwargs:
+        sim = ts.Simulator(sim.scene, method=sim.method, dt=kwargs.pop("dt_"))
     before = snapshot(sim)
     with pytest.raises(ValueError) as err:
         sim.run(**kwargs)
