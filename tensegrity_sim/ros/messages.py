@@ -33,8 +33,8 @@ from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_typestore
 
 __all__ = ["BACKEND", "TYPESTORE", "new", "message_class", "float64s", "uint8s", "byte", "serialize",
-           "deserialize", "rosbags_message", "field_names", "schema_text", "type_hash", "time", "header", "point", "vector3",
-           "color", "key_values", "joint_state", "wrench_stamped", "parameter_event", "parameter_changes"]
+           "deserialize", "rosbags_message", "field_names", "schema_text", "type_hash", "time", "header", "point",
+           "vector3", "color", "key_values", "joint_state", "wrench_stamped", "parameter_event", "parameter_changes"]
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 
