@@ -10,7 +10,7 @@ from rosbags.interfaces import Nodetype
 
 from dds_child import JOINTS, POSES, joint_state, pose_array, random_domain, spawn
 from tensegrity_sim.ros.dds import (MAX_DOMAIN_ID, Participant, QosProfile, check_domain_id, cyclone_config,
-                                    dds_topic_name, dds_type)
+                                    dds_topic_name, dds_type, ros_peer_settings)
 from tensegrity_sim.ros import messages as M
 from tensegrity_sim.ros.messages import TYPESTORE
 
@@ -135,6 +135,9 @@ def test_loopback_configuration_discovers_by_unicast_on_127_0_0_1():
     assert '<Peer address="127.0.0.1"/>' in xml and "<ParticipantIndex>auto</ParticipantIndex>" in xml
     assert "Peer" in cyclone_config("127.0.0.1") and 'address="127.0.0.1"' in cyclone_config("127.0.0.1")
     assert "Interfaces" not in cyclone_config("auto")
+    # what the ROS side sets to find it (the serve banner says it): only on a loopback
+    assert ros_peer_settings("lo", 7) == ros_peer_settings("127.0.0.1", 7) == "ROS_DOMAIN_ID=7 ROS_STATIC_PEERS=127.0.0.1"
+    assert ros_peer_settings("auto", 7) is None
 
 
 def test_bad_interface_and_domain_are_refused_with_the_reason():

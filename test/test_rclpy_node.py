@@ -69,3 +69,13 @@ def test_node_publishes_refuses_and_serves(ros):
 
     node.close()
     assert replay(tmp_path / "node.mcap").ok
+
+
+def test_this_host_is_a_static_peer_unless_discovery_is_configured():
+    from tensegrity_sim.ros.rclpy_node import DISCOVERY_SETTINGS, peer_on_this_host
+
+    environ = {"ROS_DOMAIN_ID": "3"}
+    assert peer_on_this_host(environ) and environ == {"ROS_DOMAIN_ID": "3", "ROS_STATIC_PEERS": "127.0.0.1"}
+    for name in DISCOVERY_SETTINGS:  # whatever the user set is left as it is
+        environ = {name: "x"}
+        assert not peer_on_this_host(environ) and environ == {name: "x"}

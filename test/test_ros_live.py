@@ -95,12 +95,12 @@ def running(*args: str):
                 proc.send_signal(signal.SIGINT)
 
 
-def finish(proc) -> str:
+def finish(proc) -> tuple[str, str]:
     """SIGINT, then the process must finish by itself (log closed, summary printed) with status 0."""
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
-    return out
+    return out, err
 
 
 def stamp_ns(msg) -> int:
@@ -205,7 +205,7 @@ def test_sim_node_process_driven_by_rclpy(driver, tmp_path):
         assert good.successful, good.reason
         driver.spin_until(lambda: False, 0.2)  # publications in flight at the old rate
         check_streams_at_rate(driver, rate=50.0, count=10)
-        out = finish(node)
+        out, _ = finish(node)
     logs = [line.split(None, 1)[1] for line in out.splitlines() if line.startswith("log ")]
     assert logs == [str(log), str(tmp_path / "node_reset1.mcap")]
     for path in logs:
@@ -231,6 +231,7 @@ def test_dds_transport_seen_from_rclpy_both_ways(driver, tmp_path):
             results = lambda: [m.data for m, _ in driver.got["command_result"][n:] if m.data.startswith(f"{text}: ")]
             assert driver.spin_until(results, 10), f"no answer to {text!r}"
             assert results()[0].startswith(answer), results()
-        out = finish(server)
+        out, err = finish(server)
     assert "refused_rest_lengths        0" in out
+    assert f"see it with ROS_DOMAIN_ID={driver.context.get_domain_id()} ROS_STATIC_PEERS=127.0.0.1" in err  # banner
     check_log(log)
