@@ -138,7 +138,11 @@ def main(args=None) -> None:
     latch, and the spin loop stops between callbacks, so the log is never cut inside a write. (Plain
     ``init``/``try_shutdown`` rather than ``with rclpy.init()``, which not every Jazzy rclpy has.)"""
     peer_on_this_host()  # before rclpy.init, which reads it
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except RuntimeError as exc:  # rcl's RCLError: ROS arguments it cannot parse (e.g. "-p log_path:=")
+        print(f"sim_node: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     node = None
     try:
         with SignalLatch() as latch:
