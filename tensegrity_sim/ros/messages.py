@@ -91,11 +91,12 @@ def serialize(message, typename: str) -> bytes:
 
 def rosbags_message(message, typename: str):
     """``message`` (of ``typename``, from either backend) as an object of rosbags' type store, values
-    unchanged; a rosbags message is returned as it is."""
+    unchanged; a rosbags message is returned as it is. (A message with no fields has one in rosbags,
+    ``structure_needs_at_least_one_member``, 0, as on the wire; rclpy hides it: hence the default.)"""
     if isinstance(message, TYPESTORE.types[typename]):
         return message
     _, fields = TYPESTORE.fielddefs[typename]
-    return TYPESTORE.types[typename](**{name: _rosbags_value(getattr(message, name), desc) for name, desc in fields})
+    return TYPESTORE.types[typename](**{name: _rosbags_value(getattr(message, name, 0), desc) for name, desc in fields})
 
 
 def _rosbags_value(value, desc):
