@@ -94,7 +94,7 @@ def test_altered_input_is_caught_at_the_next_publication(logged, tmp_path):
     def alter(topic, index, msg):
         if topic == "/tensegrity_sim/cable_rest_lengths" and index == 30:  # the ramp at t = 30 ms
             assert message_time(msg) == 30_000_000
-            msg.position = msg.position * 0.5  # short enough to be taut: it pulls
+            msg.position = M.float64s(np.asarray(msg.position) * 0.5)  # short enough to be taut: it pulls
         return msg
 
     rewrite(logged, tmp_path / "input.mcap", alter)
@@ -117,7 +117,7 @@ def test_dropped_message_is_caught(logged, tmp_path):
 def test_summed_impulses_are_checked(logged, tmp_path):
     def alter(topic, index, msg):
         if topic == "/tensegrity_sim/cable_impulses" and index == 20:
-            msg.effort = msg.effort * (1 + 1e-15)
+            msg.effort = M.float64s(np.asarray(msg.effort) * (1 + 1e-15))
         return msg
 
     rewrite(logged, tmp_path / "impulses.mcap", alter)
