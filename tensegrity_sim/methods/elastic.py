@@ -134,12 +134,11 @@ class ElasticMethod(StepMethod):
         self._advance(state, x3, v3, 1, 1, x3[None], v3[None], impulses, slack)   # the step writes in place
         return MethodStep(x, v, impulses.reshape(-1), slack.reshape(-1))
 
+    def has_loop(self) -> bool:
+        return self.compiled
+
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
                 impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``steps`` steps from ``state`` in one compiled loop, keeping steps ``every``, ``2 every``, ...
-        and the last into ``positions``, ``velocities`` (K, N, 3), ``impulses`` (summed over the steps
-        since the previous kept one) and ``slack`` (K, n_cables), ``K = ceil(steps / every)``. Returns
-        the final positions and velocities (N, 3); ``state`` is not modified."""
         x, v = state.positions.copy(), state.velocities.copy()
         self._advance(state, x.reshape(-1, 3, 1), v.reshape(-1, 3, 1), steps, every, positions[..., None],
                       velocities[..., None], impulses[..., None], slack[..., None])
