@@ -28,6 +28,8 @@ cable's impulse over the step, and ``impulses / h`` the step's mean tension.
 
 Two implementations of the same arithmetic: the numba kernels of ``_elastic_kernels.py`` (used unless
 ``compiled`` is False) and the numpy code below, the plain reference they must match to 1e-12 in tests.
+Rigid struts that share a node (class-k: coupled SHAKE/RATTLE, a Newton solve) are stepped by the
+reference only.
 """
 from __future__ import annotations
 
@@ -54,7 +56,8 @@ class _Forces(NamedTuple):
 
 
 class ElasticMethod(StepMethod):
-    """``compiled``: step with the numba kernels (True) or the numpy reference (False)."""
+    """``compiled``: step with the numba kernels (True; not for coupled rigid struts) or the numpy
+    reference (False)."""
 
     name = "elastic"
 
@@ -74,7 +77,7 @@ class ElasticMethod(StepMethod):
         self._rest = np.empty(system.n_members)
         self._rest[: system.n_struts] = system.strut_rest
         self._cache: _Forces | None = None
-        self.compiled = compiled
+        self.compiled = compiled and not self.rigid.coupled
         self._model = kernels.model_arrays(system, self.rigid)
         # the compiled path's carry from one step to the next (batch of one): accelerations (N, 3, 1),
         # cable tensions (n_cables, 1), rigid strut directions (nr, 3, 1) at the last step's end
