@@ -200,7 +200,7 @@ def test_bad_messages_from_the_network_are_refused_and_the_node_keeps_going(tmp_
     results = [m.data for m, _, _ in received["command_result"]]
     assert results[0].startswith("explode: failed: unknown command")
     assert results[1] == "set dt 0.5: failed: parameter 'dt' is read-only while running (restart the node)"
-    assert results[2].startswith("set publish_rate -3: failed: parameter 'publish_rate': must be > 0")
+    assert results[2].startswith("set publish_rate -3: failed: parameter 'publish_rate': must be >= 1e-06")
     assert results[3] == "set gravity 1: failed: unknown parameter 'gravity' (runtime parameters: " \
                          + ", ".join(RUNTIME_PARAMETERS) + ")"
     assert results[4] == "set publish_rate fast: failed: parameter 'publish_rate': not a number: 'fast'"
