@@ -126,10 +126,13 @@ def _rosbags_value(value, desc):
 
 
 def deserialize(data: bytes, typename: str):
-    """The message of ``typename`` encoded in CDR ``data``."""
+    """The message of ``typename`` encoded in CDR ``data``. Decoded by rosbags first whichever the backend, so
+    that what is refused is the same with and without rclpy: rclpy's decoder accepts what rosbags refuses
+    (a string that is not UTF-8 comes out with replacement characters)."""
+    message = TYPESTORE.deserialize_cdr(data, typename)
     if BACKEND == "rclpy":
         return _rclpy_deserialize(bytes(data), message_class(typename))
-    return TYPESTORE.deserialize_cdr(data, typename)
+    return message
 
 
 def field_names(message) -> list[str]:
