@@ -25,8 +25,6 @@ INSTALL_REQUIRES = [
     "scipy>=1.11.4,<2",
     "PyYAML>=6.0.1,<7",
     "tqdm>=4.66.2,<5",
-    # compiled stepping kernels (methods/_*_kernels.py); 0.68.1 supports numpy 1.22 to 2.5
-    "numba>=0.68.1,<0.69",
     # QP backends of the inextensible method (tensegrity_sim.methods.qp): DAQP is the default
     "daqp>=0.11.0,<0.12",
     "osqp>=1.1.3,<2",
@@ -41,7 +39,7 @@ ROS_WHEELS = 'platform_system == "Linux" and platform_machine == "x86_64" and py
 EXTRAS_REQUIRE = {
     "test": [
         "pytest>=9.0.3,<10",
-        "hypothesis>=6.170.15,<7",  # property-based fuzzing of every public boundary (test/test_fuzz*.py)
+        "hypothesis>=6.170.15,<7",  # property-based fuzzing of every public boundary (test/test_fuzz_*.py)
         "mcap-ros2-support>=0.6.0,<0.7",  # an independent reader of the logs
         "quadprog>=0.1.14,<0.2",  # an independent QP solver to check the QP backends against
         "cyclonedds>=11.0.1,<12",  # the DDS transport's end-to-end tests run in CI
