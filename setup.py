@@ -20,6 +20,12 @@ INSTALL_REQUIRES = [
     # MCAP logs and ROS 2 Jazzy message types without ROS (tensegrity_sim.ros)
     "mcap==1.6.0",
     "rosbags==0.11.9",
+    # Looking at a run (tensegrity_sim.viz): the main job writes its plots and its 3-D page, so these are
+    # core; plotly's wheel carries plotly.js, which the page embeds (offline, nothing fetched)
+    "matplotlib==3.11.2",
+    "plotly==7.1.0",
+    # Parquet tables (a sweep's results; plot reads them)
+    "pyarrow==26.0.1",
 ]
 EXTRAS_REQUIRE = {
     "test": [
@@ -28,13 +34,18 @@ EXTRAS_REQUIRE = {
         "quadprog==0.1.14",  # an independent QP solver to check the QP backends against
         "cyclonedds==11.0.1",  # the DDS transport's end-to-end tests run in CI
         "mujoco==4.0.0",      # test/test_peers.py cross-checks the elastic method against MuJoCo
+        "foxglove-sdk==0.30.3",      # serve --foxglove is tested end to end
+        "websocket-client==1.9.2",   # a WebSocket client of its own, for that test and the page's browser test
+    ],
+    # Live to Foxglove without ROS (tensegrity-sim serve --foxglove).
+    "foxglove": [
+        "foxglove-sdk==0.30.3",
     ],
     # Live topics without a ROS install (tensegrity-sim serve --transport dds).
     "dds": [
         "cyclonedds==11.0.1",
     ],
     "bench": [
-        "matplotlib==3.11.2",
         "mujoco==4.0.0",      # the peer in bench/run_all.py
     ],
 }
@@ -43,7 +54,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    package_data={f"{PACKAGE}.scenes": ["*.yaml"]},
+    package_data={f"{PACKAGE}.scenes": ["*.yaml"], f"{PACKAGE}.schedules": ["*.yaml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

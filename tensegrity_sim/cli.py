@@ -7,7 +7,10 @@ import json
 import os
 import sys
 import time
+import warnings
 from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
@@ -22,6 +25,8 @@ __all__ = ["main", "RunSummary", "simulate"]
 DEFAULT_SCENE = "prism3"
 PROGRESS_MIN_STEPS = 20_000  # runs shorter than this finish too quickly to need a progress bar
 DEFAULT_LOG_DIR = "bags"     # run --log without a value: bags/<scene>_<time>.mcap
+DEFAULT_PLOT_DIR = "plots"   # plot / view without --out: plots/<log name>/
+DEMO_SCHEDULE = "prism3_demo.yaml"  # the main job's (run without a scene): tensegrity_sim/schedules/
 
 
 @dataclass
@@ -124,9 +129,21 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    scene = load_scene(args.scene)
+    demo = args.scene is None  # the main job: the default scene, its schedule, a log, plots and the page
+    scene = load_scene(DEFAULT_SCENE if demo else args.scene)
     sim = Simulator(scene, method=args.method, dt=args.dt, contacts=args.contacts, solver=args.solver)
-    commands = load_commands(args.commands, scene) if args.commands else None
+    if demo and args.commands is None:
+        with resources.as_file(resources.files("tensegrity_sim.schedules") / DEMO_SCHEDULE) as path:
+            commands = load_commands(path, scene)
+        args.commands = f"the built-in {DEMO_SCHEDULE} (tensegrity_sim/schedules/)"
+    else:
+        commands = load_commands(args.commands, scene) if args.commands else None
+    if demo:
+        args.log = args.log or DEFAULT_LOG_DIR
+        args.plot = args.plot or DEFAULT_PLOT_DIR
+        args.view = args.view or DEFAULT_PLOT_DIR
+    if (args.plot or args.view) and args.log is None:
+        args.log = DEFAULT_LOG_DIR  # the figures and the page are made from the log
     steps = int(round(args.duration / sim.dt))
     print(f"method: {sim.method_reason}")
     progress = steps >= PROGRESS_MIN_STEPS and not args.quiet
@@ -138,7 +155,63 @@ def _cmd_run(args: argparse.Namespace) -> int:
         with logged_run(sim, args.log) as driver:
             summary = simulate(sim, steps, commands, progress=progress, driver=driver)
         summary.extra["log"] = driver.path
+    if args.commands:
+        summary.extra["commands"] = args.commands
+    if args.plot:
+        summary.extra["plots"] = _write_plots(driver.path, _output(args.plot, driver.path, ""))
+    if args.view:
+        summary.extra["page"] = _write_page(driver.path, _output(args.view, driver.path, ".html"))
     print("\n".join(summary.lines()))
+    return 0
+
+
+def _output(spec: str, log: Path, suffix: str) -> Path:
+    """Where ``plot`` (``suffix`` "") or ``view`` (".html") writes for ``log``: ``spec`` itself when it is
+    a file name (ends with ``suffix``), else ``spec/<log name><suffix>``."""
+    spec = Path(spec)
+    return spec if suffix and spec.suffix == suffix else spec / (Path(log).stem + suffix)
+
+
+def _write_plots(log: Path, out: Path) -> str:
+    from .ros.record import read_log, with_energy
+    from .viz.plots import plot_run
+
+    paths = plot_run(with_energy(read_log(log)), out)
+    return f"{out}/ ({', '.join(sorted({p.stem for p in paths}))}; png and svg)"
+
+
+def _write_page(log: Path, out: Path) -> str:
+    from .ros.record import read_log
+    from .viz.page import write_page
+
+    path, frames = write_page(read_log(log), out)
+    return f"{path} ({frames} frames, {path.stat().st_size / 1e6:.1f} MB): open it in a browser"
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    if Path(args.source).suffix == ".parquet":
+        import pyarrow.parquet as pq
+
+        from .viz.plots import plot_sweep
+
+        try:
+            table = pq.read_table(args.source)
+        except (OSError, ValueError) as exc:  # pyarrow's errors are both
+            raise ValueError(f"{args.source}: cannot read the Parquet table: {exc}") from None
+        out = Path(args.out or Path(DEFAULT_PLOT_DIR) / Path(args.source).stem)
+        paths = plot_sweep(table, out, x=args.x, y=args.y, by=args.by)
+        print("\n".join(f"wrote            {p}" for p in paths))
+        return 0
+    if args.x or args.by or args.y != "max_tension":
+        raise ValueError("--x, --y and --by are for a sweep's Parquet table, not a log")
+    out = Path(args.out) if args.out else _output(DEFAULT_PLOT_DIR, Path(args.source), "")
+    print(f"plots            {_write_plots(Path(args.source), out)}")
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    out = _output(args.out or DEFAULT_PLOT_DIR, Path(args.source), ".html")
+    print(f"page             {_write_page(Path(args.source), out)}")
     return 0
 
 
@@ -236,8 +309,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = verbs.add_parser("run", help="simulate a scene offline, as fast as possible",
                            description="Simulate a scene offline, as fast as possible, and print a summary.")
-    run.add_argument("scene", nargs="?", default=DEFAULT_SCENE,
-                     help=f"a built-in scene name or a YAML file (default: {DEFAULT_SCENE})")
+    run.add_argument("scene", nargs="?", default=None,
+                     help=f"a built-in scene name or a YAML file; without it the main job: {DEFAULT_SCENE} with the "
+                          f"schedule tensegrity_sim/schedules/{DEMO_SCHEDULE} (cables slacken and snap), logged, "
+                          f"with plots and a 3-D page (as --log --plot --view)")
     run.add_argument("--method", default="auto", help="elastic | inextensible | auto (default: auto)")
     run.add_argument("--solver", choices=sorted(SOLVERS), default=None,
                      help=f"QP backend of the inextensible method (default: daqp below {SPARSE_NODES} free "
@@ -252,7 +327,37 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--log", nargs="?", const=DEFAULT_LOG_DIR, metavar="FILE",
                      help="write an MCAP log (the node's topics): FILE.mcap, or a directory for a timestamped "
                           f"file; without a value {DEFAULT_LOG_DIR}/<scene>_<time>.mcap (give SCENE before it)")
+    run.add_argument("--plot", metavar="DIR",
+                     help="write figures of the run (tensions, impulses, energy, contacts; PNG and SVG) into "
+                          "DIR/<log name>/; implies --log")
+    run.add_argument("--view", metavar="DIR|FILE.html",
+                     help="write the run's animated 3-D page (one HTML file that opens offline) as FILE.html or "
+                          "DIR/<log name>.html; implies --log")
     run.set_defaults(func=_cmd_run)
+
+    plot = verbs.add_parser("plot", help="figures of a log, or of a sweep's Parquet table",
+                            description="Figures of a log (PNG and SVG): tension per cable with slack spans shaded "
+                                        "and snaps marked, impulses, energy terms (recomputed by replaying the log), "
+                                        "contacts on a time line. Of a sweep's Parquet table: a result column "
+                                        "against a parameter column.")
+    plot.add_argument("source", metavar="LOG|TABLE.parquet",
+                      help="an MCAP log (run --log or the node) or a sweep's Parquet table")
+    plot.add_argument("--out", metavar="DIR",
+                      help=f"directory of the figures (default: {DEFAULT_PLOT_DIR}/<name of the log or table>)")
+    plot.add_argument("--x", help="table: the parameter column (default: the first numeric column but --y)")
+    plot.add_argument("--y", default="max_tension", help="table: the result column (default: max_tension)")
+    plot.add_argument("--by", help="table: one line per value of this column")
+    plot.set_defaults(func=_cmd_plot)
+
+    view = verbs.add_parser("view", help="an animated 3-D page of a log (HTML, opens offline)",
+                            description="Write one self-contained HTML page (no server, no network) with an "
+                                        "animated 3-D view of a log: struts, cables coloured by tension, slack "
+                                        "cables dashed, contacts; play/pause, speed and a time slider. "
+                                        "PAGE.html#t=2.5 opens at 2.5 s.")
+    view.add_argument("source", metavar="LOG", help="an MCAP log written by tensegrity-sim run --log or the node")
+    view.add_argument("--out", metavar="FILE.html|DIR",
+                      help=f"the page (default: {DEFAULT_PLOT_DIR}/<log name>.html)")
+    view.set_defaults(func=_cmd_view)
 
     rep = verbs.add_parser("replay", help="re-simulate a log and check it bit for bit",
                            description="Re-simulate a log from the scene, settings and inputs stored in it and "
@@ -273,8 +378,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+
+    def one_line(message, category, filename, lineno, file=None, line=None):
+        # a user needs what happened, not the source line that warned
+        print(f"tensegrity-sim {args.verb}: warning: {message}", file=sys.stderr)
+
     try:
-        return args.func(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = one_line
+            return args.func(args)
     except (SceneError, CommandError, ValueError, QPError) as exc:
         print(f"tensegrity-sim {args.verb}: error: {exc}", file=sys.stderr)
         return 2

@@ -32,6 +32,7 @@ from collections import deque
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import yaml
@@ -183,8 +184,11 @@ class _Refusals:
         self.errors.append(text)
 
 
-def replay(path: str | Path) -> ReplayReport:
-    """Re-simulate the log at ``path`` from what it holds and compare every published message."""
+def replay(path: str | Path, *, on_publication: Callable[[Simulator], None] | None = None) -> ReplayReport:
+    """Re-simulate the log at ``path`` from what it holds and compare every published message.
+
+    ``on_publication(sim)``, if given, sees the replaying simulator at every reproduced ``cable_states``
+    message (what the log does not hold, such as velocities and energies, read there)."""
     path = Path(path)
     report = ReplayReport(path)
     with _reading(path) as reader:
@@ -264,6 +268,8 @@ def replay(path: str | Path) -> ReplayReport:
                     report.mismatch = Mismatch(sim.step_count, t, channel.topic, *diff)
                     break
             report.compared[channel.topic] = report.compared.get(channel.topic, 0) + 1
+            if on_publication is not None and key == "cable_states":
+                on_publication(sim)
         if refusals.messages:
             report.notes.append(f"{len(refusals.messages)} input message(s) refused again, as in the run; "
                                 f"the first: {refusals.messages[0]}")

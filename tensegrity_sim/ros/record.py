@@ -1,0 +1,138 @@
+"""A log's run as arrays, for the plots and the 3-D page (``tensegrity-sim plot`` / ``view``).
+
+:func:`read_log` reads what a log holds at every publication: node positions (``~/node_poses``),
+cable lengths and tensions (``~/cable_states``), impulses summed since the previous publication
+(``~/cable_impulses``) and every contact event (``~/contacts``), with the scene and settings embedded
+in the log. It works on logs from ``tensegrity-sim run --log`` and from the node alike (same topics).
+
+A cable is *slack* in a publication when its tension is exactly zero, as ``tensegrity-sim info``
+counts it; a *snap* is a slack-to-taut change between two consecutive publications. The energy terms
+need the velocities, which a log does not hold: :func:`with_energy` recomputes them by replaying the
+log (bit for bit, :func:`~tensegrity_sim.ros.replay.replay`) and reading the simulator at each
+publication.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..results import ContactEvent
+from ..scene import Scene
+from ..system import System
+from . import messages as M
+from .node_logic import TOPICS, decode_contacts
+from .replay import LogError, _reading, _run_info, replay
+
+__all__ = ["RunRecord", "read_log", "with_energy"]
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """A run at its publications (K of them), from a log.
+
+    times: (K,) s. positions: (K, N, 3) m, scene node order. lengths, tensions: (K, C) m, N, scene cable
+    order. impulses: (K, C) N*s, summed over the steps since the previous publication. contacts: every
+    contact event in time order. energy: name -> (K,) J (kinetic, strain, gravity, total), empty until
+    :func:`with_energy`; energy_note says why it stops early if it does.
+    """
+
+    path: Path
+    scene: Scene
+    method: str
+    dt: float
+    times: np.ndarray
+    positions: np.ndarray
+    lengths: np.ndarray
+    tensions: np.ndarray
+    impulses: np.ndarray
+    contacts: tuple[ContactEvent, ...]
+    ground: float | None = None       # the height of the ground plane z = h, m, if the scene has one
+    energy: dict[str, np.ndarray] = field(default_factory=dict)
+    energy_note: str = ""
+
+    @property
+    def slack(self) -> np.ndarray:
+        """(K, C) bool: the cable carries no tension."""
+        return self.tensions == 0.0
+
+    @property
+    def snaps(self) -> tuple[np.ndarray, np.ndarray]:
+        """(publication index, cable index) of every slack-to-taut change, in time order."""
+        slack = self.slack
+        k, c = np.nonzero(slack[:-1] & ~slack[1:])
+        return k + 1, c
+
+    @property
+    def system(self) -> System:
+        """The scene's member arrays (``strut_ends``, ``cable_ends``, ``free``)."""
+        return System(self.scene)
+
+    @property
+    def title(self) -> str:
+        """Scene, method and step, for figure titles."""
+        return f"{self.scene.name} - {self.method}, dt = {self.dt:g} s"
+
+
+def read_log(path: str | Path) -> RunRecord:
+    """The publications of the log at ``path`` as a :class:`RunRecord` (no energy: see :func:`with_energy`).
+
+    Raises :class:`~tensegrity_sim.ros.replay.LogError` naming the file when it is not a readable
+    tensegrity_sim log or holds no publication."""
+    path = Path(path)
+    with _reading(path) as reader:
+        info = _run_info(reader, path)
+        scene_dict = yaml.safe_load(info["scene_yaml"])
+        scene = Scene.from_dict(scene_dict, source=f"{path} (embedded scene)")
+        topics = json.loads(info["topics"])
+        wanted = {topics[k]: k for k in ("node_poses", "cable_states", "cable_impulses", "contacts")}
+        columns: dict[str, list] = {k: [] for k in ("poses", "states", "impulses", "times", "impulse_times")}
+        contacts: list[ContactEvent] = []
+        for _, channel, message in reader.iter_messages(topics=list(wanted), log_time_order=False):
+            key = wanted[channel.topic]
+            msg = M.deserialize(message.data, TOPICS[key].typename)
+            if key == "node_poses":
+                columns["poses"].append([(p.position.x, p.position.y, p.position.z) for p in msg.poses])
+            elif key == "cable_states":
+                columns["times"].append(message.log_time)
+                columns["states"].append((np.asarray(msg.position, dtype=float), np.asarray(msg.effort, dtype=float)))
+            elif key == "cable_impulses":
+                columns["impulse_times"].append(message.log_time)
+                columns["impulses"].append(np.asarray(msg.effort, dtype=float))
+            else:
+                contacts.extend(decode_contacts(msg))
+    # a log cut off while writing a publication: keep the publications that are whole
+    k = min(len(columns["poses"]), len(columns["states"]), len(columns["impulses"]))
+    if k == 0:
+        raise LogError(f"{path}: no publication (node_poses, cable_states and cable_impulses) in the log")
+    if columns["times"][:k] != columns["impulse_times"][:k]:
+        raise LogError(f"{path}: cable_states and cable_impulses are not published together")
+    n_cables = len(scene.cables)
+    states = columns["states"][:k]
+    ground = scene_dict.get("ground")
+    return RunRecord(
+        path=path, scene=scene, method=info["method"], dt=float(info["dt"]),
+        times=np.array(columns["times"][:k], dtype=np.int64) * 1e-9,
+        positions=np.array(columns["poses"][:k], dtype=float).reshape(k, len(scene.nodes), 3),
+        lengths=np.array([s[0] for s in states]).reshape(k, n_cables),
+        tensions=np.array([s[1] for s in states]).reshape(k, n_cables),
+        impulses=np.array(columns["impulses"][:k]).reshape(k, n_cables),
+        contacts=tuple(sorted(contacts, key=lambda e: e.time)),
+        ground=float(ground.get("height", 0.0)) if isinstance(ground, dict) else None,
+    )
+
+
+def with_energy(record: RunRecord) -> RunRecord:
+    """``record`` with its energy terms (J) at every publication, recomputed by replaying its log.
+
+    Where the replay stops reproducing the log (a log written on another numpy/BLAS build may round
+    differently), the energy stops there and ``energy_note`` says so."""
+    values: list[dict[str, float]] = []
+    report = replay(record.path, on_publication=lambda sim: values.append(sim.energy()))
+    k = min(len(values), len(record.times))
+    energy = {name: np.array([v[name] for v in values[:k]]) for name in ("kinetic", "strain", "gravity", "total")}
+    note = "" if report.ok else f"energy up to t = {record.times[k - 1] if k else 0.0:.3f} s: replay {report.mismatch}"
+    return replace(record, energy=energy, energy_note=note)
