@@ -234,6 +234,17 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     from .ros.node_logic import NodeSettings
 
     settings = NodeSettings(**{name: getattr(args, name) for name in NodeSettings().parameters})  # checks them
+    if args.foxglove is not None:
+        if args.transport != "auto" or args.interface is not None:
+            raise ValueError("--foxglove streams to Foxglove's WebSocket server: --transport and --interface "
+                             "are for the ROS 2 node")
+        import logging
+
+        from .ros.foxglove_node import serve_foxglove  # needs the "foxglove" extra (foxglove-sdk)
+
+        logging.basicConfig(level=logging.INFO, format="[%(levelname)s] %(name)s: %(message)s")
+        serve_foxglove(settings, port=args.foxglove, host=args.foxglove_host)
+        return 0
     rclpy_found = importlib.util.find_spec("rclpy") is not None
     transport = ("rclpy" if rclpy_found else "dds") if args.transport == "auto" else args.transport
     if transport == "rclpy":
@@ -285,6 +296,11 @@ def _add_serve(verbs) -> None:
     serve.add_argument("--interface",
                        help="DDS transport: network interface name or address, or 'auto' (default: lo, this "
                             "host only; a ROS 2 machine elsewhere needs the interface towards it)")
+    serve.add_argument("--foxglove", nargs="?", type=int, const=8765, metavar="PORT",
+                       help="stream live to Foxglove through its WebSocket server instead (no ROS; extra "
+                            "'foxglove'); PORT default 8765, 0 = any free port")
+    serve.add_argument("--foxglove-host", default="127.0.0.1",
+                       help="address the Foxglove server listens on (default: 127.0.0.1, this host only)")
     serve.set_defaults(func=_cmd_serve)
 
 

@@ -12,12 +12,25 @@ from tensegrity_sim.commands import CommandError, parse_commands
 from conftest import deadband_dict
 
 
-def test_run_default_scene_prints_summary(capsys):
-    assert main(["run", "--duration", "0.2", "--quiet"]) == 0
-    out = capsys.readouterr().out
-    assert "scene            prism3" in out
-    assert "simulated        0.2 s in 200 steps" in out
-    assert "steps/s" in out and "max tension" in out and "drift" in out and "switches" in out
+def test_main_job_shows_slack_and_snaps_and_says_where_it_wrote(tmp_path, monkeypatch, capsys):
+    """``run`` without a scene: prism3 with its demo schedule, logged, plotted, and a page. By 3.2 s
+    the side cables were reeled out (every cable slackens) and back in (every cable snaps taut)."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "--duration", "3.2", "--quiet"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "scene            prism3" in lines and "simulated        3.2 s in 3200 steps" in lines
+    assert "steps/s" in lines[5] and "max tension" in lines[6] and "drift" in lines[9]
+    switches = int(lines[7].split()[1])
+    assert switches >= 2 * 9  # each of the 9 cables went slack, then taut
+    [log] = [line.split()[1] for line in lines if line.startswith("log ")]
+    assert (tmp_path / log).stat().st_size > 0
+    [plots] = [line for line in lines if line.startswith("plots ")]
+    stem = log.split("/")[-1][:-len(".mcap")]
+    assert plots.split()[1] == f"plots/{stem}/"
+    for name in ("tensions", "impulses", "energy", "contacts"):
+        assert (tmp_path / "plots" / stem / f"{name}.png").stat().st_size > 0
+    [page] = [line for line in lines if line.startswith("page ")]
+    assert page.split()[1] == f"plots/{stem}.html" and (tmp_path / "plots" / f"{stem}.html").exists()
 
 
 def test_run_refuses_bad_scene_with_exit_2(tmp_path, capsys):

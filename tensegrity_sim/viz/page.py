@@ -29,12 +29,12 @@ SPEEDS = (0.25, 1.0, 4.0)  # playback speeds offered, simulated seconds per wall
 
 
 def frame_indices(record: RunRecord, max_frames: int = MAX_FRAMES, max_values: int = MAX_VALUES) -> np.ndarray:
-    """Indices into ``record.times`` of the frames: every k-th publication, the smallest k that keeps
-    within ``max_frames`` frames and ``max_values`` values; the last publication always included."""
+    """Indices into ``record.times`` of the frames: every k-th publication from the first, and the last,
+    with the smallest k that keeps within ``max_frames`` frames and ``max_values`` values in all."""
     n_values = 9 * (len(record.scene.struts) + len(record.scene.cables)) + 3 * len(record.scene.cables)
     count = len(record.times)
-    stride = max(1, math.ceil(count / max_frames), math.ceil(count * n_values / max_values))
-    picked = np.arange(0, count, stride)
+    allowed = max(2, min(max_frames, max_values // n_values))
+    picked = np.arange(0, count, max(1, math.ceil((count - 1) / (allowed - 1))))
     return picked if picked[-1] == count - 1 else np.append(picked, count - 1)
 
 
