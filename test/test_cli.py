@@ -92,3 +92,20 @@ def test_run_with_commands_file(tmp_path, capsys):
     assert "c0" in scene.cable_names
     assert main(["run", "prism3", "--duration", "0.1", "--commands", str(cmds), "--quiet"]) == 0
     assert "switches" in capsys.readouterr().out
+
+
+def test_a_warning_is_one_line_and_info_lists_the_settings_one_per_line(tmp_path, capsys):
+    log = tmp_path / "ico.mcap"
+    assert main(["run", "icosahedron", "--method", "inextensible", "--duration", "0.02", "--quiet",
+                 "--log", str(log)]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.splitlines() == [
+        "tensegrity-sim run: warning: inextensible cables: 24 cables start longer than their rest length "
+        "(prestress); their length limits are rest length + that stretch (largest 0.130506 m, 'c22'), kept "
+        "when rest lengths are commanded"]
+    assert [line for line in captured.out.splitlines() if line.startswith("log")] == [f"log              {log}"]
+    assert main(["info", str(log)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    first = out.index("settings")
+    assert "  solver         daqp" in out[first:first + 20]
+    assert "  length_offsets 24 cables, 0.130506 m to 0.130506 m (c22); the log's metadata has each" in out

@@ -6,6 +6,7 @@ import struct
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import websocket
 from mcap.reader import make_reader
@@ -72,3 +73,25 @@ def test_a_websocket_client_receives_the_channels_and_the_logged_messages(tmp_pa
     assert states and all(list(s.name) == list(load_scene("prism3").cable_names) for s in states)
     # publications every 10 ms of simulated time (publish_rate 100 Hz, dt 1 ms)
     assert all(t % 10_000_000 == 0 for _, t, _ in received)
+
+
+def test_the_layout_shows_the_node_s_topics():
+    """foxglove/tensegrity_sim.json: every panel reads a topic the node publishes (or the layout's own
+    script's output), and the script reads cable_states; every panel is placed."""
+    with open(Path(__file__).parent.parent / "foxglove" / "tensegrity_sim.json") as f:
+        layout = json.load(f)
+    published = {resolve_topic(s.name, "/tensegrity_sim") for s in TOPICS.values() if s.direction == "out"}
+    script = next(iter(layout["userNodes"].values()))["sourceCode"]
+    assert 'inputs = ["/tensegrity_sim/cable_states"]' in script
+    made = "/studio_script/cable_slack"
+    assert f'output = "{made}"' in script
+    panels = layout["configById"]
+    topics = set(panels["3D!structure"]["topics"])
+    paths = [p["value"] for panel in panels.values() for p in panel.get("paths", [])]
+    assert topics <= published and "/tensegrity_sim/markers" in topics
+    assert {p.split(".")[0] for p in paths} == {"/tensegrity_sim/cable_states", "/tensegrity_sim/cable_impulses", made}
+
+    def placed(node):
+        return {node} if isinstance(node, str) else placed(node["first"]) | placed(node["second"])
+
+    assert placed(layout["layout"]) == set(panels)

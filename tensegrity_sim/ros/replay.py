@@ -284,6 +284,18 @@ def replay(path: str | Path, *, on_publication: Callable[[Simulator], None] | No
 
 
 # --------------------------------------------------------------------------- info
+def _settings_lines(settings: dict) -> list[str]:
+    """The method settings, one per line; per-cable length offsets (m) summed up by count and range."""
+    out = ["settings"]
+    for name, value in sorted(settings.items()):
+        if name == "length_offsets" and isinstance(value, dict) and value:
+            largest = max(value, key=value.get)
+            value = (f"{len(value)} cables, {min(value.values()):.6g} m to {value[largest]:.6g} m ({largest}); "
+                     f"the log's metadata has each")
+        out.append(f"  {name:<14} {value}")
+    return out
+
+
 def log_info(path: str | Path) -> list[str]:
     """A summary of a log: scene, settings, duration, topics and counts, slack/snap/contact statistics.
 
@@ -303,7 +315,7 @@ def log_info(path: str | Path) -> list[str]:
             f"scene            {info['scene_name']} ({len(scene['nodes'])} nodes, {len(scene.get('struts') or [])} "
             f"struts, {len(scene.get('cables') or [])} cables)",
             f"method           {info['method']} ({info['method_reason']}), dt {float(info['dt']):g} s",
-            f"settings         {info['method_settings']}",
+            *_settings_lines(json.loads(info["method_settings"])),
             f"written by       tensegrity_sim {info['package_version']} at {info['created']}",
             f"sim time         {stats.message_start_time * 1e-9:.6f} s to {stats.message_end_time * 1e-9:.6f} s "
             f"({round((stats.message_end_time - stats.message_start_time) * 1e-9 / float(info['dt']))} steps)",
