@@ -4,15 +4,20 @@
 
 For each scene: a logged run of ``--duration`` s (the structure kicked at 1 s so that it moves), then
 ``view``; prints the page's size and frames, the time to write it, the time the browser takes to show
-it, and the frame rate of stepping through every frame (each ``Plotly.animate`` awaited, no waiting
-between frames: the fastest the page can play). The browser is Debian's chromium, headless, with
-software WebGL (``--disable-gpu``): a desktop with a GPU draws faster, so the rates are a floor.
+it, and the frame rate of stepping through the first ``--frames`` frames (each ``Plotly.animate``
+awaited, no waiting between frames: the fastest the page can play), per second of wall-clock time and
+per second of the browser's CPU time (all its processes; what a loaded machine does not change). The
+browser is Debian's chromium, headless, with software WebGL (``--disable-gpu``): a desktop with a GPU
+draws faster, so the rates are a floor.
 The browser is driven over the DevTools protocol with websocket-client (the "test" extra).
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -32,11 +37,14 @@ from tensegrity_sim.ros.record import read_log  # noqa: E402
 from tensegrity_sim.viz.page import write_page  # noqa: E402
 
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-         "--disable-component-update", "--disable-sync", "--no-first-run", "--window-size=1200,900"]
+         "--disable-component-update", "--disable-sync", "--no-first-run", "--window-size=1200,900",
+         # a page nobody looks at gets its timers cut to one a second, and Plotly.animate waits on timers
+         "--disable-background-timer-throttling", "--disable-renderer-backgrounding",
+         "--disable-backgrounding-occluded-windows"]
 
-PLAY_ALL = """(async () => {
+PLAY = """(async () => {
   const gd = document.getElementById('tensegrity-view');
-  const names = gd.layout.sliders[0].steps.map(s => s.args[0][0]);
+  const names = gd.layout.sliders[0].steps.map(s => s.args[0][0]).slice(0, %d);
   const t0 = performance.now();
   for (const n of names) {
     await Plotly.animate(gd, [n], {frame: {duration: 0, redraw: true}, transition: {duration: 0},
@@ -102,15 +110,30 @@ class Browser:
         self.proc.wait()
 
 
-def measure(browser: Browser, page: Path) -> dict:
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time (s) of process ``pid`` and all its descendants, from /proc."""
+    total = 0.0
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        total = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            total += sum(cpu_seconds(int(c)) for c in (task / "children").read_text().split())
+    except (FileNotFoundError, ProcessLookupError):
+        pass  # a process that has just ended
+    return total
+
+
+def measure(browser: Browser, page: Path, frames: int) -> dict:
     start = time.perf_counter()
     browser.call("Page.navigate", url=page.as_uri())
     while not browser.evaluate("!!(window.Plotly && document.getElementById('tensegrity-view') && "
                                "document.getElementById('tensegrity-view')._fullLayout)"):
         time.sleep(0.05)
     shown = time.perf_counter() - start
-    played = json.loads(browser.evaluate(PLAY_ALL))
-    return {"shown_s": shown, "fps": played["frames"] / played["seconds"]}
+    cpu = cpu_seconds(browser.proc.pid)
+    played = json.loads(browser.evaluate(PLAY % frames))
+    cpu = cpu_seconds(browser.proc.pid) - cpu
+    return {"shown_s": shown, "fps": played["frames"] / played["seconds"], "fps_cpu": played["frames"] / cpu}
 
 
 def run(args) -> None:
@@ -122,21 +145,22 @@ def run(args) -> None:
         browser = Browser(chromium, folder / "profile")
         try:
             print(f"{'scene':<12} {'struts':>6} {'cables':>6} {'frames':>6} {'page MB':>8} {'write s':>8} "
-                  f"{'shown s':>8} {'frames/s':>9}")
+                  f"{'shown s':>8} {'frames/s':>9} {'frames/CPU s':>12}")
             for name in args.scenes.split(","):
                 scene = scene_file(name, folder)
                 log = folder / f"{name}.mcap"
-                assert main(["run", scene, "--duration", str(args.duration), "--quiet", "--log", str(log),
-                             "--commands", str(kick(scene, folder))]) == 0
+                with contextlib.redirect_stdout(io.StringIO()):  # the run's summary: not the table's
+                    assert main(["run", scene, "--duration", str(args.duration), "--quiet", "--log", str(log),
+                                 "--commands", str(kick(scene, folder))]) == 0
                 page = folder / f"{name}.html"
                 start = time.perf_counter()
                 _, frames = write_page(read_log(log), page)
                 written = time.perf_counter() - start
                 s = load_scene(scene)
-                m = measure(browser, page)
+                m = measure(browser, page, args.frames)
                 print(f"{name:<12} {len(s.struts):>6} {len(s.cables):>6} {frames:>6} "
-                      f"{page.stat().st_size / 1e6:>8.1f} {written:>8.1f} {m['shown_s']:>8.1f} {m['fps']:>9.1f}",
-                      flush=True)
+                      f"{page.stat().st_size / 1e6:>8.1f} {written:>8.1f} {m['shown_s']:>8.1f} {m['fps']:>9.1f} "
+                      f"{m['fps_cpu']:>12.1f}", flush=True)
         finally:
             browser.close()
 
@@ -144,6 +168,7 @@ def run(args) -> None:
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=10.0, help="simulated time per run, s (default: 10)")
+    parser.add_argument("--frames", type=int, default=60, help="frames played for the rate (default: 60)")
     parser.add_argument("--scenes", default="icosahedron,tower20",
                         help="built-in scenes or towerN, comma-separated (default: icosahedron,tower20)")
     run(parser.parse_args())

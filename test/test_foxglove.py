@@ -8,12 +8,14 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import websocket
 from mcap.reader import make_reader
 
 from tensegrity_sim import load_scene
 from tensegrity_sim.ros import messages as M
 from tensegrity_sim.ros.node_logic import TOPICS, resolve_topic
+from tensegrity_sim.ros.record import read_log
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # binary opcode of a message: u8 opcode, u32 subscription id, u64 log time (ns), payload
@@ -73,6 +75,13 @@ def test_a_websocket_client_receives_the_channels_and_the_logged_messages(tmp_pa
     assert states and all(list(s.name) == list(load_scene("prism3").cable_names) for s in states)
     # publications every 10 ms of simulated time (publish_rate 100 Hz, dt 1 ms)
     assert all(t % 10_000_000 == 0 for _, t, _ in received)
+    # a node's log is read back like run's: the streamed states are in it
+    record = read_log(tmp_path / "live.mcap")
+    for topic, log_time, data in received:
+        if topic.endswith("cable_states"):
+            k = int(np.searchsorted(record.times, log_time * 1e-9 - 1e-12))
+            tension = np.asarray(M.deserialize(data, "sensor_msgs/msg/JointState").effort)
+            assert np.array_equal(record.tensions[k], tension)
 
 
 def test_the_layout_shows_the_node_s_topics():

@@ -4,6 +4,7 @@ import re
 import shutil
 import subprocess
 import sys
+from dataclasses import replace
 from importlib import resources
 
 import matplotlib.image
@@ -19,7 +20,8 @@ from tensegrity_sim.ros.node_logic import TOPICS, resolve_topic
 from tensegrity_sim.ros.offline import logged_run
 from tensegrity_sim.ros.record import read_log, with_energy
 from tensegrity_sim.viz.page import build_figure, frame_indices
-from tensegrity_sim.viz.plots import _spans, plot_run
+from tensegrity_sim.results import ContactEvent
+from tensegrity_sim.viz.plots import _spans, plot_contacts, shown_cables
 
 DURATION = 3.2  # s: the demo's side cables reeled out (all slack) and back in (all snap) by then
 
@@ -164,3 +166,40 @@ def test_page_in_a_real_browser_shows_the_structure_and_the_slider_moves_it(page
     # the slider's step to 2.5 s (all cables slack, the prism loose) moves the structure
     assert np.abs(start[view] - moved[view]).max(axis=2).mean() > 0.005
     assert not np.array_equal(start[500:], moved[500:])  # the slider itself moved too
+
+
+def test_contacts_show_on_the_time_line_and_in_the_page(demo, tmp_path):
+    """Contacts from 0.5 s to 1.0 s (s0, s1) and from 2.0 s to the end (s1, s2), put into the record."""
+    record = read_log(demo[0])
+    p, n = np.array([0.1, 0.2, 0.3]), np.array([1.0, 0.0, 0.0])
+    events = (ContactEvent("begin", ("s0", "s1"), 0.5, p, p + 0.01, n, -1e-3),
+              ContactEvent("end", ("s0", "s1"), 1.0, p, p + 0.01, n, 1e-13),
+              ContactEvent("begin", ("s1", "s2"), 2.0, -p, -p, n, -2e-3))
+    record = replace(record, contacts=events)
+    plot_contacts(record, tmp_path)
+    svg = (tmp_path / "contacts.svg").read_text()
+    assert "s0 - s1" in svg and "s1 - s2" in svg and "no contact" not in svg
+    picked = frame_indices(record)
+    fig = build_figure(record, picked)
+    for frame, k in zip(fig.frames, picked):
+        t = record.times[k]
+        expected = ([p, p + 0.01] if 0.5 <= t < 1.0 else []) + ([-p, -p] if t >= 2.0 else [])
+        contacts = frame.data[3]
+        np.testing.assert_allclose(np.column_stack([contacts.x, contacts.y, contacts.z]).reshape(-1, 3),
+                                   np.array(expected, dtype=np.float32).reshape(-1, 3))
+
+
+def test_many_cables_show_the_twelve_that_snap_most(tmp_path):
+    """The icosahedron (24 cables), kicked: the rows are the 12 cables first by snaps, then by tension."""
+    schedule = tmp_path / "kick.yaml"
+    schedule.write_text("- time: 0.05\n  forces: {n0: [0.0, 0.0, 400.0]}\n"
+                        "- time: 0.1\n  forces: {n0: [0.0, 0.0, 0.0]}\n")
+    log = tmp_path / "ico.mcap"
+    assert main(["run", "icosahedron", "--duration", "1.0", "--quiet", "--log", str(log),
+                 "--commands", str(schedule)]) == 0
+    record = read_log(log)
+    snaps = [int(np.sum(record.snaps[1] == c)) for c in range(24)]
+    assert sum(snaps) > 0
+    ranked = sorted(range(24), key=lambda c: (-snaps[c], -record.tensions[:, c].max(), c))
+    shown, note = shown_cables(record)
+    assert shown.tolist() == sorted(ranked[:12]) and note == "12 of 24 cables: those that snap most"

@@ -10,7 +10,6 @@ the DDS or rclpy node to drive it); the run is stopped with Ctrl-C, which finish
 """
 from __future__ import annotations
 
-import contextlib
 import logging
 
 import foxglove
@@ -18,8 +17,8 @@ import foxglove
 from ..scene import load_scene
 from ..simulator import Simulator
 from . import messages as M
-from .dds_node import spin
-from .log import LogRecorder, SignalLatch, log_file_path
+from .live import run_logged
+from .log import SignalLatch, log_file_path
 from .node_logic import TOPICS, NodeSettings, SimNodeLogic, resolve_topic
 
 __all__ = ["DEFAULT_PORT", "FoxgloveTransport", "serve_foxglove"]
@@ -51,7 +50,7 @@ class FoxgloveTransport:
         self.channels[key].log(data, log_time=self._time_ns)
 
     def poll(self, logic: SimNodeLogic, log: logging.Logger) -> None:
-        """No inputs come through Foxglove: nothing to take (what :func:`~.dds_node.spin` asks of a transport)."""
+        """No inputs come through Foxglove: nothing to take (what :func:`~.live.spin` asks of a transport)."""
 
 
 def serve_foxglove(settings: NodeSettings, *, port: int = DEFAULT_PORT, host: str = "127.0.0.1",
@@ -69,16 +68,9 @@ def serve_foxglove(settings: NodeSettings, *, port: int = DEFAULT_PORT, host: st
         with SignalLatch() as latch:
             transport = FoxgloveTransport(server, context, settings.node_name)
             logic = SimNodeLogic(sim, settings, transport=transport, raw_transport=True, logger=log)
-            recorder = LogRecorder(path, logic.channels(), logic.run_info()) if path else None
-            logic.recorder = recorder
-            try:
-                with recorder or contextlib.nullcontext():
-                    log.info(f"serving {sim.scene.name} ({sim.method}, dt = {sim.dt:g} s) to Foxglove on "
-                             f"ws://{host}:{server.port}" + (f"; logging to {path}" if path else ""))
-                    spin(logic, transport, latch=latch, log=log)
-            finally:
-                lines = logic.summary() + [f"{'log':<27} {p}" for p in (recorder.paths if recorder else [])]
-                print("\n".join(lines), flush=True)
+            run_logged(logic, transport, path, latch=latch, log=log,
+                       serving=f"serving {sim.scene.name} ({sim.method}, dt = {sim.dt:g} s) to Foxglove on "
+                               f"ws://{host}:{server.port}")
     except KeyboardInterrupt:
         pass  # Ctrl-C is how a server is stopped
     finally:
