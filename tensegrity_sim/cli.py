@@ -48,6 +48,7 @@ class RunSummary:
     contact_pairs: int = 0
     energy_start: float = 0.0
     energy_end: float = 0.0
+    commanded: bool = False  # commands did work: the energy change is not a drift
     extra: dict = field(default_factory=dict)
 
     def lines(self) -> list[str]:
@@ -66,7 +67,8 @@ class RunSummary:
             f"contacts         {self.contacts} events ({self.contact_begins} begin, "
             f"{self.contacts - self.contact_begins} end) between {self.contact_pairs} member pairs",
             f"energy           {self.energy_start:.9g} J -> {self.energy_end:.9g} J "
-            f"(drift {drift:+.3e} J, {drift / scale:+.3e} relative)",
+            + (f"(change {drift:+.3e} J, the commands' work included)" if self.commanded else
+               f"(drift {drift:+.3e} J, {drift / scale:+.3e} relative)"),
         ]
         out += [f"{k:<16} {v}" for k, v in self.extra.items()]
         return out
@@ -157,6 +159,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         summary.extra["log"] = driver.path
     if args.commands:
         summary.extra["commands"] = args.commands
+        summary.commanded = True
     if args.plot:
         summary.extra["plots"] = _write_plots(driver.path, _output(args.plot, driver.path, ""))
     if args.view:

@@ -87,6 +87,17 @@ def test_plot_writes_png_and_svg_titled_by_scene_method_dt(demo, tmp_path):
     assert "no contact" in (tmp_path / "figs" / "contacts.svg").read_text()
 
 
+def test_plot_and_view_refuse_what_is_not_a_log(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.mcap").write_text("not a log")
+    assert main(["plot", str(tmp_path / "notes.mcap")]) == 2
+    assert main(["view", str(tmp_path / "missing.mcap")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith(f"tensegrity-sim plot: error: {tmp_path / 'notes.mcap'}: not a readable MCAP file")
+    assert err[1].startswith(f"tensegrity-sim view: error: {tmp_path / 'missing.mcap'}: cannot read")
+    assert not (tmp_path / "plots").exists()  # nothing written
+
+
 def test_plot_of_a_sweep_table_leaves_failed_runs_out(tmp_path, capsys):
     """Column names as the sweep writes them: the varied keys as in its spec, then the results."""
     table = pa.table({"rest_lengths.c0": [0.62, 0.64, 0.66, 0.68], "dt": [1e-3] * 4,
@@ -169,13 +180,14 @@ def test_page_in_a_real_browser_shows_the_structure_and_the_slider_moves_it(page
 
 
 def test_contacts_show_on_the_time_line_and_in_the_page(demo, tmp_path):
-    """Contacts from 0.5 s to 1.0 s (s0, s1) and from 2.0 s to the end (s1, s2), put into the record."""
+    """Contacts from 0.5 s to 1.0 s (s0, s1) and from 2.0 s to the end (s1, s2), and a ground plane,
+    put into the record (the scene format has no ground yet)."""
     record = read_log(demo[0])
     p, n = np.array([0.1, 0.2, 0.3]), np.array([1.0, 0.0, 0.0])
     events = (ContactEvent("begin", ("s0", "s1"), 0.5, p, p + 0.01, n, -1e-3),
               ContactEvent("end", ("s0", "s1"), 1.0, p, p + 0.01, n, 1e-13),
               ContactEvent("begin", ("s1", "s2"), 2.0, -p, -p, n, -2e-3))
-    record = replace(record, contacts=events)
+    record = replace(record, contacts=events, ground=-0.25)
     plot_contacts(record, tmp_path)
     svg = (tmp_path / "contacts.svg").read_text()
     assert "s0 - s1" in svg and "s1 - s2" in svg and "no contact" not in svg
@@ -187,6 +199,8 @@ def test_contacts_show_on_the_time_line_and_in_the_page(demo, tmp_path):
         contacts = frame.data[3]
         np.testing.assert_allclose(np.column_stack([contacts.x, contacts.y, contacts.z]).reshape(-1, 3),
                                    np.array(expected, dtype=np.float32).reshape(-1, 3))
+    [ground] = [trace for trace in fig.data if trace.name == "ground"]
+    assert np.all(np.array(ground.z) == -0.25) and fig.layout.scene.zaxis.range[0] <= -0.25
 
 
 def test_many_cables_show_the_twelve_that_snap_most(tmp_path):

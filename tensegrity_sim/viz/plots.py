@@ -143,11 +143,11 @@ def plot_contacts(record: RunRecord, out: Path) -> list[Path]:
 
 
 def plot_run(record: RunRecord, out: str | Path) -> list[Path]:
-    """Every figure of ``record`` (the energy one if ``record.energy`` is set) into directory ``out``
-    (created); the paths written."""
+    """Every figure of ``record`` into directory ``out`` (created): tensions and impulses if there are
+    cables, energy if ``record.energy`` is set, contacts; the paths written."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    paths = plot_tensions(record, out) + plot_impulses(record, out)
+    paths = plot_tensions(record, out) + plot_impulses(record, out) if record.tensions.shape[1] else []
     if record.energy:
         paths += plot_energy(record, out)
     return paths + plot_contacts(record, out)
