@@ -24,7 +24,7 @@ from ..ros.record import RunRecord
 __all__ = ["MAX_FRAMES", "MAX_VALUES", "SPEEDS", "frame_indices", "write_page"]
 
 MAX_FRAMES = 400          # a slider with more steps than this is no finer to the hand
-MAX_VALUES = 3_000_000    # float32 values of all frames: ~16 MB of base64, which a browser parses in ~1 s
+MAX_VALUES = 1_500_000    # float32 values of all frames: ~8 MB of base64 beside plotly.js (~4.7 MB)
 SPEEDS = (0.25, 1.0, 4.0)  # playback speeds offered, simulated seconds per wall-clock second
 
 
