@@ -3,7 +3,6 @@ and the 3-D page (its frames against the log; in a real browser when one is inst
 import re
 import shutil
 import subprocess
-import sys
 from dataclasses import replace
 from importlib import resources
 
@@ -16,7 +15,6 @@ import pytest
 import tensegrity_sim as ts
 from tensegrity_sim.cli import main, simulate
 from tensegrity_sim.commands import load_commands
-from tensegrity_sim.ros.node_logic import TOPICS, resolve_topic
 from tensegrity_sim.ros.offline import logged_run
 from tensegrity_sim.ros.record import read_log, with_energy
 from tensegrity_sim.viz.page import build_figure, frame_indices

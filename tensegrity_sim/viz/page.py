@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import plotly.graph_objects as go
 
-from ..ros.record import RunRecord
+from .record import RunRecord
 
 __all__ = ["MAX_FRAMES", "MAX_VALUES", "SPEEDS", "frame_indices", "write_page"]
 

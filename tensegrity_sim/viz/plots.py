@@ -23,7 +23,7 @@ matplotlib.rcParams["svg.fonttype"] = "none"  # SVG text stays text: searchable,
 import matplotlib.pyplot as plt  # noqa: E402  (after the backend is chosen)
 import numpy as np  # noqa: E402
 
-from ..ros.record import RunRecord  # noqa: E402
+from .record import RunRecord  # noqa: E402
 
 __all__ = ["MAX_CABLE_ROWS", "plot_run", "plot_sweep", "FORMATS"]
 
