@@ -7,7 +7,7 @@ repo="$(cd "$(dirname "$0")/.." && pwd)"
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 cd "$work"
-tensegrity-sim run --quiet > summary.txt
+tensegrity-sim run --quiet --plot --view > summary.txt
 cat summary.txt
 stem="$(basename "$(awk '$1 == "log" {print $2}' summary.txt)" .mcap)"
 cp "plots/$stem/tensions.png" "$repo/docs/images/main_job_tensions.png"

@@ -16,7 +16,8 @@ import numpy as np
 from tqdm import tqdm
 
 from .commands import CommandError, CommandSchedule, load_commands
-from .methods.qp import SOLVERS, SPARSE_NODES, QPError
+from .methods import StepError
+from .methods.qp import SOLVERS, SPARSE_NODES
 from .scene import SceneError, load_scene
 from .simulator import Simulator
 
@@ -24,6 +25,7 @@ __all__ = ["main", "RunSummary", "simulate"]
 
 DEFAULT_SCENE = "prism3"
 PROGRESS_MIN_STEPS = 20_000  # runs shorter than this finish too quickly to need a progress bar
+_CHUNK = 1000                # steps per Simulator.run call when nothing happens between steps
 DEFAULT_LOG_DIR = "bags"     # run --log without a value: bags/<scene>_<time>.mcap
 DEFAULT_PLOT_DIR = "plots"   # plot / view without --out: plots/<log name>/
 DEMO_SCHEDULE = "prism3_demo.yaml"  # the main job's (run without a scene): tensegrity_sim/schedules/
@@ -93,7 +95,23 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
     bar = tqdm(total=steps, unit="step", disable=not progress, mininterval=0.5)
     start = time.perf_counter()
     try:
-        for _ in range(steps):
+        # nothing to do between steps: run in chunks (the method's compiled loop, where it has one)
+        chunked = commands is None and driver is None and on_step is None
+        for done in range(0, steps if chunked else 0, _CHUNK):
+            traj = sim.run(steps=min(_CHUNK, steps - done))
+            if traj.tensions.size:
+                peak = traj.tensions.max(axis=1)
+                first = int(np.argmax(peak))   # the earliest step reaching the chunk's largest tension
+                if peak[first] > max_t:
+                    max_t, max_cable = float(peak[first]), int(np.argmax(traj.tensions[first]))
+            switches += int(np.count_nonzero(np.diff(traj.slack, axis=0, prepend=slack_prev[None]) != 0))
+            slack_prev = traj.slack[-1]
+            contacts += len(traj.contacts)
+            for event in traj.contacts:
+                begins += event.kind == "begin"
+                pairs.add(event.members)
+            bar.update(len(traj.time))
+        for _ in range(0 if chunked else steps):
             if commands is not None:
                 t = sim.time
                 rest = commands.rest_lengths_at(t, base_rest)
@@ -131,7 +149,7 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    demo = args.scene is None  # the main job: the default scene, its schedule, a log, plots and the page
+    demo = args.scene is None  # the main job: the default scene with its schedule
     scene = load_scene(DEFAULT_SCENE if demo else args.scene)
     sim = Simulator(scene, method=args.method, dt=args.dt, contacts=args.contacts, solver=args.solver)
     if demo and args.commands is None:
@@ -140,10 +158,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
         args.commands = f"the built-in {DEMO_SCHEDULE} (tensegrity_sim/schedules/)"
     else:
         commands = load_commands(args.commands, scene) if args.commands else None
-    if demo:
-        args.log = args.log or DEFAULT_LOG_DIR
-        args.plot = args.plot or DEFAULT_PLOT_DIR
-        args.view = args.view or DEFAULT_PLOT_DIR
     if (args.plot or args.view) and args.log is None:
         args.log = DEFAULT_LOG_DIR  # the figures and the page are made from the log
     steps = int(round(args.duration / sim.dt))
@@ -160,10 +174,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.commands:
         summary.extra["commands"] = args.commands
         summary.commanded = True
-    if args.plot:
-        summary.extra["plots"] = _write_plots(driver.path, _output(args.plot, driver.path, ""))
-    if args.view:
-        summary.extra["page"] = _write_page(driver.path, _output(args.view, driver.path, ".html"))
+    if (args.plot or args.view) and driver.logic.publications == 0:
+        summary.extra["plots"] = "none: the run ended before its first publication (there is nothing to draw)"
+    else:
+        if args.plot:
+            summary.extra["plots"] = _write_plots(driver.path, _output(args.plot, driver.path, ""))
+        if args.view:
+            summary.extra["page"] = _write_page(driver.path, _output(args.view, driver.path, ".html"))
     print("\n".join(summary.lines()))
     return 0
 
@@ -230,6 +247,16 @@ def _cmd_info(args: argparse.Namespace) -> int:
     from .ros.replay import log_info
 
     print("\n".join(log_info(args.log)))
+    return 0
+
+
+def _cmd_recover(args: argparse.Namespace) -> int:
+    from .ros.log_reader import recover
+
+    copied, unfinished = recover(args.log, args.out)
+    print(f"recovered        {copied} messages from {args.log}"
+          + (f" ({unfinished})" if unfinished else " (it was finished)"))
+    print(f"written          {args.out} (finished: summary, statistics, rosbag2 metadata)")
     return 0
 
 
@@ -330,8 +357,8 @@ def build_parser() -> argparse.ArgumentParser:
                            description="Simulate a scene offline, as fast as possible, and print a summary.")
     run.add_argument("scene", nargs="?", default=None,
                      help=f"a built-in scene name or a YAML file; without it the main job: {DEFAULT_SCENE} with the "
-                          f"schedule tensegrity_sim/schedules/{DEMO_SCHEDULE} (cables slacken and snap), logged, "
-                          f"with plots and a 3-D page (as --log --plot --view)")
+                          f"schedule tensegrity_sim/schedules/{DEMO_SCHEDULE}, where cables slacken and snap "
+                          f"(unless --commands is given)")
     run.add_argument("--method", default="auto", help="elastic | inextensible | auto (default: auto)")
     run.add_argument("--solver", choices=sorted(SOLVERS), default=None,
                      help=f"QP backend of the inextensible method (default: daqp below {SPARSE_NODES} free "
@@ -346,12 +373,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--log", nargs="?", const=DEFAULT_LOG_DIR, metavar="FILE",
                      help="write an MCAP log (the node's topics): FILE.mcap, or a directory for a timestamped "
                           f"file; without a value {DEFAULT_LOG_DIR}/<scene>_<time>.mcap (give SCENE before it)")
-    run.add_argument("--plot", metavar="DIR",
+    run.add_argument("--plot", nargs="?", const=DEFAULT_PLOT_DIR, metavar="DIR",
                      help="write figures of the run (tensions, impulses, energy, contacts; PNG and SVG) into "
-                          "DIR/<log name>/; implies --log")
-    run.add_argument("--view", metavar="DIR|FILE.html",
+                          f"DIR/<log name>/ (without a value {DEFAULT_PLOT_DIR}/<log name>/); implies --log")
+    run.add_argument("--view", nargs="?", const=DEFAULT_PLOT_DIR, metavar="DIR|FILE.html",
                      help="write the run's animated 3-D page (one HTML file that opens offline) as FILE.html or "
-                          "DIR/<log name>.html; implies --log")
+                          f"DIR/<log name>.html (without a value {DEFAULT_PLOT_DIR}/<log name>.html); implies --log")
     run.set_defaults(func=_cmd_run)
 
     plot = verbs.add_parser("plot", help="figures of a log, or of a sweep's Parquet table",
@@ -390,8 +417,25 @@ def build_parser() -> argparse.ArgumentParser:
                                         "slack/snap and contact statistics.")
     info.add_argument("log", help="an MCAP log written by tensegrity-sim run --log or the node")
     info.set_defaults(func=_cmd_info)
+
+    rec = verbs.add_parser("recover", help="write a finished copy of a log cut off by a crash",
+                           description="Copy every complete record of a log that its writer did not finish (killed, "
+                                       "power cut, disk full) into a finished log (summary, statistics, rosbag2 "
+                                       "metadata) that every MCAP reader opens; a corrupt record stops it (exit 2).")
+    rec.add_argument("log", help="the unfinished MCAP log")
+    rec.add_argument("out", help="the finished copy to write (.mcap)")
+    rec.set_defaults(func=_cmd_recover)
     _add_serve(verbs)
     return parser
+
+
+def _one_line(exc: BaseException) -> str:
+    """An error's message on one line (a YAML error spans several); an OSError as ``file: reason``."""
+    if isinstance(exc, OSError) and exc.strerror:  # (a LogWriteError has a whole message instead)
+        text = f"{exc.filename}: {exc.strerror}" if exc.filename is not None else exc.strerror
+    else:
+        text = str(exc)
+    return " ".join(text.split())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -406,8 +450,8 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.showwarning = one_line
             return args.func(args)
-    except (SceneError, CommandError, ValueError, QPError) as exc:
-        print(f"tensegrity-sim {args.verb}: error: {exc}", file=sys.stderr)
+    except (SceneError, CommandError, ValueError, StepError, OSError) as exc:  # OSError: files, LogWriteError
+        print(f"tensegrity-sim {args.verb}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"tensegrity-sim {args.verb}: interrupted", file=sys.stderr)

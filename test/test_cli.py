@@ -13,10 +13,10 @@ from conftest import deadband_dict
 
 
 def test_main_job_shows_slack_and_snaps_and_says_where_it_wrote(tmp_path, monkeypatch, capsys):
-    """``run`` without a scene: prism3 with its demo schedule, logged, plotted, and a page. By 3.2 s
-    the side cables were reeled out (every cable slackens) and back in (every cable snaps taut)."""
+    """``run --plot --view`` without a scene: prism3 with its demo schedule, logged, plotted, and a page.
+    By 3.2 s the side cables were reeled out (every cable slackens) and back in (every cable snaps taut)."""
     monkeypatch.chdir(tmp_path)
-    assert main(["run", "--duration", "3.2", "--quiet"]) == 0
+    assert main(["run", "--duration", "3.2", "--quiet", "--plot", "--view"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert "scene            prism3" in lines and "simulated        3.2 s in 3200 steps" in lines
     assert "steps/s" in lines[5] and "max tension" in lines[6] and "the commands' work included" in lines[9]
@@ -92,6 +92,14 @@ def test_run_with_commands_file(tmp_path, capsys):
     assert "c0" in scene.cable_names
     assert main(["run", "prism3", "--duration", "0.1", "--commands", str(cmds), "--quiet"]) == 0
     assert "switches" in capsys.readouterr().out
+
+
+def test_plot_and_view_of_a_run_too_short_to_publish_say_so(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "--duration", "0.004", "--quiet", "--plot", "--view"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "plots            none: the run ended before its first publication (there is nothing to draw)" in out
+    assert not (tmp_path / "plots").exists()
 
 
 def test_a_warning_is_one_line_and_info_lists_the_settings_one_per_line(tmp_path, capsys):

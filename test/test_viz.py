@@ -91,7 +91,7 @@ def test_plot_and_view_refuse_what_is_not_a_log(tmp_path, monkeypatch, capsys):
     assert main(["plot", str(tmp_path / "notes.mcap")]) == 2
     assert main(["view", str(tmp_path / "missing.mcap")]) == 2
     err = capsys.readouterr().err.splitlines()
-    assert err[0].startswith(f"tensegrity-sim plot: error: {tmp_path / 'notes.mcap'}: not a readable MCAP file")
+    assert err[0].startswith(f"tensegrity-sim plot: error: {tmp_path / 'notes.mcap'}: not an MCAP file (it does not start with the MCAP magic)")
     assert err[1].startswith(f"tensegrity-sim view: error: {tmp_path / 'missing.mcap'}: cannot read")
     assert not (tmp_path / "plots").exists()  # nothing written
 

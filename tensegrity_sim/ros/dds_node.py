@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import logging
 
-from .dds import DEFAULT_INTERFACE, Participant, QosProfile
+from .dds import DEFAULT_INTERFACE, Participant, QosProfile, ros_peer_settings
 from ..scene import load_scene
 from ..simulator import Simulator
 from . import messages as M
@@ -121,9 +121,13 @@ def serve(settings: NodeSettings, *, domain_id: int = 0, interface: str = DEFAUL
                                                  namespace=namespace or "/") as dds:
             transport = DdsTransport(dds, settings.node_name)
             logic = SimNodeLogic(sim, settings, transport=transport, raw_transport=True, logger=log)
+            peer = ros_peer_settings(interface, domain_id)
+            notes = () if peer is None else (
+                f"ROS 2 processes on this host see it with {peer} (or ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST): "
+                f"Jazzy's default discovery needs multicast, which loopback does not carry (msg_docs/dds.md)",)
             run_logged(logic, transport, path, latch=latch, log=log,
                        serving=f"serving {sim.scene.name} ({sim.method}, dt = {sim.dt:g} s) over DDS on domain "
-                               f"{domain_id}, interface {interface}",
+                               f"{domain_id}, interface {interface}", notes=notes,
                        extra=lambda: [f"{'undecodable_samples':<27} {transport.undecodable}"])
     except KeyboardInterrupt:
         pass  # Ctrl-C is how a server is stopped

@@ -17,14 +17,17 @@ DIAGNOSTICS_PERIOD = 1.0  # s of wall-clock time between two /diagnostics, as th
 
 
 def run_logged(logic: SimNodeLogic, transport, path, *, latch: SignalLatch, log: logging.Logger, serving: str,
-               extra: Callable[[], list[str]] = list) -> None:
-    """Log to ``path`` (none if empty), say ``serving``, :func:`spin` until SIGINT or SIGTERM, then print
-    the summary, ``extra()`` lines and the log files; the log is finished however it ends."""
+               notes: tuple[str, ...] = (), extra: Callable[[], list[str]] = list) -> None:
+    """Log to ``path`` (none if empty), say ``serving`` and each of ``notes``, :func:`spin` until SIGINT or
+    SIGTERM, then print the summary, ``extra()`` lines and the log files; the log is finished however it
+    ends."""
     recorder = LogRecorder(path, logic.channels(), logic.run_info()) if path else None
     logic.recorder = recorder
     try:
         with recorder or contextlib.nullcontext():
             log.info(serving + (f"; logging to {path}" if path else ""))
+            for note in notes:
+                log.info(note)
             spin(logic, transport, latch=latch, log=log)
     finally:
         lines = logic.summary() + extra() + [f"{'log':<27} {p}" for p in (recorder.paths if recorder else [])]

@@ -23,9 +23,9 @@ import yaml
 from ..results import ContactEvent
 from ..scene import Scene
 from ..viz.record import RunRecord
-from . import messages as M
+from .log_reader import LogError, LogReader
 from .node_logic import TOPICS, decode_contacts
-from .replay import LogError, _reading, _run_info, replay
+from .replay import _decode, _run_info, replay
 
 __all__ = ["RunRecord", "read_log", "with_energy"]
 
@@ -33,10 +33,11 @@ __all__ = ["RunRecord", "read_log", "with_energy"]
 def read_log(path: str | Path) -> RunRecord:
     """The publications of the log at ``path`` as a :class:`RunRecord` (no energy: see :func:`with_energy`).
 
-    Raises :class:`~tensegrity_sim.ros.replay.LogError` naming the file when it is not a readable
-    tensegrity_sim log or holds no publication."""
+    An unfinished log (cut off by a crash) gives the publications it holds whole. Raises
+    :class:`~tensegrity_sim.ros.log_reader.LogError` naming the file when it is not a readable
+    tensegrity_sim log or holds no publication (:class:`~.log_reader.LogCorruptError` for a corrupt record)."""
     path = Path(path)
-    with _reading(path) as reader:
+    with LogReader(path) as reader:
         info = _run_info(reader, path)
         scene_dict = yaml.safe_load(info["scene_yaml"])
         scene = Scene.from_dict(scene_dict, source=f"{path} (embedded scene)")
@@ -44,9 +45,11 @@ def read_log(path: str | Path) -> RunRecord:
         wanted = {topics[k]: k for k in ("node_poses", "cable_states", "cable_impulses", "contacts")}
         columns: dict[str, list] = {k: [] for k in ("poses", "states", "impulses", "times", "impulse_times")}
         contacts: list[ContactEvent] = []
-        for _, channel, message in reader.iter_messages(topics=list(wanted), log_time_order=False):
-            key = wanted[channel.topic]
-            msg = M.deserialize(message.data, TOPICS[key].typename)
+        for message in reader.messages():
+            key = wanted.get(message.topic)
+            if key is None:
+                continue
+            msg = _decode(path, message, TOPICS[key].typename)
             if key == "node_poses":
                 columns["poses"].append([(p.position.x, p.position.y, p.position.z) for p in msg.poses])
             elif key == "cable_states":
