@@ -11,6 +11,7 @@ from typing import Mapping
 import numpy as np
 
 from .contact import ActiveContact, make_detector
+from .ground_contact import GroundDetector
 from .methods import State, make_method
 from .results import StepResult, Trajectory
 from .scene import Scene, contact_kinds
@@ -54,6 +55,7 @@ class Simulator:
         self._method, self.method_reason = make_method(self.system, method, self.dt, solver=solver)
         # None when nothing can be in contact: then detection costs nothing at all
         self._contacts = make_detector(self.system, scene.contact_kinds)
+        self._ground = None if scene.ground is None else GroundDetector(self.system)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
         self.reset()
@@ -67,6 +69,8 @@ class Simulator:
         self._method.invalidate()
         if self._contacts is not None:
             self._contacts.reset(self._state.positions)
+        if self._ground is not None:
+            self._ground.reset(self._state.positions)
 
     @property
     def method(self) -> str:
@@ -157,6 +161,12 @@ class Simulator:
         st = self._state
         contacts = () if self._contacts is None else self._contacts.step(st.positions, out.positions,
                                                                           self.time, self.dt)
+        if self._ground is not None:
+            landed = self._ground.step(st.positions, out.positions, self.time, self.dt, out.contact_impulses)
+            if landed:
+                contacts = tuple(sorted(contacts + landed, key=lambda e: e.time))
+        contact_impulses = (np.zeros_like(out.positions) if out.contact_impulses is None
+                            else out.contact_impulses)
         st.positions, st.velocities = out.positions, out.velocities
         st.step_count += 1
         return StepResult(
@@ -167,6 +177,7 @@ class Simulator:
             tensions=out.impulses / self.dt,
             slack=self.slack() if out.slack is None else out.slack,
             contacts=contacts,
+            contact_impulses=contact_impulses,
         )
 
     @property
@@ -176,8 +187,11 @@ class Simulator:
 
     def active_contacts(self) -> tuple[ActiveContact, ...]:
         """Every contact going on now (begun, not yet ended), with its current gap (negative while the
-        members overlap) and closest points: the events only mark begins and ends."""
-        return () if self._contacts is None else self._contacts.active(self._state.positions)
+        members overlap) and closest points: the events only mark begins and ends. Ground contacts
+        (``(node name, "ground")``) carry the normal and friction impulses of the last step."""
+        members = () if self._contacts is None else self._contacts.active(self._state.positions)
+        ground = () if self._ground is None else self._ground.active(self._state.positions)
+        return members + ground
 
     def slack(self) -> np.ndarray:
         """(n_cables,) bool: the cables slack now, in the method's model."""
@@ -204,14 +218,16 @@ class Simulator:
         vel = np.empty((steps, n, 3))
         imp = np.empty((steps, nc))
         slack = np.empty((steps, nc), dtype=bool)
+        contact_imp = np.empty((steps, n, 3))
         contacts = []
         for k in range(steps):
             r = self.step()
             time[k], pos[k], vel[k], imp[k], slack[k] = r.time, r.positions, r.velocities, r.impulses, r.slack
+            contact_imp[k] = r.contact_impulses
             contacts.extend(r.contacts)
             if callback is not None:
                 callback(k, r)
-        return Trajectory(time, pos, vel, imp, imp / self.dt, slack, contacts)
+        return Trajectory(time, pos, vel, imp, imp / self.dt, slack, contacts, contact_imp)
 
     # ------------------------------------------------------------------ invariants
     def energy(self) -> dict[str, float]:

@@ -34,6 +34,8 @@ import numpy as np
 
 from ..system import System
 from .base import MethodStep, State, StepMethod
+from .friction import TOUCH_TOL, GroundResponse
+from .qp import make_solver
 from .rigid import RigidStruts
 
 __all__ = ["ElasticMethod"]
@@ -68,6 +70,10 @@ class ElasticMethod(StepMethod):
         self._rest = np.empty(system.n_members)
         self._rest[: system.n_struts] = system.strut_rest
         self._cache: _Forces | None = None
+        # a ground: the contact set's velocity problem solved by the QP backends (methods/friction.py)
+        self.ground = None
+        if system.scene.ground is not None:
+            self.ground = GroundResponse(system, make_solver(None, system.masses[system.free]))
 
     def invalidate(self) -> None:
         self._cache = None
@@ -106,6 +112,12 @@ class ElasticMethod(StepMethod):
         # the forces at the step's start are the previous step's end forces, unless an input changed
         start = self._cache if self._cache is not None else self.accelerations(x, v, state)
         v_half = v + (0.5 * h) * start.acc
+        if self.ground is not None:
+            # the drift's contact impulse: lands every node that would pass the ground exactly on it
+            landing_speed = np.maximum(-v_half[:, 2], 0.0)
+            if self.ground.arm_step(x, v, v_half, h, h):
+                v_half = self.ground.velocity_step(x, v_half, self.rigid)
+            landing_speed *= self.ground.gaps(x) > TOUCH_TOL
         x_new = x + h * v_half
         if self.rigid.count:
             dx = self.rigid.project_positions(x, x_new, start.directions[self.rigid.members])
@@ -115,8 +127,15 @@ class ElasticMethod(StepMethod):
         v_new = v_half + (0.5 * h) * end.acc
         if self.rigid.count:
             v_new += self.rigid.project_velocities(x_new, v_new, end.directions[self.rigid.members])
+        contact = None
+        if self.ground is not None:
+            # the closing kick's: no touching node moves into the ground or slides against friction
+            if self.ground.arm_settle(x_new, v_new, landing_speed):
+                v_new = self.ground.velocity_step(x_new, v_new, self.rigid)
+            contact = self.ground.take_impulses()
         self._cache = end
-        return MethodStep(x_new, v_new, (0.5 * h) * (start.cable_tensions + end.cable_tensions), end.slack)
+        return MethodStep(x_new, v_new, (0.5 * h) * (start.cable_tensions + end.cable_tensions), end.slack,
+                          contact)
 
     def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
         sys = self.system

@@ -67,6 +67,7 @@ import numpy as np
 
 from ..system import System
 from .base import MethodStep, State, StepMethod
+from .friction import GroundResponse
 from .qp import QPError, Rows, choose_solver, make_solver
 from .rigid import RigidStruts
 
@@ -118,6 +119,10 @@ class InextensibleMethod(StepMethod):
         # the backend: named, or chosen by size (dense DAQP for small structures, sparse for large ones)
         self.solver_choice = f"{solver}: requested" if solver else choose_solver(int(free.sum()))[1]
         self.solver = make_solver(solver, system.masses[free])
+        # a ground adds its contact rows to every QP (methods/friction.py), through the same interface
+        self.ground = None if scene.ground is None else GroundResponse(system, self.solver)
+        if self.ground is not None:
+            self.solver = self.ground.solver
         # The member table of the QP rows: the rigid struts that move (equalities), then every cable.
         self.rigid = RigidStruts(system)
         self._n_eq = self.rigid.count
@@ -200,15 +205,19 @@ class InextensibleMethod(StepMethod):
             d, length = self._cable_geometry(x)
             at_limit = (length >= floor) & self._cables_move
             maybe = at_limit & ~holding
-            if maybe.any() and v.any():
-                v, y = self._impact(x, v, d, length, limits, at_limit, maybe, holding)
+            landing = self.ground is not None and self.ground.arm_impact(x, v, self.dt)
+            if (maybe.any() or landing) and v.any():
+                v, y = self._impact(x, v, d, length, limits, at_limit, maybe, holding, landing)
                 if y is not None:
                     impulses[at_limit] += y
             tau = remaining
             x_m, v0 = self._free_motion(x, v, tau, f_ext)
             cut = False
-            if event < MAX_EVENTS and not at_limit.all():
-                theta = self._first_snap(d, limits, v, v0, tau, ~at_limit & self._cables_move)
+            if event < MAX_EVENTS:
+                theta = 1.0 if at_limit.all() else self._first_snap(d, limits, v, v0, tau,
+                                                                    ~at_limit & self._cables_move)
+                if self.ground is not None:
+                    theta = min(theta, self.ground.first_impact(x, v, v0, tau))
                 cut = _MIN_EVENT * self.dt < theta * tau < tau - _MIN_EVENT * self.dt
                 if cut:
                     tau = theta * tau
@@ -222,7 +231,8 @@ class InextensibleMethod(StepMethod):
         self._holding = holding
         self._last_rest = state.rest_lengths
         self._end_geometry = (x, *self._cable_geometry(x))   # x is a new array: computed, not cached
-        return MethodStep(x, v, impulses)
+        contact = None if self.ground is None else self.ground.take_impulses()
+        return MethodStep(x, v, impulses, contact_impulses=contact)
 
     def _free_motion(self, x, v, tau, f_ext):
         """Midpoint ``x_m`` (N, 3) and free velocity ``v0 = v + tau M^-1 F(x_m)`` (N, 3)."""
@@ -269,8 +279,15 @@ class InextensibleMethod(StepMethod):
         u0 = v0[ends[:, 1]] - v0[ends[:, 0]]
         reach = length[n_eq:] + (0.5 * tau) * np.sqrt(np.einsum("ij,ij->i", u0, u0))
         cables = (reach >= floor) & self._cables_move
-        if not (n_eq or cables.any()):   # nothing can be taut: free motion, no QP
-            return x_m + (0.5 * tau) * v0, v0, np.zeros(len(limits))
+        touching = self.ground is not None and self.ground.arm_step(x_m, v, v0, tau, 0.5 * tau)
+        if not (n_eq or cables.any()):   # nothing can be taut: free motion, no QP (unless on the ground)
+            v_f = v0
+            if touching:
+                v_f = v0.copy()
+                v_f[self._free] = self.solver.solve(v0[self._free], Rows(np.zeros((0, 2), int), np.zeros((0, 3)),
+                                                                         np.zeros(0), 0))[0]
+                self.solver.commit()
+            return x_m + (0.5 * tau) * v_f, v_f, np.zeros(len(limits))
         sel = slice(None) if cables.all() else np.concatenate([np.arange(n_eq), n_eq + np.flatnonzero(cables)])
         m_ends, m_length, m_n = self._ends[sel], length[sel], n[sel]
         m_limits = np.concatenate([self._rigid_lengths, limits])[sel]
@@ -285,6 +302,8 @@ class InextensibleMethod(StepMethod):
                     n_eq)
         warm = np.concatenate([np.ones(n_eq, dtype=bool), holding[cables]])
         v_f, y = self._land(v, v0, rows, warm, m_ends, m_length, m_limits, tau, floor_rate, reel)
+        if self.ground is not None:
+            self.solver.commit()
         impulses = np.zeros(len(limits))
         impulses[cables] = y[n_eq:]
         return x_m + (0.5 * tau) * v_f, v_f, impulses
@@ -341,18 +360,19 @@ class InextensibleMethod(StepMethod):
         np.maximum(land, floor_rate[n_eq:], out=targets[n_eq:])
         return targets
 
-    def _impact(self, x, v, d, length, limits, at_limit, maybe, holding):
+    def _impact(self, x, v, d, length, limits, at_limit, maybe, holding, landing=False):
         """Moreau's impact law at ``x`` when a cable at its limit that was not holding (``maybe``)
         separates: ``v+ = argmin |v+ - v|_M`` with ``b^T v+ <= 0`` for every cable at its limit and
         ``b^T v+ = 0`` for the rigid struts. The admissible set is a cone, so the projection never
-        increases the kinetic energy. Returns ``v+`` (N, 3) and the impulses of the cables ``at_limit``,
-        or ``v`` and None when no cable snaps."""
+        increases the kinetic energy. With ``landing``, nodes hitting the ground (armed in ``self.ground``)
+        are part of the same impact. Returns ``v+`` (N, 3) and the impulses of the cables ``at_limit``,
+        or ``v`` and None when nothing snaps or lands."""
         ends = self.system.cable_ends
         n = d / length[:, None]
         rate = self.system.member_rates(v, n, ends)
         # separating faster than would stretch it beyond the tolerance within a step: a snap
         snapping = maybe & (rate * self.dt > LIMIT_TOL * limits)
-        if not snapping.any():
+        if not (snapping.any() or landing):
             return v, None
         cables = np.flatnonzero(at_limit)
         n_eq = self._n_eq
@@ -363,6 +383,9 @@ class InextensibleMethod(StepMethod):
         rows = Rows(self._row_nodes[sel], directions, np.zeros(len(sel)), n_eq)
         warm = np.concatenate([np.ones(n_eq, dtype=bool), snapping[cables] | holding[cables]])
         v_free, y = self.solver.solve(v[self._free], rows, warm)
+        if landing:
+            self.solver.commit()
+            self.ground.solver.disarm()
         v_plus = np.zeros_like(v)
         v_plus[self._free] = v_free
         return v_plus, y[n_eq:]
