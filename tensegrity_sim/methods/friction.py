@@ -25,7 +25,8 @@ mode* of each contact, each iterate an ordinary QP answered (and verified) by th
   free velocity, with ``ŷ_n`` the normal impulse and ``d`` the slip direction of the previous iterate.
 
 After each solve: a sticking contact whose ``|f|`` exceeds ``mu y_n`` slides along ``-f/|f|``; a sliding
-contact whose velocity turned against ``d`` sticks; a sliding contact takes the new ``y_n`` and, if it
+contact whose velocity turned against ``d`` sticks (one mode change per solve, the worst violation
+first: changing all at once can cycle); a sliding contact takes the new ``y_n`` and, if it
 moves, ``d = v_t/|v_t|`` (one that stopped is at rest on the disc's edge, a valid Coulomb state: that
 is how the friction of a statically indeterminate body, such as a rigid strut on both its ends, is
 shared when the backend's split of the sticking impulses would overload one end). The iteration stops when no mode changes and ``ŷ_n`` and ``d`` agree with the
@@ -55,7 +56,11 @@ Why this and not the alternatives (measured on the tests in ``test/test_ground.p
 ``w = -2 g_m / tau`` in Moreau's midpoint scheme (``-g / h`` in the elastic method's drift), the
 cables' stabiliser: no sinking, no rebound. Like the cables' it is capped so that it never asks for more
 than the reversal of the node's normal velocity at the sub-step's start (the impulse then does no
-positive work): a node that starts inside the ground is not pushed out faster than it came in.
+positive work), so that ``v_f = -v_i`` meets every row as it does the cables': a node that starts
+inside the ground is not pushed out faster than it came in. Sticking rows are the exception (they ask
+for ``v_t = 0``): when sticking contacts hold a locked structure still and that misses a cable's or
+rigid strut's drift-correcting target, the QP is infeasible and is solved again with those targets at
+the pure velocity level (equalities 0, inequalities at least 0), which ``v = 0`` meets.
 
 **Impacts** are located inside the step like the cables' snaps (:meth:`GroundResponse.first_impact`:
 the node's free path, a parabola, crosses ``g = 0``); at the impact Newton's law
@@ -72,8 +77,10 @@ from .qp import QPError, QPSolver, Rows
 __all__ = ["GroundResponse", "FrictionalSolver", "FrictionError", "FIXED_POINT_TOL", "TOUCH_TOL"]
 
 FIXED_POINT_TOL = 1e-10   # relative to the impulse scale: friction modes, slip directions and y_n agree
-MAX_MODE_ITER = 40        # QPs per velocity problem before the fixed point is declared not found
+MAX_MODE_ITER = 30        # QPs of the mode fixed point before the projected fallback takes over ...
+MAX_PROJECTED_ITER = 300  # ... and of that fallback before the problem is declared unsolved
 TOUCH_TOL = 1e-9          # m: a node within this of the ground touches it (contact begins/ends here)
+_ANDERSON_DEPTH = 3       # previous iterates the fixed point's acceleration combines
 _SLIP_FLOOR = 1e-12       # m/s: a tangential speed below this (plus relative round-off) is no slip
 _TANGENTS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 _UP = np.array([0.0, 0.0, 1.0])
@@ -137,7 +144,7 @@ class GroundResponse:
         reach = g - half * np.abs(v0[p, 2])
         armed = reach <= TOUCH_TOL
         w = -g[armed] / half
-        np.minimum(w, np.maximum(-v[p[armed], 2], 0.0), out=w)
+        np.minimum(w, -v[p[armed], 2], out=w)
         touching = g[armed] <= TOUCH_TOL
         self.solver.arm(p[armed], w, touching)
         return bool(armed.any())
@@ -254,28 +261,16 @@ class FrictionalSolver:
         y_hat = np.where(known, self._normal[nodes], 0.0)
         if mu == 0.0:
             stick[:] = False
+        # a sliding contact's friction is -phi, phi = mu y_hat d (k, 2): the fixed point's unknown
+        phi = (mu * y_hat)[:, None] * slip
+        history: list[tuple[np.ndarray, np.ndarray]] = []   # Anderson: (phi, G(phi)) while no mode changes
         n_rows, n_eq = len(rows), rows.n_eq
         for it in range(1, MAX_MODE_ITER + 1):
             s = np.flatnonzero(stick)
             sliding = ~stick
             friction = np.zeros((k, 3))
-            friction[sliding, :2] = -(mu * y_hat[sliding])[:, None] * slip[sliding]
-            v0c = v0.copy()
-            np.add.at(v0c, fi, friction / mass[:, None])
-            # rows: the method's equalities, its inequalities, the normals, then 4 tangential rows per sticker
-            tang_nodes = np.repeat(fi[s], 4)
-            tang_dirs = np.tile(np.vstack([_TANGENTS, -_TANGENTS]), (len(s), 1))
-            c_nodes = np.concatenate([fi, tang_nodes])
-            c_dirs = np.vstack([np.tile(-_UP, (k, 1)), tang_dirs])
-            c_targets = np.concatenate([-self._targets, np.zeros(4 * len(s))])
-            all_rows = Rows(np.vstack([rows.nodes, np.stack([np.full(len(c_nodes), -1), c_nodes], axis=1)]),
-                            np.vstack([rows.directions, c_dirs]), np.concatenate([rows.targets, c_targets]), n_eq)
-            c_warm = np.concatenate([y_hat > 0, np.zeros(4 * len(s), dtype=bool)])
-            all_warm = None if warm is None else np.concatenate([warm, c_warm])
-            v, y = self.inner.solve(v0c, all_rows, all_warm)
-            yn = y[n_rows: n_rows + k]
-            yt = y[n_rows + k:].reshape(-1, 4)
-            stick_f = -(yt[:, :2] - yt[:, 2:])          # the sticking rows' impulse along x, y
+            friction[sliding, :2] = -phi[sliding]
+            v, y, yn, stick_f = self._qp(v0, rows, warm, fi, mass, friction, s, y_hat > 0)
             impulse_scale = max(float(np.max(mass * np.abs(v0[fi]).max(axis=1), initial=0.0)),
                                 float(np.max(np.abs(y), initial=0.0)), 1e-300)
             tol = FIXED_POINT_TOL * impulse_scale
@@ -283,14 +278,18 @@ class FrictionalSolver:
             vt = v[fi, :2]
             speed = np.sqrt(np.einsum("ij,ij->i", vt, vt))
             slip_tol = _SLIP_FLOOR + FIXED_POINT_TOL * max(scale_v, float(np.max(np.abs(v), initial=0.0)))
+            y_hat = yn.copy()
             changed = False
             # sticking contacts outside the cone slide, opposite to their friction
             f_mag = np.sqrt(np.einsum("ij,ij->i", stick_f, stick_f))
-            out = f_mag > mu * yn[s] + tol
+            excess = f_mag - mu * yn[s]
+            # one mode change per solve, the worst first: releasing every overloaded contact at once can
+            # cycle (they all slide, all turn back, all stick again)
+            out = (excess > tol) & (excess == excess.max(initial=0.0))
             if out.any():
                 changed = True
                 slip[s[out]] = -stick_f[out] / f_mag[out, None]
-                y_hat[s[out]] = yn[s[out]]
+                phi[s[out]] = (mu * yn[s[out]])[:, None] * slip[s[out]]
                 stick[s[out]] = False
             # sliding contacts that carry load and turned back stick; one that stopped is consistent as it is
             # (at rest on the edge of the disc: with rows that depend on each other, such as a rigid strut's
@@ -298,16 +297,18 @@ class FrictionalSolver:
             sl = np.flatnonzero(sliding)
             along = np.einsum("ij,ij->i", vt[sl], slip[sl])
             stops = (mu > 0) & (yn[sl] > tol) & (speed[sl] > slip_tol) & (along < 0)
+            if changed:
+                stops[:] = False
+            elif stops.any():
+                stops &= along == along[stops].min()
             if stops.any():
                 changed = True
                 stick[sl[stops]] = True
             moving = sl[~stops]
             new_slip = np.where((speed[moving] > slip_tol)[:, None], vt[moving] / np.maximum(speed[moving], 1e-300)[:, None],
                                 slip[moving])
-            err_y = mu * np.abs(yn[moving] - y_hat[moving])
-            err_d = mu * yn[moving] * np.sqrt(np.einsum("ij,ij->i", new_slip - slip[moving], new_slip - slip[moving]))
-            drift = max(float(np.max(err_y, initial=0.0)), float(np.max(err_d, initial=0.0)))
-            slip[moving], y_hat[moving] = new_slip, yn[moving]
+            target = (mu * yn[moving])[:, None] * new_slip      # G(phi) on the moving contacts
+            drift = float(np.max(np.abs(target - phi[moving]), initial=0.0))
             if not changed and drift <= tol:
                 self.iterations = it
                 self._verify(yn, friction, vt, speed, stick, slip_tol, tol)
@@ -317,8 +318,104 @@ class FrictionalSolver:
                 impulses[:, 2] = yn
                 self.last = (nodes, impulses)
                 return v, y[:n_rows]
+            slip[moving] = new_slip
+            # Anderson acceleration of phi -> G(phi) while the modes stay (the coupled contacts of a locked
+            # structure make the plain iteration converge linearly, at rate ~0.5 with alternating sign)
+            if changed:
+                history = []
+                phi[moving] = target
+                continue
+            key = (moving.tobytes(), sl.tobytes())
+            history = [h for h in history if h[2] == key][-_ANDERSON_DEPTH:] + [(phi[moving].ravel(), target.ravel(), key)]
+            phi[moving] = target
+            if len(history) > 1:
+                x = np.array([h[0] for h in history])
+                g = np.array([h[1] for h in history])
+                f = g - x
+                df, dg = np.diff(f, axis=0), np.diff(g, axis=0)
+                gamma = np.linalg.lstsq(df.T, f[-1], rcond=None)[0]
+                phi[moving] = (g[-1] - gamma @ dg).reshape(-1, 2)
+        return self._projected(v0, rows, warm, nodes, fi, mass, friction, scale_v)
+
+    def _qp(self, v0, rows, warm, fi, mass, friction, s, loaded):
+        """One QP: the method's ``rows``, a normal row per armed contact and four tangential rows per
+        sticking contact ``s``, the known impulses ``friction`` (k, 3) added to ``v0``. ``loaded``: (k,)
+        contacts believed to carry load (a warm start). Returns ``v``, all multipliers, the normal
+        impulses (k,) and the sticking rows' friction (len(s), 2), N*s."""
+        k, n_rows, n_eq = len(fi), len(rows), rows.n_eq
+        v0c = v0.copy()
+        np.add.at(v0c, fi, friction / mass[:, None])
+        tang_nodes = np.repeat(fi[s], 4)
+        tang_dirs = np.tile(np.vstack([_TANGENTS, -_TANGENTS]), (len(s), 1))
+        c_nodes = np.concatenate([fi, tang_nodes])
+        c_dirs = np.vstack([np.tile(-_UP, (k, 1)), tang_dirs])
+        c_targets = np.concatenate([-self._targets, np.zeros(4 * len(s))])
+        all_rows = Rows(np.vstack([rows.nodes, np.stack([np.full(len(c_nodes), -1), c_nodes], axis=1)]),
+                        np.vstack([rows.directions, c_dirs]), np.concatenate([rows.targets, c_targets]), n_eq)
+        c_warm = np.concatenate([loaded, np.zeros(4 * len(s), dtype=bool)])
+        all_warm = None if warm is None else np.concatenate([warm, c_warm])
+        try:
+            v, y = self.inner.solve(v0c, all_rows, all_warm)
+        except QPError as exc:
+            if exc.status != "infeasible" or not len(s):
+                raise
+            # sticking contacts hold a locked structure still (three of them fix a rigid body), and
+            # v = 0 may then miss a cable's or strut's drift-correcting target: for this solve the
+            # targets yield (pure velocity level, which v = 0 meets); the drift stays as it is
+            relaxed = rows.targets.copy()
+            relaxed[:n_eq] = 0.0
+            np.maximum(relaxed[n_eq:], 0.0, out=relaxed[n_eq:])
+            all_rows.targets[:n_rows] = relaxed
+            v, y = self.inner.solve(v0c, all_rows, all_warm)
+        yt = y[n_rows + k:].reshape(-1, 4)
+        return v, y, y[n_rows: n_rows + k], -(yt[:, :2] - yt[:, 2:])
+
+    def _projected(self, v0, rows, warm, nodes, fi, mass, friction, scale_v):
+        """The fallback when the modes cycle: the friction impulses ``f`` (k, 2) as the fixed point of
+        ``f = proj_disc(mu y_n)(f - m v_t)`` (Alart–Curnier's projection form of the Coulomb law; with
+        the node's own mass as the step it is a contraction, since no contact's tangential Delassus
+        exceeds its node's inverse mass), every iterate one QP with ``f`` known, Anderson-accelerated."""
+        k, n_rows, mu = len(fi), len(rows), self.ground.mu
+        f = friction[:, :2].copy()
+        none = np.zeros(0, dtype=int)
+        history = []
+        for it in range(1, MAX_PROJECTED_ITER + 1):
+            applied = np.zeros((k, 3))
+            applied[:, :2] = f
+            v, y, yn, _ = self._qp(v0, rows, warm, fi, mass, applied, none, np.ones(k, dtype=bool))
+            vt = v[fi, :2]
+            trial = f - mass[:, None] * vt
+            size = np.sqrt(np.einsum("ij,ij->i", trial, trial))
+            target = trial * np.minimum(1.0, mu * yn / np.maximum(size, 1e-300))[:, None]
+            impulse_scale = max(float(np.max(mass * np.abs(v0[fi]).max(axis=1), initial=0.0)),
+                                float(np.max(np.abs(y), initial=0.0)), 1e-300)
+            tol = FIXED_POINT_TOL * impulse_scale
+            if float(np.max(np.abs(target - f), initial=0.0)) <= tol:
+                speed = np.sqrt(np.einsum("ij,ij->i", vt, vt))
+                slip_tol = _SLIP_FLOOR + FIXED_POINT_TOL * max(scale_v, float(np.max(np.abs(v), initial=0.0)))
+                # |m v_t| <= tol: a contact inside the disc is at rest to the tolerance
+                stick = np.sqrt(np.einsum("ij,ij->i", f, f)) < mu * yn - tol
+                self.iterations = MAX_MODE_ITER + it
+                self._verify(yn, applied, vt, speed, stick, 2.0 * tol / mass.min() + slip_tol, tol)
+                self._stick[nodes], self._normal[nodes] = stick | (speed <= slip_tol), yn
+                impulses = applied.copy()
+                impulses[:, 2] = yn
+                self.last = (nodes, impulses)
+                return v, y[:n_rows]
+            history = history[-_ANDERSON_DEPTH:] + [(f.ravel(), target.ravel())]
+            f = target
+            if len(history) > 1:
+                x = np.array([h[0] for h in history])
+                g = np.array([h[1] for h in history])
+                df, dg = np.diff(g - x, axis=0), np.diff(g, axis=0)
+                gamma = np.linalg.lstsq(df.T, (g - x)[-1], rcond=None)[0]
+                f = (g[-1] - gamma @ dg).reshape(-1, 2)
+                # an extrapolated impulse may leave the disc: back onto it
+                size = np.sqrt(np.einsum("ij,ij->i", f, f))
+                f *= np.minimum(1.0, mu * np.maximum(yn, 0.0) / np.maximum(size, 1e-300))[:, None]
         raise FrictionError(self.name, "no fixed point",
-                            f"the friction modes of {k} ground contacts did not settle in {MAX_MODE_ITER} QPs")
+                            f"the friction of {k} ground contacts did not settle in {MAX_MODE_ITER} + "
+                            f"{MAX_PROJECTED_ITER} QPs")
 
     def _verify(self, yn, friction, vt, speed, stick, slip_tol, tol) -> None:
         """The Coulomb law at the answer: inside the disc, sliding on its edge against the slip."""
