@@ -134,7 +134,7 @@ def dropped(lift=0.3, damping=0.0, spin=1.0):
 
 
 @pytest.mark.parametrize("method, damping, duration, wobble", [("inextensible", 0.0, 1.0, 1e-12),
-                                                               ("elastic", 100.0, 1.5, 1e-5)])
+                                                               ("elastic", 300.0, 2.0, 1e-5)])
 def test_dropped_icosahedron_lands_without_sinking_or_gaining_energy(method, damping, duration, wobble):
     """Landing spinning on a face: impacts, cable snaps (inextensible), friction modes; the ground's
     plastic impact and friction and the cables' snaps and damping only remove energy. ``wobble``
