@@ -360,7 +360,7 @@ def _settle_on_face(X, weight, members, cable, k, rest, strut_lengths, strut_for
     others = np.setdiff1d(np.arange(len(X)), face)
     index = np.full(len(X), -1)
     index[others] = np.arange(len(others))
-    n_other, n_struts = len(others), int((~cable).sum())
+    n_other = len(others)
 
     def residual(z):
         Y = X.copy()
