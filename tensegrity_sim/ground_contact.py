@@ -20,13 +20,16 @@ _DOWN = np.array([0.0, 0.0, -1.0])
 
 class GroundDetector:
     """Begin/end events of the nodes' ground contacts, and the contacts going on (with the impulses of
-    the last step). Times inside a step are interpolated linearly between the step's two gaps."""
+    the last step). A begin's time is where the node's free path from the step's start (its velocity
+    and gravity) reaches the ground, as the methods locate an impact; an end's is interpolated linearly
+    between the step's two gaps."""
 
     def __init__(self, system: System):
         self.names = system.scene.node_names
         self.height = system.scene.ground.height
         self.radii = system.scene.node_radii
         self.free = system.free
+        self.gravity = float(system.scene.gravity[2])
         self.reset(system.scene.positions)
 
     def gaps(self, x: np.ndarray) -> np.ndarray:
@@ -46,10 +49,10 @@ class GroundDetector:
         return ContactEvent(kind, (self.names[p], GROUND), time, point, ground, _DOWN.copy(), gap,
                             float(self.impulses[p, 2]), self.impulses[p].copy() * [1.0, 1.0, 0.0])
 
-    def step(self, x0: np.ndarray, x1: np.ndarray, t0: float, dt: float,
+    def step(self, x0: np.ndarray, x1: np.ndarray, v0: np.ndarray, t0: float, dt: float,
              impulses: np.ndarray | None) -> tuple[ContactEvent, ...]:
-        """The events (time order) of a step from ``x0`` to ``x1`` (N, 3) m starting at ``t0`` s;
-        ``impulses`` (N, 3) N*s: the ground's impulses of the step (or None)."""
+        """The events (time order) of a step from ``x0`` to ``x1`` (N, 3) m starting at ``t0`` s with
+        velocities ``v0`` (N, 3) m/s; ``impulses`` (N, 3) N*s: the ground's impulses of the step (or None)."""
         self.impulses = np.zeros_like(self.impulses) if impulses is None else impulses
         g0, g1 = self.gaps(x0), self.gaps(x1)
         now = ((g1 <= TOUCH_TOL) | (self.impulses[:, 2] > 0)) & self.free
@@ -59,10 +62,16 @@ class GroundDetector:
         # the crossing of TOUCH_TOL on the straight path between the step's ends (0 if already there)
         frac = np.clip(np.divide(g0[changed] - TOUCH_TOL, g0[changed] - g1[changed],
                                  out=np.zeros(changed.size), where=g0[changed] != g1[changed]), 0.0, 1.0)
+        # a landing: the small root of g0 + vz t + a t^2 / 2 = TOUCH_TOL on the free path
+        g, vz, a = g0[changed] - TOUCH_TOL, v0[changed, 2], self.gravity
+        disc = np.sqrt(np.maximum(vz * vz - 2.0 * a * g, 0.0))
+        path = np.divide(2.0 * g, (-vz + disc) * dt, out=np.full(changed.size, np.nan), where=(-vz + disc) > 0)
+        landing = now[changed] & (g > 0) & np.isfinite(path)
+        frac[landing] = np.clip(path[landing], 0.0, 1.0)
         events = []
         for p, f in sorted(zip(changed, frac), key=lambda pf: (pf[1], pf[0])):
             time = float(t0 + f * dt)
-            xp = (1.0 - f) * x0 + f * x1
+            xp = (1.0 - f) * x0 + f * x1   # the points: on the straight path (the gap is ~0 at a landing)
             kind = "begin" if now[p] else "end"
             if now[p]:
                 self._since[p] = time

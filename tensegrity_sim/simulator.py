@@ -162,7 +162,8 @@ class Simulator:
         contacts = () if self._contacts is None else self._contacts.step(st.positions, out.positions,
                                                                           self.time, self.dt)
         if self._ground is not None:
-            landed = self._ground.step(st.positions, out.positions, self.time, self.dt, out.contact_impulses)
+            landed = self._ground.step(st.positions, out.positions, st.velocities, self.time, self.dt,
+                                       out.contact_impulses)
             if landed:
                 contacts = tuple(sorted(contacts + landed, key=lambda e: e.time))
         contact_impulses = (np.zeros_like(out.positions) if out.contact_impulses is None

@@ -207,3 +207,28 @@ def test_drop_and_slide_against_mujoco_and_the_closed_form():
     data.qvel[0] = v0
     mujoco.mj_step(model, data, nstep=700)
     assert abs(data.qpos[0] - closed) < 1e-3
+
+
+def test_landing_and_snap_in_the_same_step_create_no_energy():
+    """Node a lands while the slack cable to node b (moving away at the same speed) snaps taut at that
+    very instant (t = 10.5 ms, inside a step). One inelastic impact with the ground row and the cable
+    row: the least kinetic energy that keeps a off the ground and the cable from stretching is both
+    nodes at rest, reached by the cable's impulse of 1 N*s alone (closed form: the projection of
+    (-1, +1) m/s with equal masses onto {v_a >= 0, v_b <= v_a} is (0, 0))."""
+    scene = ts.Scene.from_dict({"ground": {"friction": 0.5},
+                                "nodes": [{"name": "a", "position": [0, 0, 0.0105], "mass": 1.0, "velocity": [0, 0, -1.0]},
+                                          {"name": "b", "position": [0, 0, 0.5105], "mass": 1.0, "velocity": [0, 0, 1.0]}],
+                                "cables": [{"name": "c", "nodes": ["a", "b"], "rest_length": 0.521}]})
+    sim = ts.Simulator(scene, method="inextensible", dt=1e-3)
+    energy = [sim.energy()["total"]]
+    results = []
+    for _ in range(30):
+        results.append(sim.step())
+        energy.append(sim.energy()["total"])
+    assert np.diff(energy).max() <= 0.0 and energy[-1] <= 1e-24
+    landing = results[10]
+    assert [(c.kind, c.members) for c in landing.contacts] == [("begin", ("a", "ground"))]
+    assert landing.contacts[0].time == pytest.approx(0.0105, abs=2e-9)   # TOUCH_TOL / 1 m/s
+    assert landing.impulses[0] == pytest.approx(1.0, rel=1e-12)
+    assert np.abs(landing.velocities).max() <= 1e-12
+    assert min(r.positions[0, 2] for r in results) >= -1e-12

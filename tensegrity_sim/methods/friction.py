@@ -198,6 +198,15 @@ class GroundResponse:
         return out
 
 
+def _velocity_level(rows: Rows) -> Rows:
+    """``rows`` with the targets of the pure velocity level: equalities 0, inequalities at least 0 (no
+    drift correction; ``v = 0`` meets them all)."""
+    targets = rows.targets.copy()
+    targets[: rows.n_eq] = 0.0
+    np.maximum(targets[rows.n_eq:], 0.0, out=targets[rows.n_eq:])
+    return Rows(rows.nodes, rows.directions, targets, rows.n_eq)
+
+
 class FrictionalSolver:
     """A QP backend with the armed ground contacts added (module docstring: the mode fixed point).
 
@@ -247,6 +256,18 @@ class FrictionalSolver:
         self.last = None
         if not self.armed:
             return self.inner.solve(v0, rows, warm)
+        found = self._modes(v0, rows, warm)
+        if found is None:
+            # the modes cycled: once more with the method's targets at the pure velocity level (a drift
+            # correction that only sliding could meet is what makes them cycle on a locked structure),
+            # then the projected iteration
+            rows = _velocity_level(rows)
+            found = self._modes(v0, rows, warm)
+        return found if found is not None else self._projected(v0, rows, warm)
+
+    def _modes(self, v0, rows, warm):
+        """The mode fixed point (module docstring): ``(v, y)`` as :meth:`solve` returns them, or None if
+        the modes do not settle in ``MAX_MODE_ITER`` QPs."""
         nodes, k = self._nodes, len(self._nodes)
         fi = self.ground._free_index[nodes]
         mass = self._mass[fi]
@@ -337,7 +358,8 @@ class FrictionalSolver:
                 df, dg = np.diff(f, axis=0), np.diff(g, axis=0)
                 gamma = np.linalg.lstsq(df.T, f[-1], rcond=None)[0]
                 phi[moving] = (g[-1] - gamma @ dg).reshape(-1, 2)
-        return self._projected(v0, rows, warm, nodes, fi, mass, friction, scale_v)
+        self._friction_guess = friction
+        return None
 
     def _qp(self, v0, rows, warm, fi, mass, friction, s, loaded):
         """One QP: the method's ``rows``, a normal row per armed contact and four tangential rows per
@@ -364,21 +386,22 @@ class FrictionalSolver:
             # sticking contacts hold a locked structure still (three of them fix a rigid body), and
             # v = 0 may then miss a cable's or strut's drift-correcting target: for this solve the
             # targets yield (pure velocity level, which v = 0 meets); the drift stays as it is
-            relaxed = rows.targets.copy()
-            relaxed[:n_eq] = 0.0
-            np.maximum(relaxed[n_eq:], 0.0, out=relaxed[n_eq:])
-            all_rows.targets[:n_rows] = relaxed
+            all_rows.targets[:n_rows] = _velocity_level(rows).targets
             v, y = self.inner.solve(v0c, all_rows, all_warm)
         yt = y[n_rows + k:].reshape(-1, 4)
         return v, y, y[n_rows: n_rows + k], -(yt[:, :2] - yt[:, 2:])
 
-    def _projected(self, v0, rows, warm, nodes, fi, mass, friction, scale_v):
+    def _projected(self, v0, rows, warm):
         """The fallback when the modes cycle: the friction impulses ``f`` (k, 2) as the fixed point of
         ``f = proj_disc(mu y_n)(f - m v_t)`` (Alart–Curnier's projection form of the Coulomb law; with
         the node's own mass as the step it is a contraction, since no contact's tangential Delassus
         exceeds its node's inverse mass), every iterate one QP with ``f`` known, Anderson-accelerated."""
+        nodes = self._nodes
+        fi = self.ground._free_index[nodes]
+        mass = self._mass[fi]
+        scale_v = max(float(np.max(np.abs(v0), initial=0.0)), float(np.max(np.abs(self._targets), initial=0.0)))
         k, n_rows, mu = len(fi), len(rows), self.ground.mu
-        f = friction[:, :2].copy()
+        f = self._friction_guess[:, :2].copy()
         none = np.zeros(0, dtype=int)
         history = []
         for it in range(1, MAX_PROJECTED_ITER + 1):
