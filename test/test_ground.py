@@ -232,3 +232,25 @@ def test_landing_and_snap_in_the_same_step_create_no_energy():
     assert landing.impulses[0] == pytest.approx(1.0, rel=1e-12)
     assert np.abs(landing.velocities).max() <= 1e-12
     assert min(r.positions[0, 2] for r in results) >= -1e-12
+
+
+def test_slack_robot_landing_snaps_its_cables_on_the_ground_without_creating_energy():
+    """icosahedron_ground with every cable 2 % longer than its length (all slack), dropped spinning: it
+    lands on three nodes at once and its cables then snap taut one after another while it stands on
+    them (the frictional contacts and the snaps in the same impacts); kinetic + gravity energy never
+    grows (to round-off) and nothing sinks."""
+    raw = dropped(lift=0.2, spin=0.5).to_dict()
+    x = {n["name"]: np.array(n["position"]) for n in raw["nodes"]}
+    for c in raw["cables"]:
+        c["rest_length"] = 1.02 * float(np.linalg.norm(x[c["nodes"][0]] - x[c["nodes"][1]]))
+    sim = ts.Simulator(ts.Scene.from_dict(raw), method="inextensible", dt=1e-3)
+    energy, slack, snaps_on_ground, lowest = [sim.energy()["total"]], sim.slack(), 0, np.inf
+    for _ in range(400):
+        r = sim.step()
+        energy.append(sim.energy()["total"])
+        snaps_on_ground += bool((slack & ~r.slack).any() and (r.contact_impulses[:, 2] > 0).any())
+        slack = r.slack
+        lowest = min(lowest, float((r.positions[:, 2] - 0.025).min()))
+    assert snaps_on_ground >= 3
+    assert np.diff(energy).max() <= 1e-12 * energy[0]
+    assert lowest >= -1e-9

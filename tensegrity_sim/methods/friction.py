@@ -80,7 +80,8 @@ __all__ = ["GroundResponse", "FrictionalSolver", "FrictionError", "FIXED_POINT_T
 
 FIXED_POINT_TOL = 1e-10   # relative to the impulse scale: friction modes, slip directions and y_n agree
 MAX_MODE_ITER = 30        # QPs of the mode fixed point before the projected fallback takes over ...
-MAX_PROJECTED_ITER = 300  # ... and of that fallback before the problem is declared unsolved
+MAX_PROJECTED_ITER = 20   # ... and Newton rounds of that fallback before the problem is declared unsolved
+_LOCAL_SWEEPS = 5000      # Gauss-Seidel sweeps of the fallback's affine model (no QP: cheap)
 TOUCH_TOL = 1e-9          # m: a node within this of the ground touches it (contact begins/ends here)
 _ANDERSON_DEPTH = 3       # previous iterates the fixed point's acceleration combines
 _SLIP_FLOOR = 1e-12       # m/s: a tangential speed below this (plus relative round-off) is no slip
@@ -392,10 +393,14 @@ class FrictionalSolver:
         return v, y, y[n_rows: n_rows + k], -(yt[:, :2] - yt[:, 2:])
 
     def _projected(self, v0, rows, warm):
-        """The fallback when the modes cycle: the friction impulses ``f`` (k, 2) as the fixed point of
-        ``f = proj_disc(mu y_n)(f - m v_t)`` (Alart–Curnier's projection form of the Coulomb law; with
-        the node's own mass as the step it is a contraction, since no contact's tangential Delassus
-        exceeds its node's inverse mass), every iterate one QP with ``f`` known, Anderson-accelerated."""
+        """The fallback when the modes cycle: the friction impulses ``f`` (k, 2) as the solution of the
+        Coulomb law's projection form ``f = proj_disc(mu y_n)(f - rho v_t)`` (Alart–Curnier), by a
+        semismooth-Newton-like iteration on the QP's answer: at the current ``f`` one QP gives ``v_t``
+        and ``y_n``, ``2k`` more with each friction component nudged give their (piecewise constant)
+        derivatives ``W = dv_t/df`` and ``Y = dy_n/df``, and the law is solved on that affine model by
+        projected block Gauss–Seidel (no QP; it converges for the semidefinite ``W`` of a locked body,
+        where a plain fixed point on the QP would crawl at rate ``1 - m_node/m_body``). Repeated until the
+        QP's own answer meets the law; each round costs ``1 + 2k`` QPs."""
         nodes = self._nodes
         fi = self.ground._free_index[nodes]
         mass = self._mass[fi]
@@ -403,44 +408,75 @@ class FrictionalSolver:
         k, n_rows, mu = len(fi), len(rows), self.ground.mu
         f = self._friction_guess[:, :2].copy()
         none = np.zeros(0, dtype=int)
-        history = []
-        for it in range(1, MAX_PROJECTED_ITER + 1):
+        loaded = np.ones(k, dtype=bool)
+
+        def answer(f):
             applied = np.zeros((k, 3))
             applied[:, :2] = f
-            v, y, yn, _ = self._qp(v0, rows, warm, fi, mass, applied, none, np.ones(k, dtype=bool))
-            vt = v[fi, :2]
-            trial = f - mass[:, None] * vt
-            size = np.sqrt(np.einsum("ij,ij->i", trial, trial))
-            target = trial * np.minimum(1.0, mu * yn / np.maximum(size, 1e-300))[:, None]
+            v, y, yn, _ = self._qp(v0, rows, warm, fi, mass, applied, none, loaded)
+            return v, y, yn, v[fi, :2]
+
+        for it in range(1, MAX_PROJECTED_ITER + 1):
+            v, y, yn, vt = answer(f)
             impulse_scale = max(float(np.max(mass * np.abs(v0[fi]).max(axis=1), initial=0.0)),
                                 float(np.max(np.abs(y), initial=0.0)), 1e-300)
             tol = FIXED_POINT_TOL * impulse_scale
+            trial = f - mass[:, None] * vt
+            size = np.sqrt(np.einsum("ij,ij->i", trial, trial))
+            target = trial * np.minimum(1.0, mu * yn / np.maximum(size, 1e-300))[:, None]
             if float(np.max(np.abs(target - f), initial=0.0)) <= tol:
                 speed = np.sqrt(np.einsum("ij,ij->i", vt, vt))
                 slip_tol = _SLIP_FLOOR + FIXED_POINT_TOL * max(scale_v, float(np.max(np.abs(v), initial=0.0)))
-                # |m v_t| <= tol: a contact inside the disc is at rest to the tolerance
                 stick = np.sqrt(np.einsum("ij,ij->i", f, f)) < mu * yn - tol
                 self.iterations = MAX_MODE_ITER + it
+                applied = np.zeros((k, 3))
+                applied[:, :2] = f
                 self._verify(yn, applied, vt, mass, tol)
                 self._stick[nodes], self._normal[nodes] = stick | (speed <= slip_tol), yn
-                impulses = applied.copy()
-                impulses[:, 2] = yn
-                self.last = (nodes, impulses)
+                applied[:, 2] = yn
+                self.last = (nodes, applied)
                 return v, y[:n_rows]
-            history = history[-_ANDERSON_DEPTH:] + [(f.ravel(), target.ravel())]
-            f = target
-            if len(history) > 1:
-                x = np.array([h[0] for h in history])
-                g = np.array([h[1] for h in history])
-                df, dg = np.diff(g - x, axis=0), np.diff(g, axis=0)
-                gamma = np.linalg.lstsq(df.T, (g - x)[-1], rcond=None)[0]
-                f = (g[-1] - gamma @ dg).reshape(-1, 2)
-                # an extrapolated impulse may leave the disc: back onto it
-                size = np.sqrt(np.einsum("ij,ij->i", f, f))
-                f *= np.minimum(1.0, mu * np.maximum(yn, 0.0) / np.maximum(size, 1e-300))[:, None]
+            # the affine model around f, from one nudged QP per friction component
+            nudge = 1e-7 * max(impulse_scale, float(np.abs(f).max(initial=0.0)))
+            W = np.empty((2 * k, 2 * k))
+            Y = np.empty((k, 2 * k))
+            for j in range(2 * k):
+                g = f.copy()
+                g.flat[j] += nudge
+                _, _, yn_j, vt_j = answer(g)
+                W[:, j] = (vt_j - vt).ravel() / nudge
+                Y[:, j] = (yn_j - yn) / nudge
+            f = self._local_coulomb(f, vt.ravel(), yn, W, Y, tol)
         raise FrictionError(self.name, "no fixed point",
-                            f"the friction of {k} ground contacts did not settle in {MAX_MODE_ITER} + "
-                            f"{MAX_PROJECTED_ITER} QPs")
+                            f"the friction of {k} ground contacts did not settle in {MAX_MODE_ITER} mode QPs and "
+                            f"{MAX_PROJECTED_ITER} Newton rounds")
+
+    def _local_coulomb(self, f, vt, yn, W, Y, tol):
+        """Projected block Gauss–Seidel on the affine model ``v_t(g) = vt + W (g - f)``,
+        ``y_n(g) = yn + Y (g - f)``: ``g_c = proj_disc(mu y_n,c)(g_c - v_t,c / lambda_max(W_cc))`` until a
+        sweep moves ``g`` by less than ``tol / 100`` (N*s). Returns ``g`` (k, 2)."""
+        k, mu = len(f), self.ground.mu
+        base = f.ravel().copy()
+        g = base.copy()
+        steps = np.empty(k)
+        for c in range(k):
+            block = W[2 * c: 2 * c + 2, 2 * c: 2 * c + 2]
+            lam = float(np.linalg.eigvalsh(0.5 * (block + block.T))[-1])
+            steps[c] = 1.0 / lam if lam > 0 else self._mass[self.ground._free_index[self._nodes[c]]]
+        for _ in range(_LOCAL_SWEEPS):
+            moved = 0.0
+            for c in range(k):
+                sl = slice(2 * c, 2 * c + 2)
+                u = vt[sl] + W[sl] @ (g - base)
+                bound = mu * max(float(yn[c] + Y[c] @ (g - base)), 0.0)
+                trial = g[sl] - steps[c] * u
+                size = float(np.hypot(*trial))
+                new = trial * min(1.0, bound / size) if size > 0 else trial
+                moved = max(moved, float(np.abs(new - g[sl]).max()))
+                g[sl] = new
+            if moved <= 1e-2 * tol:
+                break
+        return g.reshape(k, 2)
 
     def _verify(self, yn, friction, vt, mass, tol) -> None:
         """The Coulomb law at the answer, as the natural residual of its projection form (Alart–Curnier):
