@@ -254,3 +254,37 @@ def test_slack_robot_landing_snaps_its_cables_on_the_ground_without_creating_ene
     assert snaps_on_ground >= 3
     assert np.diff(energy).max() <= 1e-12 * energy[0]
     assert lowest >= -1e-9
+
+
+# ---------------------------------------------------------------------------------------------- ROS outputs
+def test_ground_events_and_impulses_survive_the_contacts_encoding():
+    from tensegrity_sim.ros import messages as M
+    from tensegrity_sim.ros.node_logic import decode_contacts, encode_contacts
+    sim = ts.Simulator(strut(2.0), method="inextensible", dt=1e-3)
+    events = list(sim.step().contacts)
+    assert [e.members for e in events] == [("a", "ground"), ("b", "ground")]
+    assert events[0].normal_impulse == pytest.approx(G * 1e-3, rel=1e-12)
+    assert events[0].tangential_impulse[0] == pytest.approx(-MU * G * 1e-3, rel=1e-9)
+    typename = "diagnostic_msgs/msg/DiagnosticArray"
+    back = decode_contacts(M.deserialize(M.serialize(encode_contacts(events, M.header(1, "world")), typename),
+                                         typename))
+    for e, x in zip(back, events):
+        assert (e.kind, e.members, e.time, e.distance, e.normal_impulse) == (
+            x.kind, x.members, x.time, x.distance, x.normal_impulse)
+        assert e.tangential_impulse.tobytes() == x.tangential_impulse.tobytes()
+
+
+def test_markers_draw_the_ground_and_its_forces():
+    from ros_helpers import make_logic
+    logic, sent, _ = make_logic(strut(2.0), method="inextensible", publish_rate=1000.0)
+    r = logic.step()
+    logic.publish()
+    markers = {m.ns: m for m in [msg for key, msg in sent if key == "markers"][-1].markers}
+    assert {"ground", "contact_forces"} <= set(markers)
+    grid = np.array([[p.x, p.y, p.z] for p in markers["ground"].points])
+    assert len(grid) == 36 and np.all(grid[:, 2] == 0.0)
+    lines = np.array([[p.x, p.y, p.z] for p in markers["contact_forces"].points]).reshape(-1, 2, 3)
+    force = r.contact_impulses / 1e-3
+    direction = (lines[:, 1] - lines[:, 0]) / np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1)[:, None]
+    np.testing.assert_allclose(direction, force / np.linalg.norm(force, axis=1)[:, None], atol=1e-12)
+    np.testing.assert_array_equal(lines[:, 0, :2], r.positions[:, :2])
