@@ -113,6 +113,7 @@ class ElasticMethod(StepMethod):
         start = self._cache if self._cache is not None else self.accelerations(x, v, state)
         v_half = v + (0.5 * h) * start.acc
         if self.ground is not None:
+            self.ground.begin_step()
             # the drift's contact impulse: lands every node that would pass the ground exactly on it
             landing_speed = np.maximum(-v_half[:, 2], 0.0)
             if self.ground.arm_step(x, v, v_half, h, h):

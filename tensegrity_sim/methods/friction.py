@@ -193,6 +193,10 @@ class GroundResponse:
         self.solver.commit()
         return out
 
+    def begin_step(self) -> None:
+        """A new step: what a failed one left in ``impulses`` is dropped."""
+        self.impulses[:] = 0.0
+
     def take_impulses(self) -> np.ndarray:
         """(N, 3) N*s: the contact impulses on each node since the last call (normal along z)."""
         out, self.impulses = self.impulses, np.zeros_like(self.impulses)

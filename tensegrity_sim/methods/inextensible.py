@@ -199,6 +199,8 @@ class InextensibleMethod(StepMethod):
             reel = np.minimum(state.rest_lengths - self._last_rest, 0.0) / self.dt
         f_ext = self.system.gravity_force + state.external_forces
         impulses = np.zeros(self.system.n_cables)
+        if self.ground is not None:
+            self.ground.begin_step()
         holding = self._holding
         remaining = self.dt
         for event in range(MAX_EVENTS + 1):
