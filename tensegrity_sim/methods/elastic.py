@@ -25,6 +25,18 @@ momentum-conserving since it is along the cable).
 
 Impulses: the velocity update applies each cable's tension as ``h/2 (t_start + t_end)``; that is the
 cable's impulse over the step, and ``impulses / h`` the step's mean tension.
+
+**Ground contact** (a scene with a ``ground``; ``methods/friction.py``): an impulse step for the contact
+set at each half-kick while the cables stay explicit. After the first half-kick, the nodes that would
+pass the ground during the drift get the impulse that lands them exactly on it, with exact Coulomb
+friction, the rigid struts keeping their lengths (the QP of ``methods/qp.py`` with the contact rows);
+after the closing half-kick, the nodes on the ground get the impulse that stops them moving into it
+(Newton's restitution for those that landed in this step) and applies friction again. What it costs:
+the impact is not located inside the step, so a step with an impact or a stick/slip switch is first
+order (a bounce's height is off by O(h v): measured 3e-5..7e-5 m for 1 m at 1 ms), and the scheme is no
+longer symplectic while a contact is closed — contact and friction impulses only remove energy
+(plastic impacts, dissipative friction), but Verlet's own O(h²) energy wobble remains (measured 4e-6
+relative per step on the dropped icosahedron). Away from the ground nothing changes.
 """
 from __future__ import annotations
 
