@@ -98,7 +98,9 @@ class MujocoPeer:
         ground = scene.ground
         radii = scene.node_radii
         # what touches the ground: contype 1 against the plane's conaffinity 1, never each other
-        touch = ' contype="1" conaffinity="0" condim="3"' if ground is not None else ""
+        # (MuJoCo combines two geoms' friction by the larger: the moving geoms carry the ground's too)
+        touch = (f' contype="1" conaffinity="0" condim="3" friction="{ground.friction!r} 0 0"'
+                 if ground is not None else "")
         if ground is not None:
             world.append(f'<geom type="plane" size="0 0 1" pos="0 0 {ground.height!r}" contype="0" conaffinity="1" '
                          f'friction="{ground.friction!r} 0 0" condim="3"/>')
