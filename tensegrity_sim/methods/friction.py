@@ -237,6 +237,16 @@ class FrictionalSolver:
         self.last = None                                       # (nodes, impulses (k, 3)) of the last solve
         self.iterations = 0                                    # QPs of the last solve
 
+    @property
+    def compiled(self) -> bool:
+        """Whether the backend builds its rows and checks its answers with numba kernels (it does the
+        same for the contact rows, which are ordinary rows)."""
+        return self.inner.compiled
+
+    @compiled.setter
+    def compiled(self, value: bool) -> None:
+        self.inner.compiled = bool(value)
+
     def describe(self) -> dict:
         return {**self.inner.describe(), "friction": "Coulomb disc, mode fixed point",
                 "fixed_point_tol": FIXED_POINT_TOL}
