@@ -69,6 +69,7 @@ from ..system import System
 from .base import MethodStep, State, StepMethod
 from .qp import QPError, Rows, choose_solver, make_solver
 from .rigid import RigidStruts
+from .self_stress import TAUT_TOL, SelfStress, reference_tensions
 
 __all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_EVENTS"]
 
@@ -134,6 +135,12 @@ class InextensibleMethod(StepMethod):
         self._end_geometry = None   # (positions, cable vectors, lengths) at the last step's end
         self._last_rest = scene.cable_rest_lengths
         self._no_reel = np.zeros(system.n_cables)
+        # what the impulses of a locked structure are published as (issue 20, methods/self_stress.py)
+        moving = np.concatenate([np.arange(self._n_eq), self._n_eq + np.flatnonzero(self._cables_move)])
+        _, _, n_load = system.geometry(scene.positions, self._ends[moving])
+        self.reference_tensions = reference_tensions(system.stiffness[system.n_struts:], self.length_offsets)
+        self.self_stress = SelfStress(int(free.sum()), self.reference_tensions,
+                                      Rows(self._row_nodes[moving], n_load, np.zeros(len(moving)), self._n_eq))
 
     # ------------------------------------------------------------------ contract
     def invalidate(self) -> None:
@@ -186,6 +193,8 @@ class InextensibleMethod(StepMethod):
         x, v = state.positions, state.velocities
         limits = self.limits(state.rest_lengths)
         floor = limits * (1.0 - LIMIT_TOL)
+        # a structure that can lock counts a cable this close to its limit as at it (self_stress.TAUT_TOL)
+        taut = limits * (1.0 - TAUT_TOL) if self.self_stress.possible else floor
         # a commanded shortening since the last step is a reel-in at that rate (m/s, <= 0); the
         # simulator replaces the rest-length array when it is commanded, so the same array means none
         if state.rest_lengths is self._last_rest:
@@ -203,7 +212,7 @@ class InextensibleMethod(StepMethod):
             if maybe.any() and v.any():
                 v, y = self._impact(x, v, d, length, limits, at_limit, maybe, holding)
                 if y is not None:
-                    impulses[at_limit] += y
+                    impulses += y
             tau = remaining
             x_m, v0 = self._free_motion(x, v, tau, f_ext)
             cut = False
@@ -213,8 +222,8 @@ class InextensibleMethod(StepMethod):
                 if cut:
                     tau = theta * tau
                     x_m, v0 = self._free_motion(x, v, tau, f_ext)
-            x, v, y = self._midpoint(x_m, v, v0, tau, limits, floor, reel, holding)
-            impulses += y
+            x, v, y, published = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, holding)
+            impulses += published
             holding = (y > 0) & at_limit
             if not cut:
                 break
@@ -222,7 +231,9 @@ class InextensibleMethod(StepMethod):
         self._holding = holding
         self._last_rest = state.rest_lengths
         self._end_geometry = (x, *self._cable_geometry(x))   # x is a new array: computed, not cached
-        return MethodStep(x, v, impulses)
+        # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
+        slack = (self._end_geometry[2] < taut) & ~(impulses > 0)
+        return MethodStep(x, v, impulses, slack)
 
     def _free_motion(self, x, v, tau, f_ext):
         """Midpoint ``x_m`` (N, 3) and free velocity ``v0 = v + tau M^-1 F(x_m)`` (N, 3)."""
@@ -260,9 +271,10 @@ class InextensibleMethod(StepMethod):
             t = np.clip(t - g / np.where(slope > 0, slope, np.inf), 0.0, 1.0)
         return float(t.min())
 
-    def _midpoint(self, x_m, v, v0, tau, limits, floor, reel, holding):
+    def _midpoint(self, x_m, v, v0, tau, limits, floor, taut, reel, holding):
         """Moreau's midpoint sub-step from ``x_m`` with free velocity ``v0``: returns ``x_f``, ``v_f``
-        (N, 3) and the cable impulses (n_cables,) N*s."""
+        (N, 3), the QP's cable impulses (n_cables,) N*s (they decide which cables hold) and the published
+        ones (:meth:`_publish`)."""
         n_eq = self._n_eq
         _, length, n = self.system.geometry(x_m, self._ends)
         ends = self.system.cable_ends
@@ -270,7 +282,8 @@ class InextensibleMethod(StepMethod):
         reach = length[n_eq:] + (0.5 * tau) * np.sqrt(np.einsum("ij,ij->i", u0, u0))
         cables = (reach >= floor) & self._cables_move
         if not (n_eq or cables.any()):   # nothing can be taut: free motion, no QP
-            return x_m + (0.5 * tau) * v0, v0, np.zeros(len(limits))
+            none = np.zeros(len(limits))
+            return x_m + (0.5 * tau) * v0, v0, none, none
         sel = slice(None) if cables.all() else np.concatenate([np.arange(n_eq), n_eq + np.flatnonzero(cables)])
         m_ends, m_length, m_n = self._ends[sel], length[sel], n[sel]
         m_limits = np.concatenate([self._rigid_lengths, limits])[sel]
@@ -287,7 +300,8 @@ class InextensibleMethod(StepMethod):
         v_f, y = self._land(v, v0, rows, warm, m_ends, m_length, m_limits, tau, floor_rate, reel)
         impulses = np.zeros(len(limits))
         impulses[cables] = y[n_eq:]
-        return x_m + (0.5 * tau) * v_f, v_f, impulses
+        x_f = x_m + (0.5 * tau) * v_f
+        return x_f, v_f, impulses, self._publish(rows, np.flatnonzero(cables), y, tau, x_f, taut)
 
     def _land(self, v, v0, rows, warm, ends, length, limits, tau, floor_rate, reel):
         """Solve the sub-step's QP so that every binding row lands on its target.
@@ -345,8 +359,8 @@ class InextensibleMethod(StepMethod):
         """Moreau's impact law at ``x`` when a cable at its limit that was not holding (``maybe``)
         separates: ``v+ = argmin |v+ - v|_M`` with ``b^T v+ <= 0`` for every cable at its limit and
         ``b^T v+ = 0`` for the rigid struts. The admissible set is a cone, so the projection never
-        increases the kinetic energy. Returns ``v+`` (N, 3) and the impulses of the cables ``at_limit``,
-        or ``v`` and None when no cable snaps."""
+        increases the kinetic energy. Returns ``v+`` (N, 3) and the published cable impulses (n_cables,)
+        N*s (:meth:`_publish`), or ``v`` and None when no cable snaps."""
         ends = self.system.cable_ends
         n = d / length[:, None]
         rate = self.system.member_rates(v, n, ends)
@@ -365,4 +379,20 @@ class InextensibleMethod(StepMethod):
         v_free, y = self.solver.solve(v[self._free], rows, warm)
         v_plus = np.zeros_like(v)
         v_plus[self._free] = v_free
-        return v_plus, y[n_eq:]
+        return v_plus, self._publish(rows, cables, y, 0.0)
+
+    def _publish(self, rows, cables, y, tau, x_end=None, taut=None):
+        """The cable impulses (n_cables,) N*s published for a QP answer (``rows``, the cables ``cables``
+        (k - n_eq,) int of its inequality rows, multipliers ``y`` (k,)) over ``tau`` s: the QP's own
+        unless the rows carry a self-stress, then the rule of :mod:`.self_stress` (the one place where it
+        is applied). The cables at their limit are those reaching ``taut`` (n_cables,) m at ``x_end``
+        (N, 3), or all of them (an impact, ``tau = 0``, acts on cables at their limit)."""
+        if self.self_stress.possible:
+            if x_end is None:
+                at_limit = np.ones(len(cables), dtype=bool)
+            else:
+                at_limit = self._cable_geometry(x_end)[1][cables] >= taut[cables]
+            y = self.self_stress.impulses(rows, cables, at_limit, y, tau)
+        impulses = np.zeros(self.system.n_cables)
+        impulses[cables] = y[rows.n_eq:]
+        return impulses
