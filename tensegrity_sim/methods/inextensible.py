@@ -55,9 +55,13 @@ event instead, located inside the step and resolved where it happens:
 time (``length_offsets``), keeps the offset when rest lengths are commanded, warns
 (:class:`LengthOffsetWarning`) and reports the offsets in ``describe()``. No cable strain is stored:
 ``strain_energy`` counts the elastic struts only. When the taut cables and rigid struts carry a
-self-stress (the icosahedron with rigid struts) the structure is locked: the impulses are not unique
-(any multiple of the self-stress can be added; the backend returns one, zero for a free icosahedron at
-rest), and a cable cannot be reeled in, which is reported as a :class:`~.qp.QPError` naming it.
+self-stress (the icosahedron with rigid struts) the structure is locked: the QP's multipliers are not
+unique (any multiple of the self-stress can be added; the backend returns one, growing like 1/dt), and a
+cable cannot be reeled in, which is reported as a :class:`~.qp.QPError` naming it. The impulses
+published for such a step are chosen by :mod:`.self_stress` (the prestress ``reference_tensions``
+projected onto the step's self-stress plus the minimum-norm dynamic part), in :meth:`_publish` only;
+the QP's own multipliers still decide which cables hold. A cable is slack when it is short of its limit
+and carried no impulse over the step.
 """
 from __future__ import annotations
 
