@@ -121,7 +121,7 @@ def determined_part(scene: ts.Scene):
     method = sim._method
     rows = Rows(method._row_nodes, sim.system.geometry(sim.positions, method._ends)[2], np.zeros(len(method._ends)),
                 method._n_eq)
-    basis, _ = self_stress_space(rows.dense(int(sim.system.free.sum())).T)
+    basis, _, _ = self_stress_space(rows.dense(int(sim.system.free.sum())).T)
     cables = basis[method._n_eq:]
     q, _ = np.linalg.qr(cables) if cables.shape[1] else (cables, None)
     return lambda y: y - q @ (q.T @ y)
