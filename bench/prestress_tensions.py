@@ -24,6 +24,7 @@ import tensegrity_sim as ts  # noqa: E402
 from bench.cases import icosahedron_thrown, rigid_consistent  # noqa: E402
 from bench.tables import write_csv  # noqa: E402
 from bench.timing import time_runs  # noqa: E402
+from tensegrity_sim.methods.inextensible import LIMIT_TOL  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 DTS = (1e-3, 5e-4, 2.5e-4)
@@ -64,8 +65,9 @@ def simulator(scene: ts.Scene, method: str, dt: float, rule: bool = True) -> ts.
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sim = ts.Simulator(scene, method=method, dt=dt)
-    if not rule:
+    if not rule:   # what the method published before issue 20: the multipliers, flags at LIMIT_TOL
         sim._method.self_stress.possible = False
+        sim._method._taut_tol = LIMIT_TOL
     return sim
 
 

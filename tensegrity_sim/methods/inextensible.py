@@ -145,6 +145,8 @@ class InextensibleMethod(StepMethod):
         self.reference_tensions = reference_tensions(system.stiffness[system.n_struts:], self.length_offsets)
         self.self_stress = SelfStress(int(free.sum()), self.reference_tensions,
                                       Rows(self._row_nodes[moving], n_load, np.zeros(len(moving)), self._n_eq))
+        # a structure that can lock counts a cable this close to its limit as at it (self_stress.TAUT_TOL)
+        self._taut_tol = TAUT_TOL if self.self_stress.possible else LIMIT_TOL
 
     # ------------------------------------------------------------------ contract
     def invalidate(self) -> None:
@@ -163,9 +165,10 @@ class InextensibleMethod(StepMethod):
         return rest_lengths + self.length_offsets
 
     def slack(self, positions: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
-        """(n_cables,) bool: shorter than the length limit by more than ``LIMIT_TOL`` (relative)."""
+        """(n_cables,) bool: shorter than the length limit by more than ``LIMIT_TOL`` (relative), or
+        ``TAUT_TOL`` in a structure that can lock (a step's flags also need the cable to carry no impulse)."""
         _, length = self._cable_geometry(positions)
-        return length < self.limits(rest_lengths) * (1.0 - LIMIT_TOL)
+        return length < self.limits(rest_lengths) * (1.0 - self._taut_tol)
 
     def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
         """Elastic struts only: an inextensible cable stores no strain energy (J)."""
@@ -197,8 +200,7 @@ class InextensibleMethod(StepMethod):
         x, v = state.positions, state.velocities
         limits = self.limits(state.rest_lengths)
         floor = limits * (1.0 - LIMIT_TOL)
-        # a structure that can lock counts a cable this close to its limit as at it (self_stress.TAUT_TOL)
-        taut = limits * (1.0 - TAUT_TOL) if self.self_stress.possible else floor
+        taut = limits * (1.0 - self._taut_tol)
         # a commanded shortening since the last step is a reel-in at that rate (m/s, <= 0); the
         # simulator replaces the rest-length array when it is commanded, so the same array means none
         if state.rest_lengths is self._last_rest:

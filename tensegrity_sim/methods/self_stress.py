@@ -54,6 +54,8 @@ RANK_TOL = 1e-3
 # (tau/2)^2 |u|^2 / 2L short: 4e-9..7e-8 L on the tumbling rigid prism (0.5 m/s, dt 1..0.25 ms), which
 # then flickered slack at 0 N while the rest stayed locked.
 TAUT_TOL = 1e-6
+# A basis whose |A^T s| is below _EXACT times the largest singular value is a self-stress to round-off.
+_EXACT = 1e-13
 
 
 def reference_tensions(stiffness: np.ndarray, length_offsets: np.ndarray) -> np.ndarray:
@@ -98,6 +100,8 @@ class SelfStress:
         round-off) is ~8 times cheaper than an SVD; it is kept if it is still below ``RANK_TOL``."""
         last = self._last
         if self.refine and last is not None and last[0] == members and last[2].shape[1]:
+            if np.linalg.norm(a_t @ last[2], axis=0).max() <= _EXACT * last[1]:
+                return last[2]   # still an exact self-stress (a structure at rest): nothing to refine
             try:
                 basis, _ = np.linalg.qr(np.linalg.solve(a_t.T @ a_t, last[2]))
             except np.linalg.LinAlgError:   # an exactly singular A A^T: the SVD below
@@ -129,7 +133,8 @@ class SelfStress:
         dynamic = y_b - basis @ share
         n_c = basis[binding[:n_eq].sum():]          # the cable components of the self-stresses
         ref = self.reference[cables[cable_rows]] * tau
-        alpha = np.linalg.lstsq(n_c, ref, rcond=None)[0]
+        # least squares by the normal equations: d is 1 or 2, and n_c holds most of each self-stress
+        alpha = np.linalg.solve(n_c.T @ n_c, n_c.T @ ref)
         out = dynamic + basis @ alpha
         if np.any(out[n_eq:] < 0.0):
             alpha = self._nonnegative(n_c, dynamic[n_eq:], ref, alpha)
