@@ -152,6 +152,7 @@ class InextensibleMethod(StepMethod):
     def invalidate(self) -> None:
         self._holding = np.zeros(self.system.n_cables, dtype=bool)
         self._end_geometry = None
+        self.self_stress.forget()
 
     def prepare(self, state: State) -> None:
         """Initial velocities that would stretch a rigid strut lose that component (momentum unchanged).

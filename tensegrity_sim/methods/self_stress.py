@@ -93,6 +93,11 @@ class SelfStress:
         self.refine = True    # False: an SVD at every step (the reference the refinement must match)
         self._last = None     # (binding members, largest singular value, basis) of the last SVD
 
+    def forget(self) -> None:
+        """Drop the last basis (a reset or a command): the next step starts from an SVD, as a fresh
+        simulator does, so that a replay from there publishes the same impulses to the bit."""
+        self._last = None
+
     def _space(self, a_t: np.ndarray, members: bytes) -> np.ndarray:
         """The self-stress basis (k, d) of ``a_t`` (3 n_free, k). While the binding rows are the same
         ``members`` as at the last SVD, the last basis refined by one step of inverse iteration on
