@@ -1,7 +1,7 @@
 """Tensions of locked structures (issue 20): the inextensible method's published tensions beside the
 elastic twin's, before and after the self-stress rule, and what the rule costs per step.
 
-Run from the repository root: ``python3 bench/prestress_tensions.py`` (a few minutes on 2 cores). Writes
+Run from the repository root: ``python3 bench/prestress_tensions.py [--cost-only]`` (a few minutes). Writes
 ``bench/results/prestress.csv`` (tension statistics) and ``bench/results/prestress_cost.csv`` (µs per
 step with the rule and without it, taking turns in one process); ``bench/report.py`` renders both.
 
@@ -12,6 +12,7 @@ impulse the published impulses leave out (:attr:`~tensegrity_sim.methods.self_st
 """
 from __future__ import annotations
 
+import argparse
 import sys
 import warnings
 from pathlib import Path
@@ -94,7 +95,7 @@ def tension_rows(progress=print) -> list[dict]:
     return rows
 
 
-def cost_rows(progress=print, dt: float = 5e-4, steps: int = 400, repeats: int = 5) -> list[dict]:
+def cost_rows(progress=print, dt: float = 5e-4, steps: int = 200, repeats: int = 15) -> list[dict]:
     """µs per step with the rule and without it (the QP's multipliers published), best of ``repeats``
     runs taking turns in this process."""
     rows = []
@@ -112,7 +113,11 @@ def cost_rows(progress=print, dt: float = 5e-4, steps: int = 400, repeats: int =
 
 
 def main() -> None:
-    write_csv(RESULTS / "prestress.csv", tension_rows(), TENSION_FIELDS)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cost-only", action="store_true", help="only measure the rule's cost again")
+    args = parser.parse_args()
+    if not args.cost_only:
+        write_csv(RESULTS / "prestress.csv", tension_rows(), TENSION_FIELDS)
     write_csv(RESULTS / "prestress_cost.csv", cost_rows(), COST_FIELDS)
 
 

@@ -333,7 +333,7 @@ def _separate_runs(results: Path) -> list[str]:
                          "slack/taut switches", "residual (N·s)"], body))
     if (results / "prestress_cost.csv").exists():
         w.append("\nCost of the rule: µs per step of the inextensible method with the rule and publishing the "
-                 "solver's multipliers, best of 5 runs of 400 steps taking turns in one process (a loaded 2-core "
+                 "solver's multipliers, best of 15 runs of 200 steps taking turns in one process (a loaded 2-core "
                  "machine: compare the ratio). A structure whose members have no self-stress at load (the prism "
                  "with elastic struts) never evaluates it.\n\n")
         body = [[r["scene"], f"{r['dt'] * 1e3:g}", _n(r["us_per_step_rule"]), _n(r["us_per_step_qp_only"]),
