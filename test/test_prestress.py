@@ -165,7 +165,7 @@ def test_without_self_stress_the_impulses_are_the_solvers(case, monkeypatch):
 
 @pytest.mark.parametrize("name", sorted(LOCKED))
 def test_refined_self_stress_matches_the_svd(name):
-    """The fast path (the last step's self-stress refined by one inverse iteration) publishes what an
+    """The fast path (the load time's self-stress refined by two inverse iterations) publishes what an
     SVD at every step does, to 1e-9 of the largest impulse: round-off, amplified by the solver's share
     along the nearly dependent direction (up to 1e4 times the impulses) that both remove."""
     runs = []
@@ -177,8 +177,9 @@ def test_refined_self_stress_matches_the_svd(name):
 
 
 def test_a_reset_publishes_what_a_fresh_simulator_does():
-    """The rule keeps the last step's self-stress between steps; a reset (or a command) drops it, so a
-    log that starts there replays bit for bit (a replay builds a fresh simulator)."""
+    """The rule depends on the step alone, not on the steps before (it once refined the previous step's
+    self-stress, and a reset, a refused command or a replay then published other bits): after a reset
+    it publishes what a fresh simulator does, bit for bit."""
     scene = thrown("icosahedron")
     sim = simulator(scene, "inextensible", 1e-3)
     sim.run(steps=30)

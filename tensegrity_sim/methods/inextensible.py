@@ -144,7 +144,8 @@ class InextensibleMethod(StepMethod):
         _, _, n_load = system.geometry(scene.positions, self._ends[moving])
         self.reference_tensions = reference_tensions(system.stiffness[system.n_struts:], self.length_offsets)
         self.self_stress = SelfStress(int(free.sum()), self.reference_tensions,
-                                      Rows(self._row_nodes[moving], n_load, np.zeros(len(moving)), self._n_eq))
+                                      Rows(self._row_nodes[moving], n_load, np.zeros(len(moving)), self._n_eq),
+                                      np.flatnonzero(self._cables_move))
         # a structure that can lock counts a cable this close to its limit as at it (self_stress.TAUT_TOL)
         self._taut_tol = TAUT_TOL if self.self_stress.possible else LIMIT_TOL
 
@@ -152,7 +153,6 @@ class InextensibleMethod(StepMethod):
     def invalidate(self) -> None:
         self._holding = np.zeros(self.system.n_cables, dtype=bool)
         self._end_geometry = None
-        self.self_stress.forget()
 
     def prepare(self, state: State) -> None:
         """Initial velocities that would stretch a rigid strut lose that component (momentum unchanged).

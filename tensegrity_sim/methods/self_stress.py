@@ -44,7 +44,8 @@ would change the motion, which this rule leaves exactly as it is.
 **Cost.** Only a structure whose members (rigid struts and every cable) have a self-stress at load
 time can lock (``SelfStress.possible``); for every other structure the rule is never evaluated and the
 impulses are the QP's, bit for bit. A locked step pays one SVD of ``A_B^T`` (k_B x 3 n_free) when its
-binding rows changed, else one inverse iteration on the last basis (~8 times cheaper); measured by
+binding rows are not all of the load time's members, else two inverse iterations from the load time's
+basis (cheaper, and as history-free as the SVD); measured by
 ``bench/prestress_tensions.py``.
 
 **Flags.** A cable is slack when it is shorter than its limit *and* carried no impulse over the step
@@ -53,6 +54,7 @@ binding rows changed, else one inverse iteration on the last basis (~8 times che
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg import lu_factor as _lu_factor, lu_solve as _lu_solve
 
 from .qp import Rows
 
@@ -95,42 +97,38 @@ def self_stress_space(a_t: np.ndarray, rank_tol: float = RANK_TOL):
 class SelfStress:
     """The publishing rule of the module docstring for one system.
 
-    ``n_free``: free nodes; ``n_eq``: rigid-strut rows; ``reference``: (n_cables,) N;
-    ``rows_at_load``: every member's row at load time (rigid struts first, then the cables)."""
+    ``n_free``: free nodes; ``reference``: (n_cables,) N; ``rows_at_load``: every member's row at load
+    time (the rigid struts, then the cables ``load_cables`` (int), those with a free end)."""
 
-    def __init__(self, n_free: int, reference: np.ndarray, rows_at_load: Rows):
+    def __init__(self, n_free: int, reference: np.ndarray, rows_at_load: Rows, load_cables: np.ndarray):
         self.n_free = n_free
         self.reference = reference
-        basis, _, _ = self_stress_space(rows_at_load.dense(n_free).T)
-        self.possible = basis.shape[1] > 0
+        self._load_basis, _, self._load_largest = self_stress_space(rows_at_load.dense(n_free).T)
+        self._load_members = np.asarray(load_cables).tobytes()
+        self.possible = self._load_basis.shape[1] > 0
         self.residual = 0.0   # N*s: the largest node impulse dropped with a near-null share (module docstring)
         self.refine = True    # False: an SVD at every step (the reference the refinement must match)
-        self._last = None     # (binding members, largest singular value, basis) of the last SVD
-
-    def forget(self) -> None:
-        """Drop the last basis (a reset or a command): the next step starts from an SVD, as a fresh
-        simulator does, so that a replay from there publishes the same impulses to the bit."""
-        self._last = None
 
     def _space(self, a_t: np.ndarray, members: bytes) -> np.ndarray:
-        """The self-stress basis (k, d) of ``a_t`` (3 n_free, k). While the binding rows are the same
-        ``members`` as at the last SVD, the last basis refined by one step of inverse iteration on
-        ``A A^T`` (its self-stress singular values are 1e-4 of the next ones, so one step reaches
-        round-off) is ~8 times cheaper than an SVD; it is kept if it is still below ``RANK_TOL``."""
-        last = self._last
-        if self.refine and last is not None and last[0] == members and last[2].shape[1]:
-            if np.linalg.norm(a_t @ last[2], axis=0).max() <= _EXACT * last[1]:
-                return last[2]   # still an exact self-stress (a structure at rest): nothing to refine
+        """The self-stress basis (k, d) of ``a_t`` (3 n_free, k). When the binding rows are all the
+        members of the load time (a locked structure), the load time's basis refined by two steps of
+        inverse iteration on ``A A^T`` (its self-stress singular values are ~1e-4 of the next ones: each
+        step divides the error by ~1e8) is ~8 times cheaper than an SVD, and like the SVD it depends on
+        this step alone (a replay, a twin that saw other commands: the same bits). It is kept if it is
+        still below ``RANK_TOL``; any other set of rows gets an SVD."""
+        basis = self._load_basis
+        if self.refine and members == self._load_members:
+            if np.linalg.norm(a_t @ basis, axis=0).max() <= _EXACT * self._load_largest:
+                return basis   # an exact self-stress (a structure at rest in its load shape)
             try:
-                basis, _ = np.linalg.qr(np.linalg.solve(a_t.T @ a_t, last[2]))
-            except np.linalg.LinAlgError:   # an exactly singular A A^T: the SVD below
+                lu = _lu_factor(a_t.T @ a_t, check_finite=False)
+                for _ in range(2):
+                    basis, _ = np.linalg.qr(_lu_solve(lu, basis, check_finite=False))
+            except (np.linalg.LinAlgError, ValueError):   # an exactly singular A A^T: the SVD below
                 basis = None
-            if basis is not None and np.linalg.norm(a_t @ basis, axis=0).max() < RANK_TOL * last[1]:
-                self._last = (members, last[1], basis)
+            if basis is not None and np.linalg.norm(a_t @ basis, axis=0).max() < RANK_TOL * self._load_largest:
                 return basis
-        basis, _, largest = self_stress_space(a_t)
-        self._last = (members, largest, basis)
-        return basis
+        return self_stress_space(a_t)[0]
 
     def impulses(self, rows: Rows, cables: np.ndarray, at_limit: np.ndarray, y: np.ndarray,
                  tau: float) -> np.ndarray:
