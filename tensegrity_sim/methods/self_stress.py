@@ -53,8 +53,10 @@ basis (cheaper, and as history-free as the SVD); measured by
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
-from scipy.linalg import lu_factor as _lu_factor, lu_solve as _lu_solve
+from scipy.linalg import LinAlgWarning, lu_factor as _lu_factor, lu_solve as _lu_solve
 
 from .qp import Rows
 
@@ -121,10 +123,12 @@ class SelfStress:
             if np.linalg.norm(a_t @ basis, axis=0).max() <= _EXACT * self._load_largest:
                 return basis   # an exact self-stress (a structure at rest in its load shape)
             try:
-                lu = _lu_factor(a_t.T @ a_t, check_finite=False)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("error", LinAlgWarning)   # an exactly singular A A^T: the SVD below
+                    lu = _lu_factor(a_t.T @ a_t, check_finite=False)
                 for _ in range(2):
                     basis, _ = np.linalg.qr(_lu_solve(lu, basis, check_finite=False))
-            except (np.linalg.LinAlgError, ValueError):   # an exactly singular A A^T: the SVD below
+            except LinAlgWarning:
                 basis = None
             if basis is not None and np.linalg.norm(a_t @ basis, axis=0).max() < RANK_TOL * self._load_largest:
                 return basis
