@@ -189,3 +189,29 @@ def drop_slide_exact(t, v0=2.0, gap=0.04, mu=0.5, g=9.81, length=1.0, radius=0.0
     pos = np.array([[x, 0.0, z], [x + length, 0.0, z]])
     vel = np.array([[vx, 0.0, vz], [vx, 0.0, vz]])
     return pos, vel
+# ------------------------------------------------------------------------------------- slack pendulum
+def sling_dict(x0=0.5, speed=2.0, length=1.0, m=1.0):
+    """A 1 kg node on a slack inextensible cable of ``length`` m from a fixed anchor at the origin,
+    starting at ``(x0, 0.6, 0)`` and moving at ``speed`` m/s along x; no gravity. The cable snaps taut
+    at ``(0.8, 0.6, 0)`` (a 3-4-5 triangle for the default length)."""
+    return {
+        "name": "sling",
+        "nodes": [{"name": "anchor", "position": [0.0, 0.0, 0.0], "fixed": True},
+                  {"name": "m", "position": [x0, 0.6, 0.0], "mass": m, "velocity": [speed, 0.0, 0.0]}],
+        "cables": [{"name": "c", "nodes": ["anchor", "m"], "rest_length": length}],
+    }
+
+
+def sling_exact(t, x0=0.5, speed=2.0, length=1.0, m=1.0):
+    """Positions (2, 3) m and the cable's impulse (1,) N*s over [0, t] of :func:`sling_dict`: free flight
+    until the snap at ``x = sqrt(L^2 - 0.36)``, which takes the radial momentum (perfectly inelastic);
+    then uniform circular motion at the tangential speed ``u``, tension ``m u^2 / L``."""
+    x_snap = math.sqrt(length ** 2 - 0.36)
+    t_snap = (x_snap - x0) / speed
+    if t <= t_snap:
+        return np.array([[0.0, 0.0, 0.0], [x0 + speed * t, 0.6, 0.0]]), np.array([0.0])
+    radial = speed * x_snap / length
+    u = speed * 0.6 / length
+    angle = math.atan2(0.6, x_snap) - (u / length) * (t - t_snap)
+    x = np.array([[0.0, 0.0, 0.0], [length * math.cos(angle), length * math.sin(angle), 0.0]])
+    return x, np.array([m * radial + m * u * u / length * (t - t_snap)])

@@ -122,9 +122,11 @@ def work_precision_cases() -> list[Case]:
              "icosahedron (rigid struts) tumbling with random velocities of 3 m/s: the first snaps lock it into "
              "a spinning rigid body",
              impulse_note="rigid struts and inextensible cables form a framework with a self-stress, so the "
-                          "cables' impulses are not determined (any multiple of the self-stress can be added; "
-                          "tensegrity_sim's largest sum over the run is 3.4e3, 1.3e4, 4.0e4 N*s at 1, 0.25, "
-                          "0.0625 ms: roughly 1/dt): not compared"),
+                          "QP's multipliers are not determined (any multiple of the self-stress can be added; "
+                          "their largest sum over the run was 3.4e3, 1.3e4, 4.0e4 N*s at 1, 0.25, 0.0625 ms: "
+                          "roughly 1/dt): not compared in this run. Since issue 20 the published impulses are "
+                          "the prestress plus the minimum-norm dynamic part (see 'Tensions of locked "
+                          "structures')"),
         Case("tower_kicked", tower, 1.0, ("elastic",),
              "3-stage tower (elastic struts, fixed base, gravity) kicked at the top at 2 m/s"),
         Case("tower_kicked", tower, 0.2, ("inextensible",),

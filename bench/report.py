@@ -310,5 +310,54 @@ def write(path: Path, *, meta: dict, cases, references, rows, throughput, size_r
     w.append(_table(["case", "configuration", "setting", "verdict", "figure"],
                     [[h["case"], f"{h['simulator']} {h['variant']}", h["setting"], h["verdict"], h["figure"]]
                      for h in hard]))
+    w += _separate_runs(path.parent)
     path.write_text("\n\n".join(x.strip("\n") for x in w) + "\n")
+
+
+def _separate_runs(results: Path) -> list[str]:
+    """The sections of the benchmarks run on their own (issue 20), from their CSV files when present:
+    the tensions of locked structures (``bench/prestress_tensions.py``) and the Siconos peer
+    (``bench/siconos_peer.py``)."""
+    from .tables import read_csv
+    w = []
+    if (results / "prestress.csv").exists():
+        w.append("\n## Tensions of locked structures\n")
+        w.append("`python3 bench/prestress_tensions.py` (run on its own, not by `run_all.py`): 0.3 s of a thrown "
+                 "locked structure (rigid struts; random node velocities, which hit the cables at t = 0). The "
+                 "inextensible method publishes the reference prestress projected onto the step's self-stress plus "
+                 "the minimum-norm dynamic impulses (`methods/self_stress.py`); 'QP multipliers' is the same run "
+                 "publishing the solver's multipliers (before issue 20); the elastic twin is the same scene with "
+                 "613 N/m (icosahedron) or 2000 N/m (prism) cables. Tensions are impulse / dt over every cable and "
+                 "step: 'max' includes the first step's impact (an impulse, so its tension grows like 1/dt), 'max "
+                 "after' leaves it out. 'residual': the largest node impulse (N·s) the published impulses leave "
+                 "out, the solver's share along a nearly dependent direction (see the module's docstring).\n\n")
+        body = [[r["scene"], r["configuration"], f"{r['dt'] * 1e3:g}", f"{r['median_N']:.4g}", f"{r['p99_N']:.4g}",
+                 f"{r['max_N']:.4g}", f"{r['max_after_first_N']:.4g}", r["switches"], _g(r["residual_Ns"])]
+                for r in read_csv(results / "prestress.csv")]
+        w.append(_table(["scene", "configuration", "dt (ms)", "median (N)", "p99 (N)", "max (N)", "max after (N)",
+                         "slack/taut switches", "residual (N·s)"], body))
+    if (results / "prestress_cost.csv").exists():
+        w.append("\nCost of the rule: µs per step of the inextensible method with the rule and publishing the "
+                 "solver's multipliers, best of 15 runs of 200 steps taking turns in one process (a loaded 2-core "
+                 "machine: compare the ratio). A structure whose members have no self-stress at load (the prism "
+                 "with elastic struts) never evaluates it.\n\n")
+        body = [[r["scene"], f"{r['dt'] * 1e3:g}", _n(r["us_per_step_rule"]), _n(r["us_per_step_qp_only"]),
+                 f"{r['ratio']:.2f}"] for r in read_csv(results / "prestress_cost.csv")]
+        w.append(_table(["scene", "dt (ms)", "µs/step with the rule", "µs/step, multipliers", "ratio"], body))
+    if (results / "siconos.csv").exists():
+        w.append("\n## The Siconos peer (inextensible cases)\n")
+        w.append("`python3 bench/siconos_peer.py` (run on its own): Siconos 4.4 (Debian's `python3-siconos`, "
+                 "Moreau–Jean θ = 0.5, cables `NewtonImpactNSL(e = 0)`, rigid struts `EqualityConditionNSL`, "
+                 "`LagrangianLinearTIR` relations re-linearised at every step; `bench/siconos_driver.py`, run by "
+                 "`/usr/bin/python3`) beside tensegrity_sim. Errors at the final time against the closed form "
+                 "(snap pair, sling) or, for the thrown prism, against tensegrity_sim at dt = 12.5 µs, its impulses "
+                 "compared on their part orthogonal to the prism's self-stress (the part every solver must "
+                 "agree on). Overshoot: a cable's largest length beyond its limit at a step's end; strut error: "
+                 "a rigid strut's largest length error.\n\n")
+        body = [[r["case"], r["simulator"], f"{r['dt'] * 1e3:g}", _g(r["pos_err_m"]), _g(r["imp_err_Ns"]),
+                 _g(r["cable_overshoot_m"]), _g(r["strut_error_m"]), f"{r['wall_s']:.2f}"]
+                for r in read_csv(results / "siconos.csv")]
+        w.append(_table(["case", "simulator", "dt (ms)", "position error (m)", "impulse error (N·s)",
+                         "cable overshoot (m)", "strut error (m)", "wall (s)"], body))
+    return w
 

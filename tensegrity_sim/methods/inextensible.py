@@ -60,9 +60,13 @@ like a snap, and the impact at its start is one inelastic impact with the snappi
 time (``length_offsets``), keeps the offset when rest lengths are commanded, warns
 (:class:`LengthOffsetWarning`) and reports the offsets in ``describe()``. No cable strain is stored:
 ``strain_energy`` counts the elastic struts only. When the taut cables and rigid struts carry a
-self-stress (the icosahedron with rigid struts) the structure is locked: the impulses are not unique
-(any multiple of the self-stress can be added; the backend returns one, zero for a free icosahedron at
-rest), and a cable cannot be reeled in, which is reported as a :class:`~.qp.QPError` naming it.
+self-stress (the icosahedron with rigid struts) the structure is locked: the QP's multipliers are not
+unique (any multiple of the self-stress can be added; the backend returns one, growing like 1/dt), and a
+cable cannot be reeled in, which is reported as a :class:`~.qp.QPError` naming it. The impulses
+published for such a step are chosen by :mod:`.self_stress` (the prestress ``reference_tensions``
+projected onto the step's self-stress plus the minimum-norm dynamic part), in :meth:`_publish` only;
+the QP's own multipliers still decide which cables hold. A cable is slack when it is short of its limit
+and carried no impulse over the step.
 """
 from __future__ import annotations
 
@@ -77,6 +81,7 @@ from .base import MethodStep, State, StepMethod
 from .friction import GroundResponse
 from .qp import QPError, Rows, choose_solver, make_solver
 from .rigid import RigidStruts
+from .self_stress import TAUT_TOL, SelfStress, reference_tensions
 
 __all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_EVENTS"]
 
@@ -151,6 +156,15 @@ class InextensibleMethod(StepMethod):
         self._end_geometry = None   # (positions, cable vectors, lengths) at the last step's end
         self._last_rest = scene.cable_rest_lengths
         self._no_reel = np.zeros(system.n_cables)
+        # what the impulses of a locked structure are published as (issue 20, methods/self_stress.py)
+        moving = np.concatenate([np.arange(self._n_eq), self._n_eq + np.flatnonzero(self._cables_move)])
+        _, _, n_load = system.geometry(scene.positions, self._ends[moving])
+        self.reference_tensions = reference_tensions(system.stiffness[system.n_struts:], self.length_offsets)
+        self.self_stress = SelfStress(int(free.sum()), self.reference_tensions,
+                                      Rows(self._row_nodes[moving], n_load, np.zeros(len(moving)), self._n_eq),
+                                      np.flatnonzero(self._cables_move))
+        # a structure that can lock counts a cable this close to its limit as at it (self_stress.TAUT_TOL)
+        self._taut_tol = TAUT_TOL if self.self_stress.possible else LIMIT_TOL
 
     @property
     def compiled(self) -> bool:
@@ -180,9 +194,10 @@ class InextensibleMethod(StepMethod):
         return rest_lengths + self.length_offsets
 
     def slack(self, positions: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
-        """(n_cables,) bool: shorter than the length limit by more than ``LIMIT_TOL`` (relative)."""
+        """(n_cables,) bool: shorter than the length limit by more than ``LIMIT_TOL`` (relative), or
+        ``TAUT_TOL`` in a structure that can lock (a step's flags also need the cable to carry no impulse)."""
         _, length = self._cable_geometry(positions)
-        return length < self.limits(rest_lengths) * (1.0 - LIMIT_TOL)
+        return length < self.limits(rest_lengths) * (1.0 - self._taut_tol)
 
     def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
         """Elastic struts only: an inextensible cable stores no strain energy (J)."""
@@ -214,6 +229,7 @@ class InextensibleMethod(StepMethod):
         x, v = state.positions, state.velocities
         limits = self.limits(state.rest_lengths)
         floor = limits * (1.0 - LIMIT_TOL)
+        taut = limits * (1.0 - self._taut_tol)
         # a commanded shortening since the last step is a reel-in at that rate (m/s, <= 0); the
         # simulator replaces the rest-length array when it is commanded, so the same array means none
         if state.rest_lengths is self._last_rest:
@@ -235,7 +251,7 @@ class InextensibleMethod(StepMethod):
             if (maybe.any() or landing) and v.any():
                 v, y = self._impact(x, v, d, length, limits, at_limit, maybe, holding, landing)
                 if y is not None:
-                    impulses[at_limit] += y
+                    impulses += y
             tau = remaining
             x_m, v0 = self._free_motion(x, v, tau, f_ext)
             cut = False
@@ -248,8 +264,8 @@ class InextensibleMethod(StepMethod):
                 if cut:
                     tau = theta * tau
                     x_m, v0 = self._free_motion(x, v, tau, f_ext)
-            x, v, y = self._midpoint(x_m, v, v0, tau, limits, floor, reel, hint)
-            impulses += y
+            x, v, y, published = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, hint)
+            impulses += published
             holding = hint = (y > 0) & at_limit
             if not cut:
                 break
@@ -258,7 +274,9 @@ class InextensibleMethod(StepMethod):
         self._last_rest = state.rest_lengths
         self._end_geometry = (x, *self._cable_geometry(x))   # x is a new array: computed, not cached
         contact = None if self.ground is None else self.ground.take_impulses()
-        return MethodStep(x, v, impulses, self._end_geometry[2] < floor, contact)
+        # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
+        slack = (self._end_geometry[2] < taut) & ~(impulses > 0)
+        return MethodStep(x, v, impulses, slack, contact)
 
     def _free_motion(self, x, v, tau, f_ext):
         """Midpoint ``x_m`` (N, 3) and free velocity ``v0 = v + tau M^-1 F(x_m)`` (N, 3)."""
@@ -296,9 +314,10 @@ class InextensibleMethod(StepMethod):
             t = np.clip(t - g / np.where(slope > 0, slope, np.inf), 0.0, 1.0)
         return float(t.min())
 
-    def _midpoint(self, x_m, v, v0, tau, limits, floor, reel, holding):
+    def _midpoint(self, x_m, v, v0, tau, limits, floor, taut, reel, holding):
         """Moreau's midpoint sub-step from ``x_m`` with free velocity ``v0``: returns ``x_f``, ``v_f``
-        (N, 3) and the cable impulses (n_cables,) N*s."""
+        (N, 3), the QP's cable impulses (n_cables,) N*s (they decide which cables hold) and the published
+        ones (:meth:`_publish`)."""
         n_eq = self._n_eq
         all_limits = np.concatenate([self._rigid_lengths, limits])
         if self.compiled:
@@ -315,14 +334,16 @@ class InextensibleMethod(StepMethod):
                 v_f[self._free] = self.solver.solve(v0[self._free], Rows(np.zeros((0, 2), int), np.zeros((0, 3)),
                                                                          np.zeros(0), 0))[0]
                 self.solver.commit()
-            return x_m + (0.5 * tau) * v_f, v_f, np.zeros(len(limits))
+            none = np.zeros(len(limits))
+            return x_m + (0.5 * tau) * v_f, v_f, none, none
         rows = Rows(self._row_nodes[sel], m_n, targets, n_eq)
         v_f, y = self._land(v, v0, rows, warm, self._ends[sel], m_length, m_limits, tau, floor_rate, reel)
         if self.ground is not None:
             self.solver.commit()
         impulses = np.zeros(len(limits))
         impulses[cables] = y[n_eq:]
-        return x_m + (0.5 * tau) * v_f, v_f, impulses
+        x_f = x_m + (0.5 * tau) * v_f
+        return x_f, v_f, impulses, self._publish(rows, np.flatnonzero(cables), y, tau, x_f, taut)
 
     def _rows_reference(self, x_m, v, v0, tau, all_limits, floor, reel, holding):
         """The numpy reference of ``_inextensible_kernels.select_rows`` (same arguments and results)."""
@@ -406,8 +427,8 @@ class InextensibleMethod(StepMethod):
         separates: ``v+ = argmin |v+ - v|_M`` with ``b^T v+ <= 0`` for every cable at its limit and
         ``b^T v+ = 0`` for the rigid struts. The admissible set is a cone, so the projection never
         increases the kinetic energy. With ``landing``, nodes hitting the ground (armed in ``self.ground``)
-        are part of the same impact. Returns ``v+`` (N, 3) and the impulses of the cables ``at_limit``,
-        or ``v`` and None when nothing snaps or lands."""
+        are part of the same impact. Returns ``v+`` (N, 3) and the published cable impulses (n_cables,)
+        N*s (:meth:`_publish`), or ``v`` and None when nothing snaps or lands."""
         ends = self.system.cable_ends
         n = d / length[:, None]
         rate = self.system.member_rates(v, n, ends)
@@ -429,4 +450,20 @@ class InextensibleMethod(StepMethod):
             self.ground.solver.disarm()
         v_plus = np.zeros_like(v)
         v_plus[self._free] = v_free
-        return v_plus, y[n_eq:]
+        return v_plus, self._publish(rows, cables, y, 0.0)
+
+    def _publish(self, rows, cables, y, tau, x_end=None, taut=None):
+        """The cable impulses (n_cables,) N*s published for a QP answer (``rows``, the cables ``cables``
+        (k - n_eq,) int of its inequality rows, multipliers ``y`` (k,)) over ``tau`` s: the QP's own
+        unless the rows carry a self-stress, then the rule of :mod:`.self_stress` (the one place where it
+        is applied). The cables at their limit are those reaching ``taut`` (n_cables,) m at ``x_end``
+        (N, 3), or all of them (an impact, ``tau = 0``, acts on cables at their limit)."""
+        if self.self_stress.possible:
+            if x_end is None:
+                at_limit = np.ones(len(cables), dtype=bool)
+            else:
+                at_limit = self._cable_geometry(x_end)[1][cables] >= taut[cables]
+            y = self.self_stress.impulses(rows, cables, at_limit, y, tau)
+        impulses = np.zeros(self.system.n_cables)
+        impulses[cables] = y[rows.n_eq:]
+        return impulses
