@@ -12,6 +12,7 @@ import math
 import numbers
 import os
 import reprlib
+import stat
 from pathlib import Path
 from typing import Any, Callable
 
@@ -111,6 +112,9 @@ def check_memory(nbytes: int, what: str) -> None:
         raise ValueError(f"{what} would need {shown} bytes, more than this machine's memory ({physical:.3g} bytes)")
 
 
+# A scene or schedule file larger than this is refused unread (a 100-stage tower's scene is ~0.5 MiB)
+MAX_YAML_BYTES = 64 << 20
+
 # YAML nesting deeper than this is refused while composing (a scene or a schedule nests 4 deep): PyYAML
 # would otherwise recurse until Python's limit, spending seconds on a few kilobytes of brackets.
 MAX_YAML_DEPTH = 64
@@ -139,9 +143,14 @@ def read_yaml(path: str | Path, error: Callable[[str], Exception], text: str | N
     value PyYAML cannot build) is raised as ``error(message)``, the message starting with ``path``."""
     if text is None:
         try:
-            raw = Path(path).read_bytes()
+            with open(path, "rb") as f:
+                if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
+                    raise error(f"{path}: not a regular file (a device or a pipe may never end)")
+                raw = f.read(MAX_YAML_BYTES + 1)
         except OSError as exc:
             raise error(f"{path}: cannot read: {exc.strerror}") from None
+        if len(raw) > MAX_YAML_BYTES:
+            raise error(f"{path}: larger than {MAX_YAML_BYTES >> 20} MiB: not a scene or a schedule")
         try:
             text = raw.decode("utf-8")
         except UnicodeDecodeError as exc:

@@ -168,6 +168,9 @@ FS_ERRORS = [
                               "(built-ins: icosahedron, icosahedron_ground, prism3, tower)"),
     (["run", "--commands", "{d}/dir.mcap", "--duration", "0.01"],
      "tensegrity-sim run: error: {d}/dir.mcap: cannot read: Is a directory"),
+    # found by scripts/fuzz.py: reading /dev/full as a schedule filled the memory
+    (["run", "--commands", "/dev/full", "--duration", "0.01"],
+     "tensegrity-sim run: error: /dev/full: not a regular file (a device or a pipe may never end)"),
 ]
 
 
