@@ -1,0 +1,440 @@
+"""Many copies of one structure stepped together: :class:`BatchSimulator`.
+
+A batch is ``B`` copies of one scene's structure (topology, masses, stiffnesses, radii) that differ in
+their state (positions, velocities, rest lengths) and inputs (rest-length commands, external forces).
+Every array a user sees has the batch as its **leading** axis, ``(B, N, 3)``, ``(B, n_cables)``, and a
+run returns ``(B, K, ...)`` (mujoco rollout's "nbatch x nstep" order). Inside, the elastic method keeps
+the batch as the *last* axis (:mod:`.methods.elastic_batch`) so that one step of all copies is a few
+array operations; the inextensible method solves one QP per copy and so steps a
+:class:`~tensegrity_sim.simulator.Simulator` per copy (style rule 8: a ``Simulator`` is a batch of one).
+
+Each copy equals a single ``Simulator`` run from the same state with the same inputs (to round-off;
+``test/test_batch.py`` requires 1e-10). A QP that fails in one copy stops that copy only: its index and
+reason are in ``failures``, its state stays the last good one, its entries in later step results are NaN
+(slack False) and the other copies go on.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, replace
+from typing import Mapping
+
+import numpy as np
+
+from .contact import ContactDetector, make_detector
+from .methods import choose_method
+from .methods.elastic_batch import ElasticBatch
+from .methods.qp import QPError
+from .results import ContactEvent
+from .scene import Scene, contact_kinds
+from .simulator import Simulator, _check_dt
+from .system import System
+
+__all__ = ["BatchSimulator", "BatchStepResult", "BatchTrajectory", "structure_of"]
+
+
+@dataclass(frozen=True)
+class BatchStepResult:
+    """One step of every copy. time: s at the step's end (the same for all copies).
+    positions, velocities: (B, N, 3) m, m/s. impulses: (B, n_cables) N*s over the step; tensions:
+    impulses / dt, N. slack: (B, n_cables) bool. contacts: B tuples of ContactEvents. failed: (B,) bool,
+    the copies stopped by a failure (their numbers are NaN)."""
+
+    time: float
+    positions: np.ndarray
+    velocities: np.ndarray
+    impulses: np.ndarray
+    tensions: np.ndarray
+    slack: np.ndarray
+    contacts: tuple[tuple[ContactEvent, ...], ...]
+    failed: np.ndarray
+
+
+@dataclass(frozen=True)
+class BatchTrajectory:
+    """K recorded steps of B copies: time (K,) s; positions, velocities (B, K, N, 3); impulses, tensions,
+    slack (B, K, n_cables) of the recorded steps; contacts: per copy, every ContactEvent of the run
+    (recorded or not); failures: {copy index: reason} of copies stopped by a failure.
+    Over every step, recorded or not: peak_tensions (B, n_cables) N, each cable's largest step tension
+    (``impulses / dt``); snaps (B, n_cables), how often each cable went from slack to taut between
+    consecutive step ends (the run's start counts as the first)."""
+
+    time: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+    impulses: np.ndarray
+    tensions: np.ndarray
+    slack: np.ndarray
+    contacts: list[list[ContactEvent]]
+    failures: dict[int, str]
+    peak_tensions: np.ndarray
+    snaps: np.ndarray
+
+
+def structure_of(scene: Scene) -> Scene:
+    """``scene`` without its initial state (node positions and velocities, cable rest lengths): two
+    scenes with equal structures can be copies of one batch. Hashable."""
+    return replace(scene, name="", source="",
+                   nodes=tuple(replace(n, position=(0.0, 0.0, 0.0), velocity=(0.0, 0.0, 0.0)) for n in scene.nodes),
+                   cables=tuple(replace(c, rest_length=0.0) for c in scene.cables))
+
+
+def _array(values, argument: str, shape: tuple[int, ...]) -> np.ndarray:
+    try:
+        arr = np.array(values, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{argument}: expected numbers in an array of shape {shape}") from None
+    if arr.shape != shape:
+        raise ValueError(f"{argument}: expected shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{argument}: values must be finite")
+    return arr
+
+
+class BatchSimulator:
+    """``batch`` copies of ``scene`` stepped together (see the module docstring).
+
+    ``method``: "elastic", "inextensible" or "auto" (decided once, on ``scene``; ``method_reason``).
+    ``dt``: s. ``positions``, ``velocities``: initial states (batch, N, 3) m, m/s, or (N, 3) for all
+    copies (default: the scene's); a rigid strut must keep its length. ``solver``: QP backend of the
+    inextensible method. ``contacts``: member kinds checked for contact, as for ``Simulator``.
+    """
+
+    def __init__(self, scene: Scene, batch: int, *, method: str = "auto", dt: float = 1e-3,
+                 positions=None, velocities=None, solver: str | None = None, contacts=None):
+        if not isinstance(scene, Scene):
+            raise ValueError(f"scene must be a Scene (see load_scene), got {type(scene).__name__}")
+        if isinstance(batch, bool) or not isinstance(batch, (int, np.integer)) or batch < 1:
+            raise ValueError(f"batch must be a whole number >= 1, got {batch!r}")
+        batch = int(batch)
+        n = len(scene.nodes)
+        x = np.broadcast_to(scene.positions, (batch, n, 3)) if positions is None else \
+            self._states(positions, "positions", batch, n)
+        v = np.broadcast_to(scene.velocities, (batch, n, 3)) if velocities is None else \
+            self._states(velocities, "velocities", batch, n)
+        if positions is None and velocities is None:
+            scenes = [scene] * batch
+        else:
+            scenes = [self._with_state(scene, x[b], v[b], b) for b in range(batch)]
+        self._build(scene, scenes, method, dt, solver, contacts)
+
+    @classmethod
+    def from_scenes(cls, scenes, *, method: str = "auto", dt: float = 1e-3, solver: str | None = None,
+                    contacts=None) -> "BatchSimulator":
+        """One copy per scene; the scenes must share their structure (:func:`structure_of`) and may
+        differ in initial positions, velocities and cable rest lengths. ``method="auto"`` is decided on
+        the first scene."""
+        scenes = list(scenes)
+        if not scenes or not all(isinstance(s, Scene) for s in scenes):
+            raise ValueError("scenes must be a non-empty sequence of Scene")
+        first = structure_of(scenes[0])
+        for b, s in enumerate(scenes):
+            if structure_of(s) != first:
+                raise ValueError(f"scenes[{b}] ({s.name!r}) differs from scenes[0] in more than its initial "
+                                 f"state (positions, velocities, rest lengths): it cannot share a batch")
+        self = cls.__new__(cls)
+        self._build(scenes[0], scenes, method, dt, solver, contacts)
+        return self
+
+    @staticmethod
+    def _states(values, argument: str, batch: int, n: int) -> np.ndarray:
+        arr = np.asarray(values, dtype=float) if not isinstance(values, Mapping) else None
+        if arr is not None and arr.shape == (n, 3):
+            values = np.broadcast_to(arr, (batch, n, 3))
+        return _array(values, argument, (batch, n, 3))
+
+    @staticmethod
+    def _with_state(scene: Scene, x: np.ndarray, v: np.ndarray, b: int) -> Scene:
+        """``scene`` starting from copy ``b``'s positions and velocities (checked as the scene loader would)."""
+        nodes = []
+        for node, p, u in zip(scene.nodes, x, v):
+            if node.fixed and np.any(u):
+                raise ValueError(f"velocities[{b}]: fixed node {node.name!r} must have zero velocity")
+            nodes.append(replace(node, position=tuple(map(float, p)), velocity=tuple(map(float, u))))
+        index = {node.name: i for i, node in enumerate(scene.nodes)}
+        for s in scene.struts:
+            if s.rigid:
+                length = float(np.linalg.norm(x[index[s.nodes[1]]] - x[index[s.nodes[0]]]))
+                if abs(length - s.rest_length) > 1e-9 * s.rest_length:
+                    raise ValueError(f"positions[{b}]: rigid strut {s.name!r} has length {length!r}, "
+                                     f"it must keep {s.rest_length!r}")
+        return replace(scene, nodes=tuple(nodes))
+
+    def _build(self, scene, scenes, method, dt, solver, contacts) -> None:
+        dt = _check_dt(dt)
+        if contacts is not None:
+            kinds = contact_kinds(contacts, "contacts")
+            scenes = [replace(s, contact_kinds=kinds) for s in scenes]
+            scene = replace(scene, contact_kinds=kinds)
+        self.scene = scene
+        self.batch = len(scenes)
+        self.system = System(scene)
+        requested = method != "auto"
+        if requested:
+            self.method_reason = f"{method}: requested"
+        else:
+            method, self.method_reason = choose_method(self.system, dt)
+        self.failures: dict[int, str] = {}
+        n, nc = len(scene.nodes), len(scene.cables)
+        self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
+        self._node_index = {name: i for i, name in enumerate(scene.node_names)}
+        if method == "elastic":
+            if solver is not None and requested:
+                raise ValueError(f"solver={solver!r} is an option of a method with a QP; method 'elastic' has none")
+            self._engine = ElasticBatch(self.system, dt)
+            self.dt = self._engine.dt
+            self._copies = None
+            self._step_count = 0
+            self._x = np.stack([s.positions for s in scenes], axis=-1)
+            v = np.stack([s.velocities for s in scenes], axis=-1)
+            self._v = self._engine.prepare(self._x, v)
+            self._rest = np.stack([s.cable_rest_lengths for s in scenes], axis=-1)
+            self._f_ext = np.zeros((n, 3, self.batch))
+            self._detectors = self._make_detectors(scene)
+        else:
+            # one QP per copy: a Simulator per copy, whose prestress warning is given once for the batch
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                self._copies = [Simulator(s, method=method, dt=dt, solver=solver) for s in scenes]
+            for w in {str(w.message): w for w in caught}.values():
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            self.dt = self._copies[0].dt
+        self._nc = nc
+
+    def _make_detectors(self, scene):
+        """One contact detector per copy (None when nothing can touch), started at its positions, and
+        the batch's quiet-zone arrays: the step asks only the copies whose nodes left theirs."""
+        if make_detector(self.system, scene.contact_kinds) is None:
+            return None
+        detectors = []
+        for b in range(self.batch):
+            d = ContactDetector(self.system, scene.contact_kinds)
+            d.reset(np.ascontiguousarray(self._x[..., b]))
+            detectors.append(d)
+        self._quiet_ref = np.empty_like(self._x)
+        self._quiet = np.empty(self.batch)
+        for b, d in enumerate(detectors):
+            self._quiet_ref[..., b], self._quiet[b] = d.quiet_zone()
+        self._watch = detectors[0].watched
+        return detectors
+
+    # ------------------------------------------------------------------ state
+    @property
+    def method(self) -> str:
+        return self._engine.name if self._copies is None else self._copies[0].method
+
+    @property
+    def method_settings(self) -> dict:
+        return self._engine.single.describe() if self._copies is None else self._copies[0].method_settings
+
+    @property
+    def step_count(self) -> int:
+        return self._step_count if self._copies is None else self._copies[0].step_count
+
+    @property
+    def time(self) -> float:
+        """Simulation time, s (``step_count * dt``)."""
+        return self.step_count * self.dt
+
+    @property
+    def failed(self) -> np.ndarray:
+        """(B,) bool: copies stopped by a failure (see ``failures`` for the reasons)."""
+        out = np.zeros(self.batch, dtype=bool)
+        out[list(self.failures)] = True
+        return out
+
+    def _gather(self, batch_last: str, per_copy: str) -> np.ndarray:
+        """A state array with the batch first: from the batch-last array, or stacked from the copies."""
+        if self._copies is None:
+            return np.moveaxis(getattr(self, batch_last), -1, 0).copy()
+        return np.stack([getattr(c, per_copy) for c in self._copies])
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(B, N, 3) m; a failed copy's last good state."""
+        return self._gather("_x", "positions")
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """(B, N, 3) m/s."""
+        return self._gather("_v", "velocities")
+
+    @property
+    def rest_lengths(self) -> np.ndarray:
+        """(B, n_cables) m."""
+        return self._gather("_rest", "rest_lengths")
+
+    @property
+    def external_forces(self) -> np.ndarray:
+        """(B, N, 3) N."""
+        return self._gather("_f_ext", "external_forces")
+
+    # ------------------------------------------------------------------ inputs
+    def _per_copy(self, values, argument: str, index: Mapping[str, int], width: int | None,
+                  current: np.ndarray) -> np.ndarray:
+        """The full new (B, k[, 3]) array from (B, k[, 3]), (k[, 3]) for every copy, or a partial
+        ``{name: value}`` whose value is for every copy or per copy (leading axis B)."""
+        b = self.batch
+        item = () if width is None else (width,)
+        out = current.copy()
+        if isinstance(values, Mapping):
+            for name, value in values.items():
+                if name not in index:
+                    raise ValueError(f"{argument}: unknown name {name!r} (known: {', '.join(index)})")
+                try:
+                    arr = np.asarray(value, dtype=float)
+                except (TypeError, ValueError):
+                    raise ValueError(f"{argument}[{name!r}]: not a number: {value!r}") from None
+                if arr.shape not in (item, (b, *item)):
+                    raise ValueError(f"{argument}[{name!r}]: expected shape {item} (every copy) or "
+                                     f"{(b, *item)} (per copy), got {arr.shape}")
+                out[:, index[name]] = arr
+        else:
+            try:
+                arr = np.asarray(values, dtype=float)
+            except (TypeError, ValueError):
+                raise ValueError(f"{argument}: expected a mapping by name or an array of shape "
+                                 f"{current.shape} or {current.shape[1:]}") from None
+            if arr.shape not in (current.shape, current.shape[1:]):
+                raise ValueError(f"{argument}: expected shape {current.shape} (per copy) or "
+                                 f"{current.shape[1:]} (every copy), got {arr.shape}")
+            out[...] = arr
+        if not np.all(np.isfinite(out)):
+            raise ValueError(f"{argument}: values must be finite")
+        return out
+
+    def set_rest_lengths(self, values) -> None:
+        """New rest lengths, m: (B, n_cables), (n_cables,) for every copy, or ``{cable: value or (B,)}``.
+        Every copy takes the command (as ``Simulator.set_rest_lengths`` would)."""
+        new = self._per_copy(values, "rest_lengths", self._cable_index, None, self.rest_lengths)
+        bad = np.argwhere(new <= 0)
+        if bad.size:
+            b, i = bad[0]
+            raise ValueError(f"rest_lengths[{b}][{self.scene.cable_names[i]!r}]: must be > 0, got {float(new[b, i])!r}")
+        if self._copies is None:
+            self._rest = np.ascontiguousarray(new.T)
+            self._engine.invalidate()
+        else:
+            for c, row in zip(self._copies, new):
+                c.set_rest_lengths(row)
+
+    def set_external_forces(self, values) -> None:
+        """External node forces, N: (B, N, 3), (N, 3) for every copy, or ``{node: (3,) or (B, 3)}``;
+        held until replaced."""
+        new = self._per_copy(values, "external_forces", self._node_index, 3, self.external_forces)
+        if self._copies is None:
+            self._f_ext = np.ascontiguousarray(np.moveaxis(new, 0, -1))
+            self._engine.invalidate()
+        else:
+            for c, row in zip(self._copies, new):
+                c.set_external_forces(row)
+
+    # ------------------------------------------------------------------ stepping
+    def _advance(self):
+        """One step of every running copy: positions, velocities (B, N, 3), impulses (B, n_cables), slack
+        (B, n_cables) (possibly views of internal arrays, valid until the next step) and contacts."""
+        if self._copies is not None:
+            return self._step_copies()
+        x0 = self._x
+        x, v, impulses, slack = self._engine.step(self._x, self._v, self._rest, self._f_ext)
+        self._x, self._v = x, v
+        self._step_count += 1
+        contacts = ((),) * self.batch if self._detectors is None else self._detect(x0, x)
+        return np.moveaxis(x, -1, 0), np.moveaxis(v, -1, 0), impulses.T, slack.T, contacts
+
+    def step(self) -> BatchStepResult:
+        """Advance every running copy by one step of ``dt``."""
+        x, v, imp, slack, contacts = self._advance()
+        imp = imp.copy()
+        return BatchStepResult(self.time, x.copy(), v.copy(), imp, imp / self.dt, slack.copy(), contacts,
+                               self.failed)
+
+    def _detect(self, x0, x1):
+        """Contact events per copy; a copy whose watched nodes all stayed in its quiet zone is not asked."""
+        w = self._watch
+        moved = np.abs(x1[w] - self._quiet_ref[w]).max(axis=(0, 1), initial=0.0)
+        out = [()] * self.batch
+        t0 = self.time - self.dt
+        for b in np.flatnonzero(moved >= self._quiet):
+            d = self._detectors[b]
+            out[b] = d.step(np.ascontiguousarray(x0[..., b]), np.ascontiguousarray(x1[..., b]), t0, self.dt)
+            self._quiet_ref[..., b], self._quiet[b] = d.quiet_zone()
+        return tuple(out)
+
+    def _step_copies(self):
+        b, n, nc = self.batch, len(self.scene.nodes), self._nc
+        x, v = np.full((b, n, 3), np.nan), np.full((b, n, 3), np.nan)
+        imp, slack = np.full((b, nc), np.nan), np.zeros((b, nc), dtype=bool)
+        contacts = []
+        for i, c in enumerate(self._copies):
+            if i in self.failures:
+                contacts.append(())
+                continue
+            try:
+                r = c.step()
+            except QPError as exc:
+                self.failures[i] = f"step {c.step_count + 1} (t = {c.time + c.dt:.6g} s): {exc}"
+                contacts.append(())
+                continue
+            x[i], v[i], imp[i], slack[i] = r.positions, r.velocities, r.impulses, r.slack
+            contacts.append(r.contacts)
+        # a failed copy's step count stands still; the batch's clock is that of the running ones
+        self._step_count = max(c.step_count for c in self._copies)
+        return x, v, imp, slack, tuple(contacts)
+
+    def slack(self) -> np.ndarray:
+        """(B, n_cables) bool: the cables slack now, in the method's model."""
+        if self._copies is not None:
+            return np.stack([c.slack() for c in self._copies])
+        return self._engine.slack(self._x, self._rest).T.copy()
+
+    def run(self, duration: float | None = None, *, steps: int | None = None, every: int = 1) -> BatchTrajectory:
+        """Run ``steps`` steps, or ``round(duration / dt)``, keeping every ``every``-th step: returns
+        ``K = steps // every`` recorded steps as (B, K, ...) arrays, and over all steps each cable's peak
+        tension and snaps (see :class:`BatchTrajectory`)."""
+        if (duration is None) == (steps is None):
+            raise ValueError("run: give exactly one of duration (s) or steps")
+        if steps is None:
+            d = float(duration)
+            if not np.isfinite(d) or d < 0:
+                raise ValueError(f"duration must be a finite number of seconds >= 0, got {duration!r}")
+            steps = int(round(d / self.dt))
+        if isinstance(steps, bool) or int(steps) != steps or steps < 0:
+            raise ValueError(f"steps must be a whole number >= 0, got {steps!r}")
+        if isinstance(every, bool) or int(every) != every or every < 1:
+            raise ValueError(f"every must be a whole number >= 1, got {every!r}")
+        steps, every = int(steps), int(every)
+        k_total = steps // every
+        b, n, nc = self.batch, len(self.scene.nodes), self._nc
+        time = np.empty(k_total)
+        pos, vel = np.empty((b, k_total, n, 3)), np.empty((b, k_total, n, 3))
+        imp, slack = np.empty((b, k_total, nc)), np.empty((b, k_total, nc), dtype=bool)
+        contacts: list[list[ContactEvent]] = [[] for _ in range(b)]
+        peak = np.zeros((b, nc))
+        snaps = np.zeros((b, nc), dtype=np.int64)
+        was_slack = self.slack()
+        for s in range(steps):
+            x, v, i, sl, events = self._advance()
+            np.fmax(peak, i, out=peak)       # fmax: a failed copy's NaN leaves its peak as it was
+            snaps += was_slack & ~sl
+            was_slack = sl.copy() if self._copies is None else sl
+            for c, e in enumerate(events):
+                if e:
+                    contacts[c].extend(e)
+            if (s + 1) % every == 0:
+                k = (s + 1) // every - 1
+                time[k], pos[:, k], vel[:, k], imp[:, k], slack[:, k] = self.time, x, v, i, sl
+        return BatchTrajectory(time, pos, vel, imp, imp / self.dt, slack, contacts, dict(self.failures),
+                               peak / self.dt, snaps)
+
+    # ------------------------------------------------------------------ invariants
+    def energy(self) -> dict[str, np.ndarray]:
+        """Energies (B,) J per copy: kinetic, strain, gravity (``-sum m g.x``), total (as ``Simulator.energy``)."""
+        if self._copies is not None:
+            per = [c.energy() for c in self._copies]
+            return {k: np.array([e[k] for e in per]) for k in ("kinetic", "strain", "gravity", "total")}
+        sys = self.system
+        kinetic = 0.5 * np.sum((sys.masses * sys.free)[:, None, None] * self._v ** 2, axis=(0, 1))
+        strain = self._engine.strain_energy(self._x, self._rest)
+        gravity = -np.sum(sys.gravity_force[:, :, None] * self._x, axis=(0, 1))
+        return {"kinetic": kinetic, "strain": strain, "gravity": gravity, "total": kinetic + strain + gravity}
