@@ -14,6 +14,8 @@ INSTALL_REQUIRES = [
     "scipy==1.17.1",
     "PyYAML==6.0.3",
     "tqdm==4.70.1",
+    # compiled stepping kernels (methods/_*_kernels.py); 0.68.1 supports numpy 2.4.6 (installed together and tested)
+    "numba==0.68.1",
     # QP backends of the inextensible method (tensegrity_sim.methods.qp): DAQP is the default
     "daqp==0.11.0",
     "osqp==1.1.3",

@@ -18,6 +18,8 @@ from .system import System
 
 __all__ = ["Simulator"]
 
+_CHUNK = 1024   # steps per compiled chunk when contact detection walks through a run's steps
+
 
 def _check_dt(dt) -> float:
     try:
@@ -183,10 +185,15 @@ class Simulator:
         """(n_cables,) bool: the cables slack now, in the method's model."""
         return self._method.slack(self._state.positions, self._state.rest_lengths)
 
-    def run(self, duration: float | None = None, *, steps: int | None = None, callback=None) -> Trajectory:
-        """Run ``steps`` steps, or ``round(duration / dt)``; returns them stacked.
+    def run(self, duration: float | None = None, *, steps: int | None = None, every: int = 1,
+            callback=None) -> Trajectory:
+        """Run ``steps`` steps, or ``round(duration / dt)``; returns them stacked, the inputs held.
 
-        ``callback(k, result)`` is called after each step (a progress bar, a command schedule).
+        ``every``: keep steps ``every``, ``2 every``, ... and the last one only (memory); a kept step's
+        impulses are summed over the steps since the previous kept one and its tensions are their mean
+        over that time, so no impulse is lost. Contact events are all kept.
+        ``callback(k, result)`` is called after each step ``k`` (a progress bar, a command schedule).
+        Without a callback a method with a compiled loop runs the steps in it.
         """
         if (duration is None) == (steps is None):
             raise ValueError("run: give exactly one of duration (s) or steps")
@@ -197,21 +204,61 @@ class Simulator:
             steps = int(round(d / self.dt))
         if isinstance(steps, bool) or int(steps) != steps or steps < 0:
             raise ValueError(f"steps must be a whole number >= 0, got {steps!r}")
-        steps = int(steps)
+        if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
+            raise ValueError(f"every must be a whole number >= 1, got {every!r}")
+        steps, every = int(steps), int(every)
         n, nc = len(self.scene.nodes), len(self.scene.cables)
-        time = np.empty(steps)
-        pos = np.empty((steps, n, 3))
-        vel = np.empty((steps, n, 3))
-        imp = np.empty((steps, nc))
-        slack = np.empty((steps, nc), dtype=bool)
+        kept = np.minimum(np.arange(1, -(-steps // every) + 1) * every, steps)   # kept steps, counted from 1
+        span = np.diff(kept, prepend=0)                                          # steps each one sums
+        time = (self._state.step_count + kept) * self.dt
+        pos = np.empty((len(kept), n, 3))
+        vel = np.empty((len(kept), n, 3))
+        imp = np.zeros((len(kept), nc))
+        slack = np.empty((len(kept), nc), dtype=bool)
         contacts = []
-        for k in range(steps):
-            r = self.step()
-            time[k], pos[k], vel[k], imp[k], slack[k] = r.time, r.positions, r.velocities, r.impulses, r.slack
-            contacts.extend(r.contacts)
-            if callback is not None:
-                callback(k, r)
-        return Trajectory(time, pos, vel, imp, imp / self.dt, slack, contacts)
+        if callback is None and getattr(self._method, "compiled", False):
+            self._run_compiled(steps, every, pos, vel, imp, slack, contacts)
+        else:
+            for k in range(steps):
+                r = self.step()
+                j = k // every
+                imp[j] += r.impulses
+                if k + 1 == kept[j]:
+                    pos[j], vel[j], slack[j] = r.positions, r.velocities, r.slack
+                contacts.extend(r.contacts)
+                if callback is not None:
+                    callback(k, r)
+        return Trajectory(time, pos, vel, imp, imp / (span[:, None] * self.dt), slack, contacts)
+
+    def _run_compiled(self, steps, every, pos, vel, imp, slack, contacts) -> None:
+        """:meth:`run` in the method's compiled loop: straight into the trajectory's arrays, or, with
+        contact detection, in chunks of every step that the detector then walks through."""
+        st, method = self._state, self._method
+        if self._contacts is None:
+            st.positions, st.velocities = method.advance(st, steps, every, pos, vel, imp, slack)
+            st.step_count += steps
+            return
+        chunk = min(steps, _CHUNK)
+        n, nc = pos.shape[1], imp.shape[1]
+        c_pos, c_vel = np.empty((chunk, n, 3)), np.empty((chunk, n, 3))
+        c_imp, c_slack = np.empty((chunk, nc)), np.empty((chunk, nc), dtype=bool)
+        done = 0
+        while done < steps:
+            m = min(chunk, steps - done)
+            x, v = method.advance(st, m, 1, c_pos[:m], c_vel[:m], c_imp[:m], c_slack[:m])
+            previous = st.positions
+            for i in range(m):
+                contacts.extend(self._contacts.step(previous, c_pos[i], (st.step_count + i) * self.dt, self.dt))
+                previous = c_pos[i]
+            g = done + np.arange(m)              # the chunk's steps in the run, from 0
+            j = g // every
+            np.add.at(imp, j, c_imp[:m])
+            last = (g + 1) % every == 0
+            last[-1] |= done + m == steps
+            pos[j[last]], vel[j[last]], slack[j[last]] = c_pos[:m][last], c_vel[:m][last], c_slack[:m][last]
+            st.positions, st.velocities = x, v
+            st.step_count += m
+            done += m
 
     # ------------------------------------------------------------------ invariants
     def energy(self) -> dict[str, float]:

@@ -25,6 +25,9 @@ momentum-conserving since it is along the cable).
 
 Impulses: the velocity update applies each cable's tension as ``h/2 (t_start + t_end)``; that is the
 cable's impulse over the step, and ``impulses / h`` the step's mean tension.
+
+Two implementations of the same arithmetic: the numba kernels of ``_elastic_kernels.py`` (used unless
+``compiled`` is False) and the numpy code below, the plain reference they must match to 1e-12 in tests.
 """
 from __future__ import annotations
 
@@ -33,6 +36,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..system import System
+from . import _elastic_kernels as kernels
 from .base import MethodStep, State, StepMethod
 from .rigid import RigidStruts
 
@@ -50,9 +54,11 @@ class _Forces(NamedTuple):
 
 
 class ElasticMethod(StepMethod):
+    """``compiled``: step with the numba kernels (True) or the numpy reference (False)."""
+
     name = "elastic"
 
-    def __init__(self, system: System, dt: float):
+    def __init__(self, system: System, dt: float, *, compiled: bool = True):
         super().__init__(system, dt)
         missing = [c.name for c in system.scene.cables if c.stiffness is None]
         if missing:
@@ -68,9 +74,15 @@ class ElasticMethod(StepMethod):
         self._rest = np.empty(system.n_members)
         self._rest[: system.n_struts] = system.strut_rest
         self._cache: _Forces | None = None
+        self.compiled = compiled
+        self._model = kernels.model_arrays(system, self.rigid)
+        # the compiled path's carry from one step to the next (batch of one): accelerations (N, 3, 1),
+        # cable tensions (n_cables, 1), rigid strut directions (nr, 3, 1) at the last step's end
+        self._carry = None
 
     def invalidate(self) -> None:
         self._cache = None
+        self._carry = None
 
     def prepare(self, state: State) -> None:
         """Initial velocities that would stretch a rigid strut lose that component (a rigid body cannot
@@ -100,7 +112,40 @@ class ElasticMethod(StepMethod):
         f = sys.assemble(t[:, None] * n) + sys.gravity_force + state.external_forces
         return _Forces(f * sys.inv_mass[:, None], t[sys.n_struts:], n, length[sys.n_struts:] < state.rest_lengths)
 
+    def _advance(self, state: State, x: np.ndarray, v: np.ndarray, steps: int, every: int, positions, velocities,
+                 impulses, slack) -> None:
+        """The compiled loop (batch of one) from ``state`` but at ``x``, ``v`` (N, 3, 1), which it
+        advances in place; the outputs are those of :meth:`advance` with a trailing batch axis."""
+        rest = state.rest_lengths.reshape(-1, 1)
+        ext = state.external_forces.reshape(-1, 3, 1)
+        if self._carry is None:   # the start forces: the last step's end, or computed here
+            self._carry = (np.empty_like(x), np.empty((self.system.n_cables, 1)), np.empty((self.rigid.count, 3, 1)))
+            kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._carry)
+        kernels.elastic_steps(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry,
+                              positions, velocities, impulses, slack)
+
     def _step_impl(self, state: State) -> MethodStep:
+        if not self.compiled:
+            return self._step_reference(state)
+        x, v = state.positions.copy(), state.velocities.copy()
+        impulses = np.empty((1, self.system.n_cables, 1))
+        slack = np.empty((1, self.system.n_cables, 1), dtype=bool)
+        x3, v3 = x.reshape(-1, 3, 1), v.reshape(-1, 3, 1)
+        self._advance(state, x3, v3, 1, 1, x3[None], v3[None], impulses, slack)   # the step writes in place
+        return MethodStep(x, v, impulses.reshape(-1), slack.reshape(-1))
+
+    def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
+                impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``steps`` steps from ``state`` in one compiled loop, keeping steps ``every``, ``2 every``, ...
+        and the last into ``positions``, ``velocities`` (K, N, 3), ``impulses`` (summed over the steps
+        since the previous kept one) and ``slack`` (K, n_cables), ``K = ceil(steps / every)``. Returns
+        the final positions and velocities (N, 3); ``state`` is not modified."""
+        x, v = state.positions.copy(), state.velocities.copy()
+        self._advance(state, x.reshape(-1, 3, 1), v.reshape(-1, 3, 1), steps, every, positions[..., None],
+                      velocities[..., None], impulses[..., None], slack[..., None])
+        return x, v
+
+    def _step_reference(self, state: State) -> MethodStep:
         h = self.dt
         x, v = state.positions, state.velocities
         # the forces at the step's start are the previous step's end forces, unless an input changed

@@ -1,0 +1,125 @@
+"""The compiled kernels against the numpy reference they replace: the same arithmetic, so the same
+trajectory to 1e-12 on every physics test scene, inputs changed mid-run included."""
+import warnings
+
+import numpy as np
+import pytest
+
+import tensegrity_sim as ts
+from conftest import bungee_dict, deadband_dict, random_velocities
+
+TOL = 1e-12
+
+
+def _class_k():
+    d = {"nodes": [{"name": "a", "position": [0, 0, 0], "mass": 1.0, "velocity": [0, 1, 0]},
+                   {"name": "b", "position": [1, 0, 0], "mass": 2.0, "velocity": [0, 0, 1]},
+                   {"name": "c", "position": [1, 1, 0], "mass": 1.5, "velocity": [1, 0, 0]}],
+         "struts": [{"name": "s0", "nodes": ["a", "b"], "stiffness": "rigid"},
+                    {"name": "s1", "nodes": ["b", "c"], "stiffness": "rigid"}],
+         "cables": [{"name": "c0", "nodes": ["a", "c"], "stiffness": 100.0, "rest_length": 1.2}]}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ts.ClassKWarning)
+        return ts.Scene.from_dict(d)
+
+
+def _damped():
+    d = bungee_dict(k=100.0, damping=50.0, drop=1.2)
+    d["gravity"] = [0.0, 0.0, 0.0]
+    d["nodes"][1]["velocity"] = [0.0, 0.0, 3.0]
+    return ts.Scene.from_dict(d)
+
+
+def _elastic_struts(name):
+    d = random_velocities(ts.load_scene(name), seed=5, scale=0.5).to_dict()
+    for s in d["struts"]:
+        s["stiffness"] = 1e5
+    return ts.Scene.from_dict(d)
+
+
+# (scene, dt, steps): the scenes of test_elastic.py, and the built-ins moving, rigid and elastic struts
+ELASTIC_SCENES = {
+    "bungee": (lambda: ts.Scene.from_dict(bungee_dict()), 1e-4, 3000),
+    "deadband": (lambda: ts.Scene.from_dict(deadband_dict(k=100.0, m=1.0, slack=0.1, v0=1.0)), 1e-4, 3000),
+    "damped": (_damped, 1e-4, 2000),
+    "prism3": (lambda: random_velocities(ts.load_scene("prism3"), seed=1, scale=0.5), 1e-3, 1000),
+    "icosahedron": (lambda: random_velocities(ts.load_scene("icosahedron"), seed=3, scale=2.0), 1e-3, 1000),
+    "icosahedron_elastic_struts": (lambda: _elastic_struts("icosahedron"), 1e-4, 1000),
+    "tower": (lambda: random_velocities(ts.load_scene("tower"), seed=2, scale=0.2), 1e-4, 500),
+    "class_k": (_class_k, 1e-3, 2000),
+}
+
+
+def _pair(scene, dt):
+    compiled = ts.Simulator(scene, method="elastic", dt=dt)
+    reference = ts.Simulator(scene, method="elastic", dt=dt)
+    reference._method.compiled = False
+    assert compiled._method.compiled
+    return compiled, reference
+
+
+def _close(a, b, what):
+    scale = max(float(np.max(np.abs(b), initial=0.0)), 1.0)
+    assert np.max(np.abs(a - b), initial=0.0) <= TOL * scale, what
+
+
+@pytest.mark.parametrize("name", sorted(ELASTIC_SCENES))
+def test_elastic_step_matches_reference(name):
+    make, dt, steps = ELASTIC_SCENES[name]
+    compiled, reference = _pair(make(), dt)
+    for k in range(steps):
+        if k == steps // 3:   # a command mid-run: new rest lengths and a push
+            for sim in (compiled, reference):
+                sim.set_rest_lengths(0.97 * sim.rest_lengths)
+                f = np.zeros((len(sim.scene.nodes), 3))
+                f[-1] = [0.3, -0.2, 0.5]
+                sim.set_external_forces(f)
+        a, b = compiled.step(), reference.step()
+        _close(a.positions, b.positions, f"positions, step {k}")
+        _close(a.velocities, b.velocities, f"velocities, step {k}")
+        _close(a.impulses, b.impulses, f"impulses, step {k}")
+        assert np.array_equal(a.slack, b.slack), f"slack, step {k}"
+
+
+@pytest.mark.parametrize("every", [1, 7])
+@pytest.mark.parametrize("name", ["bungee", "icosahedron", "tower"])
+def test_compiled_run_matches_stepping(name, every):
+    """run() in the compiled loop (straight into the arrays, or in chunks when contact detection is
+    on, as for the built-ins) keeps the same steps, sums and events as stepping one by one."""
+    make, dt, steps = ELASTIC_SCENES[name]
+    scene = make()
+    fast = ts.Simulator(scene, method="elastic", dt=dt)
+    slow = ts.Simulator(scene, method="elastic", dt=dt)
+    seen = []
+    a = fast.run(steps=steps, every=every)
+    b = slow.run(steps=steps, every=every, callback=lambda k, r: seen.append(k))   # the per-step loop
+    assert seen == list(range(steps))
+    assert len(a.time) == -(-steps // every) and a.time[-1] == b.time[-1] == steps * dt
+    np.testing.assert_array_equal(a.time, b.time)
+    for field in ("positions", "velocities", "impulses", "tensions"):
+        _close(getattr(a, field), getattr(b, field), field)
+    np.testing.assert_array_equal(a.slack, b.slack)
+    assert [(e.kind, e.members, e.time) for e in a.contacts] == [(e.kind, e.members, e.time) for e in b.contacts]
+    _close(fast.positions, slow.positions, "final positions")
+    assert fast.step_count == slow.step_count == steps
+
+
+def test_run_every_sums_impulses_and_keeps_the_last_step():
+    """every=k keeps steps k, 2k, ... and the last; impulses are the sums of the full run's."""
+    make, dt, _ = ELASTIC_SCENES["bungee"]
+    full = ts.Simulator(make(), method="elastic", dt=dt).run(steps=100)
+    thin = ts.Simulator(make(), method="elastic", dt=dt).run(steps=100, every=30)
+    kept = np.array([30, 60, 90, 100]) - 1
+    np.testing.assert_array_equal(thin.time, full.time[kept])
+    np.testing.assert_array_equal(thin.positions, full.positions[kept])
+    sums = np.add.reduceat(full.impulses, [0, 30, 60, 90], axis=0)
+    np.testing.assert_allclose(thin.impulses, sums, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(thin.tensions, sums / (np.array([30, 30, 30, 10])[:, None] * dt), rtol=1e-13)
+
+
+@pytest.mark.parametrize("every", [0, -1, 1.5, True, "2"])
+def test_run_every_is_checked(every):
+    sim = ts.Simulator(ts.Scene.from_dict(bungee_dict()), method="elastic", dt=1e-4)
+    with pytest.raises(ValueError, match=r"every must be a whole number >= 1, got"):
+        sim.run(steps=10, every=every)
+    assert sim.step_count == 0
