@@ -32,6 +32,11 @@ from .system import System
 
 __all__ = ["BatchSimulator", "BatchStepResult", "BatchTrajectory", "structure_of"]
 
+# run() steps in chunks whose per-step arrays hold about this many numbers (positions and velocities
+# of every step of the chunk, ~16 MB each): the compiled loop runs a whole chunk, the contact detectors,
+# the peaks and the kept steps then go through it as arrays
+_CHUNK_NUMBERS = 2_000_000
+
 
 @dataclass(frozen=True)
 class BatchStepResult:
@@ -52,8 +57,8 @@ class BatchStepResult:
 
 @dataclass(frozen=True)
 class BatchTrajectory:
-    """K recorded steps of B copies: time (K,) s; positions, velocities (B, K, N, 3); impulses, tensions,
-    slack (B, K, n_cables) of the recorded steps; contacts: per copy, every ContactEvent of the run
+    """K kept steps of B copies (see ``run``): time (K,) s; positions, velocities (B, K, N, 3); impulses
+    (summed since the previous kept step), tensions (their mean), slack (B, K, n_cables); contacts: per copy, every ContactEvent of the run
     (recorded or not); failures: {copy index: reason} of copies stopped by a failure.
     Over every step, recorded or not: peak_tensions (B, n_cables) N, each cable's largest step tension
     (``impulses / dt``); snaps (B, n_cables), how often each cable went from slack to taut between
@@ -330,31 +335,40 @@ class BatchSimulator:
                 c.set_external_forces(row)
 
     # ------------------------------------------------------------------ stepping
-    def _advance(self):
-        """One step of every running copy: positions, velocities (B, N, 3), impulses (B, n_cables), slack
-        (B, n_cables) (possibly views of internal arrays, valid until the next step) and contacts."""
+    def _advance(self, steps: int):
+        """``steps`` steps of every running copy, inputs held: positions, velocities (steps, B, N, 3),
+        impulses (steps, B, n_cables), slack (steps, B, n_cables) (views, valid until the next call) and
+        the contacts of each step (steps tuples of B tuples)."""
         if self._copies is not None:
-            return self._step_copies()
-        x0 = self._x
-        x, v, impulses, slack = self._engine.step(self._x, self._v, self._rest, self._f_ext)
-        self._x, self._v = x, v
-        self._step_count += 1
-        contacts = ((),) * self.batch if self._detectors is None else self._detect(x0, x)
-        return np.moveaxis(x, -1, 0), np.moveaxis(v, -1, 0), impulses.T, slack.T, contacts
+            out = [self._step_copies() for _ in range(steps)]
+            return (*(np.stack([o[i] for o in out]) for i in range(4)), [o[4] for o in out])
+        x_seq, v_seq, imp, slack = self._engine.advance(self._x, self._v, self._rest, self._f_ext, steps)
+        previous, start = self._x, self._step_count
+        self._x, self._v = x_seq[-1].copy(), v_seq[-1].copy()
+        self._step_count += steps
+        if self._detectors is None:
+            contacts = [((),) * self.batch] * steps
+        else:
+            contacts = []
+            for k in range(steps):
+                contacts.append(self._detect(previous, x_seq[k], (start + k) * self.dt))
+                previous = x_seq[k]
+        return (np.moveaxis(x_seq, -1, 1), np.moveaxis(v_seq, -1, 1), np.moveaxis(imp, -1, 1),
+                np.moveaxis(slack, -1, 1), contacts)
 
     def step(self) -> BatchStepResult:
         """Advance every running copy by one step of ``dt``."""
-        x, v, imp, slack, contacts = self._advance()
-        imp = imp.copy()
-        return BatchStepResult(self.time, x.copy(), v.copy(), imp, imp / self.dt, slack.copy(), contacts,
-                               self.failed)
+        x, v, imp, slack, contacts = self._advance(1)
+        imp = imp[0].copy()
+        return BatchStepResult(self.time, x[0].copy(), v[0].copy(), imp, imp / self.dt, slack[0].copy(),
+                               contacts[0], self.failed)
 
-    def _detect(self, x0, x1):
-        """Contact events per copy; a copy whose watched nodes all stayed in its quiet zone is not asked."""
+    def _detect(self, x0, x1, t0):
+        """Contact events per copy of a step from ``x0`` to ``x1`` (N, 3, B) starting at ``t0`` s; a copy
+        whose watched nodes all stayed in its detector's quiet zone is not asked."""
         w = self._watch
         moved = np.abs(x1[w] - self._quiet_ref[w]).max(axis=(0, 1), initial=0.0)
         out = [()] * self.batch
-        t0 = self.time - self.dt
         for b in np.flatnonzero(moved >= self._quiet):
             d = self._detectors[b]
             out[b] = d.step(np.ascontiguousarray(x0[..., b]), np.ascontiguousarray(x1[..., b]), t0, self.dt)
@@ -389,9 +403,10 @@ class BatchSimulator:
         return self._engine.slack(self._x, self._rest).T.copy()
 
     def run(self, duration: float | None = None, *, steps: int | None = None, every: int = 1) -> BatchTrajectory:
-        """Run ``steps`` steps, or ``round(duration / dt)``, keeping every ``every``-th step: returns
-        ``K = steps // every`` recorded steps as (B, K, ...) arrays, and over all steps each cable's peak
-        tension and snaps (see :class:`BatchTrajectory`)."""
+        """Run ``steps`` steps, or ``round(duration / dt)``, inputs held, as ``Simulator.run``: keeps steps
+        ``every``, ``2 every``, ... and the last (K of them) as (B, K, ...) arrays, a kept step's impulses
+        summed over the steps since the previous kept one and its tensions their mean; over all steps
+        each cable's peak tension and snaps (see :class:`BatchTrajectory`)."""
         if (duration is None) == (steps is None):
             raise ValueError("run: give exactly one of duration (s) or steps")
         if steps is None:
@@ -401,31 +416,43 @@ class BatchSimulator:
             steps = int(round(d / self.dt))
         if isinstance(steps, bool) or int(steps) != steps or steps < 0:
             raise ValueError(f"steps must be a whole number >= 0, got {steps!r}")
-        if isinstance(every, bool) or int(every) != every or every < 1:
+        if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
             raise ValueError(f"every must be a whole number >= 1, got {every!r}")
         steps, every = int(steps), int(every)
-        k_total = steps // every
         b, n, nc = self.batch, len(self.scene.nodes), self._nc
-        time = np.empty(k_total)
-        pos, vel = np.empty((b, k_total, n, 3)), np.empty((b, k_total, n, 3))
-        imp, slack = np.empty((b, k_total, nc)), np.empty((b, k_total, nc), dtype=bool)
+        kept = np.minimum(np.arange(1, -(-steps // every) + 1) * every, steps)   # kept steps, counted from 1
+        span = np.diff(kept, prepend=0)                                          # steps each one sums
+        time = (self.step_count + kept) * self.dt
+        pos, vel = np.empty((b, len(kept), n, 3)), np.empty((b, len(kept), n, 3))
+        imp, slack = np.zeros((b, len(kept), nc)), np.empty((b, len(kept), nc), dtype=bool)
         contacts: list[list[ContactEvent]] = [[] for _ in range(b)]
         peak = np.zeros((b, nc))
         snaps = np.zeros((b, nc), dtype=np.int64)
         was_slack = self.slack()
-        for s in range(steps):
-            x, v, i, sl, events = self._advance()
-            np.fmax(peak, i, out=peak)       # fmax: a failed copy's NaN leaves its peak as it was
-            snaps += was_slack & ~sl
-            was_slack = sl.copy() if self._copies is None else sl
-            for c, e in enumerate(events):
-                if e:
-                    contacts[c].extend(e)
-            if (s + 1) % every == 0:
-                k = (s + 1) // every - 1
-                time[k], pos[:, k], vel[:, k], imp[:, k], slack[:, k] = self.time, x, v, i, sl
-        return BatchTrajectory(time, pos, vel, imp, imp / self.dt, slack, contacts, dict(self.failures),
-                               peak / self.dt, snaps)
+        chunk = max(1, min(steps, _CHUNK_NUMBERS // max(1, b * n * 3)))
+        done = 0
+        while done < steps:
+            m = min(chunk, steps - done)
+            x, v, i, sl, events = self._advance(m)
+            np.fmax(peak, np.fmax.reduce(i, axis=0), out=peak)   # fmax: a failed copy's NaN is no peak
+            snaps += (np.concatenate([was_slack[None], sl[:-1]]) & ~sl).sum(axis=0)
+            was_slack = sl[-1].copy()
+            for per_step in events:
+                for c, e in enumerate(per_step):
+                    if e:
+                        contacts[c].extend(e)
+            g = done + np.arange(m)              # the chunk's steps in the run, from 0
+            j = g // every
+            for jj in np.unique(j):
+                imp[:, jj] += i[j == jj].sum(axis=0)
+            last = (g + 1) % every == 0
+            last[-1] |= done + m == steps
+            pos[:, j[last]] = np.moveaxis(x[last], 0, 1)
+            vel[:, j[last]] = np.moveaxis(v[last], 0, 1)
+            slack[:, j[last]] = np.moveaxis(sl[last], 0, 1)
+            done += m
+        return BatchTrajectory(time, pos, vel, imp, imp / (span[None, :, None] * self.dt), slack, contacts,
+                               dict(self.failures), peak / self.dt, snaps)
 
     # ------------------------------------------------------------------ invariants
     def energy(self) -> dict[str, np.ndarray]:

@@ -1,4 +1,8 @@
-"""The elastic step of :mod:`.elastic` for B copies of one structure at once: the plain numpy reference.
+"""The elastic step of :mod:`.elastic` for B copies of one structure at once.
+
+Two implementations of the same arithmetic: the compiled kernels of ``_elastic_kernels.py`` (the ones
+``Simulator`` drives with B = 1; used unless ``compiled`` is False) and the numpy code here, their plain
+batched reference (tests require the two to agree to 1e-12).
 
 Same physics and the same arithmetic as :class:`~.elastic.ElasticMethod` (velocity Verlet, SHAKE/RATTLE
 for rigid struts, the tension law ``k max(floor, e)``, damping only while taut and never pushing), with
@@ -15,9 +19,18 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..system import System
+from . import _elastic_kernels as kernels
 from .elastic import ElasticMethod
 
 __all__ = ["ElasticBatch"]
+
+
+def _padded(a: np.ndarray, width: int) -> np.ndarray:
+    """A new C-contiguous copy of ``a`` (..., B) widened to (..., width) with copies of its first column."""
+    out = np.empty(a.shape[:-1] + (width,), dtype=a.dtype)
+    out[..., : a.shape[-1]] = a
+    out[..., a.shape[-1]:] = a[..., :1]
+    return out
 
 
 class ElasticBatch:
@@ -25,11 +38,13 @@ class ElasticBatch:
 
     The state is held by the caller and passed in; this object caches only the forces at the last
     step's end (the next step's start), which :meth:`invalidate` drops (contract rule 4).
+    ``compiled``: step with the numba kernels (True) or the numpy reference (False).
     """
 
     name = "elastic"
 
-    def __init__(self, system: System, dt: float):
+    def __init__(self, system: System, dt: float, *, compiled: bool = True):
+        self.compiled = compiled
         self.single = ElasticMethod(system, dt)   # checks the scene and dt, and does the rigid algebra
         self.system = system
         self.dt = self.single.dt
@@ -42,6 +57,9 @@ class ElasticBatch:
         # (and hands a tiny product to a multi-threaded BLAS); the sparse one does 2 m 3 B multiplications
         self._incidence = sp.csr_matrix(system.incidence_matrix(system.ends))
         self._rigid_incidence = sp.csr_matrix(system.incidence_matrix(self.rigid.ends))
+        self._model = kernels.model_arrays(system, self.rigid)
+        # the forces at the last step's end: the numpy path's (acc, tensions, directions, slack), or the
+        # compiled path's carry (acc (N, 3, B), tensions (nc, B), rigid strut directions (nr, 3, B))
         self._cache = None
 
     def invalidate(self) -> None:
@@ -110,8 +128,8 @@ class ElasticBatch:
         return self._push(rate / rig._w[:, None], n)
 
     # ------------------------------------------------------------------ step
-    def step(self, x, v, rest_lengths, f_ext):
-        """One step of ``dt`` for every copy from positions ``x`` and velocities ``v`` (N, 3, B), rest
+    def _step_reference(self, x, v, rest_lengths, f_ext):
+        """The numpy reference: one step of ``dt`` for every copy from positions ``x`` and velocities ``v`` (N, 3, B), rest
         lengths (n_cables, B) m and external forces ``f_ext`` (N, 3, B) N. Returns the new positions and
         velocities (N, 3, B), the cable impulses over the step (n_cables, B) N*s and the slack cables
         (n_cables, B) at its end. The inputs are not modified."""
@@ -129,6 +147,32 @@ class ElasticBatch:
             v_new += self._rattle(x_new, v_new, end[2][self.rigid.members])
         self._cache = end
         return x_new, v_new, (0.5 * h) * (start[1] + end[1]), end[3]
+
+    def advance(self, x, v, rest_lengths, f_ext, steps: int):
+        """``steps`` steps of every copy from ``x``, ``v`` (N, 3, B) with rest lengths (n_cables, B) and
+        external forces (N, 3, B) held. Returns every step's positions and velocities (steps, N, 3, B),
+        impulses (steps, n_cables, B) N*s and slack cables (steps, n_cables, B). Inputs are not modified."""
+        n, nc, b = x.shape[0], rest_lengths.shape[0], x.shape[2]
+        if not self.compiled:
+            out_x, out_v = np.empty((steps, n, 3, b)), np.empty((steps, n, 3, b))
+            out_imp, out_slack = np.empty((steps, nc, b)), np.empty((steps, nc, b), dtype=bool)
+            for k in range(steps):
+                x, v, out_imp[k], out_slack[k] = self._step_reference(x, v, rest_lengths, f_ext)
+                out_x[k], out_v[k] = x, v
+            return out_x, out_v, out_imp, out_slack
+        # The kernel walks one copy at a time through arrays whose consecutive entries of a copy lie B
+        # numbers apart; for B a multiple of 8 they map onto few cache sets and evict each other (3-4x
+        # slower at B = 1024, measured). One padding copy (a duplicate of copy 0) breaks that stride.
+        bp = b + 1 if b % 8 == 0 else b
+        x, v, rest, ext = (_padded(a, bp) for a in (x, v, rest_lengths, f_ext))
+        out_x, out_v = np.empty((steps, n, 3, bp)), np.empty((steps, n, 3, bp))
+        out_imp, out_slack = np.empty((steps, nc, bp)), np.empty((steps, nc, bp), dtype=bool)
+        if self._cache is None:
+            self._cache = (np.empty_like(x), np.empty((nc, bp)), np.empty((self.rigid.count, 3, bp)))
+            kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._cache)
+        kernels.elastic_steps(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache,
+                              out_x, out_v, out_imp, out_slack)
+        return out_x[..., :b], out_v[..., :b], out_imp[..., :b], out_slack[..., :b]
 
     def slack(self, x, rest_lengths) -> np.ndarray:
         """(n_cables, B) bool: the cables shorter than their rest lengths at ``x`` (N, 3, B)."""
