@@ -30,6 +30,13 @@ EXTRAS_REQUIRE = {
         "quadprog==0.1.14",  # an independent QP solver to check the QP backends against
         "cyclonedds==11.0.1",  # the DDS transport's end-to-end tests run in CI
         "mujoco==4.0.0",      # test/test_peers.py cross-checks the elastic method against MuJoCo
+        "pyarrow==26.0.1",    # test/test_sweep.py reads the sweep's Parquet tables
+        "ray==2.60.0",        # test/test_sweep.py runs a sweep on a real local Ray cluster
+    ],
+    # Parameter sweeps (tensegrity-sim sweep): Parquet output, and Ray clusters with --address.
+    "sweep": [
+        "pyarrow==26.0.1",
+        "ray==2.60.0",
     ],
     # Live topics without a ROS install (tensegrity-sim serve --transport dds).
     "dds": [

@@ -237,6 +237,13 @@ class BatchSimulator:
         return self._step_count if self._copies is None else self._copies[0].step_count
 
     @property
+    def step_counts(self) -> np.ndarray:
+        """(B,) int: the steps each copy has completed (a failed copy stopped counting)."""
+        if self._copies is None:
+            return np.full(self.batch, self._step_count)
+        return np.array([c.step_count for c in self._copies])
+
+    @property
     def time(self) -> float:
         """Simulation time, s (``step_count * dt``)."""
         return self.step_count * self.dt
