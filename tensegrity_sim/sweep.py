@@ -7,6 +7,8 @@ The spec (YAML; ``tensegrity-sim sweep SPEC.yaml --out RESULTS.parquet``)::
     dt: 0.001                   # s (default 0.001)
     duration: 2.0               # s, required
     solver: daqp                # optional: the inextensible method's QP backend
+    contacts: none              # optional: member kinds checked for contact, as run --contacts (default:
+                                # the scene's); detection runs copy by copy, so "none" is much faster
     batch: 1024                 # optional: at most this many runs stepped together (default 1024)
     vary:                       # a full grid over these keys (every combination)
       gravity: [[0, 0, 0], [0, 0, -9.81]]
@@ -55,14 +57,15 @@ import yaml
 
 from .batch import BatchSimulator, structure_of
 from .methods import METHODS, choose_method
-from .scene import Scene, SceneError, builtin_scenes, load_scene
+from .scene import Scene, SceneError, builtin_scenes, contact_kinds, load_scene
 from .system import System
 
 __all__ = ["SweepError", "SweepSpec", "SweepSummary", "load_spec", "run_sweep", "run_group", "RAY_HINT"]
 
 RAY_HINT = 'the sweep extra is not installed: pip install -e ".[sweep]" (Ray and pyarrow)'
 DEFAULT_BATCH = 1024
-_SPEC_KEYS = {"scene", "method", "dt", "duration", "solver", "batch", "vary", "samples", "ranges", "seed"}
+_SPEC_KEYS = {"scene", "method", "dt", "duration", "solver", "contacts", "batch", "vary", "samples", "ranges",
+              "seed"}
 _PLURALS = {"rest_lengths": "rest_length", "masses": "mass", "velocities": "velocity", "positions": "position"}
 _ENTRY_FIELDS = {"position", "velocity", "mass", "stiffness", "rest_length", "damping", "radius"}
 
@@ -132,15 +135,17 @@ class SweepSpec:
     dt: float
     duration: float
     solver: str | None
+    contacts: tuple[str, ...] | None
     batch: int
     columns: tuple[str, ...]
     runs: list[dict[str, Any]]
     text: str = ""
     _keys: dict[str, _Key] = field(default_factory=dict)
+    _mapping: dict[str, Any] = field(default_factory=dict)
 
     def run_setup(self, params: Mapping[str, Any]) -> tuple[Scene, str, float]:
         """The scene, method and dt of a run with ``params`` (validated; a bad value names the key)."""
-        mapping = self.scene.to_dict()
+        mapping = self._mapping
         method, dt = self.method, self.dt
         for name, value in params.items():
             key = self._keys[name]
@@ -192,6 +197,12 @@ def parse_spec(raw: Any, source: str = "<spec>", base_dir: Path | None = None, t
     dt = _number(source, "dt", raw.get("dt", 1e-3), positive=True)
     duration = _number(source, "duration", raw["duration"], positive=True)
     solver = raw.get("solver")
+    contacts = raw.get("contacts")
+    if contacts is not None:
+        try:
+            contacts = contact_kinds([] if contacts == "none" else contacts, "contacts")
+        except ValueError as exc:
+            raise SweepError(f"{source}: {exc}") from None
     batch = raw.get("batch", DEFAULT_BATCH)
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise SweepError(f"{source}: batch must be a whole number >= 1, got {batch!r}")
@@ -233,7 +244,8 @@ def parse_spec(raw: Any, source: str = "<spec>", base_dir: Path | None = None, t
         base = dict(zip(vary, combo))
         for s in range(samples or 1):
             runs.append({**base, **{name: draws[name][s] for name in ranges}})
-    spec = SweepSpec(scene, scene.source, method, dt, duration, solver, batch, tuple(keys), runs, text, keys)
+    spec = SweepSpec(scene, scene.source, method, dt, duration, solver, contacts, batch, tuple(keys), runs, text,
+                     keys, mapping)
     spec.run_setup(runs[0])   # the first run's scene: a key the scene schema refuses fails here, not later
     return spec
 
@@ -255,7 +267,8 @@ def load_spec(path: str | Path) -> SweepSpec:
 # --------------------------------------------------------------------------- groups
 @dataclass
 class Group:
-    """Runs stepped together: their indices, scenes (one structure), method, dt, duration, solver."""
+    """Runs stepped together: their indices, scenes (one structure), method, dt, duration, solver and
+    contact kinds (None: the scene's)."""
 
     runs: list[int]
     scenes: list[Scene]
@@ -263,6 +276,7 @@ class Group:
     dt: float
     duration: float
     solver: str | None
+    contacts: tuple[str, ...] | None
 
 
 def make_groups(spec: SweepSpec, parts: int = 1) -> list[Group]:
@@ -279,7 +293,8 @@ def make_groups(spec: SweepSpec, parts: int = 1) -> list[Group]:
     for (_, method, dt), members in by_key.items():
         for k in range(0, len(members), size):
             chunk = members[k:k + size]
-            groups.append(Group([i for i, _ in chunk], [s for _, s in chunk], method, dt, spec.duration, spec.solver))
+            groups.append(Group([i for i, _ in chunk], [s for _, s in chunk], method, dt, spec.duration, spec.solver,
+                                spec.contacts))
     return groups
 
 
@@ -289,7 +304,8 @@ def run_group(group: Group) -> tuple[list[dict[str, Any]], list[str]]:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            sim = BatchSimulator.from_scenes(group.scenes, method=group.method, dt=group.dt, solver=group.solver)
+            sim = BatchSimulator.from_scenes(group.scenes, method=group.method, dt=group.dt, solver=group.solver,
+                                             contacts=group.contacts)
         except ValueError as exc:
             rows = [_row(i, np.full(3 * len(s.nodes), np.nan), 0.0, math.nan, 0, 0, 0, str(exc))
                     for i, s in zip(group.runs, group.scenes)]

@@ -56,7 +56,8 @@ def _single(params: dict, spec: dict) -> dict:
             dt = value
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sim = ts.Simulator(ts.Scene.from_dict(d), method=method, dt=dt)
+        sim = ts.Simulator(ts.Scene.from_dict(d), method=method, dt=dt,
+                           contacts=[] if spec.get("contacts") == "none" else None)
     e0 = sim.energy()["total"]
     peak, snaps, contacts = 0.0, 0, 0
     was = sim.slack()
@@ -104,7 +105,7 @@ def test_embedded_sweep_rows_equal_single_runs(tmp_path, capsys):
 
 
 def test_samples_draw_from_ranges_and_stiffness_splits_groups(tmp_path):
-    spec = {"scene": "icosahedron", "method": "elastic", "dt": 0.001, "duration": 0.1,
+    spec = {"scene": "icosahedron", "method": "elastic", "dt": 0.001, "duration": 0.1, "contacts": "none",
             "vary": {"stiffness.c1": [500.0, 700.0]}, "samples": 3, "seed": 4,
             "ranges": {"velocity.n0": [[-2, -2, -2], [2, 2, 2]], "rest_lengths.c0": [0.8, 0.9]}}
     out = tmp_path / "r.parquet"
