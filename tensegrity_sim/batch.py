@@ -27,7 +27,7 @@ from .methods.elastic_batch import ElasticBatch
 from .methods.qp import QPError
 from .results import ContactEvent
 from .scene import Scene, contact_kinds
-from .simulator import Simulator, _check_dt
+from .simulator import Simulator, _check_dt, run_plan
 from .system import System
 
 __all__ = ["BatchSimulator", "BatchStepResult", "BatchTrajectory", "structure_of"]
@@ -414,21 +414,8 @@ class BatchSimulator:
         ``every``, ``2 every``, ... and the last (K of them) as (B, K, ...) arrays, a kept step's impulses
         summed over the steps since the previous kept one and its tensions their mean; over all steps
         each cable's peak tension and snaps (see :class:`BatchTrajectory`)."""
-        if (duration is None) == (steps is None):
-            raise ValueError("run: give exactly one of duration (s) or steps")
-        if steps is None:
-            d = float(duration)
-            if not np.isfinite(d) or d < 0:
-                raise ValueError(f"duration must be a finite number of seconds >= 0, got {duration!r}")
-            steps = int(round(d / self.dt))
-        if isinstance(steps, bool) or int(steps) != steps or steps < 0:
-            raise ValueError(f"steps must be a whole number >= 0, got {steps!r}")
-        if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
-            raise ValueError(f"every must be a whole number >= 1, got {every!r}")
-        steps, every = int(steps), int(every)
+        steps, every, kept, span = run_plan(duration, steps, every, self.dt)
         b, n, nc = self.batch, len(self.scene.nodes), self._nc
-        kept = np.minimum(np.arange(1, -(-steps // every) + 1) * every, steps)   # kept steps, counted from 1
-        span = np.diff(kept, prepend=0)                                          # steps each one sums
         time = (self.step_count + kept) * self.dt
         pos, vel = np.empty((b, len(kept), n, 3)), np.empty((b, len(kept), n, 3))
         imp, slack = np.zeros((b, len(kept), nc)), np.empty((b, len(kept), nc), dtype=bool)

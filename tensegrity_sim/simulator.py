@@ -31,6 +31,26 @@ def _check_dt(dt) -> float:
     return dt
 
 
+def run_plan(duration, steps, every, dt: float):
+    """``run``'s arguments checked: the step count (``steps``, or ``round(duration / dt)``), ``every``,
+    the kept steps (counted from 1: ``every``, ``2 every``, ... and the last) and how many steps each
+    kept one sums."""
+    if (duration is None) == (steps is None):
+        raise ValueError("run: give exactly one of duration (s) or steps")
+    if steps is None:
+        d = float(duration)
+        if not np.isfinite(d) or d < 0:
+            raise ValueError(f"duration must be a finite number of seconds >= 0, got {duration!r}")
+        steps = int(round(d / dt))
+    if isinstance(steps, bool) or int(steps) != steps or steps < 0:
+        raise ValueError(f"steps must be a whole number >= 0, got {steps!r}")
+    if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
+        raise ValueError(f"every must be a whole number >= 1, got {every!r}")
+    steps, every = int(steps), int(every)
+    kept = np.minimum(np.arange(1, -(-steps // every) + 1) * every, steps)
+    return steps, every, kept, np.diff(kept, prepend=0)
+
+
 class Simulator:
     """Steps a :class:`Scene` with a method picked by name.
 
@@ -195,21 +215,8 @@ class Simulator:
         ``callback(k, result)`` is called after each step ``k`` (a progress bar, a command schedule).
         Without a callback a method with a compiled loop runs the steps in it.
         """
-        if (duration is None) == (steps is None):
-            raise ValueError("run: give exactly one of duration (s) or steps")
-        if steps is None:
-            d = float(duration)
-            if not np.isfinite(d) or d < 0:
-                raise ValueError(f"duration must be a finite number of seconds >= 0, got {duration!r}")
-            steps = int(round(d / self.dt))
-        if isinstance(steps, bool) or int(steps) != steps or steps < 0:
-            raise ValueError(f"steps must be a whole number >= 0, got {steps!r}")
-        if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
-            raise ValueError(f"every must be a whole number >= 1, got {every!r}")
-        steps, every = int(steps), int(every)
+        steps, every, kept, span = run_plan(duration, steps, every, self.dt)
         n, nc = len(self.scene.nodes), len(self.scene.cables)
-        kept = np.minimum(np.arange(1, -(-steps // every) + 1) * every, steps)   # kept steps, counted from 1
-        span = np.diff(kept, prepend=0)                                          # steps each one sums
         time = (self._state.step_count + kept) * self.dt
         pos = np.empty((len(kept), n, 3))
         vel = np.empty((len(kept), n, 3))
