@@ -206,3 +206,20 @@ def test_ray_sweep_rows_equal_single_runs(tmp_path, ray_cluster):
     table = pq.read_table(out)
     assert table.num_rows == 8
     _check_rows(table, spec)
+
+
+def test_local_workers_give_the_same_table(tmp_path):
+    spec = {"scene": "prism3", "method": "elastic", "duration": 0.05, "batch": 2,
+            "vary": {"velocity.n1": [[0, 0, 0], [0.5, 0, 0], [0, 0.5, 0]], "gravity": [[0, 0, -9.81]]}}
+    sweep = load_spec(_write(tmp_path, spec))
+    one, two = run_sweep(sweep, tmp_path / "one.parquet"), run_sweep(sweep, tmp_path / "two.parquet", workers=2)
+    assert (one.where, two.where) == ("this process", "2 local processes")
+    assert two.groups == 2    # three runs cut for two workers
+    assert pq.read_table(tmp_path / "one.parquet").equals(pq.read_table(tmp_path / "two.parquet"))
+
+
+def test_without_ray_the_cli_says_how_to_get_it(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)   # import ray raises ImportError
+    path = _write(tmp_path, {"scene": "prism3", "duration": 0.01})
+    assert main(["sweep", str(path), "--out", str(tmp_path / "r.parquet"), "--address", "127.0.0.1:1"]) == 2
+    assert 'pip install -e ".[sweep]"' in capsys.readouterr().err
