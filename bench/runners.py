@@ -72,9 +72,9 @@ class TensegritySession:
         self.sim.reset()
 
     def advance(self) -> None:
-        step = self.sim.step
-        for _ in range(self.steps):
-            step()
+        """The run as a user makes it, keeping the last step only, as MuJoCo's C loop does (its
+        compiled loop where the method has one)."""
+        self.sim.run(steps=self.steps, every=max(self.steps, 1))
 
     @property
     def unstable(self) -> bool:

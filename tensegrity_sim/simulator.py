@@ -223,7 +223,7 @@ class Simulator:
         imp = np.zeros((len(kept), nc))
         slack = np.empty((len(kept), nc), dtype=bool)
         contacts = []
-        if callback is None and getattr(self._method, "compiled", False):
+        if callback is None and self._method.has_loop():
             self._run_compiled(steps, every, pos, vel, imp, slack, contacts)
         else:
             for k in range(steps):

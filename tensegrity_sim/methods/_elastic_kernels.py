@@ -18,7 +18,10 @@ The system (never changes during a run; :func:`model_arrays` builds it from a ``
     rigid_members (nr,) int64   rows of the moving rigid struts in the member arrays
     rigid_length_sq (nr,) m^2
     rigid_w (nr, nr)            W = S M^-1 S^T of the moving rigid struts
-    coupled (bool)              W is not diagonal (class-k): Newton for SHAKE, a solve for RATTLE
+    coupled (bool)              W is not diagonal (class-k); must be False: the kernels do the closed-form
+                                SHAKE/RATTLE of independent rigid struts, and ElasticMethod steps a scene
+                                with coupled ones with its numpy reference (its Newton solve would make
+                                every first run compile LAPACK bindings: 18 s of CPU instead of ~3)
 
 The state and what one step carries to the next (all float64, batch last):
 
@@ -42,9 +45,6 @@ import numpy as np
 from numba import njit
 
 __all__ = ["ElasticModel", "model_arrays", "elastic_forces", "elastic_steps", "verlet_step"]
-
-_NEWTON_TOL = 1e-14   # as rigid._NEWTON_TOL
-_NEWTON_MAX_ITER = 50
 
 
 class ElasticModel(NamedTuple):
@@ -138,7 +138,8 @@ def elastic_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping,
     for b in range(x.shape[2]):
         _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                 rigid_members, acc, tension, rigid_dirs, row, b)
-        slack[:, b] = row
+        for ci in range(row.shape[0]):   # element loops: a slice assignment costs seconds of compile time
+            slack[ci, b] = row[ci]
     return slack
 
 
@@ -155,7 +156,7 @@ def _push(node_a, node_b, inv_mass, s, n0, n1, n2, out):
 
 
 @njit(cache=True)
-def _shake(x_pred, dirs, ends, inv_mass, rigid_members, length_sq, w, coupled, dx, b):
+def _shake(x_pred, dirs, ends, inv_mass, rigid_members, length_sq, w, dx, b):
     """SHAKE for copy ``b`` (rigid.RigidStruts.project_positions): the displacement, written into
     ``dx`` (N, 3) (zeroed here), that puts ``x_pred`` back on every rigid strut length along ``dirs``."""
     nr = rigid_members.shape[0]
@@ -164,37 +165,22 @@ def _shake(x_pred, dirs, ends, inv_mass, rigid_members, length_sq, w, coupled, d
         i = rigid_members[k]
         for j in range(3):
             r[k, j] = x_pred[ends[i, 1], j, b] - x_pred[ends[i, 0], j, b]
-    gamma = np.zeros(nr)
-    if not coupled:
-        for k in range(nr):
-            p = r[k, 0] * dirs[k, 0, b] + r[k, 1] * dirs[k, 1, b] + r[k, 2] * dirs[k, 2, b]
-            c = r[k, 0] * r[k, 0] + r[k, 1] * r[k, 1] + r[k, 2] * r[k, 2] - length_sq[k]
-            # small root of w^2 g^2 - 2 w p g + c = 0, written to avoid cancellation
-            gamma[k] = c / (w[k, k] * (p + np.sqrt(max(p * p - c, 0.0))))
-    else:
-        n0 = np.empty((nr, 3))
-        for k in range(nr):
-            for j in range(3):
-                n0[k, j] = dirs[k, j, b]
-        for _ in range(_NEWTON_MAX_ITER):
-            r_new = r - w @ (gamma.reshape(nr, 1) * n0)
-            g = np.empty(nr)
-            worst = 0.0
-            for k in range(nr):
-                g[k] = r_new[k, 0] ** 2 + r_new[k, 1] ** 2 + r_new[k, 2] ** 2 - length_sq[k]
-                worst = max(worst, abs(g[k]) / length_sq[k])
-            if worst < _NEWTON_TOL:
-                break
-            jac = -2.0 * w * (r_new @ n0.T)
-            gamma -= np.linalg.solve(jac, g)
-    dx[:, :] = 0.0
+    gamma = np.empty(nr)
+    for k in range(nr):
+        p = r[k, 0] * dirs[k, 0, b] + r[k, 1] * dirs[k, 1, b] + r[k, 2] * dirs[k, 2, b]
+        c = r[k, 0] * r[k, 0] + r[k, 1] * r[k, 1] + r[k, 2] * r[k, 2] - length_sq[k]
+        # small root of w^2 g^2 - 2 w p g + c = 0, written to avoid cancellation
+        gamma[k] = c / (w[k, k] * (p + np.sqrt(max(p * p - c, 0.0))))
+    for i in range(dx.shape[0]):
+        for j in range(3):
+            dx[i, j] = 0.0
     for k in range(nr):
         i = rigid_members[k]
         _push(ends[i, 0], ends[i, 1], inv_mass, gamma[k], dirs[k, 0, b], dirs[k, 1, b], dirs[k, 2, b], dx)
 
 
 @njit(cache=True)
-def _rattle(v, dirs, ends, inv_mass, rigid_members, w, coupled, dv, b):
+def _rattle(v, dirs, ends, inv_mass, rigid_members, w, dv, b):
     """RATTLE for copy ``b`` (rigid.RigidStruts.project_velocities): zero every rigid strut's length
     rate along ``dirs``, in place on ``v``; ``dv`` (N, 3) is scratch."""
     nr = rigid_members.shape[0]
@@ -205,18 +191,13 @@ def _rattle(v, dirs, ends, inv_mass, rigid_members, w, coupled, dv, b):
         c = ends[i, 1]
         rate[k] = ((v[c, 0, b] - v[a, 0, b]) * dirs[k, 0, b] + (v[c, 1, b] - v[a, 1, b]) * dirs[k, 1, b]
                    + (v[c, 2, b] - v[a, 2, b]) * dirs[k, 2, b])
-    if not coupled:
-        mu = np.empty(nr)
-        for k in range(nr):
-            mu[k] = rate[k] / w[k, k]
-    else:
-        n = np.empty((nr, 3))
-        for k in range(nr):
-            for j in range(3):
-                n[k, j] = dirs[k, j, b]
-        mu = np.linalg.solve(w * (n @ n.T), rate)
+    mu = np.empty(nr)
+    for k in range(nr):
+        mu[k] = rate[k] / w[k, k]
     # the pushes are summed before being added, as in the reference (v + project_velocities(...))
-    dv[:, :] = 0.0
+    for i in range(dv.shape[0]):
+        for j in range(3):
+            dv[i, j] = 0.0
     for k in range(nr):
         i = rigid_members[k]
         _push(ends[i, 0], ends[i, 1], inv_mass, mu[k], dirs[k, 0, b], dirs[k, 1, b], dirs[k, 2, b], dv)
@@ -239,7 +220,7 @@ def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_m
             v[i, j, b] += half * acc[i, j, b]
             x[i, j, b] += h * v[i, j, b]
     if rigid_members.shape[0]:
-        _shake(x, rigid_dirs, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, coupled, dx, b)
+        _shake(x, rigid_dirs, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, dx, b)
         for i in range(n_nodes):
             for j in range(3):
                 x[i, j, b] += dx[i, j]
@@ -254,7 +235,7 @@ def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_m
         for j in range(3):
             v[i, j, b] += half * acc[i, j, b]
     if rigid_members.shape[0]:
-        _rattle(v, rigid_dirs, ends, inv_mass, rigid_members, rigid_w, coupled, dx, b)
+        _rattle(v, rigid_dirs, ends, inv_mass, rigid_members, rigid_w, dx, b)
 
 
 @njit(cache=True)
@@ -272,8 +253,9 @@ def verlet_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping,
     for b in range(n_copies):
         _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
               rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, imp, sl, b)
-        impulses[:, b] = imp
-        slack[:, b] = sl
+        for ci in range(nc):
+            impulses[ci, b] = imp[ci]
+            slack[ci, b] = sl[ci]
     return impulses, slack
 
 

@@ -28,6 +28,8 @@ cable's impulse over the step, and ``impulses / h`` the step's mean tension.
 
 Two implementations of the same arithmetic: the numba kernels of ``_elastic_kernels.py`` (used unless
 ``compiled`` is False) and the numpy code below, the plain reference they must match to 1e-12 in tests.
+Rigid struts that share a node (class-k: coupled SHAKE/RATTLE, a Newton solve) are stepped by the
+reference only.
 """
 from __future__ import annotations
 
@@ -54,7 +56,8 @@ class _Forces(NamedTuple):
 
 
 class ElasticMethod(StepMethod):
-    """``compiled``: step with the numba kernels (True) or the numpy reference (False)."""
+    """``compiled``: step with the numba kernels (True; not for coupled rigid struts) or the numpy
+    reference (False)."""
 
     name = "elastic"
 
@@ -74,7 +77,7 @@ class ElasticMethod(StepMethod):
         self._rest = np.empty(system.n_members)
         self._rest[: system.n_struts] = system.strut_rest
         self._cache: _Forces | None = None
-        self.compiled = compiled
+        self.compiled = compiled and not self.rigid.coupled
         self._model = kernels.model_arrays(system, self.rigid)
         # the compiled path's carry from one step to the next (batch of one): accelerations (N, 3, 1),
         # cable tensions (n_cables, 1), rigid strut directions (nr, 3, 1) at the last step's end
@@ -134,12 +137,11 @@ class ElasticMethod(StepMethod):
         self._advance(state, x3, v3, 1, 1, x3[None], v3[None], impulses, slack)   # the step writes in place
         return MethodStep(x, v, impulses.reshape(-1), slack.reshape(-1))
 
+    def has_loop(self) -> bool:
+        return self.compiled
+
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
                 impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``steps`` steps from ``state`` in one compiled loop, keeping steps ``every``, ``2 every``, ...
-        and the last into ``positions``, ``velocities`` (K, N, 3), ``impulses`` (summed over the steps
-        since the previous kept one) and ``slack`` (K, n_cables), ``K = ceil(steps / every)``. Returns
-        the final positions and velocities (N, 3); ``state`` is not modified."""
         x, v = state.positions.copy(), state.velocities.copy()
         self._advance(state, x.reshape(-1, 3, 1), v.reshape(-1, 3, 1), steps, every, positions[..., None],
                       velocities[..., None], impulses[..., None], slack[..., None])
