@@ -38,14 +38,15 @@ class ElasticBatch:
 
     The state is held by the caller and passed in; this object caches only the forces at the last
     step's end (the next step's start), which :meth:`invalidate` drops (contract rule 4).
-    ``compiled``: step with the numba kernels (True) or the numpy reference (False).
+    ``compiled``: step with the numba kernels (True; not for coupled rigid struts) or the numpy reference.
     """
 
     name = "elastic"
 
     def __init__(self, system: System, dt: float, *, compiled: bool = True):
-        self.compiled = compiled
         self.single = ElasticMethod(system, dt)   # checks the scene and dt, and does the rigid algebra
+        # coupled rigid struts (class-k) only have the reference, as in ElasticMethod
+        self.compiled = compiled and not self.single.rigid.coupled
         self.system = system
         self.dt = self.single.dt
         self.rigid = self.single.rigid
