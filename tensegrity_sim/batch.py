@@ -58,8 +58,9 @@ class BatchStepResult:
 @dataclass(frozen=True)
 class BatchTrajectory:
     """K kept steps of B copies (see ``run``): time (K,) s; positions, velocities (B, K, N, 3); impulses
-    (summed since the previous kept step), tensions (their mean), slack (B, K, n_cables); contacts: per copy, every ContactEvent of the run
-    (recorded or not); failures: {copy index: reason} of copies stopped by a failure.
+    (summed since the previous kept step), tensions (their mean), slack (B, K, n_cables); contacts: per
+    copy, every ContactEvent of the run (kept or not); failures: {copy index: reason} of copies stopped
+    by a failure.
     Over every step, recorded or not: peak_tensions (B, n_cables) N, each cable's largest step tension
     (``impulses / dt``); snaps (B, n_cables), how often each cable went from slack to taut between
     consecutive step ends (the run's start counts as the first)."""

@@ -130,10 +130,10 @@ class ElasticBatch:
 
     # ------------------------------------------------------------------ step
     def _step_reference(self, x, v, rest_lengths, f_ext):
-        """The numpy reference: one step of ``dt`` for every copy from positions ``x`` and velocities ``v`` (N, 3, B), rest
-        lengths (n_cables, B) m and external forces ``f_ext`` (N, 3, B) N. Returns the new positions and
-        velocities (N, 3, B), the cable impulses over the step (n_cables, B) N*s and the slack cables
-        (n_cables, B) at its end. The inputs are not modified."""
+        """The numpy reference: one step of ``dt`` for every copy from positions ``x`` and velocities ``v``
+        (N, 3, B), rest lengths (n_cables, B) m and external forces ``f_ext`` (N, 3, B) N. Returns the new
+        positions and velocities (N, 3, B), the cable impulses over the step (n_cables, B) N*s and the
+        slack cables (n_cables, B) at its end. The inputs are not modified."""
         h = self.dt
         start = self._cache if self._cache is not None else self._forces(x, v, rest_lengths, f_ext)
         v_half = v + (0.5 * h) * start[0]
