@@ -173,10 +173,16 @@ def test_parquet_reads_without_the_package(tmp_path):
     assert result.stdout.split() == ["1", str(3 * n_nodes)]
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def _free_ports(n: int) -> list[int]:
+    """``n`` distinct ports free now (held open together while they are picked)."""
+    sockets = [socket.socket() for _ in range(n)]
+    try:
+        for s in sockets:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in sockets]
+    finally:
+        for s in sockets:
+            s.close()
 
 
 @pytest.fixture
@@ -184,13 +190,17 @@ def ray_cluster(tmp_path_factory):
     """A real local Ray cluster (``ray start --head`` on a free port), stopped after the test."""
     ray = shutil.which("ray", path=os.path.dirname(sys.executable))
     assert ray, "the ray command is missing: pip install -e '.[test]' installs it"
-    port = _free_port()
+    # every port Ray would otherwise take at a fixed default is a free one, so the test cannot collide
+    port, client, agent, agent_grpc, env_agent, metrics = _free_ports(6)
     temp = Path("/tmp") / f"ray_ts_{os.getpid()}"   # short: Ray's socket paths must stay under 108 bytes
     env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
     start = [ray, "start", "--head", f"--port={port}", "--num-cpus=2", "--include-dashboard=false",
-             "--disable-usage-stats", f"--temp-dir={temp}"]
-    subprocess.run(start, check=True, capture_output=True, timeout=180, env=env)
+             "--disable-usage-stats", f"--temp-dir={temp}", f"--ray-client-server-port={client}",
+             f"--dashboard-agent-listen-port={agent}", f"--dashboard-agent-grpc-port={agent_grpc}",
+             f"--runtime-env-agent-port={env_agent}", f"--metrics-export-port={metrics}"]
     try:
+        started = subprocess.run(start, capture_output=True, text=True, timeout=180, env=env)
+        assert started.returncode == 0, f"ray start failed: {started.stderr[-3000:]}"
         yield f"127.0.0.1:{port}"
     finally:
         subprocess.run([ray, "stop", "--force"], capture_output=True, timeout=120, env=env)
