@@ -46,6 +46,7 @@ import itertools
 import json
 import math
 import os
+import sys
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -227,8 +228,11 @@ def parse_spec(raw: Any, source: str = "<spec>", base_dir: Path | None = None, t
             raise SweepError(f"{source}: vary: {name!r} must be a non-empty list of values")
         grid_values.append(values)
     draws: dict[str, np.ndarray] = {}
+    seed = raw.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise SweepError(f"{source}: seed must be a whole number >= 0, got {seed!r}")
     if samples:
-        rng = np.random.default_rng(raw.get("seed", 0))
+        rng = np.random.default_rng(seed)
         for name, bounds in ranges.items():
             if keys[name].path is None and name == "method":
                 raise SweepError(f"{source}: ranges: 'method' cannot be drawn; put it in vary")
@@ -456,21 +460,28 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, address: str | None = None, w
         bar.update(len(group_rows))
 
     bar = tqdm(total=len(spec.runs), unit="run", disable=not progress, mininterval=0.5)
+    groups: list[Group] = []
     try:
         groups = make_groups(spec, parts)
         if address is None:
             _embedded(groups, workers, done)
         else:
             _on_ray(groups, done)
+    except BaseException:
+        # interrupted or a worker died: the runs finished so far are kept beside the final name
+        if rows:
+            kept = out.with_name(out.name + ".incomplete.parquet")
+            pq.write_table(results_table(spec, rows), kept)
+            print(f"tensegrity-sim sweep: {len(rows)} of {len(spec.runs)} runs kept in {kept}", file=sys.stderr)
+        raise
     finally:
         bar.close()
         if address is not None:
             import ray
 
             ray.shutdown()
-    table = results_table(spec, rows)
     partial = out.with_name(out.name + ".partial")   # never a half-written file under the final name
-    pq.write_table(table, partial)
+    pq.write_table(results_table(spec, rows), partial)
     os.replace(partial, out)
     wall = time.perf_counter() - start
     where = (f"Ray cluster at {address}" if address else

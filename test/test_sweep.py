@@ -141,7 +141,7 @@ def test_a_group_that_cannot_start_fails_its_runs_only(tmp_path):
     ({"scene": "icosahedron", "duration": 1, "samples": 3}, r"samples and ranges go together"),
     ({"scene": "icosahedron", "duration": 1, "vary": {"method": ["rk4"]}}, r"method must be one of"),
     ({"scene": "icosahedron", "duration": 1, "vary": {"gravity": []}}, r"'gravity' must be a non-empty list"),
-    ({"scene": "icosahedron", "duration": 1, "vray": {}}, r"unknown key 'vray' \(allowed: batch, dt, duration"),
+    ({"scene": "icosahedron", "duration": 1, "vray": {}}, r"unknown key 'vray' \(allowed: batch, contacts, dt, duration"),
 ])
 def test_spec_errors_name_the_key(tmp_path, capsys, spec, message):
     path = _write(tmp_path, spec)
@@ -226,6 +226,28 @@ def test_local_workers_give_the_same_table(tmp_path):
     assert (one.where, two.where) == ("this process", "2 local processes")
     assert two.groups == 2    # three runs cut for two workers
     assert pq.read_table(tmp_path / "one.parquet").equals(pq.read_table(tmp_path / "two.parquet"))
+
+
+def test_an_interrupted_sweep_keeps_the_finished_runs(tmp_path, monkeypatch):
+    from tensegrity_sim import sweep as sweep_module
+
+    spec = {"scene": "prism3", "method": "elastic", "duration": 0.01, "batch": 1,
+            "vary": {"velocity.n1": [[0, 0, 0], [0.5, 0, 0], [0, 0.5, 0]]}}
+    real, calls = sweep_module.run_group, []
+
+    def interrupted_at_the_third(group):
+        calls.append(group)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(group)
+
+    monkeypatch.setattr(sweep_module, "run_group", interrupted_at_the_third)
+    out = tmp_path / "r.parquet"
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(load_spec(_write(tmp_path, spec)), out)
+    assert not out.exists()
+    kept = pq.read_table(tmp_path / "r.parquet.incomplete.parquet").to_pylist()
+    assert [r["run"] for r in kept] == [0, 1] and kept[1]["velocity.n1"] == [0.5, 0, 0]
 
 
 def test_without_ray_the_cli_says_how_to_get_it(tmp_path, capsys, monkeypatch):
