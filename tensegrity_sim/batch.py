@@ -21,13 +21,13 @@ from typing import Mapping
 
 import numpy as np
 
+from .checks import time_step
 from .contact import ContactDetector, make_detector
-from .methods import choose_method
+from .methods import StepError, choose_method
 from .methods.elastic_batch import ElasticBatch
-from .methods.qp import QPError
 from .results import ContactEvent
 from .scene import Scene, contact_kinds
-from .simulator import Simulator, _check_dt, run_plan
+from .simulator import Simulator, run_plan
 from .system import System
 
 __all__ = ["BatchSimulator", "BatchStepResult", "BatchTrajectory", "structure_of"]
@@ -167,7 +167,7 @@ class BatchSimulator:
         return replace(scene, nodes=tuple(nodes))
 
     def _build(self, scene, scenes, method, dt, solver, contacts) -> None:
-        dt = _check_dt(dt)
+        dt = time_step(dt)
         if contacts is not None:
             kinds = contact_kinds(contacts, "contacts")
             scenes = [replace(s, contact_kinds=kinds) for s in scenes]
@@ -394,7 +394,7 @@ class BatchSimulator:
                 continue
             try:
                 r = c.step()
-            except QPError as exc:
+            except StepError as exc:   # a QP without a solution, a result that is not finite
                 self.failures[i] = f"step {c.step_count + 1} (t = {c.time + c.dt:.6g} s): {exc}"
                 contacts.append(())
                 continue
@@ -415,8 +415,8 @@ class BatchSimulator:
         ``every``, ``2 every``, ... and the last (K of them) as (B, K, ...) arrays, a kept step's impulses
         summed over the steps since the previous kept one and its tensions their mean; over all steps
         each cable's peak tension and snaps (see :class:`BatchTrajectory`)."""
-        steps, every, kept, span = run_plan(duration, steps, every, self.dt)
         b, n, nc = self.batch, len(self.scene.nodes), self._nc
+        steps, every, kept, span = run_plan(duration, steps, every, self.dt, b * (48 * n + 17 * nc) + 8)
         time = (self.step_count + kept) * self.dt
         pos, vel = np.empty((b, len(kept), n, 3)), np.empty((b, len(kept), n, 3))
         imp, slack = np.zeros((b, len(kept), nc)), np.empty((b, len(kept), nc), dtype=bool)

@@ -7,6 +7,7 @@ import pytest
 
 import tensegrity_sim as ts
 from conftest import bungee_dict, deadband_dict, random_velocities
+from test_contact import crossing_dict
 from tensegrity_sim.methods import _qp_kernels as kernels
 from tensegrity_sim.methods import qp
 from tensegrity_sim.methods.inextensible import LengthOffsetWarning
@@ -49,6 +50,7 @@ ELASTIC_SCENES = {
     "icosahedron": (lambda: random_velocities(ts.load_scene("icosahedron"), seed=3, scale=2.0), 1e-3, 1000),
     "icosahedron_elastic_struts": (lambda: _elastic_struts("icosahedron"), 1e-4, 1000),
     "tower": (lambda: random_velocities(ts.load_scene("tower"), seed=2, scale=0.2), 1e-4, 500),
+    "crossing": (lambda: ts.Scene.from_dict(crossing_dict(0.05, 1.0, 0.01, 0.015)), 1e-3, 100),   # contacts
 }
 
 
@@ -91,7 +93,7 @@ def test_coupled_rigid_struts_use_the_reference():
 
 
 @pytest.mark.parametrize("every", [1, 7])
-@pytest.mark.parametrize("name", ["bungee", "icosahedron", "tower"])
+@pytest.mark.parametrize("name", ["bungee", "icosahedron", "tower", "crossing"])
 def test_compiled_run_matches_stepping(name, every):
     """run() in the compiled loop (straight into the arrays, or in chunks when contact detection is
     on, as for the built-ins) keeps the same steps, sums and events as stepping one by one."""
@@ -109,6 +111,8 @@ def test_compiled_run_matches_stepping(name, every):
         _close(getattr(a, field), getattr(b, field), field)
     np.testing.assert_array_equal(a.slack, b.slack)
     assert [(e.kind, e.members, e.time) for e in a.contacts] == [(e.kind, e.members, e.time) for e in b.contacts]
+    if name == "crossing":   # the chunked path's contact events were checked
+        assert a.contacts
     _close(fast.positions, slow.positions, "final positions")
     assert fast.step_count == slow.step_count == steps
 
@@ -214,3 +218,18 @@ def test_answer_check_matches_reference(backend):
     solver._check = both
     sim.run(steps=30)
     assert len(checked) >= 30
+
+
+@pytest.mark.parametrize("name", ["bungee", "crossing"])
+def test_cli_summary_in_chunks_matches_stepping(name):
+    """`tensegrity-sim run` without commands or a log runs in chunks: the same summary as step by step
+    (peak tension and its cable, slack switches, contact events, energies)."""
+    from tensegrity_sim.cli import simulate
+    make, dt, steps = ELASTIC_SCENES[name]
+    scene = make()
+    chunked = simulate(ts.Simulator(scene, method="elastic", dt=dt), 2 * steps + 7)
+    stepped = simulate(ts.Simulator(scene, method="elastic", dt=dt), 2 * steps + 7, on_step=lambda r: None)
+    assert chunked.switches > 0 if name == "bungee" else chunked.contacts > 0
+    for field in ("steps", "sim_time", "max_tension", "max_tension_cable", "switches", "contacts",
+                  "contact_begins", "contact_pairs", "energy_start", "energy_end"):
+        assert getattr(chunked, field) == getattr(stepped, field), field

@@ -30,7 +30,12 @@ import numpy as np
 
 from ..system import System
 
-__all__ = ["State", "MethodStep", "StepMethod"]
+__all__ = ["State", "MethodStep", "StepMethod", "StepError"]
+
+
+class StepError(RuntimeError):
+    """A step that cannot be taken (a QP without a solution, a result that is not finite); the simulator
+    is as it was before the step, and the message says why."""
 
 
 @dataclass
