@@ -9,9 +9,10 @@ array operations; the inextensible method solves one QP per copy and so steps a
 :class:`~tensegrity_sim.simulator.Simulator` per copy (style rule 8: a ``Simulator`` is a batch of one).
 
 Each copy equals a single ``Simulator`` run from the same state with the same inputs (to round-off;
-``test/test_batch.py`` requires 1e-10). A QP that fails in one copy stops that copy only: its index and
-reason are in ``failures``, its state stays the last good one, its entries in later step results are NaN
-(slack False) and the other copies go on.
+``test/test_batch.py`` requires 1e-10). A step that fails in one copy (a QP without a solution, a
+non-finite result: what makes ``Simulator.step`` raise a ``StepError``) stops that copy only: its index
+and reason (the error's message) are in ``failures``, its state stays the last good one, its entries in
+later step results are NaN (slack False) and the other copies go on.
 """
 from __future__ import annotations
 
@@ -27,7 +28,8 @@ from .methods import StepError, choose_method
 from .methods.elastic_batch import ElasticBatch
 from .results import ContactEvent
 from .scene import Scene, contact_kinds
-from .simulator import Simulator, run_plan
+from .methods.base import State
+from .simulator import Simulator, non_finite_report, run_plan
 from .system import System
 
 __all__ = ["BatchSimulator", "BatchStepResult", "BatchTrajectory", "structure_of"]
@@ -197,6 +199,8 @@ class BatchSimulator:
             self._rest = np.stack([s.cable_rest_lengths for s in scenes], axis=-1)
             self._f_ext = np.zeros((n, 3, self.batch))
             self._detectors = self._make_detectors(scene)
+            # copies stopped by a non-finite step: {copy: (steps done, positions, velocities)}
+            self._frozen: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
         else:
             # one QP per copy: a Simulator per copy, whose prestress warning is given once for the batch
             with warnings.catch_warnings(record=True) as caught:
@@ -241,7 +245,10 @@ class BatchSimulator:
     def step_counts(self) -> np.ndarray:
         """(B,) int: the steps each copy has completed (a failed copy stopped counting)."""
         if self._copies is None:
-            return np.full(self.batch, self._step_count)
+            counts = np.full(self.batch, self._step_count)
+            for b, (done, _, _) in self._frozen.items():
+                counts[b] = done
+            return counts
         return np.array([c.step_count for c in self._copies])
 
     @property
@@ -351,9 +358,10 @@ class BatchSimulator:
             out = [self._step_copies() for _ in range(steps)]
             return (*(np.stack([o[i] for o in out]) for i in range(4)), [o[4] for o in out])
         x_seq, v_seq, imp, slack = self._engine.advance(self._x, self._v, self._rest, self._f_ext, steps)
-        previous, start = self._x, self._step_count
+        previous, previous_v, start = self._x, self._v, self._step_count
         self._x, self._v = x_seq[-1].copy(), v_seq[-1].copy()
         self._step_count += steps
+        self._guard(previous, previous_v, start, x_seq, v_seq, imp, slack)
         if self._detectors is None:
             contacts = [((),) * self.batch] * steps
         else:
@@ -363,6 +371,27 @@ class BatchSimulator:
                 previous = x_seq[k]
         return (np.moveaxis(x_seq, -1, 1), np.moveaxis(v_seq, -1, 1), np.moveaxis(imp, -1, 1),
                 np.moveaxis(slack, -1, 1), contacts)
+
+    def _guard(self, previous, previous_v, start, x_seq, v_seq, imp, slack) -> None:
+        """Simulator's non-finite guard, copy by copy, on a chunk of elastic steps from ``previous``,
+        ``previous_v`` (N, 3, B): a copy whose step gives non-finite values fails there (the reason as NonFiniteError's
+        message), keeps the state before that step, and its numbers from that step on are NaN."""
+        sums = np.add.reduce(x_seq, axis=(1, 2)) + np.add.reduce(v_seq, axis=(1, 2)) + np.add.reduce(imp, axis=1)
+        bad = ~np.isfinite(sums)                                                  # (steps, B)
+        for b in np.flatnonzero(bad.any(axis=0)):
+            if b in self._frozen:
+                continue
+            k = int(np.argmax(bad[:, b]))
+            x0, v0 = (previous[..., b], previous_v[..., b]) if k == 0 else (x_seq[k - 1, ..., b], v_seq[k - 1, ..., b])
+            state = State(x0.copy(), v0.copy(), self._rest[:, b].copy(), self._f_ext[..., b].copy(), start + k)
+            report = non_finite_report(self.scene, state, self.dt, x_seq[k, ..., b], v_seq[k, ..., b], imp[k, :, b])
+            self.failures[int(b)] = f"step {start + k + 1} (t = {(start + k + 1) * self.dt:.6g} s): {report}"
+            self._frozen[int(b)] = (start + k, state.positions, state.velocities)
+        for b, (done, x0, v0) in self._frozen.items():
+            k = max(0, done - start)
+            x_seq[k:, ..., b] = v_seq[k:, ..., b] = imp[k:, :, b] = np.nan
+            slack[k:, :, b] = False
+            self._x[..., b], self._v[..., b] = x0, v0
 
     def step(self) -> BatchStepResult:
         """Advance every running copy by one step of ``dt``."""

@@ -167,6 +167,36 @@ def test_a_failed_qp_stops_its_copy_only():
     assert batch.time == pytest.approx(16e-3)
 
 
+@pytest.mark.parametrize("method", ["elastic", "inextensible"])
+def test_a_non_finite_copy_stops_alone_as_simulator_would(method):
+    """An absurd force on copy 1 (Simulator raises a StepError: NonFiniteError, or for the inextensible
+    method the QP's failure): that copy fails with the same message and keeps the state before the step;
+    the others go on as single runs."""
+    scenes = _scenes("icosahedron")
+    batch = _quiet(lambda: BatchSimulator.from_scenes(scenes, method=method, dt=1e-3))
+    singles = [_quiet(lambda s=s: ts.Simulator(s, method=method, dt=1e-3)) for s in scenes]
+    batch.run(steps=7)
+    for s in singles:
+        s.run(steps=7)
+    forces = np.zeros((3, len(scenes[0].nodes), 3))
+    forces[1, 4] = [1e300, 0.0, 0.0]
+    batch.set_external_forces(forces)
+    for s, f in zip(singles, forces):
+        s.set_external_forces(f)
+    before = singles[1].positions
+    with np.errstate(over="ignore", invalid="ignore"):
+        traj = batch.run(steps=10)
+        with pytest.raises(ts.NonFiniteError if method == "elastic" else ts.StepError) as err:
+            singles[1].step()
+    assert batch.failures == {1: f"step 8 (t = 0.008 s): {err.value}"}
+    np.testing.assert_array_equal(batch.positions[1], before)
+    np.testing.assert_array_equal(batch.step_counts, [17, 7, 17])
+    assert np.isnan(traj.positions[1]).all() and not np.isnan(traj.positions[[0, 2]]).any()
+    for b in (0, 2):
+        want = singles[b].run(steps=10)
+        np.testing.assert_allclose(traj.positions[b], want.positions, rtol=0, atol=TOL)
+
+
 def test_initial_states_per_copy():
     """positions/velocities per copy: a rotated, moving icosahedron equals a single run of the scene
     written with that state."""
