@@ -22,7 +22,7 @@ from typing import Mapping
 
 import numpy as np
 
-from .checks import time_step
+from .checks import float_array, time_step
 from .contact import ContactDetector, make_detector
 from .methods import StepError, choose_method
 from .methods.elastic_batch import ElasticBatch
@@ -87,18 +87,6 @@ def structure_of(scene: Scene) -> Scene:
                    cables=tuple(replace(c, rest_length=0.0) for c in scene.cables))
 
 
-def _array(values, argument: str, shape: tuple[int, ...]) -> np.ndarray:
-    try:
-        arr = np.array(values, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{argument}: expected numbers in an array of shape {shape}") from None
-    if arr.shape != shape:
-        raise ValueError(f"{argument}: expected shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{argument}: values must be finite")
-    return arr
-
-
 class BatchSimulator:
     """``batch`` copies of ``scene`` stepped together (see the module docstring).
 
@@ -146,10 +134,12 @@ class BatchSimulator:
 
     @staticmethod
     def _states(values, argument: str, batch: int, n: int) -> np.ndarray:
-        arr = np.asarray(values, dtype=float) if not isinstance(values, Mapping) else None
-        if arr is not None and arr.shape == (n, 3):
-            values = np.broadcast_to(arr, (batch, n, 3))
-        return _array(values, argument, (batch, n, 3))
+        """Initial states (batch, N, 3) from (batch, N, 3) or (N, 3) for every copy."""
+        arr = float_array(values, argument)
+        if arr.shape not in ((batch, n, 3), (n, 3)):
+            raise ValueError(f"{argument}: expected shape {(batch, n, 3)} (per copy) or {(n, 3)} (every copy), "
+                             f"got {arr.shape}")
+        return np.broadcast_to(arr, (batch, n, 3))
 
     @staticmethod
     def _with_state(scene: Scene, x: np.ndarray, v: np.ndarray, b: int) -> Scene:
@@ -301,26 +291,17 @@ class BatchSimulator:
             for name, value in values.items():
                 if name not in index:
                     raise ValueError(f"{argument}: unknown name {name!r} (known: {', '.join(index)})")
-                try:
-                    arr = np.asarray(value, dtype=float)
-                except (TypeError, ValueError):
-                    raise ValueError(f"{argument}[{name!r}]: not a number: {value!r}") from None
+                arr = float_array(value, f"{argument}[{name!r}]")
                 if arr.shape not in (item, (b, *item)):
                     raise ValueError(f"{argument}[{name!r}]: expected shape {item} (every copy) or "
                                      f"{(b, *item)} (per copy), got {arr.shape}")
                 out[:, index[name]] = arr
         else:
-            try:
-                arr = np.asarray(values, dtype=float)
-            except (TypeError, ValueError):
-                raise ValueError(f"{argument}: expected a mapping by name or an array of shape "
-                                 f"{current.shape} or {current.shape[1:]}") from None
+            arr = float_array(values, argument)
             if arr.shape not in (current.shape, current.shape[1:]):
                 raise ValueError(f"{argument}: expected shape {current.shape} (per copy) or "
                                  f"{current.shape[1:]} (every copy), got {arr.shape}")
             out[...] = arr
-        if not np.all(np.isfinite(out)):
-            raise ValueError(f"{argument}: values must be finite")
         return out
 
     def set_rest_lengths(self, values) -> None:

@@ -221,7 +221,8 @@ def test_bad_input_is_refused_and_changes_nothing():
     scene = ts.load_scene("icosahedron")
     with pytest.raises(ValueError, match=r"batch must be a whole number >= 1, got 0"):
         BatchSimulator(scene, 0)
-    with pytest.raises(ValueError, match=r"positions: expected shape \(2, 12, 3\), got \(3, 12, 3\)"):
+    with pytest.raises(ValueError, match=r"positions: expected shape \(2, 12, 3\) \(per copy\) or \(12, 3\) "
+                                         r"\(every copy\), got \(3, 12, 3\)"):
         BatchSimulator(scene, 2, positions=np.zeros((3, 12, 3)))
     stretched = np.array([scene.positions, scene.positions * 1.01])
     with pytest.raises(ValueError, match=r"positions\[1\]: rigid strut 's0' has length"):
@@ -237,7 +238,8 @@ def test_bad_input_is_refused_and_changes_nothing():
         ({"c0": [1.0, 1.0, 1.0]}, r"rest_lengths\['c0'\]: expected shape \(\) \(every copy\) or \(2,\) \(per copy\)"),
         (np.ones(5), r"rest_lengths: expected shape \(2, 24\) \(per copy\) or \(24,\) \(every copy\), got \(5,\)"),
         ({"c3": [1.0, -1.0]}, r"rest_lengths\[1\]\['c3'\]: must be > 0, got -1.0"),
-        ({"c3": [1.0, np.nan]}, r"rest_lengths: values must be finite"),
+        ({"c3": [1.0, np.nan]}, r"rest_lengths\['c3'\] must be finite, got \[1.0, nan\]"),
+        ("long", r"rest_lengths must be numbers, got 'long'"),
     ]:
         with pytest.raises(ValueError, match=match):
             batch.set_rest_lengths(bad)
