@@ -13,6 +13,7 @@ __all__ = [
     "bungee_dict", "bungee_constants", "bungee_exact",
     "deadband_dict", "deadband_exact",
     "snap_pair_dict", "snap_pair_exact",
+    "drop_slide_dict", "drop_slide_exact",
 ]
 
 
@@ -157,3 +158,34 @@ def snap_pair_exact(t, model, k=1.0e3, m1=1.0, m2=3.0, rest=1.0, d0=0.8, v_rel=2
         raise ValueError(f"model must be 'elastic' or 'inextensible', got {model!r}")
     x = np.array([[-s * m2 / M, drift * t, 0.0], [s * m1 / M, drift * t, 0.0]])
     return x, np.array([impulse])
+
+
+# ---------------------------------------------------------------------------------------------- drop and slide
+def drop_slide_dict(v0=2.0, gap=0.04, mu=0.5, g=9.81, length=1.0, radius=0.01, m=1.0):
+    """A rigid strut (``m`` kg per end, capsule of ``radius``) parallel to the ground ``z = 0`` (Coulomb
+    ``mu``, plastic), ``gap`` m above it, moving along its axis at ``v0``: it falls, lands flat, slides and
+    stops."""
+    return {
+        "name": "drop_slide",
+        "gravity": [0.0, 0.0, -g],
+        "ground": {"height": 0.0, "friction": mu, "restitution": 0.0},
+        "nodes": [{"name": "a", "position": [0.0, 0.0, gap + radius], "mass": m, "velocity": [v0, 0.0, 0.0]},
+                  {"name": "b", "position": [length, 0.0, gap + radius], "mass": m, "velocity": [v0, 0.0, 0.0]}],
+        "struts": [{"name": "s", "nodes": ["a", "b"], "stiffness": "rigid", "radius": radius}],
+    }
+
+
+def drop_slide_exact(t, v0=2.0, gap=0.04, mu=0.5, g=9.81, length=1.0, radius=0.01):
+    """Positions (2, 3) m and velocities (2, 3) m/s of :func:`drop_slide_dict` at ``t``: free fall for
+    ``sqrt(2 gap / g)``; the plastic landing's normal impulse ``m v_impact`` takes ``mu m v_impact`` off
+    the sliding speed (Coulomb's law for impulses); then deceleration ``mu g`` to rest."""
+    fall = math.sqrt(2.0 * gap / g)
+    if t <= fall:
+        x, z, vx, vz = v0 * t, gap + radius - 0.5 * g * t * t, v0, -g * t
+    else:
+        u = max(v0 - mu * g * fall, 0.0)
+        slide = min(t - fall, u / (mu * g))
+        x, z, vx, vz = v0 * fall + u * slide - 0.5 * mu * g * slide * slide, radius, u - mu * g * slide, 0.0
+    pos = np.array([[x, 0.0, z], [x + length, 0.0, z]])
+    vel = np.array([[vx, 0.0, vz], [vx, 0.0, vz]])
+    return pos, vel

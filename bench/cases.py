@@ -76,6 +76,15 @@ def _snap_pair(duration: float) -> Case:
                 "two free masses flying apart until their cable snaps taut (closed form, impulse exact)", exact)
 
 
+def _drop_slide(duration: float) -> Case:
+    def exact(model: str) -> Final:
+        x, v = analytic.drop_slide_exact(duration)
+        return Final(x, v, np.zeros(0))
+    return Case("drop_slide", ts.Scene.from_dict(analytic.drop_slide_dict()), duration, ("elastic", "inextensible"),
+                "rigid strut dropped 4 cm while sliding at 2 m/s onto a ground with friction 0.5: plastic landing, "
+                "Coulomb impulse, sliding to rest (closed form)", exact)
+
+
 def icosahedron_thrown(scale: float = 3.0, seed: int = 0) -> ts.Scene:
     """The built-in icosahedron (rigid struts, 613 N/m cables, no gravity) with random node velocities
     (normal, ``scale`` m/s) made rigid-consistent: it tumbles and its cables go slack and snap taut
@@ -106,6 +115,7 @@ def work_precision_cases() -> list[Case]:
         _bungee(2.0),
         _deadband(3.0),
         _snap_pair(0.5),
+        _drop_slide(0.5),
         Case("icosahedron_thrown", ico, 1.0, ("elastic",),
              "icosahedron (rigid struts) tumbling with random velocities of 3 m/s: cables slack and snap"),
         Case("icosahedron_thrown", ico, 1.0, ("inextensible",),

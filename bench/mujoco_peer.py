@@ -23,7 +23,11 @@ Modelling (one MJCF body per rigid strut or per free point mass; nothing else):
   size (the constraint's dynamics scale with ``dt``, so it does not converge to the inelastic snap);
   ``zeta = 30`` brings the snap-pair's impulse error down to 2e-4 N*s of 1.5 (measured), so the
   benchmarks run both.
-* Gravity from the scene, contacts disabled, no damping anywhere, no actuators.
+* Gravity from the scene, no damping anywhere, no actuators. Contacts are disabled, unless the scene has
+  a ``ground``: then it is a plane with the scene's friction, each rigid strut carries a capsule of its
+  radius (massless: the body's inertia stays the point masses') and each point mass a sphere of its
+  node's radius; only these touch the plane (not each other), with elliptic friction cones and
+  ``impratio`` (default 100, MuJoCo's advice for little slip).
 
 Cable damping is refused (MuJoCo's tendon damping acts also while slack). A node carrying two rigid
 struts, or a rigid strut with a fixed end, is refused (the bench scenes need neither).
@@ -56,7 +60,7 @@ class MujocoPeer:
     """
 
     def __init__(self, scene: ts.Scene, *, model: str = "elastic", dt: float = 1e-3, integrator: str = "RK4",
-                 axial_inertia: float = 1e-6, limit_dampratio: float = 1.0):
+                 axial_inertia: float = 1e-6, limit_dampratio: float = 1.0, impratio: float = 100.0):
         import mujoco
 
         if model not in ("elastic", "inextensible"):
@@ -66,6 +70,7 @@ class MujocoPeer:
         self._mj = mujoco
         self.scene, self.system, self.cable_model, self.dt = scene, System(scene), model, float(dt)
         self.integrator = integrator
+        self.impratio = float(impratio)
         self.xml = self._mjcf(integrator, axial_inertia, limit_dampratio)
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
@@ -90,6 +95,15 @@ class MujocoPeer:
                     raise ValueError(f"MujocoPeer: node {names[p]!r} carries two rigid struts (not modelled)")
                 rigid_of[p] = i
         world, bodies = [], []
+        ground = scene.ground
+        radii = scene.node_radii
+        # what touches the ground: contype 1 against the plane's conaffinity 1, never each other
+        # (MuJoCo combines two geoms' friction by the larger: the moving geoms carry the ground's too)
+        touch = (f' contype="1" conaffinity="0" condim="3" friction="{ground.friction!r} 0 0"'
+                 if ground is not None else "")
+        if ground is not None:
+            world.append(f'<geom type="plane" size="0 0 1" pos="0 0 {ground.height!r}" contype="0" conaffinity="1" '
+                         f'friction="{ground.friction!r} 0 0" condim="3"/>')
         for p in np.flatnonzero(~sys.free):
             world.append(f'<site name="node_{names[p]}" pos="{_fmt(x[p])}"/>')
         for p in np.flatnonzero(sys.free):
@@ -100,6 +114,7 @@ class MujocoPeer:
                 + "".join(f'<joint type="slide" axis="{ax}"/>' for ax in ("1 0 0", "0 1 0", "0 0 1"))
                 # no rotational freedom: this inertia never enters the dynamics, MuJoCo only needs it > 0
                 + f'<inertial pos="0 0 0" mass="{float(masses[p])!r}" diaginertia="1e-9 1e-9 1e-9"/>'
+                + (f'<geom type="sphere" size="{max(float(radii[p]), 1e-6)!r}" mass="0"{touch}/>' if touch else "")
                 + f'<site name="node_{names[p]}"/></body>')
         for i in sorted(set(rigid_of.values())):
             a, b = sys.strut_ends[i]
@@ -114,7 +129,9 @@ class MujocoPeer:
                 f'<body name="strut_{scene.strut_names[i]}" pos="{_fmt(com)}"><freejoint/>'
                 f'<inertial pos="0 0 0" mass="{float(m2.sum())!r}" fullinertia="{_fmt(full)}"/>'
                 f'<site name="node_{names[a]}" pos="{_fmt(r[0])}"/><site name="node_{names[b]}" pos="{_fmt(r[1])}"/>'
-                "</body>")
+                + (f'<geom type="capsule" fromto="{_fmt(np.concatenate([r[0], r[1]]))}" '
+                   f'size="{max(float(scene.struts[i].radius), 1e-6)!r}" mass="0"{touch}/>' if touch else "")
+                + "</body>")
         tendons, sensors = [], []
         moving = sys.free[sys.ends].any(axis=1)
         for i in np.flatnonzero(~sys.rigid & moving[: sys.n_struts]):
@@ -137,9 +154,10 @@ class MujocoPeer:
             sensors.append(f'<{kind} tendon="cable_{cable.name}"/>')
         return (
             f'<mujoco model="{scene.name}"><compiler angle="radian"/>'
-            f'<option timestep="{self.dt!r}" integrator="{integrator}" gravity="{_fmt(scene.gravity)}">'
-            '<flag contact="disable"/></option>'
-            f'<worldbody>{"".join(world)}{"".join(bodies)}</worldbody>'
+            f'<option timestep="{self.dt!r}" integrator="{integrator}" gravity="{_fmt(scene.gravity)}"'
+            + (f' cone="elliptic" impratio="{self.impratio!r}"></option>' if ground is not None
+               else '><flag contact="disable"/></option>')
+            + f'<worldbody>{"".join(world)}{"".join(bodies)}</worldbody>'
             f'<tendon>{"".join(tendons)}</tendon><sensor>{"".join(sensors)}</sensor></mujoco>')
 
     # ------------------------------------------------------------------------------- state

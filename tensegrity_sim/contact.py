@@ -60,7 +60,7 @@ last check, a step costs one array comparison over the nodes. When a scene check
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -89,7 +89,9 @@ _SQRT3 = float(np.sqrt(3.0))  # |d|_2 <= sqrt(3) |d|_inf for a 3-vector
 class ActiveContact:
     """An ongoing contact. members: (name_a, name_b). since: s, time of its begin event.
     point_a, point_b: closest points (3,) m now. normal: unit (3,), from a to b.
-    distance: m, segment distance minus both radii now (negative: penetration)."""
+    distance: m, segment distance minus both radii now (negative: penetration).
+    normal_impulse: N*s, normal impulse of the last step; tangential_impulse (3,) N*s its friction
+    (zero for contacts that are only detected)."""
 
     members: tuple[str, str]
     since: float
@@ -97,6 +99,8 @@ class ActiveContact:
     point_b: np.ndarray
     normal: np.ndarray
     distance: float
+    normal_impulse: float = 0.0
+    tangential_impulse: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
 def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -18,8 +18,8 @@ Conventions (contract section 1, physics section 1): SI units; member force ``t`
 member (a, b) pushes node a with ``+t (x_b - x_a)/l`` and node b with the opposite; cables carry
 ``k max(0, l - L)``, elastic struts ``k (l - L)``, rigid struts whatever equilibrium needs.
 
-``python -m tensegrity_sim.formfinding`` regenerates ``scenes/prism3.yaml``, ``scenes/icosahedron.yaml``
-and ``scenes/tower.yaml`` next to this file.
+``python -m tensegrity_sim.formfinding`` regenerates ``scenes/prism3.yaml``, ``scenes/icosahedron.yaml``,
+``scenes/icosahedron_ground.yaml`` and ``scenes/tower.yaml`` next to this file.
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ from .contact import closest_points
 __all__ = [
     "prism",
     "icosahedron",
+    "icosahedron_ground",
     "tower",
     "equilibrium_residual",
     "member_forces",
@@ -348,6 +349,99 @@ def icosahedron(
     )
 
 
+def _settle_on_face(X, weight, members, cable, k, rest, strut_lengths, strut_forces, face):
+    """Positions (N, 3) m at which the structure, its ``face`` nodes held where they are (by the ground
+    and friction), is in static equilibrium under node weights ``weight`` (N,) N, elastic cables
+    (``k``, ``rest``) and rigid struts (``strut_lengths``). The expanded octahedron has an infinitesimal
+    mechanism that only its prestress stiffens, so a load in general needs the geometry to give a little;
+    Newton's method (scipy's hybrid Powell) finds where. Unknowns: the other nodes' positions and the
+    struts' forces (initial guess ``strut_forces``)."""
+    from scipy.optimize import root
+    others = np.setdiff1d(np.arange(len(X)), face)
+    index = np.full(len(X), -1)
+    index[others] = np.arange(len(others))
+    n_other = len(others)
+
+    def residual(z):
+        Y = X.copy()
+        Y[others] = z[: 3 * n_other].reshape(-1, 3)
+        l, _ = _unit_vectors(Y, members)
+        t = np.empty(len(members))
+        t[~cable] = z[3 * n_other:]
+        t[cable] = k[cable] * np.maximum(l[cable] - rest, 0.0)
+        force = (_equilibrium_matrix(Y, members, index) @ t).reshape(-1, 3)
+        force[:, 2] -= weight[others]
+        return np.concatenate([force.ravel(), l[~cable] - strut_lengths])
+
+    sol = root(residual, np.concatenate([X[others].ravel(), strut_forces]), method="hybr", tol=1e-14)
+    if not sol.success or np.abs(residual(sol.x)).max() > 1e-9:
+        raise RuntimeError(f"no static equilibrium on the face: {sol.message}")
+    Y = X.copy()
+    Y[others] = sol.x[: 3 * n_other].reshape(-1, 3)
+    return Y
+
+
+def icosahedron_ground(friction: float = 0.8, cable_tension: float = 80.0, gravity: float = 9.81) -> dict:
+    """The :func:`icosahedron` resting on one of its closed cable faces on the ground ``z = 0`` (Coulomb
+    ``friction``), under ``gravity`` (m/s^2, along -z), in exact static equilibrium for both methods.
+
+    The structure is turned so that the face ``n0 n4 n8`` (three nodes joined pairwise by cables) lies
+    flat at the bottom, its nodes at the struts' radius above the ground (a node touches the ground at its
+    position minus its largest member radius) and the centre of mass above the origin. The ground pushes
+    only on those three nodes; their vertical reactions follow from the statics of the whole (vertical
+    force and the two moments about the centre of mass). The member forces then solve ``A t + f = 0`` for
+    gravity plus reactions, plus the multiple of the self-stress that makes the cables' mean tension
+    ``cable_tension`` (N); the cable rest lengths are ``l - t/k``. The structure has an infinitesimal
+    mechanism, so that is not yet equilibrium: the nodes off the face then settle to where it is
+    (:func:`_settle_on_face`, a few mm), with the face held by the ground and friction.
+    """
+    base = icosahedron(cable_tension=cable_tension, name="icosahedron_ground")
+    X, mass, _, members, kind, k, _ = _parse(base)
+    face = [0, 4, 8]
+    normal = np.cross(X[face[1]] - X[face[0]], X[face[2]] - X[face[0]])
+    normal /= np.linalg.norm(normal)
+    if normal @ X[face].mean(axis=0) < 0:
+        normal = -normal
+    # Rodrigues: the rotation that takes the face's outward normal to -z
+    down = np.array([0.0, 0.0, -1.0])
+    axis = np.cross(normal, down)
+    sin, cos = np.linalg.norm(axis), float(normal @ down)
+    cross = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    R = np.eye(3) + cross + cross @ cross * ((1 - cos) / sin ** 2)
+    X = X @ R.T
+    radius = max(m["radius"] for m in base["struts"] + base["cables"])
+    centre = (mass[:, None] * X).sum(axis=0) / mass.sum()
+    X -= np.array([centre[0], centre[1], X[face, 2].min() - radius])
+    X[face, 2] = radius   # exactly on the ground (the rotation leaves round-off)
+    weight = mass.sum() * gravity
+    # reactions: sum = weight, no moment about the centre of mass (x and y)
+    lever = np.vstack([np.ones(3), X[face, 0], X[face, 1]])
+    reactions = np.linalg.solve(lever, [weight, 0.0, 0.0])
+    f = np.zeros((len(X), 3))
+    f[:, 2] = -mass * gravity
+    f[face, 2] += reactions
+    free = np.arange(len(X))
+    A = _equilibrium_matrix(X, members, free).toarray()
+    t = np.linalg.lstsq(A, -f.ravel(), rcond=None)[0]
+    s = _self_stress(A)
+    cable = kind == "cable"
+    s = s if s[cable].sum() > 0 else -s
+    t += s * (cable_tension - t[cable].mean()) / s[cable].mean()
+    if t[cable].min() <= 0.0:
+        raise RuntimeError("the cables cannot all be taut under this load")
+    l, _ = _unit_vectors(X, members)
+    rest = _rest_lengths(l[cable], t[cable], k[cable])
+    X = _settle_on_face(X, mass * gravity, members, cable, k, rest, l[~cable], t[~cable], face)
+    l, _ = _unit_vectors(X, members)
+    scene = _scene("icosahedron_ground", X, (0.0, 0.0, -gravity), mass, np.zeros(len(X), bool),
+                   [{"a": a, "b": b, "stiffness": "rigid", "rest_length": l[i], "radius": m["radius"]}
+                    for i, ((a, b), m) in enumerate(zip(members[~cable], base["struts"]))],
+                   [{"a": a, "b": b, "stiffness": k[cable][i], "rest_length": rest[i], "radius": m["radius"]}
+                    for i, ((a, b), m) in enumerate(zip(members[cable], base["cables"]))])
+    scene["ground"] = {"height": 0.0, "friction": float(friction), "restitution": 0.0}
+    return scene
+
+
 def _tower_topology(stages, radius, height, overlap, twist, shift):
     """Geometry and members of the stacked-prism tower (see :func:`tower`)."""
     X = []
@@ -535,9 +629,21 @@ def _forces(scene: dict):
     A = _equilibrium_matrix(X, members, free).toarray()
     rigid = kind == "rigid"
     F = (mass[~fixed, None] * g).ravel() + A[:, ~rigid] @ t[~rigid]
-    if rigid.any():
-        t[rigid] = np.linalg.lstsq(A[:, rigid], -F, rcond=None)[0]
-        F = F + A[:, rigid] @ t[rigid]
+    # unknown forces solved by least squares: the rigid struts', and the ground's push on the free nodes
+    # that touch it (at its height plus their largest member radius)
+    unknown = A[:, rigid]
+    if scene.get("ground") is not None:
+        radius = np.zeros(len(X))
+        for (a, b), m in zip(members, (scene.get("struts") or []) + (scene.get("cables") or [])):
+            radius[[a, b]] = np.maximum(radius[[a, b]], float(m.get("radius", 0.0)))
+        touching = np.flatnonzero(~fixed & (X[:, 2] - radius - scene["ground"].get("height", 0.0) <= 1e-9))
+        push = np.zeros((A.shape[0], len(touching)))
+        push[3 * free[touching] + 2, np.arange(len(touching))] = 1.0
+        unknown = np.hstack([unknown, push])
+    if unknown.shape[1]:
+        solution = np.linalg.lstsq(unknown, -F, rcond=None)[0]
+        t[rigid] = solution[: int(rigid.sum())]
+        F = F + unknown @ solution
     return t, F.reshape(-1, 3), kind
 
 
@@ -560,7 +666,8 @@ def equilibrium_residual(scene: dict) -> float:
     """Largest norm (N) of the net force on any free node of a scene mapping at rest at its positions.
 
     Gravity on the lumped masses, cable ``k max(0, l - L)``, elastic strut ``k (l - L)``, and rigid-strut
-    forces chosen by least squares (so a rigid scene is judged by whether *some* strut forces balance it).
+    forces and the ground's vertical push on the nodes touching it chosen by least squares (so a rigid
+    scene is judged by whether *some* strut forces and ground reactions balance it).
     """
     _, F, _ = _forces(scene)
     return float(np.linalg.norm(F, axis=1).max()) if len(F) else 0.0
@@ -615,6 +722,14 @@ def write_builtin_scenes(directory: str | Path | None = None) -> dict[str, float
             "3-stage tower of twisted prisms, base nodes fixed, gravity -9.81 m/s^2 along z.\n"
             "Node mass 0.5 kg; struts elastic 4.0e4 N/m; cables 1.0e4 N/m; member forces from a linear\n"
             "programme: exact equilibrium with gravity, every cable >= 20 N, every strut <= -20 N.",
+        ),
+        (
+            "icosahedron_ground.yaml",
+            "icosahedron_ground()",
+            icosahedron_ground(),
+            "The icosahedron resting on its cable face n0 n4 n8 on the ground z = 0 (friction 0.8, plastic),\n"
+            "gravity -9.81 m/s^2 along z: ground reactions on n0, n4, n8 balance the weight (206 N); member\n"
+            "forces solve equilibrium with them plus the self-stress at a mean cable tension of 80 N.",
         ),
     ]
     for fname, func, scene, notes in specs:

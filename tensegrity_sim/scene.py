@@ -29,6 +29,8 @@ __all__ = [
     "Node",
     "Strut",
     "Cable",
+    "Ground",
+    "ContactResponse",
     "Scene",
     "load_scene",
     "builtin_scenes",
@@ -82,6 +84,26 @@ class Cable:
     radius: float = 0.0  # m
 
 
+@dataclass(frozen=True)
+class Ground:
+    """The plane ``z = height`` (m) that nothing passes below; ``friction``: Coulomb coefficient (static
+    = kinetic) >= 0; ``restitution``: Newton's coefficient in [0, 1] (0: perfectly plastic)."""
+
+    height: float = 0.0
+    friction: float = 0.0
+    restitution: float = 0.0
+
+
+@dataclass(frozen=True)
+class ContactResponse:
+    """What member contacts do: ``response`` false (default) detects them only; true keeps members from
+    interpenetrating, with Coulomb ``friction`` >= 0 and ``restitution`` in [0, 1]."""
+
+    response: bool = False
+    friction: float = 0.0
+    restitution: float = 0.0
+
+
 class _Context:
     """Builds error messages: ``source: entry 'name': field message``."""
 
@@ -130,6 +152,13 @@ def _non_negative(ctx: _Context, where: str, fld: str, value: Any) -> float:
     return value
 
 
+def _fraction(ctx: _Context, where: str, fld: str, value: Any) -> float:
+    value = _number(ctx, where, fld, value)
+    if not 0.0 <= value <= 1.0:
+        raise ctx.error(where, f"{fld} must be in [0, 1], got {value!r}")
+    return value
+
+
 def _vector3(ctx: _Context, where: str, fld: str, value: Any) -> tuple[float, float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
         raise ctx.error(where, f"{fld} must be a list of 3 numbers, got {describe(value)}")
@@ -172,8 +201,9 @@ def contact_kinds(value: Any, fld: str) -> tuple[str, ...]:
     return tuple(k for k in CONTACT_KINDS if k in value)
 
 
-_TOP_KEYS = {"name", "gravity", "nodes", "struts", "cables", "contact"}
-_CONTACT_KEYS = {"kinds"}
+_TOP_KEYS = {"name", "gravity", "nodes", "struts", "cables", "contact", "ground"}
+_CONTACT_KEYS = {"kinds", "response", "friction", "restitution"}
+_GROUND_KEYS = {"height", "friction", "restitution"}
 _NODE_KEYS = {"name", "position", "mass", "velocity", "fixed"}
 _STRUT_KEYS = {"name", "nodes", "stiffness", "rest_length", "mass", "radius"}
 _CABLE_KEYS = {"name", "nodes", "stiffness", "rest_length", "damping", "radius"}
@@ -193,6 +223,8 @@ class Scene:
     struts: tuple[Strut, ...]
     cables: tuple[Cable, ...]
     contact_kinds: tuple[str, ...] = DEFAULT_CONTACT_KINDS  # member pairs contact detection checks
+    ground: Ground | None = None                            # None: no ground
+    contact_response: ContactResponse = ContactResponse()   # what member contacts do
     source: str = field(default="", compare=False)
 
     # ----------------------------------------------------------------- names
@@ -240,6 +272,17 @@ class Scene:
         """Initial cable rest lengths, (n_cables,) m."""
         return np.array([c.rest_length for c in self.cables], dtype=float)
 
+    @property
+    def node_radii(self) -> np.ndarray:
+        """(N,) m: the largest radius of each node's members (0 for a bare node). A node touches the
+        ground at its position minus this radius."""
+        index = {n.name: i for i, n in enumerate(self.nodes)}
+        r = np.zeros(len(self.nodes))
+        for m in self.struts + self.cables:
+            for end in m.nodes:
+                r[index[end]] = max(r[index[end]], m.radius)
+        return r
+
     def member_index(self, members: tuple[Strut, ...] | tuple[Cable, ...]) -> np.ndarray:
         """(n, 2) int node indices of the members' ends (a, b)."""
         index = {n.name: i for i, n in enumerate(self.nodes)}
@@ -265,21 +308,38 @@ class Scene:
         struts = cls._parse_members(ctx, "struts", mapping.get("struts", []), nodes, member_names)
         cables = cls._parse_members(ctx, "cables", mapping.get("cables", []), nodes, member_names)
 
-        kinds = cls._parse_contact(ctx, mapping.get("contact", {}))
+        kinds, response = cls._parse_contact(ctx, mapping.get("contact", {}))
+        ground = cls._parse_ground(ctx, mapping["ground"]) if "ground" in mapping else None
 
         scene = cls(name=name, gravity=gravity, nodes=tuple(nodes), struts=tuple(struts),
-                    cables=tuple(cables), contact_kinds=kinds, source=source)
+                    cables=tuple(cables), contact_kinds=kinds, ground=ground, contact_response=response,
+                    source=source)
         scene._check_masses(ctx)
         scene._warn_class_k()
         return scene
 
     @staticmethod
-    def _parse_contact(ctx: _Context, raw: Any) -> tuple[str, ...]:
+    def _parse_contact(ctx: _Context, raw: Any) -> tuple[tuple[str, ...], ContactResponse]:
         _check_keys(ctx, "contact", raw, _CONTACT_KEYS, set())
         try:
-            return contact_kinds(raw.get("kinds", list(DEFAULT_CONTACT_KINDS)), "kinds")
+            kinds = contact_kinds(raw.get("kinds", list(DEFAULT_CONTACT_KINDS)), "kinds")
         except ValueError as exc:
             raise ctx.error("contact", str(exc)) from None
+        response = _bool(ctx, "contact", "response", raw.get("response", False))
+        friction = _non_negative(ctx, "contact", "friction", raw.get("friction", 0.0))
+        restitution = _fraction(ctx, "contact", "restitution", raw.get("restitution", 0.0))
+        if response:
+            # refused at load time rather than ignored: a scene that asks for it must not silently pass through
+            raise ctx.error("contact", "response: true is not supported yet (member-member contact response); "
+                                       "only the ground responds to contact")
+        return kinds, ContactResponse(response, friction, restitution)
+
+    @staticmethod
+    def _parse_ground(ctx: _Context, raw: Any) -> Ground:
+        _check_keys(ctx, "ground", raw, _GROUND_KEYS, set())
+        return Ground(_number(ctx, "ground", "height", raw.get("height", 0.0)),
+                      _non_negative(ctx, "ground", "friction", raw.get("friction", 0.0)),
+                      _fraction(ctx, "ground", "restitution", raw.get("restitution", 0.0)))
 
     @staticmethod
     def _parse_nodes(ctx: _Context, raw_nodes: Any) -> list[Node]:
@@ -400,8 +460,17 @@ class Scene:
                         "rest_length": c.rest_length, "damping": c.damping, "radius": c.radius}
                        for c in self.cables],
         }
+        contact: dict[str, Any] = {}
         if self.contact_kinds != DEFAULT_CONTACT_KINDS:  # scenes that keep the default stay as they were
-            out["contact"] = {"kinds": list(self.contact_kinds)}
+            contact["kinds"] = list(self.contact_kinds)
+        if self.contact_response != ContactResponse():
+            contact.update(response=self.contact_response.response, friction=self.contact_response.friction,
+                           restitution=self.contact_response.restitution)
+        if contact:
+            out["contact"] = contact
+        if self.ground is not None:
+            out["ground"] = {"height": self.ground.height, "friction": self.ground.friction,
+                             "restitution": self.ground.restitution}
         return out
 
     def to_yaml(self) -> str:

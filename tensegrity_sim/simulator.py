@@ -17,6 +17,7 @@ import numpy as np
 
 from .checks import check_memory, describe, float_array, real, time_step, whole
 from .contact import ActiveContact, make_detector
+from .ground_contact import GroundDetector
 from .methods import State, StepError, make_method
 from .results import StepResult, Trajectory
 from .scene import Scene, contact_kinds
@@ -118,6 +119,7 @@ class Simulator:
         self._method, self.method_reason = make_method(self.system, method, self.dt, solver=solver)
         # None when nothing can be in contact: then detection costs nothing at all
         self._contacts = make_detector(self.system, scene.contact_kinds)
+        self._ground = None if scene.ground is None else GroundDetector(self.system)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
         self.reset()
@@ -131,6 +133,8 @@ class Simulator:
         self._method.invalidate()
         if self._contacts is not None:
             self._contacts.reset(self._state.positions)
+        if self._ground is not None:
+            self._ground.reset(self._state.positions)
 
     @property
     def method(self) -> str:
@@ -210,6 +214,13 @@ class Simulator:
         st = self._state
         contacts = () if self._contacts is None else self._contacts.step(st.positions, out.positions,
                                                                           self.time, self.dt)
+        if self._ground is not None:
+            landed = self._ground.step(st.positions, out.positions, st.velocities, self.time, self.dt,
+                                       out.contact_impulses)
+            if landed:
+                contacts = tuple(sorted(contacts + landed, key=lambda e: e.time))
+        contact_impulses = (np.zeros_like(out.positions) if out.contact_impulses is None
+                            else out.contact_impulses)
         st.positions, st.velocities = out.positions, out.velocities
         st.step_count += 1
         return StepResult(
@@ -220,6 +231,7 @@ class Simulator:
             tensions=out.impulses / self.dt,
             slack=self.slack() if out.slack is None else out.slack,
             contacts=contacts,
+            contact_impulses=contact_impulses,
         )
 
     @property
@@ -229,8 +241,11 @@ class Simulator:
 
     def active_contacts(self) -> tuple[ActiveContact, ...]:
         """Every contact going on now (begun, not yet ended), with its current gap (negative while the
-        members overlap) and closest points: the events only mark begins and ends."""
-        return () if self._contacts is None else self._contacts.active(self._state.positions)
+        members overlap) and closest points: the events only mark begins and ends. Ground contacts
+        (``(node name, "ground")``) carry the normal and friction impulses of the last step."""
+        members = () if self._contacts is None else self._contacts.active(self._state.positions)
+        ground = () if self._ground is None else self._ground.active(self._state.positions)
+        return members + ground
 
     def slack(self) -> np.ndarray:
         """(n_cables,) bool: the cables slack now, in the method's model."""
@@ -255,6 +270,7 @@ class Simulator:
         vel = np.empty((len(kept), n, 3))
         imp = np.zeros((len(kept), nc))
         slack = np.empty((len(kept), nc), dtype=bool)
+        ground = np.zeros((len(kept), n, 3))   # the ground's impulses, summed like the cables'
         contacts = []
         compiled = callback is None and self._method.has_loop()
         if compiled:
@@ -273,12 +289,13 @@ class Simulator:
                 r = self.step()
                 j = k // every
                 imp[j] += r.impulses
+                ground[j] += r.contact_impulses
                 if k + 1 == kept[j]:
                     pos[j], vel[j], slack[j] = r.positions, r.velocities, r.slack
                 contacts.extend(r.contacts)
                 if callback is not None:
                     callback(k, r)
-        return Trajectory(time, pos, vel, imp, imp / (span[:, None] * self.dt), slack, contacts)
+        return Trajectory(time, pos, vel, imp, imp / (span[:, None] * self.dt), slack, contacts, ground)
 
     def _run_compiled(self, steps, every, pos, vel, imp, slack, contacts) -> None:
         """:meth:`run` in the method's compiled loop: straight into the trajectory's arrays, or, with

@@ -453,7 +453,7 @@ BASE = crossing_dict()
     ({"kinds": "strut_strut"},
      "contact: kinds must be a list of member kinds (strut_strut, strut_cable, cable_cable), got 'strut_strut'"),
     ({"kinds": ["strut_strut", "strut_strut"]}, "contact: kinds: duplicate member kind 'strut_strut'"),
-    ({"types": []}, "contact: unknown key 'types' (allowed: kinds)"),
+    ({"types": []}, "contact: unknown key 'types' (allowed: friction, kinds, response, restitution)"),
     (["strut_strut"], "contact: must be a mapping, got list"),
 ])
 def test_contact_key_refused_with_exact_message(contact, message):

@@ -42,7 +42,7 @@ REFUSED = [
     (edited(["nodes", 1, "position"], [1.0, math.inf, 0.0]), "nodes[1] 'n1': position must be finite, got inf"),
     (edited(["nodes", 1, "position"], [1.0, 0.0]), "nodes[1] 'n1': position must be a list of 3 numbers, got [1.0, 0.0]"),
     (edited(["nodes", 1, "colour"], "red"), "nodes[1] 'n1': unknown key 'colour' (allowed: fixed, mass, name, position, velocity)"),
-    (edited(["colour"], "red"), "unknown key 'colour' (allowed: cables, contact, gravity, name, nodes, struts)"),
+    (edited(["colour"], "red"), "unknown key 'colour' (allowed: cables, contact, gravity, ground, name, nodes, struts)"),
     (edited(["nodes", 2, "name"], "n0"), "nodes[2] 'n0': duplicate name 'n0'"),
     (edited(["cables", 1, "name"], "s0"), "cables[1] 's0': duplicate name 's0'"),
     (edited(["nodes", 2, "name"], "2bad"), "nodes[2] '2bad': name must match [A-Za-z_][A-Za-z0-9_]*, got '2bad'"),

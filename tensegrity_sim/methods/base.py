@@ -58,12 +58,14 @@ class State:
 class MethodStep:
     """One step's outcome: positions, velocities (N, 3) at the step's end; impulses (n_cables,) N*s;
     slack (n_cables,) bool at the step's end if the method has it at hand (else the simulator asks
-    ``slack()``)."""
+    ``slack()``); contact_impulses (N, 3) N*s, the ground's impulse on each node over the step (None
+    without a ground)."""
 
     positions: np.ndarray
     velocities: np.ndarray
     impulses: np.ndarray
     slack: np.ndarray | None = None
+    contact_impulses: np.ndarray | None = None
 
 
 class StepMethod:

@@ -50,6 +50,11 @@ event instead, located inside the step and resolved where it happens:
    kinetic energy cannot grow.
 3. The rest of the step is another sub-step, in which the snapped cable is taut.
 
+**Ground** (a scene with a ``ground``; ``methods/friction.py``): the backend is wrapped so that every
+QP above also carries the ground's contact rows (normal rows with the same landing targets and caps as
+the cables', Coulomb friction by a mode fixed point); a node reaching the ground is an event located
+like a snap, and the impact at its start is one inelastic impact with the snapping cables.
+
 **Prestress.** A scene written for elastic cables has them longer than their rest lengths by
 ``tension / k``. The method takes each cable's length limit as its rest length plus that stretch at load
 time (``length_offsets``), keeps the offset when rest lengths are commanded, warns
@@ -69,6 +74,7 @@ from ..system import System
 from . import _inextensible_kernels as kernels
 from . import _qp_kernels as qp_kernels
 from .base import MethodStep, State, StepMethod
+from .friction import GroundResponse
 from .qp import QPError, Rows, choose_solver, make_solver
 from .rigid import RigidStruts
 
@@ -124,6 +130,10 @@ class InextensibleMethod(StepMethod):
         self.solver_choice = f"{solver}: requested" if solver else choose_solver(int(free.sum()))[1]
         self.solver = make_solver(solver, system.masses[free])
         self.compiled = compiled   # the solver's rows and check follow (the property below)
+        # a ground adds its contact rows to every QP (methods/friction.py), through the same interface
+        self.ground = None if scene.ground is None else GroundResponse(system, self.solver)
+        if self.ground is not None:
+            self.solver = self.ground.solver
         # The member table of the QP rows: the rigid struts that move (equalities), then every cable.
         self.rigid = RigidStruts(system)
         self._n_eq = self.rigid.count
@@ -212,6 +222,8 @@ class InextensibleMethod(StepMethod):
             reel = np.minimum(state.rest_lengths - self._last_rest, 0.0) / self.dt
         f_ext = self.system.gravity_force + state.external_forces
         impulses = np.zeros(self.system.n_cables)
+        if self.ground is not None:
+            self.ground.begin_step()
         holding = self._holding
         hint = self._hint
         remaining = self.dt
@@ -219,15 +231,19 @@ class InextensibleMethod(StepMethod):
             d, length = self._cable_geometry(x)
             at_limit = (length >= floor) & self._cables_move
             maybe = at_limit & ~holding
-            if maybe.any() and v.any():
-                v, y = self._impact(x, v, d, length, limits, at_limit, maybe, holding)
+            landing = self.ground is not None and self.ground.arm_impact(x, v, self.dt)
+            if (maybe.any() or landing) and v.any():
+                v, y = self._impact(x, v, d, length, limits, at_limit, maybe, holding, landing)
                 if y is not None:
                     impulses[at_limit] += y
             tau = remaining
             x_m, v0 = self._free_motion(x, v, tau, f_ext)
             cut = False
-            if event < MAX_EVENTS and not at_limit.all():
-                theta = self._first_snap(d, limits, v, v0, tau, ~at_limit & self._cables_move)
+            if event < MAX_EVENTS:
+                theta = 1.0 if at_limit.all() else self._first_snap(d, limits, v, v0, tau,
+                                                                    ~at_limit & self._cables_move)
+                if self.ground is not None:
+                    theta = min(theta, self.ground.first_impact(x, v, v0, tau))
                 cut = _MIN_EVENT * self.dt < theta * tau < tau - _MIN_EVENT * self.dt
                 if cut:
                     tau = theta * tau
@@ -241,7 +257,8 @@ class InextensibleMethod(StepMethod):
         self._holding = self._hint = holding
         self._last_rest = state.rest_lengths
         self._end_geometry = (x, *self._cable_geometry(x))   # x is a new array: computed, not cached
-        return MethodStep(x, v, impulses, self._end_geometry[2] < floor)
+        contact = None if self.ground is None else self.ground.take_impulses()
+        return MethodStep(x, v, impulses, self._end_geometry[2] < floor, contact)
 
     def _free_motion(self, x, v, tau, f_ext):
         """Midpoint ``x_m`` (N, 3) and free velocity ``v0 = v + tau M^-1 F(x_m)`` (N, 3)."""
@@ -290,10 +307,19 @@ class InextensibleMethod(StepMethod):
         else:
             cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = self._rows_reference(
                 x_m, v, v0, tau, all_limits, floor, reel, holding)
-        if len(sel) == 0:   # nothing can be taut: free motion, no QP
-            return x_m + (0.5 * tau) * v0, v0, np.zeros(len(limits))
+        touching = self.ground is not None and self.ground.arm_step(x_m, v, v0, tau, 0.5 * tau)
+        if len(sel) == 0:   # nothing can be taut: free motion, no QP (unless on the ground)
+            v_f = v0
+            if touching:
+                v_f = v0.copy()
+                v_f[self._free] = self.solver.solve(v0[self._free], Rows(np.zeros((0, 2), int), np.zeros((0, 3)),
+                                                                         np.zeros(0), 0))[0]
+                self.solver.commit()
+            return x_m + (0.5 * tau) * v_f, v_f, np.zeros(len(limits))
         rows = Rows(self._row_nodes[sel], m_n, targets, n_eq)
         v_f, y = self._land(v, v0, rows, warm, self._ends[sel], m_length, m_limits, tau, floor_rate, reel)
+        if self.ground is not None:
+            self.solver.commit()
         impulses = np.zeros(len(limits))
         impulses[cables] = y[n_eq:]
         return x_m + (0.5 * tau) * v_f, v_f, impulses
@@ -375,18 +401,19 @@ class InextensibleMethod(StepMethod):
         np.maximum(land, floor_rate[n_eq:], out=targets[n_eq:])
         return targets
 
-    def _impact(self, x, v, d, length, limits, at_limit, maybe, holding):
+    def _impact(self, x, v, d, length, limits, at_limit, maybe, holding, landing=False):
         """Moreau's impact law at ``x`` when a cable at its limit that was not holding (``maybe``)
         separates: ``v+ = argmin |v+ - v|_M`` with ``b^T v+ <= 0`` for every cable at its limit and
         ``b^T v+ = 0`` for the rigid struts. The admissible set is a cone, so the projection never
-        increases the kinetic energy. Returns ``v+`` (N, 3) and the impulses of the cables ``at_limit``,
-        or ``v`` and None when no cable snaps."""
+        increases the kinetic energy. With ``landing``, nodes hitting the ground (armed in ``self.ground``)
+        are part of the same impact. Returns ``v+`` (N, 3) and the impulses of the cables ``at_limit``,
+        or ``v`` and None when nothing snaps or lands."""
         ends = self.system.cable_ends
         n = d / length[:, None]
         rate = self.system.member_rates(v, n, ends)
         # separating faster than would stretch it beyond the tolerance within a step: a snap
         snapping = maybe & (rate * self.dt > LIMIT_TOL * limits)
-        if not snapping.any():
+        if not (snapping.any() or landing):
             return v, None
         cables = np.flatnonzero(at_limit)
         n_eq = self._n_eq
@@ -397,6 +424,9 @@ class InextensibleMethod(StepMethod):
         rows = Rows(self._row_nodes[sel], directions, np.zeros(len(sel)), n_eq)
         warm = np.concatenate([np.ones(n_eq, dtype=bool), snapping[cables] | holding[cables]])
         v_free, y = self.solver.solve(v[self._free], rows, warm)
+        if landing:
+            self.solver.commit()
+            self.ground.solver.disarm()
         v_plus = np.zeros_like(v)
         v_plus[self._free] = v_free
         return v_plus, y[n_eq:]

@@ -253,6 +253,20 @@ class _MarkerStyle:
                 "points": [{}] * (points or 0), "colors": [{}] * (points or 0) if colored else []}
 
 
+def _ground_grid(scene, size: float) -> np.ndarray:
+    """A square grid of lines (LINE_LIST points (k, 3) m) on the ground plane under the scene's start,
+    four scene sizes wide, lines half a size apart; none without a ground."""
+    if scene.ground is None:
+        return np.zeros((0, 3))
+    cx, cy = scene.positions[:, :2].mean(axis=0)
+    ticks = np.arange(-4, 5) * 0.5 * size
+    lo, hi = ticks[0], ticks[-1]
+    lines = [[(cx + t, cy + lo), (cx + t, cy + hi)] for t in ticks] + [[(cx + lo, cy + t), (cx + hi, cy + t)]
+                                                                       for t in ticks]
+    xy = np.array(lines, dtype=float).reshape(-1, 2)
+    return np.column_stack([xy, np.full(len(xy), scene.ground.height)])
+
+
 # --------------------------------------------------------------------------- contacts encoding
 def encode_contacts(events: list[ContactEvent], header):
     """``~/contacts`` (diagnostic_msgs/DiagnosticArray): one ``DiagnosticStatus`` per event, in time order.
@@ -260,7 +274,9 @@ def encode_contacts(events: list[ContactEvent], header):
     ``name`` = ``"contact <member_a> <member_b>"``, ``message`` = kind, ``level`` = OK, and ``values``
     (key/value strings, numbers written so that ``float()`` / ``json.loads`` give back the exact float64):
     ``kind`` (begin|end), ``member_a``, ``member_b``, ``time`` (s), ``point_a``, ``point_b`` ([x, y, z] m),
-    ``normal`` ([x, y, z], unit, a to b), ``distance`` (m, negative = penetration).
+    ``normal`` ([x, y, z], unit, a to b), ``distance`` (m, negative = penetration), ``normal_impulse``
+    (N*s) and ``tangential_impulse`` ([x, y, z] N*s): the contact's impulses over the event's step (a
+    ground contact's landing impulse; zero for contacts that are only detected).
     """
     status = []
     for e in events:
@@ -270,6 +286,8 @@ def encode_contacts(events: list[ContactEvent], header):
             "point_b": json.dumps(np.asarray(e.point_b, dtype=float).tolist()),
             "normal": json.dumps(np.asarray(e.normal, dtype=float).tolist()),
             "distance": repr(float(e.distance)),
+            "normal_impulse": repr(float(e.normal_impulse)),
+            "tangential_impulse": json.dumps(np.asarray(e.tangential_impulse, dtype=float).tolist()),
         }
         status.append(M.new("diagnostic_msgs/msg/DiagnosticStatus", level=M.byte(0),
                             name=f"contact {e.members[0]} {e.members[1]}", message=e.kind, hardware_id="",
@@ -285,7 +303,10 @@ def decode_contacts(message) -> list[ContactEvent]:
         out.append(ContactEvent(kind=v["kind"], members=(v["member_a"], v["member_b"]), time=float(v["time"]),
                                 point_a=np.array(json.loads(v["point_a"])),
                                 point_b=np.array(json.loads(v["point_b"])),
-                                normal=np.array(json.loads(v["normal"])), distance=float(v["distance"])))
+                                normal=np.array(json.loads(v["normal"])), distance=float(v["distance"]),
+                                # absent from logs written before the ground existed
+                                normal_impulse=float(v.get("normal_impulse", 0.0)),
+                                tangential_impulse=np.array(json.loads(v.get("tangential_impulse", "[0, 0, 0]")))))
     return out
 
 
@@ -338,7 +359,12 @@ class SimNodeLogic:
             "slack_cables": _MarkerStyle("slack_cables", 2, _LINE_LIST, 0.5 * cable_width, (0.6, 0.6, 0.6, 0.5)),
             "supports": _MarkerStyle("supports", 3, _CUBE_LIST, 3.0 * strut_width, (0.5, 0.5, 0.5, 1.0)),
             "contacts": _MarkerStyle("contacts", 4, _SPHERE_LIST, 3.0 * strut_width, (1.0, 0.0, 0.0, 1.0)),
+            "ground": _MarkerStyle("ground", 5, _LINE_LIST, 0.5 * cable_width, (0.45, 0.35, 0.25, 1.0)),
+            "contact_forces": _MarkerStyle("contact_forces", 6, _LINE_LIST, strut_width, (1.0, 0.55, 0.0, 1.0)),
         }
+        self._ground_grid = _ground_grid(scene, size)
+        self._force_scale = 0.0   # the largest ground force seen (N): drawn 0.3 scene sizes long
+        self._scene_size = size
         self._templates = self._cdr_templates()
         self._marker_templates: dict[tuple, CdrTemplate] = {}  # marker shape -> template, oldest use first
         # counters for diagnostics and the summary
@@ -720,8 +746,9 @@ class SimNodeLogic:
         """The markers of one MarkerArray, as (namespace, points (k, 3) m or None to delete it, colours
         (k, 4) RGBA or None): struts (thick blue lines); taut cables (lines coloured blue -> red by
         tension, red = the largest tension seen so far); slack cables (thin grey lines); supports (grey
-        cubes at fixed nodes); active contacts (red spheres at both closest points). A namespace with
-        nothing to show is deleted once, then left out."""
+        cubes at fixed nodes); active contacts (red spheres at both closest points); the ground (a brown
+        grid) and its forces on the nodes (orange lines). A namespace with nothing to show is deleted
+        once, then left out."""
         sys = self.sim.system
         x = r.positions
         taut = ~r.slack
@@ -735,6 +762,8 @@ class SimNodeLogic:
             "slack_cables": (x[sys.cable_ends[r.slack]].reshape(-1, 3), None),
             "supports": (x[~sys.free], None),
             "contacts": (np.array(contacts, dtype=float).reshape(-1, 3), None),
+            "ground": (self._ground_grid, None),
+            "contact_forces": self._contact_forces(r),
         }
         markers = []
         for ns, (points, colors) in content.items():
@@ -745,6 +774,20 @@ class SimNodeLogic:
                 markers.append((ns, None, None))
                 self._shown.discard(ns)
         return markers
+
+    def _contact_forces(self, r: StepResult):
+        """Lines from each node's ground contact point along the ground's mean force over the step
+        (impulse / dt), the largest force seen drawn 0.3 scene sizes long: (points (2k, 3), None)."""
+        if r.contact_impulses is None or self.sim.scene.ground is None:
+            return np.zeros((0, 3)), None
+        force = r.contact_impulses / self.sim.dt
+        magnitude = np.linalg.norm(force, axis=1)
+        on = magnitude > 0
+        self._force_scale = max(self._force_scale, float(magnitude.max(initial=0.0)))
+        start = r.positions[on].copy()
+        start[:, 2] = self.sim.scene.ground.height
+        end = start + force[on] * (0.3 * self._scene_size / max(self._force_scale, 1e-300))
+        return np.stack([start, end], axis=1).reshape(-1, 3), None
 
     def _markers(self, header, markers: list):
         """The MarkerArray object of :meth:`_marker_content`'s ``markers``."""

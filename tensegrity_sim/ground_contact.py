@@ -1,0 +1,89 @@
+"""Ground contacts as events (contract §5): a node begins touching the ground when its gap
+(``methods/friction.py``: height above the ground minus its radius) drops to ``TOUCH_TOL`` and ends when
+it rises above it. Events and active contacts name the pair ``(node name, "ground")``: the node is what
+touches (its largest member's capsule end), and two ends of one strut are two contacts.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .contact import ActiveContact
+from .methods.friction import TOUCH_TOL
+from .results import ContactEvent
+from .system import System
+
+__all__ = ["GroundDetector", "GROUND"]
+
+GROUND = "ground"
+_DOWN = np.array([0.0, 0.0, -1.0])
+
+
+class GroundDetector:
+    """Begin/end events of the nodes' ground contacts, and the contacts going on (with the impulses of
+    the last step). A begin's time is where the node's free path from the step's start (its velocity
+    and gravity) reaches the ground, as the methods locate an impact; an end's is interpolated linearly
+    between the step's two gaps."""
+
+    def __init__(self, system: System):
+        self.names = system.scene.node_names
+        self.height = system.scene.ground.height
+        self.radii = system.scene.node_radii
+        self.free = system.free
+        self.gravity = float(system.scene.gravity[2])
+        self.reset(system.scene.positions)
+
+    def gaps(self, x: np.ndarray) -> np.ndarray:
+        return x[:, 2] - self.radii - self.height
+
+    def reset(self, positions: np.ndarray) -> None:
+        """No contact known at ``positions``: nodes touching there begin at the next step's start."""
+        self._inside = np.zeros(len(self.names), dtype=bool)
+        self._since = np.full(len(self.names), np.nan)
+        self.impulses = np.zeros((len(self.names), 3))
+
+    def _event(self, kind: str, p: int, x: np.ndarray, time: float, gap: float) -> ContactEvent:
+        point = x[p].copy()
+        ground = point.copy()
+        ground[2] = self.height
+        point[2] -= self.radii[p]
+        return ContactEvent(kind, (self.names[p], GROUND), time, point, ground, _DOWN.copy(), gap,
+                            float(self.impulses[p, 2]), self.impulses[p].copy() * [1.0, 1.0, 0.0])
+
+    def step(self, x0: np.ndarray, x1: np.ndarray, v0: np.ndarray, t0: float, dt: float,
+             impulses: np.ndarray | None) -> tuple[ContactEvent, ...]:
+        """The events (time order) of a step from ``x0`` to ``x1`` (N, 3) m starting at ``t0`` s with
+        velocities ``v0`` (N, 3) m/s; ``impulses`` (N, 3) N*s: the ground's impulses of the step (or None)."""
+        self.impulses = np.zeros_like(self.impulses) if impulses is None else impulses
+        g0, g1 = self.gaps(x0), self.gaps(x1)
+        now = ((g1 <= TOUCH_TOL) | (self.impulses[:, 2] > 0)) & self.free
+        changed = np.flatnonzero(now != self._inside)
+        if not changed.size:
+            return ()
+        # the crossing of TOUCH_TOL on the straight path between the step's ends (0 if already there)
+        frac = np.clip(np.divide(g0[changed] - TOUCH_TOL, g0[changed] - g1[changed],
+                                 out=np.zeros(changed.size), where=g0[changed] != g1[changed]), 0.0, 1.0)
+        # a landing: the small root of g0 + vz t + a t^2 / 2 = TOUCH_TOL on the free path
+        g, vz, a = g0[changed] - TOUCH_TOL, v0[changed, 2], self.gravity
+        disc = np.sqrt(np.maximum(vz * vz - 2.0 * a * g, 0.0))
+        path = np.divide(2.0 * g, (-vz + disc) * dt, out=np.full(changed.size, np.nan), where=(-vz + disc) > 0)
+        landing = now[changed] & (g > 0) & np.isfinite(path)
+        frac[landing] = np.clip(path[landing], 0.0, 1.0)
+        events = []
+        for p, f in sorted(zip(changed, frac), key=lambda pf: (pf[1], pf[0])):
+            time = float(t0 + f * dt)
+            xp = (1.0 - f) * x0 + f * x1   # the points: on the straight path (the gap is ~0 at a landing)
+            kind = "begin" if now[p] else "end"
+            if now[p]:
+                self._since[p] = time
+            events.append(self._event(kind, int(p), xp, time, float((1.0 - f) * g0[p] + f * g1[p])))
+        self._inside = now
+        return tuple(events)
+
+    def active(self, positions: np.ndarray) -> tuple[ActiveContact, ...]:
+        """Every node touching the ground now, with its gap and the last step's impulses."""
+        out = []
+        for p in np.flatnonzero(self._inside):
+            e = self._event("begin", int(p), positions, float(self._since[p]), float(self.gaps(positions)[p]))
+            out.append(ActiveContact(e.members, e.time, e.point_a, e.point_b, e.normal, e.distance,
+                                     e.normal_impulse, e.tangential_impulse))
+        return tuple(out)
