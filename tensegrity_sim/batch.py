@@ -176,7 +176,8 @@ class BatchSimulator:
         n, nc = len(scene.nodes), len(scene.cables)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
-        if method == "elastic":
+        # the batched elastic engine knows no ground: a scene with one steps a Simulator per copy
+        if method == "elastic" and scene.ground is None:
             if solver is not None and requested:
                 raise ValueError(f"solver={solver!r} is an option of a method with a QP; method 'elastic' has none")
             self._engine = ElasticBatch(self.system, dt)
@@ -192,7 +193,7 @@ class BatchSimulator:
             # copies stopped by a non-finite step: {copy: (steps done, positions, velocities)}
             self._frozen: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
         else:
-            # one QP per copy: a Simulator per copy, whose prestress warning is given once for the batch
+            # one QP (or one ground) per copy: a Simulator per copy, whose warnings are given once for the batch
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
                 self._copies = [Simulator(s, method=method, dt=dt, solver=solver) for s in scenes]

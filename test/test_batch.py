@@ -250,3 +250,13 @@ def test_bad_input_is_refused_and_changes_nothing():
     with pytest.raises(ValueError, match=r"every must be a whole number >= 1, got 0"):
         batch.run(steps=3, every=0)
     assert batch.step_count == 0
+
+
+def test_a_scene_with_a_ground_equals_single_runs():
+    """The batched elastic engine has no ground: such a scene is stepped copy by copy, as Simulator does."""
+    scene = ts.load_scene("icosahedron_ground")
+    batch = _quiet(lambda: BatchSimulator(scene, 2, method="elastic", dt=1e-3))
+    single = _quiet(lambda: ts.Simulator(scene, method="elastic", dt=1e-3))
+    traj, want = batch.run(steps=100, every=50), single.run(steps=100, every=50)
+    for b in range(2):
+        np.testing.assert_allclose(traj.positions[b], want.positions, rtol=0, atol=TOL)
