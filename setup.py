@@ -54,10 +54,17 @@ EXTRAS_REQUIRE = {
         "mujoco>=4.0.0,<5",      # test/test_peers.py cross-checks the elastic method against MuJoCo
         "foxglove-sdk>=0.30.3,<0.31",    # serve --foxglove is tested end to end
         "websocket-client>=1.9.2,<2",   # a WebSocket client of our own for that test (and bench/bench_view.py)
+        "pyarrow>=26.0.1,<27",   # test/test_sweep.py reads the sweep's Parquet tables
+        "ray>=2.60.0,<3",        # test/test_sweep.py runs a sweep on a real local Ray cluster
     ],
     # Live to Foxglove without ROS (tensegrity-sim serve --foxglove).
     "foxglove": [
         "foxglove-sdk>=0.30.3,<0.31",
+    ],
+    # Parameter sweeps (tensegrity-sim sweep): Parquet output, and Ray clusters with --address.
+    "sweep": [
+        "pyarrow>=26.0.1,<27",
+        "ray>=2.60.0,<3",
     ],
     # Live topics without a ROS install (tensegrity-sim serve --transport dds).
     "dds": [

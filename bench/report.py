@@ -311,6 +311,9 @@ def write(path: Path, *, meta: dict, cases, references, rows, throughput, size_r
                     [[h["case"], f"{h['simulator']} {h['variant']}", h["setting"], h["verdict"], h["figure"]]
                      for h in hard]))
     w += _separate_runs(path.parent)
+    for extra in ("batch.md", "sweep.md"):   # bench/bench_batch.py's and bench_sweep.py's, measured on their own
+        if (path.parent / extra).exists():
+            w.append((path.parent / extra).read_text())
     path.write_text("\n\n".join(x.strip("\n") for x in w) + "\n")
 
 

@@ -300,6 +300,33 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from .sweep import load_spec, run_sweep
+
+    spec = load_spec(args.spec)
+    summary = run_sweep(spec, args.out, address=args.address, workers=args.workers, progress=not args.quiet)
+    print("\n".join(summary.lines()))
+    return 0
+
+
+def _add_sweep(verbs) -> None:
+    """``sweep``: many runs of a scene with numbers changed, one Parquet row per run."""
+    sweep = verbs.add_parser(
+        "sweep", help="run a parameter sweep (grid or random designs) into a Parquet table",
+        description="Run every combination of the spec's parameters (vary: a grid; samples/ranges: random "
+                    "designs) and write one Parquet row per run. Runs of one structure are stepped together. "
+                    "Embedded in this process by default; --workers for local processes; --address to submit "
+                    "the groups as tasks to a Ray cluster (pip install -e \".[sweep]\"). The spec format is in "
+                    "tensegrity_sim/sweep.py and README.md.")
+    sweep.add_argument("spec", help="the sweep spec (YAML)")
+    sweep.add_argument("--out", required=True, metavar="RESULTS.parquet", help="the Parquet file to write")
+    sweep.add_argument("--address", metavar="HOST:PORT",
+                       help="a Ray cluster's address (ray start --head prints it); default: run here")
+    sweep.add_argument("--workers", type=int, default=1, help="local processes without --address (default: 1)")
+    sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    sweep.set_defaults(func=_cmd_sweep)
+
+
 def _add_serve(verbs) -> None:
     """``serve``: its node parameters are NodeSettings' fields, with their defaults and descriptions."""
     from dataclasses import fields
@@ -426,6 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("out", help="the finished copy to write (.mcap)")
     rec.set_defaults(func=_cmd_recover)
     _add_serve(verbs)
+    _add_sweep(verbs)
     return parser
 
 

@@ -473,6 +473,17 @@ class ContactDetector:
         self._quiet = -np.inf      # max |x - x_ref|_inf (m) under which a step needs no work at all
 
     @property
+    def watched(self):
+        """The nodes whose motion matters (an index for ``positions[watched]``: a slice or an array)."""
+        return self._watch
+
+    def quiet_zone(self) -> tuple[np.ndarray, float]:
+        """Positions (N, 3) m and a distance (m, per coordinate): while no watched node is that far from
+        those positions, :meth:`step` has nothing to do and returns no event (a batch checks this for
+        all its copies at once and calls only the others)."""
+        return self._x_ref, self._quiet
+
+    @property
     def pair_count(self) -> int:
         """Number of listed (nearby, eligible) pairs."""
         return len(self._key)

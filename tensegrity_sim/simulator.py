@@ -70,6 +70,30 @@ def non_finite_report(scene: Scene, state: State, dt: float, positions: np.ndarr
             f"{' and '.join(where) or 'a sum'} (inputs: {'; '.join(inputs) or 'none'}; dt {dt:g} s); the state is as before the step")
 
 
+def run_plan(duration, steps, every, dt: float, bytes_per_kept: int):
+    """``run``'s arguments checked: the step count (``steps``, or ``round(duration / dt)``), ``every``,
+    the kept steps (counted from 1: ``every``, ``2 every``, ... and the last; refused if keeping them at
+    ``bytes_per_kept`` each would exceed the memory) and how many steps each kept one sums."""
+    if (duration is None) == (steps is None):
+        raise ValueError("run: give exactly one of duration (s) or steps")
+    if steps is None:
+        d = real(duration, "duration")
+        if d < 0:
+            raise ValueError(f"duration must be a finite number of seconds >= 0, got {duration!r}")
+        ratio = d / dt
+        if not math.isfinite(ratio):  # round() would raise OverflowError
+            raise ValueError(f"duration / dt = {duration!r} / {dt!r} s is beyond the float range")
+        steps = whole(round(ratio), "duration / dt")
+    steps = whole(steps, "steps")
+    if isinstance(every, (bool, np.bool_)) or not isinstance(every, (int, np.integer)) or every < 1:
+        raise ValueError(f"every must be a whole number >= 1, got {describe(every)}")
+    every = int(every)
+    n_kept = -(-steps // every)
+    check_memory(n_kept * bytes_per_kept, f"run: the trajectory of {describe(n_kept)} steps")
+    kept = np.minimum(np.arange(1, n_kept + 1) * every, steps)                # kept steps, counted from 1
+    return steps, every, kept, np.diff(kept, prepend=0)                       # and the steps each one sums
+
+
 class Simulator:
     """Steps a :class:`Scene` with a method picked by name.
 
@@ -237,27 +261,10 @@ class Simulator:
         ``callback(k, result)`` is called after each step ``k`` (a progress bar, a command schedule).
         Without a callback a method with a compiled loop runs the steps in it.
         """
-        if (duration is None) == (steps is None):
-            raise ValueError("run: give exactly one of duration (s) or steps")
-        if steps is None:
-            d = real(duration, "duration")
-            if d < 0:
-                raise ValueError(f"duration must be a finite number of seconds >= 0, got {duration!r}")
-            ratio = d / self.dt
-            if not math.isfinite(ratio):  # round() would raise OverflowError
-                raise ValueError(f"duration / dt = {duration!r} / {self.dt!r} s is beyond the float range")
-            steps = whole(round(ratio), "duration / dt")
-        steps = whole(steps, "steps")
-        if isinstance(every, (bool, np.bool_)) or not isinstance(every, (int, np.integer)) or every < 1:
-            raise ValueError(f"every must be a whole number >= 1, got {describe(every)}")
-        every = int(every)
         if callback is not None and not callable(callback):
             raise ValueError(f"callback must be callable, got {describe(callback)}")
         n, nc = len(self.scene.nodes), len(self.scene.cables)
-        n_kept = -(-steps // every)
-        check_memory(n_kept * (8 + 48 * n + 17 * nc), f"run: the trajectory of {describe(n_kept)} steps")
-        kept = np.minimum(np.arange(1, n_kept + 1) * every, steps)                # kept steps, counted from 1
-        span = np.diff(kept, prepend=0)                                          # steps each one sums
+        steps, every, kept, span = run_plan(duration, steps, every, self.dt, 8 + 48 * n + 17 * nc)
         time = (self._state.step_count + kept) * self.dt
         pos = np.empty((len(kept), n, 3))
         vel = np.empty((len(kept), n, 3))

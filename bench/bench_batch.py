@@ -1,0 +1,112 @@
+"""Batched stepping beside MuJoCo's threaded ``rollout`` (issue 12's targets), in one process, taking turns.
+
+    python3 bench/bench_batch.py            # writes bench/results/batch.csv and batch.md, prints both
+
+Cases (icosahedron thrown: rigid struts, 613 N/m cables, random node velocities; dt = 1 ms):
+
+* elastic, batch 1024: ``BatchSimulator(method="elastic")`` against MuJoCo's spring tendons (the dead
+  band ``springlength="0 L"``, bench/mujoco_peer.py) in ``mujoco.rollout`` with as many threads as cores;
+* inextensible, batch 256: ``BatchSimulator(method="inextensible")`` against MuJoCo's limited tendons.
+
+MuJoCo runs its Euler integrator (its cheapest step), contacts off and sensors off; we run without contact
+detection (the peer has none) and, for information, with it. Each contender does ``STEPS`` steps of the
+whole batch per timed call (MuJoCo's rollout also writes every step's state: with the batch that is what
+it is for); the rate is the best of ``REPEATS`` turns (a shared machine only ever adds time), scene-steps
+per second = batch x steps / wall time.
+"""
+from __future__ import annotations
+
+import csv
+import os
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from bench.cases import icosahedron_thrown  # noqa: E402
+from bench.mujoco_peer import MujocoPeer  # noqa: E402
+from bench.timing import time_runs  # noqa: E402
+from tensegrity_sim.batch import BatchSimulator  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+REPEATS = 5
+CASES = [  # (cable model, batch, steps per timed call)
+    ("elastic", 1024, 100),
+    ("inextensible", 256, 20),
+]
+
+
+def _mujoco(scene, model: str, batch: int, steps: int, threads: int):
+    """A callable doing ``steps`` steps of ``batch`` copies in ``mujoco.rollout`` with ``threads`` threads."""
+    import mujoco
+    from mujoco import rollout
+
+    peer = MujocoPeer(scene, model=model, dt=1e-3, integrator="Euler")
+    m = peer.model
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state0 = np.empty(mujoco.mj_stateSize(m, spec))
+    mujoco.mj_getState(m, peer.data, state0, spec)
+    initial = np.tile(state0, (batch, 1))
+    datas = [mujoco.MjData(m) for _ in range(threads)]
+    out = np.empty((batch, steps, state0.size))
+    pool = rollout.Rollout(nthread=threads)
+    return lambda: pool.rollout(m, datas, initial, nstep=steps, state=out), pool
+
+
+def _ours(scene, method: str, batch: int, steps: int, contacts):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")   # the inextensible method's prestress warning
+        sim = BatchSimulator(scene, batch, method=method, dt=1e-3, contacts=contacts)
+    return lambda: sim.run(steps=steps, every=steps)
+
+
+def measure() -> list[dict]:
+    scene = icosahedron_thrown()
+    threads = os.cpu_count() or 1
+    rows = []
+    for model, batch, steps in CASES:
+        mujoco_run, pool = _mujoco(scene, model, batch, steps, threads)
+        contenders = {"mujoco rollout": mujoco_run,
+                      "BatchSimulator": _ours(scene, model, batch, steps, ()),
+                      "BatchSimulator + contacts": _ours(scene, model, batch, steps, None)}
+        best = {name: float("inf") for name in contenders}
+        for name, run in contenders.items():   # warm-up: compile, allocate
+            run()
+        for _ in range(REPEATS):               # turns: the machine's load falls on every contender alike
+            for name, run in contenders.items():
+                best[name] = min(best[name], time_runs(run, warmup=lambda: None, repeats=1).best)
+        pool.close()
+        ref = batch * steps / best["mujoco rollout"]
+        for name, t in best.items():
+            rate = batch * steps / t
+            rows.append({"case": f"icosahedron_thrown {model}", "batch": batch, "steps": steps,
+                         "contender": name, "threads": threads if name.startswith("mujoco") else 1,
+                         "scene_steps_per_s": round(rate), "ratio_to_mujoco": round(rate / ref, 3)})
+    return rows
+
+
+def write(rows: list[dict]) -> str:
+    RESULTS.mkdir(exist_ok=True)
+    with open(RESULTS / "batch.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    lines = ["## Batches (issue 12)\n",
+             "`python3 bench/bench_batch.py`: scene-steps per second of a whole batch (dt = 1 ms, best of "
+             f"{REPEATS} turns in one process), against `mujoco.rollout` with as many threads as cores "
+             "(Euler, contacts and sensors off; limited tendons for the inextensible case).\n",
+             "| case | batch | contender | threads | scene-steps/s | ratio to MuJoCo |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    lines += [f"| {r['case']} | {r['batch']} | {r['contender']} | {r['threads']} | {r['scene_steps_per_s']:,} | "
+              f"{r['ratio_to_mujoco']:.2f} |" for r in rows]
+    text = "\n".join(lines) + "\n"
+    (RESULTS / "batch.md").write_text(text)
+    return text
+
+
+if __name__ == "__main__":
+    print(write(measure()))

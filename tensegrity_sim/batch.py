@@ -1,0 +1,473 @@
+"""Many copies of one structure stepped together: :class:`BatchSimulator`.
+
+A batch is ``B`` copies of one scene's structure (topology, masses, stiffnesses, radii) that differ in
+their state (positions, velocities, rest lengths) and inputs (rest-length commands, external forces).
+Every array a user sees has the batch as its **leading** axis, ``(B, N, 3)``, ``(B, n_cables)``, and a
+run returns ``(B, K, ...)`` (mujoco rollout's "nbatch x nstep" order). Inside, the elastic method keeps
+the batch as the *last* axis (:mod:`.methods.elastic_batch`) so that one step of all copies is a few
+array operations; the inextensible method solves one QP per copy and so steps a
+:class:`~tensegrity_sim.simulator.Simulator` per copy (style rule 8: a ``Simulator`` is a batch of one).
+
+Each copy equals a single ``Simulator`` run from the same state with the same inputs (to round-off;
+``test/test_batch.py`` requires 1e-10). A step that fails in one copy (a QP without a solution, a
+non-finite result: what makes ``Simulator.step`` raise a ``StepError``) stops that copy only: its index
+and reason (the error's message) are in ``failures``, its state stays the last good one, its entries in
+later step results are NaN (slack False) and the other copies go on.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, replace
+from typing import Mapping
+
+import numpy as np
+
+from .checks import float_array, time_step
+from .contact import ContactDetector, make_detector
+from .methods import StepError, choose_method
+from .methods.elastic_batch import ElasticBatch
+from .results import ContactEvent
+from .scene import Scene, contact_kinds
+from .methods.base import State
+from .simulator import Simulator, non_finite_report, run_plan
+from .system import System
+
+__all__ = ["BatchSimulator", "BatchStepResult", "BatchTrajectory", "structure_of"]
+
+# run() steps in chunks whose per-step arrays hold about this many numbers (positions and velocities
+# of every step of the chunk, ~16 MB each): the compiled loop runs a whole chunk, the contact detectors,
+# the peaks and the kept steps then go through it as arrays
+_CHUNK_NUMBERS = 2_000_000
+
+
+@dataclass(frozen=True)
+class BatchStepResult:
+    """One step of every copy. time: s at the step's end (the same for all copies).
+    positions, velocities: (B, N, 3) m, m/s. impulses: (B, n_cables) N*s over the step; tensions:
+    impulses / dt, N. slack: (B, n_cables) bool. contacts: B tuples of ContactEvents. failed: (B,) bool,
+    the copies stopped by a failure (their numbers are NaN)."""
+
+    time: float
+    positions: np.ndarray
+    velocities: np.ndarray
+    impulses: np.ndarray
+    tensions: np.ndarray
+    slack: np.ndarray
+    contacts: tuple[tuple[ContactEvent, ...], ...]
+    failed: np.ndarray
+
+
+@dataclass(frozen=True)
+class BatchTrajectory:
+    """K kept steps of B copies (see ``run``): time (K,) s; positions, velocities (B, K, N, 3); impulses
+    (summed since the previous kept step), tensions (their mean), slack (B, K, n_cables); contacts: per
+    copy, every ContactEvent of the run (kept or not); failures: {copy index: reason} of copies stopped
+    by a failure.
+    Over every step, recorded or not: peak_tensions (B, n_cables) N, each cable's largest step tension
+    (``impulses / dt``); snaps (B, n_cables), how often each cable went from slack to taut between
+    consecutive step ends (the run's start counts as the first)."""
+
+    time: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+    impulses: np.ndarray
+    tensions: np.ndarray
+    slack: np.ndarray
+    contacts: list[list[ContactEvent]]
+    failures: dict[int, str]
+    peak_tensions: np.ndarray
+    snaps: np.ndarray
+
+
+def structure_of(scene: Scene) -> Scene:
+    """``scene`` without its initial state (node positions and velocities, cable rest lengths): two
+    scenes with equal structures can be copies of one batch. Hashable."""
+    return replace(scene, name="", source="",
+                   nodes=tuple(replace(n, position=(0.0, 0.0, 0.0), velocity=(0.0, 0.0, 0.0)) for n in scene.nodes),
+                   cables=tuple(replace(c, rest_length=0.0) for c in scene.cables))
+
+
+class BatchSimulator:
+    """``batch`` copies of ``scene`` stepped together (see the module docstring).
+
+    ``method``: "elastic", "inextensible" or "auto" (decided once, on ``scene``; ``method_reason``).
+    ``dt``: s. ``positions``, ``velocities``: initial states (batch, N, 3) m, m/s, or (N, 3) for all
+    copies (default: the scene's); a rigid strut must keep its length. ``solver``: QP backend of the
+    inextensible method. ``contacts``: member kinds checked for contact, as for ``Simulator``.
+    """
+
+    def __init__(self, scene: Scene, batch: int, *, method: str = "auto", dt: float = 1e-3,
+                 positions=None, velocities=None, solver: str | None = None, contacts=None):
+        if not isinstance(scene, Scene):
+            raise ValueError(f"scene must be a Scene (see load_scene), got {type(scene).__name__}")
+        if isinstance(batch, bool) or not isinstance(batch, (int, np.integer)) or batch < 1:
+            raise ValueError(f"batch must be a whole number >= 1, got {batch!r}")
+        batch = int(batch)
+        n = len(scene.nodes)
+        x = np.broadcast_to(scene.positions, (batch, n, 3)) if positions is None else \
+            self._states(positions, "positions", batch, n)
+        v = np.broadcast_to(scene.velocities, (batch, n, 3)) if velocities is None else \
+            self._states(velocities, "velocities", batch, n)
+        if positions is None and velocities is None:
+            scenes = [scene] * batch
+        else:
+            scenes = [self._with_state(scene, x[b], v[b], b) for b in range(batch)]
+        self._build(scene, scenes, method, dt, solver, contacts)
+
+    @classmethod
+    def from_scenes(cls, scenes, *, method: str = "auto", dt: float = 1e-3, solver: str | None = None,
+                    contacts=None) -> "BatchSimulator":
+        """One copy per scene; the scenes must share their structure (:func:`structure_of`) and may
+        differ in initial positions, velocities and cable rest lengths. ``method="auto"`` is decided on
+        the first scene."""
+        scenes = list(scenes)
+        if not scenes or not all(isinstance(s, Scene) for s in scenes):
+            raise ValueError("scenes must be a non-empty sequence of Scene")
+        first = structure_of(scenes[0])
+        for b, s in enumerate(scenes):
+            if structure_of(s) != first:
+                raise ValueError(f"scenes[{b}] ({s.name!r}) differs from scenes[0] in more than its initial "
+                                 f"state (positions, velocities, rest lengths): it cannot share a batch")
+        self = cls.__new__(cls)
+        self._build(scenes[0], scenes, method, dt, solver, contacts)
+        return self
+
+    @staticmethod
+    def _states(values, argument: str, batch: int, n: int) -> np.ndarray:
+        """Initial states (batch, N, 3) from (batch, N, 3) or (N, 3) for every copy."""
+        arr = float_array(values, argument)
+        if arr.shape not in ((batch, n, 3), (n, 3)):
+            raise ValueError(f"{argument}: expected shape {(batch, n, 3)} (per copy) or {(n, 3)} (every copy), "
+                             f"got {arr.shape}")
+        return np.broadcast_to(arr, (batch, n, 3))
+
+    @staticmethod
+    def _with_state(scene: Scene, x: np.ndarray, v: np.ndarray, b: int) -> Scene:
+        """``scene`` starting from copy ``b``'s positions and velocities (checked as the scene loader would)."""
+        nodes = []
+        for node, p, u in zip(scene.nodes, x, v):
+            if node.fixed and np.any(u):
+                raise ValueError(f"velocities[{b}]: fixed node {node.name!r} must have zero velocity")
+            nodes.append(replace(node, position=tuple(map(float, p)), velocity=tuple(map(float, u))))
+        index = {node.name: i for i, node in enumerate(scene.nodes)}
+        for s in scene.struts:
+            if s.rigid:
+                length = float(np.linalg.norm(x[index[s.nodes[1]]] - x[index[s.nodes[0]]]))
+                if abs(length - s.rest_length) > 1e-9 * s.rest_length:
+                    raise ValueError(f"positions[{b}]: rigid strut {s.name!r} has length {length!r}, "
+                                     f"it must keep {s.rest_length!r}")
+        return replace(scene, nodes=tuple(nodes))
+
+    def _build(self, scene, scenes, method, dt, solver, contacts) -> None:
+        dt = time_step(dt)
+        if contacts is not None:
+            kinds = contact_kinds(contacts, "contacts")
+            scenes = [replace(s, contact_kinds=kinds) for s in scenes]
+            scene = replace(scene, contact_kinds=kinds)
+        self.scene = scene
+        self.batch = len(scenes)
+        self.system = System(scene)
+        requested = method != "auto"
+        if requested:
+            self.method_reason = f"{method}: requested"
+        else:
+            method, self.method_reason = choose_method(self.system, dt)
+        self.failures: dict[int, str] = {}
+        n, nc = len(scene.nodes), len(scene.cables)
+        self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
+        self._node_index = {name: i for i, name in enumerate(scene.node_names)}
+        # the batched elastic engine knows no ground: a scene with one steps a Simulator per copy
+        if method == "elastic" and scene.ground is None:
+            if solver is not None and requested:
+                raise ValueError(f"solver={solver!r} is an option of a method with a QP; method 'elastic' has none")
+            self._engine = ElasticBatch(self.system, dt)
+            self.dt = self._engine.dt
+            self._copies = None
+            self._step_count = 0
+            self._x = np.stack([s.positions for s in scenes], axis=-1)
+            v = np.stack([s.velocities for s in scenes], axis=-1)
+            self._v = self._engine.prepare(self._x, v)
+            self._rest = np.stack([s.cable_rest_lengths for s in scenes], axis=-1)
+            self._f_ext = np.zeros((n, 3, self.batch))
+            self._detectors = self._make_detectors(scene)
+            # copies stopped by a non-finite step: {copy: (steps done, positions, velocities)}
+            self._frozen: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
+        else:
+            # one QP (or one ground) per copy: a Simulator per copy, whose warnings are given once for the batch
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                self._copies = [Simulator(s, method=method, dt=dt, solver=solver) for s in scenes]
+            for w in {str(w.message): w for w in caught}.values():
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            self.dt = self._copies[0].dt
+        self._nc = nc
+
+    def _make_detectors(self, scene):
+        """One contact detector per copy (None when nothing can touch), started at its positions, and
+        the batch's quiet-zone arrays: the step asks only the copies whose nodes left theirs."""
+        if make_detector(self.system, scene.contact_kinds) is None:
+            return None
+        detectors = []
+        for b in range(self.batch):
+            d = ContactDetector(self.system, scene.contact_kinds)
+            d.reset(np.ascontiguousarray(self._x[..., b]))
+            detectors.append(d)
+        self._quiet_ref = np.empty_like(self._x)
+        self._quiet = np.empty(self.batch)
+        for b, d in enumerate(detectors):
+            self._quiet_ref[..., b], self._quiet[b] = d.quiet_zone()
+        self._watch = detectors[0].watched
+        return detectors
+
+    # ------------------------------------------------------------------ state
+    @property
+    def method(self) -> str:
+        return self._engine.name if self._copies is None else self._copies[0].method
+
+    @property
+    def method_settings(self) -> dict:
+        return self._engine.single.describe() if self._copies is None else self._copies[0].method_settings
+
+    @property
+    def step_count(self) -> int:
+        return self._step_count if self._copies is None else self._copies[0].step_count
+
+    @property
+    def step_counts(self) -> np.ndarray:
+        """(B,) int: the steps each copy has completed (a failed copy stopped counting)."""
+        if self._copies is None:
+            counts = np.full(self.batch, self._step_count)
+            for b, (done, _, _) in self._frozen.items():
+                counts[b] = done
+            return counts
+        return np.array([c.step_count for c in self._copies])
+
+    @property
+    def time(self) -> float:
+        """Simulation time, s (``step_count * dt``)."""
+        return self.step_count * self.dt
+
+    @property
+    def failed(self) -> np.ndarray:
+        """(B,) bool: copies stopped by a failure (see ``failures`` for the reasons)."""
+        out = np.zeros(self.batch, dtype=bool)
+        out[list(self.failures)] = True
+        return out
+
+    def _gather(self, batch_last: str, per_copy: str) -> np.ndarray:
+        """A state array with the batch first: from the batch-last array, or stacked from the copies."""
+        if self._copies is None:
+            return np.moveaxis(getattr(self, batch_last), -1, 0).copy()
+        return np.stack([getattr(c, per_copy) for c in self._copies])
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(B, N, 3) m; a failed copy's last good state."""
+        return self._gather("_x", "positions")
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """(B, N, 3) m/s."""
+        return self._gather("_v", "velocities")
+
+    @property
+    def rest_lengths(self) -> np.ndarray:
+        """(B, n_cables) m."""
+        return self._gather("_rest", "rest_lengths")
+
+    @property
+    def external_forces(self) -> np.ndarray:
+        """(B, N, 3) N."""
+        return self._gather("_f_ext", "external_forces")
+
+    # ------------------------------------------------------------------ inputs
+    def _per_copy(self, values, argument: str, index: Mapping[str, int], width: int | None,
+                  current: np.ndarray) -> np.ndarray:
+        """The full new (B, k[, 3]) array from (B, k[, 3]), (k[, 3]) for every copy, or a partial
+        ``{name: value}`` whose value is for every copy or per copy (leading axis B)."""
+        b = self.batch
+        item = () if width is None else (width,)
+        out = current.copy()
+        if isinstance(values, Mapping):
+            for name, value in values.items():
+                if name not in index:
+                    raise ValueError(f"{argument}: unknown name {name!r} (known: {', '.join(index)})")
+                arr = float_array(value, f"{argument}[{name!r}]")
+                if arr.shape not in (item, (b, *item)):
+                    raise ValueError(f"{argument}[{name!r}]: expected shape {item} (every copy) or "
+                                     f"{(b, *item)} (per copy), got {arr.shape}")
+                out[:, index[name]] = arr
+        else:
+            arr = float_array(values, argument)
+            if arr.shape not in (current.shape, current.shape[1:]):
+                raise ValueError(f"{argument}: expected shape {current.shape} (per copy) or "
+                                 f"{current.shape[1:]} (every copy), got {arr.shape}")
+            out[...] = arr
+        return out
+
+    def set_rest_lengths(self, values) -> None:
+        """New rest lengths, m: (B, n_cables), (n_cables,) for every copy, or ``{cable: value or (B,)}``.
+        Every copy takes the command (as ``Simulator.set_rest_lengths`` would)."""
+        new = self._per_copy(values, "rest_lengths", self._cable_index, None, self.rest_lengths)
+        bad = np.argwhere(new <= 0)
+        if bad.size:
+            b, i = bad[0]
+            raise ValueError(f"rest_lengths[{b}][{self.scene.cable_names[i]!r}]: must be > 0, got {float(new[b, i])!r}")
+        if self._copies is None:
+            self._rest = np.ascontiguousarray(new.T)
+            self._engine.invalidate()
+        else:
+            for c, row in zip(self._copies, new):
+                c.set_rest_lengths(row)
+
+    def set_external_forces(self, values) -> None:
+        """External node forces, N: (B, N, 3), (N, 3) for every copy, or ``{node: (3,) or (B, 3)}``;
+        held until replaced."""
+        new = self._per_copy(values, "external_forces", self._node_index, 3, self.external_forces)
+        if self._copies is None:
+            self._f_ext = np.ascontiguousarray(np.moveaxis(new, 0, -1))
+            self._engine.invalidate()
+        else:
+            for c, row in zip(self._copies, new):
+                c.set_external_forces(row)
+
+    # ------------------------------------------------------------------ stepping
+    def _advance(self, steps: int):
+        """``steps`` steps of every running copy, inputs held: positions, velocities (steps, B, N, 3),
+        impulses (steps, B, n_cables), slack (steps, B, n_cables) (views, valid until the next call) and
+        the contacts of each step (steps tuples of B tuples)."""
+        if self._copies is not None:
+            out = [self._step_copies() for _ in range(steps)]
+            return (*(np.stack([o[i] for o in out]) for i in range(4)), [o[4] for o in out])
+        x_seq, v_seq, imp, slack = self._engine.advance(self._x, self._v, self._rest, self._f_ext, steps)
+        previous, previous_v, start = self._x, self._v, self._step_count
+        self._x, self._v = x_seq[-1].copy(), v_seq[-1].copy()
+        self._step_count += steps
+        self._guard(previous, previous_v, start, x_seq, v_seq, imp, slack)
+        if self._detectors is None:
+            contacts = [((),) * self.batch] * steps
+        else:
+            contacts = []
+            for k in range(steps):
+                contacts.append(self._detect(previous, x_seq[k], (start + k) * self.dt))
+                previous = x_seq[k]
+        return (np.moveaxis(x_seq, -1, 1), np.moveaxis(v_seq, -1, 1), np.moveaxis(imp, -1, 1),
+                np.moveaxis(slack, -1, 1), contacts)
+
+    def _guard(self, previous, previous_v, start, x_seq, v_seq, imp, slack) -> None:
+        """Simulator's non-finite guard, copy by copy, on a chunk of elastic steps from ``previous``,
+        ``previous_v`` (N, 3, B): a copy whose step gives non-finite values fails there (the reason as NonFiniteError's
+        message), keeps the state before that step, and its numbers from that step on are NaN."""
+        sums = np.add.reduce(x_seq, axis=(1, 2)) + np.add.reduce(v_seq, axis=(1, 2)) + np.add.reduce(imp, axis=1)
+        bad = ~np.isfinite(sums)                                                  # (steps, B)
+        for b in np.flatnonzero(bad.any(axis=0)):
+            if b in self._frozen:
+                continue
+            k = int(np.argmax(bad[:, b]))
+            x0, v0 = (previous[..., b], previous_v[..., b]) if k == 0 else (x_seq[k - 1, ..., b], v_seq[k - 1, ..., b])
+            state = State(x0.copy(), v0.copy(), self._rest[:, b].copy(), self._f_ext[..., b].copy(), start + k)
+            report = non_finite_report(self.scene, state, self.dt, x_seq[k, ..., b], v_seq[k, ..., b], imp[k, :, b])
+            self.failures[int(b)] = f"step {start + k + 1} (t = {(start + k + 1) * self.dt:.6g} s): {report}"
+            self._frozen[int(b)] = (start + k, state.positions, state.velocities)
+        for b, (done, x0, v0) in self._frozen.items():
+            k = max(0, done - start)
+            x_seq[k:, ..., b] = v_seq[k:, ..., b] = imp[k:, :, b] = np.nan
+            slack[k:, :, b] = False
+            self._x[..., b], self._v[..., b] = x0, v0
+
+    def step(self) -> BatchStepResult:
+        """Advance every running copy by one step of ``dt``."""
+        x, v, imp, slack, contacts = self._advance(1)
+        imp = imp[0].copy()
+        return BatchStepResult(self.time, x[0].copy(), v[0].copy(), imp, imp / self.dt, slack[0].copy(),
+                               contacts[0], self.failed)
+
+    def _detect(self, x0, x1, t0):
+        """Contact events per copy of a step from ``x0`` to ``x1`` (N, 3, B) starting at ``t0`` s; a copy
+        whose watched nodes all stayed in its detector's quiet zone is not asked."""
+        w = self._watch
+        moved = np.abs(x1[w] - self._quiet_ref[w]).max(axis=(0, 1), initial=0.0)
+        out = [()] * self.batch
+        for b in np.flatnonzero(moved >= self._quiet):
+            d = self._detectors[b]
+            out[b] = d.step(np.ascontiguousarray(x0[..., b]), np.ascontiguousarray(x1[..., b]), t0, self.dt)
+            self._quiet_ref[..., b], self._quiet[b] = d.quiet_zone()
+        return tuple(out)
+
+    def _step_copies(self):
+        b, n, nc = self.batch, len(self.scene.nodes), self._nc
+        x, v = np.full((b, n, 3), np.nan), np.full((b, n, 3), np.nan)
+        imp, slack = np.full((b, nc), np.nan), np.zeros((b, nc), dtype=bool)
+        contacts = []
+        for i, c in enumerate(self._copies):
+            if i in self.failures:
+                contacts.append(())
+                continue
+            try:
+                r = c.step()
+            except StepError as exc:   # a QP without a solution, a result that is not finite
+                self.failures[i] = f"step {c.step_count + 1} (t = {c.time + c.dt:.6g} s): {exc}"
+                contacts.append(())
+                continue
+            x[i], v[i], imp[i], slack[i] = r.positions, r.velocities, r.impulses, r.slack
+            contacts.append(r.contacts)
+        # a failed copy's step count stands still; the batch's clock is that of the running ones
+        self._step_count = max(c.step_count for c in self._copies)
+        return x, v, imp, slack, tuple(contacts)
+
+    def slack(self) -> np.ndarray:
+        """(B, n_cables) bool: the cables slack now, in the method's model."""
+        if self._copies is not None:
+            return np.stack([c.slack() for c in self._copies])
+        return self._engine.slack(self._x, self._rest).T.copy()
+
+    def run(self, duration: float | None = None, *, steps: int | None = None, every: int = 1) -> BatchTrajectory:
+        """Run ``steps`` steps, or ``round(duration / dt)``, inputs held, as ``Simulator.run``: keeps steps
+        ``every``, ``2 every``, ... and the last (K of them) as (B, K, ...) arrays, a kept step's impulses
+        summed over the steps since the previous kept one and its tensions their mean; over all steps
+        each cable's peak tension and snaps (see :class:`BatchTrajectory`)."""
+        b, n, nc = self.batch, len(self.scene.nodes), self._nc
+        steps, every, kept, span = run_plan(duration, steps, every, self.dt, b * (48 * n + 17 * nc) + 8)
+        time = (self.step_count + kept) * self.dt
+        pos, vel = np.empty((b, len(kept), n, 3)), np.empty((b, len(kept), n, 3))
+        imp, slack = np.zeros((b, len(kept), nc)), np.empty((b, len(kept), nc), dtype=bool)
+        contacts: list[list[ContactEvent]] = [[] for _ in range(b)]
+        peak = np.zeros((b, nc))
+        snaps = np.zeros((b, nc), dtype=np.int64)
+        was_slack = self.slack()
+        chunk = max(1, min(steps, _CHUNK_NUMBERS // max(1, b * n * 3)))
+        done = 0
+        while done < steps:
+            m = min(chunk, steps - done)
+            x, v, i, sl, events = self._advance(m)
+            np.fmax(peak, np.fmax.reduce(i, axis=0), out=peak)   # fmax: a failed copy's NaN is no peak
+            snaps += (np.concatenate([was_slack[None], sl[:-1]]) & ~sl).sum(axis=0)
+            was_slack = sl[-1].copy()
+            for per_step in events:
+                for c, e in enumerate(per_step):
+                    if e:
+                        contacts[c].extend(e)
+            g = done + np.arange(m)              # the chunk's steps in the run, from 0
+            j = g // every
+            for jj in np.unique(j):
+                imp[:, jj] += i[j == jj].sum(axis=0)
+            last = (g + 1) % every == 0
+            last[-1] |= done + m == steps
+            pos[:, j[last]] = np.moveaxis(x[last], 0, 1)
+            vel[:, j[last]] = np.moveaxis(v[last], 0, 1)
+            slack[:, j[last]] = np.moveaxis(sl[last], 0, 1)
+            done += m
+        return BatchTrajectory(time, pos, vel, imp, imp / (span[None, :, None] * self.dt), slack, contacts,
+                               dict(self.failures), peak / self.dt, snaps)
+
+    # ------------------------------------------------------------------ invariants
+    def energy(self) -> dict[str, np.ndarray]:
+        """Energies (B,) J per copy: kinetic, strain, gravity (``-sum m g.x``), total (as ``Simulator.energy``)."""
+        if self._copies is not None:
+            per = [c.energy() for c in self._copies]
+            return {k: np.array([e[k] for e in per]) for k in ("kinetic", "strain", "gravity", "total")}
+        sys = self.system
+        kinetic = 0.5 * np.sum((sys.masses * sys.free)[:, None, None] * self._v ** 2, axis=(0, 1))
+        strain = self._engine.strain_energy(self._x, self._rest)
+        gravity = -np.sum(sys.gravity_force[:, :, None] * self._x, axis=(0, 1))
+        return {"kinetic": kinetic, "strain": strain, "gravity": gravity, "total": kinetic + strain + gravity}

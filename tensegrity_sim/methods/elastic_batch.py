@@ -1,0 +1,191 @@
+"""The elastic step of :mod:`.elastic` for B copies of one structure at once.
+
+Two implementations of the same arithmetic: the compiled kernels of ``_elastic_kernels.py`` (the ones
+``Simulator`` drives with B = 1; used unless ``compiled`` is False) and the numpy code here, their plain
+batched reference (tests require the two to agree to 1e-12).
+
+Same physics and the same arithmetic as :class:`~.elastic.ElasticMethod` (velocity Verlet, SHAKE/RATTLE
+for rigid struts, the tension law ``k max(floor, e)``, damping only while taut and never pushing), with
+every state array carrying the batch as its **last** axis, as mujoco's rollout and brax's vmap lay a
+batch out: positions and velocities ``(N, 3, B)``, rest lengths ``(n_cables, B)``, external forces
+``(N, 3, B)``. A member gather ``x[ends]`` then moves whole contiguous rows of ``3 B`` numbers and the
+force assembly is one matrix product ``A @ (m, 3 B)``, so one step costs a few dozen numpy calls
+whatever B is. Each copy agrees with a single :class:`~tensegrity_sim.simulator.Simulator` run to
+round-off (``test/test_batch.py``).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..system import System
+from . import _elastic_kernels as kernels
+from .elastic import ElasticMethod
+
+__all__ = ["ElasticBatch"]
+
+
+def _padded(a: np.ndarray, width: int) -> np.ndarray:
+    """A new C-contiguous copy of ``a`` (..., B) widened to (..., width) with copies of its first column."""
+    out = np.empty(a.shape[:-1] + (width,), dtype=a.dtype)
+    out[..., : a.shape[-1]] = a
+    out[..., a.shape[-1]:] = a[..., :1]
+    return out
+
+
+class ElasticBatch:
+    """Steps B copies of ``system`` with the elastic method; checks ``dt`` as :class:`ElasticMethod` does.
+
+    The state is held by the caller and passed in; this object caches only the forces at the last
+    step's end (the next step's start), which :meth:`invalidate` drops (contract rule 4).
+    ``compiled``: step with the numba kernels (True; not for coupled rigid struts) or the numpy reference.
+    """
+
+    name = "elastic"
+
+    def __init__(self, system: System, dt: float, *, compiled: bool = True):
+        self.single = ElasticMethod(system, dt)   # checks the scene and dt, and does the rigid algebra
+        # coupled rigid struts (class-k) only have the reference, as in ElasticMethod
+        self.compiled = compiled and not self.single.rigid.coupled
+        self.system = system
+        self.dt = self.single.dt
+        self.rigid = self.single.rigid
+        self._damped = self.single._damped
+        self._rest_struts = system.strut_rest[:, None]
+        self._k = system.stiffness[:, None]
+        self._floor = system.floor[:, None]
+        # sparse incidences whatever the size: a dense (N, m) @ (m, 3 B) product multiplies mostly zeros
+        # (and hands a tiny product to a multi-threaded BLAS); the sparse one does 2 m 3 B multiplications
+        self._incidence = sp.csr_matrix(system.incidence_matrix(system.ends))
+        self._rigid_incidence = sp.csr_matrix(system.incidence_matrix(self.rigid.ends))
+        self._model = kernels.model_arrays(system, self.rigid)
+        # the forces at the last step's end: the numpy path's (acc, tensions, directions, slack), or the
+        # compiled path's carry (acc (N, 3, B), tensions (nc, B), rigid strut directions (nr, 3, B))
+        self._cache = None
+
+    def invalidate(self) -> None:
+        self._cache = None
+
+    def prepare(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Initial velocities (N, 3, B) without the components that would stretch a rigid strut."""
+        if not self.rigid.count:
+            return v
+        return v + self._rattle(x, v, self._directions(x, self.rigid.ends))
+
+    # ------------------------------------------------------------------ algebra, batch last
+    def _directions(self, x, ends):
+        d = x[ends[:, 1]] - x[ends[:, 0]]
+        return d / np.sqrt(np.einsum("ijb,ijb->ib", d, d))[:, None, :]
+
+    def _assemble(self, incidence, member_forces):
+        """Node forces (N, 3, B) from member force vectors (k, 3, B)."""
+        k, _, b = member_forces.shape
+        return (incidence @ member_forces.reshape(k, 3 * b)).reshape(-1, 3, b)
+
+    def _forces(self, x, v, rest_lengths, f_ext):
+        """Accelerations (N, 3, B), cable tensions (n_cables, B), unit vectors (m, 3, B), slack (n_cables, B)."""
+        sys = self.system
+        ends = sys.ends
+        d = x[ends[:, 1]] - x[ends[:, 0]]
+        length = np.sqrt(np.einsum("ijb,ijb->ib", d, d))
+        n = d / length[:, None, :]
+        rest = np.concatenate([np.broadcast_to(self._rest_struts, (sys.n_struts, x.shape[2])), rest_lengths])
+        t = self._k * np.maximum(length - rest, self._floor)
+        if self._damped:
+            cables = t[sys.n_struts:]
+            ce = sys.cable_ends
+            rate = np.einsum("ijb,ijb->ib", v[ce[:, 1]] - v[ce[:, 0]], n[sys.n_struts:])
+            cables += np.where(cables > 0, sys.cable_damping[:, None] * rate, 0.0)
+            np.maximum(cables, 0.0, out=cables)   # a damped cable never pushes
+        f = self._assemble(self._incidence, t[:, None, :] * n) + sys.gravity_force[:, :, None] + f_ext
+        return f * sys.inv_mass[:, None, None], t[sys.n_struts:], n, length[sys.n_struts:] < rest_lengths
+
+    def _push(self, strengths, directions):
+        """Node displacements (N, 3, B) of equal-and-opposite pushes ``strengths`` (nr, B) along the struts."""
+        return self.system.inv_mass[:, None, None] * self._assemble(self._rigid_incidence,
+                                                                     strengths[:, None, :] * directions)
+
+    def _shake(self, x_start, x_pred, n0):
+        """SHAKE (see :mod:`.rigid`) for every copy: the displacement (N, 3, B) back onto the strut lengths."""
+        rig = self.rigid
+        if rig.coupled:   # a class-k structure: Newton's method on the coupled struts, copy by copy
+            return np.stack([rig.project_positions(x_start[..., b], x_pred[..., b], n0[..., b])
+                             for b in range(x_pred.shape[2])], axis=-1)
+        e = rig.ends
+        r = x_pred[e[:, 1]] - x_pred[e[:, 0]]
+        p = np.einsum("ijb,ijb->ib", r, n0)
+        c = np.einsum("ijb,ijb->ib", r, r) - rig.length_sq[:, None]
+        gamma = c / (rig._w[:, None] * (p + np.sqrt(np.maximum(p * p - c, 0.0))))
+        return self._push(gamma, n0)
+
+    def _rattle(self, x, v, n):
+        """RATTLE for every copy: the velocity change (N, 3, B) that zeroes every strut's length rate."""
+        rig = self.rigid
+        if rig.coupled:
+            return np.stack([rig.project_velocities(x[..., b], v[..., b], n[..., b])
+                             for b in range(v.shape[2])], axis=-1)
+        e = rig.ends
+        rate = np.einsum("ijb,ijb->ib", v[e[:, 1]] - v[e[:, 0]], n)
+        return self._push(rate / rig._w[:, None], n)
+
+    # ------------------------------------------------------------------ step
+    def _step_reference(self, x, v, rest_lengths, f_ext):
+        """The numpy reference: one step of ``dt`` for every copy from positions ``x`` and velocities ``v``
+        (N, 3, B), rest lengths (n_cables, B) m and external forces ``f_ext`` (N, 3, B) N. Returns the new
+        positions and velocities (N, 3, B), the cable impulses over the step (n_cables, B) N*s and the
+        slack cables (n_cables, B) at its end. The inputs are not modified."""
+        h = self.dt
+        start = self._cache if self._cache is not None else self._forces(x, v, rest_lengths, f_ext)
+        v_half = v + (0.5 * h) * start[0]
+        x_new = x + h * v_half
+        if self.rigid.count:
+            dx = self._shake(x, x_new, start[2][self.rigid.members])
+            x_new += dx
+            v_half += dx / h
+        end = self._forces(x_new, v_half, rest_lengths, f_ext)
+        v_new = v_half + (0.5 * h) * end[0]
+        if self.rigid.count:
+            v_new += self._rattle(x_new, v_new, end[2][self.rigid.members])
+        self._cache = end
+        return x_new, v_new, (0.5 * h) * (start[1] + end[1]), end[3]
+
+    def advance(self, x, v, rest_lengths, f_ext, steps: int):
+        """``steps`` steps of every copy from ``x``, ``v`` (N, 3, B) with rest lengths (n_cables, B) and
+        external forces (N, 3, B) held. Returns every step's positions and velocities (steps, N, 3, B),
+        impulses (steps, n_cables, B) N*s and slack cables (steps, n_cables, B). Inputs are not modified."""
+        n, nc, b = x.shape[0], rest_lengths.shape[0], x.shape[2]
+        if not self.compiled:
+            out_x, out_v = np.empty((steps, n, 3, b)), np.empty((steps, n, 3, b))
+            out_imp, out_slack = np.empty((steps, nc, b)), np.empty((steps, nc, b), dtype=bool)
+            for k in range(steps):
+                x, v, out_imp[k], out_slack[k] = self._step_reference(x, v, rest_lengths, f_ext)
+                out_x[k], out_v[k] = x, v
+            return out_x, out_v, out_imp, out_slack
+        # The kernel walks one copy at a time through arrays whose consecutive entries of a copy lie B
+        # numbers apart; for B a multiple of 8 they map onto few cache sets and evict each other (3-4x
+        # slower at B = 1024, measured). One padding copy (a duplicate of copy 0) breaks that stride.
+        bp = b + 1 if b % 8 == 0 else b
+        x, v, rest, ext = (_padded(a, bp) for a in (x, v, rest_lengths, f_ext))
+        out_x, out_v = np.empty((steps, n, 3, bp)), np.empty((steps, n, 3, bp))
+        out_imp, out_slack = np.empty((steps, nc, bp)), np.empty((steps, nc, bp), dtype=bool)
+        if self._cache is None:
+            self._cache = (np.empty_like(x), np.empty((nc, bp)), np.empty((self.rigid.count, 3, bp)))
+            kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._cache)
+        kernels.elastic_steps(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache,
+                              out_x, out_v, out_imp, out_slack)
+        return out_x[..., :b], out_v[..., :b], out_imp[..., :b], out_slack[..., :b]
+
+    def slack(self, x, rest_lengths) -> np.ndarray:
+        """(n_cables, B) bool: the cables shorter than their rest lengths at ``x`` (N, 3, B)."""
+        ce = self.system.cable_ends
+        d = x[ce[:, 1]] - x[ce[:, 0]]
+        return np.sqrt(np.einsum("ijb,ijb->ib", d, d)) < rest_lengths
+
+    def strain_energy(self, x, rest_lengths) -> np.ndarray:
+        """Elastic energy (B,) J of every copy at positions ``x`` (N, 3, B) and rest lengths (n_cables, B)."""
+        sys = self.system
+        d = x[sys.ends[:, 1]] - x[sys.ends[:, 0]]
+        length = np.sqrt(np.einsum("ijb,ijb->ib", d, d))
+        rest = np.concatenate([np.broadcast_to(self._rest_struts, (sys.n_struts, x.shape[2])), rest_lengths])
+        e = np.maximum(length - rest, self._floor)
+        return 0.5 * np.sum(self._k * e * e, axis=0)

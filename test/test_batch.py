@@ -1,0 +1,262 @@
+"""BatchSimulator: every copy equals a single Simulator run from the same state with the same inputs;
+the compiled batch equals the numpy batch; a failed QP stops its copy only; bad input changes nothing."""
+import warnings
+
+import numpy as np
+import pytest
+
+import tensegrity_sim as ts
+from bench.cases import icosahedron_thrown, tower_kicked
+from tensegrity_sim.batch import BatchSimulator
+from tensegrity_sim.methods.elastic_batch import ElasticBatch
+from tensegrity_sim.system import System
+
+TOL = 1e-10
+
+
+def _quiet(factory):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")   # the inextensible method's prestress warning
+        return factory()
+
+
+def _scenes(kind: str):
+    if kind == "icosahedron":
+        return [icosahedron_thrown(scale=2.0, seed=s) for s in range(3)]
+    return [tower_kicked(speed) for speed in (1.0, 2.0, 3.0)]
+
+
+def _commands(k: int, rest0: np.ndarray, n_nodes: int):
+    """Per copy: rest lengths (B, n_cables) at step k (a ramp on c1 and c2, different per copy) and
+    forces (B, N, 3) from step 40 on (different per copy)."""
+    b = rest0.shape[0]
+    rest = rest0.copy()
+    scale = 1.0 - 1e-4 * min(k, 30) * np.arange(1, b + 1)
+    rest[:, 1] *= scale
+    rest[:, 2] *= scale[::-1]
+    forces = np.zeros((b, n_nodes, 3))
+    if k >= 40:
+        forces[:, 1] = np.outer(np.arange(1, b + 1), [3.0, -2.0, 1.0])
+    return rest, forces
+
+
+@pytest.mark.parametrize("kind", ["icosahedron", "tower"])
+@pytest.mark.parametrize("method", ["elastic", "inextensible"])
+def test_every_copy_equals_a_single_simulator(method, kind):
+    scenes = _scenes(kind)
+    dt = 1e-3 if kind == "icosahedron" else 2e-4
+    batch = _quiet(lambda: BatchSimulator.from_scenes(scenes, method=method, dt=dt))
+    singles = [_quiet(lambda s=s: ts.Simulator(s, method=method, dt=dt)) for s in scenes]
+    assert batch.method == method and batch.batch == 3
+    rest0 = batch.rest_lengths
+    np.testing.assert_array_equal(rest0, [s.rest_lengths for s in singles])
+    n = len(scenes[0].nodes)
+    for k in range(80):
+        if k <= 30 or k == 40:   # commands while ramping, then a force step
+            rest, forces = _commands(k, rest0, n)
+            batch.set_rest_lengths(rest)
+            batch.set_external_forces(forces)
+            for s, r, f in zip(singles, rest, forces):
+                s.set_rest_lengths(r)
+                s.set_external_forces(f)
+        got = batch.step()
+        assert got.time == pytest.approx((k + 1) * dt, rel=1e-15)
+        for b, s in enumerate(singles):
+            want = s.step()
+            np.testing.assert_allclose(got.positions[b], want.positions, rtol=0, atol=TOL)
+            np.testing.assert_allclose(got.velocities[b], want.velocities, rtol=0, atol=TOL * 100)
+            np.testing.assert_allclose(got.impulses[b], want.impulses, rtol=0, atol=TOL)
+            np.testing.assert_array_equal(got.slack[b], want.slack)
+            assert [(e.kind, e.members) for e in got.contacts[b]] == [(e.kind, e.members) for e in want.contacts]
+    # run() with every=k: the same kept steps, impulse sums and tensions as Simulator.run
+    traj = batch.run(steps=45, every=10)
+    assert traj.positions.shape == (3, 5, n, 3) and traj.impulses.shape == (3, 5, len(scenes[0].cables))
+    for b, s in enumerate(singles):
+        want = s.run(steps=45, every=10)
+        np.testing.assert_allclose(traj.time, want.time, rtol=1e-15)
+        np.testing.assert_allclose(traj.positions[b], want.positions, rtol=0, atol=TOL)
+        np.testing.assert_allclose(traj.velocities[b], want.velocities, rtol=0, atol=TOL * 100)
+        np.testing.assert_allclose(traj.impulses[b], want.impulses, rtol=0, atol=TOL)
+        np.testing.assert_allclose(traj.tensions[b], want.tensions, rtol=0, atol=TOL / dt)
+        np.testing.assert_array_equal(traj.slack[b], want.slack)
+        assert len(traj.contacts[b]) == len(want.contacts)
+        energy = s.energy()
+        for key in ("kinetic", "strain", "gravity", "total"):
+            assert batch.energy()[key][b] == pytest.approx(energy[key], rel=1e-10, abs=1e-9)
+    assert batch.failures == {}
+
+
+@pytest.mark.parametrize("method", ["elastic", "inextensible"])
+def test_run_peaks_and_snaps_over_every_step(method):
+    """peak_tensions and snaps count every step, kept or not: checked against a step-by-step single run."""
+    scenes = _scenes("icosahedron")
+    batch = _quiet(lambda: BatchSimulator.from_scenes(scenes, method=method, dt=1e-3))
+    traj = batch.run(steps=300, every=300)
+    for b, scene in enumerate(scenes):
+        sim = _quiet(lambda: ts.Simulator(scene, method=method, dt=1e-3))
+        was = sim.slack()
+        peak, snaps = np.zeros(len(scene.cables)), np.zeros(len(scene.cables), dtype=int)
+        for _ in range(300):
+            r = sim.step()
+            peak = np.maximum(peak, r.tensions)
+            snaps += was & ~r.slack
+            was = r.slack
+        np.testing.assert_allclose(traj.peak_tensions[b], peak, rtol=1e-10, atol=1e-8)
+        np.testing.assert_array_equal(traj.snaps[b], snaps)
+        np.testing.assert_allclose(traj.positions[b, -1], sim.positions, rtol=0, atol=TOL)
+    assert traj.snaps.sum() > 0   # the thrown icosahedron's cables do go slack and snap
+
+
+@pytest.mark.parametrize("batch_size", [3, 8])
+def test_compiled_batch_equals_the_numpy_reference(batch_size):
+    """Same arithmetic, so agreement to 1e-12; damped cables and a padding copy (B = 8) included."""
+    d = icosahedron_thrown(scale=4.0).to_dict()
+    for c in d["cables"]:
+        c["damping"] = 3.0
+    scene = ts.Scene.from_dict(d)
+    system = System(scene)
+    rng = np.random.default_rng(1)
+    x = np.repeat(scene.positions[:, :, None], batch_size, axis=2)
+    v = scene.velocities[:, :, None] * rng.uniform(0.5, 1.5, batch_size)
+    rest = scene.cable_rest_lengths[:, None] * rng.uniform(1.0, 1.1, (len(scene.cables), batch_size))
+    f_ext = rng.normal(size=x.shape)
+    compiled, reference = ElasticBatch(system, 1e-3), ElasticBatch(system, 1e-3, compiled=False)
+    v = compiled.prepare(x, v)
+    got = compiled.advance(x, v, rest, f_ext, 150)
+    got2 = compiled.advance(got[0][-1], got[1][-1], rest, f_ext, 50)   # the carried end forces
+    want = reference.advance(x, v, rest, f_ext, 150)
+    want2 = reference.advance(want[0][-1], want[1][-1], rest, f_ext, 50)
+    for g, w in zip(got + got2, want + want2):
+        assert g.shape == w.shape
+        if g.dtype == bool:
+            np.testing.assert_array_equal(g, w)
+        else:
+            np.testing.assert_allclose(g, w, rtol=0, atol=1e-12 * max(1.0, np.abs(w).max()))
+    assert np.any(got[3]) and not np.all(got[3])   # some cables slack, some taut: the kink is exercised
+
+
+def test_a_failed_qp_stops_its_copy_only():
+    """The locked icosahedron (rigid struts, inextensible cables) cannot reel in a cable: copy 1 is
+    commanded to, fails with the reason and keeps its last state; copies 0 and 2 go on as single runs."""
+    scene = ts.load_scene("icosahedron")
+    batch = _quiet(lambda: BatchSimulator(scene, 3, method="inextensible", dt=1e-3))
+    singles = [_quiet(lambda: ts.Simulator(scene, method="inextensible", dt=1e-3)) for _ in range(3)]
+    batch.run(steps=5)
+    for s in singles:
+        s.run(steps=5)
+    rest = batch.rest_lengths
+    rest[1, 0] -= 1e-4
+    batch.set_rest_lengths(rest)
+    for s, r in zip(singles, rest):
+        s.set_rest_lengths(r)
+    before = batch.positions
+    r = batch.step()
+    assert list(batch.failures) == [1]
+    assert "c0 cannot be followed" in batch.failures[1] and batch.failures[1].startswith("step 6 ")
+    np.testing.assert_array_equal(r.failed, [False, True, False])
+    assert np.isnan(r.positions[1]).all() and np.isnan(r.impulses[1]).all()
+    np.testing.assert_array_equal(batch.positions[1], before[1])
+    with pytest.raises(ts.QPError):
+        singles[1].step()
+    traj = batch.run(steps=10)
+    assert np.isnan(traj.positions[1]).all() and traj.failures == {1: batch.failures[1]}
+    for b in (0, 2):
+        singles[b].step()
+        want = singles[b].run(steps=10)
+        np.testing.assert_allclose(traj.positions[b], want.positions, rtol=0, atol=TOL)
+    assert batch.time == pytest.approx(16e-3)
+
+
+@pytest.mark.parametrize("method", ["elastic", "inextensible"])
+def test_a_non_finite_copy_stops_alone_as_simulator_would(method):
+    """An absurd force on copy 1 (Simulator raises a StepError: NonFiniteError, or for the inextensible
+    method the QP's failure): that copy fails with the same message and keeps the state before the step;
+    the others go on as single runs."""
+    scenes = _scenes("icosahedron")
+    batch = _quiet(lambda: BatchSimulator.from_scenes(scenes, method=method, dt=1e-3))
+    singles = [_quiet(lambda s=s: ts.Simulator(s, method=method, dt=1e-3)) for s in scenes]
+    batch.run(steps=7)
+    for s in singles:
+        s.run(steps=7)
+    forces = np.zeros((3, len(scenes[0].nodes), 3))
+    forces[1, 4] = [1e300, 0.0, 0.0]
+    batch.set_external_forces(forces)
+    for s, f in zip(singles, forces):
+        s.set_external_forces(f)
+    before = singles[1].positions
+    with np.errstate(over="ignore", invalid="ignore"):
+        traj = batch.run(steps=10)
+        with pytest.raises(ts.NonFiniteError if method == "elastic" else ts.StepError) as err:
+            singles[1].step()
+    assert batch.failures == {1: f"step 8 (t = 0.008 s): {err.value}"}
+    np.testing.assert_array_equal(batch.positions[1], before)
+    np.testing.assert_array_equal(batch.step_counts, [17, 7, 17])
+    assert np.isnan(traj.positions[1]).all() and not np.isnan(traj.positions[[0, 2]]).any()
+    for b in (0, 2):
+        want = singles[b].run(steps=10)
+        np.testing.assert_allclose(traj.positions[b], want.positions, rtol=0, atol=TOL)
+
+
+def test_initial_states_per_copy():
+    """positions/velocities per copy: a rotated, moving icosahedron equals a single run of the scene
+    written with that state."""
+    scene = icosahedron_thrown(scale=1.0)
+    c, s = np.cos(0.3), np.sin(0.3)
+    rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    x = np.stack([scene.positions, scene.positions @ rot.T])
+    v = np.stack([scene.velocities, scene.velocities @ rot.T])
+    batch = BatchSimulator(scene, 2, method="elastic", positions=x, velocities=v)
+    d = scene.to_dict()
+    for node, p, u in zip(d["nodes"], x[1], v[1]):
+        node["position"], node["velocity"] = list(p), list(u)
+    single = ts.Simulator(ts.Scene.from_dict(d), method="elastic")
+    traj = batch.run(steps=200, every=50)
+    want = single.run(steps=200, every=50)
+    np.testing.assert_allclose(traj.positions[1], want.positions, rtol=0, atol=TOL)
+    # rotating the state rotates the motion (the scene has no gravity)
+    np.testing.assert_allclose(traj.positions[1], traj.positions[0] @ rot.T, rtol=0, atol=1e-9)
+
+
+def test_bad_input_is_refused_and_changes_nothing():
+    scene = ts.load_scene("icosahedron")
+    with pytest.raises(ValueError, match=r"batch must be a whole number >= 1, got 0"):
+        BatchSimulator(scene, 0)
+    with pytest.raises(ValueError, match=r"positions: expected shape \(2, 12, 3\) \(per copy\) or \(12, 3\) "
+                                         r"\(every copy\), got \(3, 12, 3\)"):
+        BatchSimulator(scene, 2, positions=np.zeros((3, 12, 3)))
+    stretched = np.array([scene.positions, scene.positions * 1.01])
+    with pytest.raises(ValueError, match=r"positions\[1\]: rigid strut 's0' has length"):
+        BatchSimulator(scene, 2, method="elastic", positions=stretched)
+    with pytest.raises(ValueError, match=r"scenes\[1\] \('prism3'\) differs from scenes\[0\]"):
+        BatchSimulator.from_scenes([scene, ts.load_scene("prism3")])
+    with pytest.raises(ValueError, match=r"method must be one of"):
+        BatchSimulator(scene, 2, method="euler")
+    batch = BatchSimulator(scene, 2, method="elastic")
+    rest, forces = batch.rest_lengths, batch.external_forces
+    for bad, match in [
+        ({"c99": 1.0}, r"rest_lengths: unknown name 'c99'"),
+        ({"c0": [1.0, 1.0, 1.0]}, r"rest_lengths\['c0'\]: expected shape \(\) \(every copy\) or \(2,\) \(per copy\)"),
+        (np.ones(5), r"rest_lengths: expected shape \(2, 24\) \(per copy\) or \(24,\) \(every copy\), got \(5,\)"),
+        ({"c3": [1.0, -1.0]}, r"rest_lengths\[1\]\['c3'\]: must be > 0, got -1.0"),
+        ({"c3": [1.0, np.nan]}, r"rest_lengths\['c3'\] must be finite, got \[1.0, nan\]"),
+        ("long", r"rest_lengths must be numbers, got 'long'"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            batch.set_rest_lengths(bad)
+    with pytest.raises(ValueError, match=r"external_forces\['n1'\]: expected shape \(3,\) \(every copy\)"):
+        batch.set_external_forces({"n1": [1.0, 2.0]})
+    np.testing.assert_array_equal(batch.rest_lengths, rest)
+    np.testing.assert_array_equal(batch.external_forces, forces)
+    with pytest.raises(ValueError, match=r"every must be a whole number >= 1, got 0"):
+        batch.run(steps=3, every=0)
+    assert batch.step_count == 0
+
+
+def test_a_scene_with_a_ground_equals_single_runs():
+    """The batched elastic engine has no ground: such a scene is stepped copy by copy, as Simulator does."""
+    scene = ts.load_scene("icosahedron_ground")
+    batch = _quiet(lambda: BatchSimulator(scene, 2, method="elastic", dt=1e-3))
+    single = _quiet(lambda: ts.Simulator(scene, method="elastic", dt=1e-3))
+    traj, want = batch.run(steps=100, every=50), single.run(steps=100, every=50)
+    for b in range(2):
+        np.testing.assert_allclose(traj.positions[b], want.positions, rtol=0, atol=TOL)
