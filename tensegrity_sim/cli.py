@@ -13,7 +13,8 @@ import numpy as np
 from tqdm import tqdm
 
 from .commands import CommandError, CommandSchedule, load_commands
-from .methods.qp import SOLVERS, SPARSE_NODES, QPError
+from .methods import StepError
+from .methods.qp import SOLVERS, SPARSE_NODES
 from .scene import SceneError, load_scene
 from .simulator import Simulator
 
@@ -174,6 +175,16 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_recover(args: argparse.Namespace) -> int:
+    from .ros.log_reader import recover
+
+    copied, unfinished = recover(args.log, args.out)
+    print(f"recovered        {copied} messages from {args.log}"
+          + (f" ({unfinished})" if unfinished else " (it was finished)"))
+    print(f"written          {args.out} (finished: summary, statistics, rosbag2 metadata)")
+    return 0
+
+
 def _cmd_serve(args: argparse.Namespace) -> int:
     from .ros.node_logic import NodeSettings
 
@@ -283,8 +294,25 @@ def build_parser() -> argparse.ArgumentParser:
                                         "slack/snap and contact statistics.")
     info.add_argument("log", help="an MCAP log written by tensegrity-sim run --log or the node")
     info.set_defaults(func=_cmd_info)
+
+    rec = verbs.add_parser("recover", help="write a finished copy of a log cut off by a crash",
+                           description="Copy every complete record of a log that its writer did not finish (killed, "
+                                       "power cut, disk full) into a finished log (summary, statistics, rosbag2 "
+                                       "metadata) that every MCAP reader opens; a corrupt record stops it (exit 2).")
+    rec.add_argument("log", help="the unfinished MCAP log")
+    rec.add_argument("out", help="the finished copy to write (.mcap)")
+    rec.set_defaults(func=_cmd_recover)
     _add_serve(verbs)
     return parser
+
+
+def _one_line(exc: BaseException) -> str:
+    """An error's message on one line (a YAML error spans several); an OSError as ``file: reason``."""
+    if isinstance(exc, OSError) and exc.strerror:  # (a LogWriteError has a whole message instead)
+        text = f"{exc.filename}: {exc.strerror}" if exc.filename is not None else exc.strerror
+    else:
+        text = str(exc)
+    return " ".join(text.split())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -292,8 +320,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (SceneError, CommandError, ValueError, QPError) as exc:
-        print(f"tensegrity-sim {args.verb}: error: {exc}", file=sys.stderr)
+    except (SceneError, CommandError, ValueError, StepError, OSError) as exc:  # OSError: files, LogWriteError
+        print(f"tensegrity-sim {args.verb}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"tensegrity-sim {args.verb}: interrupted", file=sys.stderr)

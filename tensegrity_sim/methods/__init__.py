@@ -3,13 +3,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..checks import describe
 from ..system import System
-from .base import MethodStep, State, StepMethod
+from .base import MethodStep, State, StepError, StepMethod
 from .elastic import ElasticMethod
 from .inextensible import InextensibleMethod
 from .qp import SOLVERS
 
-__all__ = ["METHODS", "SOLVERS", "choose_method", "make_method", "State", "MethodStep", "StepMethod"]
+__all__ = ["METHODS", "SOLVERS", "choose_method", "make_method", "State", "MethodStep", "StepMethod", "StepError"]
 
 METHODS: dict[str, type[StepMethod]] = {
     ElasticMethod.name: ElasticMethod,
@@ -81,14 +82,16 @@ def make_method(system: System, method: str, dt: float, *, solver: str | None = 
     """Instantiate ``method`` (a name of :data:`METHODS` or ``"auto"``); returns it and the reason.
 
     ``solver`` names a QP backend (:data:`SOLVERS`) for a method that solves QPs."""
-    if solver is not None and solver not in SOLVERS:
-        raise ValueError(f"solver must be one of {sorted(SOLVERS)}, got {solver!r}")
+    if solver is not None and (not isinstance(solver, str) or solver not in SOLVERS):
+        raise ValueError(f"solver must be one of {sorted(SOLVERS)}, got {describe(solver)}")
+    if not isinstance(method, str):
+        raise ValueError(f"method must be one of {sorted(METHODS) + ['auto']}, got {describe(method)}")
     if method == "auto":
         method, reason = choose_method(system, dt)
     elif method in METHODS:
         reason = f"{method}: requested"
     else:
-        raise ValueError(f"method must be one of {sorted(METHODS) + ['auto']}, got {method!r}")
+        raise ValueError(f"method must be one of {sorted(METHODS) + ['auto']}, got {describe(method)}")
     cls = METHODS[method]
     options = {}
     if solver is not None:

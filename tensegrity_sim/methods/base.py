@@ -30,7 +30,12 @@ import numpy as np
 
 from ..system import System
 
-__all__ = ["State", "MethodStep", "StepMethod"]
+__all__ = ["State", "MethodStep", "StepMethod", "StepError"]
+
+
+class StepError(RuntimeError):
+    """A step that cannot be taken (a QP without a solution, a result that is not finite); the simulator
+    is as it was before the step, and the message says why."""
 
 
 @dataclass
@@ -82,6 +87,11 @@ class StepMethod:
 
     def step(self, state: State) -> MethodStep:
         return self._step_impl(state)
+
+    def retrace(self, state: State) -> None:
+        """After a step from ``state`` failed (its result was not finite): take it again in the plain
+        numpy reference, if the method has a compiled one, so that numpy's floating-point warnings say
+        what overflowed. The result is discarded; the simulator then calls ``invalidate()``."""
 
     def has_loop(self) -> bool:
         """Whether :meth:`advance` runs many steps in compiled code."""

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _qp_kernels as kernels
+from .base import StepError
 
 __all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SparseSolver", "SOLVERS",
            "SPARSE_NODES", "choose_solver", "make_solver"]
@@ -96,7 +97,7 @@ class Rows:
         return np.einsum("ij,ij->i", vv[self.nodes[:, 1]] - vv[self.nodes[:, 0]], self.directions)
 
 
-class QPError(RuntimeError):
+class QPError(StepError):
     """A QP backend failed; ``status`` is the backend's status, the message says what happened."""
 
     def __init__(self, solver: str, status: str, message: str):
