@@ -26,9 +26,10 @@ tolerances it is off by 0.1..0.8. Both stay available by name. DAQP is dense: on
 (1335 rows) sparse OSQP steps 6 times faster.
 
 A backend that fails (infeasible rows, iteration limit) raises :class:`QPError` with a status and a
-message. The answers of the backends that may return a poor one (``verify``: OSQP, NNLS) are checked
-against the optimality conditions, to ``1e-7`` relative, and refused if they fail them; DAQP's exit flag
-is trusted (an active-set method solves the KKT system of its final working set to round-off).
+message. The answers of the backends with ``verify`` (DAQP, OSQP, NNLS; the sparse backend verifies its
+guesses itself) are checked against the optimality conditions, to ``1e-7`` relative, and refused if they
+fail them. The check and DAQP's dense rows are numba kernels (``_qp_kernels.py``: one pass over the rows,
+``A`` never formed for the check), beside their numpy reference (``compiled = False``).
 """
 from __future__ import annotations
 
