@@ -179,7 +179,9 @@ class Simulator:
         a non-finite result) leaves the state as it was."""
         out = self._method.step(self._state)
         if not finite_step(out):
-            self._method.retrace(self._state)  # numpy's warnings say what overflowed
+            # the plain reference's take of the step: numpy's warnings say what overflowed, and the report
+            # names what it made non-finite, whichever implementation stepped
+            out = self._method.retrace(self._state) or out
             self._method.invalidate()  # drop what the method cached from the failed step
             raise NonFiniteError(non_finite_report(self.scene, self._state, self.dt, out.positions,
                                                    out.velocities, out.impulses))

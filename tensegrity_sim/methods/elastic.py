@@ -152,10 +152,11 @@ class ElasticMethod(StepMethod):
     def has_loop(self) -> bool:
         return self.compiled
 
-    def retrace(self, state: State) -> None:
-        if self.compiled:
-            self._cache = None
-            self._step_reference(state)
+    def retrace(self, state: State) -> MethodStep | None:
+        if not self.compiled:
+            return None
+        self._cache = None
+        return self._step_reference(state)
 
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
                 impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
