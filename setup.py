@@ -25,8 +25,8 @@ INSTALL_REQUIRES = [
     "scipy>=1.11.4,<2",
     "PyYAML>=6.0.1,<7",
     "tqdm>=4.66.2,<5",
-    # compiled stepping kernels (methods/_*_kernels.py); 0.68.1 (pinned) supports numpy 2.4.6, 0.60 numpy 1.26
-    "numba>=0.60.0,<0.69",
+    # compiled stepping kernels (methods/_*_kernels.py); 0.68.1 supports numpy 1.22 to 2.5
+    "numba>=0.68.1,<0.69",
     # QP backends of the inextensible method (tensegrity_sim.methods.qp): DAQP is the default
     "daqp>=0.11.0,<0.12",
     "osqp>=1.1.3,<2",

@@ -6,6 +6,7 @@ refuses the command after the fact and steps on; a failure with nothing to give 
 all of it replay bit for bit, failures included.
 """
 import json
+import re
 
 import numpy as np
 import pytest
@@ -247,10 +248,12 @@ def test_absurd_force_is_refused_after_the_fact_and_nothing_non_finite_is_publis
     assert logic.step() is None                                                        # ...the step fails
     assert isinstance(logic.step_error, ts.NonFiniteError) and not logic.paused
     assert logic.refused["external_wrench"] == 1
-    assert logger.warnings[-1].startswith("/tensegrity_sim/external_wrench: refused after the fact: the step from "
-                                          "t = 0.003000 s failed: the step from t = 0.003000 s gave non-finite "
-                                          "values at node 'n0' (and 5 more) and cable 'c0' (and 2 more) (inputs: "
-                                          "largest external force 1e+300 N at node 'n1';")
+    # how far the overflow spreads within the step depends on the order of the arithmetic (the compiled
+    # kernel's and numpy's differ): the count of other nodes is not pinned
+    assert re.match(r"/tensegrity_sim/external_wrench: refused after the fact: the step from t = 0\.003000 s "
+                    r"failed: the step from t = 0\.003000 s gave non-finite values at node 'n0' \(and [45] more\) "
+                    r"and cable 'c0' \(and 2 more\) \(inputs: largest external force 1e\+300 N at node 'n1';",
+                    logger.warnings[-1])
     assert [k for k, _ in sent] == ["diagnostics"] and sent[0][1].status[0].level == M.byte(1)
     for _ in range(10):
         r = logic.step()
