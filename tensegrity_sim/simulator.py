@@ -8,7 +8,6 @@ only when it fails.
 """
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import replace
 from typing import Mapping
@@ -208,6 +207,9 @@ class Simulator:
         a non-finite result) leaves the state as it was."""
         out = self._method.step(self._state)
         if not finite_step(out):
+            # the plain reference's take of the step: numpy's warnings say what overflowed, and the report
+            # names what it made non-finite, whichever implementation stepped
+            out = self._method.retrace(self._state) or out
             self._method.invalidate()  # drop what the method cached from the failed step
             raise NonFiniteError(non_finite_report(self.scene, self._state, self.dt, out.positions,
                                                    out.velocities, out.impulses))
@@ -272,39 +274,38 @@ class Simulator:
         slack = np.empty((len(kept), nc), dtype=bool)
         ground = np.zeros((len(kept), n, 3))   # the ground's impulses, summed like the cables'
         contacts = []
-        compiled = callback is None and self._method.has_loop()
-        if compiled:
-            start = self._state.copy(), copy.deepcopy(self._contacts)
-            self._run_compiled(steps, every, pos, vel, imp, slack, contacts)
-            if not math.isfinite(np.add.reduce(pos, None) + np.add.reduce(vel, None) + np.add.reduce(imp, None)):
-                # the compiled loop has no per-step guard: redo the run step by step from its start, so
-                # that the failing step raises NonFiniteError with the state as before it, as step() does
-                self._state, self._contacts = start
-                self._method.invalidate()
-                imp[:] = 0.0
-                contacts.clear()
-                compiled = False
-        if not compiled:
-            for k in range(steps):
-                r = self.step()
-                j = k // every
-                imp[j] += r.impulses
-                ground[j] += r.contact_impulses
-                if k + 1 == kept[j]:
-                    pos[j], vel[j], slack[j] = r.positions, r.velocities, r.slack
-                contacts.extend(r.contacts)
-                if callback is not None:
-                    callback(k, r)
+        done = 0
+        if callback is None and self._method.has_loop():
+            done = self._run_compiled(steps, every, pos, vel, imp, slack, contacts)
+        for k in range(done, steps):   # step by step (all of them, or from a compiled part that failed)
+            r = self.step()
+            j = k // every
+            imp[j] += r.impulses
+            ground[j] += r.contact_impulses
+            if k + 1 == kept[j]:
+                pos[j], vel[j], slack[j] = r.positions, r.velocities, r.slack
+            contacts.extend(r.contacts)
+            if callback is not None:
+                callback(k, r)
         return Trajectory(time, pos, vel, imp, imp / (span[:, None] * self.dt), slack, contacts, ground)
 
-    def _run_compiled(self, steps, every, pos, vel, imp, slack, contacts) -> None:
+    def _run_compiled(self, steps, every, pos, vel, imp, slack, contacts) -> int:
         """:meth:`run` in the method's compiled loop: straight into the trajectory's arrays, or, with
-        contact detection, in chunks of every step that the detector then walks through."""
+        contact detection, in chunks of every step that the detector then walks through. Returns the
+        steps done: a part whose result is not finite is not committed (the method's cache is dropped)
+        and is left to :meth:`step`, which raises :class:`NonFiniteError` at the very step, as a run
+        step by step does."""
         st, method = self._state, self._method
+        add = np.add.reduce
         if self._contacts is None:
-            st.positions, st.velocities = method.advance(st, steps, every, pos, vel, imp, slack)
+            x, v = method.advance(st, steps, every, pos, vel, imp, slack)
+            if not math.isfinite(add(x, None) + add(v, None) + add(imp, None)):
+                method.invalidate()
+                imp[...] = 0.0
+                return 0
+            st.positions, st.velocities = x, v
             st.step_count += steps
-            return
+            return steps
         chunk = min(steps, _CHUNK)
         n, nc = pos.shape[1], imp.shape[1]
         c_pos, c_vel = np.empty((chunk, n, 3)), np.empty((chunk, n, 3))
@@ -313,6 +314,9 @@ class Simulator:
         while done < steps:
             m = min(chunk, steps - done)
             x, v = method.advance(st, m, 1, c_pos[:m], c_vel[:m], c_imp[:m], c_slack[:m])
+            if not math.isfinite(add(x, None) + add(v, None) + add(c_imp[:m], None)):
+                method.invalidate()
+                return done
             previous = st.positions
             for i in range(m):
                 contacts.extend(self._contacts.step(previous, c_pos[i], (st.step_count + i) * self.dt, self.dt))
@@ -326,6 +330,7 @@ class Simulator:
             st.positions, st.velocities = x, v
             st.step_count += m
             done += m
+        return done
 
     # ------------------------------------------------------------------ invariants
     def energy(self) -> dict[str, float]:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import tensegrity_sim as ts
-from conftest import bungee_dict, deadband_dict, random_velocities
+from conftest import bungee_dict, class_k_dict, deadband_dict, random_velocities
 from test_contact import crossing_dict
 from tensegrity_sim.methods import _qp_kernels as kernels
 from tensegrity_sim.methods import qp
@@ -16,15 +16,9 @@ TOL = 1e-12
 
 
 def _class_k():
-    d = {"nodes": [{"name": "a", "position": [0, 0, 0], "mass": 1.0, "velocity": [0, 1, 0]},
-                   {"name": "b", "position": [1, 0, 0], "mass": 2.0, "velocity": [0, 0, 1]},
-                   {"name": "c", "position": [1, 1, 0], "mass": 1.5, "velocity": [1, 0, 0]}],
-         "struts": [{"name": "s0", "nodes": ["a", "b"], "stiffness": "rigid"},
-                    {"name": "s1", "nodes": ["b", "c"], "stiffness": "rigid"}],
-         "cables": [{"name": "c0", "nodes": ["a", "c"], "stiffness": 100.0, "rest_length": 1.2}]}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ts.ClassKWarning)
-        return ts.Scene.from_dict(d)
+        return ts.Scene.from_dict(class_k_dict())
 
 
 def _damped():

@@ -6,7 +6,7 @@ import pytest
 
 import tensegrity_sim as ts
 from bench.analytic import bungee_constants, bungee_exact
-from conftest import bungee_dict, deadband_dict, random_velocities
+from conftest import bungee_dict, class_k_dict, deadband_dict, random_velocities
 
 
 def test_bungee_lowest_point_period_and_energy():
@@ -106,14 +106,8 @@ def test_rigid_struts_hold_their_length():
 
 def test_class_k_rigid_struts_coupled_newton():
     """Two rigid struts sharing a node (class-k): the coupled SHAKE solve keeps both lengths."""
-    d = {"nodes": [{"name": "a", "position": [0, 0, 0], "mass": 1.0, "velocity": [0, 1, 0]},
-                   {"name": "b", "position": [1, 0, 0], "mass": 2.0, "velocity": [0, 0, 1]},
-                   {"name": "c", "position": [1, 1, 0], "mass": 1.5, "velocity": [1, 0, 0]}],
-         "struts": [{"name": "s0", "nodes": ["a", "b"], "stiffness": "rigid"},
-                    {"name": "s1", "nodes": ["b", "c"], "stiffness": "rigid"}],
-         "cables": [{"name": "c0", "nodes": ["a", "c"], "stiffness": 100.0, "rest_length": 1.2}]}
     with pytest.warns(ts.ClassKWarning):
-        scene = ts.Scene.from_dict(d)
+        scene = ts.Scene.from_dict(class_k_dict())
     sim = ts.Simulator(scene, method="elastic", dt=1e-3)
     p0, l0 = sim.momentum()
     e0 = sim.energy()["total"]

@@ -156,6 +156,18 @@ def _push(node_a, node_b, inv_mass, s, n0, n1, n2, out):
 
 
 @njit(cache=True)
+def _pushes(ends, inv_mass, rigid_members, strengths, dirs, out, b):
+    """``out`` (N, 3) = the node displacements (or velocity changes) of equal-and-opposite pushes of
+    ``strengths`` (nr,) along the rigid struts' ``dirs`` of copy ``b``."""
+    for i in range(out.shape[0]):
+        for j in range(3):
+            out[i, j] = 0.0
+    for k in range(rigid_members.shape[0]):
+        i = rigid_members[k]
+        _push(ends[i, 0], ends[i, 1], inv_mass, strengths[k], dirs[k, 0, b], dirs[k, 1, b], dirs[k, 2, b], out)
+
+
+@njit(cache=True)
 def _shake(x_pred, dirs, ends, inv_mass, rigid_members, length_sq, w, dx, b):
     """SHAKE for copy ``b`` (rigid.RigidStruts.project_positions): the displacement, written into
     ``dx`` (N, 3) (zeroed here), that puts ``x_pred`` back on every rigid strut length along ``dirs``."""
@@ -171,12 +183,7 @@ def _shake(x_pred, dirs, ends, inv_mass, rigid_members, length_sq, w, dx, b):
         c = r[k, 0] * r[k, 0] + r[k, 1] * r[k, 1] + r[k, 2] * r[k, 2] - length_sq[k]
         # small root of w^2 g^2 - 2 w p g + c = 0, written to avoid cancellation
         gamma[k] = c / (w[k, k] * (p + np.sqrt(max(p * p - c, 0.0))))
-    for i in range(dx.shape[0]):
-        for j in range(3):
-            dx[i, j] = 0.0
-    for k in range(nr):
-        i = rigid_members[k]
-        _push(ends[i, 0], ends[i, 1], inv_mass, gamma[k], dirs[k, 0, b], dirs[k, 1, b], dirs[k, 2, b], dx)
+    _pushes(ends, inv_mass, rigid_members, gamma, dirs, dx, b)
 
 
 @njit(cache=True)
@@ -195,12 +202,7 @@ def _rattle(v, dirs, ends, inv_mass, rigid_members, w, dv, b):
     for k in range(nr):
         mu[k] = rate[k] / w[k, k]
     # the pushes are summed before being added, as in the reference (v + project_velocities(...))
-    for i in range(dv.shape[0]):
-        for j in range(3):
-            dv[i, j] = 0.0
-    for k in range(nr):
-        i = rigid_members[k]
-        _push(ends[i, 0], ends[i, 1], inv_mass, mu[k], dirs[k, 0, b], dirs[k, 1, b], dirs[k, 2, b], dv)
+    _pushes(ends, inv_mass, rigid_members, mu, dirs, dv, b)
     for i in range(v.shape[0]):
         for j in range(3):
             v[i, j, b] += dv[i, j]

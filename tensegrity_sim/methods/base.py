@@ -90,6 +90,13 @@ class StepMethod:
     def step(self, state: State) -> MethodStep:
         return self._step_impl(state)
 
+    def retrace(self, state: State) -> MethodStep | None:
+        """After a step from ``state`` failed (its result was not finite): take it again in the plain
+        numpy reference and return that, if the method has a compiled implementation (else None), so that
+        numpy's floating-point warnings and the failure report are the reference's. The simulator then
+        calls ``invalidate()``."""
+        return None
+
     def has_loop(self) -> bool:
         """Whether :meth:`advance` runs many steps in compiled code."""
         return False

@@ -101,6 +101,18 @@ class ElasticMethod(StepMethod):
         # the compiled path's carry from one step to the next (batch of one): accelerations (N, 3, 1),
         # cable tensions (n_cables, 1), rigid strut directions (nr, 3, 1) at the last step's end
         self._carry = None
+        if self.compiled:
+            self._load_kernels()
+
+    def _load_kernels(self) -> None:
+        """Compile the kernels, or load them from numba's cache, now rather than in the first step: a
+        simulator that exists steps at full speed (a node's first steps, a timed loop)."""
+        scene = self.system.scene
+        x, v = scene.positions.reshape(-1, 3, 1).copy(), scene.velocities.reshape(-1, 3, 1).copy()
+        rest = scene.cable_rest_lengths.reshape(-1, 1).copy()
+        out = (x[None].copy(), v[None].copy(), np.empty((0,) + rest.shape), np.empty((0,) + rest.shape, dtype=bool))
+        self._advance(State(x, v, rest, np.zeros_like(x)), x, v, 0, 1, *out)
+        self._carry = None
 
     def invalidate(self) -> None:
         self._cache = None
@@ -158,6 +170,12 @@ class ElasticMethod(StepMethod):
 
     def has_loop(self) -> bool:
         return self.compiled
+
+    def retrace(self, state: State) -> MethodStep | None:
+        if not self.compiled:
+            return None
+        self._cache = None
+        return self._step_reference(state)
 
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
                 impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
