@@ -25,6 +25,7 @@ import numpy as np
 from .checks import float_array, time_step
 from .contact import ContactDetector, make_detector
 from .methods import StepError, choose_method
+from .methods.elastic import ElasticMethod
 from .methods.elastic_batch import ElasticBatch
 from .results import ContactEvent
 from .scene import Scene, contact_kinds
@@ -366,7 +367,11 @@ class BatchSimulator:
             k = int(np.argmax(bad[:, b]))
             x0, v0 = (previous[..., b], previous_v[..., b]) if k == 0 else (x_seq[k - 1, ..., b], v_seq[k - 1, ..., b])
             state = State(x0.copy(), v0.copy(), self._rest[:, b].copy(), self._f_ext[..., b].copy(), start + k)
-            report = non_finite_report(self.scene, state, self.dt, x_seq[k, ..., b], v_seq[k, ..., b], imp[k, :, b])
+            # the report from the plain reference's take of the step, as Simulator.step makes it (how far an
+            # overflow spreads within a step depends on the order of the arithmetic)
+            with np.errstate(all="ignore"):
+                ref = ElasticMethod(self.system, self.dt, compiled=False).step(state)
+            report = non_finite_report(self.scene, state, self.dt, ref.positions, ref.velocities, ref.impulses)
             self.failures[int(b)] = f"step {start + k + 1} (t = {(start + k + 1) * self.dt:.6g} s): {report}"
             self._frozen[int(b)] = (start + k, state.positions, state.velocities)
         for b, (done, x0, v0) in self._frozen.items():

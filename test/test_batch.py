@@ -104,7 +104,8 @@ def test_run_peaks_and_snaps_over_every_step(method):
         np.testing.assert_allclose(traj.peak_tensions[b], peak, rtol=1e-10, atol=1e-8)
         np.testing.assert_array_equal(traj.snaps[b], snaps)
         np.testing.assert_allclose(traj.positions[b, -1], sim.positions, rtol=0, atol=TOL)
-    assert traj.snaps.sum() > 0   # the thrown icosahedron's cables do go slack and snap
+    if method == "elastic":   # the thrown elastic icosahedron's cables go slack and snap; the inextensible
+        assert traj.snaps.sum() > 0   # one is locked, its cables carry the prestress and stay taut (issue 20)
 
 
 @pytest.mark.parametrize("batch_size", [3, 8])

@@ -191,11 +191,11 @@ def ray_cluster(tmp_path_factory):
     ray = shutil.which("ray", path=os.path.dirname(sys.executable))
     assert ray, "the ray command is missing: pip install -e '.[test]' installs it"
     # every port Ray would otherwise take at a fixed default is a free one, so the test cannot collide
-    port, client, agent, agent_grpc, env_agent, metrics = _free_ports(6)
+    port, agent, agent_grpc, env_agent, metrics = _free_ports(5)
     temp = Path("/tmp") / f"ray_ts_{os.getpid()}"   # short: Ray's socket paths must stay under 108 bytes
     env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
     start = [ray, "start", "--head", f"--port={port}", "--num-cpus=2", "--include-dashboard=false",
-             "--disable-usage-stats", f"--temp-dir={temp}", f"--ray-client-server-port={client}",
+             "--disable-usage-stats", f"--temp-dir={temp}",
              f"--dashboard-agent-listen-port={agent}", f"--dashboard-agent-grpc-port={agent_grpc}",
              f"--runtime-env-agent-port={env_agent}", f"--metrics-export-port={metrics}"]
     try:
