@@ -39,10 +39,12 @@ class Simulator:
     detection off. ``contact_kinds`` is what is in use.
     ``solver``: the QP backend of the inextensible method (``methods.qp.SOLVERS``; default: chosen by
     size, ``methods.qp.choose_solver``); ``method_settings`` reports the one in use and why.
+    ``order``: 2 (default) or 4, the elastic method's order (README, "Methods": which for which error);
+    ``locate_switches``: the elastic method splits a step at each slack/taut switch (default True).
     """
 
     def __init__(self, scene: Scene, method: str = "auto", dt: float = 1e-3, *, contacts=None,
-                 solver: str | None = None):
+                 solver: str | None = None, order: int | None = None, locate_switches: bool | None = None):
         if not isinstance(scene, Scene):
             raise ValueError(f"scene must be a Scene (see load_scene), got {type(scene).__name__}")
         if contacts is not None:
@@ -51,7 +53,8 @@ class Simulator:
         self.scene = scene
         self.dt = _check_dt(dt)
         self.system = System(scene)
-        self._method, self.method_reason = make_method(self.system, method, self.dt, solver=solver)
+        self._method, self.method_reason = make_method(self.system, method, self.dt, solver=solver, order=order,
+                                                           locate_switches=locate_switches)
         # None when nothing can be in contact: then detection costs nothing at all
         self._contacts = make_detector(self.system, scene.contact_kinds)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
