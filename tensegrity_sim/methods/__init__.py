@@ -78,14 +78,15 @@ def choose_method(system: System, dt: float) -> tuple[str, str]:
 
 
 # what has each option, for the error when a named method lacks it
-_OPTION_OF = {"solver": "a method with a QP", "order": "the elastic method", "locate_switches": "the elastic method"}
+_OPTION_OF = {"solver": "a method with a QP", "order": "the elastic method", "locate_switches": "the elastic method",
+              "reel_speed": "the inextensible method"}
 
 
 def make_method(system: System, method: str, dt: float, **options) -> tuple[StepMethod, str]:
     """Instantiate ``method`` (a name of :data:`METHODS` or ``"auto"``); returns it and the reason.
 
     ``options`` are the methods' keyword options (``solver`` of a method that solves QPs, ``order`` and
-    ``locate_switches`` of the elastic method); None means the method's default. An option the chosen
+    ``locate_switches`` of the elastic method, ``reel_speed`` of the inextensible one); None means the method's default. An option the chosen
     method does not have is an error when the method was named, and ignored when ``"auto"`` chose it."""
     solver = options.get("solver")
     if solver is not None and solver not in SOLVERS:

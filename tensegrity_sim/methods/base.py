@@ -19,6 +19,8 @@ Rules for whoever writes a new method (compare ``scipy.integrate.OdeSolver``):
 8. ``slack(positions, rest_lengths)`` says which cables are slack in the method's model (by default:
    shorter than their rest length).
 9. Options (e.g. ``solver``) are keyword-only arguments of ``__init__``, listed in ``options``.
+10. ``applied_rest_lengths(state)`` are the rest lengths the cables follow now, if a method lags the
+    commanded ones (a motor's finite speed).
 """
 from __future__ import annotations
 
@@ -83,6 +85,11 @@ class StepMethod:
 
     def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
         raise NotImplementedError
+
+    def applied_rest_lengths(self, state: State) -> np.ndarray:
+        """The rest lengths in effect (n_cables,) m: the commanded ones, unless the method follows a
+        command at a finite motor speed (the inextensible method's ``reel_speed``)."""
+        return state.rest_lengths.copy()
 
     def slack(self, positions: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
         """(n_cables,) bool: the cables that are slack at ``positions`` (m) for ``rest_lengths`` (m)."""
