@@ -40,7 +40,8 @@ class Simulator:
     ``solver``: the QP backend of the inextensible method (``methods.qp.SOLVERS``; default: chosen by
     size, ``methods.qp.choose_solver``); ``method_settings`` reports the one in use and why.
     ``order``: 2 (default) or 4, the elastic method's order (README, "Methods": which for which error);
-    ``locate_switches``: the elastic method splits a step at each slack/taut switch (default True).
+    ``locate_switches``: the elastic method splits a step at each slack/taut switch (default: at order 4,
+    and at order 2 when ``dt`` resolves the fastest vibration; ``method_settings`` says which).
     ``reel_speed``: the inextensible method's motor top speed, m/s (default 1 m/s; ``math.inf``: none):
     a faster rest-length command is followed at that speed (``applied_rest_lengths``).
     """

@@ -133,12 +133,18 @@ def test_options_are_checked_and_reported():
     scene = ts.Scene.from_dict(bungee_dict())
     with pytest.raises(ValueError, match=r"order must be one of \[2, 4\], got 3"):
         ts.Simulator(scene, method="elastic", order=3)
-    with pytest.raises(ValueError, match=r"locate_switches must be True or False, got 'yes'"):
+    with pytest.raises(ValueError, match=r"locate_switches must be True, False or None \(automatic\), got 'yes'"):
         ts.Simulator(scene, method="elastic", locate_switches="yes")
     with pytest.raises(ValueError, match=r"order=4 is an option of the elastic method; method 'inextensible' has none"):
         ts.Simulator(scene, method="inextensible", order=4)
     sim = ts.Simulator(scene, method="elastic", dt=1e-3, order=4, locate_switches=False)
     assert sim.method_settings == {"method": "elastic", "dt": 1e-3, "order": 4, "locate_switches": False}
+    # by default order 2 locates only where dt resolves the fastest vibration (omega_max dt <= 0.2)
+    assert ts.Simulator(scene, method="elastic", dt=1e-3).method_settings["locate_switches"]   # 0.01
+    prism = ts.load_scene("prism3")                                                            # 302 rad/s
+    assert not ts.Simulator(prism, method="elastic", dt=1e-3).method_settings["locate_switches"]
+    assert ts.Simulator(prism, method="elastic", dt=5e-4).method_settings["locate_switches"]
+    assert ts.Simulator(prism, method="elastic", dt=1e-3, order=4).method_settings["locate_switches"]
     # the composition's wider stability interval is used: 2 < omega dt < 2.72 runs at order 4 only
     stiff = ts.Scene.from_dict(bungee_dict(k=1.0e6))
     with pytest.raises(ValueError, match=r"dt must be < 2/omega_max = 0\.002 s"):
