@@ -153,9 +153,13 @@ ALL_CONTACTS = {"contacts": CONTACT_KINDS}
 
 
 def tensegrity_runners() -> list[TensegrityRunner]:
-    """The tensegrity_sim configurations of the work-precision sweep: every method, the inextensible
-    one with every QP backend, all without contact detection (MuJoCo's contacts are off too)."""
-    runners = [TensegrityRunner("elastic", "elastic", NO_CONTACTS)]
+    """The tensegrity_sim configurations of the work-precision sweep: every method, the elastic one at
+    order 2 (switches located where dt resolves the fastest vibration: the default), at order 2 without
+    locating (plain Verlet) and at order 4, the inextensible one with every QP backend, all without
+    contact detection (MuJoCo's contacts are off too)."""
+    runners = [TensegrityRunner("elastic", "elastic", NO_CONTACTS),
+               TensegrityRunner("elastic", "elastic unlocated", {**NO_CONTACTS, "locate_switches": False}),
+               TensegrityRunner("elastic", "elastic order 4", {**NO_CONTACTS, "order": 4})]
     runners += [TensegrityRunner("inextensible", f"inextensible {name}", {**NO_CONTACTS, "solver": name})
                 for name in ts.SOLVERS]
     return runners
