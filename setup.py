@@ -1,7 +1,18 @@
 """tensegrity_sim: an ament_python ROS 2 package that is also pip-installable.
 
-This file is the one place where dependency versions are pinned. ``package.xml`` names the same
-runtime dependencies for rosdep, without versions.
+Where dependency versions live (two places, each with one job):
+
+* **here: ranges** — ``INSTALL_REQUIRES`` and ``EXTRAS_REQUIRE`` give every dependency as the range of
+  versions the code supports, so that ``pip install`` fits into an existing environment (a ROS 2 Jazzy
+  machine has Ubuntu 24.04's numpy 1.26.4, scipy 1.11.4, PyYAML 6.0.1, tqdm 4.66.2: the lower bounds).
+  A lower bound is a version the suite passed with; an upper bound is the next release that may break
+  the API (next major; next minor for 0.x releases). A new dependency is added here as a range.
+* **constraints.txt: exact pins** — the one version of every dependency named here that CI installs
+  (``pip install -c constraints.txt -e ".[test]"``) and that the README's reproducible install uses. A new
+  dependency gets its pin there too. ``.ci/lower_bounds.py`` rewrites it with the lower bounds of
+  ``INSTALL_REQUIRES`` for CI's second leg, which so tests the ranges' low ends.
+
+``package.xml`` names the runtime dependencies for rosdep, without versions.
 """
 from glob import glob
 
@@ -10,32 +21,50 @@ from setuptools import find_packages, setup
 PACKAGE = "tensegrity_sim"
 
 INSTALL_REQUIRES = [
-    "numpy==2.4.6",
-    "scipy==1.17.1",
-    "PyYAML==6.0.3",
-    "tqdm==4.70.1",
+    "numpy>=1.26.4,<3",
+    "scipy>=1.11.4,<2",
+    "PyYAML>=6.0.1,<7",
+    "tqdm>=4.66.2,<5",
+    # compiled stepping kernels (methods/_*_kernels.py); 0.68.1 supports numpy 1.22 to 2.5
+    "numba>=0.68.1,<0.69",
     # QP backends of the inextensible method (tensegrity_sim.methods.qp): DAQP is the default
-    "daqp==0.11.0",
-    "osqp==1.1.3",
+    "daqp>=0.11.0,<0.12",
+    "osqp>=1.1.3,<2",
     # MCAP logs and ROS 2 Jazzy message types without ROS (tensegrity_sim.ros)
-    "mcap==1.6.0",
-    "rosbags==0.11.9",
+    "mcap>=1.6.0,<2",
+    "rosbags>=0.11.9,<0.12",
 ]
+# ROS 2 Jazzy from PyPI: wheels exist for Linux x86_64 and CPython 3.11/3.12 only (none for ros2cli,
+# launch or rosbag2). Elsewhere the extra installs nothing; use the "dds" extra there.
+ROS_WHEELS = 'platform_system == "Linux" and platform_machine == "x86_64" and python_version >= "3.11" ' \
+             'and python_version < "3.13"'
 EXTRAS_REQUIRE = {
     "test": [
-        "pytest==9.0.3",
-        "mcap-ros2-support==0.6.0",  # an independent reader of the logs
-        "quadprog==0.1.14",  # an independent QP solver to check the QP backends against
-        "cyclonedds==11.0.1",  # the DDS transport's end-to-end tests run in CI
-        "mujoco==4.0.0",      # test/test_peers.py cross-checks the elastic method against MuJoCo
+        "pytest>=9.0.3,<10",
+        "hypothesis>=6.170.15,<7",  # property-based fuzzing of every public boundary (test/test_fuzz*.py)
+        "mcap-ros2-support>=0.6.0,<0.7",  # an independent reader of the logs
+        "quadprog>=0.1.14,<0.2",  # an independent QP solver to check the QP backends against
+        "cyclonedds>=11.0.1,<12",  # the DDS transport's end-to-end tests run in CI
+        "mujoco>=4.0.0,<5",      # test/test_peers.py cross-checks the elastic method against MuJoCo
     ],
     # Live topics without a ROS install (tensegrity-sim serve --transport dds).
     "dds": [
-        "cyclonedds==11.0.1",
+        "cyclonedds>=11.0.1,<12",
     ],
+    # The real rclpy node (sim_node, serve) with no ROS install: rclpy, rcl, Fast DDS and the node's messages.
+    "ros": [f"{wheel}>={low},<{high}; {ROS_WHEELS}" for wheel, low, high in (
+        ("ros-jazzy-rclpy[fastrtps]", "7.1.6", "8"),
+        ("ros-jazzy-std-msgs", "5.3.6", "6"),
+        ("ros-jazzy-std-srvs", "5.3.6", "6"),
+        ("ros-jazzy-geometry-msgs", "5.3.6", "6"),
+        ("ros-jazzy-sensor-msgs", "5.3.6", "6"),
+        ("ros-jazzy-visualization-msgs", "5.3.6", "6"),
+        ("ros-jazzy-diagnostic-msgs", "5.3.6", "6"),
+        ("ros-jazzy-rosgraph-msgs", "2.0.3", "3"),
+    )],
     "bench": [
-        "matplotlib==3.11.2",
-        "mujoco==4.0.0",      # the peer in bench/run_all.py
+        "matplotlib>=3.11.2,<4",
+        "mujoco>=4.0.0,<5",      # the peer in bench/run_all.py
     ],
 }
 

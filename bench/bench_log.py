@@ -16,6 +16,12 @@ steps after a warm-up (the four configurations taking turns):
 metadata, summary) happen once per file, not per step: they are timed apart (``open+finish``, ms per
 file) and left out of the per-step times. Times are CPU time of this process (``time.process_time``),
 not wall-clock time, so that other work on a shared machine does not count. Never asserts a time.
+
+``--crash-safety`` instead compares, per step, the log as written before issue 13 (mcap's 1 MiB chunks,
+no flush until the end) with the crash-safe log (``log.CHUNK_SIZE`` chunks, a write-out and fsync every
+``log.FLUSH_PERIOD`` s): the difference against the node's step time is the price of bounding what a crash
+loses. These are wall-clock times (``time.perf_counter``, an fsync waits for the disk, which CPU time
+would not show), best of ``--repeats`` runs taking turns, each run long enough to flush several times.
 """
 from __future__ import annotations
 
@@ -23,19 +29,20 @@ import argparse
 import tempfile
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import tensegrity_sim as ts
-from tensegrity_sim.ros.log import LogRecorder
+from tensegrity_sim.ros.log import CHUNK_SIZE, FLUSH_PERIOD, LogRecorder, LogWriter
 from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic
 
 DT = 1e-3
 PUBLISH_RATE = 100.0
 
 
-def best_per_step(configs: dict, steps: int, repeats: int) -> dict[str, float]:
-    """Best CPU time per step, s, of each configuration over ``repeats`` runs of ``steps`` steps. A
-    configuration is ``make() -> (run, close)``; only ``run(steps)`` is timed. The configurations take
-    turns, run by run, so that a machine shared with other work slows them alike."""
+def best_per_step(configs: dict, steps: int, repeats: int, clock=time.process_time) -> dict[str, float]:
+    """Best time per step, s, on ``clock`` (CPU time by default) of each configuration over ``repeats``
+    runs of ``steps`` steps. A configuration is ``make() -> (run, close)``; only ``run(steps)`` is timed.
+    The configurations take turns, run by run, so that a machine shared with other work slows them alike."""
     for make in configs.values():  # warm-up
         run, close = make()
         run(min(steps, 500))
@@ -44,9 +51,9 @@ def best_per_step(configs: dict, steps: int, repeats: int) -> dict[str, float]:
     for _ in range(repeats):
         for name, make in configs.items():
             run, close = make()
-            start = time.process_time()
+            start = clock()
             run(steps)
-            best[name] = min(best[name], time.process_time() - start)
+            best[name] = min(best[name], clock() - start)
             close()
     return {name: t / steps for name, t in best.items()}
 
@@ -89,13 +96,51 @@ def measure(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> dict[str
     return {**times, "open+finish": min(open_finish() for _ in range(repeats))}
 
 
+def crash_safety(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> dict[str, float]:
+    """Wall-clock seconds per step of the node without a log, with the log as before issue 13 (1 MiB
+    chunks, never flushed) and with the crash-safe log (see the module docstring)."""
+    settings = NodeSettings(scene=scene.name, dt=DT, publish_rate=PUBLISH_RATE)
+    path = folder / f"{scene.name}.mcap"
+
+    def node(writer_options: dict | None):
+        logic = SimNodeLogic(ts.Simulator(scene, dt=DT), settings, transport=lambda key, message: None)
+        writer = None
+        if writer_options is not None:
+            writer = LogWriter(path, logic.channels(), logic.run_info(), **writer_options)
+            logic.recorder = SimpleNamespace(record=writer.write)  # a LogRecorder without its restarts
+
+        def run(n):
+            for _ in range(n):
+                logic.step()
+                if logic.publication_due:
+                    logic.publish()
+        return run, (writer.finish if writer is not None else lambda: None)
+
+    configs = {"node": lambda: node(None), "before": lambda: node({"chunk_size": 1 << 20, "flush_period": None}),
+               "crash-safe": lambda: node({})}
+    return best_per_step(configs, steps, repeats, clock=time.perf_counter)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scenes", nargs="*", help="built-in names or YAML files (default: the built-ins)")
     parser.add_argument("--steps", type=int, default=5000)
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--crash-safety", action="store_true",
+                        help="compare the log before issue 13 with the crash-safe log (module docstring)")
     args = parser.parse_args()
     names = args.scenes or list(ts.builtin_scenes())
+    if args.crash_safety:
+        print(f"crash-safe log: chunks of {CHUNK_SIZE // 1024} KiB, written out and synced every {FLUSH_PERIOD:g} s; "
+              f"before: 1 MiB chunks, never flushed. Wall-clock per step, best of {args.repeats} x {args.steps} "
+              f"steps")
+        print(f"{'scene':<14}{'node':>10}{'before':>10}{'crash-safe':>12}  {'cost/node':>9}")
+        with tempfile.TemporaryDirectory() as folder:
+            for name in names:
+                t = crash_safety(ts.load_scene(name), args.steps, args.repeats, Path(folder))
+                print(f"{name:<14}{t['node'] * 1e6:>8.1f}us{t['before'] * 1e6:>8.1f}us{t['crash-safe'] * 1e6:>10.1f}us"
+                      f"  {100 * (t['crash-safe'] - t['before']) / t['node']:>8.1f}%", flush=True)
+        return
     settings = NodeSettings(dt=DT, publish_rate=PUBLISH_RATE)
     print(f"dt = {DT * 1e3:g} ms, publish every {settings.publish_every} steps, markers every "
           f"{settings.markers_every} publications; times per step, best of {args.repeats} x {args.steps} steps")

@@ -179,11 +179,16 @@ def write(path: Path, *, meta: dict, cases, references, rows, throughput, size_r
                      for m in matched]))
 
     w.append("\n### Steps per second beside MuJoCo (dt = 1 ms, same process)\n")
-    w.append("Steps/s: best of 3 runs of about 0.25 s each (median in brackets); ratio = tensegrity_sim's "
-             "steps/s / MuJoCo's (< 1: MuJoCo takes more steps per second), from the best runs (medians in "
-             "brackets). '+contacts': member-contact detection on for every member kind (MuJoCo's is off).\n\n")
+    w.append("Steps/s: best of 3 runs of about 0.25 s each (median in brackets), the configurations of a scene "
+             "taking turns; ratio = tensegrity_sim's steps/s / MuJoCo's (< 1: MuJoCo takes more steps per "
+             "second), from the best runs (medians in brackets). The elastic method beside MuJoCo's spring "
+             "tendons, the inextensible one beside its limited tendons ('limited'). Both run many steps per "
+             "call: `Simulator.run()` (the elastic method's compiled loop) and `mj_step(model, data, nstep)`; "
+             "`bench/head_to_head.py` also times single steps from Python. '+contacts': member-contact detection on for every member kind "
+             "(MuJoCo's is off).\n\n")
     peers = sorted({t["variant"] for t in throughput if t["simulator"] == "MuJoCo"},
-                   key=lambda v: ("Euler", "implicitfast", "RK4").index(v) if v in ("Euler", "implicitfast", "RK4") else 9)
+                   key=lambda v: (("Euler", "implicitfast", "RK4", "Euler limited", "RK4 limited").index(v)
+                                  if v in ("Euler", "implicitfast", "RK4", "Euler limited", "RK4 limited") else 9))
     body = []
     for t in [t for t in throughput if t["simulator"] != "MuJoCo"]:
         row = [t["scene"], f"{t['simulator']} {t['variant']}", f"{_n(t['steps_per_s'])} ({_n(t['steps_per_s_median'])})"]

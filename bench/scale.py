@@ -7,8 +7,9 @@
   overhead dominates), and over all sizes.
 * Real time: the real-time factor (simulated seconds per wall second) of the built-in scenes at
   500 Hz and 1 kHz.
-* Throughput: steps/s of both simulators on the same scenes at dt = 1 ms, measured in this process,
-  and their ratio.
+* Throughput: steps/s of both simulators on the same scenes at dt = 1 ms, measured in this process with
+  the configurations taking turns, and their ratio; the inextensible method against MuJoCo's limited
+  tendons.
 """
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ import tensegrity_sim as ts
 from tensegrity_sim import formfinding
 
 from .runners import mujoco_available
-from .timing import Timing, time_runs
+from .timing import Timing, time_alternating, time_runs
 
 __all__ = ["STAGES_FULL", "STAGES_QUICK", "tower_scene", "scale_rows", "growth_exponent", "realtime_rows",
            "throughput_rows", "plot_scale"]
@@ -121,38 +122,61 @@ def realtime_rows(runners, rates=(500.0, 1000.0)) -> list[dict]:
     return rows
 
 
+def _ours_loop(sim: ts.Simulator):
+    """``Simulator.run()`` (its compiled loop where the method has one) keeping the last step only, as
+    MuJoCo's ``mj_step(nstep)`` does."""
+    return (lambda n: sim.run(steps=n, every=n)), sim.reset
+
+
 def throughput_rows(scenes: dict, runners, progress=None) -> list[dict]:
     """Steps/s at dt = 1 ms (best and median of the runs) of tensegrity_sim and MuJoCo on each of
-    ``scenes`` ({name: Scene}), in this process, one after the other; ``ratio`` is tensegrity_sim's
-    best steps/s over that MuJoCo integrator's, ``ratio_median`` the same with medians."""
-    configs = _configs(runners, with_mujoco=False)
-    integrators = ("Euler", "implicitfast", "RK4") if mujoco_available() else ()
+    ``scenes`` ({name: Scene}), in this process, all configurations of a scene taking turns
+    (:func:`~.timing.time_alternating`). ``ratio`` is tensegrity_sim's best steps/s over that MuJoCo
+    configuration's, ``ratio_median`` the same with medians; the elastic method is compared with
+    MuJoCo's spring tendons (Euler, implicitfast, RK4), the inextensible one with its limited tendons
+    (Euler, RK4; MuJoCo's model of an inextensible cable)."""
+    peers = {"elastic": [(integ, integ, "elastic") for integ in ("Euler", "implicitfast", "RK4")],
+             "inextensible": [(integ, f"{integ} limited", "inextensible") for integ in ("Euler", "RK4")]}
+    if not mujoco_available():
+        peers = {"elastic": [], "inextensible": []}
     if progress is not None:
-        progress.reset(total=len(scenes) * (len(configs) + len(integrators)))
+        progress.reset(total=len(scenes))
     rows = []
-    nan = (math.nan, math.nan)
     for name, scene in scenes.items():
-        ours = {}
-        for simulator, variant, per_step in configs:
+        contenders, ours, theirs = {}, {}, {}
+        for r in runners:
             try:
-                timing = per_step(scene, 1e-3)
-                ours[variant] = (1.0 / timing.best, 1.0 / timing.median)
+                contenders[("tensegrity_sim", r.variant)] = _ours_loop(r.simulator_for(scene, 1e-3))
+                ours[r.variant] = r.method
             except ValueError:
-                ours[variant] = nan
-            rows.append({"scene": name, "simulator": simulator, "variant": variant, "steps_per_s": ours[variant][0],
-                         "steps_per_s_median": ours[variant][1], "vs": "", "ratio": math.nan,
-                         "ratio_median": math.nan})
-            if progress is not None:
-                progress.update()
-        for integ in integrators:
-            timing = _mujoco_per_step(scene, 1e-3, integ)
-            best, median = 1.0 / timing.best, 1.0 / timing.median
-            for variant, (ours_best, ours_median) in ours.items():
-                rows.append({"scene": name, "simulator": "MuJoCo", "variant": integ, "steps_per_s": best,
-                             "steps_per_s_median": median, "vs": f"tensegrity_sim {variant}",
-                             "ratio": ours_best / best, "ratio_median": ours_median / median})
-            if progress is not None:
-                progress.update()
+                ours[r.variant] = None
+        for method in {m for m in ours.values() if m}:
+            for integ, label, model in peers[method]:
+                from .mujoco_peer import MujocoPeer
+                try:
+                    peer = MujocoPeer(scene, model=model, dt=1e-3, integrator=integ)
+                except ValueError:   # a structure the peer cannot model (see mujoco_peer)
+                    continue
+                contenders[("MuJoCo", label)] = (peer.advance, peer.reset)
+                theirs[label] = method
+        timings = time_alternating(contenders, repeats=REPEATS, target=TARGET_SECONDS)
+        nan = Timing((math.nan,))
+        for variant in ours:
+            t = timings.get(("tensegrity_sim", variant), nan)
+            rows.append({"scene": name, "simulator": "tensegrity_sim", "variant": variant,
+                         "steps_per_s": 1.0 / t.best, "steps_per_s_median": 1.0 / t.median, "vs": "",
+                         "ratio": math.nan, "ratio_median": math.nan})
+        for label, method in theirs.items():
+            t = timings[("MuJoCo", label)]
+            for variant, our_method in ours.items():
+                if our_method != method:
+                    continue
+                mine = timings[("tensegrity_sim", variant)]
+                rows.append({"scene": name, "simulator": "MuJoCo", "variant": label, "steps_per_s": 1.0 / t.best,
+                             "steps_per_s_median": 1.0 / t.median, "vs": f"tensegrity_sim {variant}",
+                             "ratio": t.best / mine.best, "ratio_median": t.median / mine.median})
+        if progress is not None:
+            progress.update()
     return rows
 
 

@@ -6,7 +6,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-__all__ = ["Timing", "time_runs"]
+__all__ = ["Timing", "time_runs", "time_alternating"]
 
 
 @dataclass(frozen=True)
@@ -51,3 +51,27 @@ def time_runs(run: Callable[[], object], *, setup: Callable[[], object] | None =
         run()
         runs.append(time.perf_counter() - start)
     return Timing(tuple(runs))
+
+
+def time_alternating(contenders: dict[str, tuple[Callable[[int], object], Callable[[], object]]], *,
+                     repeats: int = 3, target: float = 0.25, clock: Callable[[], float] = time.perf_counter
+                     ) -> dict[str, Timing]:
+    """Per-step timings of ``{name: (run(n), reset())}``, the contenders taking turns: each repeat times
+    every contender once, so that a disturbance of a shared machine hits them alike instead of whoever
+    ran at that moment. ``n`` is calibrated per contender (after a warm-up run) so that a run lasts
+    about ``target`` seconds of ``clock``; ``reset()`` is called, untimed, before every run."""
+    sizes = {}
+    for name, (run, reset) in contenders.items():
+        reset()
+        run(5)   # warm-up: caches, lazy imports, compiled kernels
+        start = clock()
+        run(20)
+        sizes[name] = max(20, int(target / max((clock() - start) / 20, 1e-8)))
+    runs = {name: [] for name in contenders}
+    for _ in range(repeats):
+        for name, (run, reset) in contenders.items():
+            reset()
+            start = clock()
+            run(sizes[name])
+            runs[name].append((clock() - start) / sizes[name])
+    return {name: Timing(tuple(r)) for name, r in runs.items()}

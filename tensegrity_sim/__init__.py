@@ -4,18 +4,19 @@ The numerical core (scene, system, methods, simulator) imports nothing from ROS,
 formats beyond the scene loader.
 """
 from .contact import ActiveContact
-from .methods import METHODS
+from .methods import METHODS, StepError
 from .methods.inextensible import LengthOffsetWarning
 from .methods.qp import SOLVERS, QPError
 from .results import ContactEvent, StepResult, Trajectory
 from .scene import Cable, ClassKWarning, Node, Scene, SceneError, Strut, builtin_scenes, load_scene
-from .simulator import Simulator
+from .simulator import NonFiniteError, Simulator
 
 __version__ = "0.1.0"
 
 __all__ = [
     "METHODS", "Cable", "ClassKWarning", "ContactEvent", "Node", "Scene", "SceneError", "Simulator",
-    "LengthOffsetWarning", "QPError", "SOLVERS", "StepResult", "Strut", "Trajectory", "builtin_scenes",
+    "LengthOffsetWarning", "NonFiniteError", "QPError", "StepError", "SOLVERS", "StepResult", "Strut", "Trajectory",
+    "builtin_scenes",
     "load_scene", "__version__",
     "ActiveContact",
 ]

@@ -13,7 +13,8 @@ import numpy as np
 from tqdm import tqdm
 
 from .commands import CommandError, CommandSchedule, load_commands
-from .methods.qp import SOLVERS, SPARSE_NODES, QPError
+from .methods import StepError
+from .methods.qp import SOLVERS, SPARSE_NODES
 from .scene import SceneError, load_scene
 from .simulator import Simulator
 
@@ -21,6 +22,7 @@ __all__ = ["main", "RunSummary", "simulate"]
 
 DEFAULT_SCENE = "prism3"
 PROGRESS_MIN_STEPS = 20_000  # runs shorter than this finish too quickly to need a progress bar
+_CHUNK = 1000                # steps per Simulator.run call when nothing happens between steps
 DEFAULT_LOG_DIR = "bags"     # run --log without a value: bags/<scene>_<time>.mcap
 
 
@@ -86,7 +88,23 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
     bar = tqdm(total=steps, unit="step", disable=not progress, mininterval=0.5)
     start = time.perf_counter()
     try:
-        for _ in range(steps):
+        # nothing to do between steps: run in chunks (the method's compiled loop, where it has one)
+        chunked = commands is None and driver is None and on_step is None
+        for done in range(0, steps if chunked else 0, _CHUNK):
+            traj = sim.run(steps=min(_CHUNK, steps - done))
+            if traj.tensions.size:
+                peak = traj.tensions.max(axis=1)
+                first = int(np.argmax(peak))   # the earliest step reaching the chunk's largest tension
+                if peak[first] > max_t:
+                    max_t, max_cable = float(peak[first]), int(np.argmax(traj.tensions[first]))
+            switches += int(np.count_nonzero(np.diff(traj.slack, axis=0, prepend=slack_prev[None]) != 0))
+            slack_prev = traj.slack[-1]
+            contacts += len(traj.contacts)
+            for event in traj.contacts:
+                begins += event.kind == "begin"
+                pairs.add(event.members)
+            bar.update(len(traj.time))
+        for _ in range(0 if chunked else steps):
             if commands is not None:
                 t = sim.time
                 rest = commands.rest_lengths_at(t, base_rest)
@@ -155,6 +173,16 @@ def _cmd_info(args: argparse.Namespace) -> int:
     from .ros.replay import log_info
 
     print("\n".join(log_info(args.log)))
+    return 0
+
+
+def _cmd_recover(args: argparse.Namespace) -> int:
+    from .ros.log_reader import recover
+
+    copied, unfinished = recover(args.log, args.out)
+    print(f"recovered        {copied} messages from {args.log}"
+          + (f" ({unfinished})" if unfinished else " (it was finished)"))
+    print(f"written          {args.out} (finished: summary, statistics, rosbag2 metadata)")
     return 0
 
 
@@ -269,8 +297,25 @@ def build_parser() -> argparse.ArgumentParser:
                                         "slack/snap and contact statistics.")
     info.add_argument("log", help="an MCAP log written by tensegrity-sim run --log or the node")
     info.set_defaults(func=_cmd_info)
+
+    rec = verbs.add_parser("recover", help="write a finished copy of a log cut off by a crash",
+                           description="Copy every complete record of a log that its writer did not finish (killed, "
+                                       "power cut, disk full) into a finished log (summary, statistics, rosbag2 "
+                                       "metadata) that every MCAP reader opens; a corrupt record stops it (exit 2).")
+    rec.add_argument("log", help="the unfinished MCAP log")
+    rec.add_argument("out", help="the finished copy to write (.mcap)")
+    rec.set_defaults(func=_cmd_recover)
     _add_serve(verbs)
     return parser
+
+
+def _one_line(exc: BaseException) -> str:
+    """An error's message on one line (a YAML error spans several); an OSError as ``file: reason``."""
+    if isinstance(exc, OSError) and exc.strerror:  # (a LogWriteError has a whole message instead)
+        text = f"{exc.filename}: {exc.strerror}" if exc.filename is not None else exc.strerror
+    else:
+        text = str(exc)
+    return " ".join(text.split())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -278,8 +323,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (SceneError, CommandError, ValueError, QPError) as exc:
-        print(f"tensegrity-sim {args.verb}: error: {exc}", file=sys.stderr)
+    except (SceneError, CommandError, ValueError, StepError, OSError) as exc:  # OSError: files, LogWriteError
+        print(f"tensegrity-sim {args.verb}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"tensegrity-sim {args.verb}: interrupted", file=sys.stderr)

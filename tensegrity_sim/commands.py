@@ -25,8 +25,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
+from .checks import describe, read_yaml, real
 from .scene import Scene
 
 __all__ = ["CommandError", "CommandSchedule", "load_commands"]
@@ -68,9 +68,19 @@ def _fail(source: str, where: str, msg: str) -> CommandError:
 
 
 def _finite(source, where, fld, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise _fail(source, where, f"{fld} must be a finite number, got {value!r}")
-    return float(value)
+    try:
+        return real(value, fld)
+    except ValueError as exc:
+        raise _fail(source, where, str(exc)) from None
+
+
+def _mapping(source, where, fld, value) -> dict:
+    """An optional ``{name: value}`` entry of a point: a mapping, or nothing (absent, null)."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise _fail(source, where, f"{fld} must be a mapping by name, got {describe(value)}")
+    return value
 
 
 def parse_commands(points: Any, scene: Scene, source: str = "<commands>") -> CommandSchedule:
@@ -88,28 +98,29 @@ def parse_commands(points: Any, scene: Scene, source: str = "<commands>") -> Com
         where = f"point[{k}]"
         if not isinstance(point, dict):
             raise _fail(source, where, "must be a mapping with time, rest_lengths and/or forces")
-        unknown = sorted(set(point) - {"time", "rest_lengths", "forces"})
+        unknown = [key for key in point if key not in ("time", "rest_lengths", "forces")]
         if unknown:
-            raise _fail(source, where, f"unknown key {unknown[0]!r} (allowed: forces, rest_lengths, time)")
+            raise _fail(source, where, f"unknown key {describe(unknown[0])} (allowed: forces, rest_lengths, time)")
         if "time" not in point:
             raise _fail(source, where, "missing required key 'time'")
         t = _finite(source, where, "time", point["time"])
         if t < 0 or t <= last:
             raise _fail(source, where, f"time must be >= 0 and increase strictly, got {t!r} after {last!r}")
         last = t
-        for name, value in (point.get("rest_lengths") or {}).items():
-            if name not in cables:
-                raise _fail(source, where, f"rest_lengths: unknown cable {name!r}")
+        for name, value in _mapping(source, where, "rest_lengths", point.get("rest_lengths")).items():
+            if not isinstance(name, str) or name not in cables:
+                raise _fail(source, where, f"rest_lengths: unknown cable {describe(name)}")
             length = _finite(source, where, f"rest_lengths[{name!r}]", value)
             if length <= 0:
                 raise _fail(source, where, f"rest_lengths[{name!r}] must be > 0, got {length!r}")
             rest.setdefault(cables[name], []).append((t, length))
-        if point.get("forces"):
-            for name, value in point["forces"].items():
-                if name not in nodes:
-                    raise _fail(source, where, f"forces: unknown node {name!r}")
+        forces = _mapping(source, where, "forces", point.get("forces"))
+        if forces:
+            for name, value in forces.items():
+                if not isinstance(name, str) or name not in nodes:
+                    raise _fail(source, where, f"forces: unknown node {describe(name)}")
                 if not isinstance(value, (list, tuple)) or len(value) != 3:
-                    raise _fail(source, where, f"forces[{name!r}] must be 3 numbers, got {value!r}")
+                    raise _fail(source, where, f"forces[{name!r}] must be 3 numbers, got {describe(value)}")
                 current[nodes[name]] = [_finite(source, where, f"forces[{name!r}]", v) for v in value]
             force_times.append(t)
             force_values.append(current.copy())
@@ -125,11 +136,4 @@ def parse_commands(points: Any, scene: Scene, source: str = "<commands>") -> Com
 
 def load_commands(path: str | Path, scene: Scene) -> CommandSchedule:
     """Read and validate a schedule file for ``scene``."""
-    path = Path(path)
-    try:
-        points = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise CommandError(f"{path}: cannot read: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise CommandError(f"{path}: not valid YAML: {exc}") from None
-    return parse_commands(points, scene, str(path))
+    return parse_commands(read_yaml(path, CommandError), scene, str(path))

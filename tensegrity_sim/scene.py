@@ -21,6 +21,8 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
+from .checks import describe, read_yaml, real
+
 __all__ = [
     "SceneError",
     "ClassKWarning",
@@ -35,7 +37,7 @@ __all__ = [
     "contact_kinds",
 ]
 
-_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 RIGID = "rigid"
 
 
@@ -93,27 +95,25 @@ class _Context:
 
 def _entry_label(kind: str, index: int, raw: Any) -> str:
     name = raw.get("name") if isinstance(raw, Mapping) else None
-    return f"{kind}[{index}] '{name}'" if isinstance(name, str) else f"{kind}[{index}]"
+    return f"{kind}[{index}] {describe(name)}" if isinstance(name, str) else f"{kind}[{index}]"
 
 
 def _check_keys(ctx: _Context, where: str, raw: Any, allowed: set[str], required: set[str]) -> None:
     if not isinstance(raw, Mapping):
         raise ctx.error(where, f"must be a mapping, got {type(raw).__name__}")
-    unknown = sorted(set(raw) - allowed)
+    unknown = [key for key in raw if key not in allowed]  # keys of a dict may be of any type: no sorting
     if unknown:
-        raise ctx.error(where, f"unknown key {unknown[0]!r} (allowed: {', '.join(sorted(allowed))})")
+        raise ctx.error(where, f"unknown key {describe(unknown[0])} (allowed: {', '.join(sorted(allowed))})")
     missing = sorted(required - set(raw))
     if missing:
         raise ctx.error(where, f"missing required key {missing[0]!r}")
 
 
 def _number(ctx: _Context, where: str, fld: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ctx.error(where, f"{fld} must be a number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ctx.error(where, f"{fld} must be finite, got {value!r}")
-    return value
+    try:
+        return real(value, fld)
+    except ValueError as exc:
+        raise ctx.error(where, str(exc)) from None
 
 
 def _positive(ctx: _Context, where: str, fld: str, value: Any) -> float:
@@ -132,13 +132,13 @@ def _non_negative(ctx: _Context, where: str, fld: str, value: Any) -> float:
 
 def _vector3(ctx: _Context, where: str, fld: str, value: Any) -> tuple[float, float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise ctx.error(where, f"{fld} must be a list of 3 numbers, got {value!r}")
+        raise ctx.error(where, f"{fld} must be a list of 3 numbers, got {describe(value)}")
     return tuple(_number(ctx, where, fld, v) for v in value)  # type: ignore[return-value]
 
 
 def _name(ctx: _Context, where: str, value: Any, seen: set[str]) -> str:
-    if not isinstance(value, str) or not _NAME_RE.match(value):
-        raise ctx.error(where, f"name must match [A-Za-z_][A-Za-z0-9_]*, got {value!r}")
+    if not isinstance(value, str) or not _NAME_RE.fullmatch(value):  # match() would let a final newline in
+        raise ctx.error(where, f"name must match [A-Za-z_][A-Za-z0-9_]*, got {describe(value)}")
     if value in seen:
         raise ctx.error(where, f"duplicate name {value!r}")
     seen.add(value)
@@ -147,7 +147,7 @@ def _name(ctx: _Context, where: str, value: Any, seen: set[str]) -> str:
 
 def _bool(ctx: _Context, where: str, fld: str, value: Any) -> bool:
     if not isinstance(value, bool):
-        raise ctx.error(where, f"{fld} must be true or false, got {value!r}")
+        raise ctx.error(where, f"{fld} must be true or false, got {describe(value)}")
     return value
 
 
@@ -163,10 +163,10 @@ def contact_kinds(value: Any, fld: str) -> tuple[str, ...]:
     with ``fld``."""
     allowed = ", ".join(CONTACT_KINDS)
     if not isinstance(value, (list, tuple)):
-        raise ValueError(f"{fld} must be a list of member kinds ({allowed}), got {value!r}")
+        raise ValueError(f"{fld} must be a list of member kinds ({allowed}), got {describe(value)}")
     for i, kind in enumerate(value):
         if not isinstance(kind, str) or kind not in CONTACT_KINDS:
-            raise ValueError(f"{fld}: unknown member kind {kind!r} (allowed: {allowed})")
+            raise ValueError(f"{fld}: unknown member kind {describe(kind)} (allowed: {allowed})")
         if kind in value[:i]:
             raise ValueError(f"{fld}: duplicate member kind {kind!r}")
     return tuple(k for k in CONTACT_KINDS if k in value)
@@ -229,9 +229,10 @@ class Scene:
         """Lumped node masses, (N,) kg: each node's own mass plus half of every strut touching it."""
         index = {n.name: i for i, n in enumerate(self.nodes)}
         m = np.array([n.mass for n in self.nodes], dtype=float)
-        for s in self.struts:
-            for end in s.nodes:
-                m[index[end]] += 0.5 * s.mass
+        with np.errstate(over="ignore"):  # a sum beyond the float range is refused by from_dict
+            for s in self.struts:
+                for end in s.nodes:
+                    m[index[end]] += 0.5 * s.mass
         return m
 
     @property
@@ -255,7 +256,7 @@ class Scene:
         _check_keys(ctx, "", mapping, _TOP_KEYS, {"nodes"})
         name = mapping.get("name", "scene")
         if not isinstance(name, str):
-            raise ctx.error("name", f"must be a string, got {name!r}")
+            raise ctx.error("name", f"must be a string, got {describe(name)}")
         gravity = _vector3(ctx, "scene", "gravity", mapping.get("gravity", [0.0, 0.0, 0.0]))
 
         nodes = cls._parse_nodes(ctx, mapping.get("nodes"))
@@ -319,19 +320,23 @@ class Scene:
             name = _name(ctx, where, raw["name"], seen)
             ends = raw["nodes"]
             if not isinstance(ends, (list, tuple)) or len(ends) != 2 or not all(isinstance(e, str) for e in ends):
-                raise ctx.error(where, f"nodes must be a list of two node names, got {ends!r}")
+                raise ctx.error(where, f"nodes must be a list of two node names, got {describe(ends)}")
             for e in ends:
                 if e not in by_name:
-                    raise ctx.error(where, f"nodes: unknown node {e!r}")
+                    raise ctx.error(where, f"nodes: unknown node {describe(e)}")
             if ends[0] == ends[1]:
                 raise ctx.error(where, f"nodes: a member cannot join node {ends[0]!r} to itself")
             pa = np.array(by_name[ends[0]].position)
             pb = np.array(by_name[ends[1]].position)
-            length = float(np.linalg.norm(pb - pa))
+            with np.errstate(over="ignore"):  # an overflowing distance is refused below
+                length = float(np.linalg.norm(pb - pa))
             if length == 0.0:
                 raise ctx.error(where, f"nodes: zero-length member ({ends[0]!r} and {ends[1]!r} coincide)")
+            if not math.isfinite(length):  # the ends' coordinates are finite, their distance overflows
+                raise ctx.error(where, f"nodes: the distance from {ends[0]!r} to {ends[1]!r} overflows the float "
+                                       f"range (ends at {pa.tolist()} and {pb.tolist()} m)")
             stiffness_raw = raw.get("stiffness")
-            if kind == "struts" and stiffness_raw == RIGID:
+            if kind == "struts" and isinstance(stiffness_raw, str) and stiffness_raw == RIGID:
                 stiffness: float | None = math.inf
             elif kind == "cables" and stiffness_raw is None:
                 stiffness = None
@@ -358,6 +363,9 @@ class Scene:
             if not n.fixed and masses[i] <= 0.0:
                 raise ctx.error(_entry_label("nodes", i, {"name": n.name}),
                                 f"mass must be > 0 for a free node, got {float(masses[i])!r}")
+            if not math.isfinite(masses[i]):
+                raise ctx.error(_entry_label("nodes", i, {"name": n.name}),
+                                "its mass plus half of its struts' masses overflows the float range")
 
     def _warn_class_k(self) -> None:
         counts: dict[str, int] = {}
@@ -412,8 +420,10 @@ def builtin_scenes() -> tuple[str, ...]:
 
 def load_scene(name_or_path: str | Path) -> Scene:
     """Load a built-in scene by name (see :func:`builtin_scenes`) or a YAML file by path."""
-    text: str
+    text: str | None
     source: str
+    if not isinstance(name_or_path, (str, Path)):
+        raise SceneError(f"a scene is a built-in name or a path, got {describe(name_or_path)}")
     name = str(name_or_path)
     if name in builtin_scenes():
         source = f"{name}.yaml"
@@ -424,9 +434,5 @@ def load_scene(name_or_path: str | Path) -> Scene:
             raise SceneError(f"{name}: no such scene file, and not a built-in scene "
                              f"(built-ins: {', '.join(builtin_scenes())})")
         source = str(path)
-        text = path.read_text()
-    try:
-        mapping = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise SceneError(f"{source}: not valid YAML: {exc}") from None
-    return Scene.from_dict(mapping, source=source)
+        text = None
+    return Scene.from_dict(read_yaml(source, SceneError, text), source=source)

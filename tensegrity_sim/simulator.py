@@ -1,32 +1,72 @@
 """The simulator: one scene, one method, a state, and the public stepping API (contract §2).
 
-Inputs are checked here, once, at the boundary; a bad argument raises ``ValueError`` naming it and
-leaves the simulator exactly as it was. The methods behind it never check anything.
+Inputs are checked here, once, at the boundary (with :mod:`tensegrity_sim.checks`); a bad argument
+raises ``ValueError`` naming it and leaves the simulator exactly as it was. The methods behind it never
+check anything. A step whose result is not finite (an absurd but finite force, speed or distance)
+raises :class:`NonFiniteError` and leaves the state as it was: one cheap test per step, the diagnosis
+only when it fails.
 """
 from __future__ import annotations
 
+import copy
+import math
 from dataclasses import replace
 from typing import Mapping
 
 import numpy as np
 
+from .checks import check_memory, describe, float_array, real, time_step, whole
 from .contact import ActiveContact, make_detector
-from .methods import State, make_method
+from .methods import State, StepError, make_method
 from .results import StepResult, Trajectory
 from .scene import Scene, contact_kinds
 from .system import System
 
-__all__ = ["Simulator"]
+__all__ = ["Simulator", "NonFiniteError"]
+
+_CHUNK = 1024   # steps per compiled chunk when contact detection walks through a run's steps
 
 
-def _check_dt(dt) -> float:
-    try:
-        dt = float(dt)
-    except (TypeError, ValueError):
-        raise ValueError(f"dt must be a positive number of seconds, got {dt!r}") from None
-    if not np.isfinite(dt) or dt <= 0:
-        raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
-    return dt
+class NonFiniteError(StepError):
+    """A step whose result is not finite; the message names the node or cable and the inputs in effect."""
+
+
+def finite_step(out) -> bool:
+    """Whether a step's positions, velocities and impulses (a ``MethodStep``) are all finite: one sum of
+    each, since a sum is finite only if every term is (or the terms overflow together, which is no
+    better). The one check the step loop has (bench/bench_guard.py measures it)."""
+    add = np.add.reduce  # the ufunc itself: no method dispatch, no ufunc call for the test (math's)
+    return math.isfinite(add(out.positions, None) + add(out.velocities, None) + add(out.impulses, None))
+
+
+def non_finite_report(scene: Scene, state: State, dt: float, positions: np.ndarray, velocities: np.ndarray,
+                      impulses: np.ndarray) -> str:
+    """Why a step from ``state`` gave non-finite ``positions``/``velocities`` (N, 3) or ``impulses``
+    (n_cables,): the first node or cable affected, and the largest of each input (force, speed, coordinate,
+    rest length), the one that was absurd among them. Only called once a step has failed."""
+    bad = ~np.all(np.isfinite(positions) & np.isfinite(velocities), axis=1)
+    # free nodes first: a fixed node's values turn NaN only through 0 * inf, the free one's did first
+    bad_nodes = np.concatenate([np.flatnonzero(bad & ~scene.fixed), np.flatnonzero(bad & scene.fixed)])
+    bad_cables = np.flatnonzero(~np.isfinite(impulses))
+    where = []
+    if bad_nodes.size:
+        where.append(f"node {scene.node_names[bad_nodes[0]]!r}" + (f" (and {bad_nodes.size - 1} more)"
+                                                                    if bad_nodes.size > 1 else ""))
+    if bad_cables.size:
+        where.append(f"cable {scene.cable_names[bad_cables[0]]!r}" + (f" (and {bad_cables.size - 1} more)"
+                                                                       if bad_cables.size > 1 else ""))
+    inputs = []
+    for what, unit, values in (("external force", "N", state.external_forces), ("speed", "m/s", state.velocities),
+                               ("coordinate", "m", state.positions)):
+        size = np.max(np.abs(values), axis=1) if values.size else values
+        if size.size and size.max() > 0:
+            k = int(np.argmax(size))
+            inputs.append(f"largest {what} {float(size[k]):.3g} {unit} at node {scene.node_names[k]!r}")
+    if state.rest_lengths.size:
+        k = int(np.argmax(state.rest_lengths))
+        inputs.append(f"longest rest length {float(state.rest_lengths[k]):.3g} m of cable {scene.cable_names[k]!r}")
+    return (f"the step from t = {state.step_count * dt:.6f} s gave non-finite values at "
+            f"{' and '.join(where) or 'a sum'} (inputs: {'; '.join(inputs) or 'none'}; dt {dt:g} s); the state is as before the step")
 
 
 class Simulator:
@@ -40,8 +80,8 @@ class Simulator:
     ``solver``: the QP backend of the inextensible method (``methods.qp.SOLVERS``; default: chosen by
     size, ``methods.qp.choose_solver``); ``method_settings`` reports the one in use and why.
     ``order``: 2 (default) or 4, the elastic method's order (README, "Methods": which for which error);
-    ``locate_switches``: the elastic method splits a step at each slack/taut switch (default: at order 4,
-    and at order 2 when ``dt`` resolves the fastest vibration; ``method_settings`` says which).
+    ``locate_switches``: the elastic method splits a step at each slack/taut switch (default: at order 4
+    only; ``method_settings`` says which).
     ``reel_speed``: the inextensible method's motor top speed, m/s (default 1 m/s; ``math.inf``: none):
     a faster rest-length command is followed at that speed (``applied_rest_lengths``).
     """
@@ -55,7 +95,7 @@ class Simulator:
             # the scene as run: a log embedding it (and a replay of that log) checks the same pairs
             scene = replace(scene, contact_kinds=contact_kinds(contacts, "contacts"))
         self.scene = scene
-        self.dt = _check_dt(dt)
+        self.dt = time_step(dt)
         self.system = System(scene)
         self._method, self.method_reason = make_method(self.system, method, self.dt, solver=solver, order=order,
                                                            locate_switches=locate_switches, reel_speed=reel_speed)
@@ -120,30 +160,14 @@ class Simulator:
                           current: np.ndarray) -> np.ndarray:
         """A full new array from a partial {name: value} mapping or a complete array; checks shape,
         names and finiteness. ``width`` is None for scalars per entry, 3 for vectors."""
-        shape = current.shape
         out = current.copy()
         if isinstance(values, Mapping):
             for name, value in values.items():
-                if name not in index:
-                    raise ValueError(f"{argument}: unknown name {name!r} (known: {', '.join(index)})")
-                try:
-                    arr = np.asarray(value, dtype=float)
-                except (TypeError, ValueError):
-                    raise ValueError(f"{argument}[{name!r}]: not a number: {value!r}") from None
-                if arr.shape != (() if width is None else (width,)):
-                    expected = "a number" if width is None else f"{width} numbers"
-                    raise ValueError(f"{argument}[{name!r}]: expected {expected}, got shape {arr.shape}")
-                out[index[name]] = arr
+                if not isinstance(name, str) or name not in index:
+                    raise ValueError(f"{argument}: unknown name {describe(name)} (known: {', '.join(index)})")
+                out[index[name]] = float_array(value, f"{argument}[{name!r}]", () if width is None else (width,))
         else:
-            try:
-                arr = np.asarray(values, dtype=float)
-            except (TypeError, ValueError):
-                raise ValueError(f"{argument}: expected a mapping by name or an array of shape {shape}") from None
-            if arr.shape != shape:
-                raise ValueError(f"{argument}: expected shape {shape}, got {arr.shape}")
-            out[...] = arr
-        if not np.all(np.isfinite(out)):
-            raise ValueError(f"{argument}: values must be finite")
+            out[...] = float_array(values, argument, current.shape)
         return out
 
     def set_rest_lengths(self, values) -> None:
@@ -165,8 +189,13 @@ class Simulator:
 
     # ------------------------------------------------------------------ stepping
     def step(self) -> StepResult:
-        """Advance one step of ``dt``."""
+        """Advance one step of ``dt``. A :class:`~tensegrity_sim.methods.StepError` (a QP without a solution,
+        a non-finite result) leaves the state as it was."""
         out = self._method.step(self._state)
+        if not finite_step(out):
+            self._method.invalidate()  # drop what the method cached from the failed step
+            raise NonFiniteError(non_finite_report(self.scene, self._state, self.dt, out.positions,
+                                                   out.velocities, out.impulses))
         st = self._state
         contacts = () if self._contacts is None else self._contacts.step(st.positions, out.positions,
                                                                           self.time, self.dt)
@@ -196,35 +225,96 @@ class Simulator:
         """(n_cables,) bool: the cables slack now, in the method's model."""
         return self._method.slack(self._state.positions, self._state.rest_lengths)
 
-    def run(self, duration: float | None = None, *, steps: int | None = None, callback=None) -> Trajectory:
-        """Run ``steps`` steps, or ``round(duration / dt)``; returns them stacked.
+    def run(self, duration: float | None = None, *, steps: int | None = None, every: int = 1,
+            callback=None) -> Trajectory:
+        """Run ``steps`` steps, or ``round(duration / dt)``; returns them stacked, the inputs held.
 
-        ``callback(k, result)`` is called after each step (a progress bar, a command schedule).
+        ``every``: keep steps ``every``, ``2 every``, ... and the last one only (memory); a kept step's
+        impulses are summed over the steps since the previous kept one and its tensions are their mean
+        over that time, so no impulse is lost. Contact events are all kept.
+        ``callback(k, result)`` is called after each step ``k`` (a progress bar, a command schedule).
+        Without a callback a method with a compiled loop runs the steps in it.
         """
         if (duration is None) == (steps is None):
             raise ValueError("run: give exactly one of duration (s) or steps")
         if steps is None:
-            d = float(duration)
-            if not np.isfinite(d) or d < 0:
+            d = real(duration, "duration")
+            if d < 0:
                 raise ValueError(f"duration must be a finite number of seconds >= 0, got {duration!r}")
-            steps = int(round(d / self.dt))
-        if isinstance(steps, bool) or int(steps) != steps or steps < 0:
-            raise ValueError(f"steps must be a whole number >= 0, got {steps!r}")
-        steps = int(steps)
+            ratio = d / self.dt
+            if not math.isfinite(ratio):  # round() would raise OverflowError
+                raise ValueError(f"duration / dt = {duration!r} / {self.dt!r} s is beyond the float range")
+            steps = whole(round(ratio), "duration / dt")
+        steps = whole(steps, "steps")
+        if isinstance(every, (bool, np.bool_)) or not isinstance(every, (int, np.integer)) or every < 1:
+            raise ValueError(f"every must be a whole number >= 1, got {describe(every)}")
+        every = int(every)
+        if callback is not None and not callable(callback):
+            raise ValueError(f"callback must be callable, got {describe(callback)}")
         n, nc = len(self.scene.nodes), len(self.scene.cables)
-        time = np.empty(steps)
-        pos = np.empty((steps, n, 3))
-        vel = np.empty((steps, n, 3))
-        imp = np.empty((steps, nc))
-        slack = np.empty((steps, nc), dtype=bool)
+        n_kept = -(-steps // every)
+        check_memory(n_kept * (8 + 48 * n + 17 * nc), f"run: the trajectory of {describe(n_kept)} steps")
+        kept = np.minimum(np.arange(1, n_kept + 1) * every, steps)                # kept steps, counted from 1
+        span = np.diff(kept, prepend=0)                                          # steps each one sums
+        time = (self._state.step_count + kept) * self.dt
+        pos = np.empty((len(kept), n, 3))
+        vel = np.empty((len(kept), n, 3))
+        imp = np.zeros((len(kept), nc))
+        slack = np.empty((len(kept), nc), dtype=bool)
         contacts = []
-        for k in range(steps):
-            r = self.step()
-            time[k], pos[k], vel[k], imp[k], slack[k] = r.time, r.positions, r.velocities, r.impulses, r.slack
-            contacts.extend(r.contacts)
-            if callback is not None:
-                callback(k, r)
-        return Trajectory(time, pos, vel, imp, imp / self.dt, slack, contacts)
+        compiled = callback is None and self._method.has_loop()
+        if compiled:
+            start = self._state.copy(), copy.deepcopy(self._contacts)
+            self._run_compiled(steps, every, pos, vel, imp, slack, contacts)
+            if not math.isfinite(np.add.reduce(pos, None) + np.add.reduce(vel, None) + np.add.reduce(imp, None)):
+                # the compiled loop has no per-step guard: redo the run step by step from its start, so
+                # that the failing step raises NonFiniteError with the state as before it, as step() does
+                self._state, self._contacts = start
+                self._method.invalidate()
+                imp[:] = 0.0
+                contacts.clear()
+                compiled = False
+        if not compiled:
+            for k in range(steps):
+                r = self.step()
+                j = k // every
+                imp[j] += r.impulses
+                if k + 1 == kept[j]:
+                    pos[j], vel[j], slack[j] = r.positions, r.velocities, r.slack
+                contacts.extend(r.contacts)
+                if callback is not None:
+                    callback(k, r)
+        return Trajectory(time, pos, vel, imp, imp / (span[:, None] * self.dt), slack, contacts)
+
+    def _run_compiled(self, steps, every, pos, vel, imp, slack, contacts) -> None:
+        """:meth:`run` in the method's compiled loop: straight into the trajectory's arrays, or, with
+        contact detection, in chunks of every step that the detector then walks through."""
+        st, method = self._state, self._method
+        if self._contacts is None:
+            st.positions, st.velocities = method.advance(st, steps, every, pos, vel, imp, slack)
+            st.step_count += steps
+            return
+        chunk = min(steps, _CHUNK)
+        n, nc = pos.shape[1], imp.shape[1]
+        c_pos, c_vel = np.empty((chunk, n, 3)), np.empty((chunk, n, 3))
+        c_imp, c_slack = np.empty((chunk, nc)), np.empty((chunk, nc), dtype=bool)
+        done = 0
+        while done < steps:
+            m = min(chunk, steps - done)
+            x, v = method.advance(st, m, 1, c_pos[:m], c_vel[:m], c_imp[:m], c_slack[:m])
+            previous = st.positions
+            for i in range(m):
+                contacts.extend(self._contacts.step(previous, c_pos[i], (st.step_count + i) * self.dt, self.dt))
+                previous = c_pos[i]
+            g = done + np.arange(m)              # the chunk's steps in the run, from 0
+            j = g // every
+            np.add.at(imp, j, c_imp[:m])
+            last = (g + 1) % every == 0
+            last[-1] |= done + m == steps
+            pos[j[last]], vel[j[last]], slack[j[last]] = c_pos[:m][last], c_vel[:m][last], c_slack[:m][last]
+            st.positions, st.velocities = x, v
+            st.step_count += m
+            done += m
 
     # ------------------------------------------------------------------ invariants
     def energy(self) -> dict[str, float]:

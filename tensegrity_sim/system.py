@@ -8,11 +8,13 @@ momentum.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import eigsh
 
-from .scene import Scene
+from .scene import Scene, SceneError
 
 __all__ = ["System", "SPARSE_THRESHOLD"]
 
@@ -45,7 +47,8 @@ class System:
         self.n_members = self.n_struts + self.n_cables
         self.masses = scene.masses
         self.free = ~scene.fixed
-        self.inv_mass = np.where(self.free, 1.0 / np.where(self.free, self.masses, 1.0), 0.0)
+        with np.errstate(over="ignore"):  # a mass too small for this is refused by max_frequency
+            self.inv_mass = np.where(self.free, 1.0 / np.where(self.free, self.masses, 1.0), 0.0)
         self.gravity_force = (self.masses * self.free)[:, None] * np.asarray(scene.gravity)[None, :]
         self.ends = np.vstack([scene.member_index(scene.struts), scene.member_index(scene.cables)])
         self.strut_ends = self.ends[: self.n_struts]
@@ -113,13 +116,25 @@ class System:
         # b_i (3N,) for each kept member: -n at a, +n at b, scaled by sqrt(k_i / m) per node.
         scale = np.sqrt(self.inv_mass)
         rows = np.concatenate([3 * ends[:, 0:1] + np.arange(3), 3 * ends[:, 1:2] + np.arange(3)], axis=1)
-        vals = np.concatenate([-n * scale[ends[:, 0], None], n * scale[ends[:, 1], None]], axis=1)
-        vals *= np.sqrt(k[keep])[:, None]
+        with np.errstate(over="ignore", invalid="ignore"):  # checked below
+            vals = np.concatenate([-n * scale[ends[:, 0], None], n * scale[ends[:, 1], None]], axis=1)
+            vals *= np.sqrt(k[keep])[:, None]
         cols = np.repeat(np.arange(len(ends)), 6)
         b = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols)), shape=(3 * self.n_nodes, len(ends)))
-        kmat = (b @ b.T).tocsr()
-        if kmat.shape[0] <= 600:
-            lam = float(np.linalg.eigvalsh(kmat.toarray())[-1])
-        else:
-            lam = float(eigsh(kmat, k=1, which="LA", return_eigenvectors=False)[0])
+        with np.errstate(over="ignore", invalid="ignore"):
+            kmat = (b @ b.T).tocsr()
+        try:
+            if not np.all(np.isfinite(kmat.data)):
+                raise np.linalg.LinAlgError
+            if kmat.shape[0] <= 600:
+                lam = float(np.linalg.eigvalsh(kmat.toarray())[-1])
+            else:
+                lam = float(eigsh(kmat, k=1, which="LA", return_eigenvectors=False)[0])
+        except (np.linalg.LinAlgError, RuntimeError):  # ARPACK reports no convergence as a RuntimeError
+            lam = math.nan
+        if not math.isfinite(lam):
+            light = int(np.argmin(np.where(self.free, self.masses, np.inf)))
+            raise SceneError(f"{self.scene.source or self.scene.name}: the members' stiffness/mass ratios are "
+                             f"beyond the float range (stiffness up to {float(np.max(k)):.3g} N/m; lightest free "
+                             f"node {self.scene.nodes[light].name!r}, {float(self.masses[light]):.3g} kg)")
         return float(np.sqrt(max(lam, 0.0)))

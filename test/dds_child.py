@@ -10,7 +10,6 @@ itself within its deadline:
 import contextlib
 import json
 import os
-import random
 import subprocess
 import sys
 import time
@@ -21,6 +20,7 @@ import numpy as np
 from tensegrity_sim.ros import messages as M
 from tensegrity_sim.ros.dds import Participant, QosProfile, Reader, dds_type
 from tensegrity_sim.ros.messages import TYPESTORE
+from ros_env import free_domain
 JOINTS = "/dds_test/joint_states"
 POSES = "/dds_test/poses"
 
@@ -29,8 +29,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def random_domain() -> int:
-    """A domain id of the test's own, so that concurrent runs do not hear each other."""
-    return random.SystemRandom().randint(1, 200)
+    """A domain id of the test's own, so that concurrent runs do not hear each other (see ros_env)."""
+    return free_domain()
 
 
 @contextlib.contextmanager

@@ -6,9 +6,11 @@ import math
 import numpy as np
 import yaml
 from mcap.reader import make_reader
+from rosbags.interfaces import Nodetype
 
 import tensegrity_sim as ts
 from tensegrity_sim.ros import messages as M
+from tensegrity_sim.ros.messages import TYPESTORE
 from tensegrity_sim.ros.log import RUN_INFO, LogWriter
 from tensegrity_sim.ros.node_logic import NodeSettings, Qos, SimNodeLogic
 
@@ -139,3 +141,47 @@ def rewrite(src, dst, alter=None, run_info=None):
                     msg = alter(c.topic, index, msg)
                 if msg is not None:
                     writer.write(c.topic, M.serialize(msg, typename), message.log_time)
+
+
+_NUMPY = {"bool": np.bool_, "byte": np.uint8, "char": np.uint8, "int8": np.int8, "uint8": np.uint8,
+          "int16": np.int16, "uint16": np.uint16, "int32": np.int32, "uint32": np.uint32, "int64": np.int64,
+          "uint64": np.uint64, "float32": np.float32, "float64": np.float64}
+
+
+def random_message(msgtype, rng):
+    """A message of ``msgtype`` with random content in every field, built from the typestore."""
+    def scalar(name, bound):
+        if name == "string":
+            return "".join(rng.choice(list("aZ_9é✓ "), int(rng.integers(0, bound or 9))))
+        if name == "bool":
+            return bool(rng.integers(2))
+        if name.startswith("float"):
+            return float(_NUMPY[name](rng.normal() * 1e3))
+        if name == "byte":  # rosbags packs a scalar byte as a signed char
+            return int(rng.integers(0, 128))
+        info = np.iinfo(_NUMPY[name])
+        return int(rng.integers(info.min, min(info.max, 2**63 - 1), endpoint=True))
+
+    def array(name, n):
+        if name == "string":
+            return [scalar("string", 0) for _ in range(n)]
+        if name.startswith("float"):
+            return (rng.normal(size=n) * 1e3).astype(_NUMPY[name])
+        if name == "bool":
+            return rng.integers(0, 2, n).astype(bool)
+        info = np.iinfo(_NUMPY[name])
+        return rng.integers(info.min, min(info.max, 2**63 - 1), n, endpoint=True).astype(_NUMPY[name])
+
+    def field(desc):
+        node, detail = desc
+        if node == Nodetype.BASE:
+            return scalar(*detail)
+        if node == Nodetype.NAME:
+            return random_message(detail, rng)
+        (element, element_detail), count = detail
+        n = count if node == Nodetype.ARRAY else int(rng.integers(0, (count or 4) + 1))
+        if element == Nodetype.BASE:
+            return array(element_detail[0], n)
+        return [random_message(element_detail, rng) for _ in range(n)]
+
+    return TYPESTORE.types[msgtype](**{name: field(desc) for name, desc in TYPESTORE.fielddefs[msgtype][1]})

@@ -64,7 +64,7 @@ def test_located_switches_divide_the_error_by_four_per_halving(case):
     bungee 3.73 4.10 3.97 4.05, dead band 4.00 4.00 3.99 4.00; unlocated, the bungee's ratios were
     1.48 44.2 0.38 4.21), and the cables' impulses converge too."""
     dts = [4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]
-    errors = np.array([_final_error(case, dt) for dt in dts])
+    errors = np.array([_final_error(case, dt, locate_switches=True) for dt in dts])
     ratios = errors[:-1, 0] / errors[1:, 0]
     assert np.all((ratios > 3.3) & (ratios < 4.8)), ratios
     assert errors[-1, 1] < errors[0, 1] / 100, errors[:, 1]
@@ -88,7 +88,7 @@ def test_located_steps_keep_momentum_lengths_and_bounded_energy(order):
     and composed steps apply only equal-and-opposite member forces, so momentum holds to round-off and
     the rigid struts keep their lengths; the energy error stays bounded, at O(h^order)."""
     scene = icosahedron_thrown()
-    sim = ts.Simulator(scene, method="elastic", dt=1e-3, order=order)
+    sim = ts.Simulator(scene, method="elastic", dt=1e-3, order=order, locate_switches=True)
     m = sim.system.masses[:, None]
     p0, l0 = sim.momentum()
     p_scale = np.sum(m * np.abs(sim.velocities))
@@ -139,12 +139,12 @@ def test_options_are_checked_and_reported():
         ts.Simulator(scene, method="inextensible", order=4)
     sim = ts.Simulator(scene, method="elastic", dt=1e-3, order=4, locate_switches=False)
     assert sim.method_settings == {"method": "elastic", "dt": 1e-3, "order": 4, "locate_switches": False}
-    # by default order 2 locates only where dt resolves the fastest vibration (omega_max dt <= 0.2)
-    assert ts.Simulator(scene, method="elastic", dt=1e-3).method_settings["locate_switches"]   # 0.01
-    prism = ts.load_scene("prism3")                                                            # 302 rad/s
-    assert not ts.Simulator(prism, method="elastic", dt=1e-3).method_settings["locate_switches"]
-    assert ts.Simulator(prism, method="elastic", dt=5e-4).method_settings["locate_switches"]
-    assert ts.Simulator(prism, method="elastic", dt=1e-3, order=4).method_settings["locate_switches"]
+    # by default only order 4 locates (order 2 then runs compiled plain Verlet)
+    plain = ts.Simulator(scene, method="elastic", dt=1e-3)
+    assert not plain.method_settings["locate_switches"] and plain._method.compiled
+    located = ts.Simulator(scene, method="elastic", dt=1e-3, locate_switches=True)
+    assert located.method_settings["locate_switches"] and not located._method.compiled
+    assert ts.Simulator(scene, method="elastic", dt=1e-3, order=4).method_settings["locate_switches"]
     # the composition's wider stability interval is used: 2 < omega dt < 2.72 runs at order 4 only
     stiff = ts.Scene.from_dict(bungee_dict(k=1.0e6))
     with pytest.raises(ValueError, match=r"dt must be < 2/omega_max = 0\.002 s"):

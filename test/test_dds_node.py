@@ -15,6 +15,7 @@ from mcap.reader import make_reader
 
 import tensegrity_sim as ts
 from dds_child import NODE, NODE_OUTPUTS, random_domain, rest_lengths, spawn
+from tensegrity_sim.ros import messages as M
 from tensegrity_sim.ros.messages import TYPESTORE
 from tensegrity_sim.ros.node_logic import RUNTIME_PARAMETERS
 from tensegrity_sim.ros.log import RUN_INFO
@@ -164,7 +165,7 @@ def test_a_controller_process_drives_the_simulator_process(tmp_path):
 def test_bad_messages_from_the_network_are_refused_and_the_node_keeps_going(tmp_path):
     domain, log = random_domain(), tmp_path / "run.mcap"
     c0 = PRISM.cables[0].rest_length
-    garbled = bytearray(TYPESTORE.serialize_cdr(rest_lengths(["c0"], [0.5]), "sensor_msgs/msg/JointState"))
+    garbled = bytearray(M.serialize(rest_lengths(["c0"], [0.5]), "sensor_msgs/msg/JointState"))
     at = garbled.index(b"c0")
     garbled[at:at + 2] = b"\xff\xfe"  # valid CDR, invalid UTF-8: DDS passes it, a decoder must refuse it
     actions = [
@@ -199,7 +200,7 @@ def test_bad_messages_from_the_network_are_refused_and_the_node_keeps_going(tmp_
     results = [m.data for m, _, _ in received["command_result"]]
     assert results[0].startswith("explode: failed: unknown command")
     assert results[1] == "set dt 0.5: failed: parameter 'dt' is read-only while running (restart the node)"
-    assert results[2].startswith("set publish_rate -3: failed: parameter 'publish_rate': must be > 0")
+    assert results[2].startswith("set publish_rate -3: failed: parameter 'publish_rate': must be >= 1e-06")
     assert results[3] == "set gravity 1: failed: unknown parameter 'gravity' (runtime parameters: " \
                          + ", ".join(RUNTIME_PARAMETERS) + ")"
     assert results[4] == "set publish_rate fast: failed: parameter 'publish_rate': not a number: 'fast'"

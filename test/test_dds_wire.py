@@ -6,11 +6,11 @@ import re
 
 import numpy as np
 import pytest
-from rosbags.interfaces import Nodetype
 
 from dds_child import JOINTS, POSES, joint_state, pose_array, random_domain, spawn
+from ros_helpers import random_message
 from tensegrity_sim.ros.dds import (MAX_DOMAIN_ID, Participant, QosProfile, check_domain_id, cyclone_config,
-                                    dds_topic_name, dds_type)
+                                    dds_topic_name, dds_type, ros_peer_settings)
 from tensegrity_sim.ros import messages as M
 from tensegrity_sim.ros.messages import TYPESTORE
 
@@ -42,50 +42,6 @@ def test_type_hashes_are_the_ones_a_jazzy_system_reports():
         b"typehash=RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18;"
 
 
-_NUMPY = {"bool": np.bool_, "byte": np.uint8, "char": np.uint8, "int8": np.int8, "uint8": np.uint8,
-          "int16": np.int16, "uint16": np.uint16, "int32": np.int32, "uint32": np.uint32, "int64": np.int64,
-          "uint64": np.uint64, "float32": np.float32, "float64": np.float64}
-
-
-def _random_message(msgtype, rng):
-    """A message of ``msgtype`` with random content in every field, built from the typestore."""
-    def scalar(name, bound):
-        if name == "string":
-            return "".join(rng.choice(list("aZ_9é✓ "), int(rng.integers(0, bound or 9))))
-        if name == "bool":
-            return bool(rng.integers(2))
-        if name.startswith("float"):
-            return float(_NUMPY[name](rng.normal() * 1e3))
-        if name == "byte":  # rosbags packs a scalar byte as a signed char
-            return int(rng.integers(0, 128))
-        info = np.iinfo(_NUMPY[name])
-        return int(rng.integers(info.min, min(info.max, 2**63 - 1), endpoint=True))
-
-    def array(name, n):
-        if name == "string":
-            return [scalar("string", 0) for _ in range(n)]
-        if name.startswith("float"):
-            return (rng.normal(size=n) * 1e3).astype(_NUMPY[name])
-        if name == "bool":
-            return rng.integers(0, 2, n).astype(bool)
-        info = np.iinfo(_NUMPY[name])
-        return rng.integers(info.min, min(info.max, 2**63 - 1), n, endpoint=True).astype(_NUMPY[name])
-
-    def field(desc):
-        node, detail = desc
-        if node == Nodetype.BASE:
-            return scalar(*detail)
-        if node == Nodetype.NAME:
-            return _random_message(detail, rng)
-        (element, element_detail), count = detail
-        n = count if node == Nodetype.ARRAY else int(rng.integers(0, (count or 4) + 1))
-        if element == Nodetype.BASE:
-            return array(element_detail[0], n)
-        return [_random_message(element_detail, rng) for _ in range(n)]
-
-    return TYPESTORE.types[msgtype](**{name: field(desc) for name, desc in TYPESTORE.fielddefs[msgtype][1]})
-
-
 def _same_content(ours, theirs, where):
     """rosbags' decoded message against cyclonedds' decoded struct, field by field."""
     if hasattr(ours, "__msgtype__"):
@@ -112,7 +68,7 @@ def test_every_jazzy_message_type_decodes_alike_in_rosbags_and_cyclonedds(seed):
     rng = np.random.default_rng(seed)
     assert len(TYPESTORE.fielddefs) > 150
     for msgtype in sorted(TYPESTORE.fielddefs):
-        message = _random_message(msgtype, rng)
+        message = random_message(msgtype, rng)
         data = bytes(TYPESTORE.serialize_cdr(message, msgtype))
         theirs = dds_type(msgtype).idl.deserialize(data)
         _same_content(message, theirs, msgtype)
@@ -135,6 +91,9 @@ def test_loopback_configuration_discovers_by_unicast_on_127_0_0_1():
     assert '<Peer address="127.0.0.1"/>' in xml and "<ParticipantIndex>auto</ParticipantIndex>" in xml
     assert "Peer" in cyclone_config("127.0.0.1") and 'address="127.0.0.1"' in cyclone_config("127.0.0.1")
     assert "Interfaces" not in cyclone_config("auto")
+    # what the ROS side sets to find it (the serve banner says it): only on a loopback
+    assert ros_peer_settings("lo", 7) == ros_peer_settings("127.0.0.1", 7) == "ROS_DOMAIN_ID=7 ROS_STATIC_PEERS=127.0.0.1"
+    assert ros_peer_settings("auto", 7) is None
 
 
 def test_bad_interface_and_domain_are_refused_with_the_reason():
@@ -227,7 +186,8 @@ def test_samples_from_another_process_decode_in_rosbags_and_cyclonedds_to_what_w
         got_typed += [s for s in typed.take(N=64) if s.sample_info.valid_data]
     assert publisher.returncode == 0, err
     assert len(got_joints) == len(got_poses) == len(got_typed) == count
-    for i in range(count):
-        _same_content(joint_state(i), got_joints[i], f"joints[{i}]")
-        _same_content(pose_array(i), got_poses[i], f"poses[{i}]")
-        _same_content(joint_state(i), got_typed[i], f"typed[{i}]")
+    for i in range(count):  # what was sent, as rosbags holds it (rclpy's classes, where it imports, are not)
+        sent_joints = M.rosbags_message(joint_state(i), "sensor_msgs/msg/JointState")
+        _same_content(sent_joints, got_joints[i], f"joints[{i}]")
+        _same_content(M.rosbags_message(pose_array(i), "geometry_msgs/msg/PoseArray"), got_poses[i], f"poses[{i}]")
+        _same_content(sent_joints, got_typed[i], f"typed[{i}]")

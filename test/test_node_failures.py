@@ -18,7 +18,7 @@ from tensegrity_sim.ros import messages as M
 from tensegrity_sim.ros.log import RUN_INFO, LogRecorder
 from tensegrity_sim.ros.node_logic import TOPICS, NodeSettings, SimNodeLogic
 from tensegrity_sim.ros.replay import replay
-from ros_helpers import FakeClock, ListLogger, rest_lengths_msg, rewrite, wrench_msg
+from ros_helpers import FakeClock, ListLogger, positions_of, rest_lengths_msg, rewrite, wrench_msg
 
 G = 9.81
 DT = 1e-3
@@ -226,3 +226,37 @@ def test_an_offline_run_stops_at_a_failed_step_with_a_finished_log(tmp_path, cap
     assert json.loads(info["method_settings"])["solver"] == json.loads(info["node_settings"])["solver"] == "nnls"
     result = replay(log)
     assert result.ok and result.steps == 30 and result.compared["/diagnostics"] == 1
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered", "ignore:invalid value encountered")
+def test_absurd_force_is_refused_after_the_fact_and_nothing_non_finite_is_published(tmp_path):
+    """Issue 13: a finite but absurd wrench used to make the node publish and log NaN positions. The
+    step's NonFiniteError is a failed step: the wrench is refused after the fact, the node steps on as if
+    it never came, and the log replays bit for bit."""
+    from ros_helpers import prism
+
+    scene = prism()
+    sent, logger = [], ListLogger()
+    logic = SimNodeLogic(ts.Simulator(scene, method="elastic", dt=DT), NodeSettings(dt=DT, log_path=""),
+                         transport=lambda key, msg: sent.append((key, msg)), clock=FakeClock(t=0.0), logger=logger)
+    logic.recorder = LogRecorder(tmp_path / "absurd.mcap", logic.channels(), logic.run_info())
+    twin = ts.Simulator(scene, method="elastic", dt=DT)
+    for _ in range(3):
+        logic.step()
+        twin.step()
+    assert logic.receive("external_wrench", wrench_msg("n1", [1e300, 0.0, 0.0])) is None  # accepted...
+    assert logic.step() is None                                                        # ...the step fails
+    assert isinstance(logic.step_error, ts.NonFiniteError) and not logic.paused
+    assert logic.refused["external_wrench"] == 1
+    assert logger.warnings[-1].startswith("/tensegrity_sim/external_wrench: refused after the fact: the step from "
+                                          "t = 0.003000 s failed: the step from t = 0.003000 s gave non-finite "
+                                          "values at node 'n0' (and 5 more) and cable 'c0' (and 2 more) (inputs: "
+                                          "largest external force 1e+300 N at node 'n1';")
+    assert [k for k, _ in sent] == ["diagnostics"] and sent[0][1].status[0].level == M.byte(1)
+    for _ in range(10):
+        r = logic.step()
+        assert np.array_equal(r.positions, twin.step().positions)
+    logic.publish()
+    assert all(np.all(np.isfinite(positions_of(m))) for k, m in sent if k == "node_poses")
+    logic.recorder.finish()
+    assert replay(tmp_path / "absurd.mcap").ok

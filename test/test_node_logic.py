@@ -28,7 +28,14 @@ BAD_SETTINGS = [
     ({"dt": 0.0}, "parameter 'dt': must be > 0, got 0.0"),
     ({"dt": math.nan}, "parameter 'dt': must be a finite number, got nan"),
     ({"dt": "1"}, "parameter 'dt': must be a finite number, got '1'"),
-    ({"step_rate": -5.0}, "parameter 'step_rate': must be > 0, got -5.0"),
+    ({"step_rate": -5.0}, "parameter 'step_rate': must be >= 1e-06, got -5.0"),
+    # issue 13: absurd values that made tick() raise or run for seconds, or escaped as another exception
+    ({"step_rate": 5e-324}, "parameter 'step_rate': must be >= 1e-06, got 5e-324"),
+    ({"publish_rate": 1e-300}, "parameter 'publish_rate': must be >= 1e-06, got 1e-300"),
+    ({"real_time_factor": 1e300}, "parameter 'real_time_factor': must be <= 1e+06, got 1e+300"),
+    ({"dt": 5e-324}, "parameter 'dt': must be >= 1e-09 s (stamps are integer nanoseconds), got 5e-324"),
+    ({"dt": 10 ** 400}, "parameter 'dt': must be a finite number, got an integer of 401 digits"),
+    ({"marker_rate": [1.0]}, "parameter 'marker_rate': must be a finite number, got [1.0]"),
     ({"real_time_factor": -1.0}, "parameter 'real_time_factor': must be >= 0, got -1.0"),
     ({"real_time_factor": True}, "parameter 'real_time_factor': must be a finite number, got True"),
     ({"publish_rate": 2000.0}, "parameter 'publish_rate': must be at most 1/dt = 1000 Hz (one publication "
@@ -455,6 +462,18 @@ def test_as_fast_as_possible_steps_for_one_tick_period():
     assert logic.tick() == 4 and logic.tick() == 4
 
 
+def test_no_tick_runs_longer_than_its_wall_clock_bound():
+    """Issue 13: an absurd real-time factor or a slow tick rate made tick() raise or run for seconds. Every
+    step here costs 10 ms of the clock: a 1 Hz tick at the largest real-time factor is owed a million
+    steps, and runs 0.1 s (TICK_WALL_LIMIT) of them, then reports the overrun."""
+    clock = FakeClock(t=0.0, per_read=0.01)
+    logic, _, _ = make_logic(prism(), clock=clock, real_time_factor=1e6, step_rate=1.0)
+    clock.t = 1.0
+    assert logic.tick() == 10 and logic.overruns == 1
+    logic.update(real_time_factor=0.0)  # as fast as possible: one tick period, at most 0.1 s
+    assert logic.tick() == 10
+
+
 def test_pause_single_step_resume():
     clock = FakeClock(t=0.0)
     logic, sent, _ = make_logic(prism(), clock=clock)
@@ -504,7 +523,7 @@ def test_runtime_parameters():
         logic.update(dt=0.1)
     with pytest.raises(ValueError, match=r"^parameter 'solver' is read-only while running \(restart the node\)$"):
         logic.update(solver="osqp")
-    with pytest.raises(ValueError, match="^parameter 'publish_rate': must be > 0, got -1.0$"):
+    with pytest.raises(ValueError, match="^parameter 'publish_rate': must be >= 1e-06, got -1.0$"):
         logic.update(publish_rate=-1.0)
     assert logic.update() == logic.settings  # nothing changed: no event
     assert logic.settings.publish_rate == 100.0 and logic.settings.real_time_factor == 2.0

@@ -69,3 +69,22 @@ def test_node_publishes_refuses_and_serves(ros):
 
     node.close()
     assert replay(tmp_path / "node.mcap").ok
+
+
+def test_this_host_is_a_static_peer_unless_discovery_is_configured():
+    from tensegrity_sim.ros.rclpy_node import DISCOVERY_SETTINGS, peer_on_this_host
+
+    environ = {"ROS_DOMAIN_ID": "3"}
+    assert peer_on_this_host(environ) and environ == {"ROS_DOMAIN_ID": "3", "ROS_STATIC_PEERS": "127.0.0.1"}
+    for name in DISCOVERY_SETTINGS:  # whatever the user set is left as it is
+        environ = {name: "x"}
+        assert not peer_on_this_host(environ) and environ == {name: "x"}
+
+
+def test_unparsable_ros_arguments_are_an_error_not_a_traceback():
+    from dds_child import spawn
+
+    with spawn("-m", "tensegrity_sim.ros.rclpy_node", "--ros-args", "-p", "log_path:=") as node:
+        _, err = node.communicate(timeout=60)
+    assert node.returncode == 2
+    assert "\nsim_node: error: " in err and "log_path" in err and "Traceback" not in err  # after rcl's own line

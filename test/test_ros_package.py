@@ -11,6 +11,9 @@ from pathlib import Path
 import pytest
 import setuptools
 import yaml
+from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name
+from packaging.version import Version
 
 import tensegrity_sim as ts
 from tensegrity_sim.ros.node_logic import SERVICES, TOPICS, NodeSettings, SimNodeLogic
@@ -75,6 +78,11 @@ def test_package_xml_format3_and_dependencies(setup_kwargs):
     missing = (message_packages | node_imports | launch_imports | {"std_msgs", "builtin_interfaces"}) - exec_depends
     assert not missing, f"package.xml lacks exec_depend {sorted(missing)}"
     assert {"python3-numpy", "python3-scipy", "python3-yaml", "python3-tqdm"} <= exec_depends
+    # every runtime dependency of setup.py is a rosdep key here or named as one that pip installs
+    rosdep_keys = {"numpy": "python3-numpy", "scipy": "python3-scipy", "pyyaml": "python3-yaml", "tqdm": "python3-tqdm"}
+    from_pypi = (ROOT / "package.xml").read_text().split("from PyPI", 1)[1].split("-->", 1)[0]
+    for name in (canonicalize_name(Requirement(r).name) for r in setup_kwargs["install_requires"]):
+        assert rosdep_keys.get(name) in exec_depends or name in from_pypi.split(), name
     assert "python3-pytest" in {e.text for e in root.findall("test_depend")}
     assert (ROOT / "resource" / "tensegrity_sim").is_file()
 
@@ -107,12 +115,53 @@ def test_data_files_install_launch_config_msg_docs(setup_kwargs):
         assert all(Path(f).match(pattern) for f in on_disk)
 
 
-def test_dependencies_pinned(setup_kwargs):
-    requirements = setup_kwargs["install_requires"] + [r for extra in setup_kwargs["extras_require"].values()
-                                                       for r in extra]
-    assert all("==" in r for r in requirements)
-    names = {r.split("==")[0] for r in requirements}
-    assert {"mcap", "rosbags", "mcap-ros2-support"} <= names
+def constraints() -> dict[str, Version]:
+    pins = {}
+    for line in (ROOT / "constraints.txt").read_text().splitlines():
+        if line.strip() and not line.lstrip().startswith("#"):
+            requirement = Requirement(line.split("#")[0])
+            (spec,) = requirement.specifier
+            assert spec.operator == "==", line
+            assert canonicalize_name(requirement.name) not in pins, f"pinned twice: {line}"
+            pins[canonicalize_name(requirement.name)] = Version(spec.version)
+    return pins
+
+
+def test_dependencies_are_ranges_and_constraints_pin_each_inside_its_range(setup_kwargs):
+    """setup.py gives ranges (a tested lower bound, an upper bound), constraints.txt one exact version of
+    each, inside the range; nothing is pinned that setup.py does not name (setup.py's docstring)."""
+    requirements = [Requirement(r) for r in setup_kwargs["install_requires"] + [
+        r for extra in setup_kwargs["extras_require"].values() for r in extra]]
+    pins = constraints()
+    for r in requirements:
+        operators = {spec.operator for spec in r.specifier}
+        assert operators == {">=", "<"}, f"{r}: give a range >=low,<high (exact pins go to constraints.txt)"
+        assert r.specifier.contains(pins[canonicalize_name(r.name)]), f"constraints.txt pins {r.name} outside {r}"
+    assert set(pins) == {canonicalize_name(r.name) for r in requirements}
+    assert {"mcap", "rosbags", "mcap-ros2-support"} <= set(pins)
+
+
+def test_ros_extra_only_where_the_wheels_exist(setup_kwargs):
+    """The Jazzy wheels exist for Linux x86_64, CPython 3.11 and 3.12 only: the extra's marker says so."""
+    ros = [Requirement(r) for r in setup_kwargs["extras_require"]["ros"]]
+    assert {r.name for r in ros} >= {"ros-jazzy-rclpy", "ros-jazzy-std-srvs", "ros-jazzy-rosgraph-msgs"}
+    assert next(r for r in ros if r.name == "ros-jazzy-rclpy").extras == {"fastrtps"}
+    for platform, machine, python, expected in (("Linux", "x86_64", "3.11", True), ("Linux", "x86_64", "3.12", True),
+                                                ("Linux", "x86_64", "3.13", False), ("Linux", "aarch64", "3.12", False),
+                                                ("Darwin", "x86_64", "3.12", False), ("Windows", "AMD64", "3.12", False)):
+        env = {"platform_system": platform, "platform_machine": machine, "python_version": python}
+        assert all(r.marker.evaluate(env) == expected for r in ros), env
+
+
+def test_ci_lower_bound_leg_pins_the_lower_bounds(setup_kwargs):
+    out = subprocess.run([sys.executable, str(ROOT / ".ci" / "lower_bounds.py")], capture_output=True, text=True,
+                         check=True).stdout
+    lowest = {canonicalize_name(Requirement(line.split("#")[0]).name): line.split("#")[0].strip()
+              for line in out.splitlines() if line.strip() and not line.startswith("#")}
+    for r in map(Requirement, setup_kwargs["install_requires"]):
+        low = next(spec.version for spec in r.specifier if spec.operator == ">=")
+        assert lowest[canonicalize_name(r.name)] == f"{r.name}=={low}"
+    assert lowest["pytest"] == f"pytest=={constraints()['pytest']}"  # the rest as constraints.txt pins them
 
 
 # --------------------------------------------------------------------------- config, launch

@@ -58,6 +58,20 @@ REFUSED = [
     (edited(["gravity"], [0, 0]), "scene: gravity must be a list of 3 numbers, got [0, 0]"),
     (edited(["nodes"], []), "nodes: must be a non-empty list"),
     (edited(["nodes", 0, "fixed"], "yes"), "nodes[0] 'n0': fixed must be true or false, got 'yes'"),
+    # issue 13: what escaped as another exception, or was accepted silently
+    (edited(["nodes", 2, "name"], "n2\n"), "nodes[2] 'n2\\n': name must match [A-Za-z_][A-Za-z0-9_]*, got 'n2\\n'"),
+    (edited(["nodes", 2, "mass"], 10 ** 400), "nodes[2] 'n2': mass is too large for a float: an integer of 401 digits"),
+    (edited(["nodes", 2, "position"], [-1e308, 1.0, 0.0]), "cables[0] 'c0': nodes: the distance from 'n1' to 'n2' "
+     "overflows the float range (ends at [1.0, 0.0, 0.0] and [-1e+308, 1.0, 0.0] m)"),
+    (edited(["nodes", 1, "position"], [1e308, 0.0, 0.0]), "struts[0] 's0': nodes: the distance from 'n0' to 'n1' "
+     "overflows the float range (ends at [0.0, 0.0, 0.0] and [1e+308, 0.0, 0.0] m)"),
+    (edited(["nodes", 1, "mass"], 1.7e308) | {"struts": [{"name": "s0", "nodes": ["n0", "n1"], "stiffness": 1.0e4,
+                                                          "mass": 1.7e308}]},
+     "nodes[1] 'n1': its mass plus half of its struts' masses overflows the float range"),
+    (edited(["nodes", 1, 7], 1.0), "nodes[1] 'n1': unknown key 7 (allowed: fixed, mass, name, position, velocity)"),
+    (edited(["struts", 0, "stiffness"], ["rigid"]), "struts[0] 's0': stiffness must be a number, got ['rigid']"),
+    (edited(["nodes", 0, "position"], [[[[[[1]]]]], 0, 0]),
+     "nodes[0] 'n0': position must be a number, got [[[[...]]]]"),
 ]
 
 
@@ -73,6 +87,46 @@ def test_refused_file_names_the_file(tmp_path):
     path.write_text(yaml.safe_dump(edited(["cables", 0, "stiffness"], -5.0)))
     with pytest.raises(ts.SceneError, match=r"broken\.yaml: cables\[0\] 'c0': stiffness must be > 0, got -5.0"):
         ts.load_scene(path)
+
+
+@pytest.mark.parametrize("text", ["[" * 2000 + "]" * 2000, "nodes: " + "[" * 100_000, "{a: " * 2000 + "1" + "}" * 2000,
+                                  "- " * 100_000 + "1"], ids=["flow", "flow-open", "mappings", "block"])
+def test_deep_yaml_refused_naming_the_file(tmp_path, text):
+    path = tmp_path / "deep.yaml"
+    path.write_text(text)
+    with pytest.raises(ts.SceneError, match=rf"^{tmp_path}/deep\.yaml: not valid YAML: nested deeper than 64 levels"):
+        ts.load_scene(path)
+
+
+@pytest.mark.parametrize("text, reason", [
+    ("name: 1" + ":00" * 200 + ".0", "(OverflowError: int too large to convert to float)"),
+    ("name: !!timestamp 99999-01-01", "(AttributeError: 'NoneType' object has no attribute 'groupdict')"),
+    ("name: 0000-01-01", "(ValueError: year 0 is out of range)"),
+], ids=["sexagesimal", "timestamp", "year-0"])
+def test_values_pyyaml_cannot_build_are_refused_naming_the_file(tmp_path, text, reason):
+    """Issue 13: these escaped from PyYAML as OverflowError, AttributeError and ValueError."""
+    path = tmp_path / "odd.yaml"
+    path.write_text(text)
+    with pytest.raises(ts.SceneError) as err:
+        ts.load_scene(path)
+    assert str(err.value) == f"{path}: a value cannot be read {reason}"
+
+
+def test_non_utf8_file_refused_naming_the_file(tmp_path):
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes("name: caf\u00e9\n".encode("latin-1"))
+    with pytest.raises(ts.SceneError) as err:
+        ts.load_scene(path)
+    assert str(err.value) == f"{path}: not UTF-8 text (byte 9: b'\\xe9')"
+
+
+def test_tiny_mass_is_refused_at_start_up():
+    """A free mass so small that stiffness/mass leaves the float range: SceneError, not numpy's LinAlgError."""
+    scene = ts.Scene.from_dict(edited(["nodes", 2, "mass"], 1e-310), source="tiny.yaml")
+    with pytest.raises(ts.SceneError) as err:
+        ts.Simulator(scene)
+    assert str(err.value) == ("tiny.yaml: the members' stiffness/mass ratios are beyond the float range (stiffness "
+                              "up to 1e+04 N/m; lightest free node 'n2', 1e-310 kg)")
 
 
 def test_unknown_scene_lists_builtins():

@@ -31,11 +31,14 @@ BAD_REST = [
     ({"nope": 1.0}, "rest_lengths: unknown name 'nope' (known: cl, cr)"),
     ({"cl": -1.0}, "rest_lengths['cl']: must be > 0, got -1.0"),
     ({"cl": 0.0}, "rest_lengths['cl']: must be > 0, got 0.0"),
-    ({"cl": math.nan}, "rest_lengths: values must be finite"),
-    ({"cl": [1.0, 2.0]}, "rest_lengths['cl']: expected a number, got shape (2,)"),
-    ({"cl": "long"}, "rest_lengths['cl']: not a number: 'long'"),
-    ([1.0, 2.0, 3.0], "rest_lengths: expected shape (2,), got (3,)"),
-    ([1.0, math.inf], "rest_lengths: values must be finite"),
+    ({"cl": math.nan}, "rest_lengths['cl'] must be finite, got nan"),
+    ({"cl": [1.0, 2.0]}, "rest_lengths['cl'] must be a number, got shape (2,)"),
+    ({"cl": "long"}, "rest_lengths['cl'] must be numbers, got 'long'"),
+    ([1.0, 2.0, 3.0], "rest_lengths must be an array of shape (2,), got shape (3,)"),
+    ([1.0, math.inf], "rest_lengths must be finite, got [1.0, inf]"),
+    ({"cl": 10 ** 400}, "rest_lengths['cl'] must be numbers, got an integer of 401 digits"),
+    ({"cl": 1j}, "rest_lengths['cl'] must be numbers, got 1j"),
+    ({("cl",): 1.0}, "rest_lengths: unknown name ('cl',) (known: cl, cr)"),
 ]
 
 
@@ -50,9 +53,11 @@ def test_bad_rest_lengths_refused_state_unchanged(sim, values, message):
 
 BAD_FORCES = [
     ({"ghost": [0, 0, 1]}, "external_forces: unknown name 'ghost' (known: left, mass, right)"),
-    ({"mass": [0, 1]}, "external_forces['mass']: expected 3 numbers, got shape (2,)"),
-    ({"mass": [0, math.nan, 1]}, "external_forces: values must be finite"),
-    (np.zeros((2, 3)), "external_forces: expected shape (3, 3), got (2, 3)"),
+    ({"mass": [0, 1]}, "external_forces['mass'] must be an array of shape (3,), got shape (2,)"),
+    ({"mass": [0, math.nan, 1]}, "external_forces['mass'] must be finite, got [0, nan, 1]"),
+    (np.zeros((2, 3)), "external_forces must be an array of shape (3, 3), got shape (2, 3)"),
+    ({"mass": [0, [1], 2]}, "external_forces['mass'] must be numbers, got [0, [1], 2]"),
+    (np.array(["a"] * 3), "external_forces must be numbers, got array(['a', 'a', 'a'], dtype='<U1')"),
 ]
 
 
@@ -108,9 +113,13 @@ def test_reset_returns_to_the_scene():
 
 @pytest.mark.parametrize("kwargs, message", [
     ({"method": "verlet"}, "method must be one of ['elastic', "),
-    ({"dt": 0.0}, "dt must be a positive finite number of seconds, got 0.0"),
-    ({"dt": math.nan}, "dt must be a positive finite number of seconds, got nan"),
-    ({"dt": "fast"}, "dt must be a positive number of seconds, got 'fast'"),
+    ({"dt": 0.0}, "dt must be a number of seconds >= 1e-09 (stamps are integer nanoseconds), got 0.0"),
+    ({"dt": 5e-324}, "dt must be a number of seconds >= 1e-09 (stamps are integer nanoseconds), got 5e-324"),
+    ({"dt": math.nan}, "dt must be finite, got nan"),
+    ({"dt": "fast"}, "dt must be a number, got 'fast'"),
+    ({"dt": 10 ** 400}, "dt is too large for a float: an integer of 401 digits"),
+    ({"method": ["auto"]}, "method must be one of ['elastic', 'inextensible', 'auto'], got ['auto']"),
+    ({"solver": {}}, "solver must be one of ['daqp', 'nnls', 'osqp', 'sparse'], got {}"),
 ])
 def test_bad_constructor_arguments(kwargs, message):
     with pytest.raises(ValueError) as err:
@@ -160,3 +169,63 @@ def test_external_force_impulse_balance(method):
     p1, _ = sim.momentum()
     np.testing.assert_allclose(p1 - p0, 300 * 1e-3 * f.sum(axis=0), rtol=1e-11)
     assert traj.slack.any()
+
+
+def test_non_finite_step_is_refused_and_changes_nothing(sim):
+    """Issue 13: a finite but absurd force used to turn the positions into NaN silently. Now the step
+    raises NonFiniteError naming the node and the input, the state is as before, and once the force is
+    taken back the run goes on exactly as a twin's that never had it."""
+    twin = ts.Simulator(sim.scene, method=sim.method, dt=sim.dt)
+    twin.run(steps=sim.step_count + 5)
+    sim.run(steps=5)
+    sim.set_external_forces({"mass": [1e300, 0.0, 0.0]})
+    before = snapshot(sim)
+    with np.errstate(over="ignore", invalid="ignore"), pytest.raises(ts.NonFiniteError) as err:
+        sim.step()   # numpy warns of the overflow, the compiled kernel does not: neither is the point
+    assert str(err.value) == (
+        "the step from t = 0.015000 s gave non-finite values at node 'mass' (and 2 more) and cable 'cl' (and 1 "
+        "more) (inputs: largest external force 1e+300 N at node 'mass'; largest speed 0.5 m/s at node 'mass'; "
+        "largest coordinate 1 m at node 'left'; longest rest length 1.1 m of cable 'cl'; dt 0.001 s); the state "
+        "is as before the step")
+    assert isinstance(err.value, ts.StepError)
+    assert_unchanged(before, sim)
+    sim.set_external_forces({"mass": [0.0, 0.0, 0.0]})
+    a, b = sim.run(steps=20), twin.run(steps=20)
+    np.testing.assert_array_equal(a.positions, b.positions)
+    np.testing.assert_array_equal(a.impulses, b.impulses)
+
+
+def test_non_finite_step_in_a_compiled_run_fails_like_step(sim):
+    """run() without a callback steps in the compiled loop, which has no per-step guard: it must still stop
+    at the failing step with NonFiniteError and the state before that step (here the first)."""
+    assert sim._method.has_loop()
+    sim.set_external_forces({"mass": [1e300, 0.0, 0.0]})
+    before = snapshot(sim)
+    with np.errstate(over="ignore", invalid="ignore"), pytest.raises(ts.NonFiniteError, match="node 'mass'"):
+        sim.run(steps=50)
+    assert_unchanged(before, sim)
+
+
+BAD_RUNS = [
+    ({"steps": 10 ** 400}, "run: the trajectory of an integer of 401 digits steps would need over 1e300 bytes, "
+                           "more than this machine's memory"),
+    ({"steps": math.inf}, "steps must be a whole number >= 0, got inf"),
+    ({"steps": "3"}, "steps must be a whole number >= 0, got '3'"),
+    ({"steps": 2.5}, "steps must be a whole number >= 0, got 2.5"),
+    ({"duration": 1e300}, "run: the trajectory of"),
+    ({"duration": [1.0]}, "duration must be a number, got [1.0]"),
+    ({"duration": 9e307, "dt_": 1e-9}, "duration / dt = 9e+307 / 1e-09 s is beyond the float range"),
+    ({"steps": 2, "callback": "print"}, "callback must be callable, got 'print'"),
+]
+
+
+@pytest.mark.parametrize("kwargs, message", BAD_RUNS, ids=[m for _, m in BAD_RUNS])
+def test_bad_run_arguments_refused_before_any_step(sim, kwargs, message):
+    kwargs = dict(kwargs)
+    if "dt_" in kwargs:
+        sim = ts.Simulator(sim.scene, method=sim.method, dt=kwargs.pop("dt_"))
+    before = snapshot(sim)
+    with pytest.raises(ValueError) as err:
+        sim.run(**kwargs)
+    assert str(err.value).startswith(message)
+    assert_unchanged(before, sim)

@@ -3,13 +3,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..checks import describe
 from ..system import System
-from .base import MethodStep, State, StepMethod
+from .base import MethodStep, State, StepError, StepMethod
 from .elastic import ElasticMethod
 from .inextensible import InextensibleMethod
 from .qp import SOLVERS
 
-__all__ = ["METHODS", "SOLVERS", "choose_method", "make_method", "State", "MethodStep", "StepMethod"]
+__all__ = ["METHODS", "SOLVERS", "choose_method", "make_method", "State", "MethodStep", "StepMethod", "StepError"]
 
 METHODS: dict[str, type[StepMethod]] = {
     ElasticMethod.name: ElasticMethod,
@@ -86,20 +87,24 @@ def make_method(system: System, method: str, dt: float, **options) -> tuple[Step
     """Instantiate ``method`` (a name of :data:`METHODS` or ``"auto"``); returns it and the reason.
 
     ``options`` are the methods' keyword options (``solver`` of a method that solves QPs, ``order`` and
-    ``locate_switches`` of the elastic method, ``reel_speed`` of the inextensible one); None means the method's default. An option the chosen
-    method does not have is an error when the method was named, and ignored when ``"auto"`` chose it."""
+    ``locate_switches`` of the elastic method, ``reel_speed`` of the inextensible one); None means the
+    method's default. An option the chosen method does not have is an error when the method was named,
+    and ignored when ``"auto"`` chose it."""
     solver = options.get("solver")
-    if solver is not None and solver not in SOLVERS:
-        raise ValueError(f"solver must be one of {sorted(SOLVERS)}, got {solver!r}")
+    if solver is not None and (not isinstance(solver, str) or solver not in SOLVERS):
+        raise ValueError(f"solver must be one of {sorted(SOLVERS)}, got {describe(solver)}")
+    if not isinstance(method, str):
+        raise ValueError(f"method must be one of {sorted(METHODS) + ['auto']}, got {describe(method)}")
     if method == "auto":
         method, reason = choose_method(system, dt)
     elif method in METHODS:
         reason = f"{method}: requested"
     else:
-        raise ValueError(f"method must be one of {sorted(METHODS) + ['auto']}, got {method!r}")
+        raise ValueError(f"method must be one of {sorted(METHODS) + ['auto']}, got {describe(method)}")
     cls = METHODS[method]
     given = {name: value for name, value in options.items() if value is not None}
     for name in given:
         if name not in cls.options and reason.endswith("requested"):
-            raise ValueError(f"{name}={given[name]!r} is an option of {_OPTION_OF[name]}; method {method!r} has none")
+            raise ValueError(f"{name}={describe(given[name])} is an option of {_OPTION_OF[name]}; "
+                             f"method {method!r} has none")
     return cls(system, dt, **{name: value for name, value in given.items() if name in cls.options}), reason

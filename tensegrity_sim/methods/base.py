@@ -19,7 +19,9 @@ Rules for whoever writes a new method (compare ``scipy.integrate.OdeSolver``):
 8. ``slack(positions, rest_lengths)`` says which cables are slack in the method's model (by default:
    shorter than their rest length).
 9. Options (e.g. ``solver``) are keyword-only arguments of ``__init__``, listed in ``options``.
-10. ``applied_rest_lengths(state)`` are the rest lengths the cables follow now, if a method lags the
+10. A method with a compiled multi-step loop says so in ``has_loop()`` and implements ``advance()``
+    (``Simulator.run`` then runs in it, inputs held); its results must equal those of ``step()``.
+11. ``applied_rest_lengths(state)`` are the rest lengths the cables follow now, if a method lags the
     commanded ones (a motor's finite speed).
 """
 from __future__ import annotations
@@ -30,7 +32,12 @@ import numpy as np
 
 from ..system import System
 
-__all__ = ["State", "MethodStep", "StepMethod"]
+__all__ = ["State", "MethodStep", "StepMethod", "StepError"]
+
+
+class StepError(RuntimeError):
+    """A step that cannot be taken (a QP without a solution, a result that is not finite); the simulator
+    is as it was before the step, and the message says why."""
 
 
 @dataclass
@@ -83,7 +90,16 @@ class StepMethod:
     def step(self, state: State) -> MethodStep:
         return self._step_impl(state)
 
-    def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
+    def has_loop(self) -> bool:
+        """Whether :meth:`advance` runs many steps in compiled code."""
+        return False
+
+    def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
+                impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``steps`` steps from ``state`` (not modified), keeping steps ``every``, ``2 every``, ... and
+        the last into ``positions``, ``velocities`` (K, N, 3), ``impulses`` (K, n_cables; summed over
+        the steps since the previous kept one) and ``slack`` (K, n_cables), ``K = ceil(steps / every)``.
+        Returns the final positions and velocities (N, 3)."""
         raise NotImplementedError
 
     def applied_rest_lengths(self, state: State) -> np.ndarray:

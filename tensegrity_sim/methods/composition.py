@@ -33,14 +33,14 @@ slack/taut state is split at the switch:
 
 What it gives up: the split step's size depends on the state, so the step map is symplectic in pieces
 but not as a whole; when the step does not resolve the fastest vibration the energy random-walks
-(measured in ``methods/elastic.py``; hence ``LOCATE_RESOLVED``). A cable that goes taut and slack again inside one step (a graze) is not
+(measured in ``methods/elastic.py``: locate at order 2 only where ``omega_max dt <= 0.2``). A cable that goes taut and slack again inside one step (a graze) is not
 split: both its ends are on the same side.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["WEIGHTS", "STABILITY", "Stepper", "LOCATE_RESOLVED", "MAX_SWITCHES", "MIN_SPLIT", "LOCATE_TOL"]
+__all__ = ["WEIGHTS", "STABILITY", "Stepper", "MAX_SWITCHES", "MIN_SPLIT", "LOCATE_TOL"]
 
 _SUZUKI_W = 1.0 / (4.0 - 4.0 ** (1.0 / 3.0))
 # the stage weights of one step, per order
@@ -52,9 +52,6 @@ WEIGHTS = {2: (1.0,), 4: (_SUZUKI_W, _SUZUKI_W, 1.0 - 4.0 * _SUZUKI_W, _SUZUKI_W
 # test_composition.py::test_stability_limits computes both)
 STABILITY = {2: 2.0, 4: 2.72}
 
-# default: order 2 locates switches only at steps that resolve the fastest vibration (omega_max dt at
-# most this; methods/elastic.py says what an under-resolved one costs)
-LOCATE_RESOLVED = 0.2
 MAX_SWITCHES = 4      # located splits per step
 MIN_SPLIT = 1e-6      # relative to dt: a switch this close to a part's ends is not split off
 LOCATE_TOL = 1e-13    # relative to the rest length: a located switch leaves |e| below this

@@ -24,8 +24,7 @@ Integrator: velocity Verlet (with RATTLE for rigid struts), chosen by measuremen
   vibration resolved that costs nothing measurable, but with it under-resolved the energy random-walks:
   prism3 (elastic struts, ``omega_max = 302 rad/s``), 1e6 steps at 1 ms (``omega_max dt = 0.30``):
   located, max |dE|/E 2.1e-2, the tenths' mean rising from 7.5e-3 J to 4.1e-2 J, five times plain
-  Verlet's drift above. So by default order 2 locates only when ``omega_max dt <= LOCATE_RESOLVED``
-  (0.2; prism3 at 0.5 ms, 0.15: max |dE|/E 6.3e-4 over 2e5 steps with no trend, plain Verlet 4.1e-4;
+  Verlet's drift above. So locate at order 2 only where ``omega_max dt <= 0.2`` (prism3 at 0.5 ms, 0.15: max |dE|/E 6.3e-4 over 2e5 steps with no trend, plain Verlet 4.1e-4;
   the tumbling icosahedron at 1 ms, 0.035: 4.2e-6, flat over 1e5 steps).
 * It is explicit: stable only for ``dt < 2 / omega_max`` of the elastic members. The limit is computed
   at start-up and a larger step is refused with the limit in the message; stiff struts can be made
@@ -39,6 +38,12 @@ momentum-conserving since it is along the cable).
 Impulses: the velocity update applies each cable's tension as ``h/2 (t_start + t_end)``; that is the
 cable's impulse over the step (summed over the parts and stages of a split or composed step), and
 ``impulses / h`` the step's mean tension.
+
+Two implementations of the same arithmetic for plain Verlet (order 2, switches not located): the numba
+kernels of ``_elastic_kernels.py`` (used unless ``compiled`` is False) and the numpy code below, the
+plain reference they must match to 1e-12 in tests. The located and order-4 options run the numpy
+primitive :meth:`ElasticMethod.verlet` through ``methods/composition.py``. Rigid struts that share a node
+(class-k: coupled SHAKE/RATTLE, a Newton solve) are stepped by the reference only.
 """
 from __future__ import annotations
 
@@ -47,8 +52,9 @@ from typing import NamedTuple
 import numpy as np
 
 from ..system import System
+from . import _elastic_kernels as kernels
 from .base import MethodStep, State, StepMethod
-from .composition import LOCATE_RESOLVED, STABILITY, Stepper
+from .composition import STABILITY, Stepper
 from .rigid import RigidStruts
 
 __all__ = ["ElasticMethod"]
@@ -69,13 +75,16 @@ class _Forces(NamedTuple):
 class ElasticMethod(StepMethod):
     """Options: ``order`` 2 (velocity Verlet, one force evaluation per step) or 4 (Suzuki's symmetric
     composition of five Verlet steps, five evaluations); ``locate_switches`` splits a step at each
-    slack/taut switch (``methods/composition.py``); default (None): at order 4, and at order 2 when the
-    step resolves the fastest vibration, ``omega_max dt <= LOCATE_RESOLVED``."""
+    slack/taut switch (``methods/composition.py``); default (None): at order 4 only, since the located
+    order 2 runs the numpy primitive while plain Verlet runs compiled. ``compiled``: plain Verlet steps
+    with the numba kernels (True; not for coupled rigid struts) or the numpy reference (False); the
+    other options always run the numpy primitive."""
 
     name = "elastic"
     options = ("order", "locate_switches")
 
-    def __init__(self, system: System, dt: float, *, order: int = 2, locate_switches: bool | None = None):
+    def __init__(self, system: System, dt: float, *, order: int = 2, locate_switches: bool | None = None,
+                 compiled: bool = True):
         super().__init__(system, dt)
         missing = [c.name for c in system.scene.cables if c.stiffness is None]
         if missing:
@@ -88,7 +97,7 @@ class ElasticMethod(StepMethod):
         self.rigid = RigidStruts(system)
         self.omega_max = system.max_frequency(system.scene.positions, include_cables=True)
         if locate_switches is None:
-            locate_switches = self.order == 4 or self.omega_max * self.dt <= LOCATE_RESOLVED
+            locate_switches = self.order == 4
         self.locate_switches = bool(locate_switches)
         limit = STABILITY[self.order]
         if self.omega_max * self.dt >= limit:
@@ -101,9 +110,16 @@ class ElasticMethod(StepMethod):
         self._rest = np.empty(system.n_members)
         self._rest[: system.n_struts] = system.strut_rest
         self._cache: _Forces | None = None
+        # the compiled kernels step plain Verlet only; the options run the numpy primitive
+        self.compiled = compiled and not self.rigid.coupled and self.order == 2 and not self.locate_switches
+        self._model = kernels.model_arrays(system, self.rigid)
+        # the compiled path's carry from one step to the next (batch of one): accelerations (N, 3, 1),
+        # cable tensions (n_cables, 1), rigid strut directions (nr, 3, 1) at the last step's end
+        self._carry = None
 
     def invalidate(self) -> None:
         self._cache = None
+        self._carry = None
 
     def prepare(self, state: State) -> None:
         """Initial velocities that would stretch a rigid strut lose that component (a rigid body cannot
@@ -134,7 +150,39 @@ class ElasticMethod(StepMethod):
         e = length[sys.n_struts:] - state.rest_lengths
         return _Forces(f * sys.inv_mass[:, None], t[sys.n_struts:], n, e < 0, e)
 
+    def _advance(self, state: State, x: np.ndarray, v: np.ndarray, steps: int, every: int, positions, velocities,
+                 impulses, slack) -> None:
+        """The compiled loop (batch of one) from ``state`` but at ``x``, ``v`` (N, 3, 1), which it
+        advances in place; the outputs are those of :meth:`advance` with a trailing batch axis."""
+        rest = state.rest_lengths.reshape(-1, 1)
+        ext = state.external_forces.reshape(-1, 3, 1)
+        if self._carry is None:   # the start forces: the last step's end, or computed here
+            self._carry = (np.empty_like(x), np.empty((self.system.n_cables, 1)), np.empty((self.rigid.count, 3, 1)))
+            kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._carry)
+        kernels.elastic_steps(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry,
+                              positions, velocities, impulses, slack)
+
     def _step_impl(self, state: State) -> MethodStep:
+        if not self.compiled:
+            return self._step_reference(state)
+        x, v = state.positions.copy(), state.velocities.copy()
+        impulses = np.empty((1, self.system.n_cables, 1))
+        slack = np.empty((1, self.system.n_cables, 1), dtype=bool)
+        x3, v3 = x.reshape(-1, 3, 1), v.reshape(-1, 3, 1)
+        self._advance(state, x3, v3, 1, 1, x3[None], v3[None], impulses, slack)   # the step writes in place
+        return MethodStep(x, v, impulses.reshape(-1), slack.reshape(-1))
+
+    def has_loop(self) -> bool:
+        return self.compiled
+
+    def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
+                impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x, v = state.positions.copy(), state.velocities.copy()
+        self._advance(state, x.reshape(-1, 3, 1), v.reshape(-1, 3, 1), steps, every, positions[..., None],
+                      velocities[..., None], impulses[..., None], slack[..., None])
+        return x, v
+
+    def _step_reference(self, state: State) -> MethodStep:
         x, v = state.positions, state.velocities
         # the forces at the step's start are the previous step's end forces, unless an input changed
         start = self._cache if self._cache is not None else self.accelerations(x, v, state)

@@ -82,6 +82,8 @@ import warnings
 import numpy as np
 
 from ..system import System
+from . import _inextensible_kernels as kernels
+from . import _qp_kernels as qp_kernels
 from .base import MethodStep, State, StepMethod
 from .qp import QPError, Rows, choose_solver, make_solver
 from .rigid import RigidStruts
@@ -107,10 +109,14 @@ class LengthOffsetWarning(UserWarning):
 
 
 class InextensibleMethod(StepMethod):
+    """``compiled``: the sub-steps' bookkeeping and the QP's rows and answer check in numba kernels
+    (True) or in the numpy reference (False); the QP backend is the same."""
+
     name = "inextensible"
     options = ("solver", "reel_speed")
 
-    def __init__(self, system: System, dt: float, *, solver: str | None = None, reel_speed: float = REEL_SPEED):
+    def __init__(self, system: System, dt: float, *, solver: str | None = None, reel_speed: float = REEL_SPEED,
+                 compiled: bool = True):
         super().__init__(system, dt)
         try:
             self.reel_speed = float(reel_speed)
@@ -142,6 +148,7 @@ class InextensibleMethod(StepMethod):
         # the backend: named, or chosen by size (dense DAQP for small structures, sparse for large ones)
         self.solver_choice = f"{solver}: requested" if solver else choose_solver(int(free.sum()))[1]
         self.solver = make_solver(solver, system.masses[free])
+        self.compiled = compiled   # the solver's rows and check follow (the property below)
         # The member table of the QP rows: the rigid struts that move (equalities), then every cable.
         self.rigid = RigidStruts(system)
         self._n_eq = self.rigid.count
@@ -155,11 +162,23 @@ class InextensibleMethod(StepMethod):
         self._elastic_rest = system.strut_rest[elastic]
         self._elastic_incidence = system.incidence_matrix(self._elastic_ends)
         self._holding = np.zeros(system.n_cables, dtype=bool)
+        self._hint = self._holding   # the QP's warm start of the first sub-step (see invalidate)
         self._end_geometry = None   # (positions, cable vectors, lengths) at the last step's end
         self._applied = scene.cable_rest_lengths   # the rest lengths in effect (the motors' positions), m
 
+    @property
+    def compiled(self) -> bool:
+        return self.solver.compiled
+
+    @compiled.setter
+    def compiled(self, value: bool) -> None:
+        self.solver.compiled = bool(value)
+
     # ------------------------------------------------------------------ contract
     def invalidate(self) -> None:
+        """A command or a reset: no cable is known to hold (each one at its limit is checked for a snap),
+        but the QP keeps its warm start (``_hint``, the cables that held before): a guess it verifies,
+        which spares a large structure's first step after a command a cold start."""
         self._holding = np.zeros(self.system.n_cables, dtype=bool)
         self._end_geometry = None
 
@@ -223,6 +242,7 @@ class InextensibleMethod(StepMethod):
         f_ext = self.system.gravity_force + state.external_forces
         impulses = np.zeros(self.system.n_cables)
         holding = self._holding
+        hint = self._hint
         remaining = self.dt
         for event in range(MAX_EVENTS + 1):
             d, length = self._cable_geometry(x)
@@ -241,16 +261,16 @@ class InextensibleMethod(StepMethod):
                 if cut:
                     tau = theta * tau
                     x_m, v0 = self._free_motion(x, v, tau, f_ext)
-            x, v, y = self._midpoint(x_m, v, v0, tau, limits, floor, reel, holding)
+            x, v, y = self._midpoint(x_m, v, v0, tau, limits, floor, reel, hint)
             impulses += y
-            holding = (y > 0) & at_limit
+            holding = hint = (y > 0) & at_limit
             if not cut:
                 break
             remaining -= tau
-        self._holding = holding
+        self._holding = self._hint = holding
         self._applied = applied
         self._end_geometry = (x, *self._cable_geometry(x))   # x is a new array: computed, not cached
-        return MethodStep(x, v, impulses)
+        return MethodStep(x, v, impulses, self._end_geometry[2] < floor)
 
     def _free_motion(self, x, v, tau, f_ext):
         """Midpoint ``x_m`` (N, 3) and free velocity ``v0 = v + tau M^-1 F(x_m)`` (N, 3)."""
@@ -292,19 +312,34 @@ class InextensibleMethod(StepMethod):
         """Moreau's midpoint sub-step from ``x_m`` with free velocity ``v0``: returns ``x_f``, ``v_f``
         (N, 3) and the cable impulses (n_cables,) N*s."""
         n_eq = self._n_eq
+        # a cable being reeled in lands half a sub-step's reel behind its moving limit: landing on it would
+        # make the second half-step cover the whole reel, launching its ends at twice the motor's speed
+        landing = limits - (0.5 * tau) * reel if reel.any() else limits
+        all_limits = np.concatenate([self._rigid_lengths, landing])
+        if self.compiled:
+            cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = kernels.select_rows(
+                x_m, v, v0, tau, self._ends, n_eq, all_limits, floor, self._cables_move, reel, holding)
+        else:
+            cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = self._rows_reference(
+                x_m, v, v0, tau, all_limits, floor, reel, holding)
+        if len(sel) == 0:   # nothing can be taut: free motion, no QP
+            return x_m + (0.5 * tau) * v0, v0, np.zeros(len(limits))
+        rows = Rows(self._row_nodes[sel], m_n, targets, n_eq)
+        v_f, y = self._land(v, v0, rows, warm, self._ends[sel], m_length, m_limits, tau, floor_rate, reel)
+        impulses = np.zeros(len(limits))
+        impulses[cables] = y[n_eq:]
+        return x_m + (0.5 * tau) * v_f, v_f, impulses
+
+    def _rows_reference(self, x_m, v, v0, tau, all_limits, floor, reel, holding):
+        """The numpy reference of ``_inextensible_kernels.select_rows`` (same arguments and results)."""
+        n_eq = self._n_eq
         _, length, n = self.system.geometry(x_m, self._ends)
         ends = self.system.cable_ends
         u0 = v0[ends[:, 1]] - v0[ends[:, 0]]
         reach = length[n_eq:] + (0.5 * tau) * np.sqrt(np.einsum("ij,ij->i", u0, u0))
         cables = (reach >= floor) & self._cables_move
-        if not (n_eq or cables.any()):   # nothing can be taut: free motion, no QP
-            return x_m + (0.5 * tau) * v0, v0, np.zeros(len(limits))
-        sel = slice(None) if cables.all() else np.concatenate([np.arange(n_eq), n_eq + np.flatnonzero(cables)])
-        m_ends, m_length, m_n = self._ends[sel], length[sel], n[sel]
-        # a cable being reeled in lands half a sub-step's reel behind its moving limit: landing on it would
-        # make the second half-step cover the whole reel, launching its ends at twice the motor's speed
-        landing = limits - (0.5 * tau) * reel if reel.any() else limits
-        m_limits = np.concatenate([self._rigid_lengths, landing])[sel]
+        sel = np.concatenate([np.arange(n_eq), n_eq + np.flatnonzero(cables)])
+        m_ends, m_length, m_n, m_limits = self._ends[sel], length[sel], n[sel], all_limits[sel]
         # The impulses' work over the sub-step is -1/2 sum y (r + b.v_i): no row may ask for less than
         # the reversal -b.v_i of its midpoint rate (module docstring), except by a reel-in's rate.
         u = v[m_ends[:, 1]] - v[m_ends[:, 0]]
@@ -312,13 +347,9 @@ class InextensibleMethod(StepMethod):
         floor_rate = -un
         if reel.any():
             floor_rate[n_eq:] += 2.0 * reel[cables]
-        rows = Rows(self._row_nodes[sel], m_n, self._targets(u, un, m_length, m_limits, tau, floor_rate, n_eq),
-                    n_eq)
+        targets = self._targets(u, un, m_length, m_limits, tau, floor_rate, n_eq)
         warm = np.concatenate([np.ones(n_eq, dtype=bool), holding[cables]])
-        v_f, y = self._land(v, v0, rows, warm, m_ends, m_length, m_limits, tau, floor_rate, reel)
-        impulses = np.zeros(len(limits))
-        impulses[cables] = y[n_eq:]
-        return x_m + (0.5 * tau) * v_f, v_f, impulses
+        return cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm
 
     def _land(self, v, v0, rows, warm, ends, length, limits, tau, floor_rate, reel):
         """Solve the sub-step's QP so that every binding row lands on its target.
@@ -346,10 +377,14 @@ class InextensibleMethod(StepMethod):
             change = float(np.abs(v_f - v).max())
             if 0.5 * tau * tau * change * (change + 2.0 * float(np.abs(v).max())) <= _LANDING_TOL * shortest ** 2:
                 break
-            u = v_f[ends[:, 1]] - v_f[ends[:, 0]]
-            targets = self._targets(u, np.einsum("ij,ij->i", u, rows.directions), length, limits, tau, floor_rate,
-                                    n_eq)
-            miss = rows.rates(v_free) - targets
+            if self.compiled:
+                targets = kernels.row_targets(v_f, ends, rows.directions, length, limits, tau, floor_rate, n_eq)
+                miss = qp_kernels.row_rates(v_free, rows.nodes, rows.directions) - targets
+            else:
+                u = v_f[ends[:, 1]] - v_f[ends[:, 0]]
+                targets = self._targets(u, np.einsum("ij,ij->i", u, rows.directions), length, limits, tau,
+                                        floor_rate, n_eq)
+                miss = rows.rates(v_free) - targets
             warm = y > 0
             warm[:n_eq] = True
             if not (np.where(warm, np.abs(miss), miss) > _LANDING_TOL * (2.0 / tau) * limits).any():

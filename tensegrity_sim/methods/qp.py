@@ -36,6 +36,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import _qp_kernels as kernels
+from .base import StepError
+
 __all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SparseSolver", "SOLVERS",
            "SPARSE_NODES", "choose_solver", "make_solver"]
 
@@ -94,7 +97,7 @@ class Rows:
         return np.einsum("ij,ij->i", vv[self.nodes[:, 1]] - vv[self.nodes[:, 0]], self.directions)
 
 
-class QPError(RuntimeError):
+class QPError(StepError):
     """A QP backend failed; ``status`` is the backend's status, the message says what happened."""
 
     def __init__(self, solver: str, status: str, message: str):
@@ -109,6 +112,7 @@ class QPSolver:
 
     name = ""
     verify = True   # recheck feasibility of every answer (backends that may return a poor one)
+    compiled = True   # build rows and check answers with the numba kernels (False: the numpy reference)
 
     def __init__(self, mass: np.ndarray):
         self.n_free = len(mass)
@@ -137,27 +141,39 @@ class QPSolver:
             raise QPError(self.name, "non-finite", "the solution contains NaN or inf")
         if not self.verify:
             return
-        n_eq = rows.n_eq
-        scale = max(float(np.max(np.abs(v0), initial=0.0)), float(np.max(np.abs(rows.targets), initial=0.0)))
+        if self.compiled:
+            residuals = kernels.answer_residuals(v, y, v0, rows.nodes, rows.directions, rows.targets, rows.n_eq,
+                                                 self.mass, _FEASIBILITY_TOL)
+        else:
+            residuals = self._residuals_reference(v, y, v0, rows)
+        scale, viol, impulse, stationarity, smallest, slack = residuals
         tol = _FEASIBILITY_TOL * scale + _VELOCITY_FLOOR
-        res = rows.rates(v) - rows.targets
-        viol = max(float(np.max(np.abs(res[:n_eq]), initial=0.0)), float(np.max(res[n_eq:], initial=0.0)))
         if viol > tol:
             raise QPError(self.name, "infeasible output",
                           f"the returned velocities violate a constraint by {viol:.3g} m/s "
                           f"(velocity scale {scale:.3g} m/s)")
+        if stationarity > _FEASIBILITY_TOL * impulse or smallest < -_FEASIBILITY_TOL * impulse or slack > tol:
+            raise QPError(self.name, "inaccurate output",
+                          f"not a solution: impulses off the rows by {stationarity:.3g} N*s, smallest inequality "
+                          f"impulse {smallest:.3g} N*s, an acting row {slack:.3g} m/s "
+                          f"short of its target (impulse scale {impulse:.3g} N*s, velocity scale {scale:.3g} m/s)")
+
+    def _residuals_reference(self, v, y, v0, rows: Rows):
+        """The numpy reference of ``_qp_kernels.answer_residuals``: the velocity scale (m/s), the
+        largest constraint violation (m/s), the impulse scale (N*s), the stationarity residual (N*s),
+        the smallest inequality impulse (N*s, at most 0) and how far an acting row is short of its
+        target (m/s)."""
+        n_eq = rows.n_eq
+        scale = max(float(np.max(np.abs(v0), initial=0.0)), float(np.max(np.abs(rows.targets), initial=0.0)))
+        res = rows.rates(v) - rows.targets
+        viol = max(float(np.max(np.abs(res[:n_eq]), initial=0.0)), float(np.max(res[n_eq:], initial=0.0)))
         change = self.mass * (v.ravel() - v0.ravel())
         impulse = max(float(np.max(np.abs(self.mass * v0.ravel()), initial=0.0)),
                       float(np.max(np.abs(change), initial=0.0)), float(np.max(np.abs(y), initial=0.0)), 1e-300)
         stationarity = float(np.max(np.abs(change + rows.dense(self.n_free).T @ y), initial=0.0))
         acting = y[n_eq:] > _FEASIBILITY_TOL * impulse
         slack = float(np.max(-res[n_eq:][acting], initial=0.0))
-        if (stationarity > _FEASIBILITY_TOL * impulse or np.any(y[n_eq:] < -_FEASIBILITY_TOL * impulse)
-                or slack > tol):
-            raise QPError(self.name, "inaccurate output",
-                          f"not a solution: impulses off the rows by {stationarity:.3g} N*s, smallest inequality "
-                          f"impulse {float(np.min(y[n_eq:], initial=0.0)):.3g} N*s, an acting row {slack:.3g} m/s "
-                          f"short of its target (impulse scale {impulse:.3g} N*s, velocity scale {scale:.3g} m/s)")
+        return scale, viol, impulse, stationarity, float(np.min(y[n_eq:], initial=0.0)), slack
 
     def describe(self) -> dict:
         return {"solver": self.name}
@@ -192,7 +208,10 @@ class DaqpSolver(QPSolver):
         lower[:n_eq] = r[:n_eq]
         sense = np.zeros(k, dtype=np.int32) if warm is None else warm.astype(np.int32)   # 1: start active
         sense[:n_eq] = 5
-        a_scaled = rows.dense(self.n_free) / self._sqrt_mass
+        if self.compiled:
+            a_scaled = kernels.dense_rows(rows.nodes, rows.directions, self.n_free, self._sqrt_mass)
+        else:
+            a_scaled = rows.dense(self.n_free) / self._sqrt_mass
         z, _, flag, info = self._daqp.solve(self._hessian, -self._sqrt_mass * v0, a_scaled, r, lower, sense,
                                             **self.settings)
         if flag < 1:
@@ -337,6 +356,14 @@ class SparseSolver(QPSolver):
         self.fallback = DaqpSolver(mass)
         self._factor = None   # (nodes, directions, A_G, SuperLU factor) of the last guess
         self.counts = {"guessed": 0, "daqp": 0}
+
+    @property
+    def compiled(self) -> bool:
+        return self.fallback.compiled
+
+    @compiled.setter
+    def compiled(self, value: bool) -> None:
+        self.fallback.compiled = bool(value)
 
     def _solve(self, v0, rows, warm):
         active = np.zeros(len(rows), dtype=bool) if warm is None else warm.copy()

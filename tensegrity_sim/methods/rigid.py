@@ -37,9 +37,9 @@ class RigidStruts:
         self._inv_mass = system.inv_mass[:, None]
         self._incidence = system.incidence_matrix(self.ends)      # (N, nr): +1 at a, -1 at b
         inc = np.asarray(self._incidence.todense()) if system.sparse else self._incidence
-        self._w_matrix = inc.T @ (system.inv_mass[:, None] * inc)  # W = S M^-1 S^T, (nr, nr)
-        self._w = np.diag(self._w_matrix).copy()
-        self.coupled = bool(np.any(self._w_matrix - np.diag(self._w)))
+        self.w_matrix = inc.T @ (system.inv_mass[:, None] * inc)  # W = S M^-1 S^T, (nr, nr)
+        self._w = np.diag(self.w_matrix).copy()
+        self.coupled = bool(np.any(self.w_matrix - np.diag(self._w)))
 
     def _push(self, strengths: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Node displacements (or velocity changes) (N, 3) for equal-and-opposite pushes along the struts."""
@@ -60,11 +60,11 @@ class RigidStruts:
         else:
             gamma = np.zeros(self.count)
             for _ in range(_NEWTON_MAX_ITER):
-                r_new = r - self._w_matrix @ (gamma[:, None] * n0)
+                r_new = r - self.w_matrix @ (gamma[:, None] * n0)
                 g = np.einsum("ij,ij->i", r_new, r_new) - self.length_sq
                 if np.max(np.abs(g) / self.length_sq) < _NEWTON_TOL:
                     break
-                jac = -2.0 * self._w_matrix * (r_new @ n0.T)
+                jac = -2.0 * self.w_matrix * (r_new @ n0.T)
                 gamma -= np.linalg.solve(jac, g)
         return self._push(gamma, n0)
 
@@ -76,5 +76,5 @@ class RigidStruts:
         if not self.coupled:
             mu = rate / self._w
         else:
-            mu = np.linalg.solve(self._w_matrix * (n @ n.T), rate)
+            mu = np.linalg.solve(self.w_matrix * (n @ n.T), rate)
         return self._push(mu, n)

@@ -23,7 +23,7 @@ import logging
 import time
 from typing import Callable
 
-from .dds import DEFAULT_INTERFACE, Participant, QosProfile
+from .dds import DEFAULT_INTERFACE, Participant, QosProfile, ros_peer_settings
 from ..scene import load_scene
 from ..simulator import Simulator
 from . import messages as M
@@ -130,6 +130,11 @@ def serve(settings: NodeSettings, *, domain_id: int = 0, interface: str = DEFAUL
                 with recorder or contextlib.nullcontext():
                     log.info(f"serving {sim.scene.name} ({sim.method}, dt = {sim.dt:g} s) over DDS on domain "
                              f"{domain_id}, interface {interface}" + (f"; logging to {path}" if path else ""))
+                    peer = ros_peer_settings(interface, domain_id)
+                    if peer is not None:
+                        log.info(f"ROS 2 processes on this host see it with {peer} (or "
+                                 f"ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST): Jazzy's default discovery needs "
+                                 f"multicast, which loopback does not carry (msg_docs/dds.md)")
                     spin(logic, transport, latch=latch, log=log)
             finally:
                 lines = logic.summary() + [f"{'undecodable_samples':<27} {transport.undecodable}"]

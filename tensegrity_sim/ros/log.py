@@ -17,14 +17,27 @@ A log is one MCAP file with
 Chunks are not compressed (rosbag2's default too): compressing would cost step time while logging.
 :class:`LogWriter` finishes idempotently, as a context manager, so exceptions finish the file;
 :class:`SignalLatch` turns SIGINT/SIGTERM into an exception at a safe point (never inside a write).
+
+**Crash safety.** What a crash that finishes nothing (SIGKILL, a power cut) can lose is bounded: a chunk
+is written out when it holds :data:`CHUNK_SIZE` bytes or when :data:`FLUSH_PERIOD` seconds of wall-clock
+time have passed since the last write-out (then synced to the disk), whichever comes first; everything
+before the chunk in progress is complete on disk. Chunk CRCs and the data-section CRC are written, so a
+reader can tell a damaged record from a cut-off one. ``tensegrity-sim info`` and ``replay`` read such an
+unfinished log up to its last complete record, and ``tensegrity-sim recover`` writes a finished copy
+(:mod:`.log_reader`). A write that fails (a full disk, a file-size limit) raises :class:`LogWriteError`
+naming the file, what failed and what the file keeps; the file is then closed without a summary, as a
+crash would leave it, and can be recovered.
 """
 from __future__ import annotations
 
+import errno
+import os
 import signal
+import time
 from datetime import datetime
 from functools import cache
 from pathlib import Path
-from typing import Iterable, Mapping
+from typing import Iterable, Mapping, NoReturn
 
 import yaml
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
@@ -33,11 +46,22 @@ from .. import __version__
 from . import messages as M
 from .node_logic import Qos
 
-__all__ = ["RUN_INFO", "LogWriter", "LogRecorder", "SignalLatch", "log_file_path", "qos_profiles_yaml"]
+__all__ = ["RUN_INFO", "LogWriter", "LogWriteError", "LogRecorder", "SignalLatch", "log_file_path",
+           "qos_profiles_yaml", "CHUNK_SIZE", "FLUSH_PERIOD"]
 
 RUN_INFO = "tensegrity_sim"   # name of the metadata record that makes a log re-runnable
 ROSBAG2_METADATA_VERSION = 9  # Jazzy
 _INFINITE = {"sec": 9223372036, "nsec": 854775807}  # RMW_DURATION_INFINITE, as rosbag2 records it
+# Crash safety (module docstring): the most a crash can lose is one chunk in progress, which holds at most
+# CHUNK_SIZE bytes (a few hundred publications of a small scene) and at most FLUSH_PERIOD s of wall-clock
+# time. Their cost, measured by bench/bench_log.py --crash-safety, is in the README.
+CHUNK_SIZE = 64 * 1024   # bytes (mcap's default: 1 MiB)
+FLUSH_PERIOD = 1.0       # s
+
+
+class LogWriteError(OSError):
+    """The log cannot be written (a bad path, a full disk...): the message names the file, the reason and
+    what the file keeps."""
 
 
 def _qos_profile(qos: Qos) -> dict:
@@ -56,12 +80,13 @@ def qos_profiles_yaml(qos: Qos) -> str:
 
 
 def log_file_path(spec: str, scene_name: str, now: datetime | None = None) -> Path | None:
-    """Where a log goes: ``spec`` ending in ``.mcap`` is the file; any other non-empty ``spec`` is a
-    directory that gets ``<scene>_<YYYYmmdd-HHMMSS>.mcap`` (``_1``, ``_2``... if taken); "" means no log."""
+    """Where a log goes: ``spec`` ending in ``.mcap``, or naming something that exists and is not a
+    directory (``/dev/null``), is the file; any other non-empty ``spec`` is a directory that gets
+    ``<scene>_<YYYYmmdd-HHMMSS>.mcap`` (``_1``, ``_2``... if taken); "" means no log."""
     if not spec:
         return None
     path = Path(spec)
-    if path.suffix == ".mcap":
+    if path.suffix == ".mcap" or (path.exists() and not path.is_dir()):
         return path
     stem = f"{scene_name}_{(now or datetime.now()):%Y%m%d-%H%M%S}"
     candidate, n = path / f"{stem}.mcap", 0
@@ -76,15 +101,34 @@ class LogWriter:
 
     channels: (topic name, type name "pkg/msg/Name", :class:`Qos`) of every topic, in order.
     run_info: the ``tensegrity_sim`` metadata (strings), written first so even a cut-off file has it.
+    chunk_size (bytes), flush_period (s, None: never): the crash-safety bounds (module docstring).
+    clock(): monotonic wall-clock seconds, for the flush period.
+    Opening writes the header and the run info at once, so a path that cannot be written is refused here
+    (:class:`LogWriteError`), before a run starts.
     """
 
-    def __init__(self, path: str | Path, channels: Iterable[tuple[str, str, Qos]], run_info: Mapping[str, str]):
+    def __init__(self, path: str | Path, channels: Iterable[tuple[str, str, Qos]], run_info: Mapping[str, str],
+                 *, chunk_size: int = CHUNK_SIZE, flush_period: float | None = FLUSH_PERIOD,
+                 clock=time.monotonic):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file = open(self.path, "wb")
-        self._writer = Writer(self._file, compression=CompressionType.NONE)
-        self._writer.start(profile="ros2", library=f"tensegrity_sim {__version__}; {LIBRARY_IDENTIFIER}")
-        self._writer.add_metadata(RUN_INFO, dict(run_info))
+        self.counts: dict[str, int] = {}
+        self._finished = False
+        self._file = None
+        try:
+            blocking = next((p for p in self.path.parents if p.exists() and not p.is_dir()), None)
+            if blocking is not None:  # mkdir would only say "File exists"
+                raise NotADirectoryError(errno.ENOTDIR, f"{blocking} is not a directory")
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(self.path, "wb")
+            self._writer = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.NONE,
+                                  enable_data_crcs=True)
+            self._writer.start(profile="ros2", library=f"tensegrity_sim {__version__}; {LIBRARY_IDENTIFIER}")
+            self._writer.add_metadata(RUN_INFO, dict(run_info))
+            self._file.flush()
+        except OSError as exc:
+            self._close_quietly()
+            self._finished = True
+            raise LogWriteError(f"{self.path}: cannot write the log: {exc.strerror or exc}") from None
         self._channels: dict[str, tuple[int, str, Qos]] = {}
         schemas: dict[str, int] = {}
         for topic, typename, qos in channels:
@@ -98,18 +142,45 @@ class LogWriter:
         self.counts = {topic: 0 for topic in self._channels}
         self._start: int | None = None
         self._end = 0
-        self._finished = False
+        self._clock = clock
+        self._flush_period = flush_period
+        self._next_flush = clock() + flush_period if flush_period is not None else None
 
     def write(self, topic: str, data: bytes, log_time_ns: int) -> None:
         """Append ``data`` (a message of the topic's type in CDR, encapsulation header first, as
-        :func:`.messages.serialize` gives it) at ``log_time_ns``."""
+        :func:`.messages.serialize` gives it) at ``log_time_ns``. Raises :class:`LogWriteError` if the file
+        cannot take it (it then keeps every chunk written before)."""
         channel_id = self._channels[topic][0]
-        self._writer.add_message(channel_id=channel_id, log_time=log_time_ns, publish_time=log_time_ns,
-                                 data=data, sequence=self.counts[topic])
+        try:
+            self._writer.add_message(channel_id=channel_id, log_time=log_time_ns, publish_time=log_time_ns,
+                                     data=data, sequence=self.counts[topic])
+            if self._next_flush is not None and self._clock() >= self._next_flush:
+                self._writer.flush()          # the chunk in progress, however small, goes out
+                os.fsync(self._file.fileno())  # and to the disk, not only to the OS
+                self._next_flush = self._clock() + self._flush_period
+        except OSError as exc:
+            self._failed(exc, log_time_ns)
         self.counts[topic] += 1
         if self._start is None:
             self._start = log_time_ns
         self._end = max(self._end, log_time_ns)
+
+    def _failed(self, exc: OSError, log_time_ns: int) -> NoReturn:
+        """A write failed: close the file as a crash would leave it and raise :class:`LogWriteError`."""
+        self._finished = True
+        self._close_quietly()
+        total = sum(self.counts.values())
+        raise LogWriteError(f"{self.path}: writing the log failed at t = {log_time_ns * 1e-9:.6f} s after {total} "
+                            f"messages: {exc.strerror or exc}; the file keeps the messages written before the last "
+                            f"chunk (tensegrity-sim recover {self.path} OUT.mcap makes a finished copy)") from None
+
+    def _close_quietly(self) -> None:
+        """Close the file, whatever the buffered bytes still in it meet (a full disk fails them again)."""
+        if self._file is not None:
+            try:
+                self._file.close()
+            except OSError:
+                pass
 
     def finish(self) -> None:
         """Write the rosbag2 metadata and the summary and close the file; later calls do nothing."""
@@ -119,8 +190,9 @@ class LogWriter:
         try:
             self._writer.add_metadata("rosbag2", {"serialized_metadata": self._rosbag2_metadata()})
             self._writer.finish()
-        finally:
             self._file.close()
+        except OSError as exc:
+            self._failed(exc, self._end)
 
     def _rosbag2_metadata(self) -> str:
         start = self._start or 0

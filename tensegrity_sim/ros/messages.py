@@ -14,6 +14,12 @@ kinds are represented differently in the two worlds, and the helpers below hide 
 * ``byte``: :func:`byte` (int for rosbags, a one-byte ``bytes`` for rclpy).
 
 Read arrays back with ``np.asarray(field, dtype=float)``, which works for both.
+
+Bytes are always rosbags' (:func:`serialize`): rclpy's ``serialize_message`` leaves alignment padding
+uncleared and may append trailing bytes, so the same message would come out as different bytes (and
+rosbags would refuse some: "CDR message size mismatch"). With rclpy, a message is first copied into its
+rosbags twin (:func:`rosbags_message`), so logs and raw transports carry the same bytes with and without
+rclpy; rclpy decodes those bytes as any CDR.
 """
 from __future__ import annotations
 
@@ -23,17 +29,17 @@ from functools import cache
 from importlib import import_module
 
 import numpy as np
+from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_typestore
 
 __all__ = ["BACKEND", "TYPESTORE", "new", "message_class", "float64s", "uint8s", "byte", "serialize",
-           "deserialize", "field_names", "schema_text", "type_hash", "time", "header", "point", "vector3",
-           "color", "key_values", "joint_state", "wrench_stamped", "parameter_event", "parameter_changes"]
+           "deserialize", "rosbags_message", "field_names", "schema_text", "type_hash", "time", "header", "point",
+           "vector3", "color", "key_values", "joint_state", "wrench_stamped", "parameter_event", "parameter_changes"]
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 
 try:
     from rclpy.serialization import deserialize_message as _rclpy_deserialize
-    from rclpy.serialization import serialize_message as _rclpy_serialize
     BACKEND = "rclpy"
 except ImportError:
     BACKEND = "rosbags"
@@ -78,10 +84,40 @@ def byte(value: int) -> int | bytes:
 
 
 def serialize(message, typename: str) -> bytes:
-    """CDR bytes (little endian, with the 4-byte encapsulation header), as DDS and rosbag2 carry them."""
-    if BACKEND == "rclpy":
-        return _rclpy_serialize(message)
-    return bytes(TYPESTORE.serialize_cdr(message, typename))
+    """CDR bytes (little endian, with the 4-byte encapsulation header), as DDS and rosbag2 carry them,
+    written by rosbags whichever the backend: padding zero, no trailing bytes."""
+    return bytes(TYPESTORE.serialize_cdr(rosbags_message(message, typename), typename))
+
+
+def rosbags_message(message, typename: str):
+    """``message`` (of ``typename``, from either backend) as an object of rosbags' type store, values
+    unchanged; a rosbags message is returned as it is. (A message with no fields has one in rosbags,
+    ``structure_needs_at_least_one_member``, 0, as on the wire; rclpy hides it: hence the default.)"""
+    if isinstance(message, TYPESTORE.types[typename]):
+        return message
+    _, fields = TYPESTORE.fielddefs[typename]
+    return TYPESTORE.types[typename](**{name: _rosbags_value(getattr(message, name, 0), desc) for name, desc in fields})
+
+
+def _rosbags_value(value, desc):
+    """One field's value as rosbags holds it (``desc``: the field's description in ``TYPESTORE.fielddefs``)."""
+    kind, detail = desc
+    if kind == Nodetype.NAME:
+        return rosbags_message(value, detail)
+    if kind == Nodetype.BASE:
+        # rclpy holds a ``byte`` as a one-byte bytes object, rosbags as an int
+        return value[0] if isinstance(value, bytes) else value
+    (element_kind, element), _ = detail  # an array or a sequence
+    if element_kind == Nodetype.NAME:
+        return [rosbags_message(v, element) for v in value]
+    if element[0] == "string":
+        return list(value)
+    if element[0] == "byte" and len(value) and isinstance(value[0], bytes):
+        value = b"".join(value)  # rclpy: a list of one-byte bytes objects
+    dtype = {"bool": np.bool_, "char": np.uint8, "byte": np.int8}.get(element[0], element[0])
+    if isinstance(value, (bytes, bytearray)):
+        return np.frombuffer(value, dtype=dtype).copy()
+    return np.array(value, dtype=dtype)
 
 
 def deserialize(data: bytes, typename: str):

@@ -14,8 +14,9 @@
   marker shape), so logging costs little; message objects are built only for a transport that takes
   them, and nothing at all when no one listens;
 * the **services** (reset, pause, resume, single step) are plain methods returning ``(success, message)``;
-* a **failed step** (a :class:`~tensegrity_sim.QPError` of the inextensible method) never escapes: the
-  inputs that made it impossible are refused after the fact, or the node pauses (:meth:`SimNodeLogic.step`);
+* a **failed step** (a :class:`~tensegrity_sim.StepError`: a QP of the inextensible method without a
+  solution, or a result that is not finite) never escapes: the inputs that made it impossible are refused
+  after the fact, or the node pauses (:meth:`SimNodeLogic.step`);
 * **runtime parameter changes** (:meth:`SimNodeLogic.update`) go out, and into the log, as
   ``/parameter_events``, so a replay applies them where the run did.
 
@@ -39,7 +40,9 @@ from typing import Callable
 import numpy as np
 
 from .. import __version__
-from ..methods.qp import SOLVERS, QPError
+from ..checks import MIN_DT, describe, real
+from ..methods import StepError
+from ..methods.qp import SOLVERS
 from ..results import ContactEvent, StepResult
 from ..simulator import Simulator
 from . import messages as M
@@ -102,6 +105,15 @@ def stamp_ns(seconds: float) -> int:
 
 
 # --------------------------------------------------------------------------- parameters
+# Bounds that keep the schedule's arithmetic (steps per tick, steps per publication) in range: a rate
+# below MIN_RATE (one per 11.6 days) means "never", a real-time factor above MAX_REAL_TIME_FACTOR means
+# "as fast as possible", which 0 says.
+MIN_RATE = 1e-6                 # Hz
+MAX_REAL_TIME_FACTOR = 1e6
+# No tick holds the executor longer than this, wall-clock (services and subscriptions wait for a tick).
+TICK_WALL_LIMIT = 0.1           # s
+
+
 def _doc(text: str, runtime: bool = False) -> dict:
     return {"doc": text, "runtime": runtime}
 
@@ -130,7 +142,8 @@ class NodeSettings:
         "(a display needs no more, and a MarkerArray costs more to serialise than all other outputs)",
         runtime=True))
     real_time_factor: float = field(default=1.0, metadata=_doc(
-        "simulated seconds per wall-clock second; 0 = as fast as possible", runtime=True))
+        f"simulated seconds per wall-clock second, at most {MAX_REAL_TIME_FACTOR:g}; 0 = as fast as possible",
+        runtime=True))
     frame_id: str = field(default="world", metadata=_doc("frame of node_poses and markers"))
     log_path: str = field(default="bags", metadata=_doc(
         "MCAP log: a .mcap file, a directory (a timestamped file in it), or empty for no log"))
@@ -152,15 +165,23 @@ class NodeSettings:
         if not self.node_name.startswith("/"):
             raise ValueError(f"parameter 'node_name': must be fully qualified (start with /), got "
                              f"{self.node_name!r}")
-        for name, minimum, strict in (("dt", 0.0, True), ("step_rate", 0.0, True), ("publish_rate", 0.0, True),
-                                      ("marker_rate", 0.0, True),
-                                      ("real_time_factor", 0.0, False), ("max_rest_length_rate", 0.0, False)):
+        for name, minimum, strict, maximum in (
+                ("dt", 0.0, True, math.inf), ("step_rate", MIN_RATE, False, math.inf),
+                ("publish_rate", MIN_RATE, False, math.inf), ("marker_rate", MIN_RATE, False, math.inf),
+                ("real_time_factor", 0.0, False, MAX_REAL_TIME_FACTOR), ("max_rest_length_rate", 0.0, False, math.inf)):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"parameter {name!r}: must be a finite number, got {value!r}")
-            if value < minimum or (strict and value == minimum):
+            try:
+                number = real(value, name)
+            except ValueError:
+                raise ValueError(f"parameter {name!r}: must be a finite number, got {describe(value)}") from None
+            if number < minimum or (strict and number == minimum):
                 raise ValueError(f"parameter {name!r}: must be {'>' if strict else '>='} {minimum:g}, got {value!r}")
-            object.__setattr__(self, name, float(value))
+            if number > maximum:
+                raise ValueError(f"parameter {name!r}: must be <= {maximum:g}, got {value!r}")
+            object.__setattr__(self, name, number)
+        if self.dt < MIN_DT:
+            raise ValueError(f"parameter 'dt': must be >= {MIN_DT:g} s (stamps are integer nanoseconds), got "
+                             f"{self.dt!r}")
         if self.publish_rate * self.dt > 1.0 + 1e-12:
             raise ValueError(f"parameter 'publish_rate': must be at most 1/dt = {1.0 / self.dt:g} Hz (one "
                              f"publication per step), got {self.publish_rate!r}")
@@ -332,7 +353,7 @@ class SimNodeLogic:
         self._overruns_reported = 0
         self.paused = False
         self.failure: str | None = None          # why a failed step paused the node (None: none did)
-        self.step_error: QPError | None = None   # the last step failure
+        self.step_error: StepError | None = None  # the last step failure
         self._clear()
         self._anchor()
 
@@ -411,21 +432,33 @@ class SimNodeLogic:
     def receive(self, key: str, message) -> str | None:
         """Take one message of input topic ``key``; returns None if it was applied, else the reason it was
         refused (also logged). A refused message changes nothing. Every message is recorded, refused or
-        not, at the simulation time it arrived (it acts from the next step on). An applied message is
-        still refused after the fact if the next step fails with it (:meth:`step`)."""
-        if self.recorder is not None:
-            self.recorder.record(self.topic_names[key], M.serialize(message, TOPICS[key].typename), self.stamp_ns())
+        not, at the simulation time it arrived (it acts from the next step on), except one that is not of
+        the topic's type at all (it has no CDR form); the handlers see the message as the log holds it
+        (decoded from its CDR bytes), so a field of a wrong Python type is refused like any bad value. An
+        applied message is still refused after the fact if the next step fails with it (:meth:`step`)."""
         self.received[key] += 1
+        typename = TOPICS[key].typename
+        try:
+            data = M.serialize(message, typename)
+        except Exception as exc:  # noqa: BLE001 - what a serialiser raises for a foreign object varies
+            return self._refuse(key, f"not a {typename} message ({type(exc).__name__}: {describe(str(exc))}): "
+                                     f"{describe(message)}")
+        if self.recorder is not None:
+            self.recorder.record(self.topic_names[key], data, self.stamp_ns())
+        message = M.deserialize(data, typename)
         undo = self._undo or (self._target, self._applied, self.sim.external_forces, [])
         try:
             self._inputs[key](message)
         except ValueError as exc:
-            self.refused[key] += 1
-            self._log.warning(f"{self.topic_names[key]}: refused: {exc}")
-            return str(exc)
+            return self._refuse(key, str(exc))
         undo[3].append(key)
         self._undo = undo
         return None
+
+    def _refuse(self, key: str, reason: str) -> str:
+        self.refused[key] += 1
+        self._log.warning(f"{self.topic_names[key]}: refused: {reason}")
+        return reason
 
     def _apply_rest_lengths(self, msg) -> None:
         names = list(msg.name)
@@ -475,9 +508,10 @@ class SimNodeLogic:
         """One simulation step: move rate-limited rest lengths towards their targets, step, and add the
         step's impulses and contact events to what the next publication reports.
 
-        Returns None if the step failed: a :class:`~tensegrity_sim.QPError`, the inextensible method finding
-        the commanded motion impossible (shortening a cable of a locked structure); the simulator is then
-        as before the step. What made it fail is given up, the first of these that applies:
+        Returns None if the step failed (a :class:`~tensegrity_sim.StepError`): a QP error, the inextensible
+        method finding the commanded motion impossible (shortening a cable of a locked structure), or a
+        result that is not finite (an absurd force); the simulator is then as before the step. What made it
+        fail is given up, the first of these that applies:
 
         1. the input messages applied since the last step: each is refused after the fact (logged and
            counted as refused), and the rest lengths, their targets and the forces are what they were
@@ -501,7 +535,7 @@ class SimNodeLogic:
             self.sim.set_rest_lengths(self._applied)
         try:
             r = self.sim.step()
-        except QPError as exc:
+        except StepError as exc:
             self._step_failed(exc, before_move)
             return None
         self._undo = None
@@ -512,7 +546,7 @@ class SimNodeLogic:
         self._steps_run += 1
         return r
 
-    def _step_failed(self, error: QPError, before_move: np.ndarray | None) -> None:
+    def _step_failed(self, error: StepError, before_move: np.ndarray | None) -> None:
         """Give up what made the step from now fail (:meth:`step`); log and report it. ``before_move``: the
         rest lengths before the step's rate-limited move (None: no move)."""
         self.failed_steps += 1
@@ -560,19 +594,21 @@ class SimNodeLogic:
         without starving the executor. A tick that ends more than one tick period behind the schedule is
         an overrun: counted, reported in diagnostics and the summary, and the lag is kept (the node
         catches up later, or runs slower than real time, visibly). With ``real_time_factor == 0`` a tick
-        steps for one tick period, as fast as possible. A failed step (:meth:`step`) is not counted; one
-        that pauses the node ends the tick.
+        steps for one tick period, as fast as possible. No tick runs longer than one tick period or
+        :data:`TICK_WALL_LIMIT`, whichever is shorter, on the wall clock. A failed step (:meth:`step`) is
+        not counted; one that pauses the node ends the tick.
         """
         if self.paused:
             return 0
         s = self.settings
         period = 1.0 / s.step_rate
+        budget = min(period, TICK_WALL_LIMIT)
         start = self._clock()
         done = 0
         if s.real_time_factor == 0.0:
             while not self.paused:   # a failed step may pause the node
                 done += self._advance()
-                if self._clock() - start >= period:
+                if self._clock() - start >= budget:
                     break
             return done
         steps_per_second = s.real_time_factor / s.dt
@@ -582,6 +618,8 @@ class SimNodeLogic:
             done += self._advance()
             if self.paused:
                 return done
+            if self._clock() - start >= budget:
+                break
         # steps already due that this tick could not run: more than one tick's worth is an overrun
         behind = (self._anchor_step + math.floor((self._clock() - self._anchor_time) * steps_per_second)
                   - self.sim.step_count)

@@ -60,7 +60,7 @@ class CommandDriver:
 
     def step(self) -> StepResult:
         """One step (and a publication when due). A failed step stops an offline run as it does without
-        a log: its :class:`~tensegrity_sim.QPError` is raised, after the log has recorded it."""
+        a log: its :class:`~tensegrity_sim.StepError` is raised, after the log has recorded it."""
         if self._latch is not None:
             self._latch.raise_if_signalled()
         r = self.logic.step()
@@ -80,6 +80,8 @@ def logged_run(sim: Simulator, log_spec: str) -> Iterator[CommandDriver]:
                             publish_rate=min(NodeSettings.publish_rate, 1.0 / sim.dt), log_path=log_spec)
     logic = SimNodeLogic(sim, settings)
     path = log_file_path(log_spec, sim.scene.name)
+    if path is None:
+        raise ValueError("--log: an empty path (give a .mcap file or a directory)")
     with SignalLatch() as latch, LogRecorder(path, logic.channels(), logic.run_info()) as recorder:
         logic.recorder = recorder
         yield CommandDriver(logic, latch)

@@ -7,9 +7,17 @@ callbacks and the logic's methods. Entry point: ``ros2 run tensegrity_sim sim_no
 Timers run on the steady clock, so the node never waits for the ``/clock`` it publishes itself (even
 with ``use_sim_time``). SIGINT and SIGTERM stop the spin loop between callbacks; the log is then finished
 and the summary printed.
+
+Discovery: with Jazzy's defaults (``ROS_AUTOMATIC_DISCOVERY_RANGE`` unset, i.e. SUBNET) Fast DDS finds other
+processes by multicast only, which a loopback without multicast (a laptop offline, a container, CI) does not
+carry, so two processes on such a host never meet. Unless discovery is configured (any of
+:data:`DISCOVERY_SETTINGS` set), the node adds this host as a static peer (``ROS_STATIC_PEERS=127.0.0.1``):
+it then announces itself to the other processes on this host by unicast as well, and any ROS 2 process
+here with default settings finds it; discovery on the network is unchanged (``msg_docs/dds.md``).
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
 from dataclasses import fields
@@ -36,6 +44,7 @@ NODE_NAME = "tensegrity_sim"
 # the node logic's event, stamped with simulation time, goes to the log only
 PUBLISHED_BY_RCLPY = {"parameter_events"}
 DIAGNOSTICS_PERIOD = 1.0  # s of wall-clock time
+DISCOVERY_SETTINGS = ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY", "ROS_DISCOVERY_SERVER")
 
 
 def _qos(q: Qos) -> QoSProfile:
@@ -115,11 +124,25 @@ class SimNode(Node):
         print("\n".join(summary), flush=True)
 
 
+def peer_on_this_host(environ=os.environ) -> bool:
+    """Add ``ROS_STATIC_PEERS=127.0.0.1`` to ``environ`` unless one of :data:`DISCOVERY_SETTINGS` is set
+    (see the module's docstring); True if added."""
+    if any(environ.get(name) for name in DISCOVERY_SETTINGS):
+        return False
+    environ["ROS_STATIC_PEERS"] = "127.0.0.1"
+    return True
+
+
 def main(args=None) -> None:
     """``ros2 run tensegrity_sim sim_node``. rclpy's own signal handlers are off: SIGINT and SIGTERM only
     latch, and the spin loop stops between callbacks, so the log is never cut inside a write. (Plain
     ``init``/``try_shutdown`` rather than ``with rclpy.init()``, which not every Jazzy rclpy has.)"""
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    peer_on_this_host()  # before rclpy.init, which reads it
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except RuntimeError as exc:  # rcl's RCLError: ROS arguments it cannot parse (e.g. "-p log_path:=")
+        print(f"sim_node: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     node = None
     try:
         with SignalLatch() as latch:

@@ -22,6 +22,11 @@ bytes differ the two messages are decoded and compared field by field, floats bi
 first difference is named: step, time, topic and field. The periodic ``/diagnostics`` (wall-clock
 statistics) is not a state and is skipped. A replay is bit for bit on the machine (numpy/BLAS build)
 that wrote the log; another build may round differently.
+
+**Integrity.** The log is read with :class:`~.log_reader.LogReader`: every chunk's CRC is checked, and a
+record that fails it, or a message that does not decode, ends the replay with its byte position and topic
+(the report is then not ok). An unfinished log (its writer killed) is replayed up to its last complete
+record, and the report says so.
 """
 from __future__ import annotations
 
@@ -29,27 +34,21 @@ import array
 import json
 import struct
 from collections import deque
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import yaml
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
 
 from .. import __version__
 from ..scene import Scene
 from ..simulator import Simulator
 from . import messages as M
 from .log import RUN_INFO
+from .log_reader import LogCorruptError, LogError, LogMessage, LogReader
 from .node_logic import FAILURE_STATUS, TOPICS, NodeSettings, SimNodeLogic, _jsonable, decode_contacts
 
 __all__ = ["LogError", "Mismatch", "ReplayReport", "replay", "log_info"]
-
-
-class LogError(ValueError):
-    """A file that is not a readable tensegrity_sim log; the message names the file and the reason."""
 
 
 @dataclass(frozen=True)
@@ -75,47 +74,50 @@ class ReplayReport:
     inputs: dict[str, int] = field(default_factory=dict)    # topic -> messages applied (or refused again)
     compared: dict[str, int] = field(default_factory=dict)  # topic -> messages reproduced
     mismatch: Mismatch | None = None
+    corrupt: str | None = None   # a record that fails its CRC or does not decode: where, which topic, why
     notes: list[str] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
-        return self.mismatch is None
+        return self.mismatch is None and self.corrupt is None
 
     def lines(self) -> list[str]:
         out = [f"log              {self.path}", f"replayed         {self.steps} steps"]
         out += [f"input            {t}: {n} messages" for t, n in self.inputs.items()]
         out += [f"reproduced       {t}: {n} messages" for t, n in self.compared.items()]
         out += [f"note             {n}" for n in self.notes]
-        out.append("result           every logged state reproduced bit for bit" if self.ok
-                   else f"result           MISMATCH at {self.mismatch}")
+        if self.corrupt is not None:
+            out.append(f"result           CORRUPT LOG: {self.corrupt}")
+        elif self.mismatch is not None:
+            out.append(f"result           MISMATCH at {self.mismatch}")
+        else:
+            out.append("result           every logged state reproduced bit for bit")
         return out
 
 
 # --------------------------------------------------------------------------- reading
-@contextmanager
-def _reading(path: Path):
-    """An MCAP reader of ``path``; unreadable files raise :class:`LogError`."""
+def _decode(path: Path, message: LogMessage, typename: str):
+    """The message object of ``message``; one that does not decode is a corrupt record."""
     try:
-        with open(path, "rb") as f:
-            yield make_reader(f)
-    except OSError as exc:
-        raise LogError(f"{path}: cannot read: {exc.strerror}") from None
-    except McapError as exc:
-        raise LogError(f"{path}: not a readable MCAP file: {exc}") from None
+        return M.deserialize(message.data, typename)
+    except Exception as exc:  # noqa: BLE001 - what a decoder raises for garbage varies
+        raise LogCorruptError(f"{path}: corrupt record at {message.position}, {message.topic} at t = "
+                              f"{message.log_time * 1e-9:.9f} s: it does not decode as {typename} "
+                              f"({type(exc).__name__})", 0, (message.topic,)) from None
 
 
 _RUN_INFO_KEYS = ("dt", "method", "method_reason", "method_settings", "node_settings", "package_version",
                   "scene_name", "scene_yaml", "topics")
 
 
-def _run_info(reader, path: Path) -> dict[str, str]:
-    for record in reader.iter_metadata():
-        if record.name == RUN_INFO:
-            missing = [k for k in _RUN_INFO_KEYS if k not in record.metadata]
-            if missing:
-                raise LogError(f"{path}: {RUN_INFO!r} metadata lacks {', '.join(missing)}")
-            return dict(record.metadata)
-    raise LogError(f"{path}: no {RUN_INFO!r} metadata: not a tensegrity_sim log")
+def _run_info(reader: LogReader, path: Path) -> dict[str, str]:
+    info = reader.metadata.get(RUN_INFO)
+    if info is None:
+        raise LogError(f"{path}: no {RUN_INFO!r} metadata: not a tensegrity_sim log")
+    missing = [k for k in _RUN_INFO_KEYS if k not in info]
+    if missing:
+        raise LogError(f"{path}: {RUN_INFO!r} metadata lacks {', '.join(missing)}")
+    return info
 
 
 def _rebuild(info: dict[str, str], path: Path) -> tuple[Simulator, NodeSettings]:
@@ -169,6 +171,64 @@ def _first_difference(a, b, path: str = "") -> tuple[str, str, str] | None:
 
 
 # --------------------------------------------------------------------------- replay
+def _walk(reader: LogReader, path: Path, report: ReplayReport, logic: SimNodeLogic, sim: Simulator, key_of: dict,
+          failure_name: str, advance_to, pending: deque) -> None:
+    """Replay every message of ``reader`` (see the module docstring); stops at the first mismatch, which it
+    puts in ``report``. A corrupt record raises :class:`~.log_reader.LogCorruptError`."""
+    for message in reader.messages():
+        key = key_of.get(message.topic)
+        if key is None:
+            raise LogError(f"{path}: topic {message.topic!r} is not one of the node's")
+        spec = TOPICS[key]
+        t = message.log_time
+        logged = _decode(path, message, spec.typename) if key in ("diagnostics", "parameter_events") else None
+        if key == "diagnostics" and not (logged.status and logged.status[0].name == failure_name):
+            continue  # the periodic report: wall-clock statistics, not a state
+        if spec.direction == "in" or logged is not None:
+            # what the run did at a time (an input, a parameter change, a failed step), not a publication
+            if pending:
+                missing = pending[0][0]
+                report.mismatch = Mismatch(sim.step_count, t, logic.topic_names[missing], "message",
+                                           "none", "a message")
+                return
+            if not advance_to(t, message.topic):
+                return
+            if spec.direction == "in":
+                logic.receive(key, _decode(path, message, spec.typename))
+                report.inputs[message.topic] = report.inputs.get(message.topic, 0) + 1
+                continue
+            if key == "parameter_events":  # apply it; the replay's own event is compared below
+                try:
+                    logic.update(**M.parameter_changes(logged))
+                except ValueError as exc:
+                    report.mismatch = Mismatch(sim.step_count, t, message.topic, "changed_parameters",
+                                               "a change the node took", f"refused: {exc}")
+                    return
+            elif logic.step() is not None:  # a failed step: the replay's must fail, and report the same
+                report.mismatch = Mismatch(sim.step_count, t, message.topic, "message",
+                                           logged.status[0].message, "the step succeeded")
+                return
+        elif not pending:
+            if not advance_to(t, message.topic):
+                return
+            logic.publish()
+        if not pending:
+            report.mismatch = Mismatch(sim.step_count, t, message.topic, "message", "a message", "none")
+            return
+        got_key, replayed = pending.popleft()
+        if got_key != key:
+            report.mismatch = Mismatch(sim.step_count, t, logic.topic_names[got_key], "message", "none",
+                                       "a message")
+            return
+        if replayed != message.data:
+            diff = _first_difference(_decode(path, message, spec.typename),
+                                     M.deserialize(replayed, spec.typename))
+            if diff is not None:
+                report.mismatch = Mismatch(sim.step_count, t, message.topic, *diff)
+                return
+        report.compared[message.topic] = report.compared.get(message.topic, 0) + 1
+
+
 class _Refusals:
     """The node logic's logger during a replay: keeps the refusals for the report instead of logging."""
 
@@ -187,7 +247,12 @@ def replay(path: str | Path) -> ReplayReport:
     """Re-simulate the log at ``path`` from what it holds and compare every published message."""
     path = Path(path)
     report = ReplayReport(path)
-    with _reading(path) as reader:
+    try:
+        reader = LogReader(path)
+    except LogCorruptError as exc:  # found before anything is used: a finished log's CRCs
+        report.corrupt = str(exc).removeprefix(f"{path}: ")
+        return report
+    with reader:
         info = _run_info(reader, path)
         if info.get("package_version") != __version__:
             report.notes.append(f"written by tensegrity_sim {info.get('package_version')}, "
@@ -212,58 +277,12 @@ def replay(path: str | Path) -> ReplayReport:
                                            f"no step there (replay is at {logic.stamp_ns()} ns)")
             return report.mismatch is None
 
-        for _, channel, message in reader.iter_messages(log_time_order=False):
-            key = key_of.get(channel.topic)
-            if key is None:
-                raise LogError(f"{path}: topic {channel.topic!r} is not one of the node's")
-            spec = TOPICS[key]
-            t = message.log_time
-            logged = M.deserialize(message.data, spec.typename) if key in ("diagnostics", "parameter_events") else None
-            if key == "diagnostics" and not (logged.status and logged.status[0].name == failure_name):
-                continue  # the periodic report: wall-clock statistics, not a state
-            if spec.direction == "in" or logged is not None:
-                # what the run did at a time (an input, a parameter change, a failed step), not a publication
-                if pending:
-                    missing = pending[0][0]
-                    report.mismatch = Mismatch(sim.step_count, t, logic.topic_names[missing], "message",
-                                               "none", "a message")
-                    break
-                if not advance_to(t, channel.topic):
-                    break
-                if spec.direction == "in":
-                    logic.receive(key, M.deserialize(message.data, spec.typename))
-                    report.inputs[channel.topic] = report.inputs.get(channel.topic, 0) + 1
-                    continue
-                if key == "parameter_events":  # apply it; the replay's own event is compared below
-                    try:
-                        logic.update(**M.parameter_changes(logged))
-                    except ValueError as exc:
-                        report.mismatch = Mismatch(sim.step_count, t, channel.topic, "changed_parameters",
-                                                   "a change the node took", f"refused: {exc}")
-                        break
-                elif logic.step() is not None:  # a failed step: the replay's must fail, and report the same
-                    report.mismatch = Mismatch(sim.step_count, t, channel.topic, "message",
-                                               logged.status[0].message, "the step succeeded")
-                    break
-            elif not pending:
-                if not advance_to(t, channel.topic):
-                    break
-                logic.publish()
-            if not pending:
-                report.mismatch = Mismatch(sim.step_count, t, channel.topic, "message", "a message", "none")
-                break
-            got_key, replayed = pending.popleft()
-            if got_key != key:
-                report.mismatch = Mismatch(sim.step_count, t, logic.topic_names[got_key], "message", "none",
-                                           "a message")
-                break
-            if replayed != bytes(message.data):
-                diff = _first_difference(M.deserialize(message.data, spec.typename),
-                                         M.deserialize(replayed, spec.typename))
-                if diff is not None:
-                    report.mismatch = Mismatch(sim.step_count, t, channel.topic, *diff)
-                    break
-            report.compared[channel.topic] = report.compared.get(channel.topic, 0) + 1
+        try:
+            _walk(reader, path, report, logic, sim, key_of, failure_name, advance_to, pending)
+        except LogCorruptError as exc:
+            report.corrupt = str(exc).removeprefix(f"{path}: ")
+        if reader.unfinished:
+            report.notes.append(f"{reader.unfinished}; replayed what it holds")
         if refusals.messages:
             report.notes.append(f"{len(refusals.messages)} input message(s) refused again, as in the run; "
                                 f"the first: {refusals.messages[0]}")
@@ -282,30 +301,16 @@ def log_info(path: str | Path) -> list[str]:
     """A summary of a log: scene, settings, duration, topics and counts, slack/snap/contact statistics.
 
     A cable counts as slack in a ``cable_states`` message when its tension (effort) is exactly zero; a
-    snap is a slack-to-taut change between two consecutive messages (so at the publish rate)."""
+    snap is a slack-to-taut change between two consecutive messages (so at the publish rate). The whole
+    log is read (its CRCs checked): an unfinished log is summarised up to its last complete record, and
+    says so; a corrupt record raises :class:`~.log_reader.LogCorruptError`."""
     path = Path(path)
-    with _reading(path) as reader:
+    with LogReader(path) as reader:
         info = _run_info(reader, path)
-        summary = reader.get_summary()
-        if summary is None or summary.statistics is None:
-            raise LogError(f"{path}: no summary section (the writer did not finish)")
         scene = yaml.safe_load(info["scene_yaml"])
-        stats = summary.statistics
-        topics = {k: v for k, v in json.loads(info["topics"]).items()}
-        out = [
-            f"log              {path}",
-            f"scene            {info['scene_name']} ({len(scene['nodes'])} nodes, {len(scene.get('struts') or [])} "
-            f"struts, {len(scene.get('cables') or [])} cables)",
-            f"method           {info['method']} ({info['method_reason']}), dt {float(info['dt']):g} s",
-            f"settings         {info['method_settings']}",
-            f"written by       tensegrity_sim {info['package_version']} at {info['created']}",
-            f"sim time         {stats.message_start_time * 1e-9:.6f} s to {stats.message_end_time * 1e-9:.6f} s "
-            f"({round((stats.message_end_time - stats.message_start_time) * 1e-9 / float(info['dt']))} steps)",
-            f"messages         {stats.message_count}",
-        ]
-        for cid, channel in sorted(summary.channels.items()):
-            schema = summary.schemas[channel.schema_id]
-            out.append(f"  {channel.topic:<40} {schema.name:<38} {stats.channel_message_counts.get(cid, 0):>8}")
+        topics = json.loads(info["topics"])
+        counts: dict[str, int] = {}
+        start = end = None
         names: list[str] = []
         previous = None
         slack_count = snaps = publications = 0
@@ -313,10 +318,12 @@ def log_info(path: str | Path) -> list[str]:
         begins = ends = 0
         pairs: set[tuple[str, str]] = set()
         deepest = None
-        for _, channel, message in reader.iter_messages(topics=[topics["cable_states"], topics["contacts"]],
-                                                        log_time_order=False):
-            if channel.topic == topics["cable_states"]:
-                msg = M.deserialize(message.data, TOPICS["cable_states"].typename)
+        for message in reader.messages():
+            counts[message.topic] = counts.get(message.topic, 0) + 1
+            start = message.log_time if start is None else min(start, message.log_time)
+            end = message.log_time if end is None else max(end, message.log_time)
+            if message.topic == topics["cable_states"]:
+                msg = _decode(path, message, TOPICS["cable_states"].typename)
                 names = list(msg.name)
                 effort = np.asarray(msg.effort, dtype=float)
                 slack = effort == 0.0
@@ -328,12 +335,31 @@ def log_info(path: str | Path) -> list[str]:
                 k = int(np.argmax(effort)) if effort.size else -1
                 if k >= 0 and effort[k] > max_tension:
                     max_tension, max_at = float(effort[k]), (names[k], message.log_time * 1e-9)
-            else:
-                for e in decode_contacts(M.deserialize(message.data, TOPICS["contacts"].typename)):
+            elif message.topic == topics["contacts"]:
+                for e in decode_contacts(_decode(path, message, TOPICS["contacts"].typename)):
                     begins += e.kind == "begin"
                     ends += e.kind == "end"
                     pairs.add(e.members)
                     deepest = e.distance if deepest is None else min(deepest, e.distance)
+        start, end = start or 0, end or 0
+        out = [
+            f"log              {path}",
+            f"scene            {info['scene_name']} ({len(scene['nodes'])} nodes, {len(scene.get('struts') or [])} "
+            f"struts, {len(scene.get('cables') or [])} cables)",
+            f"method           {info['method']} ({info['method_reason']}), dt {float(info['dt']):g} s",
+            f"settings         {info['method_settings']}",
+            f"written by       tensegrity_sim {info['package_version']} at {info['created']}",
+        ]
+        if reader.unfinished:
+            out.append(f"state            {reader.unfinished} (tensegrity-sim recover writes a finished copy)")
+        out += [
+            f"sim time         {start * 1e-9:.6f} s to {end * 1e-9:.6f} s "
+            f"({round((end - start) * 1e-9 / float(info['dt']))} steps)",
+            f"messages         {sum(counts.values())}",
+        ]
+        for channel in sorted(reader.channels.values(), key=lambda c: c.id):
+            schema = reader.schemas[channel.schema_id]
+            out.append(f"  {channel.topic:<40} {schema.name:<38} {counts.get(channel.topic, 0):>8}")
         if publications:
             share = ", ".join(f"{n} {100.0 * c / publications:.0f}%" for n, c in zip(names, slack_count) if c)
             out += [f"slack            {share or 'no cable ever slack'} (of {publications} cable_states messages)",

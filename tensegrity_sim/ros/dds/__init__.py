@@ -8,11 +8,13 @@ the RIHS01 type hash in USER_DATA, and the node announced on ``ros_discovery_inf
 - ``config``: the Cyclone configuration for a domain id and a network interface;
 - ``participant``: a participant with ROS-convention readers and writers of CDR bytes.
 """
-from .config import AUTO_INTERFACE, DEFAULT_INTERFACE, MAX_DOMAIN_ID, check_domain_id, cyclone_config
+from .config import (AUTO_INTERFACE, DEFAULT_INTERFACE, MAX_DOMAIN_ID, check_domain_id, cyclone_config,
+                     ros_peer_settings)
 from .participant import DEFAULT_QOS, Participant, QosProfile, Reader, Writer
 from .types import DdsType, dds_topic_name, dds_type
 
 __all__ = [
     "AUTO_INTERFACE", "DEFAULT_INTERFACE", "DEFAULT_QOS", "MAX_DOMAIN_ID", "DdsType", "Participant",
     "QosProfile", "Reader", "Writer", "check_domain_id", "cyclone_config", "dds_topic_name", "dds_type",
+    "ros_peer_settings",
 ]

@@ -13,7 +13,8 @@ import ipaddress
 import socket
 from pathlib import Path
 
-__all__ = ["AUTO_INTERFACE", "DEFAULT_INTERFACE", "MAX_DOMAIN_ID", "check_domain_id", "cyclone_config"]
+__all__ = ["AUTO_INTERFACE", "DEFAULT_INTERFACE", "MAX_DOMAIN_ID", "check_domain_id", "cyclone_config",
+           "ros_peer_settings"]
 
 AUTO_INTERFACE = "auto"        # let Cyclone pick (its first multicast-capable interface)
 DEFAULT_INTERFACE = "lo"
@@ -38,6 +39,17 @@ def _is_loopback(interface: str) -> bool:
     if flags.exists():  # Linux: ask the kernel rather than guess from the name
         return bool(int(flags.read_text(), 16) & _IFF_LOOPBACK)
     return interface.startswith("lo")
+
+
+def ros_peer_settings(interface: str, domain_id: int) -> str | None:
+    """What a ROS 2 Jazzy process on this host sets to find a participant on a loopback ``interface``
+    (None for any other interface, where Jazzy's default multicast discovery works). Its default
+    discovery is multicast only, which the loopback does not carry, and a Fast DDS participant (Jazzy's
+    default middleware) does not answer a Cyclone DDS participant that reached it by unicast from
+    127.0.0.1 unless 127.0.0.1 is one of its static peers (checked with rclpy 7.1.6, rmw_fastrtps_cpp)."""
+    if interface == AUTO_INTERFACE or not _is_loopback(interface):
+        return None
+    return f"ROS_DOMAIN_ID={domain_id} ROS_STATIC_PEERS=127.0.0.1"
 
 
 def cyclone_config(interface: str = DEFAULT_INTERFACE) -> str:

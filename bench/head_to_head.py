@@ -1,0 +1,140 @@
+"""The stepping core beside MuJoCo, contenders taking turns in one process (issue 10's targets).
+
+Run: ``python bench/head_to_head.py [--repeats R] [--stages 10,20,30,50,100] [--budget S] [--out CSV]``.
+
+* **Icosahedron thrown** (``bench.cases``: struts rigid, dt = 1 ms): ``Simulator.step()`` in a Python
+  loop against MuJoCo's ``mj_step(model, data)`` in a Python loop, and ``Simulator.run()`` against
+  ``mj_step(model, data, nstep)``; the elastic method against MuJoCo's Euler with spring tendons, the
+  inextensible one against MuJoCo's Euler with *limited* tendons (its model of an inextensible cable).
+* **Towers** of ``--stages`` stages (no gravity), inextensible, at rest and moving (random node
+  velocities of 0.05 m/s): the steady cost per step after a warm-up, and separately the cost of the first
+  step after a command (``set_rest_lengths`` with the current lengths, as a controller holding its
+  command at 100 Hz sends), each the best of ``--repeats``; the growth exponent of the steady cost.
+
+Every figure is CPU time of this process (``time.process_time``), the contenders of a row timed in
+turn, repeat after repeat, so that a disturbance on a shared machine hits them alike; the best of the
+repeats is reported, and the ratios are of the best. Never asserts a time.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run as a script: this checkout first
+
+import tensegrity_sim as ts  # noqa: E402
+from bench.bench_steps import agitated  # noqa: E402
+from bench.cases import work_precision_cases  # noqa: E402
+from bench.scale import tower_scene  # noqa: E402
+from bench.tables import write_csv  # noqa: E402
+from bench.timing import time_alternating  # noqa: E402
+
+def _python_loop(step):
+    def run(n):
+        for _ in range(n):
+            step()
+    return run
+
+
+def icosahedron_rows(repeats: int) -> list[dict]:
+    import mujoco
+
+    from bench.mujoco_peer import MujocoPeer
+    scene = next(c for c in work_precision_cases() if c.name == "icosahedron_thrown").scene
+    rows = []
+    for method in ("elastic", "inextensible"):
+        sim = ts.Simulator(scene, method=method, dt=1e-3, contacts=())
+        peer = MujocoPeer(scene, model=method, dt=1e-3, integrator="Euler")
+        model, data = peer.model, peer.data
+        contenders = {
+            "tensegrity_sim step()": (_python_loop(sim.step), sim.reset),
+            "MuJoCo mj_step() loop": (_python_loop(lambda: mujoco.mj_step(model, data)), peer.reset),
+            "tensegrity_sim run()": (lambda n: sim.run(steps=n, every=n), sim.reset),
+            "MuJoCo mj_step(nstep)": (peer.advance, peer.reset),
+        }
+        timings = time_alternating(contenders, repeats=repeats, target=0.2, clock=time.process_time)
+        best = {name: t.best for name, t in timings.items()}
+        names = list(contenders)
+        for ours, theirs in ((names[0], names[1]), (names[2], names[3])):
+            rows.append({"case": "icosahedron_thrown", "method": method, "ours": ours, "peer": theirs,
+                         "peer_model": "spring tendons" if method == "elastic" else "limited tendons",
+                         "ours_us": 1e6 * best[ours], "peer_us": 1e6 * best[theirs],
+                         "ratio": best[theirs] / best[ours]})
+    return rows
+
+
+def tower_rows(stages, repeats: int, budget: float) -> list[dict]:
+    """Steady and after-a-command cost per step of the inextensible method on towers, at rest and moving."""
+    rows = []
+    for n in stages:
+        for velocity in (0.0, 0.05):
+            scene = agitated(tower_scene(n), velocity)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", ts.LengthOffsetWarning)
+                sim = ts.Simulator(scene, method="inextensible", dt=1e-3, contacts=())
+            start = time.process_time()
+            sim.step()                       # the very first step: no hint at all
+            cold = time.process_time() - start
+            for _ in range(10):              # warm-up
+                sim.step()
+            steady, after, steps = math.inf, math.inf, 0
+            spent = time.process_time()
+            for _ in range(repeats):
+                start = time.process_time()
+                for _ in range(5):
+                    sim.step()
+                steady = min(steady, (time.process_time() - start) / 5)
+                sim.set_rest_lengths(sim.rest_lengths)   # a command (the same lengths: held)
+                start = time.process_time()
+                sim.step()
+                after = min(after, time.process_time() - start)
+                steps += 6
+                if time.process_time() - spent > budget:
+                    break
+            counts = getattr(sim._method.solver, "counts", None)
+            rows.append({"stages": n, "members": len(scene.struts) + len(scene.cables),
+                         "velocity": velocity, "solver": sim.method_settings["solver"],
+                         "first_ms": 1e3 * cold, "steady_ms": 1e3 * steady, "after_command_ms": 1e3 * after,
+                         "after_over_steady": after / steady,
+                         "guessed_share": (counts["guessed"] / max(sum(counts.values()), 1)) if counts else math.nan})
+            print(f"  tower{n} v={velocity}: steady {1e3 * steady:.2f} ms, after a command {1e3 * after:.2f} ms, "
+                  f"first {1e3 * cold:.1f} ms ({steps} steps timed)", flush=True)
+    return rows
+
+
+def exponent(rows, velocity) -> float:
+    pts = [(r["members"], r["steady_ms"]) for r in rows if r["velocity"] == velocity]
+    if len(pts) < 2:
+        return math.nan
+    m, c = map(np.array, zip(*pts))
+    return float(np.polyfit(np.log(m), np.log(c), 1)[0])
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--stages", default="10,20,30,50,100")
+    parser.add_argument("--budget", type=float, default=60.0, help="CPU seconds per tower configuration at most")
+    parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results")
+    args = parser.parse_args(argv)
+    rows = icosahedron_rows(args.repeats)
+    for r in rows:
+        print(f"{r['method']:<13}{r['ours']:<24}{r['ours_us']:>9.2f} us   {r['peer']:<24}({r['peer_model']})"
+              f"{r['peer_us']:>9.2f} us   ratio (peer/ours) {r['ratio']:.2f}", flush=True)
+    write_csv(args.out / "head_to_head.csv", rows)
+    stages = [int(s) for s in args.stages.split(",") if s]
+    towers = tower_rows(stages, args.repeats, args.budget)
+    write_csv(args.out / "towers_inextensible.csv", towers)
+    for velocity in (0.0, 0.05):
+        print(f"towers v={velocity}: growth exponent of the steady cost {exponent(towers, velocity):.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

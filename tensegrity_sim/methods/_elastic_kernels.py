@@ -1,0 +1,297 @@
+"""Compiled kernels of the elastic method: the same arithmetic as :class:`.elastic.ElasticMethod` (the
+plain numpy reference, which tests require these to match to 1e-12), with numba.
+
+One kernel, two drivers (style.md rule 8): every array carries a batch axis LAST, so the kernel steps
+``B >= 1`` independent copies of one system. :class:`.elastic.ElasticMethod` (and so ``Simulator``)
+drives it with ``B = 1``; a batch simulator drives it with ``B`` copies. Shapes below use ``N`` nodes,
+``m = n_struts + n_cables`` members (struts first), ``nc`` cables, ``nr`` moving rigid struts.
+
+The system (never changes during a run; :func:`model_arrays` builds it from a ``System``):
+
+    ends (m, 2) int64           node indices of each member (a, b)
+    stiffness (m,) N/m          zero for rigid struts
+    floor (m,)                  -inf for struts, 0 for cables: tension ``k max(floor, l - rest)``
+    strut_rest (n_struts,) m
+    damping (nc,) N*s/m         cable damping (acts while taut, total tension clipped at 0)
+    inv_mass (N,) 1/kg          zero for fixed nodes
+    gravity_force (N, 3) N
+    rigid_members (nr,) int64   rows of the moving rigid struts in the member arrays
+    rigid_length_sq (nr,) m^2
+    rigid_w (nr, nr)            W = S M^-1 S^T of the moving rigid struts
+    coupled (bool)              W is not diagonal (class-k); must be False: the kernels do the closed-form
+                                SHAKE/RATTLE of independent rigid struts, and ElasticMethod steps a scene
+                                with coupled ones with its numpy reference (its Newton solve would make
+                                every first run compile LAPACK bindings: 18 s of CPU instead of ~3)
+
+The state and what one step carries to the next (all float64, batch last):
+
+    x, v (N, 3, B) m, m/s       positions, velocities at the step's start
+    rest (nc, B) m              cable rest lengths
+    ext (N, 3, B) N             external forces
+    acc (N, 3, B) m/s^2         accelerations at the step's start    (in: start, out: end)
+    tension (nc, B) N           cable tensions at the step's start   (in: start, out: end)
+    rigid_dirs (nr, 3, B)       rigid strut unit vectors at the start (in: start, out: end)
+
+:func:`elastic_forces` fills the last three at a configuration (after a reset or a new input);
+:func:`elastic_steps` advances ``n_steps`` steps of ``h`` and keeps every ``every``-th.
+:func:`verlet_step` is one step of any size ``h`` (velocity Verlet + RATTLE) for a caller that
+composes steps (located switches, higher-order splitting).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+__all__ = ["ElasticModel", "model_arrays", "elastic_forces", "elastic_steps", "verlet_step"]
+
+
+class ElasticModel(NamedTuple):
+    """The system arrays of the kernels (module docstring), in the kernels' argument order."""
+
+    ends: np.ndarray
+    stiffness: np.ndarray
+    floor: np.ndarray
+    strut_rest: np.ndarray
+    damping: np.ndarray
+    inv_mass: np.ndarray
+    gravity_force: np.ndarray
+    rigid_members: np.ndarray
+    rigid_length_sq: np.ndarray
+    rigid_w: np.ndarray
+    coupled: bool
+
+
+def model_arrays(system, rigid) -> ElasticModel:
+    """The kernels' system arrays for a ``System`` and its ``RigidStruts``."""
+    return ElasticModel(
+        np.ascontiguousarray(system.ends, dtype=np.int64), np.ascontiguousarray(system.stiffness, dtype=float),
+        np.ascontiguousarray(system.floor, dtype=float), np.ascontiguousarray(system.strut_rest, dtype=float),
+        np.ascontiguousarray(system.cable_damping, dtype=float), np.ascontiguousarray(system.inv_mass, dtype=float),
+        np.ascontiguousarray(system.gravity_force, dtype=float),
+        np.ascontiguousarray(rigid.members, dtype=np.int64), np.ascontiguousarray(rigid.length_sq, dtype=float),
+        np.ascontiguousarray(rigid.w_matrix, dtype=float), bool(rigid.coupled))
+
+
+@njit(cache=True)
+def _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+            rigid_members, acc, tension, rigid_dirs, slack, b):
+    """Copy ``b``: accelerations, cable tensions, rigid strut directions and slack cables at ``x``
+    (damping from ``v``), written into ``acc``, ``tension``, ``rigid_dirs`` and ``slack``."""
+    n_nodes = x.shape[0]
+    n_struts = strut_rest.shape[0]
+    for i in range(n_nodes):
+        for j in range(3):
+            acc[i, j, b] = gravity_force[i, j] + ext[i, j, b]
+    rigid_k = 0
+    n_rigid = rigid_members.shape[0]
+    for i in range(ends.shape[0]):
+        a = ends[i, 0]
+        c = ends[i, 1]
+        d0 = x[c, 0, b] - x[a, 0, b]
+        d1 = x[c, 1, b] - x[a, 1, b]
+        d2 = x[c, 2, b] - x[a, 2, b]
+        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        n0 = d0 / length
+        n1 = d1 / length
+        n2 = d2 / length
+        if rigid_k < n_rigid and rigid_members[rigid_k] == i:
+            rigid_dirs[rigid_k, 0, b] = n0
+            rigid_dirs[rigid_k, 1, b] = n1
+            rigid_dirs[rigid_k, 2, b] = n2
+            rigid_k += 1
+        if i < n_struts:
+            r = strut_rest[i]
+        else:
+            r = rest[i - n_struts, b]
+        t = stiffness[i] * max(length - r, floor[i])
+        if i >= n_struts:
+            ci = i - n_struts
+            cd = damping[ci]
+            if cd > 0.0:
+                rate = ((v[c, 0, b] - v[a, 0, b]) * n0 + (v[c, 1, b] - v[a, 1, b]) * n1
+                        + (v[c, 2, b] - v[a, 2, b]) * n2)
+                if t > 0.0:
+                    t += cd * rate
+                t = max(t, 0.0)   # a damped cable never pushes
+            tension[ci, b] = t
+            slack[ci] = length < r
+        acc[a, 0, b] += t * n0
+        acc[a, 1, b] += t * n1
+        acc[a, 2, b] += t * n2
+        acc[c, 0, b] -= t * n0
+        acc[c, 1, b] -= t * n1
+        acc[c, 2, b] -= t * n2
+    for i in range(n_nodes):
+        for j in range(3):
+            acc[i, j, b] *= inv_mass[i]
+
+
+@njit(cache=True)
+def elastic_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+                   rigid_members, acc, tension, rigid_dirs):
+    """Fill ``acc`` (N, 3, B), ``tension`` (nc, B) and ``rigid_dirs`` (nr, 3, B) at ``x`` for every copy;
+    returns the slack cables (nc, B) bool."""
+    slack = np.empty((rest.shape[0], x.shape[2]), dtype=np.bool_)
+    row = np.empty(rest.shape[0], dtype=np.bool_)
+    for b in range(x.shape[2]):
+        _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+                rigid_members, acc, tension, rigid_dirs, row, b)
+        for ci in range(row.shape[0]):   # element loops: a slice assignment costs seconds of compile time
+            slack[ci, b] = row[ci]
+    return slack
+
+
+@njit(cache=True)
+def _push(node_a, node_b, inv_mass, s, n0, n1, n2, out):
+    """Equal-and-opposite push ``s`` along ``n`` on a strut's ends, scaled by their inverse masses,
+    added to ``out`` (N, 3)."""
+    out[node_a, 0] += inv_mass[node_a] * (s * n0)
+    out[node_a, 1] += inv_mass[node_a] * (s * n1)
+    out[node_a, 2] += inv_mass[node_a] * (s * n2)
+    out[node_b, 0] -= inv_mass[node_b] * (s * n0)
+    out[node_b, 1] -= inv_mass[node_b] * (s * n1)
+    out[node_b, 2] -= inv_mass[node_b] * (s * n2)
+
+
+@njit(cache=True)
+def _shake(x_pred, dirs, ends, inv_mass, rigid_members, length_sq, w, dx, b):
+    """SHAKE for copy ``b`` (rigid.RigidStruts.project_positions): the displacement, written into
+    ``dx`` (N, 3) (zeroed here), that puts ``x_pred`` back on every rigid strut length along ``dirs``."""
+    nr = rigid_members.shape[0]
+    r = np.empty((nr, 3))
+    for k in range(nr):
+        i = rigid_members[k]
+        for j in range(3):
+            r[k, j] = x_pred[ends[i, 1], j, b] - x_pred[ends[i, 0], j, b]
+    gamma = np.empty(nr)
+    for k in range(nr):
+        p = r[k, 0] * dirs[k, 0, b] + r[k, 1] * dirs[k, 1, b] + r[k, 2] * dirs[k, 2, b]
+        c = r[k, 0] * r[k, 0] + r[k, 1] * r[k, 1] + r[k, 2] * r[k, 2] - length_sq[k]
+        # small root of w^2 g^2 - 2 w p g + c = 0, written to avoid cancellation
+        gamma[k] = c / (w[k, k] * (p + np.sqrt(max(p * p - c, 0.0))))
+    for i in range(dx.shape[0]):
+        for j in range(3):
+            dx[i, j] = 0.0
+    for k in range(nr):
+        i = rigid_members[k]
+        _push(ends[i, 0], ends[i, 1], inv_mass, gamma[k], dirs[k, 0, b], dirs[k, 1, b], dirs[k, 2, b], dx)
+
+
+@njit(cache=True)
+def _rattle(v, dirs, ends, inv_mass, rigid_members, w, dv, b):
+    """RATTLE for copy ``b`` (rigid.RigidStruts.project_velocities): zero every rigid strut's length
+    rate along ``dirs``, in place on ``v``; ``dv`` (N, 3) is scratch."""
+    nr = rigid_members.shape[0]
+    rate = np.empty(nr)
+    for k in range(nr):
+        i = rigid_members[k]
+        a = ends[i, 0]
+        c = ends[i, 1]
+        rate[k] = ((v[c, 0, b] - v[a, 0, b]) * dirs[k, 0, b] + (v[c, 1, b] - v[a, 1, b]) * dirs[k, 1, b]
+                   + (v[c, 2, b] - v[a, 2, b]) * dirs[k, 2, b])
+    mu = np.empty(nr)
+    for k in range(nr):
+        mu[k] = rate[k] / w[k, k]
+    # the pushes are summed before being added, as in the reference (v + project_velocities(...))
+    for i in range(dv.shape[0]):
+        for j in range(3):
+            dv[i, j] = 0.0
+    for k in range(nr):
+        i = rigid_members[k]
+        _push(ends[i, 0], ends[i, 1], inv_mass, mu[k], dirs[k, 0, b], dirs[k, 1, b], dirs[k, 2, b], dv)
+    for i in range(v.shape[0]):
+        for j in range(3):
+            v[i, j, b] += dv[i, j]
+
+
+@njit(cache=True)
+def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+          rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, impulses, slack, b):
+    """One velocity Verlet (+ SHAKE/RATTLE) step of ``h`` of copy ``b``, in place on ``x``, ``v`` and the
+    carried ``acc``, ``tension``, ``rigid_dirs``; ``impulses`` (nc,) and ``slack`` (nc,) of the step;
+    ``dx`` (N, 3) is scratch."""
+    n_nodes = x.shape[0]
+    nc = tension.shape[0]
+    half = 0.5 * h
+    for i in range(n_nodes):
+        for j in range(3):
+            v[i, j, b] += half * acc[i, j, b]
+            x[i, j, b] += h * v[i, j, b]
+    if rigid_members.shape[0]:
+        _shake(x, rigid_dirs, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, dx, b)
+        for i in range(n_nodes):
+            for j in range(3):
+                x[i, j, b] += dx[i, j]
+                v[i, j, b] += dx[i, j] / h
+    for ci in range(nc):
+        impulses[ci] = tension[ci, b]
+    _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+            rigid_members, acc, tension, rigid_dirs, slack, b)
+    for ci in range(nc):
+        impulses[ci] = half * (impulses[ci] + tension[ci, b])
+    for i in range(n_nodes):
+        for j in range(3):
+            v[i, j, b] += half * acc[i, j, b]
+    if rigid_members.shape[0]:
+        _rattle(v, rigid_dirs, ends, inv_mass, rigid_members, rigid_w, dx, b)
+
+
+@njit(cache=True)
+def verlet_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+                rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs):
+    """One step of any size ``h`` (s) of every copy, in place on ``x``, ``v``, ``acc``, ``tension`` and
+    ``rigid_dirs`` (module docstring). Returns the cable impulses (nc, B) N*s and the slack cables
+    (nc, B) bool at the step's end."""
+    nc, n_copies = rest.shape
+    impulses = np.empty((nc, n_copies))
+    slack = np.empty((nc, n_copies), dtype=np.bool_)
+    dx = np.empty((x.shape[0], 3))
+    imp = np.empty(nc)
+    sl = np.empty(nc, dtype=np.bool_)
+    for b in range(n_copies):
+        _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+              rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, imp, sl, b)
+        for ci in range(nc):
+            impulses[ci, b] = imp[ci]
+            slack[ci, b] = sl[ci]
+    return impulses, slack
+
+
+@njit(cache=True)
+def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
+                  gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
+                  out_x, out_v, out_impulses, out_slack):
+    """``n_steps`` steps of ``h`` (s) of every copy, in place on ``x``, ``v``, ``acc``, ``tension``,
+    ``rigid_dirs``; keeps steps ``every``, ``2 every``, ... and the last one in the outputs:
+
+        out_x, out_v (K, N, 3, B)       positions, velocities after each kept step
+        out_impulses (K, nc, B) N*s     each cable's impulse summed over the steps since the last kept one
+        out_slack (K, nc, B) bool       slack cables after each kept step
+
+    with ``K = ceil(n_steps / every)``."""
+    n_nodes = x.shape[0]
+    nc, n_copies = rest.shape
+    dx = np.empty((n_nodes, 3))
+    imp = np.empty(nc)
+    total = np.empty(nc)
+    sl = np.empty(nc, dtype=np.bool_)
+    for b in range(n_copies):
+        for ci in range(nc):
+            total[ci] = 0.0
+        for s in range(n_steps):
+            _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+                  rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, imp, sl, b)
+            for ci in range(nc):
+                total[ci] += imp[ci]
+            if (s + 1) % every == 0 or s == n_steps - 1:
+                k = s // every
+                for i in range(n_nodes):
+                    for j in range(3):
+                        out_x[k, i, j, b] = x[i, j, b]
+                        out_v[k, i, j, b] = v[i, j, b]
+                for ci in range(nc):
+                    out_impulses[k, ci, b] = total[ci]
+                    out_slack[k, ci, b] = sl[ci]
+                    total[ci] = 0.0

@@ -1,0 +1,105 @@
+"""Compiled kernels of the inextensible method's sub-step bookkeeping: which members are QP rows, their
+directions and targets (``InextensibleMethod._rows_reference`` and ``_targets`` are the numpy reference
+these must match; the QP itself is DAQP's or another backend's).
+
+Members are the method's row table: the ``n_eq`` moving rigid struts first, then every cable, with
+``ends`` (n_eq + nc, 2) node indices and ``limits`` (n_eq + nc,) m (strut lengths, cable length limits).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ._qp_kernels import dot3
+
+__all__ = ["select_rows", "row_targets"]
+
+
+@njit(cache=True)
+def row_targets(v, ends, directions, length, limits, tau, floor_rate, n_eq):
+    """Row targets (k,) m/s for node velocities ``v`` (N, 3) at the sub-step's end (see
+    ``InextensibleMethod._targets``): a cable's lands it on its limit given the relative velocity of its
+    ends across it, never below ``floor_rate``; a rigid strut's (the first ``n_eq``) is ``floor_rate``."""
+    k = ends.shape[0]
+    half = 0.5 * tau
+    targets = floor_rate.copy()
+    for i in range(n_eq, k):
+        a = ends[i, 0]
+        b = ends[i, 1]
+        u0 = v[b, 0] - v[a, 0]
+        u1 = v[b, 1] - v[a, 1]
+        u2 = v[b, 2] - v[a, 2]
+        un = dot3(u0, u1, u2, directions[i, 0], directions[i, 1], directions[i, 2])
+        across2 = dot3(u0, u1, u2, u0, u1, u2) - un * un
+        lim = limits[i]
+        land = (np.sqrt(max(lim * lim - half * half * across2, 0.0)) - length[i]) / half
+        targets[i] = max(land, floor_rate[i])
+    return targets
+
+
+@njit(cache=True)
+def select_rows(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding):
+    """The rows of a sub-step from the midpoint ``x_m`` (N, 3): every moving rigid strut, and each cable
+    that can reach its limit by the sub-step's end (``l_m + tau/2 |u0| >= floor``, ``u0`` the relative
+    free velocity ``v0`` (N, 3) of its ends). Returns ``cables`` (nc,) bool (the cables that are rows),
+    ``sel`` (k,) their rows in the member table, unit vectors (k, 3), lengths (k,) m, limits (k,) m,
+    ``floor_rate`` (k,) m/s (the reversal ``-b.v`` of each row's midpoint rate for velocities ``v``, plus
+    twice a cable's reel-in rate ``reel`` (nc,) m/s), targets (k,) m/s and the warm-start hint (k,) bool
+    (rigid struts, and the cables ``holding`` (nc,) bool)."""
+    total = ends.shape[0]
+    nc = total - n_eq
+    length = np.empty(total)
+    n = np.empty((total, 3))
+    for i in range(total):
+        a = ends[i, 0]
+        b = ends[i, 1]
+        for j in range(3):
+            n[i, j] = x_m[b, j] - x_m[a, j]
+        length[i] = np.sqrt(dot3(n[i, 0], n[i, 1], n[i, 2], n[i, 0], n[i, 1], n[i, 2]))
+        for j in range(3):
+            n[i, j] /= length[i]
+    cables = np.zeros(nc, dtype=np.bool_)
+    k = n_eq
+    for c in range(nc):
+        a = ends[n_eq + c, 0]
+        b = ends[n_eq + c, 1]
+        u0 = v0[b, 0] - v0[a, 0]
+        u1 = v0[b, 1] - v0[a, 1]
+        u2 = v0[b, 2] - v0[a, 2]
+        if length[n_eq + c] + (0.5 * tau) * np.sqrt(dot3(u0, u1, u2, u0, u1, u2)) >= floor[c] and cables_move[c]:
+            cables[c] = True
+            k += 1
+    sel = np.empty(k, dtype=np.int64)
+    for i in range(n_eq):
+        sel[i] = i
+    r = n_eq
+    for c in range(nc):
+        if cables[c]:
+            sel[r] = n_eq + c
+            r += 1
+    m_ends = np.empty((k, 2), dtype=np.int64)
+    m_n = np.empty((k, 3))
+    m_length = np.empty(k)
+    m_limits = np.empty(k)
+    floor_rate = np.empty(k)
+    warm = np.empty(k, dtype=np.bool_)
+    for r in range(k):
+        i = sel[r]
+        m_ends[r, 0] = ends[i, 0]
+        m_ends[r, 1] = ends[i, 1]
+        for j in range(3):
+            m_n[r, j] = n[i, j]
+        b = ends[i, 1]
+        a = ends[i, 0]
+        un = dot3(v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2], n[i, 0], n[i, 1], n[i, 2])
+        m_length[r] = length[i]
+        m_limits[r] = limits[i]
+        floor_rate[r] = -un
+        if r >= n_eq:
+            if reel[i - n_eq] != 0.0:
+                floor_rate[r] += 2.0 * reel[i - n_eq]
+            warm[r] = holding[i - n_eq]
+        else:
+            warm[r] = True
+    targets = row_targets(v, m_ends, m_n, m_length, m_limits, tau, floor_rate, n_eq)
+    return cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm

@@ -1,0 +1,235 @@
+"""The compiled kernels against the numpy reference they replace: the same arithmetic, so the same
+trajectory to 1e-12 on every physics test scene, inputs changed mid-run included."""
+import warnings
+
+import numpy as np
+import pytest
+
+import tensegrity_sim as ts
+from conftest import bungee_dict, deadband_dict, random_velocities
+from test_contact import crossing_dict
+from tensegrity_sim.methods import _qp_kernels as kernels
+from tensegrity_sim.methods import qp
+from tensegrity_sim.methods.inextensible import LengthOffsetWarning
+
+TOL = 1e-12
+
+
+def _class_k():
+    d = {"nodes": [{"name": "a", "position": [0, 0, 0], "mass": 1.0, "velocity": [0, 1, 0]},
+                   {"name": "b", "position": [1, 0, 0], "mass": 2.0, "velocity": [0, 0, 1]},
+                   {"name": "c", "position": [1, 1, 0], "mass": 1.5, "velocity": [1, 0, 0]}],
+         "struts": [{"name": "s0", "nodes": ["a", "b"], "stiffness": "rigid"},
+                    {"name": "s1", "nodes": ["b", "c"], "stiffness": "rigid"}],
+         "cables": [{"name": "c0", "nodes": ["a", "c"], "stiffness": 100.0, "rest_length": 1.2}]}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ts.ClassKWarning)
+        return ts.Scene.from_dict(d)
+
+
+def _damped():
+    d = bungee_dict(k=100.0, damping=50.0, drop=1.2)
+    d["gravity"] = [0.0, 0.0, 0.0]
+    d["nodes"][1]["velocity"] = [0.0, 0.0, 3.0]
+    return ts.Scene.from_dict(d)
+
+
+def _elastic_struts(name):
+    d = random_velocities(ts.load_scene(name), seed=5, scale=0.5).to_dict()
+    for s in d["struts"]:
+        s["stiffness"] = 1e5
+    return ts.Scene.from_dict(d)
+
+
+# (scene, dt, steps): the scenes of test_elastic.py, and the built-ins moving, rigid and elastic struts
+ELASTIC_SCENES = {
+    "bungee": (lambda: ts.Scene.from_dict(bungee_dict()), 1e-4, 3000),
+    "deadband": (lambda: ts.Scene.from_dict(deadband_dict(k=100.0, m=1.0, slack=0.1, v0=1.0)), 1e-4, 3000),
+    "damped": (_damped, 1e-4, 2000),
+    "prism3": (lambda: random_velocities(ts.load_scene("prism3"), seed=1, scale=0.5), 1e-3, 1000),
+    "icosahedron": (lambda: random_velocities(ts.load_scene("icosahedron"), seed=3, scale=2.0), 1e-3, 1000),
+    "icosahedron_elastic_struts": (lambda: _elastic_struts("icosahedron"), 1e-4, 1000),
+    "tower": (lambda: random_velocities(ts.load_scene("tower"), seed=2, scale=0.2), 1e-4, 500),
+    "crossing": (lambda: ts.Scene.from_dict(crossing_dict(0.05, 1.0, 0.01, 0.015)), 1e-3, 100),   # contacts
+}
+
+
+def _pair(scene, dt):
+    compiled = ts.Simulator(scene, method="elastic", dt=dt)
+    reference = ts.Simulator(scene, method="elastic", dt=dt)
+    reference._method.compiled = False
+    assert compiled._method.compiled
+    return compiled, reference
+
+
+def _close(a, b, what):
+    scale = max(float(np.max(np.abs(b), initial=0.0)), 1.0)
+    assert np.max(np.abs(a - b), initial=0.0) <= TOL * scale, what
+
+
+@pytest.mark.parametrize("name", sorted(ELASTIC_SCENES))
+def test_elastic_step_matches_reference(name):
+    make, dt, steps = ELASTIC_SCENES[name]
+    compiled, reference = _pair(make(), dt)
+    for k in range(steps):
+        if k == steps // 3:   # a command mid-run: new rest lengths and a push
+            for sim in (compiled, reference):
+                sim.set_rest_lengths(0.97 * sim.rest_lengths)
+                f = np.zeros((len(sim.scene.nodes), 3))
+                f[-1] = [0.3, -0.2, 0.5]
+                sim.set_external_forces(f)
+        a, b = compiled.step(), reference.step()
+        _close(a.positions, b.positions, f"positions, step {k}")
+        _close(a.velocities, b.velocities, f"velocities, step {k}")
+        _close(a.impulses, b.impulses, f"impulses, step {k}")
+        assert np.array_equal(a.slack, b.slack), f"slack, step {k}"
+
+
+def test_coupled_rigid_struts_use_the_reference():
+    """Class-k rigid struts need a Newton solve: the elastic method steps them with its reference."""
+    sim = ts.Simulator(_class_k(), method="elastic", dt=1e-3)
+    assert not sim._method.compiled and not sim._method.has_loop()
+    assert ts.Simulator(ts.load_scene("icosahedron"), method="elastic", dt=1e-3)._method.compiled
+
+
+@pytest.mark.parametrize("every", [1, 7])
+@pytest.mark.parametrize("name", ["bungee", "icosahedron", "tower", "crossing"])
+def test_compiled_run_matches_stepping(name, every):
+    """run() in the compiled loop (straight into the arrays, or in chunks when contact detection is
+    on, as for the built-ins) keeps the same steps, sums and events as stepping one by one."""
+    make, dt, steps = ELASTIC_SCENES[name]
+    scene = make()
+    fast = ts.Simulator(scene, method="elastic", dt=dt)
+    slow = ts.Simulator(scene, method="elastic", dt=dt)
+    seen = []
+    a = fast.run(steps=steps, every=every)
+    b = slow.run(steps=steps, every=every, callback=lambda k, r: seen.append(k))   # the per-step loop
+    assert seen == list(range(steps))
+    assert len(a.time) == -(-steps // every) and a.time[-1] == b.time[-1] == steps * dt
+    np.testing.assert_array_equal(a.time, b.time)
+    for field in ("positions", "velocities", "impulses", "tensions"):
+        _close(getattr(a, field), getattr(b, field), field)
+    np.testing.assert_array_equal(a.slack, b.slack)
+    assert [(e.kind, e.members, e.time) for e in a.contacts] == [(e.kind, e.members, e.time) for e in b.contacts]
+    if name == "crossing":   # the chunked path's contact events were checked
+        assert a.contacts
+    _close(fast.positions, slow.positions, "final positions")
+    assert fast.step_count == slow.step_count == steps
+
+
+def test_run_every_sums_impulses_and_keeps_the_last_step():
+    """every=k keeps steps k, 2k, ... and the last; impulses are the sums of the full run's."""
+    make, dt, _ = ELASTIC_SCENES["bungee"]
+    full = ts.Simulator(make(), method="elastic", dt=dt).run(steps=100)
+    thin = ts.Simulator(make(), method="elastic", dt=dt).run(steps=100, every=30)
+    kept = np.array([30, 60, 90, 100]) - 1
+    np.testing.assert_array_equal(thin.time, full.time[kept])
+    np.testing.assert_array_equal(thin.positions, full.positions[kept])
+    sums = np.add.reduceat(full.impulses, [0, 30, 60, 90], axis=0)
+    np.testing.assert_allclose(thin.impulses, sums, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(thin.tensions, sums / (np.array([30, 30, 30, 10])[:, None] * dt), rtol=1e-13)
+
+
+@pytest.mark.parametrize("every", [0, -1, 1.5, True, "2"])
+def test_run_every_is_checked(every):
+    sim = ts.Simulator(ts.Scene.from_dict(bungee_dict()), method="elastic", dt=1e-4)
+    with pytest.raises(ValueError, match=r"every must be a whole number >= 1, got"):
+        sim.run(steps=10, every=every)
+    assert sim.step_count == 0
+
+
+def _rigid_prism():
+    d = ts.load_scene("prism3").to_dict()
+    for s in d["struts"]:
+        s["stiffness"] = "rigid"
+        del s["rest_length"]
+    return random_velocities(ts.Scene.from_dict(d), seed=4, scale=0.5)
+
+
+def _inextensible_scenes():
+    from test_inextensible import chain, hanging_chain, pendulum, sling, two_masses
+    return {   # (scene, dt, steps, solver): the scenes of test_inextensible.py and the built-ins rattling
+        "sling": (lambda: sling(0.8 - 2.0 * 20.3 * 1e-3), 1e-3, 60, None),
+        "two_masses": (lambda: two_masses(duplicates=3), 1.1e-3, 300, None),
+        "chain": (lambda: chain([1.0, 2.0, 0.5, 1.5], 3.0, 0.05), 1e-3, 200, "daqp"),
+        "chain_sparse": (lambda: chain([1.0, 2.0, 0.5, 1.5], 3.0, 0.05), 1e-3, 200, "sparse"),
+        "pendulum": (lambda: pendulum(60.0), 2e-3, 300, None),
+        "rigid_prism": (_rigid_prism, 1e-3, 500, None),
+        "prism3": (lambda: random_velocities(ts.load_scene("prism3"), seed=2, scale=0.3), 1e-3, 300, None),
+        "icosahedron": (lambda: random_velocities(ts.load_scene("icosahedron"), seed=2, scale=0.3), 1e-3, 300,
+                        None),
+        "tower": (lambda: random_velocities(ts.load_scene("tower"), seed=2, scale=0.3), 1e-3, 200, None),
+        "hanging_chain_sparse": (lambda: hanging_chain(120, ratio=1e4), 1e-4, 30, None),
+    }
+
+
+INEXTENSIBLE = ["sling", "two_masses", "chain", "chain_sparse", "pendulum", "rigid_prism", "prism3",
+                "icosahedron", "tower", "hanging_chain_sparse"]
+
+
+@pytest.mark.parametrize("name", INEXTENSIBLE)
+def test_inextensible_step_matches_reference(name):
+    """Rows, targets, landing and the answer check compiled against the numpy reference, with the same
+    QP backend: the same trajectory to 1e-12, a reel-in command mid-run included."""
+    make, dt, steps, solver = _inextensible_scenes()[name]
+    scene = make()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LengthOffsetWarning)
+        compiled = ts.Simulator(scene, method="inextensible", dt=dt, solver=solver)
+        reference = ts.Simulator(scene, method="inextensible", dt=dt, solver=solver)
+    reference._method.compiled = False
+    assert compiled._method.compiled and not reference._method.solver.compiled
+    for k in range(steps):
+        if k == steps // 2 and name != "rigid_prism":   # a commanded shortening (the rigid prism is locked)
+            for sim in (compiled, reference):
+                sim.set_rest_lengths(sim.rest_lengths * 0.999)
+        a, b = compiled.step(), reference.step()
+        _close(a.positions, b.positions, f"positions, step {k}")
+        _close(a.velocities, b.velocities, f"velocities, step {k}")
+        _close(a.impulses, b.impulses, f"impulses, step {k}")
+        assert np.array_equal(a.slack, b.slack), f"slack, step {k}"
+
+
+@pytest.mark.parametrize("backend", ["daqp", "osqp", "nnls"])
+def test_answer_check_matches_reference(backend):
+    """The compiled optimality check reports the numpy reference's residuals (to 1e-12 relative) on
+    the QPs of a rattling prism, and both accept the answers, for every verifying backend (OSQP fails
+    on the icosahedron, qp.py's docstring)."""
+    make, dt, steps, _ = _inextensible_scenes()["prism3"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LengthOffsetWarning)
+        sim = ts.Simulator(make(), method="inextensible", dt=dt, solver=backend)
+    solver = sim._method.solver
+    checked = []
+    original = solver._check
+
+    def both(v, y, v0, rows):
+        fast = kernels.answer_residuals(v, y, v0, rows.nodes, rows.directions, rows.targets, rows.n_eq,
+                                        solver.mass, qp._FEASIBILITY_TOL)
+        fast, slow = np.array(fast), np.array(solver._residuals_reference(v, y, v0, rows))
+        # the scales to 1e-12 relative; the residuals, themselves round-off, to 1e-12 of their scale
+        np.testing.assert_allclose(fast[[0, 2]], slow[[0, 2]], rtol=TOL)
+        np.testing.assert_allclose(fast[[1, 5]], slow[[1, 5]], rtol=0, atol=TOL * slow[0])
+        np.testing.assert_allclose(fast[[3, 4]], slow[[3, 4]], rtol=0, atol=TOL * slow[2])
+        np.testing.assert_array_equal(kernels.dense_rows(rows.nodes, rows.directions, solver.n_free,
+                                                         np.ones(3 * solver.n_free)), rows.dense(solver.n_free))
+        checked.append(len(rows))
+        original(v, y, v0, rows)
+    solver._check = both
+    sim.run(steps=30)
+    assert len(checked) >= 30
+
+
+@pytest.mark.parametrize("name", ["bungee", "crossing"])
+def test_cli_summary_in_chunks_matches_stepping(name):
+    """`tensegrity-sim run` without commands or a log runs in chunks: the same summary as step by step
+    (peak tension and its cable, slack switches, contact events, energies)."""
+    from tensegrity_sim.cli import simulate
+    make, dt, steps = ELASTIC_SCENES[name]
+    scene = make()
+    chunked = simulate(ts.Simulator(scene, method="elastic", dt=dt), 2 * steps + 7)
+    stepped = simulate(ts.Simulator(scene, method="elastic", dt=dt), 2 * steps + 7, on_step=lambda r: None)
+    assert chunked.switches > 0 if name == "bungee" else chunked.contacts > 0
+    for field in ("steps", "sim_time", "max_tension", "max_tension_cable", "switches", "contacts",
+                  "contact_begins", "contact_pairs", "energy_start", "energy_end"):
+        assert getattr(chunked, field) == getattr(stepped, field), field
