@@ -33,6 +33,12 @@ INSTALL_REQUIRES = [
     # MCAP logs and ROS 2 Jazzy message types without ROS (tensegrity_sim.ros)
     "mcap>=1.6.0,<2",
     "rosbags>=0.11.9,<0.12",
+    # Looking at a run (tensegrity_sim.viz): the main job writes its figures and its 3-D page, so these are
+    # core; plotly's wheel carries plotly.js, which the page embeds (offline, nothing fetched)
+    "matplotlib>=3.11.2,<4",
+    "plotly>=7.1.0,<8",
+    # Parquet tables (a sweep's results; plot reads them)
+    "pyarrow>=26.0.1,<27",
 ]
 # ROS 2 Jazzy from PyPI: wheels exist for Linux x86_64 and CPython 3.11/3.12 only (none for ros2cli,
 # launch or rosbag2). Elsewhere the extra installs nothing; use the "dds" extra there.
@@ -41,11 +47,17 @@ ROS_WHEELS = 'platform_system == "Linux" and platform_machine == "x86_64" and py
 EXTRAS_REQUIRE = {
     "test": [
         "pytest>=9.0.3,<10",
-        "hypothesis>=6.170.15,<7",  # property-based fuzzing of every public boundary (test/test_fuzz*.py)
+        "hypothesis>=6.170.15,<7",  # property-based fuzzing of every public boundary (test/test_fuzz_*.py)
         "mcap-ros2-support>=0.6.0,<0.7",  # an independent reader of the logs
         "quadprog>=0.1.14,<0.2",  # an independent QP solver to check the QP backends against
         "cyclonedds>=11.0.1,<12",  # the DDS transport's end-to-end tests run in CI
         "mujoco>=4.0.0,<5",      # test/test_peers.py cross-checks the elastic method against MuJoCo
+        "foxglove-sdk>=0.30.3,<0.31",    # serve --foxglove is tested end to end
+        "websocket-client>=1.9.2,<2",   # a WebSocket client of our own for that test (and bench/bench_view.py)
+    ],
+    # Live to Foxglove without ROS (tensegrity-sim serve --foxglove).
+    "foxglove": [
+        "foxglove-sdk>=0.30.3,<0.31",
     ],
     # Live topics without a ROS install (tensegrity-sim serve --transport dds).
     "dds": [
@@ -63,8 +75,7 @@ EXTRAS_REQUIRE = {
         ("ros-jazzy-rosgraph-msgs", "2.0.3", "3"),
     )],
     "bench": [
-        "matplotlib>=3.11.2,<4",
-        "mujoco>=4.0.0,<5",      # the peer in bench/run_all.py
+        "mujoco>=4.0.0,<5",      # the peer in bench/run_all.py (matplotlib is a core dependency)
     ],
 }
 
@@ -72,7 +83,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    package_data={f"{PACKAGE}.scenes": ["*.yaml"]},
+    package_data={f"{PACKAGE}.scenes": ["*.yaml"], f"{PACKAGE}.schedules": ["*.yaml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

@@ -7,7 +7,10 @@ import json
 import os
 import sys
 import time
+import warnings
 from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
@@ -24,6 +27,8 @@ DEFAULT_SCENE = "prism3"
 PROGRESS_MIN_STEPS = 20_000  # runs shorter than this finish too quickly to need a progress bar
 _CHUNK = 1000                # steps per Simulator.run call when nothing happens between steps
 DEFAULT_LOG_DIR = "bags"     # run --log without a value: bags/<scene>_<time>.mcap
+DEFAULT_PLOT_DIR = "plots"   # plot / view without --out: plots/<log name>/
+DEMO_SCHEDULE = "prism3_demo.yaml"  # the main job's (run without a scene): tensegrity_sim/schedules/
 
 
 @dataclass
@@ -45,6 +50,7 @@ class RunSummary:
     contact_pairs: int = 0
     energy_start: float = 0.0
     energy_end: float = 0.0
+    commanded: bool = False  # commands did work: the energy change is not a drift
     extra: dict = field(default_factory=dict)
 
     def lines(self) -> list[str]:
@@ -63,7 +69,8 @@ class RunSummary:
             f"contacts         {self.contacts} events ({self.contact_begins} begin, "
             f"{self.contacts - self.contact_begins} end) between {self.contact_pairs} member pairs",
             f"energy           {self.energy_start:.9g} J -> {self.energy_end:.9g} J "
-            f"(drift {drift:+.3e} J, {drift / scale:+.3e} relative)",
+            + (f"(change {drift:+.3e} J, the commands' work included)" if self.commanded else
+               f"(drift {drift:+.3e} J, {drift / scale:+.3e} relative)"),
         ]
         out += [f"{k:<16} {v}" for k, v in self.extra.items()]
         return out
@@ -142,10 +149,18 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    scene = load_scene(args.scene)
+    demo = args.scene is None  # the main job: the default scene with its schedule
+    scene = load_scene(DEFAULT_SCENE if demo else args.scene)
     sim = Simulator(scene, method=args.method, dt=args.dt, contacts=args.contacts, solver=args.solver,
                     order=args.order)
-    commands = load_commands(args.commands, scene) if args.commands else None
+    if demo and args.commands is None:
+        with resources.as_file(resources.files("tensegrity_sim.schedules") / DEMO_SCHEDULE) as path:
+            commands = load_commands(path, scene)
+        args.commands = f"the built-in {DEMO_SCHEDULE} (tensegrity_sim/schedules/)"
+    else:
+        commands = load_commands(args.commands, scene) if args.commands else None
+    if (args.plot or args.view) and args.log is None:
+        args.log = DEFAULT_LOG_DIR  # the figures and the page are made from the log
     steps = int(round(args.duration / sim.dt))
     print(f"method: {sim.method_reason}")
     progress = steps >= PROGRESS_MIN_STEPS and not args.quiet
@@ -157,7 +172,67 @@ def _cmd_run(args: argparse.Namespace) -> int:
         with logged_run(sim, args.log) as driver:
             summary = simulate(sim, steps, commands, progress=progress, driver=driver)
         summary.extra["log"] = driver.path
+    if args.commands:
+        summary.extra["commands"] = args.commands
+        summary.commanded = True
+    if (args.plot or args.view) and driver.logic.publications == 0:
+        summary.extra["plots"] = "none: the run ended before its first publication (there is nothing to draw)"
+    else:
+        if args.plot:
+            summary.extra["plots"] = _write_plots(driver.path, _output(args.plot, driver.path, ""))
+        if args.view:
+            summary.extra["page"] = _write_page(driver.path, _output(args.view, driver.path, ".html"))
     print("\n".join(summary.lines()))
+    return 0
+
+
+def _output(spec: str, log: Path, suffix: str) -> Path:
+    """Where ``plot`` (``suffix`` "") or ``view`` (".html") writes for ``log``: ``spec`` itself when it is
+    a file name (ends with ``suffix``), else ``spec/<log name><suffix>``."""
+    spec = Path(spec)
+    return spec if suffix and spec.suffix == suffix else spec / (Path(log).stem + suffix)
+
+
+def _write_plots(log: Path, out: Path) -> str:
+    from .ros.record import read_log, with_energy
+    from .viz.plots import plot_run
+
+    paths = plot_run(with_energy(read_log(log)), out)
+    return f"{out}/ ({', '.join(sorted({p.stem for p in paths}))}; png and svg)"
+
+
+def _write_page(log: Path, out: Path) -> str:
+    from .ros.record import read_log
+    from .viz.page import write_page
+
+    path, frames = write_page(read_log(log), out)
+    return f"{path} ({frames} frames, {path.stat().st_size / 1e6:.1f} MB): open it in a browser"
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    if Path(args.source).suffix == ".parquet":
+        import pyarrow.parquet as pq
+
+        from .viz.plots import plot_sweep
+
+        try:
+            table = pq.read_table(args.source)
+        except (OSError, ValueError) as exc:  # pyarrow's errors are both
+            raise ValueError(f"{args.source}: cannot read the Parquet table: {exc}") from None
+        out = Path(args.out or Path(DEFAULT_PLOT_DIR) / Path(args.source).stem)
+        paths = plot_sweep(table, out, x=args.x, y=args.y, by=args.by)
+        print("\n".join(f"wrote            {p}" for p in paths))
+        return 0
+    if args.x or args.by or args.y != "max_tension":
+        raise ValueError("--x, --y and --by are for a sweep's Parquet table, not a log")
+    out = Path(args.out) if args.out else _output(DEFAULT_PLOT_DIR, Path(args.source), "")
+    print(f"plots            {_write_plots(Path(args.source), out)}")
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    out = _output(args.out or DEFAULT_PLOT_DIR, Path(args.source), ".html")
+    print(f"page             {_write_page(Path(args.source), out)}")
     return 0
 
 
@@ -190,6 +265,17 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     from .ros.node_logic import NodeSettings
 
     settings = NodeSettings(**{name: getattr(args, name) for name in NodeSettings().parameters})  # checks them
+    if args.foxglove is not None:
+        if args.transport != "auto" or args.interface is not None:
+            raise ValueError("--foxglove streams to Foxglove's WebSocket server: --transport and --interface "
+                             "are for the ROS 2 node")
+        import logging
+
+        from .ros.foxglove_node import serve_foxglove  # needs the "foxglove" extra (foxglove-sdk)
+
+        logging.basicConfig(level=logging.INFO, format="[%(levelname)s] %(name)s: %(message)s")
+        serve_foxglove(settings, port=args.foxglove, host=args.foxglove_host)
+        return 0
     rclpy_found = importlib.util.find_spec("rclpy") is not None
     transport = ("rclpy" if rclpy_found else "dds") if args.transport == "auto" else args.transport
     if transport == "rclpy":
@@ -241,6 +327,11 @@ def _add_serve(verbs) -> None:
     serve.add_argument("--interface",
                        help="DDS transport: network interface name or address, or 'auto' (default: lo, this "
                             "host only; a ROS 2 machine elsewhere needs the interface towards it)")
+    serve.add_argument("--foxglove", nargs="?", type=int, const=8765, metavar="PORT",
+                       help="stream live to Foxglove through its WebSocket server instead (no ROS; extra "
+                            "'foxglove'); PORT default 8765, 0 = any free port")
+    serve.add_argument("--foxglove-host", default="127.0.0.1",
+                       help="address the Foxglove server listens on (default: 127.0.0.1, this host only)")
     serve.set_defaults(func=_cmd_serve)
 
 
@@ -265,8 +356,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = verbs.add_parser("run", help="simulate a scene offline, as fast as possible",
                            description="Simulate a scene offline, as fast as possible, and print a summary.")
-    run.add_argument("scene", nargs="?", default=DEFAULT_SCENE,
-                     help=f"a built-in scene name or a YAML file (default: {DEFAULT_SCENE})")
+    run.add_argument("scene", nargs="?", default=None,
+                     help=f"a built-in scene name or a YAML file; without it the main job: {DEFAULT_SCENE} with the "
+                          f"schedule tensegrity_sim/schedules/{DEMO_SCHEDULE}, where cables slacken and snap "
+                          f"(unless --commands is given)")
     run.add_argument("--method", default="auto", help="elastic | inextensible | auto (default: auto)")
     run.add_argument("--solver", choices=sorted(SOLVERS), default=None,
                      help=f"QP backend of the inextensible method (default: daqp below {SPARSE_NODES} free "
@@ -283,7 +376,37 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--log", nargs="?", const=DEFAULT_LOG_DIR, metavar="FILE",
                      help="write an MCAP log (the node's topics): FILE.mcap, or a directory for a timestamped "
                           f"file; without a value {DEFAULT_LOG_DIR}/<scene>_<time>.mcap (give SCENE before it)")
+    run.add_argument("--plot", nargs="?", const=DEFAULT_PLOT_DIR, metavar="DIR",
+                     help="write figures of the run (tensions, impulses, energy, contacts; PNG and SVG) into "
+                          f"DIR/<log name>/ (without a value {DEFAULT_PLOT_DIR}/<log name>/); implies --log")
+    run.add_argument("--view", nargs="?", const=DEFAULT_PLOT_DIR, metavar="DIR|FILE.html",
+                     help="write the run's animated 3-D page (one HTML file that opens offline) as FILE.html or "
+                          f"DIR/<log name>.html (without a value {DEFAULT_PLOT_DIR}/<log name>.html); implies --log")
     run.set_defaults(func=_cmd_run)
+
+    plot = verbs.add_parser("plot", help="figures of a log, or of a sweep's Parquet table",
+                            description="Figures of a log (PNG and SVG): tension per cable with slack spans shaded "
+                                        "and snaps marked, impulses, energy terms (recomputed by replaying the log), "
+                                        "contacts on a time line. Of a sweep's Parquet table: a result column "
+                                        "against a parameter column.")
+    plot.add_argument("source", metavar="LOG|TABLE.parquet",
+                      help="an MCAP log (run --log or the node) or a sweep's Parquet table")
+    plot.add_argument("--out", metavar="DIR",
+                      help=f"directory of the figures (default: {DEFAULT_PLOT_DIR}/<name of the log or table>)")
+    plot.add_argument("--x", help="table: the parameter column (default: the first numeric column but --y)")
+    plot.add_argument("--y", default="max_tension", help="table: the result column (default: max_tension)")
+    plot.add_argument("--by", help="table: one line per value of this column")
+    plot.set_defaults(func=_cmd_plot)
+
+    view = verbs.add_parser("view", help="an animated 3-D page of a log (HTML, opens offline)",
+                            description="Write one self-contained HTML page (no server, no network) with an "
+                                        "animated 3-D view of a log: struts, cables coloured by tension, slack "
+                                        "cables dashed, contacts; play/pause, speed and a time slider. "
+                                        "PAGE.html#t=2.5 opens at 2.5 s.")
+    view.add_argument("source", metavar="LOG", help="an MCAP log written by tensegrity-sim run --log or the node")
+    view.add_argument("--out", metavar="FILE.html|DIR",
+                      help=f"the page (default: {DEFAULT_PLOT_DIR}/<log name>.html)")
+    view.set_defaults(func=_cmd_view)
 
     rep = verbs.add_parser("replay", help="re-simulate a log and check it bit for bit",
                            description="Re-simulate a log from the scene, settings and inputs stored in it and "
@@ -321,8 +444,15 @@ def _one_line(exc: BaseException) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+
+    def one_line(message, category, filename, lineno, file=None, line=None):
+        # a user needs what happened, not the source line that warned
+        print(f"tensegrity-sim {args.verb}: warning: {message}", file=sys.stderr)
+
     try:
-        return args.func(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = one_line
+            return args.func(args)
     except (SceneError, CommandError, ValueError, StepError, OSError) as exc:  # OSError: files, LogWriteError
         print(f"tensegrity-sim {args.verb}: error: {_one_line(exc)}", file=sys.stderr)
         return 2

@@ -21,6 +21,7 @@ from ros_helpers import positions_of, prism
 import tensegrity_sim as ts
 from tensegrity_sim.commands import CommandError, parse_commands
 from tensegrity_sim.ros import messages as M
+from tensegrity_sim.ros.messages import TYPESTORE
 from tensegrity_sim.ros.node_logic import RUNTIME_PARAMETERS, TOPICS, NodeSettings, SimNodeLogic
 
 TALLY: Counter = Counter()  # (target, "accepted" | "refused" | "crashed") -> cases
@@ -256,20 +257,30 @@ WRENCHES = st.tuples(NODE_NAMES, st.one_of(st.lists(FLOATS, min_size=3, max_size
                      st.one_of(st.just([0.0, 0.0, 0.0]), st.lists(FLOATS, min_size=3, max_size=3), VALUES))
 
 
+def _careless(typename, **fields):
+    """A message holding whatever field values were drawn (of any Python type: a careless publisher's). Always
+    rosbags' class, also where rclpy imports: rclpy's classes check types on construction, so with them no
+    such message could even be built, and the node would never be tried with it."""
+    return TYPESTORE.types[typename](**fields)
+
+
+def _header(frame):
+    return _careless("std_msgs/msg/Header", stamp=_careless("builtin_interfaces/msg/Time", sec=0, nanosec=0),
+                     frame_id=frame)
+
+
 def _joint_state(names, pos, vel, eff):
-    """A JointState with whatever fields were drawn (of any Python type: a careless publisher's)."""
-    return M.new("sensor_msgs/msg/JointState", header=M.header(0, ""), name=names, position=pos, velocity=vel,
-                 effort=eff)
+    return _careless("sensor_msgs/msg/JointState", header=_header(""), name=names, position=pos, velocity=vel,
+                     effort=eff)
 
 
 def _wrench(frame, force, torque):
     def vec(v):
         if isinstance(v, list) and len(v) == 3:
-            return M.new("geometry_msgs/msg/Vector3", x=v[0], y=v[1], z=v[2])
+            return _careless("geometry_msgs/msg/Vector3", x=v[0], y=v[1], z=v[2])
         return v
-    return M.new("geometry_msgs/msg/WrenchStamped", header=M.new("std_msgs/msg/Header",
-                                                                 stamp=M.time(0), frame_id=frame),
-                 wrench=M.new("geometry_msgs/msg/Wrench", force=vec(force), torque=vec(torque)))
+    return _careless("geometry_msgs/msg/WrenchStamped", header=_header(frame),
+                     wrench=_careless("geometry_msgs/msg/Wrench", force=vec(force), torque=vec(torque)))
 
 
 NODE_ACTIONS = st.lists(st.one_of(

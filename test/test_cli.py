@@ -12,12 +12,25 @@ from tensegrity_sim.commands import CommandError, parse_commands
 from conftest import deadband_dict
 
 
-def test_run_default_scene_prints_summary(capsys):
-    assert main(["run", "--duration", "0.2", "--quiet"]) == 0
-    out = capsys.readouterr().out
-    assert "scene            prism3" in out
-    assert "simulated        0.2 s in 200 steps" in out
-    assert "steps/s" in out and "max tension" in out and "drift" in out and "switches" in out
+def test_main_job_shows_slack_and_snaps_and_says_where_it_wrote(tmp_path, monkeypatch, capsys):
+    """``run --plot --view`` without a scene: prism3 with its demo schedule, logged, plotted, and a page.
+    By 3.2 s the side cables were reeled out (every cable slackens) and back in (every cable snaps taut)."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "--duration", "3.2", "--quiet", "--plot", "--view"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "scene            prism3" in lines and "simulated        3.2 s in 3200 steps" in lines
+    assert "steps/s" in lines[5] and "max tension" in lines[6] and "the commands' work included" in lines[9]
+    switches = int(lines[7].split()[1])
+    assert switches >= 2 * 9  # each of the 9 cables went slack, then taut
+    [log] = [line.split()[1] for line in lines if line.startswith("log ")]
+    assert (tmp_path / log).stat().st_size > 0
+    [plots] = [line for line in lines if line.startswith("plots ")]
+    stem = log.split("/")[-1][:-len(".mcap")]
+    assert plots.split()[1] == f"plots/{stem}/"
+    for name in ("tensions", "impulses", "energy", "contacts"):
+        assert (tmp_path / "plots" / stem / f"{name}.png").stat().st_size > 0
+    [page] = [line for line in lines if line.startswith("page ")]
+    assert page.split()[1] == f"plots/{stem}.html" and (tmp_path / "plots" / f"{stem}.html").exists()
 
 
 def test_run_refuses_bad_scene_with_exit_2(tmp_path, capsys):
@@ -79,3 +92,28 @@ def test_run_with_commands_file(tmp_path, capsys):
     assert "c0" in scene.cable_names
     assert main(["run", "prism3", "--duration", "0.1", "--commands", str(cmds), "--quiet"]) == 0
     assert "switches" in capsys.readouterr().out
+
+
+def test_plot_and_view_of_a_run_too_short_to_publish_say_so(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "--duration", "0.004", "--quiet", "--plot", "--view"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "plots            none: the run ended before its first publication (there is nothing to draw)" in out
+    assert not (tmp_path / "plots").exists()
+
+
+def test_a_warning_is_one_line_and_info_lists_the_settings_one_per_line(tmp_path, capsys):
+    log = tmp_path / "ico.mcap"
+    assert main(["run", "icosahedron", "--method", "inextensible", "--duration", "0.02", "--quiet",
+                 "--log", str(log)]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.splitlines() == [
+        "tensegrity-sim run: warning: inextensible cables: 24 cables start longer than their rest length "
+        "(prestress); their length limits are rest length + that stretch (largest 0.130506 m, 'c22'), kept "
+        "when rest lengths are commanded"]
+    assert [line for line in captured.out.splitlines() if line.startswith("log")] == [f"log              {log}"]
+    assert main(["info", str(log)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    first = out.index("settings")
+    assert "  solver         daqp" in out[first:first + 20]
+    assert "  length_offsets 24 cables, 0.130506 m to 0.130506 m (c22); the log's metadata has each" in out

@@ -264,7 +264,7 @@ def test_start_up_and_shut_down_are_clean(tmp_path):
     # A bad interface or domain is refused at start with the reason, before anything runs.
     refusals = [(("--transport", "dds", "--interface", "nonexistent0"), "no network interface named 'nonexistent0'"),
                 (("--transport", "dds", "--domain-id", "999"), "domain_id must be a whole number in [0, 232], got 999"),
-                (("--transport", "dds", "--publish-rate", "0"), "parameter 'publish_rate': must be > 0"),
+                (("--transport", "dds", "--publish-rate", "0"), "parameter 'publish_rate': must be >= 1e-06, got 0.0"),
                 (("--transport", "dds", "--solver", "cplex"), "parameter 'solver': must be one of daqp, osqp, nnls, "
                                                               "sparse, auto or empty, got 'cplex'")]
     if importlib.util.find_spec("rclpy") is None:

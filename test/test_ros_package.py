@@ -79,7 +79,8 @@ def test_package_xml_format3_and_dependencies(setup_kwargs):
     assert not missing, f"package.xml lacks exec_depend {sorted(missing)}"
     assert {"python3-numpy", "python3-scipy", "python3-yaml", "python3-tqdm"} <= exec_depends
     # every runtime dependency of setup.py is a rosdep key here or named as one that pip installs
-    rosdep_keys = {"numpy": "python3-numpy", "scipy": "python3-scipy", "pyyaml": "python3-yaml", "tqdm": "python3-tqdm"}
+    rosdep_keys = {"numpy": "python3-numpy", "scipy": "python3-scipy", "pyyaml": "python3-yaml", "tqdm": "python3-tqdm",
+                   "numba": "python3-numba"}
     from_pypi = (ROOT / "package.xml").read_text().split("from PyPI", 1)[1].split("-->", 1)[0]
     for name in (canonicalize_name(Requirement(r).name) for r in setup_kwargs["install_requires"]):
         assert rosdep_keys.get(name) in exec_depends or name in from_pypi.split(), name

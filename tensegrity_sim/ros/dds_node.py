@@ -18,24 +18,21 @@ and network sees and drives it like the rclpy node. What differs, because DDS al
 """
 from __future__ import annotations
 
-import contextlib
 import logging
-import time
-from typing import Callable
 
 from .dds import DEFAULT_INTERFACE, Participant, QosProfile, ros_peer_settings
 from ..scene import load_scene
 from ..simulator import Simulator
 from . import messages as M
-from .log import LogRecorder, SignalLatch, log_file_path
+from .live import run_logged
+from .log import SignalLatch, log_file_path
 from .node_logic import RUNTIME_PARAMETERS, SERVICES, TOPICS, NodeSettings, Qos, SimNodeLogic, resolve_topic
 
-__all__ = ["COMMAND_TOPIC", "RESULT_TOPIC", "DdsTransport", "run_command", "serve", "spin"]
+__all__ = ["COMMAND_TOPIC", "RESULT_TOPIC", "DdsTransport", "run_command", "serve"]
 
 COMMAND_TOPIC = "~/command"
 RESULT_TOPIC = "~/command_result"
 _STRING = "std_msgs/msg/String"
-DIAGNOSTICS_PERIOD = 1.0  # s of wall-clock time between two /diagnostics, as the rclpy node
 
 
 def qos_profile(qos: Qos) -> QosProfile:
@@ -124,46 +121,13 @@ def serve(settings: NodeSettings, *, domain_id: int = 0, interface: str = DEFAUL
                                                  namespace=namespace or "/") as dds:
             transport = DdsTransport(dds, settings.node_name)
             logic = SimNodeLogic(sim, settings, transport=transport, raw_transport=True, logger=log)
-            recorder = LogRecorder(path, logic.channels(), logic.run_info()) if path else None
-            logic.recorder = recorder
-            try:
-                with recorder or contextlib.nullcontext():
-                    log.info(f"serving {sim.scene.name} ({sim.method}, dt = {sim.dt:g} s) over DDS on domain "
-                             f"{domain_id}, interface {interface}" + (f"; logging to {path}" if path else ""))
-                    peer = ros_peer_settings(interface, domain_id)
-                    if peer is not None:
-                        log.info(f"ROS 2 processes on this host see it with {peer} (or "
-                                 f"ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST): Jazzy's default discovery needs "
-                                 f"multicast, which loopback does not carry (msg_docs/dds.md)")
-                    spin(logic, transport, latch=latch, log=log)
-            finally:
-                lines = logic.summary() + [f"{'undecodable_samples':<27} {transport.undecodable}"]
-                lines += [f"{'log':<27} {p}" for p in (recorder.paths if recorder else [])]
-                print("\n".join(lines), flush=True)
+            peer = ros_peer_settings(interface, domain_id)
+            notes = () if peer is None else (
+                f"ROS 2 processes on this host see it with {peer} (or ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST): "
+                f"Jazzy's default discovery needs multicast, which loopback does not carry (msg_docs/dds.md)",)
+            run_logged(logic, transport, path, latch=latch, log=log,
+                       serving=f"serving {sim.scene.name} ({sim.method}, dt = {sim.dt:g} s) over DDS on domain "
+                               f"{domain_id}, interface {interface}", notes=notes,
+                       extra=lambda: [f"{'undecodable_samples':<27} {transport.undecodable}"])
     except KeyboardInterrupt:
         pass  # Ctrl-C is how a server is stopped
-
-
-def spin(logic: SimNodeLogic, transport: DdsTransport, *, latch: SignalLatch, log: logging.Logger,
-         clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> None:
-    """The node's single thread, as the rclpy node's executor: every ``1/step_rate`` s of wall-clock time
-    take the inputs, run the steps due (:meth:`SimNodeLogic.tick`), and once a second publish
-    ``/diagnostics``; until SIGINT or SIGTERM, which ``latch`` raises here, between two ticks."""
-    next_tick = clock()
-    next_diagnostics = next_tick + DIAGNOSTICS_PERIOD
-    while True:
-        latch.raise_if_signalled()
-        transport.poll(logic, log)
-        logic.tick()
-        now = clock()
-        if now >= next_diagnostics:
-            logic.publish_diagnostics()
-            next_diagnostics = now + DIAGNOSTICS_PERIOD
-        # Ticks keep an absolute cadence; the logic's own schedule decides how many steps each runs,
-        # so a late tick is caught up in steps, not in extra ticks.
-        next_tick += 1.0 / logic.settings.step_rate
-        delay = next_tick - clock()
-        if delay > 0:
-            sleep(delay)
-        else:
-            next_tick = clock()

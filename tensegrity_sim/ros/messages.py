@@ -89,14 +89,19 @@ def serialize(message, typename: str) -> bytes:
     return bytes(TYPESTORE.serialize_cdr(rosbags_message(message, typename), typename))
 
 
+_PLACEHOLDER = "structure_needs_at_least_one_member"  # rosbags' one field of a message that has none
+
+
 def rosbags_message(message, typename: str):
     """``message`` (of ``typename``, from either backend) as an object of rosbags' type store, values
-    unchanged; a rosbags message is returned as it is. (A message with no fields has one in rosbags,
-    ``structure_needs_at_least_one_member``, 0, as on the wire; rclpy hides it: hence the default.)"""
+    unchanged; a rosbags message is returned as it is. AttributeError for an object that lacks a field.
+    (A message with no fields has one in rosbags, 0 on the wire, which rclpy hides: it is copied as 0.)"""
     if isinstance(message, TYPESTORE.types[typename]):
         return message
     _, fields = TYPESTORE.fielddefs[typename]
-    return TYPESTORE.types[typename](**{name: _rosbags_value(getattr(message, name, 0), desc) for name, desc in fields})
+    return TYPESTORE.types[typename](**{
+        name: _rosbags_value(getattr(message, name, 0) if name == _PLACEHOLDER else getattr(message, name), desc)
+        for name, desc in fields})
 
 
 def _rosbags_value(value, desc):
@@ -121,10 +126,13 @@ def _rosbags_value(value, desc):
 
 
 def deserialize(data: bytes, typename: str):
-    """The message of ``typename`` encoded in CDR ``data``."""
+    """The message of ``typename`` encoded in CDR ``data``. Decoded by rosbags first whichever the backend, so
+    that what is refused is the same with and without rclpy: rclpy's decoder accepts what rosbags refuses
+    (a string that is not UTF-8 comes out with replacement characters)."""
+    message = TYPESTORE.deserialize_cdr(data, typename)
     if BACKEND == "rclpy":
         return _rclpy_deserialize(bytes(data), message_class(typename))
-    return TYPESTORE.deserialize_cdr(data, typename)
+    return message
 
 
 def field_names(message) -> list[str]:

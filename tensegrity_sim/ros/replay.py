@@ -36,6 +36,7 @@ import struct
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import yaml
@@ -172,9 +173,10 @@ def _first_difference(a, b, path: str = "") -> tuple[str, str, str] | None:
 
 # --------------------------------------------------------------------------- replay
 def _walk(reader: LogReader, path: Path, report: ReplayReport, logic: SimNodeLogic, sim: Simulator, key_of: dict,
-          failure_name: str, advance_to, pending: deque) -> None:
+          failure_name: str, advance_to, pending: deque, on_publication=None) -> None:
     """Replay every message of ``reader`` (see the module docstring); stops at the first mismatch, which it
-    puts in ``report``. A corrupt record raises :class:`~.log_reader.LogCorruptError`."""
+    puts in ``report``. A corrupt record raises :class:`~.log_reader.LogCorruptError`. ``on_publication``:
+    as :func:`replay`'s."""
     for message in reader.messages():
         key = key_of.get(message.topic)
         if key is None:
@@ -227,6 +229,8 @@ def _walk(reader: LogReader, path: Path, report: ReplayReport, logic: SimNodeLog
                 report.mismatch = Mismatch(sim.step_count, t, message.topic, *diff)
                 return
         report.compared[message.topic] = report.compared.get(message.topic, 0) + 1
+        if on_publication is not None and key == "cable_states":
+            on_publication(sim)
 
 
 class _Refusals:
@@ -243,8 +247,11 @@ class _Refusals:
         self.errors.append(text)
 
 
-def replay(path: str | Path) -> ReplayReport:
-    """Re-simulate the log at ``path`` from what it holds and compare every published message."""
+def replay(path: str | Path, *, on_publication: Callable[[Simulator], None] | None = None) -> ReplayReport:
+    """Re-simulate the log at ``path`` from what it holds and compare every published message.
+
+    ``on_publication(sim)``, if given, sees the replaying simulator at every reproduced ``cable_states``
+    message (what the log does not hold, such as velocities and energies, read there)."""
     path = Path(path)
     report = ReplayReport(path)
     try:
@@ -278,7 +285,7 @@ def replay(path: str | Path) -> ReplayReport:
             return report.mismatch is None
 
         try:
-            _walk(reader, path, report, logic, sim, key_of, failure_name, advance_to, pending)
+            _walk(reader, path, report, logic, sim, key_of, failure_name, advance_to, pending, on_publication)
         except LogCorruptError as exc:
             report.corrupt = str(exc).removeprefix(f"{path}: ")
         if reader.unfinished:
@@ -297,6 +304,18 @@ def replay(path: str | Path) -> ReplayReport:
 
 
 # --------------------------------------------------------------------------- info
+def _settings_lines(settings: dict) -> list[str]:
+    """The method settings, one per line; per-cable length offsets (m) summed up by count and range."""
+    out = ["settings"]
+    for name, value in sorted(settings.items()):
+        if name == "length_offsets" and isinstance(value, dict) and value:
+            largest = max(value, key=value.get)
+            value = (f"{len(value)} cables, {min(value.values()):.6g} m to {value[largest]:.6g} m ({largest}); "
+                     f"the log's metadata has each")
+        out.append(f"  {name:<14} {value}")
+    return out
+
+
 def log_info(path: str | Path) -> list[str]:
     """A summary of a log: scene, settings, duration, topics and counts, slack/snap/contact statistics.
 
@@ -347,7 +366,7 @@ def log_info(path: str | Path) -> list[str]:
             f"scene            {info['scene_name']} ({len(scene['nodes'])} nodes, {len(scene.get('struts') or [])} "
             f"struts, {len(scene.get('cables') or [])} cables)",
             f"method           {info['method']} ({info['method_reason']}), dt {float(info['dt']):g} s",
-            f"settings         {info['method_settings']}",
+            *_settings_lines(json.loads(info["method_settings"])),
             f"written by       tensegrity_sim {info['package_version']} at {info['created']}",
         ]
         if reader.unfinished:

@@ -1,0 +1,59 @@
+"""The live node's loop, whatever carries its messages (DDS: :mod:`.dds_node`; Foxglove:
+:mod:`.foxglove_node`). A transport is the logic's raw output callback with a ``poll(logic, log)``
+that hands the logic whatever inputs arrived."""
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from typing import Callable
+
+from .log import LogRecorder, SignalLatch
+from .node_logic import SimNodeLogic
+
+__all__ = ["DIAGNOSTICS_PERIOD", "run_logged", "spin"]
+
+DIAGNOSTICS_PERIOD = 1.0  # s of wall-clock time between two /diagnostics, as the rclpy node
+
+
+def run_logged(logic: SimNodeLogic, transport, path, *, latch: SignalLatch, log: logging.Logger, serving: str,
+               notes: tuple[str, ...] = (), extra: Callable[[], list[str]] = list) -> None:
+    """Log to ``path`` (none if empty), say ``serving`` and each of ``notes``, :func:`spin` until SIGINT or
+    SIGTERM, then print the summary, ``extra()`` lines and the log files; the log is finished however it
+    ends."""
+    recorder = LogRecorder(path, logic.channels(), logic.run_info()) if path else None
+    logic.recorder = recorder
+    try:
+        with recorder or contextlib.nullcontext():
+            log.info(serving + (f"; logging to {path}" if path else ""))
+            for note in notes:
+                log.info(note)
+            spin(logic, transport, latch=latch, log=log)
+    finally:
+        lines = logic.summary() + extra() + [f"{'log':<27} {p}" for p in (recorder.paths if recorder else [])]
+        print("\n".join(lines), flush=True)
+
+
+def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Logger,
+         clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> None:
+    """The node's single thread, as the rclpy node's executor: every ``1/step_rate`` s of wall-clock time
+    take the inputs, run the steps due (:meth:`SimNodeLogic.tick`), and once a second publish
+    ``/diagnostics``; until SIGINT or SIGTERM, which ``latch`` raises here, between two ticks."""
+    next_tick = clock()
+    next_diagnostics = next_tick + DIAGNOSTICS_PERIOD
+    while True:
+        latch.raise_if_signalled()
+        transport.poll(logic, log)
+        logic.tick()
+        now = clock()
+        if now >= next_diagnostics:
+            logic.publish_diagnostics()
+            next_diagnostics = now + DIAGNOSTICS_PERIOD
+        # Ticks keep an absolute cadence; the logic's own schedule decides how many steps each runs,
+        # so a late tick is caught up in steps, not in extra ticks.
+        next_tick += 1.0 / logic.settings.step_rate
+        delay = next_tick - clock()
+        if delay > 0:
+            sleep(delay)
+        else:
+            next_tick = clock()
