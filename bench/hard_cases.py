@@ -17,7 +17,7 @@ from tensegrity_sim import formfinding
 
 __all__ = ["hard_case_rows", "CASES"]
 
-LIMIT_RE = re.compile(r"dt must be < 2/omega_\w+ = ([0-9.eE+-]+) s")
+LIMIT_RE = re.compile(r"dt must be < [0-9.]+/omega_\w+ = ([0-9.eE+-]+) s")
 
 
 def _random_velocities(mapping: dict, scale: float, seed: int) -> dict:
@@ -193,8 +193,9 @@ def hovering_cable(runner, quick: bool) -> list[dict]:
 def rest_length_commands(runner, quick: bool) -> list[dict]:
     """The built-in prism3 with its cables shortened slowly (1 mm/s) and all at once (5 % in one step).
     The energy must change by the motor's work and no more. Elastic cables: a rest-length change at fixed
-    positions adds ``strain(new) - strain(old)``, exactly. Inextensible cables: a shortening is a reel-in
-    during the next step, whose work is the cable's impulse times the shortening over the step."""
+    positions adds ``strain(new) - strain(old)``, exactly. Inextensible cables: the rest lengths in effect
+    follow the command at the motors' speed (``reel_speed``, 1 m/s: the 5 % take 50 ms); each step's
+    shortening of them is a reel-in whose work is the cable's impulse times that shortening over the step."""
     rows = []
     scene = ts.load_scene("prism3")
     rest0 = scene.cable_rest_lengths
@@ -208,11 +209,11 @@ def rest_length_commands(runner, quick: bool) -> list[dict]:
         work = dev = 0.0
         grow, scale = -math.inf, abs(e0)
         for k in range(int(round(duration / sim.dt))):
-            old, before = sim.rest_lengths, sim.energy()["total"]
+            old, before = sim.applied_rest_lengths, sim.energy()["total"]
             sim.set_rest_lengths(schedule(k * sim.dt))
             jump = sim.energy()["total"] - before
             r = sim.step()
-            work += jump if elastic else float(r.impulses @ (old - sim.rest_lengths)) / sim.dt
+            work += jump if elastic else float(r.impulses @ (old - sim.applied_rest_lengths)) / sim.dt
             e = sim.energy()["total"] - e0 - work
             dev, grow, scale = max(dev, abs(e)), max(grow, e), max(scale, abs(e0 + work))
         ok, fig = _energy_verdict(runner.model, {"scale": scale, "energy_dev": dev, "energy_growth": grow}, 1e-2)
@@ -225,7 +226,10 @@ def rest_length_commands(runner, quick: bool) -> list[dict]:
 def long_horizon(runner, quick: bool) -> list[dict]:
     """1e6 steps (1e4 with --quick) at 1 ms of the perturbed prism3 and icosahedron: momentum to
     round-off, energy bounded with no drift (elastic: the mean energy deviation over the last tenth of
-    the run at most 3 times that over the first tenth), rigid strut lengths held."""
+    the run at most 3 times that over the first tenth), rigid strut lengths held. The criterion was
+    checked against the signed error (issue 15): where it flags the elastic prism3 (3.22), the mean
+    error of the tenths rises from 3.9e-3 J to 1.3e-2 J over eight consecutive tenths: a drift, not a
+    fluctuation of a bounded error (at 0.5 ms the ratio is 0.47)."""
     rows = []
     steps = 10_000 if quick else 1_000_000
     for name, scale in (("prism3", 0.5), ("icosahedron", 0.5)):

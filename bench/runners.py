@@ -153,9 +153,12 @@ ALL_CONTACTS = {"contacts": CONTACT_KINDS}
 
 
 def tensegrity_runners() -> list[TensegrityRunner]:
-    """The tensegrity_sim configurations of the work-precision sweep: every method, the inextensible
-    one with every QP backend, all without contact detection (MuJoCo's contacts are off too)."""
-    runners = [TensegrityRunner("elastic", "elastic", NO_CONTACTS)]
+    """The tensegrity_sim configurations of the work-precision sweep: every method, the elastic one as
+    plain Verlet (the default, compiled), with located switches and at order 4, the inextensible one with
+    every QP backend, all without contact detection (MuJoCo's contacts are off too)."""
+    runners = [TensegrityRunner("elastic", "elastic", NO_CONTACTS),
+               TensegrityRunner("elastic", "elastic located", {**NO_CONTACTS, "locate_switches": True}),
+               TensegrityRunner("elastic", "elastic order 4", {**NO_CONTACTS, "order": 4})]
     runners += [TensegrityRunner("inextensible", f"inextensible {name}", {**NO_CONTACTS, "solver": name})
                 for name in ts.SOLVERS]
     return runners

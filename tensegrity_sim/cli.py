@@ -151,7 +151,8 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
 def _cmd_run(args: argparse.Namespace) -> int:
     demo = args.scene is None  # the main job: the default scene with its schedule
     scene = load_scene(DEFAULT_SCENE if demo else args.scene)
-    sim = Simulator(scene, method=args.method, dt=args.dt, contacts=args.contacts, solver=args.solver)
+    sim = Simulator(scene, method=args.method, dt=args.dt, contacts=args.contacts, solver=args.solver,
+                    order=args.order)
     if demo and args.commands is None:
         with resources.as_file(resources.files("tensegrity_sim.schedules") / DEMO_SCHEDULE) as path:
             commands = load_commands(path, scene)
@@ -390,6 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--solver", choices=sorted(SOLVERS), default=None,
                      help=f"QP backend of the inextensible method (default: daqp below {SPARSE_NODES} free "
                           f"nodes, sparse from there)")
+    run.add_argument("--order", type=int, choices=(2, 4), default=None,
+                     help="order of the elastic method (default: 2; 4 for small errors, README 'Methods')")
     run.add_argument("--dt", type=_positive_float, default=1e-3, help="step, s (default: 0.001)")
     run.add_argument("--duration", type=_positive_float, default=10.0, help="simulated time, s (default: 10)")
     run.add_argument("--commands", help="a rest-length/force schedule (YAML; see tensegrity_sim.commands)")

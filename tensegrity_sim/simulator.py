@@ -103,10 +103,16 @@ class Simulator:
     detection off. ``contact_kinds`` is what is in use.
     ``solver``: the QP backend of the inextensible method (``methods.qp.SOLVERS``; default: chosen by
     size, ``methods.qp.choose_solver``); ``method_settings`` reports the one in use and why.
+    ``order``: 2 (default) or 4, the elastic method's order (README, "Methods": which for which error);
+    ``locate_switches``: the elastic method splits a step at each slack/taut switch (default: at order 4
+    only; ``method_settings`` says which).
+    ``reel_speed``: the inextensible method's motor top speed, m/s (default 1 m/s; ``math.inf``: none):
+    a faster rest-length command is followed at that speed (``applied_rest_lengths``).
     """
 
     def __init__(self, scene: Scene, method: str = "auto", dt: float = 1e-3, *, contacts=None,
-                 solver: str | None = None):
+                 solver: str | None = None, order: int | None = None, locate_switches: bool | None = None,
+                 reel_speed: float | None = None):
         if not isinstance(scene, Scene):
             raise ValueError(f"scene must be a Scene (see load_scene), got {type(scene).__name__}")
         if contacts is not None:
@@ -115,7 +121,8 @@ class Simulator:
         self.scene = scene
         self.dt = time_step(dt)
         self.system = System(scene)
-        self._method, self.method_reason = make_method(self.system, method, self.dt, solver=solver)
+        self._method, self.method_reason = make_method(self.system, method, self.dt, solver=solver, order=order,
+                                                           locate_switches=locate_switches, reel_speed=reel_speed)
         # None when nothing can be in contact: then detection costs nothing at all
         self._contacts = make_detector(self.system, scene.contact_kinds)
         self._ground = None if scene.ground is None else GroundDetector(self.system)
@@ -164,6 +171,12 @@ class Simulator:
     @property
     def rest_lengths(self) -> np.ndarray:
         return self._state.rest_lengths.copy()
+
+    @property
+    def applied_rest_lengths(self) -> np.ndarray:
+        """The rest lengths in effect (n_cables,) m: ``rest_lengths`` once the motors have reached them
+        (the inextensible method follows a command at ``reel_speed``)."""
+        return self._method.applied_rest_lengths(self._state)
 
     @property
     def external_forces(self) -> np.ndarray:

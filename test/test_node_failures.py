@@ -117,9 +117,10 @@ def test_a_cable_the_structure_cannot_shorten_is_refused_after_the_fact(tmp_path
 
 def test_a_rate_limited_reel_in_stops_where_the_structure_locks(tmp_path):
     """prism3 with rigid struts, c0 20.05 mm slack, reeled in at 0.1 m/s (0.1 mm a step) towards 5 mm
-    shorter than its length. The first 200 steps reel the slack in; the 201st would shorten the
-    now taut c0 of a locked prism and fails. The target is refused after the fact and c0 stays
-    0.05 mm slack; the prism never moves, and the node steps on."""
+    shorter than its length. The first 200 steps reel the slack in; the 201st reels 0.05 mm past c0's
+    length, which a running motor's cable lands half a step's reel (0.05 mm) behind, so it holds; the
+    202nd would shorten the now taut c0 of a locked prism and fails. The target is refused after the
+    fact and c0's rest length stays 0.05 mm below its length; the prism never moves, and the node steps on."""
     scene = locked_prism(0.02005)
     length = float(np.linalg.norm(np.subtract(*scene.positions[[scene.node_names.index(n) for n in
                                                                  scene.cables[0].nodes]])))
@@ -128,15 +129,15 @@ def test_a_rate_limited_reel_in_stops_where_the_structure_locks(tmp_path):
         logic.receive("cable_rest_lengths", rest_lengths_msg(["c0"], [length - 0.005]))
         results = [logic.step() for _ in range(300)]
         logic.publish()
-    assert [k for k, r in enumerate(results) if r is None] == [200]
+    assert [k for k, r in enumerate(results) if r is None] == [201]
     assert logic.sim.step_count == 299 and not logic.paused
-    assert logic.sim.rest_lengths[0] == pytest.approx(length + 0.00005, abs=1e-12)
+    assert logic.sim.rest_lengths[0] == pytest.approx(length - 0.00005, abs=1e-12)
     np.testing.assert_array_equal(logic.sim.rest_lengths[1:], scene.cable_rest_lengths[1:])
     np.testing.assert_array_equal(logic.sim.positions, scene.positions)
     np.testing.assert_array_equal(logic.sim.velocities, 0.0)
     assert logic.refused["cable_rest_lengths"] == 1 and len(logger.warnings) == 1
     assert logger.warnings[0].startswith("/tensegrity_sim/cable_rest_lengths: refused after the fact: the step "
-                                         "from t = 0.200000 s failed: QP solver 'daqp' failed (infeasible)")
+                                         "from t = 0.201000 s failed: QP solver 'daqp' failed (infeasible)")
     assert logger.warnings[0].endswith(LOCKED)
     assert replay(tmp_path / "reel.mcap").ok
 

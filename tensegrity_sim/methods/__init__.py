@@ -78,10 +78,19 @@ def choose_method(system: System, dt: float) -> tuple[str, str]:
                        f"{omega_c / omega_s:.3g} times faster than {what}: their elasticity matters")
 
 
-def make_method(system: System, method: str, dt: float, *, solver: str | None = None) -> tuple[StepMethod, str]:
+# what has each option, for the error when a named method lacks it
+_OPTION_OF = {"solver": "a method with a QP", "order": "the elastic method", "locate_switches": "the elastic method",
+              "reel_speed": "the inextensible method"}
+
+
+def make_method(system: System, method: str, dt: float, **options) -> tuple[StepMethod, str]:
     """Instantiate ``method`` (a name of :data:`METHODS` or ``"auto"``); returns it and the reason.
 
-    ``solver`` names a QP backend (:data:`SOLVERS`) for a method that solves QPs."""
+    ``options`` are the methods' keyword options (``solver`` of a method that solves QPs, ``order`` and
+    ``locate_switches`` of the elastic method, ``reel_speed`` of the inextensible one); None means the
+    method's default. An option the chosen method does not have is an error when the method was named,
+    and ignored when ``"auto"`` chose it."""
+    solver = options.get("solver")
     if solver is not None and (not isinstance(solver, str) or solver not in SOLVERS):
         raise ValueError(f"solver must be one of {sorted(SOLVERS)}, got {describe(solver)}")
     if not isinstance(method, str):
@@ -93,10 +102,9 @@ def make_method(system: System, method: str, dt: float, *, solver: str | None = 
     else:
         raise ValueError(f"method must be one of {sorted(METHODS) + ['auto']}, got {describe(method)}")
     cls = METHODS[method]
-    options = {}
-    if solver is not None:
-        if "solver" in cls.options:
-            options["solver"] = solver
-        elif reason.endswith("requested"):
-            raise ValueError(f"solver={solver!r} is an option of a method with a QP; method {method!r} has none")
-    return cls(system, dt, **options), reason
+    given = {name: value for name, value in options.items() if value is not None}
+    for name in given:
+        if name not in cls.options and reason.endswith("requested"):
+            raise ValueError(f"{name}={describe(given[name])} is an option of {_OPTION_OF[name]}; "
+                             f"method {method!r} has none")
+    return cls(system, dt, **{name: value for name, value in given.items() if name in cls.options}), reason

@@ -21,6 +21,8 @@ Rules for whoever writes a new method (compare ``scipy.integrate.OdeSolver``):
 9. Options (e.g. ``solver``) are keyword-only arguments of ``__init__``, listed in ``options``.
 10. A method with a compiled multi-step loop says so in ``has_loop()`` and implements ``advance()``
     (``Simulator.run`` then runs in it, inputs held); its results must equal those of ``step()``.
+11. ``applied_rest_lengths(state)`` are the rest lengths the cables follow now, if a method lags the
+    commanded ones (a motor's finite speed).
 """
 from __future__ import annotations
 
@@ -108,6 +110,11 @@ class StepMethod:
         the steps since the previous kept one) and ``slack`` (K, n_cables), ``K = ceil(steps / every)``.
         Returns the final positions and velocities (N, 3)."""
         raise NotImplementedError
+
+    def applied_rest_lengths(self, state: State) -> np.ndarray:
+        """The rest lengths in effect (n_cables,) m: the commanded ones, unless the method follows a
+        command at a finite motor speed (the inextensible method's ``reel_speed``)."""
+        return state.rest_lengths.copy()
 
     def slack(self, positions: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
         """(n_cables,) bool: the cables that are slack at ``positions`` (m) for ``rest_lengths`` (m)."""

@@ -5,15 +5,27 @@ Integrator: velocity Verlet (with RATTLE for rigid struts), chosen by measuremen
 
 * It is symplectic and time-reversible, so an undamped structure's energy error stays bounded (it
   oscillates at O(h^2) and does not drift) over long runs; an explicit Runge-Kutta of the same cost
-  drifts.
+  drifts. Not with constant slack/taut switching at a step that barely resolves the fastest vibration
+  (the cable force's kink leaves the theory's smooth case): prism3 with random velocities (0.5 m/s),
+  1e6 steps at 1 ms (``omega_max dt = 0.30``): the energy error's mean over each tenth of the run rises
+  from 3.9e-3 J to 1.3e-2 J (max |dE|/E 4.4e-3; the hard-case table's long-horizon row flags it); at
+  0.5 ms, 2e5 steps, no trend (max |dE|/E 4.1e-4).
 * Every force is an equal-and-opposite pair along a member, and Verlet applies it at one configuration,
   so linear and angular momentum are conserved to round-off (it is a variational integrator).
 * The cable force ``k max(0, e)`` is continuous in the positions and only its derivative jumps at a
-  slack/taut switch. The velocity update is the trapezoidal rule on the force along the trajectory,
-  whose error on the one step containing a kink is O(h^2 [dF/dt]) instead of O(h^3); a switch happens a
-  bounded number of times per unit time, so the global error stays O(h^2) without locating the switch.
-  Measured order on the bungee (free fall, snap, taut swing, release; closed form): 1.94, the
-  least-squares slope over a 32-fold range of steps (``test_elastic.py::test_bungee_converges_second_order``).
+  slack/taut switch. A step containing the kink has an O(h^2) local error whose constant depends on
+  where in the step the switch falls, so by default the step is split at the switch
+  (``locate_switches``, ``methods/composition.py``): each part sees a smooth force and every halving
+  of dt divides the error by 4 (bungee and dead band, 4 ms to 0.25 ms: ratios 3.7 to 4.1, measured by
+  ``test_composition.py``). Unlocated, the global error is still O(h^2) but the ratios scatter (1.5 to
+  44 on the bungee).
+* ``order=4`` composes five Verlet steps (Suzuki) for an O(h^4) error, through switches too.
+* A split step is not symplectic as a whole (its parts' sizes depend on the state). With the fastest
+  vibration resolved that costs nothing measurable, but with it under-resolved the energy random-walks:
+  prism3 (elastic struts, ``omega_max = 302 rad/s``), 1e6 steps at 1 ms (``omega_max dt = 0.30``):
+  located, max |dE|/E 2.1e-2, the tenths' mean rising from 7.5e-3 J to 4.1e-2 J, five times plain
+  Verlet's drift above. So locate at order 2 only where ``omega_max dt <= 0.2`` (prism3 at 0.5 ms, 0.15: max |dE|/E 6.3e-4 over 2e5 steps with no trend, plain Verlet 4.1e-4;
+  the tumbling icosahedron at 1 ms, 0.035: 4.2e-6, flat over 1e5 steps).
 * It is explicit: stable only for ``dt < 2 / omega_max`` of the elastic members. The limit is computed
   at start-up and a larger step is refused with the limit in the message; stiff struts can be made
   ``"rigid"`` instead, which removes their frequency from the limit.
@@ -24,12 +36,14 @@ at the end of a step uses the half-step velocity (first order in the damping ter
 momentum-conserving since it is along the cable).
 
 Impulses: the velocity update applies each cable's tension as ``h/2 (t_start + t_end)``; that is the
-cable's impulse over the step, and ``impulses / h`` the step's mean tension.
+cable's impulse over the step (summed over the parts and stages of a split or composed step), and
+``impulses / h`` the step's mean tension.
 
-Two implementations of the same arithmetic: the numba kernels of ``_elastic_kernels.py`` (used unless
-``compiled`` is False) and the numpy code below, the plain reference they must match to 1e-12 in tests.
-Rigid struts that share a node (class-k: coupled SHAKE/RATTLE, a Newton solve) and scenes with a ground
-are stepped by the reference only.
+Two implementations of the same arithmetic for plain Verlet (order 2, switches not located): the numba
+kernels of ``_elastic_kernels.py`` (used unless ``compiled`` is False) and the numpy code below, the
+plain reference they must match to 1e-12 in tests. The located and order-4 options run the numpy
+primitive :meth:`ElasticMethod.verlet` through ``methods/composition.py``. Rigid struts that share a node
+(class-k: coupled SHAKE/RATTLE, a Newton solve) and scenes with a ground are stepped by the reference only.
 
 **Ground contact** (a scene with a ``ground``; ``methods/friction.py``): an impulse step for the contact
 set at each half-kick while the cables stay explicit. After the first half-kick, the nodes that would
@@ -41,7 +55,8 @@ the impact is not located inside the step, so a step with an impact or a stick/s
 order (a bounce's height is off by O(h v): measured 3e-5..7e-5 m for 1 m at 1 ms), and the scheme is no
 longer symplectic while a contact is closed — contact and friction impulses only remove energy
 (plastic impacts, dissipative friction), but Verlet's own O(h²) energy wobble remains (measured 4e-6
-relative per step on the dropped icosahedron). Away from the ground nothing changes.
+relative per step on the dropped icosahedron). Away from the ground nothing changes. A scene with a
+ground steps plain Verlet (order 2, switches not located): the options are refused there.
 """
 from __future__ import annotations
 
@@ -52,6 +67,7 @@ import numpy as np
 from ..system import System
 from . import _elastic_kernels as kernels
 from .base import MethodStep, State, StepMethod
+from .composition import STABILITY, Stepper
 from .friction import TOUCH_TOL, GroundResponse
 from .qp import make_solver
 from .rigid import RigidStruts
@@ -61,42 +77,66 @@ __all__ = ["ElasticMethod"]
 
 class _Forces(NamedTuple):
     """What the step needs at one configuration: accelerations (N, 3) m/s^2, cable tensions
-    (n_cables,) N, member unit vectors (m, 3), slack cables (n_cables,) bool."""
+    (n_cables,) N, member unit vectors (m, 3), slack cables (n_cables,) bool, cable elongations
+    ``length - rest`` (n_cables,) m (negative when slack)."""
 
     acc: np.ndarray
     cable_tensions: np.ndarray
     directions: np.ndarray
     slack: np.ndarray
+    elongations: np.ndarray
 
 
 class ElasticMethod(StepMethod):
-    """``compiled``: step with the numba kernels (True; not for coupled rigid struts) or the numpy
-    reference (False)."""
+    """Options: ``order`` 2 (velocity Verlet, one force evaluation per step) or 4 (Suzuki's symmetric
+    composition of five Verlet steps, five evaluations); ``locate_switches`` splits a step at each
+    slack/taut switch (``methods/composition.py``); default (None): at order 4 only, since the located
+    order 2 runs the numpy primitive while plain Verlet runs compiled. ``compiled``: plain Verlet steps
+    with the numba kernels (True; not for coupled rigid struts) or the numpy reference (False); the
+    other options always run the numpy primitive."""
 
     name = "elastic"
+    options = ("order", "locate_switches")
 
-    def __init__(self, system: System, dt: float, *, compiled: bool = True):
+    def __init__(self, system: System, dt: float, *, order: int = 2, locate_switches: bool | None = None,
+                 compiled: bool = True):
         super().__init__(system, dt)
         missing = [c.name for c in system.scene.cables if c.stiffness is None]
         if missing:
             raise ValueError(f"method 'elastic' needs a stiffness for every cable; missing for {missing}")
+        if isinstance(order, bool) or order not in STABILITY:
+            raise ValueError(f"order must be one of {sorted(STABILITY)}, got {order!r}")
+        if not (locate_switches is None or isinstance(locate_switches, (bool, np.bool_))):
+            raise ValueError(f"locate_switches must be True, False or None (automatic), got {locate_switches!r}")
+        self.order = int(order)
         self.rigid = RigidStruts(system)
         self.omega_max = system.max_frequency(system.scene.positions, include_cables=True)
-        if self.omega_max * self.dt >= 2.0:
+        if locate_switches is None:
+            locate_switches = self.order == 4
+        self.locate_switches = bool(locate_switches)
+        limit = STABILITY[self.order]
+        if self.omega_max * self.dt >= limit:
             raise ValueError(
-                f"dt={self.dt!r} s is beyond the stability limit of the explicit elastic method: "
-                f"dt must be < 2/omega_max = {2.0 / self.omega_max:.6g} s (omega_max = "
+                f"dt={self.dt!r} s is beyond the stability limit of the explicit elastic method (order "
+                f"{self.order}): dt must be < {limit:g}/omega_max = {limit / self.omega_max:.6g} s (omega_max = "
                 f"{self.omega_max:.6g} rad/s from the stiffest members); use a smaller dt or rigid struts")
+        self.stepper = Stepper(self.verlet, self.order, system, self.dt, self.locate_switches)
         self._damped = bool(np.any(system.cable_damping > 0))
         self._rest = np.empty(system.n_members)
         self._rest[: system.n_struts] = system.strut_rest
         self._cache: _Forces | None = None
         # a ground: the contact set's velocity problem solved by the QP backends (methods/friction.py),
-        # in the reference step
+        # in the reference step, which is then plain Verlet (one primitive step per step)
         self.ground = None
         if system.scene.ground is not None:
+            if self.order != 2 or self.locate_switches:
+                raise ValueError("a scene with a ground is stepped by plain Verlet: order 4 and located "
+                                 "switches are not available with a ground")
             self.ground = GroundResponse(system, make_solver(None, system.masses[system.free]))
-        self.compiled = compiled and not self.rigid.coupled and self.ground is None
+        self._contact = None   # the ground's impulses of the last step (N, 3) N*s, or None
+        # the compiled kernels step plain Verlet only; the options and the ground run the numpy primitive
+        self.compiled = (compiled and not self.rigid.coupled and self.order == 2 and not self.locate_switches
+                         and self.ground is None)
         self._model = kernels.model_arrays(system, self.rigid)
         # the compiled path's carry from one step to the next (batch of one): accelerations (N, 3, 1),
         # cable tensions (n_cables, 1), rigid strut directions (nr, 3, 1) at the last step's end
@@ -144,7 +184,8 @@ class ElasticMethod(StepMethod):
         t, length, n = self.tensions(x, v, state.rest_lengths)
         sys = self.system
         f = sys.assemble(t[:, None] * n) + sys.gravity_force + state.external_forces
-        return _Forces(f * sys.inv_mass[:, None], t[sys.n_struts:], n, length[sys.n_struts:] < state.rest_lengths)
+        e = length[sys.n_struts:] - state.rest_lengths
+        return _Forces(f * sys.inv_mass[:, None], t[sys.n_struts:], n, e < 0, e)
 
     def _advance(self, state: State, x: np.ndarray, v: np.ndarray, steps: int, every: int, positions, velocities,
                  impulses, slack) -> None:
@@ -185,10 +226,18 @@ class ElasticMethod(StepMethod):
         return x, v
 
     def _step_reference(self, state: State) -> MethodStep:
-        h = self.dt
         x, v = state.positions, state.velocities
         # the forces at the step's start are the previous step's end forces, unless an input changed
         start = self._cache if self._cache is not None else self.accelerations(x, v, state)
+        x_new, v_new, end, impulses = self.stepper.step(x, v, start, self.dt, state)
+        self._cache = end
+        return MethodStep(x_new, v_new, impulses, end.slack, self._contact)
+
+    def verlet(self, x: np.ndarray, v: np.ndarray, start: _Forces, h: float, state: State):
+        """The primitive: one velocity-Verlet/RATTLE step of any size ``h`` (s, may be negative) from
+        ``x``, ``v`` (N, 3) with the forces ``start`` at ``x``. Returns the end positions and velocities
+        (N, 3) and the forces there. ``methods/composition.py`` builds every option from it. With a ground
+        (then one primitive step per step) it applies the contact impulses and keeps them in ``_contact``."""
         v_half = v + (0.5 * h) * start.acc
         if self.ground is not None:
             self.ground.begin_step()
@@ -206,15 +255,12 @@ class ElasticMethod(StepMethod):
         v_new = v_half + (0.5 * h) * end.acc
         if self.rigid.count:
             v_new += self.rigid.project_velocities(x_new, v_new, end.directions[self.rigid.members])
-        contact = None
         if self.ground is not None:
             # the closing kick's: no touching node moves into the ground or slides against friction
             if self.ground.arm_settle(x_new, v_new, landing_speed):
                 v_new = self.ground.velocity_step(x_new, v_new, self.rigid)
-            contact = self.ground.take_impulses()
-        self._cache = end
-        return MethodStep(x_new, v_new, (0.5 * h) * (start.cable_tensions + end.cable_tensions), end.slack,
-                          contact)
+            self._contact = self.ground.take_impulses()
+        return x_new, v_new, end
 
     def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
         sys = self.system
@@ -222,3 +268,6 @@ class ElasticMethod(StepMethod):
         _, length, _ = sys.geometry(positions)
         e = np.maximum(length - rest, sys.floor)
         return float(0.5 * np.sum(sys.stiffness * e * e))
+
+    def describe(self) -> dict:
+        return {"method": self.name, "dt": self.dt, "order": self.order, "locate_switches": self.locate_switches}

@@ -33,7 +33,23 @@ angular momentum stay exact. Two caps keep the stabiliser from creating energy:
   ``v_f = -v_i`` meets every row, so the QP is never infeasible. Where a cap binds the member lands
   ``(tau/2)^2 |u_f^2 - u_i^2| / 2L`` off its limit, a bounded error that is not carried forward;
 * a commanded shortening is a reel-in at ``change / h``; the cable may pull faster by twice that rate
-  (the motor's work), so a ramp of rest lengths is followed exactly, and a jump is a reel-in in one step.
+  (the motor's work). It lands half a step's reel behind its moving limit (``h |reel| / 2``, O(h),
+  gone when the motor stops), so its ends move at the motor's speed: landing on the limit would make
+  the second half-step cover the whole reel, and a motor starting from rest would launch them at twice
+  its speed (4x the kinetic energy; a hanging mass reeled at 1 m/s left at 2 m/s and flew 20 cm above
+  the motor's stop). An impulsive start then gains half the motor's work ``y |reel|``, the rest being
+  lost as in a perfectly inelastic impact, as in the exact solution (``test_motor_commands.py``).
+
+**Motor speed.** A rest length is changed by a motor, at a finite speed: the rest lengths in effect
+(``applied_rest_lengths``) follow the commanded ones at most at ``reel_speed`` (default
+``REEL_SPEED`` = 1 m/s; ``math.inf`` for none), so a command faster than that, a jump above all, is
+spread over the steps the motor needs. Why: an inextensible cable reeled in within one step of ``h``
+gives its ends a speed ``2 change / h``, so the kinetic energy of a jump grows as ``1 / h^2`` and does
+not converge; prism3 with every cable 5 % shorter in one 1 ms step took 3.6e3 J of motor work (the
+impulses' work against the reel rate, exactly) and the elastic struts, struck at ``omega h = 0.28``,
+then oscillated 2 % of that around the balance. Spread at 1 m/s the same command takes 82 J, and the
+balance holds to 7.9e-4 (2.0e-4 at 0.5 ms: O(h^2), from the explicit elastic struts), measured by
+``bench/hard_cases.py``; without elastic struts it holds to round-off (``test_inextensible.py``).
 
 **Snaps.** Steering a cable back while its ends still separate would push them apart again (a
 rebound: effective restitution up to 0.96 for Baumgarte with gamma = 1, see the tests). A snap is an
@@ -83,7 +99,9 @@ from .qp import QPError, Rows, choose_solver, make_solver
 from .rigid import RigidStruts
 from .self_stress import TAUT_TOL, SelfStress, reference_tensions
 
-__all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_EVENTS"]
+__all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_EVENTS", "REEL_SPEED"]
+
+REEL_SPEED = 1.0     # m/s: the motors' default top speed (cable-driven tensegrity robots reel slower)
 
 LIMIT_TOL = 1e-9     # relative: a cable within LIMIT_TOL * L of its limit is at it (taut, not slack)
 # Snap events located inside one step; each costs an impact and a sub-step. Later snaps in the same
@@ -106,10 +124,17 @@ class InextensibleMethod(StepMethod):
     (True) or in the numpy reference (False); the QP backend is the same."""
 
     name = "inextensible"
-    options = ("solver",)
+    options = ("solver", "reel_speed")
 
-    def __init__(self, system: System, dt: float, *, solver: str | None = None, compiled: bool = True):
+    def __init__(self, system: System, dt: float, *, solver: str | None = None, reel_speed: float = REEL_SPEED,
+                 compiled: bool = True):
         super().__init__(system, dt)
+        try:
+            self.reel_speed = float(reel_speed)
+        except (TypeError, ValueError):
+            self.reel_speed = float("nan")
+        if not self.reel_speed > 0:
+            raise ValueError(f"reel_speed must be a number of m/s > 0 (math.inf: no limit), got {reel_speed!r}")
         scene = system.scene
         self.omega_struts = system.max_frequency(scene.positions, include_cables=False)
         if self.omega_struts * self.dt >= 2.0:
@@ -154,8 +179,7 @@ class InextensibleMethod(StepMethod):
         self._holding = np.zeros(system.n_cables, dtype=bool)
         self._hint = self._holding   # the QP's warm start of the first sub-step (see invalidate)
         self._end_geometry = None   # (positions, cable vectors, lengths) at the last step's end
-        self._last_rest = scene.cable_rest_lengths
-        self._no_reel = np.zeros(system.n_cables)
+        self._applied = scene.cable_rest_lengths   # the rest lengths in effect (the motors' positions), m
         # what the impulses of a locked structure are published as (issue 20, methods/self_stress.py)
         moving = np.concatenate([np.arange(self._n_eq), self._n_eq + np.flatnonzero(self._cables_move)])
         _, _, n_load = system.geometry(scene.positions, self._ends[moving])
@@ -187,7 +211,11 @@ class InextensibleMethod(StepMethod):
         Initial velocities that stretch a taut cable are an impact at t = 0, resolved by the first step."""
         if self.rigid.count:
             state.velocities = state.velocities + self.rigid.project_velocities(state.positions, state.velocities)
-        self._last_rest = state.rest_lengths
+        self._applied = state.rest_lengths.copy()
+
+    def applied_rest_lengths(self, state: State) -> np.ndarray:
+        """The rest lengths in effect (n_cables,) m: the commanded ones, reached at ``reel_speed``."""
+        return self._applied.copy()
 
     def limits(self, rest_lengths: np.ndarray) -> np.ndarray:
         """Cable length limits (n_cables,) m: rest lengths plus the prestress offsets."""
@@ -195,9 +223,11 @@ class InextensibleMethod(StepMethod):
 
     def slack(self, positions: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
         """(n_cables,) bool: shorter than the length limit by more than ``LIMIT_TOL`` (relative), or
-        ``TAUT_TOL`` in a structure that can lock (a step's flags also need the cable to carry no impulse)."""
+        ``TAUT_TOL`` in a structure that can lock (a step's flags also need the cable to carry no impulse).
+        The limit is that of the rest lengths in effect (``rest_lengths`` is the command, which they may
+        still follow)."""
         _, length = self._cable_geometry(positions)
-        return length < self.limits(rest_lengths) * (1.0 - self._taut_tol)
+        return length < self.limits(self._applied) * (1.0 - self._taut_tol)
 
     def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
         """Elastic struts only: an inextensible cable stores no strain energy (J)."""
@@ -210,7 +240,7 @@ class InextensibleMethod(StepMethod):
     def describe(self) -> dict:
         offsets = self.length_offsets
         return {"method": self.name, "dt": self.dt, **self.solver.describe(), "solver_choice": self.solver_choice,
-                "limit_tol": LIMIT_TOL,
+                "limit_tol": LIMIT_TOL, "reel_speed": self.reel_speed,
                 "max_events": MAX_EVENTS, "omega_struts": self.omega_struts,
                 "length_offsets": {name: float(o) for name, o in zip(self.system.scene.cable_names, offsets)
                                    if o > 0}}
@@ -227,15 +257,15 @@ class InextensibleMethod(StepMethod):
 
     def _step_impl(self, state: State) -> MethodStep:
         x, v = state.positions, state.velocities
-        limits = self.limits(state.rest_lengths)
+        # the motors move the rest lengths in effect towards the commanded ones, at most reel_speed * dt
+        # (landing exactly on the command); a shortening is a reel-in at that rate (m/s, <= 0)
+        change = state.rest_lengths - self._applied
+        most = self.reel_speed * self.dt
+        applied = np.where(np.abs(change) <= most, state.rest_lengths, self._applied + np.copysign(most, change))
+        reel = np.minimum(applied - self._applied, 0.0) / self.dt
+        limits = self.limits(applied)
         floor = limits * (1.0 - LIMIT_TOL)
         taut = limits * (1.0 - self._taut_tol)
-        # a commanded shortening since the last step is a reel-in at that rate (m/s, <= 0); the
-        # simulator replaces the rest-length array when it is commanded, so the same array means none
-        if state.rest_lengths is self._last_rest:
-            reel = self._no_reel
-        else:
-            reel = np.minimum(state.rest_lengths - self._last_rest, 0.0) / self.dt
         f_ext = self.system.gravity_force + state.external_forces
         impulses = np.zeros(self.system.n_cables)
         if self.ground is not None:
@@ -271,7 +301,7 @@ class InextensibleMethod(StepMethod):
                 break
             remaining -= tau
         self._holding = self._hint = holding
-        self._last_rest = state.rest_lengths
+        self._applied = applied
         self._end_geometry = (x, *self._cable_geometry(x))   # x is a new array: computed, not cached
         contact = None if self.ground is None else self.ground.take_impulses()
         # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
@@ -319,7 +349,10 @@ class InextensibleMethod(StepMethod):
         (N, 3), the QP's cable impulses (n_cables,) N*s (they decide which cables hold) and the published
         ones (:meth:`_publish`)."""
         n_eq = self._n_eq
-        all_limits = np.concatenate([self._rigid_lengths, limits])
+        # a cable being reeled in lands half a sub-step's reel behind its moving limit: landing on it would
+        # make the second half-step cover the whole reel, launching its ends at twice the motor's speed
+        landing = limits - (0.5 * tau) * reel if reel.any() else limits
+        all_limits = np.concatenate([self._rigid_lengths, landing])
         if self.compiled:
             cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = kernels.select_rows(
                 x_m, v, v0, tau, self._ends, n_eq, all_limits, floor, self._cables_move, reel, holding)
