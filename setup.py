@@ -38,7 +38,7 @@ INSTALL_REQUIRES = [
     "matplotlib>=3.11.2,<4",
     "plotly>=7.1.0,<8",
     # Parquet tables (a sweep's results; plot reads them)
-    "pyarrow>=26.0.1,<27",
+    "pyarrow>=18.1.0,<27",  # 18.1: the oldest tested; from 26 numpy 2 is needed at run time
 ]
 # ROS 2 Jazzy from PyPI: wheels exist for Linux x86_64 and CPython 3.11/3.12 only (none for ros2cli,
 # launch or rosbag2). Elsewhere the extra installs nothing; use the "dds" extra there.
@@ -54,16 +54,14 @@ EXTRAS_REQUIRE = {
         "mujoco>=4.0.0,<5",      # test/test_peers.py cross-checks the elastic method against MuJoCo
         "foxglove-sdk>=0.30.3,<0.31",    # serve --foxglove is tested end to end
         "websocket-client>=1.9.2,<2",   # a WebSocket client of our own for that test (and bench/bench_view.py)
-        "pyarrow>=26.0.1,<27",   # test/test_sweep.py reads the sweep's Parquet tables
         "ray>=2.60.0,<3",        # test/test_sweep.py runs a sweep on a real local Ray cluster
     ],
     # Live to Foxglove without ROS (tensegrity-sim serve --foxglove).
     "foxglove": [
         "foxglove-sdk>=0.30.3,<0.31",
     ],
-    # Parameter sweeps (tensegrity-sim sweep): Parquet output, and Ray clusters with --address.
+    # Parameter sweeps on Ray clusters (tensegrity-sim sweep --address); Parquet (pyarrow) is a core dependency.
     "sweep": [
-        "pyarrow>=26.0.1,<27",
         "ray>=2.60.0,<3",
     ],
     # Live topics without a ROS install (tensegrity-sim serve --transport dds).
