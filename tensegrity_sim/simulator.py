@@ -18,13 +18,14 @@ from .checks import check_memory, describe, float_array, real, time_step, whole
 from .contact import ActiveContact, make_detector
 from .ground_contact import GroundDetector
 from .methods import State, StepError, make_method
-from .results import StepResult, Trajectory
+from .results import StepResult, Trajectory, step_result
 from .scene import Scene, contact_kinds
 from .system import System
 
 __all__ = ["Simulator", "NonFiniteError"]
 
 _CHUNK = 1024   # steps per compiled chunk when contact detection walks through a run's steps
+_AHEAD = 64     # most steps Simulator.step computes ahead in a compiled loop (they double up to it)
 
 
 class NonFiniteError(StepError):
@@ -93,6 +94,26 @@ def run_plan(duration, steps, every, dt: float, bytes_per_kept: int):
     return steps, every, kept, np.diff(kept, prepend=0)                       # and the steps each one sums
 
 
+class _Ahead:
+    """Steps that :meth:`Simulator.step` computed ahead in the method's compiled loop, the inputs held:
+    row ``i`` of each list is step ``i`` of them; ``next`` is the next one to hand out, ``stop`` the
+    first that is not finite (or their count), ``start`` the state's positions and velocities and
+    ``carry`` the method's carry before them (what a rewind starts from)."""
+
+    __slots__ = ("next", "stop", "count", "start", "carry", "x", "v", "result_x", "result_v", "impulses",
+                 "tensions", "slack", "ground")
+
+    def __init__(self, start, carry, pos, vel, imp, slack, stop: int, dt: float):
+        self.next, self.stop, self.count = 0, stop, len(pos)
+        self.start, self.carry = start, carry
+        # the state takes one copy of the positions and velocities, the results another (a user may
+        # write into theirs); every other field belongs to one result only
+        self.x, self.v = list(pos), list(vel)
+        self.result_x, self.result_v = list(pos.copy()), list(vel.copy())
+        self.impulses, self.tensions, self.slack = list(imp), list(imp / dt), list(slack)
+        self.ground = list(np.zeros_like(pos))
+
+
 class Simulator:
     """Steps a :class:`Scene` with a method picked by name.
 
@@ -128,6 +149,8 @@ class Simulator:
         self._ground = None if scene.ground is None else GroundDetector(self.system)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
+        self._ahead: _Ahead | None = None
+        self._ahead_size = 1
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -136,7 +159,7 @@ class Simulator:
         s = self.scene
         self._state = State(s.positions, s.velocities, s.cable_rest_lengths, np.zeros((len(s.nodes), 3)))
         self._method.prepare(self._state)
-        self._method.invalidate()
+        self._inputs_changed()
         if self._contacts is not None:
             self._contacts.reset(self._state.positions)
         if self._ground is not None:
@@ -205,19 +228,91 @@ class Simulator:
             name = self.scene.cable_names[bad[0]]
             raise ValueError(f"rest_lengths[{name!r}]: must be > 0, got {float(new[bad[0]])!r}")
         self._state.rest_lengths = new
-        self._method.invalidate()
+        self._inputs_changed()
 
     def set_external_forces(self, values) -> None:
         """External node forces, N: ``{node name: [fx, fy, fz]}`` (partial) or an (N, 3) array.
         Held until replaced; a force on a fixed node has no effect."""
         new = self._by_name_or_array(values, "external_forces", self._node_index, 3, self._state.external_forces)
         self._state.external_forces = new
+        self._inputs_changed()
+
+    def _inputs_changed(self) -> None:
+        """The state changed from outside: the method recomputes what it cached, and the steps computed
+        ahead with the old inputs are dropped."""
         self._method.invalidate()
+        self._ahead = None
+        self._ahead_size = 1
 
     # ------------------------------------------------------------------ stepping
     def step(self) -> StepResult:
         """Advance one step of ``dt``. A :class:`~tensegrity_sim.methods.StepError` (a QP without a solution,
-        a non-finite result) leaves the state as it was."""
+        a non-finite result) leaves the state as it was.
+
+        A method with a compiled loop computes steps ahead in it, the inputs held (1, 2, 4, ... up to
+        ``_AHEAD`` at a time while no input changes): one compiled call for many steps, each handed out
+        here as the very result of stepping it alone (rule 10 of ``methods/base.py``). A new input drops
+        them; ``run`` rewinds the loop to the state."""
+        a = self._ahead
+        if a is None or a.next == a.stop:
+            a = self._look_ahead()
+            if a is None:
+                return self._step_once()
+        i = a.next
+        a.next = i + 1
+        st = self._state
+        x = a.x[i]
+        contacts = () if self._contacts is None else self._contacts.step(st.positions, x, st.step_count * self.dt,
+                                                                          self.dt)
+        st.positions, st.velocities = x, a.v[i]
+        st.step_count += 1
+        return step_result(st.step_count * self.dt, a.result_x[i], a.result_v[i], a.impulses[i], a.tensions[i],
+                           a.slack[i], contacts, a.ground[i])
+
+    def _look_ahead(self) -> _Ahead | None:
+        """The next steps computed in the method's compiled loop, or None where :meth:`step` takes one at
+        a time: no loop, a ground (its detector needs each step's contact impulses), or the step after
+        the last handed out is not finite (the loop is then rewound to it, and the one-step path raises
+        at that very step)."""
+        a = self._ahead
+        if a is not None and a.stop < a.count:
+            self._rewind()
+            return None
+        method = self._method
+        if self._ground is not None or not method.has_loop():
+            return None
+        if a is not None:   # the last steps ahead were all taken, the inputs held: look further
+            self._ahead_size = min(2 * self._ahead_size, _AHEAD)
+        k, st = self._ahead_size, self._state
+        n, nc = st.positions.shape[0], st.rest_lengths.shape[0]
+        pos, vel = np.empty((k, n, 3)), np.empty((k, n, 3))
+        imp, slack = np.empty((k, nc)), np.empty((k, nc), dtype=bool)
+        carry = method.carry()
+        method.advance(st, k, 1, pos, vel, imp, slack)
+        # finite_step's test of each step: the same sums (of a row, in the same order)
+        add = np.add.reduce
+        finite = np.isfinite(add(pos.reshape(k, -1), 1) + add(vel.reshape(k, -1), 1) + add(imp, 1))
+        stop = k if finite.all() else int(np.argmin(finite))
+        self._ahead = _Ahead((st.positions, st.velocities), carry, pos, vel, imp, slack, stop, self.dt)
+        return self._look_ahead() if stop == 0 else self._ahead
+
+    def _rewind(self) -> None:
+        """Drop the steps computed ahead and not handed out, putting the method's loop back at the state:
+        its carry from before them, advanced again over those handed out (the same arithmetic, so the
+        same carry)."""
+        a, self._ahead = self._ahead, None
+        if a is None or a.next == a.count:
+            return
+        method, st = self._method, self._state
+        method.restore(a.carry)
+        if a.next:
+            start = State(a.start[0], a.start[1], st.rest_lengths, st.external_forces, st.step_count - a.next)
+            n, nc = st.positions.shape[0], st.rest_lengths.shape[0]
+            method.advance(start, a.next, a.next, np.empty((1, n, 3)), np.empty((1, n, 3)), np.empty((1, nc)),
+                           np.empty((1, nc), dtype=bool))
+
+    def _step_once(self) -> StepResult:
+        """One step through the method's ``step``: checked, detected and committed."""
         out = self._method.step(self._state)
         if not finite_step(out):
             # the plain reference's take of the step: numpy's warnings say what overflowed, and the report
@@ -289,6 +384,7 @@ class Simulator:
         contacts = []
         done = 0
         if callback is None and self._method.has_loop():
+            self._rewind()
             done = self._run_compiled(steps, every, pos, vel, imp, slack, contacts)
         for k in range(done, steps):   # step by step (all of them, or from a compiled part that failed)
             r = self.step()

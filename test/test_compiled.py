@@ -111,6 +111,56 @@ def test_compiled_run_matches_stepping(name, every):
     assert fast.step_count == slow.step_count == steps
 
 
+def _fields(r):
+    return (r.time, r.positions, r.velocities, r.impulses, r.tensions, r.slack, r.contact_impulses)
+
+
+def test_steps_computed_ahead_are_those_of_stepping_alone():
+    """step() computes steps ahead in the compiled loop, the inputs held; what it hands out is bit for
+    bit what the loop gives one step at a time (run(steps=1), which rewinds to the state), across new
+    inputs, a run() in the middle of steps computed ahead and a damped cable (whose carried tension uses
+    the half-step velocity, so a carry recomputed at the state would differ)."""
+    make, dt, _ = ELASTIC_SCENES["damped"]
+    ahead, alone = (ts.Simulator(make(), method="elastic", dt=dt) for _ in range(2))
+    for k in range(400):
+        if k in (100, 250):
+            for sim in (ahead, alone):
+                sim.set_rest_lengths(1.01 * sim.rest_lengths)
+        if k in (150, 333):   # inside a batch of steps computed ahead
+            a, b = ahead.run(steps=7), alone.run(steps=7)
+            for field in ("positions", "velocities", "impulses", "slack"):
+                np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+            continue
+        r = ahead.step()
+        t = alone.run(steps=1)
+        for x, y in zip(_fields(r), (t.time[0], t.positions[0], t.velocities[0], t.impulses[0], t.tensions[0],
+                                     t.slack[0], t.contact_impulses[0])):
+            np.testing.assert_array_equal(x, y)
+    assert ahead._ahead_size > 1   # it did look ahead
+    r.positions[:] = 0.0   # a result is the user's: writing into it changes nothing in the simulator
+    np.testing.assert_array_equal(ahead.positions, alone.positions)
+
+
+def test_non_finite_step_ahead_fails_at_that_step():
+    """A step computed ahead that is not finite (here the 75th, inside the batch of 64 that starts at
+    step 64) fails when it is taken, as stepping alone does: same step, same message, state before it."""
+    compiled, reference = _pair(ts.Scene.from_dict(deadband_dict()), 1e-3)
+    for sim in (compiled, reference):
+        sim.set_external_forces({"mass": [1e157, 0.0, 0.0]})
+    errors = []
+    with np.errstate(over="ignore", invalid="ignore"):
+        for sim in (compiled, reference):
+            with pytest.raises(ts.NonFiniteError) as err:
+                for _ in range(100):
+                    sim.step()
+            errors.append(str(err.value))
+    assert compiled.step_count == reference.step_count == 74
+    assert errors[0] == errors[1] and "t = 0.074000 s" in errors[0]
+    _close(compiled.positions, reference.positions, "state before the failing step")
+    with np.errstate(over="ignore", invalid="ignore"), pytest.raises(ts.NonFiniteError, match="t = 0.074000 s"):
+        compiled.step()   # and again: nothing was committed
+
+
 def test_run_every_sums_impulses_and_keeps_the_last_step():
     """every=k keeps steps k, 2k, ... and the last; impulses are the sums of the full run's."""
     make, dt, _ = ELASTIC_SCENES["bungee"]

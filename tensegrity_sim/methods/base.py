@@ -21,6 +21,8 @@ Rules for whoever writes a new method (compare ``scipy.integrate.OdeSolver``):
 9. Options (e.g. ``solver``) are keyword-only arguments of ``__init__``, listed in ``options``.
 10. A method with a compiled multi-step loop says so in ``has_loop()`` and implements ``advance()``
     (``Simulator.run`` then runs in it, inputs held); its results must equal those of ``step()``.
+    ``carry()``/``restore(carry)`` save and put back what the loop carries from one step to the next
+    (``Simulator.step`` runs steps ahead in the loop and rewinds to a saved carry when it must).
 11. ``applied_rest_lengths(state)`` are the rest lengths the cables follow now, if a method lags the
     commanded ones (a motor's finite speed).
 """
@@ -109,6 +111,15 @@ class StepMethod:
         the last into ``positions``, ``velocities`` (K, N, 3), ``impulses`` (K, n_cables; summed over
         the steps since the previous kept one) and ``slack`` (K, n_cables), ``K = ceil(steps / every)``.
         Returns the final positions and velocities (N, 3)."""
+        raise NotImplementedError
+
+    def carry(self):
+        """A copy of what :meth:`advance` carries from one step to the next (None: nothing yet; the
+        loop then starts from the state)."""
+        raise NotImplementedError
+
+    def restore(self, carry) -> None:
+        """Put back a :meth:`carry`: the next :meth:`advance` goes on from it."""
         raise NotImplementedError
 
     def applied_rest_lengths(self, state: State) -> np.ndarray:

@@ -212,6 +212,12 @@ class ElasticMethod(StepMethod):
     def has_loop(self) -> bool:
         return self.compiled
 
+    def carry(self):
+        return None if self._carry is None else tuple(a.copy() for a in self._carry)
+
+    def restore(self, carry) -> None:
+        self._carry = None if carry is None else tuple(a.copy() for a in carry)
+
     def retrace(self, state: State) -> MethodStep | None:
         if not self.compiled:
             return None
