@@ -98,13 +98,15 @@ class _Ahead:
     """Steps that :meth:`Simulator.step` computed ahead in the method's compiled loop, the inputs held:
     row ``i`` of each list is step ``i`` of them; ``next`` is the next one to hand out, ``stop`` the
     first that is not finite (or their count), ``start`` the state's positions and velocities and
-    ``carry`` the method's carry before them (what a rewind starts from)."""
+    ``carry`` the method's carry before them (what a rewind starts from); contact detection has nothing
+    to do for the steps before ``quiet`` (:meth:`Simulator._quiet_steps`)."""
 
-    __slots__ = ("next", "stop", "count", "start", "carry", "x", "v", "result_x", "result_v", "impulses",
-                 "tensions", "slack", "ground")
+    __slots__ = ("next", "stop", "count", "start", "carry", "positions", "quiet", "x", "v", "result_x", "result_v",
+                 "impulses", "tensions", "slack", "ground")
 
     def __init__(self, start, carry, pos, vel, imp, slack, stop: int, dt: float):
         self.next, self.stop, self.count = 0, stop, len(pos)
+        self.positions, self.quiet = pos, 0
         self.start, self.carry = start, carry
         # the state takes one copy of the positions and velocities, the results another (a user may
         # write into theirs); every other field belongs to one result only
@@ -262,8 +264,11 @@ class Simulator:
         a.next = i + 1
         st = self._state
         x = a.x[i]
-        contacts = () if self._contacts is None else self._contacts.step(st.positions, x, st.step_count * self.dt,
-                                                                          self.dt)
+        if i < a.quiet or self._contacts is None:
+            contacts = ()
+        else:
+            contacts = self._contacts.step(st.positions, x, st.step_count * self.dt, self.dt)
+            a.quiet = i + 1 + self._quiet_steps(a.positions[i + 1:])
         st.positions, st.velocities = x, a.v[i]
         st.step_count += 1
         return step_result(st.step_count * self.dt, a.result_x[i], a.result_v[i], a.impulses[i], a.tensions[i],
@@ -293,8 +298,19 @@ class Simulator:
         add = np.add.reduce
         finite = np.isfinite(add(pos.reshape(k, -1), 1) + add(vel.reshape(k, -1), 1) + add(imp, 1))
         stop = k if finite.all() else int(np.argmin(finite))
-        self._ahead = _Ahead((st.positions, st.velocities), carry, pos, vel, imp, slack, stop, self.dt)
-        return self._look_ahead() if stop == 0 else self._ahead
+        self._ahead = a = _Ahead((st.positions, st.velocities), carry, pos, vel, imp, slack, stop, self.dt)
+        if self._contacts is not None:
+            a.quiet = self._quiet_steps(pos)
+        return self._look_ahead() if stop == 0 else a
+
+    def _quiet_steps(self, positions: np.ndarray) -> int:
+        """How many of the next steps, to ``positions`` (k, N, 3) in turn, contact detection has nothing
+        to do for: the detector's own test (no watched node as far as its quiet distance from its
+        reference positions), for all of them at once; it would return no event and change nothing."""
+        x_ref, distance = self._contacts.quiet_zone()
+        w = self._contacts.watched
+        busy = ~(np.abs(positions[:, w] - x_ref[w]).max(axis=(1, 2), initial=0.0) < distance)
+        return int(np.argmax(busy)) if busy.any() else len(positions)
 
     def _rewind(self) -> None:
         """Drop the steps computed ahead and not handed out, putting the method's loop back at the state:
