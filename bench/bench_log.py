@@ -1,6 +1,8 @@
 """What MCAP logging costs, per step, at 1 kHz stepping and 100 Hz publishing.
 
-Run: ``python bench/bench_log.py [SCENE ...] [--steps N] [--repeats R]`` (default: the built-in scenes).
+Run: ``python bench/bench_log.py [SCENE ...] [--steps N] [--repeats R] [--csv FILE]`` (default: the built-in
+scenes; ``--csv`` also writes the per-step times and the steps/s of each configuration, e.g.
+``bench/results/node_path.csv``: issue 10's node path is ``run --log`` on the icosahedron).
 For each scene (dt = 1 ms, publish_rate = 100 Hz, so one publication every 10 steps; marker_rate 10 Hz,
 so markers with every 10th publication) it times, per step, best of ``--repeats`` runs of ``--steps``
 steps after a warm-up (the four configurations taking turns):
@@ -26,14 +28,18 @@ would not show), best of ``--repeats`` runs taking turns, each run long enough t
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 import time
 from pathlib import Path
 from types import SimpleNamespace
 
-import tensegrity_sim as ts
-from tensegrity_sim.ros.log import CHUNK_SIZE, FLUSH_PERIOD, LogRecorder, LogWriter
-from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run as a script: this checkout first
+
+import tensegrity_sim as ts  # noqa: E402
+from bench.tables import write_csv  # noqa: E402
+from tensegrity_sim.ros.log import CHUNK_SIZE, FLUSH_PERIOD, LogRecorder, LogWriter  # noqa: E402
+from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic  # noqa: E402
 
 DT = 1e-3
 PUBLISH_RATE = 100.0
@@ -126,6 +132,7 @@ def main():
     parser.add_argument("scenes", nargs="*", help="built-in names or YAML files (default: the built-ins)")
     parser.add_argument("--steps", type=int, default=5000)
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--csv", type=Path, help="also write the times to this CSV file")
     parser.add_argument("--crash-safety", action="store_true",
                         help="compare the log before issue 13 with the crash-safe log (module docstring)")
     args = parser.parse_args()
@@ -146,14 +153,19 @@ def main():
           f"{settings.markers_every} publications; times per step, best of {args.repeats} x {args.steps} steps")
     print(f"{'scene':<14}{'bare':>10}{'node':>10}{'node+log':>10}{'log':>10}  {'log/node':>9}  {'log/1ms':>8}"
           f"  {'run --log':>10}  {'open+finish':>12}")
+    rows = []
     with tempfile.TemporaryDirectory() as folder:
         for name in names:
             scene = ts.load_scene(name)
             t = measure(scene, args.steps, args.repeats, Path(folder))
+            rows += [{"scene": scene.name, "configuration": k, "us_per_step": 1e6 * t[k], "steps_per_s": 1.0 / t[k]}
+                     for k in ("bare", "node", "node+log", "run --log")]
             log = t["node+log"] - t["node"]
             print(f"{scene.name:<14}{t['bare'] * 1e6:>8.1f}us{t['node'] * 1e6:>8.1f}us{t['node+log'] * 1e6:>8.1f}us"
                   f"{log * 1e6:>8.1f}us  {100 * log / t['node']:>8.1f}%  {100 * log / DT:>7.2f}%"
                   f"  {t['run --log'] * 1e6:>8.1f}us  {t['open+finish'] * 1e3:>10.1f}ms", flush=True)
+    if args.csv is not None:
+        write_csv(args.csv, rows)
 
 
 if __name__ == "__main__":

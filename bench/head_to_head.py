@@ -129,6 +129,8 @@ def main(argv=None) -> int:
               f"{r['peer_us']:>9.2f} us   ratio (peer/ours) {r['ratio']:.2f}", flush=True)
     write_csv(args.out / "head_to_head.csv", rows)
     stages = [int(s) for s in args.stages.split(",") if s]
+    if not stages:   # --stages "": the icosahedron only
+        return 0
     towers = tower_rows(stages, args.repeats, args.budget)
     write_csv(args.out / "towers_inextensible.csv", towers)
     for velocity in (0.0, 0.05):

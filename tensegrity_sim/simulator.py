@@ -442,10 +442,11 @@ class Simulator:
             if not math.isfinite(add(x, None) + add(v, None) + add(c_imp[:m], None)):
                 method.invalidate()
                 return done
-            previous = st.positions
-            for i in range(m):
+            i = self._quiet_steps(c_pos[:m])   # the detector is called for the other steps only
+            while i < m:
+                previous = c_pos[i - 1] if i else st.positions
                 contacts.extend(self._contacts.step(previous, c_pos[i], (st.step_count + i) * self.dt, self.dt))
-                previous = c_pos[i]
+                i += 1 + self._quiet_steps(c_pos[i + 1:m])
             g = done + np.arange(m)              # the chunk's steps in the run, from 0
             j = g // every
             np.add.at(imp, j, c_imp[:m])

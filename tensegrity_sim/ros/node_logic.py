@@ -185,11 +185,13 @@ class NodeSettings:
         if self.publish_rate * self.dt > 1.0 + 1e-12:
             raise ValueError(f"parameter 'publish_rate': must be at most 1/dt = {1.0 / self.dt:g} Hz (one "
                              f"publication per step), got {self.publish_rate!r}")
+        # asked after every step (SimNodeLogic.publication_due): worked out once
+        object.__setattr__(self, "_publish_every", max(1, int(round(1.0 / (self.publish_rate * self.dt)))))
 
     @property
     def publish_every(self) -> int:
         """Steps between two publications: ``round(1 / (publish_rate dt))``, at least 1."""
-        return max(1, int(round(1.0 / (self.publish_rate * self.dt))))
+        return self._publish_every
 
     @property
     def markers_every(self) -> int:
@@ -566,7 +568,8 @@ class SimNodeLogic:
             return None
         self._undo = None
         self._impulse_sum += r.impulses
-        self._contact_queue.extend(r.contacts)
+        if r.contacts:
+            self._contact_queue.extend(r.contacts)
         self._last = r
         self._since_publish += 1
         self._steps_run += 1
@@ -609,7 +612,7 @@ class SimNodeLogic:
 
     @property
     def publication_due(self) -> bool:
-        return self._since_publish >= self.settings.publish_every
+        return self._since_publish >= self.settings._publish_every
 
     def tick(self) -> int:
         """Run the steps that are due on the real-time schedule (publishing whenever due); returns how
@@ -685,7 +688,7 @@ class SimNodeLogic:
         if events:
             keys.append("contacts")
         outputs = self._outputs(keys, ns, r) if self._transport is not None or self.recorder is not None else []
-        self._impulse_sum = np.zeros_like(self._impulse_sum)
+        self._impulse_sum = np.zeros(self._impulse_sum.shape)
         self._contact_queue = []
         self._since_publish = 0
         self.publications += 1
