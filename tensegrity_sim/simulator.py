@@ -95,25 +95,23 @@ def run_plan(duration, steps, every, dt: float, bytes_per_kept: int):
 
 
 class _Ahead:
-    """Steps that :meth:`Simulator.step` computed ahead in the method's compiled loop, the inputs held:
-    row ``i`` of each list is step ``i`` of them; ``next`` is the next one to hand out, ``stop`` the
-    first that is not finite (or their count), ``start`` the state's positions and velocities and
-    ``carry`` the method's carry before them (what a rewind starts from); contact detection has nothing
-    to do for the steps before ``quiet`` (:meth:`Simulator._quiet_steps`)."""
+    """Steps that :meth:`Simulator.step` computed ahead in the method's compiled loop, the inputs held,
+    from step ``start_count`` (positions and velocities ``start``, the method's ``carry`` then: what a
+    rewind starts from). ``rows`` hands them out in order up to ``stop``, the first that is not finite
+    (or their ``count``): (index, the state's positions and velocities, then the result's fields but
+    time and contacts)."""
 
-    __slots__ = ("next", "stop", "count", "start", "carry", "positions", "quiet", "x", "v", "result_x", "result_v",
-                 "impulses", "tensions", "slack", "ground")
+    __slots__ = ("stop", "count", "start", "start_count", "carry", "positions", "rows")
 
-    def __init__(self, start, carry, pos, vel, imp, slack, stop: int, dt: float):
-        self.next, self.stop, self.count = 0, stop, len(pos)
-        self.positions, self.quiet = pos, 0
-        self.start, self.carry = start, carry
+    def __init__(self, start, start_count: int, carry, pos, vel, imp, slack, stop: int, dt: float):
+        self.stop, self.count = stop, len(pos)
+        self.start, self.start_count, self.carry, self.positions = start, start_count, carry, pos
         # the state takes one copy of the positions and velocities, the results another (a user may
         # write into theirs); every other field belongs to one result only
-        self.x, self.v = list(pos), list(vel)
-        self.result_x, self.result_v = list(pos.copy()), list(vel.copy())
-        self.impulses, self.tensions, self.slack = list(imp), list(imp / dt), list(slack)
-        self.ground = list(np.zeros_like(pos))
+        self.rows = zip(range(stop), pos, vel, pos.copy(), vel.copy(), imp, imp / dt, slack, np.zeros_like(pos))
+
+
+_NO_ROWS = iter(())
 
 
 class Simulator:
@@ -152,7 +150,9 @@ class Simulator:
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
         self._ahead: _Ahead | None = None
+        self._rows = _NO_ROWS     # the steps computed ahead still to hand out
         self._ahead_size = 1
+        self._quiet = 0           # contact detection has nothing to do for the steps ahead before this one
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -243,7 +243,7 @@ class Simulator:
         """The state changed from outside: the method recomputes what it cached, and the steps computed
         ahead with the old inputs are dropped."""
         self._method.invalidate()
-        self._ahead = None
+        self._ahead, self._rows = None, _NO_ROWS
         self._ahead_size = 1
 
     # ------------------------------------------------------------------ stepping
@@ -255,37 +255,34 @@ class Simulator:
         ``_AHEAD`` at a time while no input changes): one compiled call for many steps, each handed out
         here as the very result of stepping it alone (rule 10 of ``methods/base.py``). A new input drops
         them; ``run`` rewinds the loop to the state."""
-        a = self._ahead
-        if a is None or a.next == a.stop:
-            a = self._look_ahead()
-            if a is None:
+        row = next(self._rows, None)
+        if row is None:
+            if not self._look_ahead():
                 return self._step_once()
-        i = a.next
-        a.next = i + 1
+            row = next(self._rows)
+        i, x, v, result_x, result_v, impulses, tensions, slack, ground = row
         st = self._state
-        x = a.x[i]
-        if i < a.quiet or self._contacts is None:
+        if i < self._quiet:
             contacts = ()
         else:
             contacts = self._contacts.step(st.positions, x, st.step_count * self.dt, self.dt)
-            a.quiet = i + 1 + self._quiet_steps(a.positions[i + 1:])
-        st.positions, st.velocities = x, a.v[i]
+            self._quiet = i + 1 + self._quiet_steps(self._ahead.positions[i + 1:])
+        st.positions, st.velocities = x, v
         st.step_count += 1
-        return step_result(st.step_count * self.dt, a.result_x[i], a.result_v[i], a.impulses[i], a.tensions[i],
-                           a.slack[i], contacts, a.ground[i])
+        return step_result(st.step_count * self.dt, result_x, result_v, impulses, tensions, slack, contacts, ground)
 
-    def _look_ahead(self) -> _Ahead | None:
-        """The next steps computed in the method's compiled loop, or None where :meth:`step` takes one at
-        a time: no loop, a ground (its detector needs each step's contact impulses), or the step after
-        the last handed out is not finite (the loop is then rewound to it, and the one-step path raises
-        at that very step)."""
+    def _look_ahead(self) -> bool:
+        """Compute the next steps in the method's compiled loop; False where :meth:`step` takes one at a
+        time: no loop, a ground (its detector needs each step's contact impulses), or the step after the
+        last handed out is not finite (the loop is then rewound to it, and the one-step path raises at
+        that very step)."""
         a = self._ahead
         if a is not None and a.stop < a.count:
             self._rewind()
-            return None
+            return False
         method = self._method
         if self._ground is not None or not method.has_loop():
-            return None
+            return False
         if a is not None:   # the last steps ahead were all taken, the inputs held: look further
             self._ahead_size = min(2 * self._ahead_size, _AHEAD)
         k, st = self._ahead_size, self._state
@@ -298,10 +295,11 @@ class Simulator:
         add = np.add.reduce
         finite = np.isfinite(add(pos.reshape(k, -1), 1) + add(vel.reshape(k, -1), 1) + add(imp, 1))
         stop = k if finite.all() else int(np.argmin(finite))
-        self._ahead = a = _Ahead((st.positions, st.velocities), carry, pos, vel, imp, slack, stop, self.dt)
-        if self._contacts is not None:
-            a.quiet = self._quiet_steps(pos)
-        return self._look_ahead() if stop == 0 else a
+        self._ahead = a = _Ahead((st.positions, st.velocities), st.step_count, carry, pos, vel, imp, slack, stop,
+                                 self.dt)
+        self._rows = a.rows
+        self._quiet = k if self._contacts is None else self._quiet_steps(pos)
+        return self._look_ahead() if stop == 0 else True
 
     def _quiet_steps(self, positions: np.ndarray) -> int:
         """How many of the next steps, to ``positions`` (k, N, 3) in turn, contact detection has nothing
@@ -316,15 +314,17 @@ class Simulator:
         """Drop the steps computed ahead and not handed out, putting the method's loop back at the state:
         its carry from before them, advanced again over those handed out (the same arithmetic, so the
         same carry)."""
-        a, self._ahead = self._ahead, None
-        if a is None or a.next == a.count:
+        a, self._ahead, self._rows = self._ahead, None, _NO_ROWS
+        st = self._state
+        taken = 0 if a is None else st.step_count - a.start_count
+        if a is None or taken == a.count:
             return
-        method, st = self._method, self._state
+        method = self._method
         method.restore(a.carry)
-        if a.next:
-            start = State(a.start[0], a.start[1], st.rest_lengths, st.external_forces, st.step_count - a.next)
+        if taken:
+            start = State(a.start[0], a.start[1], st.rest_lengths, st.external_forces, a.start_count)
             n, nc = st.positions.shape[0], st.rest_lengths.shape[0]
-            method.advance(start, a.next, a.next, np.empty((1, n, 3)), np.empty((1, n, 3)), np.empty((1, nc)),
+            method.advance(start, taken, taken, np.empty((1, n, 3)), np.empty((1, n, 3)), np.empty((1, nc)),
                            np.empty((1, nc), dtype=bool))
 
     def _step_once(self) -> StepResult:
