@@ -161,6 +161,35 @@ def test_non_finite_step_ahead_fails_at_that_step():
         compiled.step()   # and again: nothing was committed
 
 
+@pytest.mark.parametrize("name", ["damped", "icosahedron", "icosahedron_elastic_struts"])
+def test_copies_innermost_kernel_is_the_same_step(name):
+    """elastic_steps_copies (a batch's kernel: copies innermost) gives elastic_steps' numbers bit for bit:
+    five copies of a scene (damped cables; rigid struts; elastic struts), moved apart, kept every 3rd step."""
+    from tensegrity_sim.methods import _elastic_kernels as ek
+    make, dt, _ = ELASTIC_SCENES[name]
+    scene = make()
+    model = ts.Simulator(scene, method="elastic", dt=dt)._method._model
+    rng = np.random.default_rng(7)
+    copies = 5
+    x = scene.positions[..., None] + 1e-3 * rng.normal(size=scene.positions.shape + (copies,))
+    v = scene.velocities[..., None] + 0.1 * rng.normal(size=scene.positions.shape + (copies,))
+    rest = np.repeat(scene.cable_rest_lengths[:, None], copies, axis=1) * rng.uniform(0.95, 1.05, copies)
+    ext = 0.1 * rng.normal(size=x.shape)
+    n, nc, nr, steps = x.shape[0], rest.shape[0], len(model.rigid_members), 50
+    results = []
+    for kernel in (ek.elastic_steps, ek.elastic_steps_copies):
+        xk, vk = x.copy(), v.copy()
+        carry = (np.empty_like(x), np.empty((nc, copies)), np.empty((nr, 3, copies)))
+        ek.elastic_forces(xk, vk, rest, ext, *model[:8], *carry)
+        k = -(-steps // 3)
+        out = (np.empty((k, n, 3, copies)), np.empty((k, n, 3, copies)), np.empty((k, nc, copies)),
+               np.empty((k, nc, copies), dtype=bool))
+        kernel(xk, vk, rest, ext, dt, steps, 3, *model, *carry, *out)
+        results.append((xk, vk) + carry + out)
+    for a, b in zip(*results):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_run_every_sums_impulses_and_keeps_the_last_step():
     """every=k keeps steps k, 2k, ... and the last; impulses are the sums of the full run's."""
     make, dt, _ = ELASTIC_SCENES["bungee"]

@@ -1,7 +1,8 @@
 """The elastic step of :mod:`.elastic` for B copies of one structure at once.
 
-Two implementations of the same arithmetic: the compiled kernels of ``_elastic_kernels.py`` (the ones
-``Simulator`` drives with B = 1; used unless ``compiled`` is False) and the numpy code here, their plain
+Two implementations of the same arithmetic: the compiled kernels of ``_elastic_kernels.py`` (``Simulator``
+drives them with B = 1; a batch runs ``elastic_steps_copies``, the same step with the copies innermost;
+used unless ``compiled`` is False) and the numpy code here, their plain
 batched reference (tests require the two to agree to 1e-12).
 
 Same physics and the same arithmetic as :class:`~.elastic.ElasticMethod` (velocity Verlet, SHAKE/RATTLE
@@ -23,14 +24,6 @@ from . import _elastic_kernels as kernels
 from .elastic import ElasticMethod
 
 __all__ = ["ElasticBatch"]
-
-
-def _padded(a: np.ndarray, width: int) -> np.ndarray:
-    """A new C-contiguous copy of ``a`` (..., B) widened to (..., width) with copies of its first column."""
-    out = np.empty(a.shape[:-1] + (width,), dtype=a.dtype)
-    out[..., : a.shape[-1]] = a
-    out[..., a.shape[-1]:] = a[..., :1]
-    return out
 
 
 class ElasticBatch:
@@ -161,19 +154,17 @@ class ElasticBatch:
                 x, v, out_imp[k], out_slack[k] = self._step_reference(x, v, rest_lengths, f_ext)
                 out_x[k], out_v[k] = x, v
             return out_x, out_v, out_imp, out_slack
-        # The kernel walks one copy at a time through arrays whose consecutive entries of a copy lie B
-        # numbers apart; for B a multiple of 8 they map onto few cache sets and evict each other (3-4x
-        # slower at B = 1024, measured). One padding copy (a duplicate of copy 0) breaks that stride.
-        bp = b + 1 if b % 8 == 0 else b
-        x, v, rest, ext = (_padded(a, bp) for a in (x, v, rest_lengths, f_ext))
-        out_x, out_v = np.empty((steps, n, 3, bp)), np.empty((steps, n, 3, bp))
-        out_imp, out_slack = np.empty((steps, nc, bp)), np.empty((steps, nc, bp), dtype=bool)
+        # the kernel with the copies innermost: each loop walks contiguous numbers (stepping one copy at a
+        # time walks numbers B apart: 5.6x slower at B = 1024, measured by bench/bench_batch.py's case)
+        x, v, rest, ext = (np.array(a, dtype=float, order="C") for a in (x, v, rest_lengths, f_ext))
+        out_x, out_v = np.empty((steps, n, 3, b)), np.empty((steps, n, 3, b))
+        out_imp, out_slack = np.empty((steps, nc, b)), np.empty((steps, nc, b), dtype=bool)
         if self._cache is None:
-            self._cache = (np.empty_like(x), np.empty((nc, bp)), np.empty((self.rigid.count, 3, bp)))
+            self._cache = (np.empty_like(x), np.empty((nc, b)), np.empty((self.rigid.count, 3, b)))
             kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._cache)
-        kernels.elastic_steps(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache,
-                              out_x, out_v, out_imp, out_slack)
-        return out_x[..., :b], out_v[..., :b], out_imp[..., :b], out_slack[..., :b]
+        kernels.elastic_steps_copies(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache,
+                                     out_x, out_v, out_imp, out_slack)
+        return out_x, out_v, out_imp, out_slack
 
     def slack(self, x, rest_lengths) -> np.ndarray:
         """(n_cables, B) bool: the cables shorter than their rest lengths at ``x`` (N, 3, B)."""
