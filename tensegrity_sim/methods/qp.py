@@ -184,8 +184,10 @@ class DaqpSolver(QPSolver):
     """DAQP (dual active set, recursive LDL^T updates), warm-started from the previous active set.
 
     The problem is passed mass-scaled (``z = M^1/2 v``, Hessian = identity) so DAQP's setup factorises a
-    trivial matrix. ``primal_tol`` is tightened from DAQP's 1e-6 to 1e-12 m/s: a row violated by less
-    than ``primal_tol`` is never activated, and that error goes straight into the velocities.
+    trivial matrix, and divided by its velocity scale (the largest free velocity or target), so DAQP's
+    absolute tolerances are relative ones. ``primal_tol`` is tightened from DAQP's 1e-6 to 1e-12 (of
+    that scale): a row violated by less than ``primal_tol`` is never activated, and that error goes
+    straight into the velocities.
     """
 
     name = "daqp"
@@ -213,12 +215,19 @@ class DaqpSolver(QPSolver):
             a_scaled = kernels.dense_rows(rows.nodes, rows.directions, self.n_free, self._sqrt_mass)
         else:
             a_scaled = rows.dense(self.n_free) / self._sqrt_mass
-        z, _, flag, info = self._daqp.solve(self._hessian, -self._sqrt_mass * v0, a_scaled, r, lower, sense,
-                                            **self.settings)
+        # DAQP's tolerances are absolute, the answer check's relative: the QP is homogeneous in (v0, r),
+        # so it is solved at unit velocity scale. Unscaled, a structure moving at 1e-9 m/s (the hard
+        # cases' hovering cable) got a warm-started row dropped with a multiplier of -4e-13 N*s, inside
+        # dual_tol but 4e-4 of the impulse scale, and the check refused the answer.
+        unit = max(float(np.max(np.abs(v0), initial=0.0)), float(np.max(np.abs(r), initial=0.0)))
+        unit = unit if unit > 0.0 else 1.0
+        lower[:n_eq] /= unit
+        z, _, flag, info = self._daqp.solve(self._hessian, (-1.0 / unit) * self._sqrt_mass * v0, a_scaled,
+                                            r / unit, lower, sense, **self.settings)
         if flag < 1:
             raise QPError(self.name, self._STATUS.get(flag, f"exitflag {flag}"),
                           f"after {info['iterations']} iterations on {k} rows")
-        return z / self._sqrt_mass, np.asarray(info["lam"], dtype=float)
+        return (unit / self._sqrt_mass) * z, unit * np.asarray(info["lam"], dtype=float)
 
     def describe(self) -> dict:
         return {"solver": self.name, **self.settings}
@@ -328,7 +337,7 @@ class SparseSolver(QPSolver):
     ``A_G v - r_G`` until a refinement moves ``v`` by less than the tolerance (so ``v`` keeps the
     accuracy of ``A``, not the squared conditioning of ``W``; a refinement that does not get there, as
     for a nearly dependent guess, refuses the guess). With the tolerance ``tol * scale + tol_floor``
-    (m/s; ``scale`` the largest free velocity or target; DAQP's own ``primal_tol`` is 1e-12 m/s), the
+    (m/s; ``scale`` the largest free velocity or target; DAQP's own ``primal_tol`` is 1e-12 of ``scale``), the
     answer is the QP's solution when
 
     * no row outside the guess is violated: ``A_i v - r_i <= tolerance`` (primal feasibility; the
