@@ -5,11 +5,11 @@ Integrator: velocity Verlet (with RATTLE for rigid struts), chosen by measuremen
 
 * It is symplectic and time-reversible, so an undamped structure's energy error stays bounded (it
   oscillates at O(h^2) and does not drift) over long runs; an explicit Runge-Kutta of the same cost
-  drifts. Not with constant slack/taut switching at a step that barely resolves the fastest vibration
-  (the cable force's kink leaves the theory's smooth case): prism3 with random velocities (0.5 m/s),
-  1e6 steps at 1 ms (``omega_max dt = 0.30``): the energy error's mean over each tenth of the run rises
-  from 3.9e-3 J to 1.3e-2 J (max |dE|/E 4.4e-3; the hard-case table's long-horizon row flags it); at
-  0.5 ms, 2e5 steps, no trend (max |dE|/E 4.1e-4).
+  drifts. With constant slack/taut switching the cable force's kink leaves the theory's smooth case:
+  each switch adds an energy error of either sign and the error random-walks (grows like sqrt(t), its
+  trend changing sign with the seed and with round-off): prism3 with random velocities (0.5 m/s), 1e6
+  steps at 1 ms (``omega_max dt = 0.30``), seven seeds: max |dE|/E 5.9e-4..5.3e-3; at 0.5 ms (2e6 steps)
+  5.1e-4 where 1 ms gave 3.4e-3; at order 4, 1 ms, 4.9e-5 (``bench/hard_cases.py``, ``DRIFT_RATIO``).
 * Every force is an equal-and-opposite pair along a member, and Verlet applies it at one configuration,
   so linear and angular momentum are conserved to round-off (it is a variational integrator).
 * The cable force ``k max(0, e)`` is continuous in the positions and only its derivative jumps at a
