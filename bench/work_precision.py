@@ -233,13 +233,13 @@ def _close(row: dict, session, wall: float, case: Case, ref: Reference) -> dict:
 def alternating_sweep(case: Case, runners, ref: Reference, dts, *, repeats: int, budget: float,
                       progress=None) -> list[dict]:
     """:func:`sweep` for one case with the contenders taking turns, for a loaded machine: every run is
-    timed once (from the largest step down, a runner's run expected to last over ``budget`` s is
-    skipped), then ``repeats - 1`` more rounds time every run in turn, so that a slow spell of the
-    machine hits all of them alike; each run's time is its best."""
+    timed once (``dts(runner)``: its steps; from the largest down, a run expected to last over
+    ``budget`` s is skipped), then ``repeats - 1`` more rounds time every run in turn, so that a slow
+    spell of the machine hits all of them alike; each run's time is its best."""
     jobs, rows = [], []
     for runner in runners:
         last = None
-        for dt in sorted(dts, reverse=True):
+        for dt in sorted(dts(runner), reverse=True):
             if last is not None and last[0] * last[1] / dt > budget:
                 rows.append({**_open(case, runner, dt)[0], "status": f"skipped: expected over {budget:g} s",
                              **_NAN})
