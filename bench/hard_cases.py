@@ -329,3 +329,32 @@ def hard_case_rows(runners, quick: bool, progress=None) -> list[dict]:
                 progress.set_postfix_str(f"{runner.variant} {case.__name__}", refresh=False)
                 progress.update()
     return rows
+
+
+def main(argv=None) -> int:
+    """``python3 bench/hard_cases.py [--quick] [--out CSV]``: the table for each method's defaults,
+    printed and written (default ``bench/results/hard_cases.csv``, as ``run_all.py`` writes it); exit
+    status 1 if a row fails."""
+    import argparse
+    import warnings
+    from pathlib import Path
+
+    from bench.runners import default_runners
+    from bench.tables import write_csv
+    parser = argparse.ArgumentParser(description=main.__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="shorter runs (1e4 steps for the long horizon)")
+    parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "hard_cases.csv")
+    args = parser.parse_args(argv)
+    warnings.simplefilter("ignore", ts.LengthOffsetWarning)   # documented: prestressed cables' limits
+    rows = hard_case_rows(default_runners(), quick=args.quick)
+    for row in rows:
+        print(f"{row['verdict']:4} | {row['variant']:12} | {row['case']} | {row['setting']} | {row['figure']}")
+    write_csv(args.out, rows)
+    return 1 if any(row["verdict"] == "FAIL" for row in rows) else 0
+
+
+if __name__ == "__main__":
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run as a script: this checkout first
+    raise SystemExit(main())

@@ -33,6 +33,18 @@ def _copy(src, dst):
 
 
 @njit(cache=True)
+def _states(x, v, acc, tension, dirs, slack, to_x, to_v, to_acc, to_tension, to_dirs, to_slack):
+    """Copy a workspace's state (positions, velocities, accelerations, tensions, rigid strut directions,
+    slack cables) into another's."""
+    _copy(x, to_x)
+    _copy(v, to_v)
+    _copy(acc, to_acc)
+    _copy(tension, to_tension)
+    _copy(dirs, to_dirs)
+    _copy(slack, to_slack)
+
+
+@njit(cache=True)
 def _elongation(x, ends, n_struts, rest, ci):
     """Cable ``ci``'s ``length - rest`` (m) at ``x`` (N, 3, 1)."""
     a = ends[n_struts + ci, 0]
@@ -118,12 +130,7 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
     n_struts = strut_rest.shape[0]
     nc = impulses.shape[0]
     # the trial: the whole (remaining) step from the part's start into the t* arrays
-    _copy(x, tx)
-    _copy(v, tv)
-    _copy(acc, tacc)
-    _copy(tension, tten)
-    _copy(dirs, tdirs)
-    _copy(slack, tslack)
+    _states(x, v, acc, tension, dirs, slack, tx, tv, tacc, tten, tdirs, tslack)
     _flow(tx, tv, tacc, tten, tdirs, tslack, h, weights, rest, ext, ends, stiffness, floor, strut_rest, damping,
           inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage, impulses)
     if locate:
@@ -142,12 +149,7 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
             hi = remaining
             converged = False
             for _ in range(_FLOW_ITER):
-                _copy(x, tx)
-                _copy(v, tv)
-                _copy(acc, tacc)
-                _copy(tension, tten)
-                _copy(dirs, tdirs)
-                _copy(slack, tslack)
+                _states(x, v, acc, tension, dirs, slack, tx, tv, tacc, tten, tdirs, tslack)
                 _flow(tx, tv, tacc, tten, tdirs, tslack, s, weights, rest, ext, ends, stiffness, floor, strut_rest,
                       damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage,
                       part_imp)
@@ -168,22 +170,12 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
                 s_new = s - e / rate if rate != 0.0 else lo
                 s = s_new if lo < s_new < hi else 0.5 * (lo + hi)
             if not converged:
-                _copy(x, tx)
-                _copy(v, tv)
-                _copy(acc, tacc)
-                _copy(tension, tten)
-                _copy(dirs, tdirs)
-                _copy(slack, tslack)
+                _states(x, v, acc, tension, dirs, slack, tx, tv, tacc, tten, tdirs, tslack)
                 _flow(tx, tv, tacc, tten, tdirs, tslack, s, weights, rest, ext, ends, stiffness, floor, strut_rest,
                       damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage,
                       part_imp)
             # the part up to the switch is done: it is the new start; the rest of the step is the trial
-            _copy(tx, x)
-            _copy(tv, v)
-            _copy(tacc, acc)
-            _copy(tten, tension)
-            _copy(tdirs, dirs)
-            _copy(tslack, slack)
+            _states(tx, tv, tacc, tten, tdirs, tslack, x, v, acc, tension, dirs, slack)
             for ci in range(nc):
                 located[ci] += part_imp[ci]
             remaining -= s
@@ -192,12 +184,7 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
                   stage, impulses)
         for ci in range(nc):
             impulses[ci] += located[ci]
-    _copy(tx, x)
-    _copy(tv, v)
-    _copy(tacc, acc)
-    _copy(tten, tension)
-    _copy(tdirs, dirs)
-    _copy(tslack, slack)
+    _states(tx, tv, tacc, tten, tdirs, tslack, x, v, acc, tension, dirs, slack)
 
 
 @njit(cache=True)
