@@ -7,9 +7,12 @@ Euler, implicitfast and RK4 run on the same step grid, taking turns in one proce
 (:func:`bench.work_precision.alternating_sweep`: the machine is shared and its load drifts). Writes
 ``work_precision_elastic.csv``, one ``wp_<case>_elastic.png`` per case and ``matched_error.csv`` /
 ``matched_error.md``: for each decade of final-position error, the wall time per simulated second of
-the cheapest configuration of each simulator that reaches it (interpolated on its Pareto front).
+the cheapest configuration of each simulator that reaches it (interpolated on its Pareto front); and
+``step_cost.csv``: the CPU time of one step of each configuration (``run()``, the compiled loop), the
+configurations taking turns, and its ratio to plain Verlet's.
 
-Run from the repository root: ``python3 bench/elastic_options.py`` (``--quick``: the coarse grid).
+Run from the repository root: ``python3 bench/elastic_options.py`` (``--quick``: the coarse grid;
+``--costs``: the step costs only).
 """
 from __future__ import annotations
 
@@ -21,10 +24,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run as a script: this checkout first
 
+import time  # noqa: E402
+
+import tensegrity_sim as ts  # noqa: E402
 from bench import work_precision  # noqa: E402
 from bench.cases import work_precision_cases  # noqa: E402
 from bench.runners import mujoco_runners, tensegrity_runners  # noqa: E402
 from bench.tables import write_csv  # noqa: E402
+from bench.timing import time_alternating  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results" / "elastic_options"
 LEVELS = [10.0 ** -k for k in range(2, 14)]   # final-position errors of the table, m
@@ -70,6 +77,25 @@ def matched_error_markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+CONFIGURATIONS = {"elastic": {}, "elastic located": {"locate_switches": True}, "elastic order 4": {"order": 4},
+                  "elastic order 4 unlocated": {"order": 4, "locate_switches": False}}
+
+
+def step_cost_rows(cases, dt: float = 1e-3) -> list[dict]:
+    """CPU time per step (us) of every elastic configuration on every case at ``dt``, in ``run()``,
+    taking turns (best of 5), and its ratio to plain Verlet's."""
+    rows = []
+    for case in cases:
+        sims = {name: ts.Simulator(case.scene, method="elastic", dt=dt, contacts=(), **options)
+                for name, options in CONFIGURATIONS.items()}
+        timings = time_alternating({name: (lambda n, sim=sim: sim.run(steps=n, every=n), sim.reset)
+                                    for name, sim in sims.items()}, repeats=5, clock=time.process_time)
+        plain = timings["elastic"].best
+        rows += [{"case": case.name, "variant": name, "dt": dt, "us_per_step": 1e6 * t.best,
+                  "ratio_to_plain": t.best / plain} for name, t in timings.items()]
+    return rows
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the coarse step grid (1e-2 .. 1e-4 s)")
@@ -77,10 +103,13 @@ def main(argv=None) -> int:
     parser.add_argument("--cases", default="", help="comma-separated case names (default: every elastic case)")
     parser.add_argument("--repeats", type=int, default=3, help="timed rounds per run (best kept)")
     parser.add_argument("--budget", type=float, default=5.0, help="longest run timed, s")
+    parser.add_argument("--costs", action="store_true", help="only the step costs (step_cost.csv)")
     args = parser.parse_args(argv)
     warnings.simplefilter("ignore")   # MuJoCo's divergence warnings: the rows say "unstable"
     wanted = set(filter(None, args.cases.split(",")))
-    cases = [c for c in work_precision_cases() if "elastic" in c.models and (not wanted or c.name in wanted)]
+    # without a ground: a scene with one is stepped by plain Verlet only
+    cases = [c for c in work_precision_cases() if "elastic" in c.models and c.scene.ground is None
+             and (not wanted or c.name in wanted)]
     runners = ([r for r in tensegrity_runners() if r.model == "elastic"]
                + [r for r in mujoco_runners() if r.model == "elastic"])
 
@@ -89,6 +118,12 @@ def main(argv=None) -> int:
             return work_precision.DTS_QUICK
         return work_precision.DTS_FULL + (work_precision.DTS_MUJOCO_EXTRA if runner.simulator == "MuJoCo" else ())
     args.out.mkdir(parents=True, exist_ok=True)
+    costs = step_cost_rows(cases)
+    write_csv(args.out / "step_cost.csv", costs)
+    for row in costs:
+        print(f"{row['case']:20} {row['variant']:28} {row['us_per_step']:8.2f} us/step  x{row['ratio_to_plain']:.2f}")
+    if args.costs:
+        return 0
     rows, accuracy = [], {}
     for case in cases:
         ref = work_precision.reference_for(case, "elastic", quick=args.quick)

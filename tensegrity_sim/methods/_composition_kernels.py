@@ -24,24 +24,20 @@ __all__ = ["composed_steps"]
 
 
 @njit(cache=True)
-def _copy(src, dst):
-    """``dst[...] = src`` for a copy's state arrays (element loops: compiles faster than slices)."""
-    flat_src = src.reshape(-1)
-    flat_dst = dst.reshape(-1)
-    for i in range(flat_src.shape[0]):
-        flat_dst[i] = flat_src[i]
-
-
-@njit(cache=True)
 def _states(x, v, acc, tension, dirs, slack, to_x, to_v, to_acc, to_tension, to_dirs, to_slack):
-    """Copy a workspace's state (positions, velocities, accelerations, tensions, rigid strut directions,
-    slack cables) into another's."""
-    _copy(x, to_x)
-    _copy(v, to_v)
-    _copy(acc, to_acc)
-    _copy(tension, to_tension)
-    _copy(dirs, to_dirs)
-    _copy(slack, to_slack)
+    """Copy a workspace's state (positions, velocities, accelerations (N, 3, 1), tensions (nc, 1), rigid
+    strut directions (nr, 3, 1), slack cables (nc,)) into another's (element loops: no views to make)."""
+    for i in range(x.shape[0]):
+        for j in range(3):
+            to_x[i, j, 0] = x[i, j, 0]
+            to_v[i, j, 0] = v[i, j, 0]
+            to_acc[i, j, 0] = acc[i, j, 0]
+    for ci in range(slack.shape[0]):
+        to_tension[ci, 0] = tension[ci, 0]
+        to_slack[ci] = slack[ci]
+    for k in range(dirs.shape[0]):
+        for j in range(3):
+            to_dirs[k, j, 0] = dirs[k, j, 0]
 
 
 @njit(cache=True)
@@ -125,8 +121,9 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
     """One step of ``h`` (s) of a batch-of-one workspace, in place on ``x``, ``v``, ``acc``,
     ``tension``, ``dirs``, ``slack`` (see :func:`_flow`), split at the switches inside it when
     ``locate`` (Stepper.step); ``impulses`` (nc,) N*s is set to each cable's impulse over the step.
-    ``work`` holds the scratch arrays (:func:`_workspace`)."""
-    (dx, stage, part_imp, tx, tv, tacc, tten, tdirs, tslack) = work
+    ``work`` holds the scratch (:func:`composed_steps` makes it): ``dx`` (N, 3), the impulses of a
+    stage, a located part and all located parts (nc,), and the trial's state, as the workspace's."""
+    (dx, stage, part_imp, located, tx, tv, tacc, tten, tdirs, tslack) = work
     n_struts = strut_rest.shape[0]
     nc = impulses.shape[0]
     # the trial: the whole (remaining) step from the part's start into the t* arrays
@@ -134,7 +131,8 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
     _flow(tx, tv, tacc, tten, tdirs, tslack, h, weights, rest, ext, ends, stiffness, floor, strut_rest, damping,
           inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage, impulses)
     if locate:
-        located = np.zeros(nc)
+        for ci in range(nc):
+            located[ci] = 0.0
         remaining = h
         for _ in range(MAX_SWITCHES):
             cable, s = _first_switch(x, v, acc, slack, tx, tslack, remaining, rest, ends, n_struts, min_split)
@@ -204,8 +202,9 @@ def composed_steps(x, v, rest, ext, h, n_steps, every, weights, locate, min_spli
     wx, wv, wacc = np.empty((n_nodes, 3, 1)), np.empty((n_nodes, 3, 1)), np.empty((n_nodes, 3, 1))
     wten, wdirs, wslack = np.empty((nc, 1)), np.empty((nr, 3, 1)), np.empty(nc, dtype=np.bool_)
     wrest, wext = np.empty((nc, 1)), np.empty((n_nodes, 3, 1))
-    work = (np.empty((n_nodes, 3)), np.empty(nc), np.empty(nc), np.empty((n_nodes, 3, 1)), np.empty((n_nodes, 3, 1)),
-            np.empty((n_nodes, 3, 1)), np.empty((nc, 1)), np.empty((nr, 3, 1)), np.empty(nc, dtype=np.bool_))
+    work = (np.empty((n_nodes, 3)), np.empty(nc), np.empty(nc), np.empty(nc),
+            np.empty((n_nodes, 3, 1)), np.empty((n_nodes, 3, 1)), np.empty((n_nodes, 3, 1)), np.empty((nc, 1)),
+            np.empty((nr, 3, 1)), np.empty(nc, dtype=np.bool_))
     imp = np.empty(nc)
     total = np.empty(nc)
     for b in range(n_copies):
