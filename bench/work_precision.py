@@ -35,6 +35,7 @@ DTS_MUJOCO_EXTRA = (5e-6, 2e-6)          # MuJoCo is cheap per step: its curves 
 DTS_QUICK = (1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4)
 LONG_RUN_S = 3.0          # a run expected to last longer is timed once
 MAX_RUN_S = 20.0          # a run expected to last longer is skipped (3 s with --quick)
+SHORT_RUN_S = 0.02        # alternating_sweep: a round times a shorter run again, up to this long
 
 FIELDS = ["case", "model", "simulator", "variant", "dt", "steps", "status", "wall_s", "wall_per_sim_s",
           "steps_per_s", "pos_err_m", "imp_err_Ns", "energy_err_J"]
@@ -235,7 +236,9 @@ def alternating_sweep(case: Case, runners, ref: Reference, dts, *, repeats: int,
     """:func:`sweep` for one case with the contenders taking turns, for a loaded machine: every run is
     timed once (``dts(runner)``: its steps; from the largest down, a run expected to last over
     ``budget`` s is skipped), then ``repeats - 1`` more rounds time every run in turn, so that a slow
-    spell of the machine hits all of them alike; each run's time is its best."""
+    spell of the machine hits all of them alike; each run's time is its best. A round times a short run
+    several times back to back (up to ``SHORT_RUN_S`` s of it, at most 50): a run of 100 us otherwise
+    has three chances to miss the machine's other processes."""
     jobs, rows = [], []
     for runner in runners:
         last = None
@@ -260,8 +263,9 @@ def alternating_sweep(case: Case, runners, ref: Reference, dts, *, repeats: int,
     for _ in range(repeats - 1):
         for job in jobs:
             if job[2] < LONG_RUN_S:
+                times = min(50, max(1, int(SHORT_RUN_S / job[2])))
                 job[2] = min(job[2], time_runs(job[1].advance, setup=job[1].reset, warmup=lambda: None,
-                                               repeats=1).best)
+                                               repeats=times).best)
     return rows + [_close(row, session, best, case, ref) for row, session, best in jobs]
 
 
