@@ -27,6 +27,7 @@ from .runners import NO_CONTACTS, TensegrityRunner
 from .timing import time_runs
 
 __all__ = ["Reference", "reference_for", "reference_rows", "references_from_rows", "halving_limit", "sweep",
+           "alternating_sweep",
            "time_to_reach", "FIELDS", "REFERENCE_FIELDS"]
 
 DTS_FULL = (1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5, 1e-5)
@@ -34,9 +35,11 @@ DTS_MUJOCO_EXTRA = (5e-6, 2e-6)          # MuJoCo is cheap per step: its curves 
 DTS_QUICK = (1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4)
 LONG_RUN_S = 3.0          # a run expected to last longer is timed once
 MAX_RUN_S = 20.0          # a run expected to last longer is skipped (3 s with --quick)
+SHORT_RUN_S = 0.02        # alternating_sweep: a round times a shorter run again, up to this long
 
 FIELDS = ["case", "model", "simulator", "variant", "dt", "steps", "status", "wall_s", "wall_per_sim_s",
           "steps_per_s", "pos_err_m", "imp_err_Ns", "energy_err_J"]
+_NAN = {k: math.nan for k in FIELDS[7:]}   # the measured fields of a run that gave none
 
 
 @dataclass(frozen=True)
@@ -175,7 +178,7 @@ def sweep(cases, runners, references: dict, *, quick: bool, repeats: int, progre
             rows.append({"case": case.name, "model": runner.model, "simulator": runner.simulator,
                          "variant": runner.variant, "dt": dt, "steps": int(round(case.duration / dt)),
                          "status": f"skipped: expected {expected:.0f} s per run",
-                         **{k: math.nan for k in FIELDS[7:]}})
+                         **_NAN})
             if progress is not None:
                 progress.update()
             continue
@@ -190,29 +193,80 @@ def sweep(cases, runners, references: dict, *, quick: bool, repeats: int, progre
 
 
 def _one(case: Case, runner, dt: float, ref: Reference, repeats: int) -> dict:
-    row = {"case": case.name, "model": runner.model, "simulator": runner.simulator, "variant": runner.variant,
-           "dt": dt, "steps": int(round(case.duration / dt))}
-    nan = {k: math.nan for k in ("wall_s", "wall_per_sim_s", "steps_per_s", "pos_err_m", "imp_err_Ns",
-                                  "energy_err_J")}
-    try:
-        session = runner.session(case, dt)
-    except ValueError as exc:
-        return {**row, "status": f"refused: {exc}", **nan}
+    row, session = _open(case, runner, dt)
+    if session is None:
+        return row
     try:
         wall = time_runs(session.advance, setup=session.reset, warmup=session.warmup, repeats=repeats).best
+    except Exception as exc:     # a step that fails (a QP backend's error) is a result, not a crash
+        return {**row, "status": f"failed: {type(exc).__name__}: {exc}", **_NAN}
+    return _close(row, session, wall, case, ref)
+
+
+def _open(case: Case, runner, dt: float):
+    """The row of a run (its status ``refused`` if the runner refuses ``dt``) and its session (or None)."""
+    row = {"case": case.name, "model": runner.model, "simulator": runner.simulator, "variant": runner.variant,
+           "dt": dt, "steps": int(round(case.duration / dt))}
+    try:
+        return row, runner.session(case, dt)
+    except ValueError as exc:
+        return {**row, "status": f"refused: {exc}", **_NAN}, None
+
+
+def _close(row: dict, session, wall: float, case: Case, ref: Reference) -> dict:
+    """The row of a timed run (``wall`` s, its best time), with the errors of one more, measured, run."""
+    try:
         if session.unstable:
-            return {**row, "status": "unstable", **nan}
+            return {**row, "status": "unstable", **_NAN}
         measured = session.measure()
     except Exception as exc:     # a step that fails (a QP backend's error) is a result, not a crash
-        return {**row, "status": f"failed: {type(exc).__name__}: {exc}", **nan}
+        return {**row, "status": f"failed: {type(exc).__name__}: {exc}", **_NAN}
     if not np.all(np.isfinite(measured.final.positions)):
-        return {**row, "status": "unstable", **nan}
+        return {**row, "status": "unstable", **_NAN}
     return {**row, "status": "ok", "wall_s": wall, "wall_per_sim_s": wall / case.duration,
             "steps_per_s": row["steps"] / wall,
             "pos_err_m": _pos_diff(measured.final, ref.final),
             "imp_err_Ns": math.nan if case.impulse_note else
             float(np.max(np.abs(measured.final.impulses - ref.final.impulses))),
             "energy_err_J": measured.energy_error}
+
+
+def alternating_sweep(case: Case, runners, ref: Reference, dts, *, repeats: int, budget: float,
+                      progress=None) -> list[dict]:
+    """:func:`sweep` for one case with the contenders taking turns, for a loaded machine: every run is
+    timed once (``dts(runner)``: its steps; from the largest down, a run expected to last over
+    ``budget`` s is skipped), then ``repeats - 1`` more rounds time every run in turn, so that a slow
+    spell of the machine hits all of them alike; each run's time is its best. A round times a short run
+    several times back to back (up to ``SHORT_RUN_S`` s of it, at most 50): a run of 100 us otherwise
+    has three chances to miss the machine's other processes."""
+    jobs, rows = [], []
+    for runner in runners:
+        last = None
+        for dt in sorted(dts(runner), reverse=True):
+            if last is not None and last[0] * last[1] / dt > budget:
+                rows.append({**_open(case, runner, dt)[0], "status": f"skipped: expected over {budget:g} s",
+                             **_NAN})
+                continue
+            row, session = _open(case, runner, dt)
+            if session is None:
+                rows.append(row)
+                continue
+            try:
+                best = time_runs(session.advance, setup=session.reset, warmup=session.warmup, repeats=1).best
+            except Exception as exc:
+                rows.append({**row, "status": f"failed: {type(exc).__name__}: {exc}", **_NAN})
+                continue
+            jobs.append([row, session, best])
+            last = (best, dt)
+            if progress is not None:
+                progress.update()
+    for _ in range(repeats - 1):
+        for job in jobs:
+            if job[2] < LONG_RUN_S:
+                times = min(50, max(1, int(SHORT_RUN_S / job[2])))
+                job[2] = min(job[2], time_runs(job[1].advance, setup=job[1].reset, warmup=lambda: None,
+                                               repeats=times).best)
+    return rows + [_close(row, session, best, case, ref) for row, session, best in jobs]
 
 
 def time_to_reach(rows: list[dict], error: float, metric: str = "pos_err_m") -> float:

@@ -3,6 +3,7 @@
 The numerical core (scene, system, methods, simulator) imports nothing from ROS, MCAP or file
 formats beyond the scene loader.
 """
+from .accuracy import AccuracyChoice, choose_accuracy
 from .batch import BatchSimulator
 from .contact import ActiveContact
 from .methods import METHODS, StepError
@@ -19,5 +20,5 @@ __all__ = [
     "LengthOffsetWarning", "NonFiniteError", "QPError", "StepError", "SOLVERS", "StepResult", "Strut", "Trajectory",
     "builtin_scenes",
     "load_scene", "__version__",
-    "ActiveContact", "BatchSimulator",
+    "ActiveContact", "BatchSimulator", "AccuracyChoice", "choose_accuracy",
 ]

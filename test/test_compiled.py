@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import tensegrity_sim as ts
+from bench.cases import icosahedron_thrown, tower_kicked
 from conftest import bungee_dict, class_k_dict, deadband_dict, random_velocities
 from test_contact import crossing_dict
 from tensegrity_sim.methods import _qp_kernels as kernels
@@ -77,6 +78,79 @@ def test_elastic_step_matches_reference(name):
         _close(a.velocities, b.velocities, f"velocities, step {k}")
         _close(a.impulses, b.impulses, f"impulses, step {k}")
         assert np.array_equal(a.slack, b.slack), f"slack, step {k}"
+
+
+# the accuracy options (methods/_composition_kernels.py): scenes with switches, damping and rigid struts
+OPTION_SCENES = {"bungee": (lambda: ts.Scene.from_dict(bungee_dict()), 1e-3, 1200),
+                 "deadband": (ELASTIC_SCENES["deadband"][0], 1e-3, 600),
+                 "damped": (_damped, 1e-3, 1000),
+                 "icosahedron_thrown": (icosahedron_thrown, 1e-3, 150),     # rigid struts
+                 "tower_kicked": (tower_kicked, 1e-4, 200)}                 # elastic struts, fixed nodes
+
+
+@pytest.mark.parametrize("order, locate", [(2, True), (4, True), (4, False)])
+@pytest.mark.parametrize("name", sorted(OPTION_SCENES))
+def test_composed_steps_match_reference(name, order, locate):
+    """The compiled located switches and order-4 composition against the numpy Stepper, step by step
+    with a command mid-run, and the compiled run() loop against both; the runs must contain switches
+    that the located option split."""
+    make, dt, steps = OPTION_SCENES[name]
+    scene = make()
+    compiled = ts.Simulator(scene, method="elastic", dt=dt, order=order, locate_switches=locate)
+    reference = ts.Simulator(scene, method="elastic", dt=dt, order=order, locate_switches=locate)
+    reference._method.compiled = False
+    assert compiled._method.compiled and compiled._method.has_loop()
+    switches = 0
+    for k in range(steps):
+        if k == steps // 2:
+            for sim in (compiled, reference):
+                sim.set_rest_lengths(0.98 * sim.rest_lengths)
+                f = np.zeros((len(sim.scene.nodes), 3))
+                f[-1] = [0.3, -0.2, 0.5]
+                sim.set_external_forces(f)
+        before = reference.slack()
+        a, b = compiled.step(), reference.step()
+        switches += int(np.sum(b.slack != before))
+        _close(a.positions, b.positions, f"positions, step {k}")
+        _close(a.velocities, b.velocities, f"velocities, step {k}")
+        _close(a.impulses, b.impulses, f"impulses, step {k}")
+        assert np.array_equal(a.slack, b.slack), f"slack, step {k}"
+    assert switches > 0
+    again = ts.Simulator(scene, method="elastic", dt=dt, order=order, locate_switches=locate)
+    traj = again.run(steps=steps // 2, every=3)
+    stepped = ts.Simulator(scene, method="elastic", dt=dt, order=order, locate_switches=locate)
+    impulses = sum(stepped.step().impulses for _ in range(steps // 2))
+    _close(again.positions, stepped.positions, "run() positions")
+    _close(traj.impulses.sum(axis=0), impulses, "run() impulses")
+
+
+def test_composed_kernel_steps_a_batch():
+    """The kernel's batch axis: two copies with different rest lengths stepped together equal each
+    stepped alone (a located switch splits one copy's step only)."""
+    from tensegrity_sim.methods import _composition_kernels as composed
+    from tensegrity_sim.methods import _elastic_kernels as kernels
+    from tensegrity_sim.methods.composition import MIN_SPLIT, WEIGHTS
+    sim = ts.Simulator(ts.Scene.from_dict(bungee_dict()), method="elastic", dt=1e-3, order=4)
+    model = sim._method._model
+    x0, v0 = sim.positions[..., None], sim.velocities[..., None]
+
+    def run(rests):
+        b = len(rests)
+        x, v = np.repeat(x0, b, axis=2), np.repeat(v0, b, axis=2)
+        rest, ext = np.array([rests]), np.zeros_like(x)
+        acc, ten, dirs = np.empty_like(x), np.empty((1, b)), np.empty((0, 3, b))
+        slack = kernels.elastic_forces(x, v, rest, ext, *model[:8], acc, ten, dirs)
+        out = (np.empty((1, 2, 3, b)), np.empty((1, 2, 3, b)), np.empty((1, 1, b)), np.empty((1, 1, b), dtype=bool))
+        composed.composed_steps(x, v, rest, ext, 1e-3, 900, 900, np.array(WEIGHTS[4]), True, MIN_SPLIT * 1e-3,
+                                *model, acc, ten, dirs, slack, *out)
+        return x, out[2]
+
+    both_x, both_imp = run([1.0, 1.2])
+    for i, r in enumerate((1.0, 1.2)):
+        x, imp = run([r])
+        np.testing.assert_array_equal(both_x[..., i], x[..., 0])
+        np.testing.assert_array_equal(both_imp[..., i], imp[..., 0])
+    assert not np.array_equal(both_x[..., 0], both_x[..., 1])
 
 
 def test_coupled_rigid_struts_use_the_reference():

@@ -139,11 +139,11 @@ def test_options_are_checked_and_reported():
         ts.Simulator(scene, method="inextensible", order=4)
     sim = ts.Simulator(scene, method="elastic", dt=1e-3, order=4, locate_switches=False)
     assert sim.method_settings == {"method": "elastic", "dt": 1e-3, "order": 4, "locate_switches": False}
-    # by default only order 4 locates (order 2 then runs compiled plain Verlet)
+    # by default only order 4 locates; every option runs compiled (methods/_composition_kernels.py)
     plain = ts.Simulator(scene, method="elastic", dt=1e-3)
     assert not plain.method_settings["locate_switches"] and plain._method.compiled
     located = ts.Simulator(scene, method="elastic", dt=1e-3, locate_switches=True)
-    assert located.method_settings["locate_switches"] and not located._method.compiled
+    assert located.method_settings["locate_switches"] and located._method.compiled
     assert ts.Simulator(scene, method="elastic", dt=1e-3, order=4).method_settings["locate_switches"]
     # the composition's wider stability interval is used: 2 < omega dt < 2.72 runs at order 4 only
     stiff = ts.Scene.from_dict(bungee_dict(k=1.0e6))

@@ -1,7 +1,7 @@
 """Accuracy options of the elastic method, built only from its primitive ``verlet(x, v, start, h, state)``:
 one velocity-Verlet/RATTLE step of any size ``h`` returning the end positions, velocities and forces.
-Whichever implementation of that primitive runs (the numpy reference or a compiled kernel), this layer
-works unchanged.
+This is the plain numpy reference; ``_composition_kernels.py`` is the same arithmetic compiled (numba),
+which tests require to match it to 1e-12.
 
 **Order 4: a symmetric composition.** A step of ``h`` is five Verlet steps of ``w_i h`` with Suzuki's
 weights ``(w, w, 1 - 4w, w, w)``, ``w = 1 / (4 - 4^(1/3))`` (Hairer, Lubich & Wanner, *Geometric

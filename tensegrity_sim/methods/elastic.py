@@ -5,11 +5,11 @@ Integrator: velocity Verlet (with RATTLE for rigid struts), chosen by measuremen
 
 * It is symplectic and time-reversible, so an undamped structure's energy error stays bounded (it
   oscillates at O(h^2) and does not drift) over long runs; an explicit Runge-Kutta of the same cost
-  drifts. Not with constant slack/taut switching at a step that barely resolves the fastest vibration
-  (the cable force's kink leaves the theory's smooth case): prism3 with random velocities (0.5 m/s),
-  1e6 steps at 1 ms (``omega_max dt = 0.30``): the energy error's mean over each tenth of the run rises
-  from 3.9e-3 J to 1.3e-2 J (max |dE|/E 4.4e-3; the hard-case table's long-horizon row flags it); at
-  0.5 ms, 2e5 steps, no trend (max |dE|/E 4.1e-4).
+  drifts. With constant slack/taut switching the cable force's kink leaves the theory's smooth case:
+  each switch adds an energy error of either sign and the error random-walks (grows like sqrt(t), its
+  trend changing sign with the seed and with round-off): prism3 with random velocities (0.5 m/s), 1e6
+  steps at 1 ms (``omega_max dt = 0.30``), seven seeds: max |dE|/E 5.9e-4..5.3e-3; at 0.5 ms (2e6 steps)
+  5.1e-4 where 1 ms gave 3.4e-3; at order 4, 1 ms, 4.9e-5 (``bench/hard_cases.py``, ``DRIFT_RATIO``).
 * Every force is an equal-and-opposite pair along a member, and Verlet applies it at one configuration,
   so linear and angular momentum are conserved to round-off (it is a variational integrator).
 * The cable force ``k max(0, e)`` is continuous in the positions and only its derivative jumps at a
@@ -39,11 +39,12 @@ Impulses: the velocity update applies each cable's tension as ``h/2 (t_start + t
 cable's impulse over the step (summed over the parts and stages of a split or composed step), and
 ``impulses / h`` the step's mean tension.
 
-Two implementations of the same arithmetic for plain Verlet (order 2, switches not located): the numba
-kernels of ``_elastic_kernels.py`` (used unless ``compiled`` is False) and the numpy code below, the
-plain reference they must match to 1e-12 in tests. The located and order-4 options run the numpy
-primitive :meth:`ElasticMethod.verlet` through ``methods/composition.py``. Rigid struts that share a node
-(class-k: coupled SHAKE/RATTLE, a Newton solve) and scenes with a ground are stepped by the reference only.
+Two implementations of the same arithmetic: the numba kernels (used unless ``compiled`` is False) of
+``_elastic_kernels.py`` for plain Verlet (order 2, switches not located) and of
+``_composition_kernels.py`` for the located and order-4 options, and the numpy code below (the primitive
+:meth:`ElasticMethod.verlet` composed by ``methods/composition.py``), the plain reference they must
+match to 1e-12 in tests. Rigid struts that share a node (class-k: coupled SHAKE/RATTLE, a Newton solve)
+and scenes with a ground are stepped by the reference only.
 
 **Ground contact** (a scene with a ``ground``; ``methods/friction.py``): an impulse step for the contact
 set at each half-kick while the cables stay explicit. After the first half-kick, the nodes that would
@@ -65,9 +66,10 @@ from typing import NamedTuple
 import numpy as np
 
 from ..system import System
+from . import _composition_kernels as composed
 from . import _elastic_kernels as kernels
 from .base import MethodStep, State, StepMethod
-from .composition import STABILITY, Stepper
+from .composition import MIN_SPLIT, STABILITY, WEIGHTS, Stepper
 from .friction import TOUCH_TOL, GroundResponse
 from .qp import make_solver
 from .rigid import RigidStruts
@@ -90,10 +92,10 @@ class _Forces(NamedTuple):
 class ElasticMethod(StepMethod):
     """Options: ``order`` 2 (velocity Verlet, one force evaluation per step) or 4 (Suzuki's symmetric
     composition of five Verlet steps, five evaluations); ``locate_switches`` splits a step at each
-    slack/taut switch (``methods/composition.py``); default (None): at order 4 only, since the located
-    order 2 runs the numpy primitive while plain Verlet runs compiled. ``compiled``: plain Verlet steps
-    with the numba kernels (True; not for coupled rigid struts) or the numpy reference (False); the
-    other options always run the numpy primitive."""
+    slack/taut switch (``methods/composition.py``); default (None): at order 4 only (at order 2 it
+    costs a located part per switching step and, with the fastest vibration under-resolved, lets the
+    energy random-walk: see the module docstring). ``compiled``: step with the numba kernels (True; not
+    for coupled rigid struts or a ground) or the numpy reference (False)."""
 
     name = "elastic"
     options = ("order", "locate_switches")
@@ -134,12 +136,15 @@ class ElasticMethod(StepMethod):
                                  "switches are not available with a ground")
             self.ground = GroundResponse(system, make_solver(None, system.masses[system.free]))
         self._contact = None   # the ground's impulses of the last step (N, 3) N*s, or None
-        # the compiled kernels step plain Verlet only; the options and the ground run the numpy primitive
-        self.compiled = (compiled and not self.rigid.coupled and self.order == 2 and not self.locate_switches
-                         and self.ground is None)
+        # the compiled kernels: plain Verlet (_elastic_kernels.py) and the options (_composition_kernels.py);
+        # the ground and coupled rigid struts run the numpy primitive
+        self.compiled = compiled and not self.rigid.coupled and self.ground is None
+        self._plain = self.order == 2 and not self.locate_switches
+        self._weights = np.array(WEIGHTS[self.order])
         self._model = kernels.model_arrays(system, self.rigid)
         # the compiled path's carry from one step to the next (batch of one): accelerations (N, 3, 1),
-        # cable tensions (n_cables, 1), rigid strut directions (nr, 3, 1) at the last step's end
+        # cable tensions (n_cables, 1), rigid strut directions (nr, 3, 1), slack cables (n_cables, 1) at
+        # the last step's end
         self._carry = None
         if self.compiled:
             self._load_kernels()
@@ -194,10 +199,15 @@ class ElasticMethod(StepMethod):
         rest = state.rest_lengths.reshape(-1, 1)
         ext = state.external_forces.reshape(-1, 3, 1)
         if self._carry is None:   # the start forces: the last step's end, or computed here
-            self._carry = (np.empty_like(x), np.empty((self.system.n_cables, 1)), np.empty((self.rigid.count, 3, 1)))
-            kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._carry)
-        kernels.elastic_steps(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry,
-                              positions, velocities, impulses, slack)
+            forces = (np.empty_like(x), np.empty((self.system.n_cables, 1)), np.empty((self.rigid.count, 3, 1)))
+            self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *forces),)
+        if self._plain:
+            kernels.elastic_steps(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
+                                  positions, velocities, impulses, slack)
+        else:
+            composed.composed_steps(x, v, rest, ext, self.dt, steps, every, self._weights, self.locate_switches,
+                                    MIN_SPLIT * self.dt, *self._model, *self._carry, positions, velocities,
+                                    impulses, slack)
 
     def _step_impl(self, state: State) -> MethodStep:
         if not self.compiled:
