@@ -366,7 +366,21 @@ class SparseSolver(QPSolver):
       171 degrees of freedom; its solution has 156 independent active rows, smallest singular value
       0.054 of 2.45, every active impulse >= 1e-3 of the largest: not degenerate) 10 / 50 / 200 / 1000
       sweeps from zero leave 54 / 23 / 12 / 6 rows on the wrong side (velocities off by 1.9e-2 /
-      6.9e-3 / 1.8e-3 / 1.4e-5 m/s), too slow to polish from.
+      6.9e-3 / 1.8e-3 / 1.4e-5 m/s), too slow to polish from;
+    * QPALM 1.3 (proximal augmented Lagrangian, sparse LDL^T with low-rank updates; PyPI ``qpalm``) as
+      the proposer of the active set, polished by this backend's exact solve of that set started from
+      QPALM's multipliers: 5-9 ms per QP of the 10-stage tower (DAQP 50-100 ms), but on 20 steps only
+      9 of 42 QPs the guess could not answer were polished, 33 still went to DAQP: 169 ms/step. At eps
+      1e-10 it reaches its 1000-iteration limit on most of them; at 1e-8 its velocities are within
+      2e-8 m/s of DAQP's, yet its active set (multipliers above 1e-6 of the largest, or rows within
+      1e-7 of their target) is off by 10-45 rows: these QPs are nearly degenerate, many rows end within
+      1e-8 m/s of their target without an impulse. Not kept (a dependency for 20 % of the fallbacks).
+
+    The tower's QPs are what makes this hard: more cables than degrees of freedom (exact self-stresses,
+    e.g. the first stage's top triangle depends on the six cables that tie it to the fixed nodes) and
+    many nearly binding rows. A sparse dual active-set method that keeps its factorisation across
+    working-set changes (what DAQP does densely) is the missing piece; scipy has no sparse factor
+    update, and each change costs a new factorisation here.
     """
 
     name = "sparse"
