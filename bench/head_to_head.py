@@ -9,7 +9,8 @@ Run: ``python bench/head_to_head.py [--repeats R] [--stages 10,20,30,50,100] [--
 * **Towers** of ``--stages`` stages (no gravity), inextensible, at rest and moving (random node
   velocities of 0.05 m/s): the steady cost per step after a warm-up, and separately the cost of the first
   step after a command (``set_rest_lengths`` with the current lengths, as a controller holding its
-  command at 100 Hz sends), each the best of ``--repeats``; the growth exponent of the steady cost.
+  command at 100 Hz sends), each the best of ``--repeats``; the growth exponent of the steady cost; the
+  shares of the steady cost spent in the QP and in the self-stress rule's publishing.
 
 Every figure is CPU time of this process (``time.process_time``), the contenders of a row timed in
 turn, repeat after repeat, so that a disturbance on a shared machine hits them alike; the best of the
@@ -69,8 +70,23 @@ def icosahedron_rows(repeats: int) -> list[dict]:
     return rows
 
 
+def _clock_calls(obj, name: str, spent: dict) -> None:
+    """Add the CPU seconds spent inside ``obj.name(...)`` to ``spent[name]`` from now on."""
+    inner = getattr(obj, name)
+
+    def timed(*args, **kwargs):
+        start = time.process_time()
+        try:
+            return inner(*args, **kwargs)
+        finally:
+            spent[name] += time.process_time() - start
+    setattr(obj, name, timed)
+
+
 def tower_rows(stages, repeats: int, budget: float) -> list[dict]:
-    """Steady and after-a-command cost per step of the inextensible method on towers, at rest and moving."""
+    """Steady and after-a-command cost per step of the inextensible method on towers, at rest and moving,
+    and the shares of the steady cost spent in the QP backend (``qp_share``) and in publishing the
+    impulses of rows that carry a self-stress (``publish_share``, ``methods/self_stress.py``)."""
     rows = []
     for n in stages:
         for velocity in (0.0, 0.05):
@@ -83,13 +99,22 @@ def tower_rows(stages, repeats: int, budget: float) -> list[dict]:
             cold = time.process_time() - start
             for _ in range(10):              # warm-up
                 sim.step()
+            inside = {"solve": 0.0, "impulses": 0.0}
+            _clock_calls(sim._method.solver, "solve", inside)
+            _clock_calls(sim._method.self_stress, "impulses", inside)
             steady, after, steps = math.inf, math.inf, 0
+            steady_total, steady_inside = 0.0, {"solve": 0.0, "impulses": 0.0}
             spent = time.process_time()
             for _ in range(repeats):
+                before = dict(inside)
                 start = time.process_time()
                 for _ in range(5):
                     sim.step()
-                steady = min(steady, (time.process_time() - start) / 5)
+                block = time.process_time() - start
+                steady = min(steady, block / 5)
+                steady_total += block
+                for name in steady_inside:
+                    steady_inside[name] += inside[name] - before[name]
                 sim.set_rest_lengths(sim.rest_lengths)   # a command (the same lengths: held)
                 start = time.process_time()
                 sim.step()
@@ -102,9 +127,12 @@ def tower_rows(stages, repeats: int, budget: float) -> list[dict]:
                          "velocity": velocity, "solver": sim.method_settings["solver"],
                          "first_ms": 1e3 * cold, "steady_ms": 1e3 * steady, "after_command_ms": 1e3 * after,
                          "after_over_steady": after / steady,
+                         "qp_share": steady_inside["solve"] / steady_total,
+                         "publish_share": steady_inside["impulses"] / steady_total,
                          "guessed_share": (counts["guessed"] / max(sum(counts.values()), 1)) if counts else math.nan})
             print(f"  tower{n} v={velocity}: steady {1e3 * steady:.2f} ms, after a command {1e3 * after:.2f} ms, "
-                  f"first {1e3 * cold:.1f} ms ({steps} steps timed)", flush=True)
+                  f"first {1e3 * cold:.1f} ms ({steps} steps timed); steady: QP {rows[-1]['qp_share']:.0%}, "
+                  f"self-stress publishing {rows[-1]['publish_share']:.0%}", flush=True)
     return rows
 
 

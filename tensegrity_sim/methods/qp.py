@@ -364,6 +364,43 @@ class SparseSolver(QPSolver):
     a sub-step change only the targets).
 
     ``counts`` tallies the QPs answered by a guess and by DAQP.
+
+    **Replacements tried for issue 10 (moving towers), none kept.** Measured on the moving 10-stage
+    tower (random 0.05 m/s node velocities, no gravity, dt = 1 ms, 20 steps, CPU time, contenders
+    taking turns in one process, ``OPENBLAS_NUM_THREADS=1``): DAQP alone 68 ms/step; this backend
+    81 ms/step (82 QPs answered by a guess, 43 by DAQP). Each candidate below kept this backend's
+    verified, regularised equality solve (``W_GG + 1e-10 diag(W_GG)``, refined on ``A_G v - r_G``):
+
+    * primal-dual active set (Hintermueller-Ito-Kunisch: every violated row in, every pulling row out at
+      once, up to 30 updates): 250 ms/step, 84 guessed / 41 DAQP, 1651 updates. It oscillates: the
+      tower has more cables than degrees of freedom, so adding every violated row overdetermines the set
+      (197 rows on 171 degrees of freedom), its targets disagree along a self-stress, the impulses blow
+      up along it and half the set is dropped; the set swings between ~110 and ~190 rows;
+    * Bertsekas' projected Newton on the dual (epsilon-active sets, Armijo search on the dual objective):
+      231 ms/step, 70 / 55;
+    * proximal PDAS (``rho/2 |y - y_k|^2_D`` added to the dual, ``rho`` = 1, 1e-2, 1e-4 then 0): 282
+      ms/step, 85 / 40 (it settles for ``rho`` >= 1e-2, then swings again);
+    * PDAS adding only the most violated quarter of the violated rows and dropping one row of a set
+      whose refinement diverges: 3 of 4 captured failing QPs solved, after 20-48 factorisations each;
+    * projected Gauss-Seidel as the warm start (compiled, row by row): on a captured failing QP (225 rows,
+      171 degrees of freedom; its solution has 156 independent active rows, smallest singular value
+      0.054 of 2.45, every active impulse >= 1e-3 of the largest: not degenerate) 10 / 50 / 200 / 1000
+      sweeps from zero leave 54 / 23 / 12 / 6 rows on the wrong side (velocities off by 1.9e-2 /
+      6.9e-3 / 1.8e-3 / 1.4e-5 m/s), too slow to polish from;
+    * QPALM 1.3 (proximal augmented Lagrangian, sparse LDL^T with low-rank updates; PyPI ``qpalm``) as
+      the proposer of the active set, polished by this backend's exact solve of that set started from
+      QPALM's multipliers: 5-9 ms per QP of the 10-stage tower (DAQP 50-100 ms), but on 20 steps only
+      9 of 42 QPs the guess could not answer were polished, 33 still went to DAQP: 169 ms/step. At eps
+      1e-10 it reaches its 1000-iteration limit on most of them; at 1e-8 its velocities are within
+      2e-8 m/s of DAQP's, yet its active set (multipliers above 1e-6 of the largest, or rows within
+      1e-7 of their target) is off by 10-45 rows: these QPs are nearly degenerate, many rows end within
+      1e-8 m/s of their target without an impulse. Not kept (a dependency for 20 % of the fallbacks).
+
+    The tower's QPs are what makes this hard: more cables than degrees of freedom (exact self-stresses,
+    e.g. the first stage's top triangle depends on the six cables that tie it to the fixed nodes) and
+    many nearly binding rows. A sparse dual active-set method that keeps its factorisation across
+    working-set changes (what DAQP does densely) is the missing piece; scipy has no sparse factor
+    update, and each change costs a new factorisation here.
     """
 
     name = "sparse"
@@ -472,8 +509,11 @@ SOLVERS: dict[str, type[QPSolver]] = {
     NnlsSolver.name: NnlsSolver,
     SparseSolver.name: SparseSolver,
 }
-# From this many free nodes on, the default backend is the sparse one (dense DAQP below): see the module
-# docstring for the measurement.
+# From this many free nodes on, the default backend is the sparse one (dense DAQP below). Measured on
+# towers (steady CPU time per step after 10 steps, best of 5 x 4 steps, the two taking turns in one
+# process, OPENBLAS_NUM_THREADS=1), daqp / sparse: moving (0.05 m/s) 0.22, 0.19, 0.23, 0.65, 0.89 at
+# 3, 15, 27, 57, 87 free nodes (1, 3, 5, 10, 15 stages) and 0.99 at 117 (20 stages); at rest 0.81, 0.49,
+# 0.88, 1.51, 2.44, 2.48. A moving structure pays most for a failing guess: the switch is where they cross.
 SPARSE_NODES = 100
 
 
