@@ -159,7 +159,6 @@ class InextensibleMethod(StepMethod):
         # the backend: named, or chosen by size (dense DAQP for small structures, sparse for large ones)
         self.solver_choice = f"{solver}: requested" if solver else choose_solver(int(free.sum()))[1]
         self.solver = make_solver(solver, system.masses[free])
-        self.compiled = compiled   # the solver's rows and check follow (the property below)
         # a ground adds its contact rows to every QP (methods/friction.py), through the same interface
         self.ground = None if scene.ground is None else GroundResponse(system, self.solver)
         if self.ground is not None:
@@ -189,6 +188,7 @@ class InextensibleMethod(StepMethod):
                                       np.flatnonzero(self._cables_move))
         # a structure that can lock counts a cable this close to its limit as at it (self_stress.TAUT_TOL)
         self._taut_tol = TAUT_TOL if self.self_stress.possible else LIMIT_TOL
+        self.compiled = compiled   # the solver's rows and check and the self-stress rule follow (the property)
 
     @property
     def compiled(self) -> bool:
@@ -196,7 +196,7 @@ class InextensibleMethod(StepMethod):
 
     @compiled.setter
     def compiled(self, value: bool) -> None:
-        self.solver.compiled = bool(value)
+        self.solver.compiled = self.self_stress.compiled = bool(value)
 
     # ------------------------------------------------------------------ contract
     def invalidate(self) -> None:
