@@ -1,6 +1,8 @@
 """The stepping core beside MuJoCo, contenders taking turns in one process (issue 10's targets).
 
-Run: ``python bench/head_to_head.py [--repeats R] [--stages 10,20,30,50,100] [--budget S] [--out CSV]``.
+Run: ``python bench/head_to_head.py [--repeats R] [--methods elastic,inextensible] [--stages 10,20,30,50,100]
+[--budget S] [--out DIR]``. ``--methods`` times the icosahedron rows of those methods only (the others'
+rows in ``head_to_head.csv`` are kept as they were); ``--stages ""`` skips the towers (and keeps their CSV).
 
 * **Icosahedron thrown** (``bench.cases``: struts rigid, dt = 1 ms): ``Simulator.step()`` in a Python
   loop against MuJoCo's ``mj_step(model, data)`` in a Python loop, and ``Simulator.run()`` against
@@ -32,7 +34,7 @@ import tensegrity_sim as ts  # noqa: E402
 from bench.bench_steps import agitated  # noqa: E402
 from bench.cases import work_precision_cases  # noqa: E402
 from bench.scale import tower_scene  # noqa: E402
-from bench.tables import write_csv  # noqa: E402
+from bench.tables import read_csv, write_csv  # noqa: E402
 from bench.timing import time_alternating  # noqa: E402
 
 def _python_loop(step):
@@ -42,13 +44,13 @@ def _python_loop(step):
     return run
 
 
-def icosahedron_rows(repeats: int) -> list[dict]:
+def icosahedron_rows(repeats: int, methods=("elastic", "inextensible")) -> list[dict]:
     import mujoco
 
     from bench.mujoco_peer import MujocoPeer
     scene = next(c for c in work_precision_cases() if c.name == "icosahedron_thrown").scene
     rows = []
-    for method in ("elastic", "inextensible"):
+    for method in methods:
         sim = ts.Simulator(scene, method=method, dt=1e-3, contacts=())
         peer = MujocoPeer(scene, model=method, dt=1e-3, integrator="Euler")
         model, data = peer.model, peer.data
@@ -119,16 +121,22 @@ def exponent(rows, velocity) -> float:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--stages", default="10,20,30,50,100")
+    parser.add_argument("--methods", default="elastic,inextensible", help="icosahedron rows to time")
+    parser.add_argument("--stages", default="10,20,30,50,100", help='tower sizes ("": no towers)')
     parser.add_argument("--budget", type=float, default=60.0, help="CPU seconds per tower configuration at most")
     parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results")
     args = parser.parse_args(argv)
-    rows = icosahedron_rows(args.repeats)
+    methods = [m for m in args.methods.split(",") if m]
+    rows = icosahedron_rows(args.repeats, methods)
     for r in rows:
         print(f"{r['method']:<13}{r['ours']:<24}{r['ours_us']:>9.2f} us   {r['peer']:<24}({r['peer_model']})"
               f"{r['peer_us']:>9.2f} us   ratio (peer/ours) {r['ratio']:.2f}", flush=True)
-    write_csv(args.out / "head_to_head.csv", rows)
+    table = args.out / "head_to_head.csv"
+    kept = [r for r in read_csv(table) if r["method"] not in methods] if table.exists() else []
+    write_csv(table, sorted(kept + rows, key=lambda r: r["method"]), list(rows[0]) if rows else None)
     stages = [int(s) for s in args.stages.split(",") if s]
+    if not stages:
+        return 0
     towers = tower_rows(stages, args.repeats, args.budget)
     write_csv(args.out / "towers_inextensible.csv", towers)
     for velocity in (0.0, 0.05):

@@ -12,7 +12,7 @@ from numba import njit
 
 from ._qp_kernels import dot3
 
-__all__ = ["select_rows", "row_targets"]
+__all__ = ["select_rows", "row_targets", "motor_limits"]
 
 
 @njit(cache=True)
@@ -103,3 +103,28 @@ def select_rows(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, h
             warm[r] = True
     targets = row_targets(v, m_ends, m_n, m_length, m_limits, tau, floor_rate, n_eq)
     return cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm
+
+
+@njit(cache=True)
+def motor_limits(commanded, applied, most, dt, offsets, limit_tol, taut_tol):
+    """The step's cable limits (``InextensibleMethod._motor_limits_reference``): the rest lengths in effect
+    ``applied`` (n_cables,) m move towards the ``commanded`` ones by at most ``most`` m, landing exactly on
+    them. Returns the new rest lengths in effect, the reel-in rates (m/s, <= 0), the length limits (m,
+    plus the prestress ``offsets``), the limits' slack floor and taut threshold (relative tolerances
+    ``limit_tol``, ``taut_tol``) and whether any cable reels in."""
+    nc = commanded.shape[0]
+    new = np.empty(nc)
+    reel = np.empty(nc)
+    limits = np.empty(nc)
+    floor = np.empty(nc)
+    taut = np.empty(nc)
+    reeling = False
+    for c in range(nc):
+        change = commanded[c] - applied[c]
+        new[c] = commanded[c] if abs(change) <= most else applied[c] + np.copysign(most, change)
+        reel[c] = min(new[c] - applied[c], 0.0) / dt
+        reeling |= reel[c] != 0.0
+        limits[c] = new[c] + offsets[c]
+        floor[c] = limits[c] * (1.0 - limit_tol)
+        taut[c] = limits[c] * (1.0 - taut_tol)
+    return new, reel, limits, floor, taut, reeling

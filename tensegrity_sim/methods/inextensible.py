@@ -257,15 +257,12 @@ class InextensibleMethod(StepMethod):
 
     def _step_impl(self, state: State) -> MethodStep:
         x, v = state.positions, state.velocities
-        # the motors move the rest lengths in effect towards the commanded ones, at most reel_speed * dt
-        # (landing exactly on the command); a shortening is a reel-in at that rate (m/s, <= 0)
-        change = state.rest_lengths - self._applied
-        most = self.reel_speed * self.dt
-        applied = np.where(np.abs(change) <= most, state.rest_lengths, self._applied + np.copysign(most, change))
-        reel = np.minimum(applied - self._applied, 0.0) / self.dt
-        limits = self.limits(applied)
-        floor = limits * (1.0 - LIMIT_TOL)
-        taut = limits * (1.0 - self._taut_tol)
+        if self.compiled:
+            applied, reel, limits, floor, taut, reeling = kernels.motor_limits(
+                state.rest_lengths, self._applied, self.reel_speed * self.dt, self.dt, self.length_offsets,
+                LIMIT_TOL, self._taut_tol)
+        else:
+            applied, reel, limits, floor, taut, reeling = self._motor_limits_reference(state.rest_lengths)
         f_ext = self.system.gravity_force + state.external_forces
         impulses = np.zeros(self.system.n_cables)
         if self.ground is not None:
@@ -294,7 +291,7 @@ class InextensibleMethod(StepMethod):
                 if cut:
                     tau = theta * tau
                     x_m, v0 = self._free_motion(x, v, tau, f_ext)
-            x, v, y, published = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, hint)
+            x, v, y, published = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, reeling, hint)
             impulses += published
             holding = hint = (y > 0) & at_limit
             if not cut:
@@ -307,6 +304,19 @@ class InextensibleMethod(StepMethod):
         # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
         slack = (self._end_geometry[2] < taut) & ~(impulses > 0)
         return MethodStep(x, v, impulses, slack, contact)
+
+    def _motor_limits_reference(self, commanded):
+        """The numpy reference of ``_inextensible_kernels.motor_limits`` for the ``commanded`` rest
+        lengths (n_cables,) m."""
+        # the motors move the rest lengths in effect towards the commanded ones, at most reel_speed * dt
+        # (landing exactly on the command); a shortening is a reel-in at that rate (m/s, <= 0)
+        change = commanded - self._applied
+        most = self.reel_speed * self.dt
+        applied = np.where(np.abs(change) <= most, commanded, self._applied + np.copysign(most, change))
+        reel = np.minimum(applied - self._applied, 0.0) / self.dt
+        limits = self.limits(applied)
+        return (applied, reel, limits, limits * (1.0 - LIMIT_TOL), limits * (1.0 - self._taut_tol),
+                bool(reel.any()))
 
     def _free_motion(self, x, v, tau, f_ext):
         """Midpoint ``x_m`` (N, 3) and free velocity ``v0 = v + tau M^-1 F(x_m)`` (N, 3)."""
@@ -344,14 +354,14 @@ class InextensibleMethod(StepMethod):
             t = np.clip(t - g / np.where(slope > 0, slope, np.inf), 0.0, 1.0)
         return float(t.min())
 
-    def _midpoint(self, x_m, v, v0, tau, limits, floor, taut, reel, holding):
+    def _midpoint(self, x_m, v, v0, tau, limits, floor, taut, reel, reeling, holding):
         """Moreau's midpoint sub-step from ``x_m`` with free velocity ``v0``: returns ``x_f``, ``v_f``
         (N, 3), the QP's cable impulses (n_cables,) N*s (they decide which cables hold) and the published
         ones (:meth:`_publish`)."""
         n_eq = self._n_eq
         # a cable being reeled in lands half a sub-step's reel behind its moving limit: landing on it would
         # make the second half-step cover the whole reel, launching its ends at twice the motor's speed
-        landing = limits - (0.5 * tau) * reel if reel.any() else limits
+        landing = limits - (0.5 * tau) * reel if reeling else limits
         all_limits = np.concatenate([self._rigid_lengths, landing])
         if self.compiled:
             cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = kernels.select_rows(
