@@ -8,6 +8,8 @@ rows in ``head_to_head.csv`` are kept as they were); ``--stages ""`` skips the t
   loop against MuJoCo's ``mj_step(model, data)`` in a Python loop, and ``Simulator.run()`` against
   ``mj_step(model, data, nstep)``; the elastic method against MuJoCo's Euler with spring tendons, the
   inextensible one against MuJoCo's Euler with *limited* tendons (its model of an inextensible cable).
+  The inextensible rows add the step with the self-stress rule in its numpy reference (what compiling
+  it gained).
 * **Towers** of ``--stages`` stages (no gravity), inextensible, at rest and moving (random node
   velocities of 0.05 m/s): the steady cost per step after a warm-up, and separately the cost of the first
   step after a command (``set_rest_lengths`` with the current lengths, as a controller holding its
@@ -60,10 +62,16 @@ def icosahedron_rows(repeats: int, methods=("elastic", "inextensible")) -> list[
             "tensegrity_sim run()": (lambda n: sim.run(steps=n, every=n), sim.reset),
             "MuJoCo mj_step(nstep)": (peer.advance, peer.reset),
         }
+        pairs = [(0, 1), (2, 3)]
+        if method == "inextensible":   # what compiling the self-stress rule gained (issue 10)
+            plain = ts.Simulator(scene, method=method, dt=1e-3, contacts=())
+            plain._method.self_stress.compiled = False
+            contenders["tensegrity_sim step(), self-stress rule numpy"] = (_python_loop(plain.step), plain.reset)
+            pairs.append((4, 1))
         timings = time_alternating(contenders, repeats=repeats, target=0.2, clock=time.process_time)
         best = {name: t.best for name, t in timings.items()}
         names = list(contenders)
-        for ours, theirs in ((names[0], names[1]), (names[2], names[3])):
+        for ours, theirs in ((names[i], names[j]) for i, j in pairs):
             rows.append({"case": "icosahedron_thrown", "method": method, "ours": ours, "peer": theirs,
                          "peer_model": "spring tendons" if method == "elastic" else "limited tendons",
                          "ours_us": 1e6 * best[ours], "peer_us": 1e6 * best[theirs],

@@ -12,7 +12,7 @@ from numba import njit
 
 from ._qp_kernels import dot3
 
-__all__ = ["select_rows", "row_targets", "motor_limits"]
+__all__ = ["select_rows", "row_targets", "motor_limits", "first_snap"]
 
 
 @njit(cache=True)
@@ -128,3 +128,46 @@ def motor_limits(commanded, applied, most, dt, offsets, limit_tol, taut_tol):
         floor[c] = limits[c] * (1.0 - limit_tol)
         taut[c] = limits[c] * (1.0 - taut_tol)
     return new, reel, limits, floor, taut, reeling
+
+
+@njit(cache=True)
+def first_snap(d, limits, v, v0, tau, cable_ends, slack, newton_iter):
+    """``InextensibleMethod._first_snap``: the fraction of the sub-step (0, 1] at which the first
+    ``slack`` (n_cables,) bool cable reaches its limit (``limits`` (n_cables,) m) on the free path of its
+    ends (cable vectors ``d`` (n_cables, 3) m at the start, velocities ``v`` and free velocities ``v0``
+    (N, 3) m/s), 1.0 if none does; ``newton_iter`` Newton iterations from the straight path's crossing."""
+    first = 1.0
+    for c in range(d.shape[0]):
+        if not slack[c]:
+            continue
+        a = cable_ends[c, 0]
+        b = cable_ends[c, 1]
+        u = np.empty(3)
+        um = np.empty(3)
+        de = np.empty(3)
+        for j in range(3):
+            u[j] = v[b, j] - v[a, j]
+            um[j] = 0.5 * (u[j] + v0[b, j] - v0[a, j])   # numpy's order: (u + v0_b) - v0_a
+            de[j] = d[c, j] + tau * um[j]
+        lim = limits[c]
+        if not dot3(de[0], de[1], de[2], de[0], de[1], de[2]) > lim * lim:
+            continue
+        acc = np.empty(3)
+        for j in range(3):
+            acc[j] = 2.0 * (um[j] - u[j]) / tau
+        # start: the crossing of the straight path d + t tau u_mean (exact at t = 1), small root form
+        bb = dot3(d[c, 0], d[c, 1], d[c, 2], um[0], um[1], um[2]) * tau
+        aa = dot3(um[0], um[1], um[2], um[0], um[1], um[2]) * tau * tau
+        cc = dot3(d[c, 0], d[c, 1], d[c, 2], d[c, 0], d[c, 1], d[c, 2]) - lim * lim
+        t = min(max(-cc / (bb + np.sqrt(max(bb * bb - aa * cc, 0.0))), 0.0), 1.0)
+        p = np.empty(3)
+        dp = np.empty(3)
+        for _ in range(newton_iter):
+            for j in range(3):
+                p[j] = d[c, j] + (t * tau) * u[j] + (0.5 * (t * tau) ** 2) * acc[j]
+                dp[j] = tau * u[j] + (t * tau * tau) * acc[j]
+            g = dot3(p[0], p[1], p[2], p[0], p[1], p[2]) - lim * lim
+            slope = 2.0 * dot3(p[0], p[1], p[2], dp[0], dp[1], dp[2])
+            t = min(max(t - g / (slope if slope > 0 else np.inf), 0.0), 1.0)
+        first = min(first, t)
+    return first

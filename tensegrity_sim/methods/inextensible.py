@@ -120,8 +120,9 @@ class LengthOffsetWarning(UserWarning):
 
 
 class InextensibleMethod(StepMethod):
-    """``compiled``: the sub-steps' bookkeeping and the QP's rows and answer check in numba kernels
-    (True) or in the numpy reference (False); the QP backend is the same."""
+    """``compiled``: the motors' limits, the sub-steps' rows and targets, the QP's rows and answer check
+    and the self-stress rule's basis in numba kernels (True) or in the numpy reference (False); the QP
+    backend is the same."""
 
     name = "inextensible"
     options = ("solver", "reel_speed")
@@ -330,7 +331,10 @@ class InextensibleMethod(StepMethod):
 
     def _first_snap(self, d, limits, v, v0, tau, slack) -> float:
         """Fraction of the sub-step (0, 1] at which the first ``slack`` cable reaches its limit on the
-        free path ``d(t) = d + t tau u + (t tau)^2 a / 2`` of its ends (1.0 if none does)."""
+        free path ``d(t) = d + t tau u + (t tau)^2 a / 2`` of its ends (1.0 if none does); compiled in
+        ``_inextensible_kernels.first_snap``, of which this is the numpy reference."""
+        if self.compiled:
+            return kernels.first_snap(d, limits, v, v0, tau, self.system.cable_ends, slack, _NEWTON_ITER)
         ends = self.system.cable_ends[slack]
         d, lim = d[slack], limits[slack]
         u = v[ends[:, 1]] - v[ends[:, 0]]
