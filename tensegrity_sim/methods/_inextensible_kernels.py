@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._qp_kernels import dot3
+from ._qp_kernels import dot3, row_rates
 
-__all__ = ["select_rows", "row_targets", "motor_limits", "first_snap"]
+__all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed"]
 
 
 @njit(cache=True)
@@ -171,3 +171,33 @@ def first_snap(d, limits, v, v0, tau, cable_ends, slack, newton_iter):
             t = min(max(t - g / (slope if slope > 0 else np.inf), 0.0), 1.0)
         first = min(first, t)
     return first
+
+
+@njit(cache=True)
+def landed(v_f, v, v_free, y, ends, nodes, directions, length, limits, tau, floor_rate, n_eq, shortest, tol):
+    """One check of ``InextensibleMethod._land`` after a solve: whether every binding row landed (the
+    velocities ``v_f`` (N, 3) changed too little from ``v`` for the landing error bound to reach ``tol``
+    relative, or every row is within ``tol`` of the targets recomputed at ``v_f``). Returns that, the
+    recomputed targets (k,) m/s and the new warm start (k,) bool (rows with an impulse, rigid struts),
+    both empty when the bound decided. ``v_free`` (n_free, 3): the solution's free-node velocities;
+    ``y`` (k,): its multipliers; rows ``nodes``/``directions`` and member ``ends`` (k, 2), lengths and
+    limits (k,) m of the sub-step; ``shortest``: the smallest limit, m."""
+    change = 0.0
+    largest = 0.0
+    for i in range(v.shape[0]):
+        for j in range(3):
+            change = max(change, abs(v_f[i, j] - v[i, j]))
+            largest = max(largest, abs(v[i, j]))
+    if 0.5 * tau * tau * change * (change + 2.0 * largest) <= tol * shortest ** 2:
+        return True, np.empty(0), np.empty(0, dtype=np.bool_)
+    targets = row_targets(v_f, ends, directions, length, limits, tau, floor_rate, n_eq)
+    miss = row_rates(v_free, nodes, directions)
+    k = targets.shape[0]
+    warm = np.empty(k, dtype=np.bool_)
+    done = True
+    for i in range(k):
+        miss[i] -= targets[i]
+        warm[i] = i < n_eq or y[i] > 0
+        if (abs(miss[i]) if warm[i] else miss[i]) > tol * (2.0 / tau) * limits[i]:
+            done = False
+    return done, targets, warm

@@ -92,7 +92,6 @@ import numpy as np
 
 from ..system import System
 from . import _inextensible_kernels as kernels
-from . import _qp_kernels as qp_kernels
 from .base import MethodStep, State, StepMethod
 from .friction import GroundResponse
 from .qp import QPError, Rows, choose_solver, make_solver
@@ -436,21 +435,23 @@ class InextensibleMethod(StepMethod):
                               f"be followed: the taut cables and rigid struts lock the structure (they carry a "
                               f"self-stress), so no cable can shorten unless another member gives") from exc
             v_f[self._free] = v_free
-            change = float(np.abs(v_f - v).max())
-            if 0.5 * tau * tau * change * (change + 2.0 * float(np.abs(v).max())) <= _LANDING_TOL * shortest ** 2:
-                break
             if self.compiled:
-                targets = kernels.row_targets(v_f, ends, rows.directions, length, limits, tau, floor_rate, n_eq)
-                miss = qp_kernels.row_rates(v_free, rows.nodes, rows.directions) - targets
+                done, targets, warm = kernels.landed(v_f, v, v_free, y, ends, rows.nodes, rows.directions, length,
+                                                     limits, tau, floor_rate, n_eq, shortest, _LANDING_TOL)
+                if done:
+                    break
             else:
+                change = float(np.abs(v_f - v).max())
+                if 0.5 * tau * tau * change * (change + 2.0 * float(np.abs(v).max())) <= _LANDING_TOL * shortest ** 2:
+                    break
                 u = v_f[ends[:, 1]] - v_f[ends[:, 0]]
                 targets = self._targets(u, np.einsum("ij,ij->i", u, rows.directions), length, limits, tau,
                                         floor_rate, n_eq)
                 miss = rows.rates(v_free) - targets
-            warm = y > 0
-            warm[:n_eq] = True
-            if not (np.where(warm, np.abs(miss), miss) > _LANDING_TOL * (2.0 / tau) * limits).any():
-                break
+                warm = y > 0
+                warm[:n_eq] = True
+                if not (np.where(warm, np.abs(miss), miss) > _LANDING_TOL * (2.0 / tau) * limits).any():
+                    break
             rows.targets = targets
             v = v_f.copy()
         return v_f, y
