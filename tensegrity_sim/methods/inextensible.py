@@ -177,7 +177,7 @@ class InextensibleMethod(StepMethod):
         self._elastic_incidence = system.incidence_matrix(self._elastic_ends)
         self._holding = np.zeros(system.n_cables, dtype=bool)
         self._hint = self._holding   # the QP's warm start of the first sub-step (see invalidate)
-        self._end_geometry = None   # (positions, cable vectors, lengths) at the last step's end
+        self._end_geometry = None   # (positions, cable vectors, lengths) last computed (a step's end)
         self._applied = scene.cable_rest_lengths   # the rest lengths in effect (the motors' positions), m
         # what the impulses of a locked structure are published as (issue 20, methods/self_stress.py)
         moving = np.concatenate([np.arange(self._n_eq), self._n_eq + np.flatnonzero(self._cables_move)])
@@ -247,12 +247,14 @@ class InextensibleMethod(StepMethod):
 
     # ------------------------------------------------------------------ step
     def _cable_geometry(self, x):
-        """Cable vectors (n_cables, 3) and lengths (n_cables,) at ``x``, reusing the last step's end
-        (the simulator commits that very array, so identity means the same positions)."""
+        """Cable vectors (n_cables, 3) and lengths (n_cables,) at ``x``, reusing the last ones computed
+        (the step's end, where the self-stress rule needs them, is the step's result, which the simulator
+        commits as that very array and the next step starts from: identity means the same positions)."""
         cached = self._end_geometry
         if cached is not None and cached[0] is x:
             return cached[1], cached[2]
         d, length, _ = self.system.geometry(x, self.system.cable_ends)
+        self._end_geometry = (x, d, length)
         return d, length
 
     def _step_impl(self, state: State) -> MethodStep:
@@ -299,10 +301,10 @@ class InextensibleMethod(StepMethod):
             remaining -= tau
         self._holding = self._hint = holding
         self._applied = applied
-        self._end_geometry = (x, *self._cable_geometry(x))   # x is a new array: computed, not cached
+        end_length = self._cable_geometry(x)[1]   # cached if the self-stress rule computed it
         contact = None if self.ground is None else self.ground.take_impulses()
         # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
-        slack = (self._end_geometry[2] < taut) & ~(impulses > 0)
+        slack = (end_length < taut) & ~(impulses > 0)
         return MethodStep(x, v, impulses, slack, contact)
 
     def _motor_limits_reference(self, commanded):
