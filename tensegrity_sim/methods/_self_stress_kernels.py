@@ -25,7 +25,9 @@ __all__ = ["locked_space"]
 @njit(cache=True)
 def _column_norm_max(a_t, basis):
     """The largest Euclidean norm of a column of ``a_t @ basis``."""
-    prod = a_t @ basis
+    # a row-major copy for the product: the basis itself keeps its layout, which numpy's products of
+    # the share's fit see (another layout, another BLAS path, other last bits)
+    prod = a_t @ np.ascontiguousarray(basis)
     out = 0.0
     for j in range(prod.shape[1]):
         s = 0.0
@@ -47,7 +49,7 @@ def _refined_space(a_t, load_basis, load_largest, rank_tol, exact):
     singular = False
     for _ in range(2):
         try:
-            solved = np.linalg.solve(gram, basis)
+            solved = np.linalg.solve(gram, np.ascontiguousarray(basis))
         except Exception:   # an exact zero pivot, as scipy's lu_factor warns of: the SVD below
             singular = True
             break
