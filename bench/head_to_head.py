@@ -1,11 +1,15 @@
 """The stepping core beside MuJoCo, contenders taking turns in one process (issue 10's targets).
 
-Run: ``python bench/head_to_head.py [--repeats R] [--stages 10,20,30,50,100] [--budget S] [--out CSV]``.
+Run: ``python bench/head_to_head.py [--repeats R] [--methods elastic,inextensible] [--stages 10,20,30,50,100]
+[--budget S] [--out DIR]``. ``--methods`` times the icosahedron rows of those methods only (the others'
+rows in ``head_to_head.csv`` are kept as they were); ``--stages ""`` skips the towers (and keeps their CSV).
 
 * **Icosahedron thrown** (``bench.cases``: struts rigid, dt = 1 ms): ``Simulator.step()`` in a Python
   loop against MuJoCo's ``mj_step(model, data)`` in a Python loop, and ``Simulator.run()`` against
   ``mj_step(model, data, nstep)``; the elastic method against MuJoCo's Euler with spring tendons, the
   inextensible one against MuJoCo's Euler with *limited* tendons (its model of an inextensible cable).
+  The inextensible rows add the step with the self-stress rule in its numpy reference (what compiling
+  it gained).
 * **Towers** of ``--stages`` stages (no gravity), inextensible, at rest and moving (random node
   velocities of 0.05 m/s): the steady cost per step after a warm-up, and separately the cost of the first
   step after a command (``set_rest_lengths`` with the current lengths, as a controller holding its
@@ -33,7 +37,7 @@ import tensegrity_sim as ts  # noqa: E402
 from bench.bench_steps import agitated  # noqa: E402
 from bench.cases import work_precision_cases  # noqa: E402
 from bench.scale import tower_scene  # noqa: E402
-from bench.tables import write_csv  # noqa: E402
+from bench.tables import read_csv, write_csv  # noqa: E402
 from bench.timing import time_alternating  # noqa: E402
 
 def _python_loop(step):
@@ -43,13 +47,13 @@ def _python_loop(step):
     return run
 
 
-def icosahedron_rows(repeats: int) -> list[dict]:
+def icosahedron_rows(repeats: int, methods=("elastic", "inextensible")) -> list[dict]:
     import mujoco
 
     from bench.mujoco_peer import MujocoPeer
     scene = next(c for c in work_precision_cases() if c.name == "icosahedron_thrown").scene
     rows = []
-    for method in ("elastic", "inextensible"):
+    for method in methods:
         sim = ts.Simulator(scene, method=method, dt=1e-3, contacts=())
         peer = MujocoPeer(scene, model=method, dt=1e-3, integrator="Euler")
         model, data = peer.model, peer.data
@@ -59,10 +63,16 @@ def icosahedron_rows(repeats: int) -> list[dict]:
             "tensegrity_sim run()": (lambda n: sim.run(steps=n, every=n), sim.reset),
             "MuJoCo mj_step(nstep)": (peer.advance, peer.reset),
         }
+        pairs = [(0, 1), (2, 3)]
+        if method == "inextensible":   # what compiling the self-stress rule gained (issue 10)
+            plain = ts.Simulator(scene, method=method, dt=1e-3, contacts=())
+            plain._method.self_stress.compiled = False
+            contenders["tensegrity_sim step(), self-stress rule numpy"] = (_python_loop(plain.step), plain.reset)
+            pairs.append((4, 1))
         timings = time_alternating(contenders, repeats=repeats, target=0.2, clock=time.process_time)
         best = {name: t.best for name, t in timings.items()}
         names = list(contenders)
-        for ours, theirs in ((names[0], names[1]), (names[2], names[3])):
+        for ours, theirs in ((names[i], names[j]) for i, j in pairs):
             rows.append({"case": "icosahedron_thrown", "method": method, "ours": ours, "peer": theirs,
                          "peer_model": "spring tendons" if method == "elastic" else "limited tendons",
                          "ours_us": 1e6 * best[ours], "peer_us": 1e6 * best[theirs],
@@ -147,15 +157,19 @@ def exponent(rows, velocity) -> float:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--stages", default="10,20,30,50,100")
+    parser.add_argument("--methods", default="elastic,inextensible", help="icosahedron rows to time")
+    parser.add_argument("--stages", default="10,20,30,50,100", help='tower sizes ("": no towers)')
     parser.add_argument("--budget", type=float, default=60.0, help="CPU seconds per tower configuration at most")
     parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results")
     args = parser.parse_args(argv)
-    rows = icosahedron_rows(args.repeats)
+    methods = [m for m in args.methods.split(",") if m]
+    rows = icosahedron_rows(args.repeats, methods)
     for r in rows:
         print(f"{r['method']:<13}{r['ours']:<24}{r['ours_us']:>9.2f} us   {r['peer']:<24}({r['peer_model']})"
               f"{r['peer_us']:>9.2f} us   ratio (peer/ours) {r['ratio']:.2f}", flush=True)
-    write_csv(args.out / "head_to_head.csv", rows)
+    table = args.out / "head_to_head.csv"
+    kept = [r for r in read_csv(table) if r["method"] not in methods] if table.exists() else []
+    write_csv(table, sorted(kept + rows, key=lambda r: r["method"]), list(rows[0]) if rows else None)
     stages = [int(s) for s in args.stages.split(",") if s]
     if not stages:   # --stages "": the icosahedron only
         return 0

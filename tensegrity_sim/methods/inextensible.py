@@ -92,7 +92,6 @@ import numpy as np
 
 from ..system import System
 from . import _inextensible_kernels as kernels
-from . import _qp_kernels as qp_kernels
 from .base import MethodStep, State, StepMethod
 from .friction import GroundResponse
 from .qp import QPError, Rows, choose_solver, make_solver
@@ -120,8 +119,9 @@ class LengthOffsetWarning(UserWarning):
 
 
 class InextensibleMethod(StepMethod):
-    """``compiled``: the sub-steps' bookkeeping and the QP's rows and answer check in numba kernels
-    (True) or in the numpy reference (False); the QP backend is the same."""
+    """``compiled``: the motors' limits, the sub-steps' rows and targets, the QP's rows and answer check
+    and the self-stress rule's basis in numba kernels (True) or in the numpy reference (False); the QP
+    backend is the same."""
 
     name = "inextensible"
     options = ("solver", "reel_speed")
@@ -159,7 +159,6 @@ class InextensibleMethod(StepMethod):
         # the backend: named, or chosen by size (dense DAQP for small structures, sparse for large ones)
         self.solver_choice = f"{solver}: requested" if solver else choose_solver(int(free.sum()))[1]
         self.solver = make_solver(solver, system.masses[free])
-        self.compiled = compiled   # the solver's rows and check follow (the property below)
         # a ground adds its contact rows to every QP (methods/friction.py), through the same interface
         self.ground = None if scene.ground is None else GroundResponse(system, self.solver)
         if self.ground is not None:
@@ -178,7 +177,7 @@ class InextensibleMethod(StepMethod):
         self._elastic_incidence = system.incidence_matrix(self._elastic_ends)
         self._holding = np.zeros(system.n_cables, dtype=bool)
         self._hint = self._holding   # the QP's warm start of the first sub-step (see invalidate)
-        self._end_geometry = None   # (positions, cable vectors, lengths) at the last step's end
+        self._end_geometry = None   # (positions, cable vectors, lengths) last computed (a step's end)
         self._applied = scene.cable_rest_lengths   # the rest lengths in effect (the motors' positions), m
         # what the impulses of a locked structure are published as (issue 20, methods/self_stress.py)
         moving = np.concatenate([np.arange(self._n_eq), self._n_eq + np.flatnonzero(self._cables_move)])
@@ -189,6 +188,7 @@ class InextensibleMethod(StepMethod):
                                       np.flatnonzero(self._cables_move))
         # a structure that can lock counts a cable this close to its limit as at it (self_stress.TAUT_TOL)
         self._taut_tol = TAUT_TOL if self.self_stress.possible else LIMIT_TOL
+        self.compiled = compiled   # the solver's rows and check and the self-stress rule follow (the property)
 
     @property
     def compiled(self) -> bool:
@@ -196,7 +196,7 @@ class InextensibleMethod(StepMethod):
 
     @compiled.setter
     def compiled(self, value: bool) -> None:
-        self.solver.compiled = bool(value)
+        self.solver.compiled = self.self_stress.compiled = bool(value)
 
     # ------------------------------------------------------------------ contract
     def invalidate(self) -> None:
@@ -247,25 +247,24 @@ class InextensibleMethod(StepMethod):
 
     # ------------------------------------------------------------------ step
     def _cable_geometry(self, x):
-        """Cable vectors (n_cables, 3) and lengths (n_cables,) at ``x``, reusing the last step's end
-        (the simulator commits that very array, so identity means the same positions)."""
+        """Cable vectors (n_cables, 3) and lengths (n_cables,) at ``x``, reusing the last ones computed
+        (the step's end, where the self-stress rule needs them, is the step's result, which the simulator
+        commits as that very array and the next step starts from: identity means the same positions)."""
         cached = self._end_geometry
         if cached is not None and cached[0] is x:
             return cached[1], cached[2]
         d, length, _ = self.system.geometry(x, self.system.cable_ends)
+        self._end_geometry = (x, d, length)
         return d, length
 
     def _step_impl(self, state: State) -> MethodStep:
         x, v = state.positions, state.velocities
-        # the motors move the rest lengths in effect towards the commanded ones, at most reel_speed * dt
-        # (landing exactly on the command); a shortening is a reel-in at that rate (m/s, <= 0)
-        change = state.rest_lengths - self._applied
-        most = self.reel_speed * self.dt
-        applied = np.where(np.abs(change) <= most, state.rest_lengths, self._applied + np.copysign(most, change))
-        reel = np.minimum(applied - self._applied, 0.0) / self.dt
-        limits = self.limits(applied)
-        floor = limits * (1.0 - LIMIT_TOL)
-        taut = limits * (1.0 - self._taut_tol)
+        if self.compiled:
+            applied, reel, limits, floor, taut, reeling = kernels.motor_limits(
+                state.rest_lengths, self._applied, self.reel_speed * self.dt, self.dt, self.length_offsets,
+                LIMIT_TOL, self._taut_tol)
+        else:
+            applied, reel, limits, floor, taut, reeling = self._motor_limits_reference(state.rest_lengths)
         f_ext = self.system.gravity_force + state.external_forces
         impulses = np.zeros(self.system.n_cables)
         if self.ground is not None:
@@ -294,7 +293,7 @@ class InextensibleMethod(StepMethod):
                 if cut:
                     tau = theta * tau
                     x_m, v0 = self._free_motion(x, v, tau, f_ext)
-            x, v, y, published = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, hint)
+            x, v, y, published = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, reeling, hint)
             impulses += published
             holding = hint = (y > 0) & at_limit
             if not cut:
@@ -302,11 +301,24 @@ class InextensibleMethod(StepMethod):
             remaining -= tau
         self._holding = self._hint = holding
         self._applied = applied
-        self._end_geometry = (x, *self._cable_geometry(x))   # x is a new array: computed, not cached
+        end_length = self._cable_geometry(x)[1]   # cached if the self-stress rule computed it
         contact = None if self.ground is None else self.ground.take_impulses()
         # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
-        slack = (self._end_geometry[2] < taut) & ~(impulses > 0)
+        slack = (end_length < taut) & ~(impulses > 0)
         return MethodStep(x, v, impulses, slack, contact)
+
+    def _motor_limits_reference(self, commanded):
+        """The numpy reference of ``_inextensible_kernels.motor_limits`` for the ``commanded`` rest
+        lengths (n_cables,) m."""
+        # the motors move the rest lengths in effect towards the commanded ones, at most reel_speed * dt
+        # (landing exactly on the command); a shortening is a reel-in at that rate (m/s, <= 0)
+        change = commanded - self._applied
+        most = self.reel_speed * self.dt
+        applied = np.where(np.abs(change) <= most, commanded, self._applied + np.copysign(most, change))
+        reel = np.minimum(applied - self._applied, 0.0) / self.dt
+        limits = self.limits(applied)
+        return (applied, reel, limits, limits * (1.0 - LIMIT_TOL), limits * (1.0 - self._taut_tol),
+                bool(reel.any()))
 
     def _free_motion(self, x, v, tau, f_ext):
         """Midpoint ``x_m`` (N, 3) and free velocity ``v0 = v + tau M^-1 F(x_m)`` (N, 3)."""
@@ -320,7 +332,10 @@ class InextensibleMethod(StepMethod):
 
     def _first_snap(self, d, limits, v, v0, tau, slack) -> float:
         """Fraction of the sub-step (0, 1] at which the first ``slack`` cable reaches its limit on the
-        free path ``d(t) = d + t tau u + (t tau)^2 a / 2`` of its ends (1.0 if none does)."""
+        free path ``d(t) = d + t tau u + (t tau)^2 a / 2`` of its ends (1.0 if none does); compiled in
+        ``_inextensible_kernels.first_snap``, of which this is the numpy reference."""
+        if self.compiled:
+            return kernels.first_snap(d, limits, v, v0, tau, self.system.cable_ends, slack, _NEWTON_ITER)
         ends = self.system.cable_ends[slack]
         d, lim = d[slack], limits[slack]
         u = v[ends[:, 1]] - v[ends[:, 0]]
@@ -344,14 +359,14 @@ class InextensibleMethod(StepMethod):
             t = np.clip(t - g / np.where(slope > 0, slope, np.inf), 0.0, 1.0)
         return float(t.min())
 
-    def _midpoint(self, x_m, v, v0, tau, limits, floor, taut, reel, holding):
+    def _midpoint(self, x_m, v, v0, tau, limits, floor, taut, reel, reeling, holding):
         """Moreau's midpoint sub-step from ``x_m`` with free velocity ``v0``: returns ``x_f``, ``v_f``
         (N, 3), the QP's cable impulses (n_cables,) N*s (they decide which cables hold) and the published
         ones (:meth:`_publish`)."""
         n_eq = self._n_eq
         # a cable being reeled in lands half a sub-step's reel behind its moving limit: landing on it would
         # make the second half-step cover the whole reel, launching its ends at twice the motor's speed
-        landing = limits - (0.5 * tau) * reel if reel.any() else limits
+        landing = limits - (0.5 * tau) * reel if reeling else limits
         all_limits = np.concatenate([self._rigid_lengths, landing])
         if self.compiled:
             cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = kernels.select_rows(
@@ -422,21 +437,23 @@ class InextensibleMethod(StepMethod):
                               f"be followed: the taut cables and rigid struts lock the structure (they carry a "
                               f"self-stress), so no cable can shorten unless another member gives") from exc
             v_f[self._free] = v_free
-            change = float(np.abs(v_f - v).max())
-            if 0.5 * tau * tau * change * (change + 2.0 * float(np.abs(v).max())) <= _LANDING_TOL * shortest ** 2:
-                break
             if self.compiled:
-                targets = kernels.row_targets(v_f, ends, rows.directions, length, limits, tau, floor_rate, n_eq)
-                miss = qp_kernels.row_rates(v_free, rows.nodes, rows.directions) - targets
+                done, targets, warm = kernels.landed(v_f, v, v_free, y, ends, rows.nodes, rows.directions, length,
+                                                     limits, tau, floor_rate, n_eq, shortest, _LANDING_TOL)
+                if done:
+                    break
             else:
+                change = float(np.abs(v_f - v).max())
+                if 0.5 * tau * tau * change * (change + 2.0 * float(np.abs(v).max())) <= _LANDING_TOL * shortest ** 2:
+                    break
                 u = v_f[ends[:, 1]] - v_f[ends[:, 0]]
                 targets = self._targets(u, np.einsum("ij,ij->i", u, rows.directions), length, limits, tau,
                                         floor_rate, n_eq)
                 miss = rows.rates(v_free) - targets
-            warm = y > 0
-            warm[:n_eq] = True
-            if not (np.where(warm, np.abs(miss), miss) > _LANDING_TOL * (2.0 / tau) * limits).any():
-                break
+                warm = y > 0
+                warm[:n_eq] = True
+                if not (np.where(warm, np.abs(miss), miss) > _LANDING_TOL * (2.0 / tau) * limits).any():
+                    break
             rows.targets = targets
             v = v_f.copy()
         return v_f, y
