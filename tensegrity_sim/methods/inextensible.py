@@ -94,7 +94,7 @@ from ..system import System
 from . import _inextensible_kernels as kernels
 from . import _qp_kernels as qp_kernels
 from .base import MethodStep, State, StepMethod
-from .friction import GroundResponse
+from .friction import ContactSet
 from .qp import QPError, Rows, choose_solver, make_solver
 from .rigid import RigidStruts
 from .self_stress import TAUT_TOL, SelfStress, reference_tensions
@@ -160,8 +160,10 @@ class InextensibleMethod(StepMethod):
         self.solver_choice = f"{solver}: requested" if solver else choose_solver(int(free.sum()))[1]
         self.solver = make_solver(solver, system.masses[free])
         self.compiled = compiled   # the solver's rows and check follow (the property below)
-        # a ground adds its contact rows to every QP (methods/friction.py), through the same interface
-        self.ground = None if scene.ground is None else GroundResponse(system, self.solver)
+        # a ground or a member contact response adds its contact rows to every QP (methods/friction.py),
+        # through the same interface
+        self.ground = (None if scene.ground is None and not scene.contact_response.response
+                       else ContactSet(system, self.solver))
         if self.ground is not None:
             self.solver = self.ground.solver
         # The member table of the QP rows: the rigid struts that move (equalities), then every cable.
@@ -303,10 +305,12 @@ class InextensibleMethod(StepMethod):
         self._holding = self._hint = holding
         self._applied = applied
         self._end_geometry = (x, *self._cable_geometry(x))   # x is a new array: computed, not cached
-        contact = None if self.ground is None else self.ground.take_impulses()
+        contact = pairs = None
+        if self.ground is not None:
+            contact, pairs = self.ground.take_impulses(), self.ground.take_pair_impulses()
         # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
         slack = (self._end_geometry[2] < taut) & ~(impulses > 0)
-        return MethodStep(x, v, impulses, slack, contact)
+        return MethodStep(x, v, impulses, slack, contact, pairs)
 
     def _free_motion(self, x, v, tau, f_ext):
         """Midpoint ``x_m`` (N, 3) and free velocity ``v0 = v + tau M^-1 F(x_m)`` (N, 3)."""
