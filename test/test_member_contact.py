@@ -12,20 +12,25 @@ G = 9.81
 R = 0.01   # m, both struts' radius
 
 
-def crossing(xc=0.25, v=1.0, e=0.0, mu=0.0, z=0.05, gravity=0.0, fixed_a=False, vx=0.0):
+def crossing(xc=0.25, v=1.0, e=0.0, mu=0.0, z=0.05, gravity=0.0, fixed_a=False, vx=0.0, cable=False):
     """Rigid strut A (1 m along x, 1 kg per end) at rest at z = 0 and rigid strut B (1 m along y, 1 kg per
     end) above it at height ``z``, crossing it at x = ``xc``, moving at ``v`` down onto it (and ``vx``
-    along x)."""
+    along x). ``cable``: A is a taut cable (stiff, for the elastic method) instead of a strut."""
     a = {"mass": 1.0, "fixed": True} if fixed_a else {"mass": 1.0}
+    members = {"struts": [{"name": "A", "nodes": ["a0", "a1"], "stiffness": "rigid", "radius": R},
+                          {"name": "B", "nodes": ["b0", "b1"], "stiffness": "rigid", "radius": R}]}
+    if cable:
+        members = {"struts": members["struts"][1:],
+                   "cables": [{"name": "A", "nodes": ["a0", "a1"], "rest_length": 1.0, "stiffness": 1e4, "radius": R}]}
     return ts.Scene.from_dict({
         "gravity": [0, 0, -gravity],
-        "contact": {"kinds": ["strut_strut"], "response": True, "friction": mu, "restitution": e},
+        "contact": {"kinds": ["strut_cable" if cable else "strut_strut"], "response": True, "friction": mu,
+                    "restitution": e},
         "nodes": [{"name": "a0", "position": [-0.5, 0, 0], **a},
                   {"name": "a1", "position": [0.5, 0, 0], **a},
                   {"name": "b0", "position": [xc, -0.5, z], "mass": 1.0, "velocity": [vx, 0, -v]},
                   {"name": "b1", "position": [xc, 0.5, z], "mass": 1.0, "velocity": [vx, 0, -v]}],
-        "struts": [{"name": "A", "nodes": ["a0", "a1"], "stiffness": "rigid", "radius": R},
-                   {"name": "B", "nodes": ["b0", "b1"], "stiffness": "rigid", "radius": R}]})
+        **members})
 
 
 def gap(x):
@@ -42,14 +47,18 @@ def plastic(xc, v=1.0, e=0.0):
 
 
 @pytest.mark.parametrize("method", METHODS)
-@pytest.mark.parametrize("xc", [0.0, 0.25])
-def test_plastic_impact_of_crossing_struts(method, xc):
+@pytest.mark.parametrize("xc, cable", [(0.0, False), (0.25, False), (0.25, True)])
+def test_plastic_impact_of_crossing_struts(method, xc, cable):
     """B falls onto A; the gap closes at t = 30 ms, at a step's end. The impact is plastic (restitution 0):
     right after it the two contact points move together, at the closed form's velocities (to round-off
     when B strikes A's middle, where nothing turns; off the middle A turns during the rest of the step
     and its contact geometry with it, by omega h = 1e-3 rad: 1e-5 m/s), its impulse is the closed form's,
-    no strut passes through the other, and linear momentum is conserved to 1e-9 throughout."""
-    sim = ts.Simulator(crossing(xc), method=method, dt=1e-3)
+    no strut passes through the other, and linear momentum is conserved to 1e-9 throughout. A taut cable
+    in A's place (strut_cable) takes the same impulse: across it, its two end masses respond to a blow at
+    s as a rigid strut's do, 1/m = (1 - s)^2 / m_0 + s^2 / m_1 = 1/2 + xc^2 / I."""
+    sim = ts.Simulator(crossing(xc, cable=cable), method=method, dt=1e-3)
+    # the pair is (strut, cable) in the cable's case: the normal from B to A, the impulse on A
+    members, up = (("B", "A"), -1.0) if cable else (("A", "B"), 1.0)
     expected, impulse = plastic(xc)
     momentum = sim.velocities.sum(axis=0)
     after, lowest, begins = None, np.inf, []
@@ -64,11 +73,11 @@ def test_plastic_impact_of_crossing_struts(method, xc):
     tol = 1e-12 if xc == 0.0 else 1e-5
     np.testing.assert_allclose(after, expected, rtol=0, atol=tol)
     # the contact carries its impulse (on B, along the normal from A to B, +z) and no friction
-    assert [c.members for c in active] == [("A", "B")]
+    assert [c.members for c in active] == [members]
     assert active[0].normal_impulse == pytest.approx(impulse, abs=2 * tol)
-    np.testing.assert_allclose(active[0].normal, [0, 0, 1], atol=1e-3)   # A turned by omega h
+    np.testing.assert_allclose(active[0].normal, [0, 0, up], atol=1e-3)   # A turned by omega h
     assert np.abs(active[0].tangential_impulse).max() <= 1e-12
-    assert len(begins) == 1 and begins[0].members == ("A", "B")
+    assert len(begins) == 1 and begins[0].members == members
     assert begins[0].time == pytest.approx(0.03, abs=1e-12)
     assert lowest >= -3e-9   # TOUCH_TOL and the turning pair's drift (methods/member_contact.py)
     # the struts go on together: B's middle stays on A
@@ -141,3 +150,26 @@ def test_scene_round_trips_the_response():
     scene = crossing(0.25, e=0.3, mu=0.2)
     assert scene.contact_response == ts.scene.ContactResponse(True, 0.2, 0.3)
     assert ts.Scene.from_dict(scene.to_dict()) == scene
+
+
+def test_compiled_rows_match_the_reference_with_member_contacts():
+    """The inextensible method's compiled row bookkeeping beside general contact rows (which its backend
+    builds and checks with the numpy reference) against the numpy reference throughout: a tumbling strut B
+    dropped across A under gravity, A's ends hanging from fixed anchors by cables, to 1e-12."""
+    raw = crossing(0.2, v=0.3, mu=0.3, gravity=G).to_dict()
+    raw["nodes"][2]["velocity"] = [0.1, 0.0, -0.5]
+    raw["nodes"] += [{"name": "p0", "position": [-0.5, 0, 0.5], "fixed": True},
+                     {"name": "p1", "position": [0.5, 0, 0.5], "fixed": True}]
+    raw["cables"] = [{"name": "c0", "nodes": ["a0", "p0"], "rest_length": 0.5},
+                     {"name": "c1", "nodes": ["a1", "p1"], "rest_length": 0.5}]
+    scene = ts.Scene.from_dict(raw)
+    compiled = ts.Simulator(scene, method="inextensible", dt=1e-3)
+    reference = ts.Simulator(scene, method="inextensible", dt=1e-3)
+    reference._method.compiled = False
+    touched = 0
+    for k in range(150):
+        a, b = compiled.step(), reference.step()
+        for name in ("positions", "velocities", "impulses"):
+            np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=0, atol=1e-12, err_msg=f"{name} {k}")
+        touched += bool(compiled.active_contacts())
+    assert touched > 50
