@@ -55,9 +55,9 @@ def test_planner_maps_the_known_roll_onto_every_triangle_and_edge(planner):
 def test_one_cycle_through_the_node_rolls_onto_the_planned_triangle():
     """One command cycle through the node's logic (node_poses in, cable_rest_lengths out) with the heading
     +x: the planner picks the edge n0-n8 (not the known one: the cables are the known ones' images under a
-    symmetry), and the robot lands on the triangle it planned, its centre of mass 0.6 m further along +x
-    (measured 0.7x m; a roll over one edge and on over the next face moves it by more than the 0.5 m from
-    a face's centre to its edge)."""
+    symmetry), and the robot lands on the triangle it planned, its centre of mass more than 0.5 m further
+    along +x (measured 0.871 m: tipping over the edge moves it by about twice the 0.29 m from the centre of
+    mass to the edge, horizontally, and it rocks on)."""
     controller, history = rc.drive_offline(1, heading=(1.0, 0.0))
     start, (edge, cables, landing, stood, com, _) = history[0], history[1]
     assert edge == ("n0", "n8") and sorted(cables) == ["c1", "c18", "c19"]
