@@ -68,8 +68,8 @@ from .results import ContactEvent
 from .scene import CONTACT_KINDS
 from .system import System
 
-__all__ = ["ActiveContact", "ContactDetector", "closest_points", "contact_geometry", "transitions", "make_detector",
-           "TAU_TOLERANCE", "SKIN_FRACTION"]
+__all__ = ["ActiveContact", "ContactDetector", "box_pairs", "closest_points", "contact_geometry", "transitions",
+           "make_detector", "TAU_TOLERANCE", "SKIN_FRACTION"]
 
 TAU_TOLERANCE = 1e-9    # width (fraction of the step) to which a crossing is bracketed before interpolation
 RESOLUTION = 1e-7       # after a crossing, the search for the next one starts this much later (step fraction)
@@ -368,7 +368,7 @@ def _search(p0, p1, radii_sum, margin, inside, gap0, gap1):
     return np.concatenate(out_pair), np.concatenate(out_tau), np.concatenate(out_begin), inside
 
 
-def _box_pairs(lo: np.ndarray, hi: np.ndarray):
+def box_pairs(lo: np.ndarray, hi: np.ndarray):
     """Index pairs (i, j), i != j, of overlapping axis-aligned boxes (n, 3): sort and sweep along the axis
     where the boxes spread most. Cost: a sort plus the pairs that overlap along that axis."""
     n = len(lo)
@@ -448,7 +448,7 @@ class ContactDetector:
         pad = self.radius[m, None]
         lo = np.minimum(ends0.min(axis=1), ends1.min(axis=1) - self.skin) - pad
         hi = np.maximum(ends0.max(axis=1), ends1.max(axis=1) + self.skin) + pad
-        bi, bj = _box_pairs(lo, hi)
+        bi, bj = box_pairs(lo, hi)
         i, j = np.minimum(m[bi], m[bj]), np.maximum(m[bi], m[bj])
         ok = self.eligible(i, j)
         key = np.unique(i[ok] * self.system.n_members + j[ok])

@@ -28,7 +28,7 @@ capsules meet on the straight path from ``x`` to the free motion's end (exact wi
 parabola of a node under gravity differs from it by ``O(tau^2)``) cuts the sub-step where they meet, found
 by the certified continuous search of ``contact.py`` (:func:`~tensegrity_sim.contact.transitions`).
 
-**Pairs.** Only pairs whose boxes overlap are examined (sort and sweep, ``contact._box_pairs``), with boxes
+**Pairs.** Only pairs whose boxes overlap are examined (sort and sweep, ``contact.box_pairs``), with boxes
 spanning the members' motion over the sub-step plus their radii; cost grows with the pairs near each other.
 """
 from __future__ import annotations
@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..contact import ContactDetector, _box_pairs, contact_geometry, transitions
+from ..contact import ContactDetector, box_pairs, contact_geometry, transitions
 from ..system import System
 
 __all__ = ["MemberContacts", "Armed", "tangents"]
@@ -90,7 +90,7 @@ class MemberContacts:
         grow = self.detector.radius[m, None] + pad
         lo = np.minimum(e0.min(axis=1), e1.min(axis=1)) - grow
         hi = np.maximum(e0.max(axis=1), e1.max(axis=1)) + grow
-        bi, bj = _box_pairs(lo, hi)
+        bi, bj = box_pairs(lo, hi)
         i, j = np.minimum(m[bi], m[bj]), np.maximum(m[bi], m[bj])
         ok = self.detector.eligible(i, j)
         key = np.unique(i[ok] * self._n_members + j[ok])
@@ -174,6 +174,6 @@ class MemberContacts:
         apart = contact_geometry(x[nodes], radii)[3] > touch_tol
         if not apart.any():
             return 1.0
-        pair, when, begin, _, _ = transitions(x[nodes[apart]], x_end[nodes[apart]], radii[apart],
+        _, when, begin, _, _ = transitions(x[nodes[apart]], x_end[nodes[apart]], radii[apart],
                                               np.zeros(int(apart.sum()), dtype=bool))
         return float(np.min(when[begin], initial=1.0))
