@@ -119,6 +119,9 @@ class Simulator:
         if contacts is not None:
             # the scene as run: a log embedding it (and a replay of that log) checks the same pairs
             scene = replace(scene, contact_kinds=contact_kinds(contacts, "contacts"))
+            if scene.contact_response.response and not scene.contact_kinds:
+                raise ValueError("contacts: the scene's contact response (contact: response: true) needs member "
+                                 "kinds to check (without them members would pass through each other)")
         self.scene = scene
         self.dt = time_step(dt)
         self.system = System(scene)

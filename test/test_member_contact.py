@@ -152,6 +152,12 @@ def test_scene_round_trips_the_response():
     assert ts.Scene.from_dict(scene.to_dict()) == scene
 
 
+def test_switching_detection_off_under_a_response_is_refused():
+    with pytest.raises(ValueError, match=r"^contacts: the scene's contact response \(contact: response: true\) "
+                                         r"needs member kinds to check \(without them members would pass through each other\)$"):
+        ts.Simulator(crossing(), contacts=[])
+
+
 def test_compiled_rows_match_the_reference_with_member_contacts():
     """The inextensible method's compiled row bookkeeping beside general contact rows (which its backend
     builds and checks with the numpy reference) against the numpy reference throughout: a tumbling strut B

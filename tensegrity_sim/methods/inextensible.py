@@ -69,7 +69,9 @@ event instead, located inside the step and resolved where it happens:
 **Ground** (a scene with a ``ground``; ``methods/friction.py``): the backend is wrapped so that every
 QP above also carries the ground's contact rows (normal rows with the same landing targets and caps as
 the cables', Coulomb friction by a mode fixed point); a node reaching the ground is an event located
-like a snap, and the impact at its start is one inelastic impact with the snapping cables.
+like a snap, and the impact at its start is one inelastic impact with the snapping cables. A member
+contact response (``contact: response: true``) adds the member pairs' rows the same way
+(``methods/member_contact.py``).
 
 **Prestress.** A scene written for elastic cables has them longer than their rest lengths by
 ``tension / k``. The method takes each cable's length limit as its rest length plus that stretch at load
