@@ -177,8 +177,9 @@ class BatchSimulator:
         n, nc = len(scene.nodes), len(scene.cables)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
-        # the batched elastic engine knows no ground: a scene with one steps a Simulator per copy
-        if method == "elastic" and scene.ground is None:
+        # the batched elastic engine knows no contact response (ground or members): a scene with one steps a
+        # Simulator per copy
+        if method == "elastic" and scene.ground is None and not scene.contact_response.response:
             if solver is not None and requested:
                 raise ValueError(f"solver={solver!r} is an option of a method with a QP; method 'elastic' has none")
             self._engine = ElasticBatch(self.system, dt)

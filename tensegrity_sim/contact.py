@@ -68,8 +68,8 @@ from .results import ContactEvent
 from .scene import CONTACT_KINDS
 from .system import System
 
-__all__ = ["ActiveContact", "ContactDetector", "closest_points", "transitions", "make_detector",
-           "TAU_TOLERANCE", "SKIN_FRACTION"]
+__all__ = ["ActiveContact", "ContactDetector", "box_pairs", "closest_points", "contact_geometry", "transitions",
+           "make_detector", "TAU_TOLERANCE", "SKIN_FRACTION"]
 
 TAU_TOLERANCE = 1e-9    # width (fraction of the step) to which a crossing is bracketed before interpolation
 RESOLUTION = 1e-7       # after a crossing, the search for the next one starts this much later (step fraction)
@@ -168,9 +168,9 @@ def _interpolate(p0: np.ndarray, p1: np.ndarray, tau: np.ndarray) -> np.ndarray:
     return (1.0 - tau) * p0[(slice(None),) + extra] + tau * p1[(slice(None),) + extra]
 
 
-def _contact_geometry(ends: np.ndarray, radii_sum: np.ndarray):
-    """Closest points ``pa``, ``pb`` (n, 3) m, unit normals from a to b (n, 3) and gaps (n,) m of capsule
-    pairs ``ends`` (n, 4, 3).
+def contact_geometry(ends: np.ndarray, radii_sum: np.ndarray):
+    """Closest points ``pa``, ``pb`` (n, 3) m, unit normals from a to b (n, 3), gaps (n,) m and the closest
+    points' parameters ``s``, ``t`` (n,) along a and b of capsule pairs ``ends`` (n, 4, 3).
 
     Where the segments intersect (no direction between the closest points) the normal is along
     ``d_a x d_b`` (any perpendicular of ``d_a`` for parallel ones), turned towards b's midpoint."""
@@ -194,7 +194,7 @@ def _contact_geometry(ends: np.ndarray, radii_sum: np.ndarray):
     # (only two coincident zero-length members leave no direction at all: then +z)
     normal = np.where((length > 0)[:, None], normal / np.where(length > 0, length, 1.0)[:, None],
                       [0.0, 0.0, 1.0])
-    return pa, pb, normal, dist - radii_sum
+    return pa, pb, normal, dist - radii_sum, s, t
 
 
 def _reaches(ends, disp, radii_sum, inside):
@@ -237,11 +237,12 @@ def _reaches(ends, disp, radii_sum, inside):
     return gap, forward, backward
 
 
-def transitions(p0: np.ndarray, p1: np.ndarray, radii_sum: np.ndarray, inside: np.ndarray):
+def transitions(p0: np.ndarray, p1: np.ndarray, radii_sum: np.ndarray, inside: np.ndarray, touch: float = 0.0):
     """Every begin and end of contact within one step, for ``n`` capsule pairs moving linearly.
 
     ``p0``, ``p1``: (n, 4, 3) m, end points [a0, a1, b0, b1] at the step's start and end.
-    ``radii_sum``: (n,) m. ``inside``: (n,) bool, in contact just before the step.
+    ``radii_sum``: (n,) m. ``inside``: (n,) bool, in contact just before the step. ``touch``: m, an end
+    needs the gap at least at this too (members held in contact by a response rest at a gap of ~0).
 
     Returns ``(pair, tau, begin, inside_end, gap_end)``: for each transition, in no particular order,
     the pair's index (e,), the step fraction (e,) in [0, 1] and whether it is a begin (e,) bool; then
@@ -252,7 +253,7 @@ def transitions(p0: np.ndarray, p1: np.ndarray, radii_sum: np.ndarray, inside: n
     disp = p1 - p0
     ends = np.stack([p0, p1])
     # an end needs the gap at CHATTER x the pair's size: above its round-off, so no begin-end chatter
-    margin = CHATTER * (radii_sum + np.abs(ends).max(axis=(0, 2, 3)))
+    margin = np.maximum(CHATTER * (radii_sum + np.abs(ends).max(axis=(0, 2, 3))), touch)
     # (2, n): at tau = 0 and 1, each judged by its own gap's sign (a crossing at 1 is caught below)
     gap, forward, backward = _reaches(ends, disp, radii_sum, None)
     found_pair, found_tau, found_begin = [], [], []
@@ -367,7 +368,7 @@ def _search(p0, p1, radii_sum, margin, inside, gap0, gap1):
     return np.concatenate(out_pair), np.concatenate(out_tau), np.concatenate(out_begin), inside
 
 
-def _box_pairs(lo: np.ndarray, hi: np.ndarray):
+def box_pairs(lo: np.ndarray, hi: np.ndarray):
     """Index pairs (i, j), i != j, of overlapping axis-aligned boxes (n, 3): sort and sweep along the axis
     where the boxes spread most. Cost: a sort plus the pairs that overlap along that axis."""
     n = len(lo)
@@ -391,11 +392,14 @@ class ContactDetector:
     ``kinds``: member kinds to check, a subset of :data:`~tensegrity_sim.scene.CONTACT_KINDS`.
     ``skin``: m, margin of the pair list (default ``SKIN_FRACTION`` × the median checked member length).
     It starts at the scene's positions (:meth:`reset` starts over anywhere); then :meth:`step` once per
-    step, in order.
+    step, in order. ``touch``: m, a contact ends only when the gap is back at this (a contact response
+    holds members at a gap of about 0, within its own tolerance: 0 would chatter).
     """
 
-    def __init__(self, system: System, kinds, *, skin: float | None = None):
+    def __init__(self, system: System, kinds, *, skin: float | None = None, touch: float = 0.0):
         self.system = system
+        self.touch = float(touch)
+        self._impulses = {}   # the last step's contact impulses, {(member i, member j): (normal, friction (3,))}
         self.kinds = tuple(kinds)
         radius = np.concatenate([[s.radius for s in system.scene.struts],
                                  [c.radius for c in system.scene.cables]]).astype(float)
@@ -407,7 +411,7 @@ class ContactDetector:
         self.members = np.flatnonzero((radius > 0) & takes_part)   # checked members (system order)
         self._kind = is_cable.astype(int)
         self._kind_ok = kind_ok
-        self._radius = radius
+        self.radius = radius   # (n_members,) m, struts first
         self._member_fixed = ~system.free[system.ends].any(axis=1)
         self.names = system.scene.strut_names + system.scene.cable_names
         nodes = np.unique(system.ends[self.members])
@@ -441,10 +445,10 @@ class ContactDetector:
         position within the skin of ``x1``; pairs already listed keep their state."""
         m = self.members
         ends0, ends1 = x0[self.system.ends[m]], x1[self.system.ends[m]]      # (mc, 2, 3)
-        pad = self._radius[m, None]
+        pad = self.radius[m, None]
         lo = np.minimum(ends0.min(axis=1), ends1.min(axis=1) - self.skin) - pad
         hi = np.maximum(ends0.max(axis=1), ends1.max(axis=1) + self.skin) + pad
-        bi, bj = _box_pairs(lo, hi)
+        bi, bj = box_pairs(lo, hi)
         i, j = np.minimum(m[bi], m[bj]), np.maximum(m[bi], m[bj])
         ok = self.eligible(i, j)
         key = np.unique(i[ok] * self.system.n_members + j[ok])
@@ -460,7 +464,7 @@ class ContactDetector:
             snap[old], budget[old] = self._snap[where[old]], self._budget[where[old]]
         self._key, self._i, self._j = key, i, j
         self._ends = np.concatenate([self.system.ends[i], self.system.ends[j]], axis=1)  # (k, 4) nodes
-        self._radii_sum = self._radius[i] + self._radius[j]
+        self._radii_sum = self.radius[i] + self.radius[j]
         self._inside, self._since, self._snap, self._budget = inside, since, snap, budget
         self._x_list = x1.copy()
 
@@ -488,9 +492,13 @@ class ContactDetector:
         """Number of listed (nearby, eligible) pairs."""
         return len(self._key)
 
-    def step(self, x0: np.ndarray, x1: np.ndarray, t0: float, dt: float) -> tuple[ContactEvent, ...]:
+    def step(self, x0: np.ndarray, x1: np.ndarray, t0: float, dt: float,
+             impulses: dict | None = None) -> tuple[ContactEvent, ...]:
         """The contact events (time order) of a step from positions ``x0`` to ``x1`` (N, 3) m, starting
-        at time ``t0`` s and lasting ``dt`` s. ``x0`` must be the previous step's ``x1`` (or the reset)."""
+        at time ``t0`` s and lasting ``dt`` s. ``x0`` must be the previous step's ``x1`` (or the reset).
+        ``impulses``: the step's contact impulses by member pair (a response's ``MethodStep.pair_impulses``),
+        carried by the events and :meth:`active`."""
+        self._impulses = impulses or {}
         w = self._watch
         if np.abs(x1[w] - self._x_ref[w]).max(initial=0.0) < self._quiet:
             return ()
@@ -530,7 +538,7 @@ class ContactDetector:
         nodes = self._ends[due]
         p0, p1 = x0[nodes], x1[nodes]
         radii = self._radii_sum[due]
-        pair, tau, begin, inside, gap_end = transitions(p0, p1, radii, self._inside[due])
+        pair, tau, begin, inside, gap_end = transitions(p0, p1, radii, self._inside[due], self.touch)
         # how far from changing state: out of contact the gap, in contact the penetration (an end needs
         # the gap back at >= 0); until the members have moved that much, the pair needs no look
         self._inside[due], self._snap[due] = inside, p1
@@ -540,7 +548,7 @@ class ContactDetector:
         time = t0 + tau * dt
         order = np.lexsort((self._key[due[pair]], time))     # time order; simultaneous ones in pair order
         pair, tau, begin, time = pair[order], tau[order], begin[order], time[order]
-        pa, pb, normal, gap = _contact_geometry(_interpolate(p0[pair], p1[pair], tau), radii[pair])
+        pa, pb, normal, gap = contact_geometry(_interpolate(p0[pair], p1[pair], tau), radii[pair])[:4]
         events = []
         for k in range(len(pair)):
             p = due[pair[k]]
@@ -548,7 +556,7 @@ class ContactDetector:
                 self._since[p] = time[k]
             events.append(ContactEvent("begin" if begin[k] else "end",
                                        (self.names[self._i[p]], self.names[self._j[p]]), float(time[k]),
-                                       pa[k], pb[k], normal[k], float(gap[k])))
+                                       pa[k], pb[k], normal[k], float(gap[k]), *self._impulse(p)))
         return tuple(events)
 
     def active(self, positions: np.ndarray) -> tuple[ActiveContact, ...]:
@@ -556,15 +564,22 @@ class ContactDetector:
         idx = np.flatnonzero(self._inside)
         if not idx.size:
             return ()
-        pa, pb, normal, gap = _contact_geometry(positions[self._ends[idx]], self._radii_sum[idx])
+        pa, pb, normal, gap = contact_geometry(positions[self._ends[idx]], self._radii_sum[idx])[:4]
         return tuple(ActiveContact((self.names[self._i[p]], self.names[self._j[p]]), float(self._since[p]),
-                                   pa[k], pb[k], normal[k], float(gap[k])) for k, p in enumerate(idx))
+                                   pa[k], pb[k], normal[k], float(gap[k]), *self._impulse(p))
+                     for k, p in enumerate(idx))
+
+    def _impulse(self, p: int) -> tuple[float, np.ndarray]:
+        """Listed pair ``p``'s normal (N*s) and friction (3,) N*s impulses of the last step (0 without)."""
+        normal, friction = self._impulses.get((int(self._i[p]), int(self._j[p])), (0.0, np.zeros(3)))
+        return float(normal), np.array(friction, dtype=float)
 
 
-def make_detector(system: System, kinds) -> ContactDetector | None:
-    """A detector for ``kinds``, or None when no pair of members could ever be reported (no kind asked
-    for, no member with a radius, or every candidate pair shares a node or is fixed)."""
+def make_detector(system: System, kinds, touch: float = 0.0) -> ContactDetector | None:
+    """A detector for ``kinds`` (``touch`` as :class:`ContactDetector`'s), or None when no pair of members
+    could ever be reported (no kind asked for, no member with a radius, or every candidate pair shares a
+    node or is fixed)."""
     if not kinds:
         return None
-    detector = ContactDetector(system, kinds)
+    detector = ContactDetector(system, kinds, touch=touch)
     return detector if detector.has_pairs() else None

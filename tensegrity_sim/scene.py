@@ -328,10 +328,8 @@ class Scene:
         response = _bool(ctx, "contact", "response", raw.get("response", False))
         friction = _non_negative(ctx, "contact", "friction", raw.get("friction", 0.0))
         restitution = _fraction(ctx, "contact", "restitution", raw.get("restitution", 0.0))
-        if response:
-            # refused at load time rather than ignored: a scene that asks for it must not silently pass through
-            raise ctx.error("contact", "response: true is not supported yet (member-member contact response); "
-                                       "only the ground responds to contact")
+        if response and not kinds:
+            raise ctx.error("contact", "response: true needs member kinds to check (kinds is empty)")
         return kinds, ContactResponse(response, friction, restitution)
 
     @staticmethod

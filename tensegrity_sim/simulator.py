@@ -18,6 +18,7 @@ from .checks import check_memory, describe, float_array, real, time_step, whole
 from .contact import ActiveContact, make_detector
 from .ground_contact import GroundDetector
 from .methods import State, StepError, make_method
+from .methods.friction import TOUCH_TOL
 from .results import StepResult, Trajectory, step_result
 from .scene import Scene, contact_kinds
 from .system import System
@@ -139,13 +140,18 @@ class Simulator:
         if contacts is not None:
             # the scene as run: a log embedding it (and a replay of that log) checks the same pairs
             scene = replace(scene, contact_kinds=contact_kinds(contacts, "contacts"))
+            if scene.contact_response.response and not scene.contact_kinds:
+                raise ValueError("contacts: the scene's contact response (contact: response: true) needs member "
+                                 "kinds to check (without them members would pass through each other)")
         self.scene = scene
         self.dt = time_step(dt)
         self.system = System(scene)
         self._method, self.method_reason = make_method(self.system, method, self.dt, solver=solver, order=order,
                                                            locate_switches=locate_switches, reel_speed=reel_speed)
         # None when nothing can be in contact: then detection costs nothing at all
-        self._contacts = make_detector(self.system, scene.contact_kinds)
+        # with a contact response, members rest in contact at a gap of ~0: a contact ends beyond TOUCH_TOL
+        self._contacts = make_detector(self.system, scene.contact_kinds,
+                                       TOUCH_TOL if scene.contact_response.response else 0.0)
         self._ground = None if scene.ground is None else GroundDetector(self.system)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
@@ -339,7 +345,7 @@ class Simulator:
                                                    out.velocities, out.impulses))
         st = self._state
         contacts = () if self._contacts is None else self._contacts.step(st.positions, out.positions,
-                                                                          self.time, self.dt)
+                                                                          self.time, self.dt, out.pair_impulses)
         if self._ground is not None:
             landed = self._ground.step(st.positions, out.positions, st.velocities, self.time, self.dt,
                                        out.contact_impulses)

@@ -1,5 +1,4 @@
 """choose_accuracy: the configuration it picks for a tolerance meets it, against the closed forms."""
-import numpy as np
 import pytest
 
 import tensegrity_sim as ts

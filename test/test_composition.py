@@ -7,7 +7,6 @@ import tensegrity_sim as ts
 from bench.analytic import bungee_dict, bungee_exact, deadband_dict, deadband_exact
 from bench.cases import icosahedron_thrown
 from bench.reference import ElasticReference
-from conftest import random_velocities
 from tensegrity_sim.methods.composition import STABILITY, WEIGHTS
 
 DURATION = 2.0   # s: the bungee falls, snaps taut, swings, releases and falls again; the dead band's mass

@@ -32,8 +32,8 @@ def strut(v0=0.0, theta=0.0, mu=MU, height=0.0):
     ({"contact": {"friction": -1}}, "contact: friction must be >= 0, got -1.0"),
     ({"contact": {"restitution": -0.5}}, "contact: restitution must be in [0, 1], got -0.5"),
     ({"contact": {"response": "yes"}}, "contact: response must be true or false, got 'yes'"),
-    ({"contact": {"response": True}}, "contact: response: true is not supported yet (member-member contact "
-                                      "response); only the ground responds to contact"),
+    ({"contact": {"response": True, "kinds": []}}, "contact: response: true needs member kinds to check "
+                                                   "(kinds is empty)"),
 ])
 def test_scene_keys_refused_with_exact_message(edit, message):
     raw = strut().to_dict()

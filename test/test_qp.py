@@ -107,6 +107,50 @@ def test_rows_dense_and_rates_agree():
     np.testing.assert_array_equal(rows.sparse(len(mass)).toarray(), rows.dense(len(mass)))
 
 
+def contact_problem(seed):
+    """``random_problem`` with general rows beside the member rows: six contacts between random pairs of
+    members, each row the rate of a point inside one member relative to a point inside the other,
+    weights ``(-(1 - s), -s, 1 - t, t)``, and the member rows written as general rows too."""
+    rng = np.random.default_rng(seed)
+    v0, mass, rows = random_problem(seed, n_eq=2)
+    k = len(rows)
+    pairs = rng.choice(k, size=(6, 2))
+    s, t = rng.random(6), rng.random(6)
+    nodes = np.vstack([np.pad(rows.nodes, ((0, 0), (0, 2)), constant_values=-1),
+                       np.concatenate([rows.nodes[pairs[:, 0]], rows.nodes[pairs[:, 1]]], axis=1)])
+    weights = np.vstack([np.tile([-1.0, 1.0, 0.0, 0.0], (k, 1)), np.stack([s - 1.0, -s, 1.0 - t, t], axis=1)])
+    normal = rng.normal(size=(6, 3))
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    general = qp.Rows(nodes, np.vstack([rows.directions, normal]), np.zeros(k + 6), rows.n_eq, weights)
+    general.targets = general.rates(rng.normal(scale=0.3, size=v0.shape)) + np.where(
+        np.arange(k + 6) < rows.n_eq, 0.0, rng.uniform(0.0, 0.2, size=k + 6))
+    return v0, mass, rows, general
+
+
+def test_general_rows_agree_with_member_rows():
+    """Written as general rows with weights (-1, 1), member rows are the same matrix and rates."""
+    v0, mass, rows, general = contact_problem(3)
+    k = len(rows)
+    as_general = general.subset(np.arange(k), rows.targets, rows.n_eq)
+    np.testing.assert_array_equal(as_general.dense(len(mass)), rows.dense(len(mass)))
+    np.testing.assert_array_equal(as_general.sparse(len(mass)).toarray(), rows.dense(len(mass)))
+    np.testing.assert_array_equal(as_general.rates(v0), rows.rates(v0))
+    np.testing.assert_allclose(general.rates(v0), general.dense(len(mass)) @ v0.ravel(), rtol=1e-13, atol=1e-15)
+    np.testing.assert_array_equal(general.sparse(len(mass)).toarray(), general.dense(len(mass)))
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_contact_rows_match_quadprog(solver):
+    for seed in range(4):
+        v0, mass, _, rows = contact_problem(seed)
+        reference = quadprog_velocities(v0, mass, rows)
+        v, y = qp.make_solver(solver, mass).solve(v0, rows)
+        assert np.max(np.abs(v - reference)) < ACCURACY[solver] * np.max(np.abs(reference)), (solver, seed)
+        m = np.repeat(mass, 3)
+        np.testing.assert_allclose(m * (v - v0).ravel(), -rows.dense(len(mass)).T @ y,
+                                   atol=ACCURACY[solver] * np.max(m * np.abs(v0).ravel()))
+
+
 def test_a_poor_answer_is_refused_not_returned():
     """OSQP at its own default tolerances (eps 1e-3) is off by ~1e-1 at mass ratio 1e4: the check of the
     optimality conditions refuses its answers instead of passing them on."""

@@ -63,13 +63,15 @@ class MethodStep:
     """One step's outcome: positions, velocities (N, 3) at the step's end; impulses (n_cables,) N*s;
     slack (n_cables,) bool at the step's end if the method has it at hand (else the simulator asks
     ``slack()``); contact_impulses (N, 3) N*s, the ground's impulse on each node over the step (None
-    without a ground)."""
+    without a ground); pair_impulses: {(member i, member j): (normal N*s, friction (3,) N*s)} the member
+    contacts' impulses on member j over the step (None without a member contact response)."""
 
     positions: np.ndarray
     velocities: np.ndarray
     impulses: np.ndarray
     slack: np.ndarray | None = None
     contact_impulses: np.ndarray | None = None
+    pair_impulses: dict | None = None
 
 
 class StepMethod:

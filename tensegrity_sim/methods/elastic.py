@@ -57,7 +57,9 @@ order (a bounce's height is off by O(h v): measured 3e-5..7e-5 m for 1 m at 1 ms
 longer symplectic while a contact is closed — contact and friction impulses only remove energy
 (plastic impacts, dissipative friction), but Verlet's own O(h²) energy wobble remains (measured 4e-6
 relative per step on the dropped icosahedron). Away from the ground nothing changes. A scene with a
-ground steps plain Verlet (order 2, switches not located): the options are refused there.
+ground steps plain Verlet (order 2, switches not located): the options are refused there. A member contact
+response (``contact: response: true``, ``methods/member_contact.py``) is the same impulse step with the
+member pairs' rows beside the ground's, at the same cost to the order and energy behaviour.
 """
 from __future__ import annotations
 
@@ -70,7 +72,7 @@ from . import _composition_kernels as composed
 from . import _elastic_kernels as kernels
 from .base import MethodStep, State, StepMethod
 from .composition import MIN_SPLIT, STABILITY, WEIGHTS, Stepper
-from .friction import TOUCH_TOL, GroundResponse
+from .friction import TOUCH_TOL, ContactSet
 from .qp import make_solver
 from .rigid import RigidStruts
 
@@ -130,14 +132,15 @@ class ElasticMethod(StepMethod):
         # a ground: the contact set's velocity problem solved by the QP backends (methods/friction.py),
         # in the reference step, which is then plain Verlet (one primitive step per step)
         self.ground = None
-        if system.scene.ground is not None:
+        if system.scene.ground is not None or system.scene.contact_response.response:
             if self.order != 2 or self.locate_switches:
-                raise ValueError("a scene with a ground is stepped by plain Verlet: order 4 and located "
-                                 "switches are not available with a ground")
-            self.ground = GroundResponse(system, make_solver(None, system.masses[system.free]))
+                raise ValueError("a scene with a ground or a contact response is stepped by plain Verlet: order 4 "
+                                 "and located switches are not available with contacts")
+            self.ground = ContactSet(system, make_solver(None, system.masses[system.free]))
         self._contact = None   # the ground's impulses of the last step (N, 3) N*s, or None
+        self._pairs = None     # the member contacts' of the last step (ContactSet.pair_impulses), or None
         # the compiled kernels: plain Verlet (_elastic_kernels.py) and the options (_composition_kernels.py);
-        # the ground and coupled rigid struts run the numpy primitive
+        # contacts (a ground, a member response) and coupled rigid struts run the numpy primitive
         self.compiled = compiled and not self.rigid.coupled and self.ground is None
         self._plain = self.order == 2 and not self.locate_switches
         self._weights = np.array(WEIGHTS[self.order])
@@ -247,7 +250,7 @@ class ElasticMethod(StepMethod):
         start = self._cache if self._cache is not None else self.accelerations(x, v, state)
         x_new, v_new, end, impulses = self.stepper.step(x, v, start, self.dt, state)
         self._cache = end
-        return MethodStep(x_new, v_new, impulses, end.slack, self._contact)
+        return MethodStep(x_new, v_new, impulses, end.slack, self._contact, self._pairs)
 
     def verlet(self, x: np.ndarray, v: np.ndarray, start: _Forces, h: float, state: State):
         """The primitive: one velocity-Verlet/RATTLE step of any size ``h`` (s, may be negative) from
@@ -275,7 +278,7 @@ class ElasticMethod(StepMethod):
             # the closing kick's: no touching node moves into the ground or slides against friction
             if self.ground.arm_settle(x_new, v_new, landing_speed):
                 v_new = self.ground.velocity_step(x_new, v_new, self.rigid)
-            self._contact = self.ground.take_impulses()
+            self._contact, self._pairs = self.ground.take_impulses(), self.ground.take_pair_impulses()
         return x_new, v_new, end
 
     def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:

@@ -78,9 +78,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..system import System
+from .member_contact import Armed, MemberContacts, tangents
 from .qp import QPError, QPSolver, Rows
 
-__all__ = ["GroundResponse", "FrictionalSolver", "FrictionError", "FIXED_POINT_TOL", "TOUCH_TOL"]
+__all__ = ["ContactSet", "FrictionalSolver", "FrictionError", "FIXED_POINT_TOL", "TOUCH_TOL"]
 
 FIXED_POINT_TOL = 1e-10   # relative to the impulse scale: friction modes, slip directions and y_n agree
 MAX_MODE_ITER = 30        # QPs of the mode fixed point before the projected fallback takes over ...
@@ -97,87 +98,107 @@ class FrictionError(QPError):
     """The friction modes found no fixed point, or the answer misses the Coulomb law."""
 
 
-class GroundResponse:
-    """Ground contacts of a :class:`System` for one method: which nodes are armed, their targets, the
-    impulses of the current step.
+class ContactSet:
+    """The contacts of a :class:`System` for one method: the ground's (a scene with a ``ground``) and the
+    members' (``contact: response: true``, ``methods/member_contact.py``): which are armed, their targets,
+    the impulses of the current step.
 
     ``inner``: the method's QP backend (``methods/qp.py``), used through :attr:`solver`.
-    ``normal``, ``friction``: per node (N,) and (N, 3), the contact impulses summed over the current step
-    (N*s), cleared by :meth:`take_impulses`.
+    ``impulses``: (N, 3) N*s, the ground's impulses on each node summed over the current step (friction in
+    x, y; normal along z); ``pair_impulses``: {(member i, member j): (normal N*s, friction (3,) N*s)} the
+    member contacts' over the step, the impulse on member j (member i takes the opposite). Both are cleared
+    by :meth:`take_impulses`.
     """
 
     def __init__(self, system: System, inner: QPSolver):
         ground = system.scene.ground
-        self.height = ground.height
-        self.mu = ground.friction
-        self.restitution = ground.restitution
+        self.height = 0.0 if ground is None else ground.height
+        self.mu = 0.0 if ground is None else ground.friction
+        self.restitution = 0.0 if ground is None else ground.restitution
         self.system = system
         self.radii = system.scene.node_radii
         self.free = np.flatnonzero(system.free)          # free node p <-> free index k
         self._free_index = np.full(system.n_nodes, -1)
         self._free_index[self.free] = np.arange(len(self.free))
+        # the nodes that can touch the ground (none without one)
+        self._grounded = self.free if ground is not None else np.zeros(0, dtype=int)
+        self.members = MemberContacts(system) if system.scene.contact_response.response else None
         self.solver = FrictionalSolver(inner, self)
         self.impulses = np.zeros((system.n_nodes, 3))
+        self.pair_impulses: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
 
     # ------------------------------------------------------------------ geometry
     def gaps(self, x: np.ndarray) -> np.ndarray:
         """(N,) m: each node's height above the ground, minus its radius (negative: below)."""
         return x[:, 2] - self.radii - self.height
 
+    def _gaps_of(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """The gaps (len(p),) m of nodes ``p`` only (a scene may have fixed nodes, which never touch)."""
+        return x[p, 2] - self.radii[p] - self.height
+
     def first_impact(self, x: np.ndarray, v: np.ndarray, v0: np.ndarray, tau: float) -> float:
         """Fraction of the sub-step (0, 1] at which the first free node above the ground reaches it on its
-        free path ``g + t v_z + t^2 a_z / 2`` (``a_z = (v0_z - v_z) / tau``); 1.0 if none does."""
-        p = self.free
-        g = self.gaps(x[p])
+        free path ``g + t v_z + t^2 a_z / 2`` (``a_z = (v0_z - v_z) / tau``), or the first pair of members
+        meets (:meth:`.member_contact.MemberContacts.first_impact`); 1.0 if none does."""
+        first = 1.0 if self.members is None else self.members.first_impact(x, v, v0, tau, TOUCH_TOL)
+        p = self._grounded
+        g = self._gaps_of(x, p)
         vz, az = v[p, 2], (v0[p, 2] - v[p, 2]) / tau
         end = g + tau * vz + 0.5 * tau * tau * az
         hit = (g > TOUCH_TOL) & (end < 0.0)
         if not hit.any():
-            return 1.0
+            return first
         g, vz, az = g[hit], vz[hit], az[hit]
         # the small root of g + vz t + az t^2/2 = 0, written to avoid cancellation (vz < 0 or az < 0)
         disc = np.sqrt(np.maximum(vz * vz - 2.0 * az * g, 0.0))
         t = 2.0 * g / (-vz + disc)
-        return float(np.clip(t.min() / tau, 0.0, 1.0))
+        return min(first, float(np.clip(t.min() / tau, 0.0, 1.0)))
 
     # ------------------------------------------------------------------ arming
     def arm_step(self, x_m: np.ndarray, v: np.ndarray, v0: np.ndarray, tau: float, half: float) -> bool:
         """Arm the contacts of a sub-step whose positions end at ``x_m + half * v_f`` (the inextensible
         midpoint: ``half = tau / 2``; the elastic drift: ``x_m = x_i``, ``half = h``): the nodes that may
         reach the ground by then, each with the target that lands it exactly on it, capped at the
-        reversal of its normal velocity ``v`` (N, 3) at the start. Returns whether any is armed."""
-        p = self.free
-        g = self.gaps(x_m[p])
+        reversal of its normal velocity ``v`` (N, 3) at the start; and the member pairs likewise.
+        Returns whether any is armed."""
+        p = self._grounded
+        g = self._gaps_of(x_m, p)
         reach = g - half * np.abs(v0[p, 2])
         armed = reach <= TOUCH_TOL
         w = -g[armed] / half
         np.minimum(w, -v[p[armed], 2], out=w)
         touching = g[armed] <= TOUCH_TOL
-        self.solver.arm(p[armed], w, touching)
-        return bool(armed.any())
+        pairs = None if self.members is None else self.members.arm_step(x_m, v, v0, half, TOUCH_TOL)
+        self.solver.arm(p[armed], w, touching, pairs)
+        return self.solver.armed
 
     def arm_impact(self, x: np.ndarray, v: np.ndarray, dt: float) -> bool:
         """Arm the impacts at ``x``: nodes touching the ground and moving into it by more than
         ``TOUCH_TOL`` per step get Newton's law ``v_z+ >= -e v_z-``; the other touching nodes keep
-        ``v_z+ >= 0`` (they are part of the same impact). Returns whether any node impacts."""
-        p = self.free
-        touching = self.gaps(x[p]) <= TOUCH_TOL
+        ``v_z+ >= 0`` (they are part of the same impact); member pairs likewise. Returns whether any node
+        or pair impacts."""
+        p = self._grounded
+        touching = self._gaps_of(x, p) <= TOUCH_TOL
         vz = v[p[touching], 2]
         impacting = vz * dt < -TOUCH_TOL
+        pairs, hit = (None, False) if self.members is None else self.members.arm_impact(x, v, dt, TOUCH_TOL)
         # every touching node takes part (a cable snapping at the same instant must not push one into
         # the ground); whether the impact happens at all is decided by the landing nodes and the snaps
-        self.solver.arm(p[touching], np.where(impacting, -self.restitution * vz, 0.0), np.ones(len(vz), bool))
-        return bool(impacting.any())
+        self.solver.arm(p[touching], np.where(impacting, -self.restitution * vz, 0.0), np.ones(len(vz), bool),
+                        pairs)
+        return bool(impacting.any()) or hit
 
     def arm_settle(self, x: np.ndarray, v: np.ndarray, landing_speed: np.ndarray) -> bool:
         """Arm the velocity-level contacts at the end of an elastic step: every node touching the ground at
         ``x`` gets ``v_z >= 0``, or ``v_z >= e * landing_speed`` (N,) m/s (its speed into the ground before
-        this step's drift stopped it) when it landed in this step. Returns whether any is armed."""
-        p = self.free
-        touching = self.gaps(x[p]) <= TOUCH_TOL
+        this step's drift stopped it) when it landed in this step; touching member pairs likewise.
+        Returns whether any is armed."""
+        p = self._grounded
+        touching = self._gaps_of(x, p) <= TOUCH_TOL
         nodes = p[touching]
-        self.solver.arm(nodes, self.restitution * landing_speed[nodes], np.ones(len(nodes), bool))
-        return bool(touching.any())
+        pairs = None if self.members is None else self.members.arm_settle(x, TOUCH_TOL)
+        self.solver.arm(nodes, self.restitution * landing_speed[nodes], np.ones(len(nodes), bool), pairs)
+        return self.solver.armed
 
     def velocity_step(self, x: np.ndarray, v: np.ndarray, rigid) -> np.ndarray:
         """The armed contacts' velocity problem for the elastic method: ``v`` (N, 3) m/s changed by the
@@ -198,12 +219,19 @@ class GroundResponse:
         return out
 
     def begin_step(self) -> None:
-        """A new step: what a failed one left in ``impulses`` is dropped."""
+        """A new step: what a failed one left in ``impulses`` and ``pair_impulses`` is dropped."""
         self.impulses[:] = 0.0
+        self.pair_impulses = {}
 
     def take_impulses(self) -> np.ndarray:
-        """(N, 3) N*s: the contact impulses on each node since the last call (normal along z)."""
+        """(N, 3) N*s: the ground's impulses on each node since the last call (normal along z); the member
+        contacts' are taken with :meth:`take_pair_impulses`."""
         out, self.impulses = self.impulses, np.zeros_like(self.impulses)
+        return out
+
+    def take_pair_impulses(self) -> dict[tuple[int, int], tuple[float, np.ndarray]]:
+        """The member contacts' impulses since the last call (``pair_impulses``)."""
+        out, self.pair_impulses = self.pair_impulses, {}
         return out
 
 
@@ -213,29 +241,37 @@ def _velocity_level(rows: Rows) -> Rows:
     targets = rows.targets.copy()
     targets[: rows.n_eq] = 0.0
     np.maximum(targets[rows.n_eq:], 0.0, out=targets[rows.n_eq:])
-    return Rows(rows.nodes, rows.directions, targets, rows.n_eq)
+    return Rows(rows.nodes, rows.directions, targets, rows.n_eq, rows.weights)
 
 
 class FrictionalSolver:
-    """A QP backend with the armed ground contacts added (module docstring: the mode fixed point).
+    """A QP backend with the armed contacts added (module docstring: the mode fixed point).
 
     Same interface as :class:`~.qp.QPSolver`: ``solve(v0, rows, warm)`` returns ``v`` (n_free, 3) and the
-    multipliers of ``rows`` only; the contacts' impulses go to ``ground.impulses`` when
-    :meth:`commit` is called for the solve the method keeps.
+    multipliers of ``rows`` only; the contacts' impulses go to ``ground.impulses`` and
+    ``ground.pair_impulses`` when :meth:`commit` is called for the solve the method keeps.
+
+    The armed contacts are the ground's (first, one node each: the member rows' 2-node fast path, with the
+    tangents x and y) and the member pairs' (``methods/member_contact.py``; general rows of four nodes,
+    tangents in the plane normal to each contact). Each has a normal ``n``, tangents ``T`` (2, 3), a
+    Coulomb coefficient ``mu`` and an effective mass ``1 / sum_j w_j^2 / m_j`` (the node's mass on the
+    ground), the scale of the Coulomb law's projection form.
     """
 
-    def __init__(self, inner: QPSolver, ground: GroundResponse):
+    def __init__(self, inner: QPSolver, ground: ContactSet):
         self.inner = inner
         self.ground = ground
         self.name = inner.name
         self._mass = inner.mass.reshape(-1, 3)[:, 0]          # (n_free,) kg
-        self._nodes = np.zeros(0, dtype=int)                   # armed free nodes (system index)
+        self._nodes = np.zeros(0, dtype=int)                   # armed ground nodes (system index)
         n = ground.system.n_nodes
         self._stick = np.zeros(n, dtype=bool)                  # each node's mode in the last solve
         self._normal = np.zeros(n)                             # each node's y_n in the last solve
         self._slip = np.zeros((n, 2))                          # each node's slip direction in the last solve
-        self.last = None                                       # (nodes, impulses (k, 3)) of the last solve
+        self._pair_memory: dict[int, tuple[bool, float, np.ndarray]] = {}   # a pair's mode, y_n, slip (3,)
+        self.last = None                                       # impulses (k, 3) (tangents, normal) of the last solve
         self.iterations = 0                                    # QPs of the last solve
+        self.disarm()
 
     @property
     def compiled(self) -> bool:
@@ -251,24 +287,97 @@ class FrictionalSolver:
         return {**self.inner.describe(), "friction": "Coulomb disc, mode fixed point",
                 "fixed_point_tol": FIXED_POINT_TOL}
 
-    def arm(self, nodes: np.ndarray, targets: np.ndarray, touching: np.ndarray) -> None:
-        """The contacts of the next solves: ``nodes`` (k,) system indices, normal targets ``v_z >= targets``
-        (k,) m/s; ``touching`` (k,) bool nodes start sticking unless they slide already."""
-        self._nodes, self._targets, self._touching = nodes, targets, touching
+    def arm(self, nodes: np.ndarray, targets: np.ndarray, touching: np.ndarray, pairs: Armed | None = None) -> None:
+        """The contacts of the next solves: ground ``nodes`` (k,) system indices, normal targets
+        ``v_z >= targets`` (k,) m/s; ``touching`` (k,) bool nodes start sticking unless they slide already;
+        ``pairs``: the member contacts (or None)."""
+        fi = self.ground._free_index[nodes]
+        self._nodes, self._fi = nodes, fi
+        if pairs is None or not len(pairs.keys):
+            self._pairs, self._frames = None, None
+            self._targets, self._touching = targets, touching
+            self._meff, self._mu = self._mass[fi], np.full(len(nodes), self.ground.mu)
+            return
+        k, kp = len(nodes), len(pairs.keys)
+        self._pairs = pairs
+        self._targets = np.concatenate([targets, pairs.targets])
+        self._touching = np.concatenate([touching, pairs.touching])
+        # every contact as a general row: (k + kp, 4) free nodes (-1: none or fixed) and weights
+        c_nodes = np.full((k + kp, 4), -1)
+        c_nodes[:k, 0] = fi
+        c_nodes[k:] = self.ground._free_index[pairs.nodes]
+        weights = np.zeros((k + kp, 4))
+        weights[:k, 0] = 1.0
+        weights[k:] = np.where(c_nodes[k:] >= 0, pairs.weights, 0.0)
+        normals = np.vstack([np.tile(_UP, (k, 1)), pairs.normals])
+        tang = np.concatenate([np.tile(_TANGENTS, (k, 1, 1)), tangents(pairs.normals)])
+        self._frames = (c_nodes, weights, normals, tang)
+        inv = np.append(1.0 / self._mass, 0.0)[c_nodes]
+        self._meff = np.concatenate([self._mass[fi], 1.0 / np.maximum((weights[k:] ** 2 * inv[k:]).sum(axis=1),
+                                                                       1e-300)])
+        self._mu = np.concatenate([np.full(k, self.ground.mu), np.full(kp, self.ground.members.mu)])
 
     def disarm(self) -> None:
-        self._nodes = np.zeros(0, dtype=int)
+        self.arm(np.zeros(0, dtype=int), np.zeros(0), np.zeros(0, dtype=bool))
 
     @property
     def armed(self) -> bool:
-        return len(self._nodes) > 0
+        return len(self._targets) > 0
+
+    def _velocity(self, v: np.ndarray) -> np.ndarray:
+        """(k, 3) m/s: each armed contact's relative velocity for free-node velocities ``v`` (n_free, 3)."""
+        if self._frames is None:
+            return v[self._fi]
+        c_nodes, weights = self._frames[:2]
+        return np.einsum("kj,kjd->kd", weights, np.vstack([v, np.zeros((1, 3))])[c_nodes])
+
+    def _tangential(self, u: np.ndarray) -> np.ndarray:
+        """(k, 2): the tangential components of contact vectors ``u`` (k, 3)."""
+        if self._frames is None:
+            return u[:, :2]
+        return np.einsum("kid,kd->ki", self._frames[3], u)
+
+    def _recall(self):
+        """Each armed contact's mode (k,) bool, ``y_n`` (k,) N*s and slip direction (k, 2) in its tangents,
+        from the last solve it took part in (``y_n = 0``: none)."""
+        nodes = self._nodes
+        stick, normal, slip = self._stick[nodes], self._normal[nodes], self._slip[nodes]
+        if self._pairs is None:
+            return stick, normal, slip
+        memory = [self._pair_memory.get(key, (False, 0.0, np.zeros(3))) for key in self._pairs.keys.tolist()]
+        world = np.array([m[2] for m in memory]).reshape(-1, 3)
+        local = np.einsum("kid,kd->ki", self._frames[3][len(nodes):], world)
+        local /= np.maximum(np.linalg.norm(local, axis=1), 1e-300)[:, None]   # the normal turned a little
+        return (np.concatenate([stick, [m[0] for m in memory]]).astype(bool),
+                np.concatenate([normal, [m[1] for m in memory]]), np.vstack([slip, local]))
+
+    def _remember(self, stick: np.ndarray, normal: np.ndarray, slip: np.ndarray | None) -> None:
+        """Keep each armed contact's mode, ``y_n`` and (unless None) slip direction (k, 2) for the next solves."""
+        nodes, k = self._nodes, len(self._nodes)
+        self._stick[nodes], self._normal[nodes] = stick[:k], normal[:k]
+        if slip is not None:
+            self._slip[nodes] = slip[:k]
+        if self._pairs is None:
+            return
+        for c, key in enumerate(self._pairs.keys.tolist(), start=k):
+            old = self._pair_memory.get(key, (False, 0.0, np.zeros(3)))[2]
+            world = old if slip is None else slip[c] @ self._frames[3][c]
+            self._pair_memory[key] = (bool(stick[c]), float(normal[c]), world)
 
     def commit(self) -> None:
         """Add the last solve's contact impulses to the step's (the method keeps that solve)."""
-        if self.last is not None:
-            nodes, impulses = self.last
-            self.ground.impulses[nodes] += impulses
-            self.last = None
+        if self.last is None:
+            return
+        impulses, nodes, k = self.last, self._nodes, len(self._nodes)
+        self.ground.impulses[nodes] += impulses[:k]
+        if self._pairs is not None:
+            friction = np.einsum("ki,kid->kd", impulses[k:, :2], self._frames[3][k:])
+            n_members = self.ground.system.n_members
+            for c, key in enumerate(self._pairs.keys.tolist()):
+                pair = (key // n_members, key % n_members)
+                normal, tangential = self.ground.pair_impulses.get(pair, (0.0, np.zeros(3)))
+                self.ground.pair_impulses[pair] = (normal + float(impulses[k + c, 2]), tangential + friction[c])
+        self.last = None
 
     def solve(self, v0: np.ndarray, rows: Rows, warm: np.ndarray | None = None):
         """``v`` (n_free, 3) m/s and the multipliers (len(rows),) N*s of ``rows``, with the armed contacts."""
@@ -287,22 +396,21 @@ class FrictionalSolver:
     def _modes(self, v0, rows, warm):
         """The mode fixed point (module docstring): ``(v, y)`` as :meth:`solve` returns them, or None if
         the modes do not settle in ``MAX_MODE_ITER`` QPs."""
-        nodes, k = self._nodes, len(self._nodes)
-        fi = self.ground._free_index[nodes]
-        mass = self._mass[fi]
-        mu = self.ground.mu
+        k = len(self._targets)
+        mass, mu = self._meff, self._mu
         scale_v = max(float(np.max(np.abs(v0), initial=0.0)), float(np.max(np.abs(self._targets), initial=0.0)))
-        # the initial modes: what each node did in the last solve; a node arriving on the ground sticks if
+        # the initial modes: what each contact did in the last solve; a node arriving on the ground sticks if
         # it is not moving along it, else slides along its free tangential velocity with no friction yet
-        vt0 = v0[fi, :2]
+        u0 = self._velocity(v0)
+        vt0 = self._tangential(u0)
         speed0 = np.sqrt(np.einsum("ij,ij->i", vt0, vt0))
         slip_tol = _SLIP_FLOOR + FIXED_POINT_TOL * scale_v
-        known = self._normal[nodes] > 0
-        stick = np.where(known, self._stick[nodes], self._touching & (speed0 <= slip_tol))
-        slip = np.where(known[:, None], self._slip[nodes], vt0 / np.maximum(speed0, 1e-300)[:, None])
-        y_hat = np.where(known, self._normal[nodes], 0.0)
-        if mu == 0.0:
-            stick[:] = False
+        old_stick, old_normal, old_slip = self._recall()
+        known = old_normal > 0
+        stick = np.where(known, old_stick, self._touching & (speed0 <= slip_tol))
+        slip = np.where(known[:, None], old_slip, vt0 / np.maximum(speed0, 1e-300)[:, None])
+        y_hat = np.where(known, old_normal, 0.0)
+        stick &= mu > 0
         # a sliding contact's friction is -phi, phi = mu y_hat d (k, 2): the fixed point's unknown
         phi = (mu * y_hat)[:, None] * slip
         history: list[tuple[np.ndarray, np.ndarray]] = []   # Anderson: (phi, G(phi)) while no mode changes
@@ -312,33 +420,33 @@ class FrictionalSolver:
             sliding = ~stick
             friction = np.zeros((k, 3))
             friction[sliding, :2] = -phi[sliding]
-            v, y, yn, stick_f = self._qp(v0, rows, warm, fi, mass, friction, s, y_hat > 0)
-            impulse_scale = max(float(np.max(mass * np.abs(v0[fi]).max(axis=1), initial=0.0)),
+            v, y, yn, stick_f = self._qp(v0, rows, warm, friction, s, y_hat > 0)
+            impulse_scale = max(float(np.max(mass * np.abs(u0).max(axis=1), initial=0.0)),
                                 float(np.max(np.abs(y), initial=0.0)), 1e-300)
             tol = FIXED_POINT_TOL * impulse_scale
             friction[s, :2] = stick_f
-            vt = v[fi, :2]
+            vt = self._tangential(self._velocity(v))
             speed = np.sqrt(np.einsum("ij,ij->i", vt, vt))
             slip_tol = _SLIP_FLOOR + FIXED_POINT_TOL * max(scale_v, float(np.max(np.abs(v), initial=0.0)))
             y_hat = yn.copy()
             changed = False
             # sticking contacts outside the cone slide, opposite to their friction
             f_mag = np.sqrt(np.einsum("ij,ij->i", stick_f, stick_f))
-            excess = f_mag - mu * yn[s]
+            excess = f_mag - mu[s] * yn[s]
             # one mode change per solve, the worst first: releasing every overloaded contact at once can
             # cycle (they all slide, all turn back, all stick again)
             out = (excess > tol) & (excess == excess.max(initial=0.0))
             if out.any():
                 changed = True
                 slip[s[out]] = -stick_f[out] / f_mag[out, None]
-                phi[s[out]] = (mu * yn[s[out]])[:, None] * slip[s[out]]
+                phi[s[out]] = (mu[s[out]] * yn[s[out]])[:, None] * slip[s[out]]
                 stick[s[out]] = False
             # sliding contacts that carry load and turned back stick; one that stopped is consistent as it is
             # (at rest on the edge of the disc: with rows that depend on each other, such as a rigid strut's
             # and its two ends' sticking rows, the backend may share the friction unevenly between them)
             sl = np.flatnonzero(sliding)
             along = np.einsum("ij,ij->i", vt[sl], slip[sl])
-            stops = (mu > 0) & (yn[sl] > tol) & (speed[sl] > slip_tol) & (along < 0)
+            stops = (mu[sl] > 0) & (yn[sl] > tol) & (speed[sl] > slip_tol) & (along < 0)
             if changed:
                 stops[:] = False
             elif stops.any():
@@ -349,16 +457,16 @@ class FrictionalSolver:
             moving = sl[~stops]
             new_slip = np.where((speed[moving] > slip_tol)[:, None], vt[moving] / np.maximum(speed[moving], 1e-300)[:, None],
                                 slip[moving])
-            target = (mu * yn[moving])[:, None] * new_slip      # G(phi) on the moving contacts
+            target = (mu[moving] * yn[moving])[:, None] * new_slip      # G(phi) on the moving contacts
             drift = float(np.max(np.abs(target - phi[moving]), initial=0.0))
             if not changed and drift <= tol:
                 self.iterations = it
                 self._verify(yn, friction, vt, mass, tol)
-                # the next solve starts from these modes; a node at rest starts sticking
-                self._stick[nodes], self._normal[nodes], self._slip[nodes] = stick | (speed <= slip_tol), yn, slip
+                # the next solve starts from these modes; a contact at rest starts sticking
+                self._remember(stick | (speed <= slip_tol), yn, slip)
                 impulses = friction.copy()
                 impulses[:, 2] = yn
-                self.last = (nodes, impulses)
+                self.last = impulses
                 return v, y[:n_rows]
             slip[moving] = new_slip
             # Anderson acceleration of phi -> G(phi) while the modes stay (the coupled contacts of a locked
@@ -380,21 +488,36 @@ class FrictionalSolver:
         self._friction_guess = friction
         return None
 
-    def _qp(self, v0, rows, warm, fi, mass, friction, s, loaded):
+    def _qp(self, v0, rows, warm, friction, s, loaded):
         """One QP: the method's ``rows``, a normal row per armed contact and four tangential rows per
-        sticking contact ``s``, the known impulses ``friction`` (k, 3) added to ``v0``. ``loaded``: (k,)
-        contacts believed to carry load (a warm start). Returns ``v``, all multipliers, the normal
-        impulses (k,) and the sticking rows' friction (len(s), 2), N*s."""
-        k, n_rows, n_eq = len(fi), len(rows), rows.n_eq
-        v0c = v0.copy()
-        np.add.at(v0c, fi, friction / mass[:, None])
-        tang_nodes = np.repeat(fi[s], 4)
-        tang_dirs = np.tile(np.vstack([_TANGENTS, -_TANGENTS]), (len(s), 1))
-        c_nodes = np.concatenate([fi, tang_nodes])
-        c_dirs = np.vstack([np.tile(-_UP, (k, 1)), tang_dirs])
+        sticking contact ``s``, the known impulses ``friction`` (k, 3) (tangential components first) added
+        to ``v0``. ``loaded``: (k,) contacts believed to carry load (a warm start). Returns ``v``, all
+        multipliers, the normal impulses (k,) and the sticking rows' friction (len(s), 2), N*s."""
+        k, n_rows, n_eq = len(self._targets), len(rows), rows.n_eq
         c_targets = np.concatenate([-self._targets, np.zeros(4 * len(s))])
-        all_rows = Rows(np.vstack([rows.nodes, np.stack([np.full(len(c_nodes), -1), c_nodes], axis=1)]),
-                        np.vstack([rows.directions, c_dirs]), np.concatenate([rows.targets, c_targets]), n_eq)
+        if self._frames is None:   # ground contacts only: member rows, a fixed end and the node
+            fi = self._fi
+            v0c = v0.copy()
+            np.add.at(v0c, fi, friction / self._meff[:, None])
+            tang_nodes = np.repeat(fi[s], 4)
+            tang_dirs = np.tile(np.vstack([_TANGENTS, -_TANGENTS]), (len(s), 1))
+            c_nodes = np.concatenate([fi, tang_nodes])
+            c_dirs = np.vstack([np.tile(-_UP, (k, 1)), tang_dirs])
+            all_rows = Rows(np.vstack([rows.nodes, np.stack([np.full(len(c_nodes), -1), c_nodes], axis=1)]),
+                            np.vstack([rows.directions, c_dirs]), np.concatenate([rows.targets, c_targets]), n_eq)
+        else:   # general rows: the method's as (-1, 1, 0, 0), each contact's on its four nodes
+            c_nodes, weights, normals, tang = self._frames
+            impulse = np.einsum("ki,kid->kd", friction[:, :2], tang)   # the friction in space, (k, 3)
+            scaled = np.append(1.0 / self._mass, 0.0)[c_nodes] * weights
+            change = np.zeros((len(v0) + 1, 3))
+            np.add.at(change, c_nodes, scaled[:, :, None] * impulse[:, None, :])
+            v0c = v0 + change[:-1]
+            sides = np.concatenate([tang, -tang], axis=1)[s].reshape(-1, 3)   # t1, t2, -t1, -t2 per contact
+            nodes4 = np.vstack([np.pad(rows.nodes, ((0, 0), (0, 2)), constant_values=-1), c_nodes,
+                                np.repeat(c_nodes[s], 4, axis=0)])
+            w4 = np.vstack([np.tile([-1.0, 1.0, 0.0, 0.0], (n_rows, 1)), weights, np.repeat(weights[s], 4, axis=0)])
+            all_rows = Rows(nodes4, np.vstack([rows.directions, -normals, sides]),
+                            np.concatenate([rows.targets, c_targets]), n_eq, w4)
         c_warm = np.concatenate([loaded, np.zeros(4 * len(s), dtype=bool)])
         all_warm = None if warm is None else np.concatenate([warm, c_warm])
         try:
@@ -419,11 +542,10 @@ class FrictionalSolver:
         projected block Gauss–Seidel (no QP; it converges for the semidefinite ``W`` of a locked body,
         where a plain fixed point on the QP would crawl at rate ``1 - m_node/m_body``). Repeated until the
         QP's own answer meets the law; each round costs ``1 + 2k`` QPs."""
-        nodes = self._nodes
-        fi = self.ground._free_index[nodes]
-        mass = self._mass[fi]
+        mass, mu = self._meff, self._mu
         scale_v = max(float(np.max(np.abs(v0), initial=0.0)), float(np.max(np.abs(self._targets), initial=0.0)))
-        k, n_rows, mu = len(fi), len(rows), self.ground.mu
+        k, n_rows = len(mass), len(rows)
+        u0 = self._velocity(v0)
         f = self._friction_guess[:, :2].copy()
         none = np.zeros(0, dtype=int)
         loaded = np.ones(k, dtype=bool)
@@ -431,12 +553,12 @@ class FrictionalSolver:
         def answer(f):
             applied = np.zeros((k, 3))
             applied[:, :2] = f
-            v, y, yn, _ = self._qp(v0, rows, warm, fi, mass, applied, none, loaded)
-            return v, y, yn, v[fi, :2]
+            v, y, yn, _ = self._qp(v0, rows, warm, applied, none, loaded)
+            return v, y, yn, self._tangential(self._velocity(v))
 
         for it in range(1, MAX_PROJECTED_ITER + 1):
             v, y, yn, vt = answer(f)
-            impulse_scale = max(float(np.max(mass * np.abs(v0[fi]).max(axis=1), initial=0.0)),
+            impulse_scale = max(float(np.max(mass * np.abs(u0).max(axis=1), initial=0.0)),
                                 float(np.max(np.abs(y), initial=0.0)), 1e-300)
             tol = FIXED_POINT_TOL * impulse_scale
             trial = f - mass[:, None] * vt
@@ -450,9 +572,9 @@ class FrictionalSolver:
                 applied = np.zeros((k, 3))
                 applied[:, :2] = f
                 self._verify(yn, applied, vt, mass, tol)
-                self._stick[nodes], self._normal[nodes] = stick | (speed <= slip_tol), yn
+                self._remember(stick | (speed <= slip_tol), yn, None)
                 applied[:, 2] = yn
-                self.last = (nodes, applied)
+                self.last = applied
                 return v, y[:n_rows]
             # the affine model around f, from one nudged QP per friction component
             nudge = 1e-7 * max(impulse_scale, float(np.abs(f).max(initial=0.0)))
@@ -466,27 +588,27 @@ class FrictionalSolver:
                 Y[:, j] = (yn_j - yn) / nudge
             f = self._local_coulomb(f, vt.ravel(), yn, W, Y, tol)
         raise FrictionError(self.name, "no fixed point",
-                            f"the friction of {k} ground contacts did not settle in {MAX_MODE_ITER} mode QPs and "
+                            f"the friction of {k} contacts did not settle in {MAX_MODE_ITER} mode QPs and "
                             f"{MAX_PROJECTED_ITER} Newton rounds")
 
     def _local_coulomb(self, f, vt, yn, W, Y, tol):
         """Projected block Gauss–Seidel on the affine model ``v_t(g) = vt + W (g - f)``,
         ``y_n(g) = yn + Y (g - f)``: ``g_c = proj_disc(mu y_n,c)(g_c - v_t,c / lambda_max(W_cc))`` until a
         sweep moves ``g`` by less than ``tol / 100`` (N*s). Returns ``g`` (k, 2)."""
-        k, mu = len(f), self.ground.mu
+        k, mu = len(f), self._mu
         base = f.ravel().copy()
         g = base.copy()
         steps = np.empty(k)
         for c in range(k):
             block = W[2 * c: 2 * c + 2, 2 * c: 2 * c + 2]
             lam = float(np.linalg.eigvalsh(0.5 * (block + block.T))[-1])
-            steps[c] = 1.0 / lam if lam > 0 else self._mass[self.ground._free_index[self._nodes[c]]]
+            steps[c] = 1.0 / lam if lam > 0 else self._meff[c]
         for _ in range(_LOCAL_SWEEPS):
             moved = 0.0
             for c in range(k):
                 sl = slice(2 * c, 2 * c + 2)
                 u = vt[sl] + W[sl] @ (g - base)
-                bound = mu * max(float(yn[c] + Y[c] @ (g - base)), 0.0)
+                bound = mu[c] * max(float(yn[c] + Y[c] @ (g - base)), 0.0)
                 trial = g[sl] - steps[c] * u
                 size = float(np.hypot(*trial))
                 new = trial * min(1.0, bound / size) if size > 0 else trial
@@ -504,11 +626,11 @@ class FrictionalSolver:
         f = friction[:, :2]
         trial = f - mass[:, None] * vt
         size = np.sqrt(np.einsum("ij,ij->i", trial, trial))
-        projected = trial * np.minimum(1.0, self.ground.mu * yn / np.maximum(size, 1e-300))[:, None]
+        projected = trial * np.minimum(1.0, self._mu * yn / np.maximum(size, 1e-300))[:, None]
         residual = np.sqrt(np.einsum("ij,ij->i", f - projected, f - projected))
-        inside = np.sqrt(np.einsum("ij,ij->i", f, f)) <= self.ground.mu * yn + 2.0 * tol
+        inside = np.sqrt(np.einsum("ij,ij->i", f, f)) <= self._mu * yn + 2.0 * tol
         bad = (residual > 2.0 * tol) | ~inside
         if bad.any():
             raise FrictionError(self.name, "inaccurate output",
-                                f"{int(bad.sum())} ground contacts miss the Coulomb law by up to "
+                                f"{int(bad.sum())} contacts miss the Coulomb law by up to "
                                 f"{float(residual.max()):.3g} N*s (tolerance {2.0 * tol:.3g} N*s)")

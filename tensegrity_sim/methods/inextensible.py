@@ -69,7 +69,9 @@ event instead, located inside the step and resolved where it happens:
 **Ground** (a scene with a ``ground``; ``methods/friction.py``): the backend is wrapped so that every
 QP above also carries the ground's contact rows (normal rows with the same landing targets and caps as
 the cables', Coulomb friction by a mode fixed point); a node reaching the ground is an event located
-like a snap, and the impact at its start is one inelastic impact with the snapping cables.
+like a snap, and the impact at its start is one inelastic impact with the snapping cables. A member
+contact response (``contact: response: true``) adds the member pairs' rows the same way
+(``methods/member_contact.py``).
 
 **Prestress.** A scene written for elastic cables has them longer than their rest lengths by
 ``tension / k``. The method takes each cable's length limit as its rest length plus that stretch at load
@@ -93,7 +95,7 @@ import numpy as np
 from ..system import System
 from . import _inextensible_kernels as kernels
 from .base import MethodStep, State, StepMethod
-from .friction import GroundResponse
+from .friction import ContactSet
 from .qp import QPError, Rows, choose_solver, make_solver
 from .rigid import RigidStruts
 from .self_stress import TAUT_TOL, SelfStress, reference_tensions
@@ -159,8 +161,10 @@ class InextensibleMethod(StepMethod):
         # the backend: named, or chosen by size (dense DAQP for small structures, sparse for large ones)
         self.solver_choice = f"{solver}: requested" if solver else choose_solver(int(free.sum()))[1]
         self.solver = make_solver(solver, system.masses[free])
-        # a ground adds its contact rows to every QP (methods/friction.py), through the same interface
-        self.ground = None if scene.ground is None else GroundResponse(system, self.solver)
+        # a ground or a member contact response adds its contact rows to every QP (methods/friction.py),
+        # through the same interface
+        self.ground = (None if scene.ground is None and not scene.contact_response.response
+                       else ContactSet(system, self.solver))
         if self.ground is not None:
             self.solver = self.ground.solver
         # The member table of the QP rows: the rigid struts that move (equalities), then every cable.
@@ -302,10 +306,12 @@ class InextensibleMethod(StepMethod):
         self._holding = self._hint = holding
         self._applied = applied
         end_length = self._cable_geometry(x)[1]   # cached if the self-stress rule computed it
-        contact = None if self.ground is None else self.ground.take_impulses()
+        contact = pairs = None
+        if self.ground is not None:
+            contact, pairs = self.ground.take_impulses(), self.ground.take_pair_impulses()
         # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
         slack = (end_length < taut) & ~(impulses > 0)
-        return MethodStep(x, v, impulses, slack, contact)
+        return MethodStep(x, v, impulses, slack, contact, pairs)
 
     def _motor_limits_reference(self, commanded):
         """The numpy reference of ``_inextensible_kernels.motor_limits`` for the ``commanded`` rest

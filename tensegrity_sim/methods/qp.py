@@ -70,19 +70,30 @@ class Rows:
     directions: (k, 3) unit vectors ``n_i`` (from end a to end b).
     targets: (k,) m/s, the right-hand sides ``r``.
     n_eq: how many leading rows are equalities.
+    weights: None for member rows (entries ``-n_i`` at ``nodes[:, 0]``, ``+n_i`` at ``nodes[:, 1]``: the
+    compiled kernels' fast path), or (k, m) for general rows, such as a contact between two members whose
+    rate is that of a point inside each: ``nodes`` is then (k, m) (-1: no node) and the row is
+    ``sum_j weights[i, j] n_i . v[nodes[i, j]]``.
     """
 
     nodes: np.ndarray
     directions: np.ndarray
     targets: np.ndarray
     n_eq: int
+    weights: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.targets)
 
     def _columns(self, n_free: int) -> np.ndarray:
-        """(k, 2, 3) column of each entry; a fixed end's entries go to a scratch block ``n_free``."""
+        """(k, m, 3) column of each entry; a fixed end's entries go to a scratch block ``n_free``."""
         return 3 * np.where(self.nodes < 0, n_free, self.nodes)[:, :, None] + np.arange(3)
+
+    def _entries(self) -> np.ndarray:
+        """(k, m, 3) the row's entry at each of its nodes."""
+        if self.weights is None:
+            return np.stack([-self.directions, self.directions], axis=1)
+        return self.weights[:, :, None] * self.directions[:, None, :]
 
     def dense(self, n_free: int) -> np.ndarray:
         """The (k, 3 n_free) matrix ``A``."""
@@ -90,25 +101,39 @@ class Rows:
         a = np.zeros((k, 3 * n_free + 3))
         cols = self._columns(n_free)
         row = np.arange(k)[:, None]
-        a[row, cols[:, 0]] = -self.directions
-        a[row, cols[:, 1]] = self.directions
+        if self.weights is None:
+            a[row, cols[:, 0]] = -self.directions
+            a[row, cols[:, 1]] = self.directions
+        else:   # summed: a row may hold one node twice (a padding -1, or both ends of a member fixed)
+            np.add.at(a, (np.repeat(row, cols.shape[1] * 3, axis=1), cols.reshape(k, -1)),
+                      self._entries().reshape(k, -1))
         return np.ascontiguousarray(a[:, :-3])
 
     def sparse(self, n_free: int):
-        """``A`` as a scipy CSR matrix that stores all six entries of every row, even exact zeros, so
-        its pattern depends only on which members the rows are."""
+        """``A`` as a scipy CSR matrix that stores all entries of every row (six for member rows), even
+        exact zeros, so its pattern depends only on which members the rows are."""
         import scipy.sparse as sp
         k = len(self.targets)
-        cols = self._columns(n_free).reshape(k, 6)
-        vals = np.concatenate([-self.directions, self.directions], axis=1)
+        cols = self._columns(n_free).reshape(k, -1)
+        vals = self._entries().reshape(k, -1)
         keep = cols < 3 * n_free
         indptr = np.concatenate([[0], np.cumsum(keep.sum(axis=1))])
-        return sp.csr_matrix((vals[keep], cols[keep], indptr), shape=(k, 3 * n_free))
+        a = sp.csr_matrix((vals[keep], cols[keep], indptr), shape=(k, 3 * n_free))
+        if self.weights is not None:
+            a.sum_duplicates()
+        return a
 
     def rates(self, v: np.ndarray) -> np.ndarray:
         """``A v`` (k,) m/s for velocities ``v`` (n_free, 3) of the free nodes."""
         vv = np.vstack([v, np.zeros((1, 3))])
-        return np.einsum("ij,ij->i", vv[self.nodes[:, 1]] - vv[self.nodes[:, 0]], self.directions)
+        if self.weights is None:
+            return np.einsum("ij,ij->i", vv[self.nodes[:, 1]] - vv[self.nodes[:, 0]], self.directions)
+        return np.einsum("ij,ij->i", np.einsum("ij,ijk->ik", self.weights, vv[self.nodes]), self.directions)
+
+    def subset(self, index: np.ndarray, targets: np.ndarray, n_eq: int) -> "Rows":
+        """The rows ``index`` with ``targets`` and ``n_eq`` equalities."""
+        weights = None if self.weights is None else self.weights[index]
+        return Rows(self.nodes[index], self.directions[index], targets, n_eq, weights)
 
 
 class QPError(StepError):
@@ -155,7 +180,7 @@ class QPSolver:
             raise QPError(self.name, "non-finite", "the solution contains NaN or inf")
         if not self.verify:
             return
-        if self.compiled:
+        if self.compiled and rows.weights is None:
             residuals = kernels.answer_residuals(v, y, v0, rows.nodes, rows.directions, rows.targets, rows.n_eq,
                                                  self.mass, _FEASIBILITY_TOL)
         else:
@@ -223,7 +248,7 @@ class DaqpSolver(QPSolver):
         lower[:n_eq] = r[:n_eq]
         sense = np.zeros(k, dtype=np.int32) if warm is None else warm.astype(np.int32)   # 1: start active
         sense[:n_eq] = 5
-        if self.compiled:
+        if self.compiled and rows.weights is None:
             a_scaled = kernels.dense_rows(rows.nodes, rows.directions, self.n_free, self._sqrt_mass)
         else:
             a_scaled = rows.dense(self.n_free) / self._sqrt_mass
@@ -429,7 +454,7 @@ class SparseSolver(QPSolver):
         super().__init__(mass)
         self._splu = splu
         self.fallback = DaqpSolver(mass)
-        self._factor = None   # (nodes, directions, A_G, SuperLU factor) of the last guess
+        self._factor = None   # (nodes, directions, weights, A_G, A_G^T, diag W_GG, SuperLU factor) of the last guess
         self.counts = {"guessed": 0, "daqp": 0}
 
     @property
@@ -460,10 +485,12 @@ class SparseSolver(QPSolver):
         """``A_G`` (CSR), ``A_G^T`` (CSC), the diagonal of ``W_GG`` and its SuperLU factor (None if
         ``W_GG`` is exactly singular), reused while the guessed rows are the same members."""
         nodes, directions = rows.nodes[guess], rows.directions[guess]
+        weights = None if rows.weights is None else rows.weights[guess]
         cached = self._factor
-        if cached is not None and np.array_equal(cached[0], nodes) and np.array_equal(cached[1], directions):
-            return cached[2:]
-        a = Rows(nodes, directions, rows.targets[guess], 0).sparse(self.n_free)
+        if (cached is not None and np.array_equal(cached[0], nodes) and np.array_equal(cached[1], directions)
+                and (weights is None) == (cached[2] is None) and (weights is None or np.array_equal(cached[2], weights))):
+            return cached[3:]
+        a = rows.subset(guess, rows.targets[guess], 0).sparse(self.n_free)
         scaled = a.copy()
         scaled.data *= self.inv_mass[a.indices]
         w = scaled @ a.T   # CSR; symmetric, so its transpose is the same matrix in CSC, as SuperLU wants
@@ -472,8 +499,8 @@ class SparseSolver(QPSolver):
                             options={"SymmetricMode": True})
         except RuntimeError:   # exactly singular
             lu = None
-        self._factor = (nodes, directions, a, a.T, w.diagonal(), lu)
-        return self._factor[2:]
+        self._factor = (nodes, directions, weights, a, a.T, w.diagonal(), lu)
+        return self._factor[3:]
 
     def _attempt(self, v0, rows: Rows, active: np.ndarray):
         """The solution of guess ``active`` (k,) bool: ``(v, y, None)`` if it solves the QP; else

@@ -1,0 +1,181 @@
+"""Member-member contact response (issue 11, ``contact: response: true``), both methods: closed forms of
+plastic and elastic impacts between rigid struts, conservation of momentum, Coulomb friction between
+members, and no energy from a contact and a cable snap in the same step."""
+import numpy as np
+import pytest
+
+import tensegrity_sim as ts
+from tensegrity_sim.contact import contact_geometry
+
+METHODS = ["inextensible", "elastic"]
+G = 9.81
+R = 0.01   # m, both struts' radius
+
+
+def crossing(xc=0.25, v=1.0, e=0.0, mu=0.0, z=0.05, gravity=0.0, fixed_a=False, vx=0.0, cable=False):
+    """Rigid strut A (1 m along x, 1 kg per end) at rest at z = 0 and rigid strut B (1 m along y, 1 kg per
+    end) above it at height ``z``, crossing it at x = ``xc``, moving at ``v`` down onto it (and ``vx``
+    along x). ``cable``: A is a taut cable (stiff, for the elastic method) instead of a strut."""
+    a = {"mass": 1.0, "fixed": True} if fixed_a else {"mass": 1.0}
+    members = {"struts": [{"name": "A", "nodes": ["a0", "a1"], "stiffness": "rigid", "radius": R},
+                          {"name": "B", "nodes": ["b0", "b1"], "stiffness": "rigid", "radius": R}]}
+    if cable:
+        members = {"struts": members["struts"][1:],
+                   "cables": [{"name": "A", "nodes": ["a0", "a1"], "rest_length": 1.0, "stiffness": 1e4, "radius": R}]}
+    return ts.Scene.from_dict({
+        "gravity": [0, 0, -gravity],
+        "contact": {"kinds": ["strut_cable" if cable else "strut_strut"], "response": True, "friction": mu,
+                    "restitution": e},
+        "nodes": [{"name": "a0", "position": [-0.5, 0, 0], **a},
+                  {"name": "a1", "position": [0.5, 0, 0], **a},
+                  {"name": "b0", "position": [xc, -0.5, z], "mass": 1.0, "velocity": [vx, 0, -v]},
+                  {"name": "b1", "position": [xc, 0.5, z], "mass": 1.0, "velocity": [vx, 0, -v]}],
+        **members})
+
+
+def gap(x):
+    return float(contact_geometry(x[None, :4], np.array([2 * R]))[3][0])
+
+
+def plastic(xc, v=1.0, e=0.0):
+    """Closed form of B (translating at v) striking A (at rest) at A's point xc, B's middle: impulse
+    P = (1 + e) v / (1/m_A(xc) + 1/m_B) with m_B = 2 kg and 1/m_A = 1/2 + xc^2 / I, I = 0.5 kg m^2. Returns
+    the z velocities of a0, a1 (A's centre -P/2, turning at -P xc / I) and of B's ends (-v + P/2)."""
+    p = (1.0 + e) * v / (0.5 + xc * xc / 0.5 + 0.5)
+    turn = -p * xc / 0.5
+    return np.array([-p / 2 - 0.5 * turn, -p / 2 + 0.5 * turn, -v + p / 2, -v + p / 2]), p
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("xc, cable", [(0.0, False), (0.25, False), (0.25, True)])
+def test_plastic_impact_of_crossing_struts(method, xc, cable):
+    """B falls onto A; the gap closes at t = 30 ms, at a step's end. The impact is plastic (restitution 0):
+    right after it the two contact points move together, at the closed form's velocities (to round-off
+    when B strikes A's middle, where nothing turns; off the middle A turns during the rest of the step
+    and its contact geometry with it, by omega h = 1e-3 rad: 1e-5 m/s), its impulse is the closed form's,
+    no strut passes through the other, and linear momentum is conserved to 1e-9 throughout. A taut cable
+    in A's place (strut_cable) takes the same impulse: across it, its two end masses respond to a blow at
+    s as a rigid strut's do, 1/m = (1 - s)^2 / m_0 + s^2 / m_1 = 1/2 + xc^2 / I."""
+    sim = ts.Simulator(crossing(xc, cable=cable), method=method, dt=1e-3)
+    # the pair is (strut, cable) in the cable's case: the normal from B to A, the impulse on A
+    members, up = (("B", "A"), -1.0) if cable else (("A", "B"), 1.0)
+    expected, impulse = plastic(xc)
+    momentum = sim.velocities.sum(axis=0)
+    after, lowest, begins = None, np.inf, []
+    for i in range(80):
+        r = sim.step()
+        lowest = min(lowest, gap(r.positions))
+        np.testing.assert_allclose(r.velocities.sum(axis=0), momentum, rtol=0, atol=1e-9)
+        begins += [c for c in r.contacts if c.kind == "begin"]
+        if after is None and r.velocities[0, 2] != 0.0:
+            after = r.velocities[:, 2]
+            active = sim.active_contacts()
+    tol = 1e-12 if xc == 0.0 else 1e-5
+    np.testing.assert_allclose(after, expected, rtol=0, atol=tol)
+    # the contact carries its impulse (on B, along the normal from A to B, +z) and no friction
+    assert [c.members for c in active] == [members]
+    assert active[0].normal_impulse == pytest.approx(impulse, abs=2 * tol)
+    np.testing.assert_allclose(active[0].normal, [0, 0, up], atol=1e-3)   # A turned by omega h
+    assert np.abs(active[0].tangential_impulse).max() <= 1e-12
+    assert len(begins) == 1 and begins[0].members == members
+    assert begins[0].time == pytest.approx(0.03, abs=1e-12)
+    assert lowest >= -3e-9   # TOUCH_TOL and the turning pair's drift (methods/member_contact.py)
+    # the struts go on together: B's middle stays on A
+    assert abs(gap(r.positions)) <= 3e-9
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_impact_with_restitution_reverses_the_closing_speed(method):
+    """Newton's law at B striking A's middle with e = 0.5: P = (1 + e) v / (1/2 + 1/2) = 1.5 N*s, so B
+    leaves at -0.25 m/s and A at -0.75 m/s (separating at e v = 0.5 m/s); kinetic energy lost
+    (1 - e^2) v^2 m_red / 2 = 0.375 J of 1 J."""
+    sim = ts.Simulator(crossing(0.0, e=0.5, z=0.0505), method=method, dt=1e-3)
+    for _ in range(60):
+        r = sim.step()
+    np.testing.assert_allclose(r.velocities[:, 2], [-0.75, -0.75, -0.25, -0.25], rtol=0, atol=1e-12)
+    assert sim.energy()["kinetic"] == pytest.approx(0.625, abs=1e-12)
+    assert gap(r.positions) > 0.0
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_strut_sliding_across_a_fixed_strut_stops_at_the_closed_form(method):
+    """B lies across the fixed strut A (touching it at B's middle, gap 0) under gravity and slides along A
+    at v0 = 1 m/s with member friction mu = 0.4: the Coulomb disc in the contact's tangent plane
+    decelerates it at mu g, so it stops after v0^2 / (2 mu g) at t = v0 / (mu g), then stays (1 %)."""
+    mu, v0 = 0.4, 1.0
+    sim = ts.Simulator(crossing(0.0, v=0.0, mu=mu, z=2 * R, gravity=G, fixed_a=True, vx=v0), method=method,
+                       dt=1e-3)
+    x0 = sim.positions[2, 0]
+    stopped = None
+    for i in range(400):
+        r = sim.step()
+        if stopped is None and abs(r.velocities[2, 0]) < 1e-12:
+            stopped = (i + 1) * 1e-3
+        assert abs(r.positions[2, 2] - 2 * R) <= 1e-6
+    assert stopped == pytest.approx(v0 / (mu * G), rel=0.01)
+    assert r.positions[2, 0] - x0 == pytest.approx(v0 ** 2 / (2 * mu * G), rel=0.01)
+    assert np.abs(r.velocities).max() <= 1e-9
+
+
+def test_contact_and_snap_in_the_same_step_create_no_energy():
+    """B falls onto the fixed strut A (moved to y = -0.25: it meets B a quarter along it, near b0) while the
+    slack cable from b1 to a fixed anchor above goes taut at the same instant (t = 30 ms): one inelastic
+    impact with the contact row and the cable row. Its closed form: both rows are needed (the contact alone
+    would leave B turning about it, b1 still falling), and their least-energy answer stops B dead: 1 J of
+    kinetic energy lost, all at once, none ever gained."""
+    raw = crossing(0.0, fixed_a=True).to_dict()
+    for node in raw["nodes"][:2]:
+        node["position"][1] = -0.25
+    raw["nodes"].append({"name": "anchor", "position": [0.0, 0.5, 1.0], "fixed": True})
+    raw["cables"] = [{"name": "c", "nodes": ["b1", "anchor"], "rest_length": 1.0 - 0.05 + 0.03}]
+    sim = ts.Simulator(ts.Scene.from_dict(raw), method="inextensible", dt=1e-3)
+    energy = [sim.energy()["total"]]
+    impact = None
+    for i in range(60):
+        r = sim.step()
+        energy.append(sim.energy()["total"])
+        if impact is None and r.impulses[0] > 0:
+            impact = r
+    assert np.diff(energy).max() <= 1e-15
+    assert energy[-1] <= 1e-20
+    assert np.abs(impact.velocities).max() <= 1e-12
+    assert impact.time == pytest.approx(0.031)   # located at 30 ms, resolved at the next step's start
+    # stopping both ends: b0 takes 3/4 of the contact's impulse P_c (so P_c = 4/3 N*s), b1 1/4 of it and
+    # the cable's P = 1 - P_c / 4 = 2/3 N*s
+    assert impact.impulses[0] == pytest.approx(2.0 / 3.0, rel=1e-9)
+    assert gap(r.positions) >= -1e-9
+
+
+def test_scene_round_trips_the_response():
+    scene = crossing(0.25, e=0.3, mu=0.2)
+    assert scene.contact_response == ts.scene.ContactResponse(True, 0.2, 0.3)
+    assert ts.Scene.from_dict(scene.to_dict()) == scene
+
+
+def test_switching_detection_off_under_a_response_is_refused():
+    with pytest.raises(ValueError, match=r"^contacts: the scene's contact response \(contact: response: true\) "
+                                         r"needs member kinds to check \(without them members would pass through each other\)$"):
+        ts.Simulator(crossing(), contacts=[])
+
+
+def test_compiled_rows_match_the_reference_with_member_contacts():
+    """The inextensible method's compiled row bookkeeping beside general contact rows (which its backend
+    builds and checks with the numpy reference) against the numpy reference throughout: a tumbling strut B
+    dropped across A under gravity, A's ends hanging from fixed anchors by cables, to 1e-12."""
+    raw = crossing(0.2, v=0.3, mu=0.3, gravity=G).to_dict()
+    raw["nodes"][2]["velocity"] = [0.1, 0.0, -0.5]
+    raw["nodes"] += [{"name": "p0", "position": [-0.5, 0, 0.5], "fixed": True},
+                     {"name": "p1", "position": [0.5, 0, 0.5], "fixed": True}]
+    raw["cables"] = [{"name": "c0", "nodes": ["a0", "p0"], "rest_length": 0.5},
+                     {"name": "c1", "nodes": ["a1", "p1"], "rest_length": 0.5}]
+    scene = ts.Scene.from_dict(raw)
+    compiled = ts.Simulator(scene, method="inextensible", dt=1e-3)
+    reference = ts.Simulator(scene, method="inextensible", dt=1e-3)
+    reference._method.compiled = False
+    touched = 0
+    for k in range(150):
+        a, b = compiled.step(), reference.step()
+        for name in ("positions", "velocities", "impulses"):
+            np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=0, atol=1e-12, err_msg=f"{name} {k}")
+        touched += bool(compiled.active_contacts())
+    assert touched > 50
