@@ -124,6 +124,19 @@ def test_point_mass_bounces_to_e_squared_h(method, e):
         assert abs(begins[0].normal_impulse - (1 + e) * G * impact) <= 0.01 * (1 + e) * G * impact
 
 
+@pytest.mark.parametrize("method", METHODS)
+def test_a_fixed_node_beside_the_ground_leaves_a_bounce_unchanged(method):
+    """A fixed node (a support, here above the ground with a slack cable to the ball) never touches the
+    ground: the ball bounces exactly as it does alone (the gaps are the free nodes' only)."""
+    ball = {"name": "p", "position": [0, 0, 1.0], "mass": 1.0}
+    alone = {"gravity": [0, 0, -G], "ground": {"friction": 0.5, "restitution": 0.5}, "nodes": [ball]}
+    tied = dict(alone, nodes=[ball, {"name": "post", "position": [0.0, 0.0, 0.5], "fixed": True}],
+                cables=[{"name": "c", "nodes": ["post", "p"], "stiffness": 100.0, "rest_length": 2.0}])
+    runs = [ts.Simulator(ts.Scene.from_dict(d), method=method, dt=1e-3).run(duration=1.0) for d in (alone, tied)]
+    assert np.array_equal(runs[0].positions[:, 0], runs[1].positions[:, 0])
+    assert abs(runs[1].positions[:, 0, 2][runs[1].time > np.sqrt(2.0 / G) + 2e-3].max() - 0.25) <= 1e-3
+
+
 def dropped(lift=0.3, damping=0.0, spin=1.0):
     """icosahedron_ground lifted by ``lift`` m, spinning at ``spin`` rad/s about z."""
     raw = ts.load_scene("icosahedron_ground").to_dict()
