@@ -59,8 +59,11 @@ def _pair(scene, dt):
     return compiled, reference
 
 
-def _close(a, b, what):
-    scale = max(float(np.max(np.abs(b), initial=0.0)), 1.0)
+def _close(a, b, what, scale=1.0):
+    """``a`` equals ``b`` to TOL of the largest of ``|b|``, 1 and ``scale`` (the size of the numbers the
+    result was computed from, where that is larger: the same arithmetic in another order differs by
+    round-off of those)."""
+    scale = max(float(np.max(np.abs(b), initial=0.0)), scale)
     assert np.max(np.abs(a - b), initial=0.0) <= TOL * scale, what
 
 
@@ -316,6 +319,19 @@ INEXTENSIBLE = ["sling", "two_masses", "chain", "chain_sparse", "pendulum", "rig
                 "icosahedron", "tower", "hanging_chain_sparse"]
 
 
+def _largest_multipliers(sim) -> list:
+    """A one-element list that holds the largest QP multiplier (N*s) the self-stress rule of ``sim`` is
+    given to publish from, since it was last set to 0."""
+    rule, largest = sim._method.self_stress, [0.0]
+    publish = rule.impulses
+
+    def recorded(rows, cables, at_limit, y, tau):
+        largest[0] = max(largest[0], float(np.max(np.abs(y), initial=0.0)))
+        return publish(rows, cables, at_limit, y, tau)
+    rule.impulses = recorded
+    return largest
+
+
 @pytest.mark.parametrize("name", INEXTENSIBLE)
 def test_inextensible_step_matches_reference(name):
     """Rows, targets, landing and the answer check compiled against the numpy reference, with the same
@@ -328,14 +344,18 @@ def test_inextensible_step_matches_reference(name):
         reference = ts.Simulator(scene, method="inextensible", dt=dt, solver=solver)
     reference._method.compiled = False
     assert compiled._method.compiled and not reference._method.solver.compiled
+    multipliers = _largest_multipliers(reference)
     for k in range(steps):
         if k == steps // 2 and name != "rigid_prism":   # a commanded shortening (the rigid prism is locked)
             for sim in (compiled, reference):
                 sim.set_rest_lengths(sim.rest_lengths * 0.999)
+        multipliers[0] = 0.0
         a, b = compiled.step(), reference.step()
         _close(a.positions, b.positions, f"positions, step {k}")
         _close(a.velocities, b.velocities, f"velocities, step {k}")
-        _close(a.impulses, b.impulses, f"impulses, step {k}")
+        # a locked structure's impulses are published from the QP's multipliers (2e10 N*s on the reeled-in
+        # icosahedron): numpy's products and the kernel's differ by round-off of those (numpy 1.26 here)
+        _close(a.impulses, b.impulses, f"impulses, step {k}", multipliers[0])
         assert np.array_equal(a.slack, b.slack), f"slack, step {k}"
 
 
@@ -403,7 +423,7 @@ def test_self_stress_rule_matches_reference(name):
     def both(rows, cables, at_limit, y, tau):
         fast = rule._impulses_compiled(rows, cables, at_limit, y, tau)
         slow = rule._impulses_reference(rows, cables, at_limit, y, tau)
-        _close(fast, slow, f"published impulses, call {calls['compared']}")
+        _close(fast, slow, f"published impulses, call {calls['compared']}", float(np.abs(y).max(initial=0.0)))
         calls["compared"] += 1
         calls["refined"] += refined(rows.nodes, rows.directions, rule.n_free, rows.n_eq, cables, at_limit, y,
                                     rule._load_basis, rule._load_cables, rule._load_largest, True, RANK_TOL,
