@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._elastic_kernels import _step
+from ._elastic_kernels import _step, keep
 from .composition import _FLOW_ITER, _POLY_ITER, LOCATE_TOL, MAX_SWITCHES
 
 __all__ = ["composed_steps"]
@@ -229,15 +229,7 @@ def composed_steps(x, v, rest, ext, h, n_steps, every, weights, locate, min_spli
             for ci in range(nc):
                 total[ci] += imp[ci]
             if (s + 1) % every == 0 or s == n_steps - 1:
-                k = s // every
-                for i in range(n_nodes):
-                    for j in range(3):
-                        out_x[k, i, j, b] = wx[i, j, 0]
-                        out_v[k, i, j, b] = wv[i, j, 0]
-                for ci in range(nc):
-                    out_impulses[k, ci, b] = total[ci]
-                    out_slack[k, ci, b] = wslack[ci]
-                    total[ci] = 0.0
+                keep(wx, wv, 0, total, wslack, s // every, b, out_x, out_v, out_impulses, out_slack)
         for i in range(n_nodes):
             for j in range(3):
                 x[i, j, b] = wx[i, j, 0]

@@ -46,7 +46,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-__all__ = ["ElasticModel", "model_arrays", "elastic_forces", "elastic_steps", "elastic_steps_copies", "verlet_step"]
+__all__ = ["ElasticModel", "model_arrays", "elastic_forces", "elastic_steps", "elastic_steps_copies", "keep", "verlet_step"]
 
 
 class ElasticModel(NamedTuple):
@@ -264,6 +264,21 @@ def verlet_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping,
 
 
 @njit(cache=True)
+def keep(x, v, c, total, slack, k, b, out_x, out_v, out_impulses, out_slack):
+    """Write copy ``c`` of ``x``, ``v`` (N, 3, .) and the step's ``total`` impulses (nc,) N*s and ``slack``
+    (nc,) as kept step ``k`` of copy ``b`` of the outputs (see :func:`elastic_steps`); ``total`` restarts
+    at 0."""
+    for i in range(x.shape[0]):
+        for j in range(3):
+            out_x[k, i, j, b] = x[i, j, c]
+            out_v[k, i, j, b] = v[i, j, c]
+    for ci in range(total.shape[0]):
+        out_impulses[k, ci, b] = total[ci]
+        out_slack[k, ci, b] = slack[ci]
+        total[ci] = 0.0
+
+
+@njit(cache=True)
 def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
                   gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
                   out_x, out_v, out_impulses, out_slack):
@@ -290,15 +305,7 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
             for ci in range(nc):
                 total[ci] += imp[ci]
             if (s + 1) % every == 0 or s == n_steps - 1:
-                k = s // every
-                for i in range(n_nodes):
-                    for j in range(3):
-                        out_x[k, i, j, b] = x[i, j, b]
-                        out_v[k, i, j, b] = v[i, j, b]
-                for ci in range(nc):
-                    out_impulses[k, ci, b] = total[ci]
-                    out_slack[k, ci, b] = sl[ci]
-                    total[ci] = 0.0
+                keep(x, v, b, total, sl, s // every, b, out_x, out_v, out_impulses, out_slack)
 
 
 # ---------------------------------------------------------------------------------------------------------
