@@ -93,61 +93,77 @@ def _clock_calls(obj, name: str, spent: dict) -> None:
     setattr(obj, name, timed)
 
 
-def tower_rows(stages, repeats: int, budget: float) -> list[dict]:
+def tower_rows(stages, repeats: int, budget: float, velocities=(0.0, 0.05), rules=("default",)) -> list[dict]:
     """Steady and after-a-command cost per step of the inextensible method on towers, at rest and moving,
     and the shares of the steady cost spent in the QP backend (``qp_share``) and in publishing the
-    impulses of rows that carry a self-stress (``publish_share``, ``methods/self_stress.py``)."""
+    impulses of rows that carry a self-stress (``publish_share``, ``methods/self_stress.py``).
+    ``rules``: the self-stress rule's paths to time, taking turns block by block on twin simulators:
+    ``default`` (the path the size picks), ``dense`` or ``sparse`` (forced); ``sparse_share`` is the
+    share of the rule's calls its sparse path answered."""
     rows = []
     for n in stages:
-        for velocity in (0.0, 0.05):
+        for velocity in velocities:
             scene = agitated(tower_scene(n), velocity)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", ts.LengthOffsetWarning)
-                sim = ts.Simulator(scene, method="inextensible", dt=1e-3, contacts=())
-            start = time.process_time()
-            sim.step()                       # the very first step: no hint at all
-            cold = time.process_time() - start
-            for _ in range(10):              # warm-up
-                sim.step()
-            inside = {"solve": 0.0, "impulses": 0.0}
-            _clock_calls(sim._method.solver, "solve", inside)
-            _clock_calls(sim._method.self_stress, "impulses", inside)
-            steady, after, steps = math.inf, math.inf, 0
-            steady_total, steady_inside = 0.0, {"solve": 0.0, "impulses": 0.0}
+            sims, cold = {}, {}
+            for rule in rules:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", ts.LengthOffsetWarning)
+                    sim = ts.Simulator(scene, method="inextensible", dt=1e-3, contacts=())
+                if rule != "default":
+                    sim._method.self_stress.sparse = rule == "sparse"
+                start = time.process_time()
+                sim.step()                       # the very first step: no hint at all
+                cold[rule] = time.process_time() - start
+                for _ in range(10):              # warm-up
+                    sim.step()
+                sims[rule] = sim
+            inside = {rule: {"solve": 0.0, "impulses": 0.0} for rule in rules}
+            for rule, sim in sims.items():
+                _clock_calls(sim._method.solver, "solve", inside[rule])
+                _clock_calls(sim._method.self_stress, "impulses", inside[rule])
+            steady, after = dict.fromkeys(rules, math.inf), dict.fromkeys(rules, math.inf)
+            steady_total = dict.fromkeys(rules, 0.0)
+            steady_inside = {rule: {"solve": 0.0, "impulses": 0.0} for rule in rules}
+            steps = 0
             spent = time.process_time()
             for _ in range(repeats):
-                before = dict(inside)
-                start = time.process_time()
-                for _ in range(5):
+                for rule, sim in sims.items():
+                    before = dict(inside[rule])
+                    start = time.process_time()
+                    for _ in range(5):
+                        sim.step()
+                    block = time.process_time() - start
+                    steady[rule] = min(steady[rule], block / 5)
+                    steady_total[rule] += block
+                    for name in steady_inside[rule]:
+                        steady_inside[rule][name] += inside[rule][name] - before[name]
+                    sim.set_rest_lengths(sim.rest_lengths)   # a command (the same lengths: held)
+                    start = time.process_time()
                     sim.step()
-                block = time.process_time() - start
-                steady = min(steady, block / 5)
-                steady_total += block
-                for name in steady_inside:
-                    steady_inside[name] += inside[name] - before[name]
-                sim.set_rest_lengths(sim.rest_lengths)   # a command (the same lengths: held)
-                start = time.process_time()
-                sim.step()
-                after = min(after, time.process_time() - start)
+                    after[rule] = min(after[rule], time.process_time() - start)
                 steps += 6
                 if time.process_time() - spent > budget:
                     break
-            counts = getattr(sim._method.solver, "counts", None)
-            rows.append({"stages": n, "members": len(scene.struts) + len(scene.cables),
-                         "velocity": velocity, "solver": sim.method_settings["solver"],
-                         "first_ms": 1e3 * cold, "steady_ms": 1e3 * steady, "after_command_ms": 1e3 * after,
-                         "after_over_steady": after / steady,
-                         "qp_share": steady_inside["solve"] / steady_total,
-                         "publish_share": steady_inside["impulses"] / steady_total,
-                         "guessed_share": (counts["guessed"] / max(sum(counts.values()), 1)) if counts else math.nan})
-            print(f"  tower{n} v={velocity}: steady {1e3 * steady:.2f} ms, after a command {1e3 * after:.2f} ms, "
-                  f"first {1e3 * cold:.1f} ms ({steps} steps timed); steady: QP {rows[-1]['qp_share']:.0%}, "
-                  f"self-stress publishing {rows[-1]['publish_share']:.0%}", flush=True)
+            for rule, sim in sims.items():
+                counts = getattr(sim._method.solver, "counts", None)
+                rule_counts = sim._method.self_stress.counts
+                rows.append({"stages": n, "members": len(scene.struts) + len(scene.cables),
+                             "velocity": velocity, "solver": sim.method_settings["solver"], "rule": rule,
+                             "first_ms": 1e3 * cold[rule], "steady_ms": 1e3 * steady[rule],
+                             "after_command_ms": 1e3 * after[rule], "after_over_steady": after[rule] / steady[rule],
+                             "qp_share": steady_inside[rule]["solve"] / steady_total[rule],
+                             "publish_share": steady_inside[rule]["impulses"] / steady_total[rule],
+                             "guessed_share": (counts["guessed"] / max(sum(counts.values()), 1)) if counts else math.nan,
+                             "sparse_share": rule_counts["sparse"] / max(sum(rule_counts.values()), 1)})
+                print(f"  tower{n} v={velocity} rule={rule}: steady {1e3 * steady[rule]:.2f} ms, after a command "
+                      f"{1e3 * after[rule]:.2f} ms, first {1e3 * cold[rule]:.1f} ms ({steps} steps timed); steady: "
+                      f"QP {rows[-1]['qp_share']:.0%}, self-stress publishing {rows[-1]['publish_share']:.0%} "
+                      f"(sparse path {rows[-1]['sparse_share']:.0%} of its calls)", flush=True)
     return rows
 
 
-def exponent(rows, velocity) -> float:
-    pts = [(r["members"], r["steady_ms"]) for r in rows if r["velocity"] == velocity]
+def exponent(rows, velocity, rule="default") -> float:
+    pts = [(r["members"], r["steady_ms"]) for r in rows if r["velocity"] == velocity and r.get("rule", rule) == rule]
     if len(pts) < 2:
         return math.nan
     m, c = map(np.array, zip(*pts))
@@ -160,6 +176,9 @@ def main(argv=None) -> int:
     parser.add_argument("--methods", default="elastic,inextensible", help="icosahedron rows to time")
     parser.add_argument("--stages", default="10,20,30,50,100", help='tower sizes ("": no towers)')
     parser.add_argument("--budget", type=float, default=60.0, help="CPU seconds per tower configuration at most")
+    parser.add_argument("--velocities", default="0,0.05", help="tower node velocity scales (m/s) to time")
+    parser.add_argument("--rules", default="default",
+                        help="self-stress rule paths timed in turns on towers: default, dense, sparse")
     parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results")
     args = parser.parse_args(argv)
     methods = [m for m in args.methods.split(",") if m]
@@ -169,14 +188,19 @@ def main(argv=None) -> int:
               f"{r['peer_us']:>9.2f} us   ratio (peer/ours) {r['ratio']:.2f}", flush=True)
     table = args.out / "head_to_head.csv"
     kept = [r for r in read_csv(table) if r["method"] not in methods] if table.exists() else []
-    write_csv(table, sorted(kept + rows, key=lambda r: r["method"]), list(rows[0]) if rows else None)
+    if kept or rows:
+        write_csv(table, sorted(kept + rows, key=lambda r: r["method"]), list(rows[0]) if rows else None)
     stages = [int(s) for s in args.stages.split(",") if s]
     if not stages:   # --stages "": the icosahedron only
         return 0
-    towers = tower_rows(stages, args.repeats, args.budget)
+    velocities = [float(v) for v in args.velocities.split(",") if v]
+    rules = [r for r in args.rules.split(",") if r]
+    towers = tower_rows(stages, args.repeats, args.budget, velocities, rules)
     write_csv(args.out / "towers_inextensible.csv", towers)
-    for velocity in (0.0, 0.05):
-        print(f"towers v={velocity}: growth exponent of the steady cost {exponent(towers, velocity):.2f}")
+    for velocity in velocities:
+        for rule in rules:
+            print(f"towers v={velocity} rule={rule}: growth exponent of the steady cost "
+                  f"{exponent(towers, velocity, rule):.2f}")
     return 0
 
 

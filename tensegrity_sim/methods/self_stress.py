@@ -65,7 +65,8 @@ from scipy.linalg import LinAlgWarning, lu_factor as _lu_factor, lu_solve as _lu
 from . import _self_stress_kernels as kernels
 from .qp import Rows
 
-__all__ = ["RANK_TOL", "TAUT_TOL", "SelfStress", "reference_tensions", "self_stress_space"]
+__all__ = ["RANK_TOL", "SPARSE_NODES", "TAUT_TOL", "SelfStress", "reference_tensions", "self_stress_space",
+           "sparse_self_stress_space", "SparseSpace"]
 
 # Singular values of A_B^T below RANK_TOL * the largest span the self-stress space. Measured on the
 # thrown icosahedron (bench/prestress_tensions.py): 2e-5 for the self-stress against 0.18 for the next
@@ -79,6 +80,24 @@ RANK_TOL = 1e-3
 TAUT_TOL = 1e-6
 # A basis whose |A^T s| is below _EXACT times the largest singular value is a self-stress to round-off.
 _EXACT = 1e-13
+# From this many free nodes on, the rule runs on sparse matrices (SparseSpace; see the module docstring).
+SPARSE_NODES = 150
+# The sparse path, relative to the largest eigenvalue of A_B^T A_B: the regularisation of the KKT
+# systems' multiplier block (refined away), and the floor below which an eigenvalue is a mechanism's zero
+# (the round-off of a zero eigenvalue of the squared matrix is ~1e-16; a singular value of 1e-6 of the
+# largest is 1e-12 here).
+_SHIFT = 1e-12
+# Up to this many more binding rows than degrees of freedom, the sparse path computes an explicit basis of
+# the self-stress space (sparse_self_stress_space); beyond, it keeps the space implicit (SparseSpace).
+_EXPLICIT = 32
+_GUARD = 8           # the block's columns beyond the space (the iteration converges as the first excluded eigenvalue)
+_BLOCK_ITER = 12
+_RITZ_TOL = 1e-14    # of the largest eigenvalue: a kept Ritz pair's residual |W x - theta x| at convergence
+_REFINEMENTS = 8     # refinements of a KKT solve before the sparse path gives the step to the SVD ...
+# ... unless one moves the answer by less than this, relative: the regularisation's error shrinks by
+# _SHIFT / RANK_TOL^2 = 1e-6 a refinement, and what is left is round-off amplified by the near-null
+# directions (measured: 1e-16 on the towers, 1.3e-13 on the thrown icosahedron, sigma 3e-5 of the largest)
+_REFINE_TOL = 1e-10
 
 
 def reference_tensions(stiffness: np.ndarray, length_offsets: np.ndarray) -> np.ndarray:
@@ -110,13 +129,33 @@ class SelfStress:
     def __init__(self, n_free: int, reference: np.ndarray, rows_at_load: Rows, load_cables: np.ndarray):
         self.n_free = n_free
         self.reference = reference
-        self._load_basis, _, self._load_largest = self_stress_space(rows_at_load.dense(n_free).T)
+        self._rows_at_load = rows_at_load
+        self._load = None     # (basis, largest singular value) of the load time's rows, when first needed
         self._load_members = np.asarray(load_cables).tobytes()
-        self.possible = self._load_basis.shape[1] > 0
+        # more rows than degrees of freedom always carry a self-stress (the SVD pads its zeros): a large
+        # structure needs no dense SVD to know
+        self.possible = len(rows_at_load) > 3 * n_free or self._load_basis.shape[1] > 0
         self.residual = 0.0   # N*s: the largest node impulse dropped with a near-null share (module docstring)
         self.refine = True    # False: an SVD at every step (the reference the refinement must match)
         self.compiled = True  # the rule in one numba kernel (_self_stress_kernels.py); False: the numpy reference
+        # the sparse path (SparseSpace) from SPARSE_NODES free nodes on; False: the dense rule (its reference)
+        self.sparse = n_free >= SPARSE_NODES
+        self.counts = {"sparse": 0, "dense": 0}   # calls of a structure that can lock, by the path that answered
         self._load_cables = np.ascontiguousarray(load_cables, dtype=np.int64)
+
+    @property
+    def _load_basis(self) -> np.ndarray:
+        """The self-stress basis (k_load, d) of the load time's rows (one SVD, on first use)."""
+        if self._load is None:
+            basis, _, largest = self_stress_space(self._rows_at_load.dense(self.n_free).T)
+            self._load = (basis, largest)
+        return self._load[0]
+
+    @property
+    def _load_largest(self) -> float:
+        """The largest singular value of the load time's rows."""
+        self._load_basis   # computes it
+        return self._load[1]
 
     def _space(self, a_t: np.ndarray, members: bytes) -> np.ndarray:
         """The self-stress basis (k, d) of ``a_t`` (3 n_free, k). When the binding rows are all the
@@ -149,9 +188,60 @@ class SelfStress:
         their limit. ``y`` itself (the same array) when the rows carry no self-stress."""
         if not self.possible:
             return y
+        if self.sparse:
+            published = self._impulses_sparse(rows, cables, at_limit, y, tau)
+            if published is not None:
+                self.counts["sparse"] += 1
+                return published
+        self.counts["dense"] += 1
         if self.compiled:
             return self._impulses_compiled(rows, cables, at_limit, y, tau)
         return self._impulses_reference(rows, cables, at_limit, y, tau)
+
+    def _impulses_sparse(self, rows, cables, at_limit, y, tau):
+        """:meth:`impulses` on sparse matrices, or None where the dense rule must answer. Many
+        self-stresses (more than ``_EXPLICIT`` more rows than degrees of freedom: a structure at rest)
+        are first kept implicit (:class:`SparseSpace`), which answers unless a cable would pull (the
+        nonnegative share is a QP over the whole space); otherwise an explicit basis
+        (:func:`sparse_self_stress_space`) goes through the dense rule's own fit (:meth:`_fit`), the
+        nonnegative one included. None where neither resolves the space."""
+        n_eq = rows.n_eq
+        binding = np.concatenate([np.ones(n_eq, dtype=bool), at_limit]) | (y != 0.0)
+        index = np.flatnonzero(binding)
+        a = rows.subset(index, rows.targets[index], 0).sparse(self.n_free)
+        y_b = y[binding]
+        ref = self.reference[cables[binding[n_eq:]]] * tau
+        # an impact's share (tau = 0: no reference to fit) pulled on some cable at every impact of the
+        # moving towers: it goes straight to the explicit basis
+        if tau > 0.0 and len(index) - a.shape[1] > _EXPLICIT:
+            out = self._implicit(a, y_b, ref, n_eq)
+            if out is not None:
+                self.residual = max(self.residual, float(np.max(np.abs(a.T @ (out - y_b)), initial=0.0)))
+                published = y.copy()
+                published[binding] = out
+                return published
+        basis = sparse_self_stress_space(a)
+        if basis is None:
+            return None
+        if not basis.shape[1]:
+            return y
+        return self._fit(basis, y_b - basis @ (basis.T @ y_b), y, binding, a.T, ref, n_eq)
+
+    @staticmethod
+    def _implicit(a, y_b, ref, n_eq):
+        """The published impulses (k_b,) N*s of the binding rows ``a`` with multipliers ``y_b`` through
+        :class:`SparseSpace`, or None (a cable would pull, or the space is not resolved)."""
+        space = SparseSpace.of(a)
+        if space is None:
+            return None
+        share = space.fit(np.ones(len(y_b)), y_b)
+        cable = np.zeros(len(y_b))
+        cable[n_eq:] = 1.0
+        fitted = space.fit(cable, np.concatenate([np.zeros(n_eq), ref]))
+        if share is None or fitted is None:
+            return None
+        out = (y_b - share) + fitted
+        return None if np.any(out[n_eq:] < 0.0) else out
 
     def _impulses_compiled(self, rows, cables, at_limit, y, tau):
         """:meth:`impulses` in the kernels of ``_self_stress_kernels.py`` (see there for what stays numpy)."""
@@ -210,3 +300,117 @@ class SelfStress:
         z, _, flag, _ = daqp.solve(h, f, np.ascontiguousarray(n_c), upper, -dynamic_c,
                                    np.zeros(len(dynamic_c), dtype=np.int32))
         return z if flag >= 1 else alpha
+
+
+def sparse_self_stress_space(a, rank_tol: float = RANK_TOL):
+    """:func:`self_stress_space`'s basis (k, d) for the rows ``a`` (scipy sparse, k x 3 n_free) from sparse
+    matrices: the eigenvectors of ``W = A_B A_B^T`` with eigenvalues below ``rank_tol^2`` times the largest
+    (the squared singular values), by block inverse iteration with a sparse LU of ``W + delta I``
+    (``delta`` = ``_SHIFT`` times the largest) and a Rayleigh-Ritz step each time, on ``_GUARD`` more
+    columns than the space has vectors, until the kept Ritz pairs' residuals are round-off. Single-vector
+    Lanczos (ARPACK's shift-invert) is not used: it cannot resolve the null space's multiplicity (it
+    returned 1-9 vectors that were not self-stresses among 13-49 on a moving 10-stage tower). None
+    when that does not settle within ``_BLOCK_ITER`` iterations or the space outgrows ``_EXPLICIT`` plus
+    the excess of rows over degrees of freedom."""
+    from scipy.sparse import identity
+    from scipy.sparse.linalg import ArpackNoConvergence, eigsh, splu
+    k, n3 = a.shape
+    if k < 3:   # too small for ARPACK (its k < n - 1): the dense SVD of a tiny matrix
+        return self_stress_space(a.T.toarray(), rank_tol)[0]
+    w = (a @ a.T).tocsc()
+    try:
+        largest = float(eigsh(w, k=1, which="LA", v0=np.ones(k), tol=1e-10, return_eigenvectors=False)[0])
+        lu = splu((w + _SHIFT * largest * identity(k)).tocsc(), permc_spec="MMD_AT_PLUS_A")
+    except (ArpackNoConvergence, RuntimeError):
+        return None
+    thr = rank_tol * rank_tol * largest
+    most = max(k - n3, 0) + _EXPLICIT
+    # a fixed start block, so that a replay has the same bits
+    x = np.random.default_rng(0).standard_normal((k, min(max(k - n3, 0) + _GUARD, k)))
+    for _ in range(_BLOCK_ITER):
+        x, _ = np.linalg.qr(lu.solve(x))
+        theta, q = np.linalg.eigh(x.T @ (w @ x))
+        x = x @ q
+        kept = theta < thr
+        if kept.all():   # the block is too small to hold the space and a guard
+            if x.shape[1] >= min(most, k):
+                return None
+            x = np.hstack([x, np.random.default_rng(x.shape[1]).standard_normal((k, _GUARD))])
+            continue
+        residual = np.linalg.norm(w @ x[:, kept] - x[:, kept] * theta[kept], axis=0)
+        if residual.max(initial=0.0) <= _RITZ_TOL * largest:
+            return x[:, kept]
+    return None
+
+
+class SparseSpace:
+    """The self-stress space ``N`` of the rule for rows ``A_B`` (k, 3 n_free), kept implicit: every
+    ``s`` with ``A_B^T s`` in the span of ``U``, where ``U`` (3 n_free, m) holds the eigenvectors of
+    ``G = A_B^T A_B`` whose eigenvalues lie between the mechanisms' zeros and ``RANK_TOL^2`` times the
+    largest (the near-null singular directions ``v = A_B u / sigma``; the exact null space of
+    ``A_B^T`` needs no basis). Built by :meth:`of`; :meth:`fit` is the rule's least squares over ``N``.
+    """
+
+    def __init__(self, a, u: np.ndarray, largest: float):
+        self.a = a.tocsc()
+        self.u = u
+        self.largest = largest      # the largest eigenvalue of G (the squared largest singular value)
+
+    @classmethod
+    def of(cls, a, rank_tol: float = RANK_TOL):
+        """The space of ``a`` (scipy sparse, k x 3 n_free), or None when its spectrum is not resolved
+        here: an eigenvalue of ``G`` between the mechanisms' floor (``_SHIFT``) and 1e2 times it, where
+        a singular value of ~1e-6 of the largest and a mechanism cannot be told apart in ``G``."""
+        from scipy.sparse.linalg import ArpackNoConvergence, eigsh
+        g = (a.T @ a).tocsc()
+        n = g.shape[0]
+        start = np.ones(n)   # ARPACK's start vector: fixed, so that a replay has the same bits
+        try:
+            largest = float(eigsh(g, k=1, which="LA", v0=start, tol=1e-10, return_eigenvectors=False)[0])
+            thr = rank_tol * rank_tol * largest
+            # shift-invert at half the threshold: every eigenvalue in (0, thr) is nearer to the shift than
+            # the mechanisms' zeros and than anything above thr, so the nearest m hold them all as soon
+            # as one of the m is not among them
+            m = 4
+            while True:
+                m = min(m, n - 2)
+                lam, vec = eigsh(g, k=m, sigma=0.5 * thr, which="LM", v0=start, tol=1e-13)
+                band = (lam > _SHIFT * largest) & (lam < thr)
+                if not band.all() or m == n - 2:
+                    break
+                m *= 2
+        except (ArpackNoConvergence, RuntimeError):
+            return None
+        if np.any((lam > 1e-2 * _SHIFT * largest) & (lam <= _SHIFT * largest)):
+            return None
+        return cls(a, np.ascontiguousarray(vec[:, band]), largest)
+
+    def fit(self, weight: np.ndarray, target: np.ndarray):
+        """``s = argmin |W (s - target)|`` over ``s`` in ``N`` (``weight`` (k,) 0 or 1, the diagonal of
+        ``W``, nonzero on every self-stress), by the KKT system of ``min 1/2 |W(s - t)|^2`` s.t.
+        ``A_B^T s = U c``; its multiplier block is regularised by ``_SHIFT`` times the largest
+        eigenvalue (a mechanism makes it singular) and refined on the exact system. None if the
+        refinement does not settle."""
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+        a, u = self.a, self.u
+        k, n3 = a.shape
+        m = u.shape[1]
+        dense_u = sp.csc_matrix(u)
+        exact = sp.bmat([[sp.diags(weight), None, a],
+                         [None, sp.csc_matrix((m, m)), -dense_u.T],
+                         [a.T, -dense_u, sp.csc_matrix((n3, n3))]], format="csc")
+        shifted = exact - sp.diags(np.concatenate([np.zeros(k + m), np.full(n3, _SHIFT * self.largest)]))
+        try:
+            lu = splu(shifted, permc_spec="MMD_AT_PLUS_A")   # 0.7x the time of COLAMD's (tower30)
+        except RuntimeError:   # exactly singular
+            return None
+        b = np.concatenate([weight * target, np.zeros(m + n3)])
+        x = lu.solve(b)
+        size = max(float(np.max(np.abs(target), initial=0.0)), 1e-300)
+        for _ in range(_REFINEMENTS):
+            step = lu.solve(b - exact @ x)
+            x += step
+            if np.max(np.abs(step[:k]), initial=0.0) <= _REFINE_TOL * size:
+                return x[:k]
+        return None
