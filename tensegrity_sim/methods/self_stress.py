@@ -89,9 +89,9 @@ SPARSE_NODES = 150
 _SHIFT = 1e-12
 # Up to this many more binding rows than degrees of freedom, the sparse path computes an explicit basis of
 # the self-stress space (sparse_self_stress_space); beyond, it keeps the space implicit (SparseSpace).
-_EXPLICIT = 32
+_EXPLICIT = 64
 _GUARD = 8           # the block's columns beyond the space (the iteration converges as the first excluded eigenvalue)
-_BLOCK_ITER = 12
+_BLOCK_ITER = 16
 _RITZ_TOL = 1e-14    # of the largest eigenvalue: a kept Ritz pair's residual |W x - theta x| at convergence
 _REFINEMENTS = 8     # refinements of a KKT solve before the sparse path gives the step to the SVD ...
 # ... unless one moves the answer by less than this, relative: the regularisation's error shrinks by
@@ -332,10 +332,11 @@ def sparse_self_stress_space(a, rank_tol: float = RANK_TOL):
         theta, q = np.linalg.eigh(x.T @ (w @ x))
         x = x @ q
         kept = theta < thr
-        if kept.all():   # the block is too small to hold the space and a guard
+        if kept.all():   # the block is too small to hold the space and a guard: twice the columns
             if x.shape[1] >= min(most, k):
                 return None
-            x = np.hstack([x, np.random.default_rng(x.shape[1]).standard_normal((k, _GUARD))])
+            more = min(x.shape[1], most - x.shape[1], k - x.shape[1])
+            x = np.hstack([x, np.random.default_rng(x.shape[1]).standard_normal((k, more))])
             continue
         residual = np.linalg.norm(w @ x[:, kept] - x[:, kept] * theta[kept], axis=0)
         if residual.max(initial=0.0) <= _RITZ_TOL * largest:
