@@ -292,7 +292,8 @@ def test_kept_factorisation_follows_the_directions():
 def test_dual_active_set_is_quadprogs_solution(case):
     """With no hint and one guess, the QPs go to the dual active-set method (Goldfarb-Idnani on a sparse
     factor with Schur-complement updates), whose answer is quadprog's: velocities to 1e-9, and the
-    multipliers too where they are unique (an independent active set). Dependent rows (duplicated
+    multipliers too where they are unique (an independent active set); on by default only from
+    ``DUAL_NODES`` free nodes (measured, qp.py), here forced. Dependent rows (duplicated
     members, four members on three degrees of freedom) are left out of its working set, not passed
     to DAQP: it answers every problem here, larger ones included (quadprog calls 2 of the larger ones
     with duplicated members at mass ratio 1e4 inconsistent: DAQP is their reference)."""
@@ -303,6 +304,8 @@ def test_dual_active_set_is_quadprogs_solution(case):
         except ValueError:
             reference, multipliers = qp.DaqpSolver(mass).solve(v0, rows)
         solver = qp.SparseSolver(mass)
+        assert not solver.dual   # fewer than DUAL_NODES free nodes: DAQP unless asked
+        solver.dual = True
         solver.settings = {**solver.settings, "tries": 1}
         v, y = solver.solve(v0, rows, None)
         assert solver.counts["guessed"] + solver.counts["dual"] == 1, (case, seed, solver.counts)

@@ -54,7 +54,7 @@ from . import _qp_kernels as kernels
 from .base import StepError
 
 __all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SparseSolver", "SOLVERS",
-           "SPARSE_NODES", "choose_solver", "make_solver"]
+           "SPARSE_NODES", "DUAL_NODES", "choose_solver", "make_solver"]
 
 # A returned answer may miss the optimality conditions by at most _FEASIBILITY_TOL relative to the
 # problem's velocity (impulse) scale, plus _VELOCITY_FLOOR m/s, before it is refused.
@@ -375,9 +375,10 @@ class NnlsSolver(QPSolver):
 
 
 class SparseSolver(QPSolver):
-    """Guess and verify, sparse, in front of DAQP: the active set is guessed, the equality-constrained
-    problem of that guess solved exactly with a sparse factorisation, and the answer kept only if it
-    meets every optimality condition of the QP; otherwise DAQP solves the QP.
+    """Guess and verify, sparse, then a sparse dual active-set method, in front of DAQP: the active set
+    is guessed, the equality-constrained problem of that guess solved exactly with a sparse
+    factorisation, and the answer kept only if it meets every optimality condition of the QP; otherwise
+    the dual active-set method (:meth:`_dual_active_set`) solves it, and DAQP only if that fails.
 
     The guess is the hint ``warm`` (the rows active at the end of the previous sub-step). With the
     guessed rows ``G``, the Delassus matrix ``W_GG = A_G M^-1 A_G^T`` (sparse: two rows couple only
@@ -395,13 +396,28 @@ class SparseSolver(QPSolver):
       does to its own member's rate (dual feasibility, independent of the masses' scale).
 
     When a check fails, the guess is corrected by what it found (violated rows in, pulling rows out)
-    and tried again, at most ``tries`` guesses in all; then DAQP, warm-started from the hint. A
-    singular ``W_GG`` (dependent rows: a self-stress among the guessed members, a duplicated cable)
-    goes straight to DAQP, which keeps an independent working set. The factorisation is reused while
-    the guessed rows are the same members in the same directions (the method's repeated solves within
-    a sub-step change only the targets).
+    and tried again, at most ``tries`` guesses in all. A singular ``W_GG`` (dependent rows: a
+    self-stress among the guessed members, a duplicated cable) ends the guessing. The factorisation is
+    reused while the guessed rows are the same members in the same directions (the method's repeated
+    solves within a sub-step change only the targets).
 
-    ``counts`` tallies the QPs answered by a guess and by DAQP.
+    Then, from ``DUAL_NODES`` free nodes (``dual``; below, or False: DAQP, warm-started from the hint),
+    Goldfarb and Idnani's dual method, which keeps an independent working set as DAQP does, on a sparse
+    factor of its ``W_AA`` that a Schur complement updates row by row (:class:`_WorkingSet`); its answer
+    is verified by the same checks as a guess. It is what the towers' QPs needed: the guess's corrections add every violated row at once,
+    which makes the set dependent (a 30-stage tower's QP: 500 rows held, 19 violated, the corrected set
+    singular), so ~30 % of them went to dense DAQP. On the QPs of a moving 30-stage tower that went to
+    DAQP, its velocities are DAQP's to 1e-16 where DAQP meets the constraints, and better where DAQP does
+    not (a row violated by 9.4e-7 m/s in DAQP's answer, 1e-17 in its own, the objective 4e-7 lower);
+    its cost per QP is 0.3x DAQP's warm-started from a good hint (15-40 ms against 50-80 ms) and 1-2x
+    from a poor one (1100-1450 working-set changes on a 50-stage tower, ~0.5 ms each). Tried on top and
+    not kept: starting it from the previous QP's active set, from the hint with the rows that depend on
+    the others removed (pivots of a sparse LU) and the pulling rows dropped one at a time, and keeping
+    the hint across a sub-step cut at a snap (a short sub-step holds few rows, and the next QP adds
+    ~600 rows one by one): each still took ~1000 changes (dropping a row makes others pull), and the
+    step cost the same (1.0-1.1 s on a moving 50-stage tower, separate runs).
+
+    ``counts`` tallies the QPs answered by a guess, by the dual method and by DAQP.
 
     **Replacements tried for issue 10 (moving towers), none kept.** Measured on the moving 10-stage
     tower (random 0.05 m/s node velocities, no gravity, dt = 1 ms, 20 steps, CPU time, contenders
@@ -436,13 +452,13 @@ class SparseSolver(QPSolver):
 
     The tower's QPs are what makes this hard: more cables than degrees of freedom (exact self-stresses,
     e.g. the first stage's top triangle depends on the six cables that tie it to the fixed nodes) and
-    many nearly binding rows. A sparse dual active-set method that keeps its factorisation across
-    working-set changes (what DAQP does densely) is the missing piece; scipy has no sparse factor
-    update, and each change costs a new factorisation here.
+    many nearly binding rows. The dual active-set method above is the piece that was missing (scipy
+    has no sparse factor update: the Schur complement stands in for one, and the base is factorised
+    again every ``_WorkingSet.BORDER`` changes).
     """
 
     name = "sparse"
-    verify = False   # the guess is verified against the optimality conditions above, DAQP is trusted
+    verify = False   # the guess and the dual method are verified by the conditions above, DAQP is trusted
     # tries: 12 rather than 3 on moving towers (random 0.05 m/s node velocities, dt = 1 ms, CPU time per
     # step): 20 stages 203 -> 155 ms (QPs answered by a guess 5% -> 71%), 30 stages 657 -> 421 ms.
     # Regularising W_GG (proximal refinement) and dropping the pulling rows of a dependent guess instead
@@ -457,7 +473,8 @@ class SparseSolver(QPSolver):
         self.fallback = DaqpSolver(mass)
         self._factor = None   # (nodes, directions, weights, A_G, A_G^T, diag W_GG, SuperLU factor) of the last guess
         self._start = None    # (guess, v, y) of the last guess that pulled on no row (see _attempt)
-        self.dual = True      # the dual active-set method between the guess and DAQP (False: straight to DAQP)
+        # the dual active-set method between the guess and DAQP from DUAL_NODES free nodes (False: DAQP)
+        self.dual = self.n_free >= DUAL_NODES
         self.counts = {"guessed": 0, "dual": 0, "daqp": 0}
 
     @property
@@ -748,7 +765,16 @@ SOLVERS: dict[str, type[QPSolver]] = {
 # process, OPENBLAS_NUM_THREADS=1), daqp / sparse: moving (0.05 m/s) 0.22, 0.19, 0.23, 0.65, 0.89 at
 # 3, 15, 27, 57, 87 free nodes (1, 3, 5, 10, 15 stages) and 0.99 at 117 (20 stages); at rest 0.81, 0.49,
 # 0.88, 1.51, 2.44, 2.48. A moving structure pays most for a failing guess: the switch is where they cross.
+# Again with the dual active-set method (``bench/head_to_head.py --configs qp=daqp,qp=sparse``, best of 3
+# x 5 steps): moving 0.15, 0.33, 0.52, 0.83 at 5, 10, 15, 20 stages, at rest 1.0, 1.6, 2.2, 3.2; from 30
+# stages the sparse backend wins moving too (the dual method 2.1x faster than its DAQP fallback at 50
+# stages). The switch stays here, between the moving and the resting crossings.
 SPARSE_NODES = 100
+# From this many free nodes on, the sparse backend's dual active-set method answers what its guess cannot
+# (DAQP below). Measured on moving towers (0.05 m/s, ``bench/head_to_head.py --configs default,main``
+# and the two alone, CPU time per steady step), with / without it: 1.47x at 20 stages (117 free nodes),
+# 0.97-1.0x at 30 (177), 0.47x at 50 (297); at rest the guess answers all but the first QP.
+DUAL_NODES = 150
 
 
 def choose_solver(n_free: int) -> tuple[str, str]:

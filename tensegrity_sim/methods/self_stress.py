@@ -52,6 +52,47 @@ in numpy (see the kernel's module for why); on the rattling rigid prism of
 ``test_inextensible.py::test_free_prestressed_structure_momentum_and_energy`` a step costs 0.64 of what
 it did with the rule all numpy (CPU time, the two taking turns on the loaded 2-core machine).
 
+**Large structures (issue 10).** From ``SPARSE_NODES`` free nodes the rule runs on sparse matrices
+(``SelfStress.sparse``; False: the dense rule above, its reference) and publishes the same impulses by
+other arithmetic; the velocities are the QP's either way, so the trajectory is the same to the bit:
+
+* few self-stresses (a moving structure, and any call a cable would pull on): an explicit basis of
+  ``N`` by :func:`sparse_self_stress_space` (block inverse iteration on ``A_B A_B^T`` with a sparse LU,
+  the eigenvectors below ``RANK_TOL^2`` of its largest eigenvalue, i.e. the same threshold on the same
+  singular values), then the dense rule's own fit (:meth:`SelfStress._fit`, its nonnegative QP
+  included);
+* many (a structure at rest: 114 self-stresses on a 20-stage tower, ~450 on a 50-stage one): the space
+  kept implicit (:class:`SparseSpace`: ``A_B^T s`` in the span of the near-null eigenvectors of
+  ``A_B^T A_B``, two KKT systems by sparse LU), unless a cable would pull (then the explicit basis).
+  The space and its factors are kept while the binding rows are the same to the bit (a structure at
+  rest, also after a command that holds it): a 50-stage tower's step at rest 45 ms -> 4.2 ms.
+
+A call neither resolves goes to the dense rule (counted in ``SelfStress.counts``). Agreement with the
+dense rule, the published impulses over the largest multiplier of a call
+(``test_prestress.py::test_sparse_rule_matches_the_dense``): 4e-13 on the rattling built-in tower, 2e-15
+on the thrown icosahedron and rigid prism, 6e-15 on a 30-stage tower at rest; 1.6e-11 over 44 calls of a
+moving 20-stage tower. One call in 32 of a moving 30-stage tower differed by 2e-8: its nonnegative share
+is DAQP's, at DAQP's default tolerances, in both paths, and the two bases (equal to 1e-12) steer it to
+answers 4e-9 N*s apart; with DAQP's tolerances at 1e-12 the two answers differ by 0.09 N*s (the QP in
+the share is degenerate: 55 unknowns, many more active rows), a limit of the rule's nonnegative fit itself,
+left as it is.
+
+*The threshold.* Singular values at the threshold are ill-defined whichever the path: a 30-stage tower
+at rest has one at 0.95e-3 of the largest, a moving 10-stage tower one at 1.02e-3. The sparse path
+decides on the same singular values, squared (Ritz values converged to 1e-14 of the largest
+eigenvalue, ARPACK's to 1e-13: ~1e-8 relative at the threshold), so it takes the same side unless one
+sits that close to it. The threshold stays ``RANK_TOL``: making it relative to the gap would change the
+dense rule's answers on the built-in scenes, which must keep their bits. The implicit space resolves
+singular values down to ~1e-6 of the largest (``_SHIFT``: in ``A_B^T A_B`` a mechanism's zero and a
+smaller singular value cannot be told apart), and gives a call with an eigenvalue in that blind band to
+the explicit basis (``A_B A_B^T`` has no mechanisms).
+
+*Switch point*, measured (``bench/head_to_head.py --configs rule=dense,rule=sparse``, CPU time per steady
+step, the two taking turns, ``OPENBLAS_NUM_THREADS=1``), dense / sparse: at rest 6.3 / 27.9 ms (15
+stages, 87 free nodes), 3.0 / 43.6 (20 stages, 117), 4.3 / 62.9 (25, 147), 171 / 24 (30, 177: the dense
+rule's refinement fails there, the singular value at 0.95e-3); moving (0.05 m/s) 209 / 183, 458 / 375,
+596 / 586, 824 / 516. Hence ``SPARSE_NODES`` = 150.
+
 **Flags.** A cable is slack when it is shorter than its limit *and* carried no impulse over the step
 (:meth:`~.inextensible.InextensibleMethod.slack`), so a cable at its limit that carries prestress is taut.
 """
@@ -80,7 +121,8 @@ RANK_TOL = 1e-3
 TAUT_TOL = 1e-6
 # A basis whose |A^T s| is below _EXACT times the largest singular value is a self-stress to round-off.
 _EXACT = 1e-13
-# From this many free nodes on, the rule runs on sparse matrices (SparseSpace; see the module docstring).
+# From this many free nodes on, the rule runs on sparse matrices (module docstring: measured between 25
+# and 30 stages of a tower, where the dense rule's refinement stops working at rest)
 SPARSE_NODES = 150
 # The sparse path, relative to the largest eigenvalue of A_B^T A_B: the regularisation of the KKT
 # systems' multiplier block (refined away), and the floor below which an eigenvalue is a mechanism's zero
@@ -141,6 +183,7 @@ class SelfStress:
         # the sparse path (SparseSpace) from SPARSE_NODES free nodes on; False: the dense rule (its reference)
         self.sparse = n_free >= SPARSE_NODES
         self.counts = {"sparse": 0, "dense": 0}   # calls of a structure that can lock, by the path that answered
+        self._kept = None     # (rows' key, SparseSpace) of the last implicit space (see _implicit)
         self._load_cables = np.ascontiguousarray(load_cables, dtype=np.int64)
 
     @property
@@ -227,11 +270,17 @@ class SelfStress:
             return y
         return self._fit(basis, y_b - basis @ (basis.T @ y_b), y, binding, a.T, ref, n_eq)
 
-    @staticmethod
-    def _implicit(a, y_b, ref, n_eq):
+    def _implicit(self, a, y_b, ref, n_eq):
         """The published impulses (k_b,) N*s of the binding rows ``a`` with multipliers ``y_b`` through
-        :class:`SparseSpace`, or None (a cable would pull, or the space is not resolved)."""
-        space = SparseSpace.of(a)
+        :class:`SparseSpace`, or None (a cable would pull, or the space is not resolved). The space and
+        its factorisations are kept while the rows are the same to the bit (a structure at rest), so
+        the answer still depends on this call's arguments alone."""
+        key = (a.indptr.tobytes(), a.indices.tobytes(), a.data.tobytes())
+        if self._kept is not None and self._kept[0] == key:
+            space = self._kept[1]
+        else:
+            space = SparseSpace.of(a)
+            self._kept = (key, space)
         if space is None:
             return None
         share = space.fit(np.ones(len(y_b)), y_b)
@@ -356,6 +405,7 @@ class SparseSpace:
         self.a = a.tocsc()
         self.u = u
         self.largest = largest      # the largest eigenvalue of G (the squared largest singular value)
+        self._factors = {}          # the KKT systems' matrices and LU factors, by weight
 
     @classmethod
     def of(cls, a, rank_tol: float = RANK_TOL):
@@ -386,12 +436,9 @@ class SparseSpace:
             return None
         return cls(a, np.ascontiguousarray(vec[:, band]), largest)
 
-    def fit(self, weight: np.ndarray, target: np.ndarray):
-        """``s = argmin |W (s - target)|`` over ``s`` in ``N`` (``weight`` (k,) 0 or 1, the diagonal of
-        ``W``, nonzero on every self-stress), by the KKT system of ``min 1/2 |W(s - t)|^2`` s.t.
-        ``A_B^T s = U c``; its multiplier block is regularised by ``_SHIFT`` times the largest
-        eigenvalue (a mechanism makes it singular) and refined on the exact system. None if the
-        refinement does not settle."""
+    def _factorise(self, weight: np.ndarray):
+        """The KKT matrix of :meth:`fit` for ``weight`` and the LU factor of its regularised form (None
+        if that is exactly singular)."""
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
         a, u = self.a, self.u
@@ -403,8 +450,23 @@ class SparseSpace:
                          [a.T, -dense_u, sp.csc_matrix((n3, n3))]], format="csc")
         shifted = exact - sp.diags(np.concatenate([np.zeros(k + m), np.full(n3, _SHIFT * self.largest)]))
         try:
-            lu = splu(shifted, permc_spec="MMD_AT_PLUS_A")   # 0.7x the time of COLAMD's (tower30)
+            return exact, splu(shifted, permc_spec="MMD_AT_PLUS_A")   # 0.7x the time of COLAMD's (tower30)
         except RuntimeError:   # exactly singular
+            return exact, None
+
+    def fit(self, weight: np.ndarray, target: np.ndarray):
+        """``s = argmin |W (s - target)|`` over ``s`` in ``N`` (``weight`` (k,) 0 or 1, the diagonal of
+        ``W``, nonzero on every self-stress), by the KKT system of ``min 1/2 |W(s - t)|^2`` s.t.
+        ``A_B^T s = U c``; its multiplier block is regularised by ``_SHIFT`` times the largest
+        eigenvalue (a mechanism makes it singular) and refined on the exact system. None if the
+        refinement does not settle."""
+        k, n3 = self.a.shape
+        m = self.u.shape[1]
+        key = weight.tobytes()
+        if key not in self._factors:
+            self._factors[key] = self._factorise(weight)
+        exact, lu = self._factors[key]
+        if lu is None:
             return None
         b = np.concatenate([weight * target, np.zeros(m + n3)])
         x = lu.solve(b)
