@@ -130,8 +130,11 @@ SPARSE_NODES = 150
 # largest is 1e-12 here).
 _SHIFT = 1e-12
 # Up to this many more binding rows than degrees of freedom, the sparse path computes an explicit basis of
-# the self-stress space (sparse_self_stress_space); beyond, it keeps the space implicit (SparseSpace).
-_EXPLICIT = 64
+# the self-stress space (sparse_self_stress_space) first; beyond, it keeps the space implicit first
+# (SparseSpace). The explicit basis holds at most this many self-stresses beyond that excess (mechanisms
+# add to it: a moving 100-stage tower had 92 self-stresses with 16 rows more than degrees of freedom;
+# 64 sent it to the dense SVD).
+_EXPLICIT = 256
 _GUARD = 8           # the block's columns beyond the space (the iteration converges as the first excluded eigenvalue)
 _BLOCK_ITER = 16
 _RITZ_TOL = 1e-14    # of the largest eigenvalue: a kept Ritz pair's residual |W x - theta x| at convergence
