@@ -131,9 +131,12 @@ SPARSE_NODES = 150
 _SHIFT = 1e-12
 # Up to this many more binding rows than degrees of freedom, the sparse path computes an explicit basis of
 # the self-stress space (sparse_self_stress_space) first; beyond, it keeps the space implicit first
-# (SparseSpace). The explicit basis holds at most this many self-stresses beyond that excess (mechanisms
-# add to it: a moving 100-stage tower had 92 self-stresses with 16 rows more than degrees of freedom;
-# 64 sent it to the dense SVD).
+# (SparseSpace): a 30-stage tower at rest (264 more) took 85 ms a step with an explicit basis, ~3 with
+# the implicit space it keeps.
+_IMPLICIT = 64
+# The explicit basis holds at most this many self-stresses beyond that excess (mechanisms add to it: a
+# moving 100-stage tower had 92 self-stresses with 16 rows more than degrees of freedom; at 64 its calls
+# went to the dense SVD, 21 s a step).
 _EXPLICIT = 256
 _GUARD = 8           # the block's columns beyond the space (the iteration converges as the first excluded eigenvalue)
 _BLOCK_ITER = 16
@@ -259,7 +262,7 @@ class SelfStress:
         ref = self.reference[cables[binding[n_eq:]]] * tau
         # an impact's share (tau = 0: no reference to fit) pulled on some cable at every impact of the
         # moving towers: it goes straight to the explicit basis
-        if tau > 0.0 and len(index) - a.shape[1] > _EXPLICIT:
+        if tau > 0.0 and len(index) - a.shape[1] > _IMPLICIT:
             out = self._implicit(a, y_b, ref, n_eq)
             if out is not None:
                 self.residual = max(self.residual, float(np.max(np.abs(a.T @ (out - y_b)), initial=0.0)))
