@@ -56,7 +56,8 @@ it did with the rule all numpy (CPU time, the two taking turns on the loaded 2-c
 (``SelfStress.sparse``; False: the dense rule above, its reference) and publishes the same impulses by
 other arithmetic; the velocities are the QP's either way, so the trajectory is the same to the bit:
 
-* few self-stresses (a moving structure, and any call a cable would pull on): an explicit basis of
+* few self-stresses (at most ``_IMPLICIT`` more binding rows than degrees of freedom: a moving
+  structure; an impact; any call a cable would pull on): an explicit basis of
   ``N`` by :func:`sparse_self_stress_space` (block inverse iteration on ``A_B A_B^T`` with a sparse LU,
   the eigenvectors below ``RANK_TOL^2`` of its largest eigenvalue, i.e. the same threshold on the same
   singular values), then the dense rule's own fit (:meth:`SelfStress._fit`, its nonnegative QP
