@@ -187,7 +187,7 @@ class SelfStress:
         self.residual = 0.0   # N*s: the largest node impulse dropped with a near-null share (module docstring)
         self.refine = True    # False: an SVD at every step (the reference the refinement must match)
         self.compiled = True  # the rule in one numba kernel (_self_stress_kernels.py); False: the numpy reference
-        # the sparse path (SparseSpace) from SPARSE_NODES free nodes on; False: the dense rule (its reference)
+        # the sparse path (_impulses_sparse) from SPARSE_NODES free nodes on; False: the dense rule (its reference)
         self.sparse = n_free >= SPARSE_NODES
         self.counts = {"sparse": 0, "dense": 0}   # calls of a structure that can lock, by the path that answered
         self._kept = None     # (rows' key, SparseSpace) of the last implicit space (see _implicit)
@@ -249,9 +249,9 @@ class SelfStress:
         return self._impulses_reference(rows, cables, at_limit, y, tau)
 
     def _impulses_sparse(self, rows, cables, at_limit, y, tau):
-        """:meth:`impulses` on sparse matrices, or None where the dense rule must answer. Many
-        self-stresses (more than ``_EXPLICIT`` more rows than degrees of freedom: a structure at rest)
-        are first kept implicit (:class:`SparseSpace`), which answers unless a cable would pull (the
+        """:meth:`impulses` on sparse matrices, or None where the dense rule must answer. A sub-step's
+        many self-stresses (more than ``_IMPLICIT`` more rows than degrees of freedom: a structure at
+        rest) are first kept implicit (:class:`SparseSpace`), which answers unless a cable would pull (the
         nonnegative share is a QP over the whole space); otherwise an explicit basis
         (:func:`sparse_self_stress_space`) goes through the dense rule's own fit (:meth:`_fit`), the
         nonnegative one included. None where neither resolves the space."""
@@ -417,8 +417,10 @@ class SparseSpace:
     @classmethod
     def of(cls, a, rank_tol: float = RANK_TOL):
         """The space of ``a`` (scipy sparse, k x 3 n_free), or None when its spectrum is not resolved
-        here: an eigenvalue of ``G`` between the mechanisms' floor (``_SHIFT``) and 1e2 times it, where
-        a singular value of ~1e-6 of the largest and a mechanism cannot be told apart in ``G``."""
+        here: an eigenvalue of ``G`` between 1e-2 of the mechanisms' floor (``_SHIFT``) and the floor,
+        where a singular value of ~1e-6 of the largest and a mechanism cannot be told apart in ``G``, or
+        a near-null pair that ARPACK did not converge to 1e-10 of the largest eigenvalue (single-vector
+        Lanczos can return a wrong pair among clustered eigenvalues: ``sparse_self_stress_space``)."""
         from scipy.sparse.linalg import ArpackNoConvergence, eigsh
         g = (a.T @ a).tocsc()
         n = g.shape[0]
@@ -441,7 +443,10 @@ class SparseSpace:
             return None
         if np.any((lam > 1e-2 * _SHIFT * largest) & (lam <= _SHIFT * largest)):
             return None
-        return cls(a, np.ascontiguousarray(vec[:, band]), largest)
+        u = np.ascontiguousarray(vec[:, band])
+        if np.linalg.norm(g @ u - u * lam[band], axis=0).max(initial=0.0) > 1e-10 * largest:
+            return None
+        return cls(a, u, largest)
 
     def _factorise(self, weight: np.ndarray):
         """The KKT matrix of :meth:`fit` for ``weight`` and the LU factor of its regularised form (None
