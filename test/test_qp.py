@@ -326,12 +326,13 @@ def test_working_set_solves_as_a_dense_factorisation(monkeypatch):
     a = rows.sparse(len(mass))
     inv_mass = 1.0 / np.repeat(mass, 3)
     w = (a.toarray() * inv_mass) @ a.toarray().T
+    import scipy.sparse as sp
     from scipy.sparse.linalg import splu
     rng = np.random.default_rng(0)
     active = np.zeros(len(rows), dtype=bool)
     for row in rng.permutation(len(rows))[:25]:   # an independent base
         active[row] = independent(rows, len(mass), active | (np.arange(len(rows)) == row))
-    work = qp._WorkingSet(a, inv_mass, np.flatnonzero(active), splu)
+    work = qp._WorkingSet(sp.csr_matrix(w), np.flatnonzero(active), splu)
     changes = 0
     for _ in range(40):
         row = int(rng.integers(len(rows)))

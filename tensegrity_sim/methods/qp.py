@@ -598,7 +598,10 @@ class SparseSolver(QPSolver):
         scale = max(float(np.max(np.abs(v0), initial=0.0)), float(np.max(np.abs(r), initial=0.0)))
         tol = self.settings["tol"] * scale + self.settings["tol_floor"]
         v, y = v.copy(), y.copy()
-        work = _WorkingSet(a, self.inv_mass, np.flatnonzero(active), self._splu)
+        scaled = a.copy()
+        scaled.data *= self.inv_mass[a.indices]
+        w_all = (scaled @ a.T).tocsr()   # W = A M^-1 A^T, whose rows the steps read
+        work = _WorkingSet(w_all, np.flatnonzero(active), self._splu)
         if work.lu is False:
             return None
         p = -1   # the row joining the set (it keeps its partial multiplier until it has joined)
@@ -611,7 +614,7 @@ class SparseSolver(QPSolver):
                     return None if answer[0] is None else answer[:2]
                 a_p = _dense_row(a, p)
                 m_p = self.inv_mass * a_p
-                w_p = a @ m_p                          # W_ip of every row i
+                w_p = _dense_row(w_all, p)             # W_ip of every row i
             r_vec = work.solve(np.where(active, w_p, 0.0))
             if r_vec is None:
                 return None
@@ -660,8 +663,8 @@ class _WorkingSet:
 
     BORDER = 60
 
-    def __init__(self, a, inv_mass, base: np.ndarray, splu):
-        self.a, self.inv_mass, self._splu = a, inv_mass, splu
+    def __init__(self, w, base: np.ndarray, splu):
+        self.w, self._splu = w, splu   # W = A M^-1 A^T of every row (CSR)
         self._rebase(base)
 
     def _rebase(self, base: np.ndarray) -> None:
@@ -673,12 +676,9 @@ class _WorkingSet:
         self._c = np.zeros((self.BORDER, self.BORDER))
         self.lu = None
         if len(base):
-            sub = self.a[base]
-            scaled = sub.multiply(self.inv_mass[None, :]).tocsr()
-            w = (scaled @ sub.T).tocsc()
             try:
-                self.lu = self._splu(w, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                                     options={"SymmetricMode": True})
+                self.lu = self._splu(self.w[base][:, base].tocsc(), permc_spec="MMD_AT_PLUS_A",
+                                     diag_pivot_thresh=0.0, options={"SymmetricMode": True})
             except RuntimeError:   # exactly singular: the caller's start was not independent
                 self.lu = False
 
@@ -692,7 +692,7 @@ class _WorkingSet:
         if self.lu is False:   # a singular base: solve() says so
             return
         if added:
-            w_col = self.a @ (self.inv_mass * _dense_row(self.a, row))
+            w_col = _dense_row(self.w, row)
             col = w_col[self.base]
         else:
             w_col = None
