@@ -113,7 +113,7 @@ def crash_safety(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> dic
         writer = None
         if writer_options is not None:
             writer = LogWriter(path, logic.channels(), logic.run_info(), **writer_options)
-            logic.recorder = SimpleNamespace(record=writer.write)  # a LogRecorder without its restarts
+            logic.recorder = SimpleNamespace(record=writer.write_all)  # a LogRecorder without its restarts
 
         def run(n):
             for _ in range(n):

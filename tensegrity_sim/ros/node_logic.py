@@ -40,6 +40,7 @@ from typing import Callable
 import numpy as np
 
 from .. import __version__
+from .._system_kernels import member_kinematics
 from ..checks import MIN_DT, describe, real
 from ..methods import StepError
 from ..methods.qp import SOLVERS
@@ -47,6 +48,7 @@ from ..results import ContactEvent, StepResult
 from ..simulator import Simulator
 from . import messages as M
 from .cdr import CdrTemplate
+from .markers import Markers
 
 __all__ = ["Qos", "TopicSpec", "TOPICS", "SERVICES", "NodeSettings", "SimNodeLogic", "stamp_ns", "encode_contacts",
            "decode_contacts", "RUNTIME_PARAMETERS", "FAILURE_STATUS"]
@@ -215,60 +217,6 @@ RUNTIME_PARAMETERS = tuple(f.name for f in fields(NodeSettings) if f.metadata.ge
 FAILURE_STATUS = "step failed"
 
 
-# --------------------------------------------------------------------------- markers
-_LINE_LIST, _CUBE_LIST, _SPHERE_LIST = 5, 6, 7
-_ADD, _DELETE = 0, 2
-_MARKER_SHAPES_KEPT = 64  # MarkerArray templates a node keeps (a shape: the markers and their point counts)
-
-
-class _MarkerStyle:
-    """What never changes in a marker of one namespace: its fields but the header, action and points,
-    built once (building message objects is most of what publishing costs)."""
-
-    def __init__(self, ns: str, marker_id: int, kind: int, scale: float, color: tuple):
-        self.spec = {"ns": ns, "id": marker_id, "type": kind, "pose": {"orientation": {"w": 1.0}},
-                     "scale": dict.fromkeys("xyz", scale), "color": dict(zip("rgba", color))}
-        empty_header = M.header(0, "")
-        self.fields = dict(
-            ns=ns, id=marker_id, type=kind,
-            pose=M.new("geometry_msgs/msg/Pose", position=M.point(0.0, 0.0, 0.0),
-                       orientation=M.new("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0)),
-            scale=M.vector3(scale, scale, scale), color=M.color(*color),
-            lifetime=M.new("builtin_interfaces/msg/Duration", sec=0, nanosec=0), frame_locked=False,
-            texture_resource="",
-            texture=M.new("sensor_msgs/msg/CompressedImage", header=empty_header, format="", data=M.uint8s()),
-            uv_coordinates=[], text="", mesh_resource="",
-            mesh_file=M.new("visualization_msgs/msg/MeshFile", filename="", data=M.uint8s()),
-            mesh_use_embedded_materials=False)
-
-    def marker(self, header, points: np.ndarray | None, colors: np.ndarray | None = None):
-        """ADD with ``points`` (k, 3) m (and per-point ``colors`` (k, 4) RGBA), or DELETE when ``points``
-        is None."""
-        return M.new("visualization_msgs/msg/Marker", header=header, action=_DELETE if points is None else _ADD,
-                     points=[] if points is None else [M.point(*p) for p in points.tolist()],
-                     colors=[] if colors is None else [M.color(*c) for c in colors.tolist()], **self.fields)
-
-    def prototype(self, frame_id: str, points: int | None, colored: bool) -> dict:
-        """The fields of :meth:`marker` for :func:`~.cdr.prototype`: ``points`` points (None: DELETE), as
-        many colours if ``colored``; the stamp, points and colours are left to slots."""
-        return {**self.spec, "header": {"frame_id": frame_id}, "action": _DELETE if points is None else _ADD,
-                "points": [{}] * (points or 0), "colors": [{}] * (points or 0) if colored else []}
-
-
-def _ground_grid(scene, size: float) -> np.ndarray:
-    """A square grid of lines (LINE_LIST points (k, 3) m) on the ground plane under the scene's start,
-    four scene sizes wide, lines half a size apart; none without a ground."""
-    if scene.ground is None:
-        return np.zeros((0, 3))
-    cx, cy = scene.positions[:, :2].mean(axis=0)
-    ticks = np.arange(-4, 5) * 0.5 * size
-    lo, hi = ticks[0], ticks[-1]
-    lines = [[(cx + t, cy + lo), (cx + t, cy + hi)] for t in ticks] + [[(cx + lo, cy + t), (cx + hi, cy + t)]
-                                                                       for t in ticks]
-    xy = np.array(lines, dtype=float).reshape(-1, 2)
-    return np.column_stack([xy, np.full(len(xy), scene.ground.height)])
-
-
 # --------------------------------------------------------------------------- contacts encoding
 def encode_contacts(events: list[ContactEvent], header):
     """``~/contacts`` (diagnostic_msgs/DiagnosticArray): one ``DiagnosticStatus`` per event, in time order.
@@ -348,27 +296,12 @@ class SimNodeLogic:
         self._cable_index = {n: i for i, n in enumerate(scene.cable_names)}
         self._node_index = {n: i for i, n in enumerate(scene.node_names)}
         self._inputs = {"cable_rest_lengths": self._apply_rest_lengths, "external_wrench": self._apply_wrench}
-        # Marker sizes: the members' radii where the scene gives them, else a fraction of its size.
-        x0 = scene.positions
-        size = float(np.linalg.norm(x0.max(axis=0) - x0.min(axis=0))) or 1.0
-        strut_r = max((s.radius for s in scene.struts), default=0.0)
-        cable_r = max((c.radius for c in scene.cables), default=0.0)
-        strut_width = 2 * strut_r if strut_r > 0 else 0.01 * size
-        cable_width = 2 * cable_r if cable_r > 0 else 0.004 * size
-        self._marker_styles = {
-            "struts": _MarkerStyle("struts", 0, _LINE_LIST, strut_width, (0.25, 0.4, 0.8, 1.0)),
-            "cables": _MarkerStyle("cables", 1, _LINE_LIST, cable_width, (1.0, 1.0, 1.0, 1.0)),
-            "slack_cables": _MarkerStyle("slack_cables", 2, _LINE_LIST, 0.5 * cable_width, (0.6, 0.6, 0.6, 0.5)),
-            "supports": _MarkerStyle("supports", 3, _CUBE_LIST, 3.0 * strut_width, (0.5, 0.5, 0.5, 1.0)),
-            "contacts": _MarkerStyle("contacts", 4, _SPHERE_LIST, 3.0 * strut_width, (1.0, 0.0, 0.0, 1.0)),
-            "ground": _MarkerStyle("ground", 5, _LINE_LIST, 0.5 * cable_width, (0.45, 0.35, 0.25, 1.0)),
-            "contact_forces": _MarkerStyle("contact_forces", 6, _LINE_LIST, strut_width, (1.0, 0.55, 0.0, 1.0)),
-        }
-        self._ground_grid = _ground_grid(scene, size)
-        self._force_scale = 0.0   # the largest ground force seen (N): drawn 0.3 scene sizes long
-        self._scene_size = size
+        self._markers = Markers(sim, settings.frame_id)
         self._templates = self._cdr_templates()
-        self._marker_templates: dict[tuple, CdrTemplate] = {}  # marker shape -> template, oldest use first
+        # the cable lengths (m) and elongation rates (m/s) of a publication, worked out in place
+        self._cable_ends = np.ascontiguousarray(sim.system.cable_ends, dtype=np.int64)
+        self._length = np.empty(len(self._cable_names))
+        self._rate = np.empty(len(self._cable_names))
         # counters for diagnostics and the summary
         self.refused = {k: 0 for k in self._inputs}
         self.received = {k: 0 for k in self._inputs}
@@ -416,8 +349,7 @@ class SimNodeLogic:
         self._impulse_sum = np.zeros(n_cables)       # N*s since the previous publication
         self._contact_queue: list[ContactEvent] = []  # events since the previous publication
         self._active_contacts: dict[tuple[str, str], ContactEvent] = {}  # for the markers
-        self._tension_scale = 0.0                    # the largest tension seen: red in the markers
-        self._shown: set[str] = set()                # marker namespaces on screen
+        self._markers.clear()
         self._last: StepResult | None = None
         # what the inputs applied since the last step changed, to undo if the step fails with them:
         # (targets, applied rest lengths, external forces) before the first of them, and their topic keys
@@ -472,7 +404,7 @@ class SimNodeLogic:
             return self._refuse(key, f"not a {typename} message ({type(exc).__name__}: {describe(str(exc))}): "
                                      f"{describe(message)}")
         if self.recorder is not None:
-            self.recorder.record(self.topic_names[key], data, self.stamp_ns())
+            self.recorder.record([(self.topic_names[key], data)], self.stamp_ns())
         message = M.deserialize(data, typename)
         undo = self._undo or (self._target, self._applied, self.sim.external_forces, [])
         try:
@@ -607,8 +539,8 @@ class SimNodeLogic:
         """``/diagnostics`` of one failed step (WARN: stepping goes on; ERROR: paused), stamped with the
         time the step started from; nothing in it depends on the wall clock, so a replay compares it."""
         ns = self.stamp_ns()
-        self._send("diagnostics", ns, M.new("diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
-                                            status=[self._status(FAILURE_STATUS, level, text, {})]))
+        self._send(ns, [("diagnostics", M.new("diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
+                                              status=[self._status(FAILURE_STATUS, level, text, {})]), None)])
 
     @property
     def publication_due(self) -> bool:
@@ -687,21 +619,19 @@ class SimNodeLogic:
         self._until_markers -= 1
         if events:
             keys.append("contacts")
-        outputs = self._outputs(keys, ns, r) if self._transport is not None or self.recorder is not None else []
-        self._impulse_sum = np.zeros(self._impulse_sum.shape)
+        if self._transport is not None or self.recorder is not None:
+            self._send(ns, self._outputs(keys, ns, r))
+        self._impulse_sum.fill(0.0)  # the messages hold copies
         self._contact_queue = []
         self._since_publish = 0
         self.publications += 1
-        for key, message, data in outputs:
-            self._send(key, ns, message, data)
 
     def _outputs(self, keys: list[str], ns: int, r: StepResult) -> list[tuple[str, object, bytes | None]]:
         """(key, message object or None, CDR bytes or None) of the outputs ``keys``: objects where the
         transport takes them (and for contacts, which are serialised from them), bytes from the templates
         where the log or a raw transport takes them."""
-        sys = self.sim.system
-        _, length, n = sys.geometry(r.positions, sys.cable_ends)
-        rate = sys.member_rates(r.velocities, n, sys.cable_ends)
+        length, rate = self._length, self._rate
+        member_kinematics(r.positions, r.velocities, self._cable_ends, length, rate)
         takes_objects = self._transport is not None and not self._raw
         messages = {}
         if takes_objects or "contacts" in keys:
@@ -710,9 +640,9 @@ class SimNodeLogic:
                 messages = self._messages(ns, header, r.positions, length, rate, r.tensions, self._impulse_sum)
             if "contacts" in keys:
                 messages["contacts"] = encode_contacts(self._contact_queue, header)
-        markers = self._marker_content(r) if "markers" in keys else None
+        markers = self._markers.content(r, self._active_contacts.values()) if "markers" in keys else None
         if takes_objects and markers is not None:
-            messages["markers"] = self._markers(header, markers)
+            messages["markers"] = self._markers.message(header, markers)
         data = {}
         if self.recorder is not None or self._raw:
             sec, nanosec = divmod(ns, 1_000_000_000)
@@ -722,7 +652,7 @@ class SimNodeLogic:
                     "cable_states": t["cable_states"].encode(sec, nanosec, length, rate, r.tensions),
                     "cable_impulses": t["cable_impulses"].encode(sec, nanosec, self._impulse_sum)}
             if markers is not None:
-                data["markers"] = self._marker_bytes(sec, nanosec, markers)
+                data["markers"] = self._markers.cdr(sec, nanosec, markers)
         return [(key, messages.get(key), data.get(key)) for key in keys]
 
     def _messages(self, ns: int, header, positions, length, rate, tensions, impulses) -> dict:
@@ -735,93 +665,18 @@ class SimNodeLogic:
                 "cable_states": M.joint_state(header, self._cable_names, length, rate, tensions),
                 "cable_impulses": M.joint_state(header, self._cable_names, effort=impulses)}
 
-    def _send(self, key: str, ns: int, message, data: bytes | None = None) -> None:
-        """Record and send one output at ``ns``: ``message``, its object (None if only bytes are taken),
-        ``data``, its CDR bytes (serialised from ``message`` when None and needed)."""
-        if data is None and (self.recorder is not None or self._raw):
-            data = M.serialize(message, TOPICS[key].typename)
+    def _send(self, ns: int, outputs: list[tuple[str, object, bytes | None]]) -> None:
+        """Record and send ``outputs`` at ``ns``, in order: (key, message object or None if only bytes are
+        taken, its CDR bytes or None to serialise them from the object where needed). The log takes them in
+        one call (:meth:`~.log.LogRecorder.record`), then the transport one by one."""
+        if self.recorder is not None or self._raw:
+            outputs = [(key, message, M.serialize(message, TOPICS[key].typename) if data is None else data)
+                       for key, message, data in outputs]
         if self.recorder is not None:
-            self.recorder.record(self.topic_names[key], data, ns)
+            self.recorder.record([(self.topic_names[key], data) for key, _, data in outputs], ns)
         if self._transport is not None:
-            self._transport(key, data if self._raw else message)
-
-    def _marker_content(self, r: StepResult) -> list[tuple[str, np.ndarray | None, np.ndarray | None]]:
-        """The markers of one MarkerArray, as (namespace, points (k, 3) m or None to delete it, colours
-        (k, 4) RGBA or None): struts (thick blue lines); taut cables (lines coloured blue -> red by
-        tension, red = the largest tension seen so far); slack cables (thin grey lines); supports (grey
-        cubes at fixed nodes); active contacts (red spheres at both closest points); the ground (a brown
-        grid) and its forces on the nodes (orange lines). A namespace with nothing to show is deleted
-        once, then left out."""
-        sys = self.sim.system
-        x = r.positions
-        taut = ~r.slack
-        self._tension_scale = max(self._tension_scale, float(r.tensions.max(initial=0.0)))
-        level = np.repeat(r.tensions[taut] / self._tension_scale if self._tension_scale > 0 else r.tensions[taut], 2)
-        contacts = [p for e in self._active_contacts.values() for p in (e.point_a, e.point_b)]
-        content = {
-            "struts": (x[sys.strut_ends].reshape(-1, 3), None),
-            "cables": (x[sys.cable_ends[taut]].reshape(-1, 3),
-                       np.column_stack([level, np.full_like(level, 0.2), 1.0 - level, np.ones_like(level)])),
-            "slack_cables": (x[sys.cable_ends[r.slack]].reshape(-1, 3), None),
-            "supports": (x[~sys.free], None),
-            "contacts": (np.array(contacts, dtype=float).reshape(-1, 3), None),
-            "ground": (self._ground_grid, None),
-            "contact_forces": self._contact_forces(r),
-        }
-        markers = []
-        for ns, (points, colors) in content.items():
-            if len(points):
-                markers.append((ns, points, colors))
-                self._shown.add(ns)
-            elif ns in self._shown:
-                markers.append((ns, None, None))
-                self._shown.discard(ns)
-        return markers
-
-    def _contact_forces(self, r: StepResult):
-        """Lines from each node's ground contact point along the ground's mean force over the step
-        (impulse / dt), the largest force seen drawn 0.3 scene sizes long: (points (2k, 3), None)."""
-        if r.contact_impulses is None or self.sim.scene.ground is None:
-            return np.zeros((0, 3)), None
-        force = r.contact_impulses / self.sim.dt
-        magnitude = np.linalg.norm(force, axis=1)
-        on = magnitude > 0
-        self._force_scale = max(self._force_scale, float(magnitude.max(initial=0.0)))
-        start = r.positions[on].copy()
-        start[:, 2] = self.sim.scene.ground.height
-        end = start + force[on] * (0.3 * self._scene_size / max(self._force_scale, 1e-300))
-        return np.stack([start, end], axis=1).reshape(-1, 3), None
-
-    def _markers(self, header, markers: list):
-        """The MarkerArray object of :meth:`_marker_content`'s ``markers``."""
-        return M.new("visualization_msgs/msg/MarkerArray",
-                     markers=[self._marker_styles[ns].marker(header, points, colors) for ns, points, colors in markers])
-
-    def _marker_bytes(self, sec: int, nanosec: int, markers: list) -> bytes:
-        """The CDR bytes of :meth:`_markers`. Which markers there are and how many points each has (its
-        shape) changes with the slack cables and the contacts, so there is one template per shape, made
-        when the shape is first seen (a few rosbags serialisations' worth) and kept
-        (:data:`_MARKER_SHAPES_KEPT` of them, the oldest forgotten first)."""
-        shape = tuple((ns, None if points is None else len(points)) for ns, points, _ in markers)
-        template = self._marker_templates.pop(shape, None)
-        if template is None:
-            fields, slots = [], []
-            for i, (ns, points, colors) in enumerate(markers):
-                fields.append(self._marker_styles[ns].prototype(
-                    self.settings.frame_id, None if points is None else len(points), colors is not None))
-                slots += [f"markers[{i}].header.stamp.sec", f"markers[{i}].header.stamp.nanosec"]
-                if points is not None:
-                    slots.append(f"markers[{i}].points[]")
-                if colors is not None:
-                    slots.append(f"markers[{i}].colors[]")
-            template = CdrTemplate(TOPICS["markers"].typename, {"markers": fields}, slots)
-            if len(self._marker_templates) >= _MARKER_SHAPES_KEPT:
-                self._marker_templates.pop(next(iter(self._marker_templates)))
-        self._marker_templates[shape] = template  # (re)inserted last: the most recently used
-        values = []
-        for _, points, colors in markers:
-            values += [sec, nanosec] + [a for a in (points, colors) if a is not None]
-        return template.encode(*values)
+            for key, message, data in outputs:
+                self._transport(key, data if self._raw else message)
 
     # ------------------------------------------------------------------ services
     def pause(self) -> tuple[bool, str]:
@@ -871,8 +726,8 @@ class SimNodeLogic:
         self._anchor()
         if changes:
             ns = self.stamp_ns()
-            self._send("parameter_events", ns, M.parameter_event(
-                ns, self.settings.node_name, {name: getattr(self.settings, name) for name in changes}))
+            self._send(ns, [("parameter_events", M.parameter_event(
+                ns, self.settings.node_name, {name: getattr(self.settings, name) for name in changes}), None)])
         return self.settings
 
     # ------------------------------------------------------------------ reporting
@@ -890,8 +745,8 @@ class SimNodeLogic:
             level, text = 0, "paused" if self.paused else "stepping"
         values = {k: str(v) for k, v in self.statistics().items()}
         ns = self.stamp_ns()
-        self._send("diagnostics", ns, M.new("diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
-                                            status=[self._status("stepping", level, text, values)]))
+        self._send(ns, [("diagnostics", M.new("diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
+                                              status=[self._status("stepping", level, text, values)]), None)])
 
     def _status(self, what: str, level: int, text: str, values: dict):
         """One DiagnosticStatus named ``"<node name>: <what>"``, hardware id = the scene's name."""
