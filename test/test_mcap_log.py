@@ -255,3 +255,32 @@ def test_signal_latch_raises_at_the_safe_point_only():
             time.sleep(0.01)
     assert exit_.value.code == 128 + signal.SIGTERM  # raised on leaving the block, not lost
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers restored
+
+
+def test_writing_a_publication_at_once_is_writing_its_messages_in_turn(tmp_path):
+    """``LogWriter.write_all`` (what the node records a publication through) writes the very file that
+    ``write`` called once per message does: the same bytes, sequence numbers and counts included, across
+    several chunks."""
+    spec = TOPICS["clock"]
+    channels = [("/clock", spec.typename, spec.qos), ("/b", spec.typename, spec.qos)]
+    batches = [[(topic, M.serialize(M.new(spec.typename, clock=M.time(k + j)), spec.typename))
+                for j, topic in enumerate(("/clock", "/b", "/clock"))] for k in range(3000)]
+    files = []
+    for at_once in (False, True):
+        path = tmp_path / str(at_once) / "log.mcap"  # the same name: the rosbag2 metadata holds it
+        with LogWriter(path, channels, {"a": "b"}, chunk_size=4096, flush_period=None) as writer:
+            for k, batch in enumerate(batches):
+                if at_once:
+                    writer.write_all(batch, 1000 * k)
+                else:
+                    for topic, data in batch:
+                        writer.write(topic, data, 1000 * k)
+        assert writer.counts == {"/clock": 6000, "/b": 3000}
+        files.append(path.read_bytes())
+    assert files[0] == files[1] and len(files[0]) > 10 * 4096
+    with open(tmp_path / "True" / "log.mcap", "rb") as f:
+        read = [(c.topic, m.data, m.log_time, m.publish_time, m.sequence)
+                for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
+    sequences = {"/clock": iter(range(6000)), "/b": iter(range(3000))}  # per channel, from 0
+    assert read == [(topic, data, 1000 * k, 1000 * k, next(sequences[topic]))
+                    for k, batch in enumerate(batches) for topic, data in batch]

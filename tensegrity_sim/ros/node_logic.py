@@ -262,6 +262,8 @@ def decode_contacts(message) -> list[ContactEvent]:
 
 # --------------------------------------------------------------------------- the node logic
 Transport = Callable[[str, object], None]
+# the outputs of every publication, in the order they go out (then markers and contacts when due)
+_PUBLISHED = ("clock", "node_poses", "cable_states", "cable_impulses")
 
 
 class SimNodeLogic:
@@ -605,65 +607,66 @@ class SimNodeLogic:
         r = self._last
         if r is None:
             return
-        ns = self.stamp_ns()
         events = self._contact_queue
         for e in events:
             if e.kind == "begin":
                 self._active_contacts[e.members] = e
             else:
                 self._active_contacts.pop(e.members, None)
-        keys = ["clock", "node_poses", "cable_states", "cable_impulses"]
-        if self._until_markers == 0:
-            keys.append("markers")
+        markers = self._until_markers == 0
+        if markers:
             self._until_markers = self.settings.markers_every
         self._until_markers -= 1
-        if events:
-            keys.append("contacts")
         if self._transport is not None or self.recorder is not None:
-            self._send(ns, self._outputs(keys, ns, r))
+            ns = stamp_ns(self.sim.time)
+            self._send(ns, self._outputs(ns, r, markers, events))
         self._impulse_sum.fill(0.0)  # the messages hold copies
         self._contact_queue = []
         self._since_publish = 0
         self.publications += 1
 
-    def _outputs(self, keys: list[str], ns: int, r: StepResult) -> list[tuple[str, object, bytes | None]]:
-        """(key, message object or None, CDR bytes or None) of the outputs ``keys``: objects where the
-        transport takes them (and for contacts, which are serialised from them), bytes from the templates
-        where the log or a raw transport takes them."""
+    def _outputs(self, ns: int, r: StepResult, markers: bool, events: list[ContactEvent]
+                 ) -> list[tuple[str, object, bytes | None]]:
+        """(key, message object or None, CDR bytes or None) of one publication at ``ns`` after step ``r``:
+        clock, node_poses, cable_states, cable_impulses, then markers if ``markers``, then contacts if
+        ``events``. Objects where the transport takes them (and for contacts, which are serialised from
+        them), bytes from the templates where the log or a raw transport takes them."""
         length, rate = self._length, self._rate
         member_kinematics(r.positions, r.velocities, self._cable_ends, length, rate)
         takes_objects = self._transport is not None and not self._raw
-        messages = {}
-        if takes_objects or "contacts" in keys:
-            header = M.header(ns, self.settings.frame_id)
-            if takes_objects:
-                messages = self._messages(ns, header, r.positions, length, rate, r.tensions, self._impulse_sum)
-            if "contacts" in keys:
-                messages["contacts"] = encode_contacts(self._contact_queue, header)
-        markers = self._markers.content(r, self._active_contacts.values()) if "markers" in keys else None
-        if takes_objects and markers is not None:
-            messages["markers"] = self._markers.message(header, markers)
-        data = {}
+        header = M.header(ns, self.settings.frame_id) if takes_objects or events else None
+        drawn = self._markers.content(r, self._active_contacts.values()) if markers else None
         if self.recorder is not None or self._raw:
             sec, nanosec = divmod(ns, 1_000_000_000)
             t = self._templates
-            data = {"clock": t["clock"].encode(sec, nanosec),
-                    "node_poses": t["node_poses"].encode(sec, nanosec, r.positions),
-                    "cable_states": t["cable_states"].encode(sec, nanosec, length, rate, r.tensions),
-                    "cable_impulses": t["cable_impulses"].encode(sec, nanosec, self._impulse_sum)}
-            if markers is not None:
-                data["markers"] = self._markers.cdr(sec, nanosec, markers)
-        return [(key, messages.get(key), data.get(key)) for key in keys]
+            outputs = [("clock", None, t["clock"].encode(sec, nanosec)),
+                       ("node_poses", None, t["node_poses"].encode(sec, nanosec, r.positions)),
+                       ("cable_states", None, t["cable_states"].encode(sec, nanosec, length, rate, r.tensions)),
+                       ("cable_impulses", None, t["cable_impulses"].encode(sec, nanosec, self._impulse_sum))]
+            if drawn is not None:
+                outputs.append(("markers", None, self._markers.cdr(sec, nanosec, drawn)))
+        else:
+            outputs = [(key, None, None) for key in _PUBLISHED]
+            if drawn is not None:
+                outputs.append(("markers", None, None))
+        if takes_objects:
+            messages = self._messages(ns, header, r.positions, length, rate, r.tensions, self._impulse_sum)
+            if drawn is not None:
+                messages.append(self._markers.message(header, drawn))
+            outputs = [(key, message, data) for (key, _, data), message in zip(outputs, messages)]
+        if events:
+            outputs.append(("contacts", encode_contacts(events, header), None))
+        return outputs
 
-    def _messages(self, ns: int, header, positions, length, rate, tensions, impulses) -> dict:
+    def _messages(self, ns: int, header, positions, length, rate, tensions, impulses) -> list:
         """The message objects of clock, node_poses, cable_states and cable_impulses (the arrays as in
         :meth:`_cdr_templates`); ``header``: stamped ``ns``, in the node's frame."""
         q = M.new("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0)
         poses = [M.new("geometry_msgs/msg/Pose", position=M.point(*p), orientation=q) for p in positions.tolist()]
-        return {"clock": M.new("rosgraph_msgs/msg/Clock", clock=M.time(ns)),
-                "node_poses": M.new("geometry_msgs/msg/PoseArray", header=header, poses=poses),
-                "cable_states": M.joint_state(header, self._cable_names, length, rate, tensions),
-                "cable_impulses": M.joint_state(header, self._cable_names, effort=impulses)}
+        return [M.new("rosgraph_msgs/msg/Clock", clock=M.time(ns)),
+                M.new("geometry_msgs/msg/PoseArray", header=header, poses=poses),
+                M.joint_state(header, self._cable_names, length, rate, tensions),
+                M.joint_state(header, self._cable_names, effort=impulses)]
 
     def _send(self, ns: int, outputs: list[tuple[str, object, bytes | None]]) -> None:
         """Record and send ``outputs`` at ``ns``, in order: (key, message object or None if only bytes are
