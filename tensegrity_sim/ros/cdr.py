@@ -108,6 +108,7 @@ class CdrTemplate:
         if _HEADER + end != len(self._buffer):
             raise ValueError(f"{typename}: the CDR walk ends at byte {_HEADER + end}, rosbags' bytes at "
                              f"{len(self._buffer)}")
+        self._places: dict[str, tuple[int, tuple[int, ...], tuple[int, ...], np.dtype]] = {}
         self._views = [self._view(slot) for slot in self.slots]
 
     def encode(self, *values) -> bytes:
@@ -117,6 +118,15 @@ class CdrTemplate:
             if view is not None:
                 view[...] = value
         return bytes(self._buffer)
+
+    def place(self, slot: str) -> tuple[int, tuple[int, ...], tuple[int, ...], np.dtype] | None:
+        """Where :meth:`encode` writes the numbers of ``slot`` in its bytes: (byte offset of the first, the
+        slot's shape, strides in bytes along it, dtype), or None for a slot with no numbers; for an
+        encoder that writes them itself (:class:`~.publication.PublicationCdr`). KeyError for a slot the
+        template does not have."""
+        if slot not in self._places and slot not in self.slots:
+            raise KeyError(f"{self.typename}: no slot {slot!r} (slots: {', '.join(self.slots)})")
+        return self._places.get(slot)
 
     # ---------------------------------------------------------------- layout
     def _walk(self, desc, value, pos: int, path: str, match: list | None) -> int:
@@ -169,6 +179,7 @@ class CdrTemplate:
         expected = [first + m * stride + j * dtype.itemsize for m in range(len(matches)) for j in range(per)]
         if any(len(match) != per for _, match in matches) or [p for p, _ in leaves] != expected:
             raise ValueError(f"{self.typename}: the numbers of slot {slot!r} are not evenly spaced")
+        self._places[slot] = (_HEADER + first, shape, strides, dtype)
         return np.ndarray(shape, dtype, buffer=self._buffer, offset=_HEADER + first, strides=strides)
 
 

@@ -178,8 +178,8 @@ class Markers:
         return M.new(MARKERS_TYPE, markers=[self._styles[ns].marker(header, points, colors)
                                             for ns, points, colors in markers])
 
-    def cdr(self, sec: int, nanosec: int, markers: Content) -> bytes:
-        """The CDR bytes of :meth:`message` stamped ``sec``, ``nanosec``. Which markers there are and how
+    def cdr(self, time_ns: int, markers: Content) -> bytes:
+        """The CDR bytes of :meth:`message` stamped ``time_ns``. Which markers there are and how
         many points each has (its shape) changes with the slack cables and the contacts, so there is one
         template per shape, made when the shape is first seen (a few rosbags serialisations' worth) and
         kept (:data:`_SHAPES_KEPT` of them, the oldest forgotten first)."""
@@ -200,6 +200,7 @@ class Markers:
                 self._templates.pop(next(iter(self._templates)))
         self._templates[shape] = template  # (re)inserted last: the most recently used
         values = []
+        sec, nanosec = divmod(time_ns, 1_000_000_000)
         for _, points, colors in markers:
             values += [sec, nanosec] + [a for a in (points, colors) if a is not None]
         return template.encode(*values)

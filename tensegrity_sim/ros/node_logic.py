@@ -9,10 +9,10 @@
   publishers, a DDS writer, a list in a test), or as CDR bytes to a raw transport, and as CDR bytes to
   an optional recorder (the MCAP log). Between two publications the cable impulses of every step are
   summed and every contact event is queued, so publishing slower than stepping loses nothing. The
-  outputs of every publication (clock, poses, cable states and impulses) and the markers are encoded
-  straight from the arrays by :class:`~.cdr.CdrTemplate` objects (built once per node, and once per
-  marker shape), so logging costs little; message objects are built only for a transport that takes
-  them, and nothing at all when no one listens;
+  outputs of every publication (clock, poses, cable states and impulses) are encoded straight from the
+  arrays in one compiled pass (:class:`~.publication.PublicationCdr`), the markers (:mod:`.markers`) by
+  :class:`~.cdr.CdrTemplate` objects (one per marker shape), so logging costs little; message objects
+  are built only for a transport that takes them, and nothing at all when no one listens;
 * the **services** (reset, pause, resume, single step) are plain methods returning ``(success, message)``;
 * a **failed step** (a :class:`~tensegrity_sim.StepError`: a QP of the inextensible method without a
   solution, or a result that is not finite) never escapes: the inputs that made it impossible are refused
@@ -47,8 +47,8 @@ from ..methods.qp import SOLVERS
 from ..results import ContactEvent, StepResult
 from ..simulator import Simulator
 from . import messages as M
-from .cdr import CdrTemplate
 from .markers import Markers
+from .publication import PUBLISHED, PublicationCdr, publication_templates
 
 __all__ = ["Qos", "TopicSpec", "TOPICS", "SERVICES", "NodeSettings", "SimNodeLogic", "stamp_ns", "encode_contacts",
            "decode_contacts", "RUNTIME_PARAMETERS", "FAILURE_STATUS"]
@@ -262,8 +262,6 @@ def decode_contacts(message) -> list[ContactEvent]:
 
 # --------------------------------------------------------------------------- the node logic
 Transport = Callable[[str, object], None]
-# the outputs of every publication, in the order they go out (then markers and contacts when due)
-_PUBLISHED = ("clock", "node_poses", "cable_states", "cable_impulses")
 
 
 class SimNodeLogic:
@@ -299,8 +297,10 @@ class SimNodeLogic:
         self._node_index = {n: i for i, n in enumerate(scene.node_names)}
         self._inputs = {"cable_rest_lengths": self._apply_rest_lengths, "external_wrench": self._apply_wrench}
         self._markers = Markers(sim, settings.frame_id)
-        self._templates = self._cdr_templates()
-        # the cable lengths (m) and elongation rates (m/s) of a publication, worked out in place
+        # the bytes of every publication's outputs, in one compiled pass
+        self._cdr = PublicationCdr(publication_templates(settings.frame_id, len(scene.node_names), self._cable_names),
+                                   sim.system.cable_ends)
+        # the cable lengths (m) and elongation rates (m/s) of a publication's message objects, worked out in place
         self._cable_ends = np.ascontiguousarray(sim.system.cable_ends, dtype=np.int64)
         self._length = np.empty(len(self._cable_names))
         self._rate = np.empty(len(self._cable_names))
@@ -319,29 +319,6 @@ class SimNodeLogic:
         self.step_error: StepError | None = None  # the last step failure
         self._clear()
         self._anchor()
-
-    def _cdr_templates(self) -> dict[str, CdrTemplate]:
-        """CDR encoders of the outputs sent at every publication. What never changes in them is fixed here
-        (the frame id, which is not a runtime parameter, the cable names, the number of nodes and cables,
-        the identity orientation of the poses); the slots take the stamp and the arrays, in the order
-        :meth:`publish` gives them: clock (sec, nanosec); node_poses (sec, nanosec, positions (N, 3) m);
-        cable_states (sec, nanosec, lengths m, rates m/s, tensions N, each (n_cables,));
-        cable_impulses (sec, nanosec, impulse sums (n_cables,) N*s). They encode the messages
-        :meth:`_messages` builds, byte for byte (the tests check it)."""
-        header = {"frame_id": self.settings.frame_id}
-        stamp = ("header.stamp.sec", "header.stamp.nanosec")
-        zeros = np.zeros(len(self._cable_names))
-        return {
-            "clock": CdrTemplate(TOPICS["clock"].typename, {}, ("clock.sec", "clock.nanosec")),
-            "node_poses": CdrTemplate(TOPICS["node_poses"].typename, {
-                "header": header, "poses": [{"orientation": {"w": 1.0}}] * len(self.sim.scene.node_names)},
-                (*stamp, "poses[].position")),
-            "cable_states": CdrTemplate(TOPICS["cable_states"].typename, {
-                "header": header, "name": self._cable_names, "position": zeros, "velocity": zeros, "effort": zeros},
-                (*stamp, "position", "velocity", "effort")),
-            "cable_impulses": CdrTemplate(TOPICS["cable_impulses"].typename, {
-                "header": header, "name": self._cable_names, "effort": zeros}, (*stamp, "effort")),
-        }
 
     # ------------------------------------------------------------------ state kept between publications
     def _clear(self) -> None:
@@ -541,8 +518,9 @@ class SimNodeLogic:
         """``/diagnostics`` of one failed step (WARN: stepping goes on; ERROR: paused), stamped with the
         time the step started from; nothing in it depends on the wall clock, so a replay compares it."""
         ns = self.stamp_ns()
-        self._send(ns, [("diagnostics", M.new("diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
-                                              status=[self._status(FAILURE_STATUS, level, text, {})]), None)])
+        self._send(ns, [self._output("diagnostics", M.new(
+            "diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
+            status=[self._status(FAILURE_STATUS, level, text, {})]))])
 
     @property
     def publication_due(self) -> bool:
@@ -628,39 +606,34 @@ class SimNodeLogic:
     def _outputs(self, ns: int, r: StepResult, markers: bool, events: list[ContactEvent]
                  ) -> list[tuple[str, object, bytes | None]]:
         """(key, message object or None, CDR bytes or None) of one publication at ``ns`` after step ``r``:
-        clock, node_poses, cable_states, cable_impulses, then markers if ``markers``, then contacts if
-        ``events``. Objects where the transport takes them (and for contacts, which are serialised from
-        them), bytes from the templates where the log or a raw transport takes them."""
-        length, rate = self._length, self._rate
-        member_kinematics(r.positions, r.velocities, self._cable_ends, length, rate)
+        :data:`~.publication.PUBLISHED`, then markers if ``markers``, then contacts if ``events``. Objects
+        where the transport takes them (and for contacts, which are serialised from them), bytes where the
+        log or a raw transport takes them (:class:`~.publication.PublicationCdr`, the markers' templates)."""
         takes_objects = self._transport is not None and not self._raw
         header = M.header(ns, self.settings.frame_id) if takes_objects or events else None
         drawn = self._markers.content(r, self._active_contacts.values()) if markers else None
         if self.recorder is not None or self._raw:
-            sec, nanosec = divmod(ns, 1_000_000_000)
-            t = self._templates
-            outputs = [("clock", None, t["clock"].encode(sec, nanosec)),
-                       ("node_poses", None, t["node_poses"].encode(sec, nanosec, r.positions)),
-                       ("cable_states", None, t["cable_states"].encode(sec, nanosec, length, rate, r.tensions)),
-                       ("cable_impulses", None, t["cable_impulses"].encode(sec, nanosec, self._impulse_sum))]
+            data = self._cdr.encode(ns, r.positions, r.velocities, r.tensions, self._impulse_sum)
             if drawn is not None:
-                outputs.append(("markers", None, self._markers.cdr(sec, nanosec, drawn)))
+                data.append(self._markers.cdr(ns, drawn))
         else:
-            outputs = [(key, None, None) for key in _PUBLISHED]
-            if drawn is not None:
-                outputs.append(("markers", None, None))
+            data = [None] * (5 if drawn is not None else 4)
         if takes_objects:
+            length, rate = self._length, self._rate
+            member_kinematics(r.positions, r.velocities, self._cable_ends, length, rate)
             messages = self._messages(ns, header, r.positions, length, rate, r.tensions, self._impulse_sum)
             if drawn is not None:
                 messages.append(self._markers.message(header, drawn))
-            outputs = [(key, message, data) for (key, _, data), message in zip(outputs, messages)]
+        else:
+            messages = [None] * len(data)
+        outputs = list(zip((*PUBLISHED, "markers"), messages, data))
         if events:
-            outputs.append(("contacts", encode_contacts(events, header), None))
+            outputs.append(self._output("contacts", encode_contacts(events, header)))
         return outputs
 
     def _messages(self, ns: int, header, positions, length, rate, tensions, impulses) -> list:
-        """The message objects of clock, node_poses, cable_states and cable_impulses (the arrays as in
-        :meth:`_cdr_templates`); ``header``: stamped ``ns``, in the node's frame."""
+        """The message objects of :data:`~.publication.PUBLISHED` (the arrays as in
+        :func:`~.publication.publication_templates`); ``header``: stamped ``ns``, in the node's frame."""
         q = M.new("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0)
         poses = [M.new("geometry_msgs/msg/Pose", position=M.point(*p), orientation=q) for p in positions.tolist()]
         return [M.new("rosgraph_msgs/msg/Clock", clock=M.time(ns)),
@@ -668,15 +641,18 @@ class SimNodeLogic:
                 M.joint_state(header, self._cable_names, length, rate, tensions),
                 M.joint_state(header, self._cable_names, effort=impulses)]
 
+    def _output(self, key: str, message) -> tuple[str, object, bytes | None]:
+        """(key, message, its CDR bytes where the log or a raw transport takes them, else None)."""
+        wants_bytes = self.recorder is not None or self._raw
+        return key, message, M.serialize(message, TOPICS[key].typename) if wants_bytes else None
+
     def _send(self, ns: int, outputs: list[tuple[str, object, bytes | None]]) -> None:
         """Record and send ``outputs`` at ``ns``, in order: (key, message object or None if only bytes are
-        taken, its CDR bytes or None to serialise them from the object where needed). The log takes them in
-        one call (:meth:`~.log.LogRecorder.record`), then the transport one by one."""
-        if self.recorder is not None or self._raw:
-            outputs = [(key, message, M.serialize(message, TOPICS[key].typename) if data is None else data)
-                       for key, message, data in outputs]
+        taken, its CDR bytes or None if neither the log nor a raw transport takes them). The log takes them
+        in one call (:meth:`~.log.LogRecorder.record`), then the transport one by one."""
         if self.recorder is not None:
-            self.recorder.record([(self.topic_names[key], data) for key, _, data in outputs], ns)
+            names = self.topic_names
+            self.recorder.record([(names[key], data) for key, _, data in outputs], ns)
         if self._transport is not None:
             for key, message, data in outputs:
                 self._transport(key, data if self._raw else message)
@@ -729,8 +705,8 @@ class SimNodeLogic:
         self._anchor()
         if changes:
             ns = self.stamp_ns()
-            self._send(ns, [("parameter_events", M.parameter_event(
-                ns, self.settings.node_name, {name: getattr(self.settings, name) for name in changes}), None)])
+            self._send(ns, [self._output("parameter_events", M.parameter_event(
+                ns, self.settings.node_name, {name: getattr(self.settings, name) for name in changes}))])
         return self.settings
 
     # ------------------------------------------------------------------ reporting
@@ -748,8 +724,9 @@ class SimNodeLogic:
             level, text = 0, "paused" if self.paused else "stepping"
         values = {k: str(v) for k, v in self.statistics().items()}
         ns = self.stamp_ns()
-        self._send(ns, [("diagnostics", M.new("diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
-                                              status=[self._status("stepping", level, text, values)]), None)])
+        self._send(ns, [self._output("diagnostics", M.new(
+            "diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
+            status=[self._status("stepping", level, text, values)]))])
 
     def _status(self, what: str, level: int, text: str, values: dict):
         """One DiagnosticStatus named ``"<node name>: <what>"``, hardware id = the scene's name."""

@@ -1,0 +1,135 @@
+"""The CDR bytes of the four outputs of every publication of the node: ``/clock``, ``~/node_poses``,
+``~/cable_states`` and ``~/cable_impulses`` (``msg_docs/``), written in one compiled pass.
+
+:func:`publication_templates` builds one :class:`~.cdr.CdrTemplate` per output: the bytes rosbags
+serialises for the node's frame id, cable names and sizes, with slots for the stamp and the arrays.
+:func:`encode_with_templates` fills them in turn (numpy assignments into views): the plain reference.
+:class:`PublicationCdr` lays the four templates' bytes side by side in one buffer, placed so that every
+float64 of them is 8-byte aligned, and writes the stamp, the positions, the cable lengths and rates,
+tensions and impulse sums with one call of :func:`._publication_kernels.write_publication`; tests require
+the very bytes of the reference.
+
+Why (``bench/bench_log.py``, icosahedron, one process): the four template encodes and the member
+kinematics took ~8.5 us a publication on a loaded machine (four calls, eleven numpy assignments, each
+a few hundred ns of dispatch), the compiled pass ~2.2 us, its four ``bytes`` copies included. The rest of
+a publication's cost is mcap's writer (~5-8 us a message; see :mod:`.log`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .._system_kernels import member_kinematics
+from ._publication_kernels import LAYOUT, write_publication
+from .cdr import CdrTemplate
+
+__all__ = ["PUBLISHED", "PUBLISHED_TYPES", "publication_templates", "encode_with_templates", "PublicationCdr"]
+
+# the outputs of every publication, in the order they go out, and their types
+PUBLISHED = ("clock", "node_poses", "cable_states", "cable_impulses")
+PUBLISHED_TYPES = {"clock": "rosgraph_msgs/msg/Clock", "node_poses": "geometry_msgs/msg/PoseArray",
+                   "cable_states": "sensor_msgs/msg/JointState", "cable_impulses": "sensor_msgs/msg/JointState"}
+_STAMP = ("header.stamp.sec", "header.stamp.nanosec")
+
+
+def publication_templates(frame_id: str, n_nodes: int, cable_names: list[str]) -> dict[str, CdrTemplate]:
+    """CDR templates of :data:`PUBLISHED`. What never changes in them is fixed here (the frame id, which
+    is not a runtime parameter, the cable names, the number of nodes and cables, the identity orientation
+    of the poses); the slots take the stamp and the arrays, in the order :func:`encode_with_templates`
+    gives them: clock (sec, nanosec); node_poses (sec, nanosec, positions (N, 3) m); cable_states (sec,
+    nanosec, lengths m, rates m/s, tensions N, each (n_cables,)); cable_impulses (sec, nanosec, impulse
+    sums (n_cables,) N*s). They encode the messages the node logic builds as objects, byte for byte (the
+    tests check it)."""
+    header = {"frame_id": frame_id}
+    zeros = np.zeros(len(cable_names))
+    return {
+        "clock": CdrTemplate(PUBLISHED_TYPES["clock"], {}, ("clock.sec", "clock.nanosec")),
+        "node_poses": CdrTemplate(PUBLISHED_TYPES["node_poses"], {
+            "header": header, "poses": [{"orientation": {"w": 1.0}}] * n_nodes}, (*_STAMP, "poses[].position")),
+        "cable_states": CdrTemplate(PUBLISHED_TYPES["cable_states"], {
+            "header": header, "name": list(cable_names), "position": zeros, "velocity": zeros, "effort": zeros},
+            (*_STAMP, "position", "velocity", "effort")),
+        "cable_impulses": CdrTemplate(PUBLISHED_TYPES["cable_impulses"], {
+            "header": header, "name": list(cable_names), "effort": zeros}, (*_STAMP, "effort")),
+    }
+
+
+def encode_with_templates(templates: dict[str, CdrTemplate], ns: int, positions: np.ndarray,
+                          velocities: np.ndarray, cable_ends: np.ndarray, tensions: np.ndarray,
+                          impulses: np.ndarray) -> list[bytes]:
+    """The CDR bytes of :data:`PUBLISHED` stamped ``ns``, from :func:`publication_templates`' ``templates``:
+    positions and velocities (N, 3) m, m/s; ``cable_ends`` (nc, 2) int64; tensions and impulse sums
+    (nc,) N, N*s. The plain reference of :meth:`PublicationCdr.encode`."""
+    sec, nanosec = divmod(ns, 1_000_000_000)
+    length, rate = np.empty(len(cable_ends)), np.empty(len(cable_ends))
+    member_kinematics(positions, velocities, cable_ends, length, rate)
+    return [templates["clock"].encode(sec, nanosec),
+            templates["node_poses"].encode(sec, nanosec, positions),
+            templates["cable_states"].encode(sec, nanosec, length, rate, tensions),
+            templates["cable_impulses"].encode(sec, nanosec, impulses)]
+
+
+class PublicationCdr:
+    """:func:`encode_with_templates` in one compiled pass (module docstring): ``templates`` from
+    :func:`publication_templates`, ``cable_ends`` (nc, 2) node indices of the cables.
+
+    ValueError (never expected) if a slot of the templates is not where the compiled pass writes it: an
+    unaligned float64, a stamp whose nanosec does not follow its sec, positions not 3 float64s in a row.
+    """
+
+    def __init__(self, templates: dict[str, CdrTemplate], cable_ends: np.ndarray):
+        self._ends = np.ascontiguousarray(cable_ends, dtype=np.int64)
+        pieces = [templates[key].encode(*[0] * len(templates[key].slots)) for key in PUBLISHED]
+        # message k starts at 4 mod 8, so its body (after the 4-byte encapsulation header), to which CDR
+        # aligns, starts at 0 mod 8 in the buffer, and so does every float64 of it
+        starts, end = [], 0
+        for data in pieces:
+            end += (4 - end) % 8
+            starts.append(end)
+            end += len(data)
+        buffer = np.zeros(end + (-end) % 8, dtype=np.uint8)
+        for start, data in zip(starts, pieces):
+            buffer[start:start + len(data)] = np.frombuffer(data, dtype=np.uint8)
+        self._spans = [(start, start + len(data)) for start, data in zip(starts, pieces)]
+        self._f64, self._u32 = buffer.view(np.float64), buffer.view(np.uint32)
+        self._bytes = memoryview(buffer)
+        start = dict(zip(PUBLISHED, starts))
+
+        def index(key: str, slot: str, dtype: str, shape: tuple) -> int:
+            """The slot's first number as an index into the buffer's view of ``dtype`` (0 for a slot
+            with no numbers: no cables), after checking that the slot is ``shape``d, aligned and its
+            rows contiguous, as the compiled pass writes it."""
+            place = templates[key].place(slot)
+            if place is None:
+                return 0
+            offset, slot_shape, strides, slot_dtype = place
+            at, size = start[key] + offset, slot_dtype.itemsize
+            if (slot_dtype != np.dtype(dtype) or slot_shape != shape or at % size or any(s % size for s in strides)
+                    or (shape and strides[-1] != size)):
+                raise ValueError(f"{key}: slot {slot!r} is not where the compiled pass writes it")
+            return at // size
+
+        n_nodes, n_cables = templates["node_poses"].place("poses[].position")[1][0], len(self._ends)
+        layout = {"n_nodes": n_nodes}
+        for key in PUBLISHED:
+            sec, nanosec = ("clock.sec", "clock.nanosec") if key == "clock" else _STAMP
+            layout[f"stamp_{key}"] = index(key, sec, "<i4", ())
+            if index(key, nanosec, "<u4", ()) != layout[f"stamp_{key}"] + 1:
+                raise ValueError(f"{key}: nanosec does not follow sec")
+        layout["positions"] = index("node_poses", "poses[].position", "<f8", (n_nodes, 3))
+        layout["pose_stride"] = templates["node_poses"].place("poses[].position")[2][0] // 8
+        for name, key, slot in (("lengths", "cable_states", "position"), ("rates", "cable_states", "velocity"),
+                                ("tensions", "cable_states", "effort"), ("impulses", "cable_impulses", "effort")):
+            layout[name] = index(key, slot, "<f8", (n_cables,))
+        self._layout = np.array([layout[name] for name in LAYOUT], dtype=np.int64)
+
+    def encode(self, ns: int, positions: np.ndarray, velocities: np.ndarray, tensions: np.ndarray,
+               impulses: np.ndarray) -> list[bytes]:
+        """The CDR bytes of :data:`PUBLISHED` stamped ``ns`` (0 <= ns < 2**31 s): positions and velocities
+        (N, 3) m, m/s; tensions and impulse sums (nc,) N, N*s; as :func:`encode_with_templates`."""
+        sec, nanosec = divmod(ns, 1_000_000_000)
+        if not 0 <= sec < 2**31:
+            raise ValueError(f"stamp {ns} ns: the seconds do not fit a builtin_interfaces/Time (int32)")
+        write_publication(self._f64, self._u32, self._layout, positions, velocities, self._ends, tensions,
+                          impulses, sec, nanosec)
+        data = self._bytes
+        return [bytes(data[a:b]) for a, b in self._spans]
