@@ -44,7 +44,7 @@ from .._system_kernels import member_kinematics
 from ..checks import MIN_DT, describe, real
 from ..methods import StepError
 from ..methods.qp import SOLVERS
-from ..results import ContactEvent, StepResult
+from ..results import ContactEvent, StepResult, step_result
 from ..simulator import Simulator
 from . import messages as M
 from .markers import Markers
@@ -297,6 +297,9 @@ class SimNodeLogic:
         self._node_index = {n: i for i, n in enumerate(scene.node_names)}
         self._inputs = {"cable_rest_lengths": self._apply_rest_lengths, "external_wrench": self._apply_wrench}
         self._markers = Markers(sim, settings.frame_id)
+        n_cables = len(self._cable_names)
+        self._markers.prepare(step_result(sim.time, sim.positions, sim.velocities, np.zeros(n_cables),
+                                          np.zeros(n_cables), sim.slack(), (), None))
         # the bytes of every publication's outputs, in one compiled pass
         self._cdr = PublicationCdr(publication_templates(settings.frame_id, len(scene.node_names), self._cable_names),
                                    sim.system.cable_ends)
