@@ -11,7 +11,7 @@ import pytest
 
 from tensegrity_sim.ros.cdr import CdrTemplate, prototype
 from tensegrity_sim.ros.messages import TYPESTORE
-from tensegrity_sim.ros.publication import PublicationCdr, encode_with_templates, publication_templates
+from tensegrity_sim.ros.publication import PublicationCdr, PublicationTemplates
 
 STAMP = ("header.stamp.sec", "header.stamp.nanosec")
 
@@ -240,18 +240,18 @@ def test_a_walk_that_disagrees_with_rosbags_is_refused():
 @pytest.mark.parametrize("n_nodes, n_cables", [(2, 1), (3, 0), (12, 24), (41, 100)])
 def test_publication_in_one_pass_is_the_templates_bytes(frame, n_nodes, n_cables):
     """``PublicationCdr`` (one compiled pass over one buffer) writes the very bytes of the four templates
-    filled in turn (``encode_with_templates``), whatever the padding: frame ids of every length mod 8,
+    filled in turn (``PublicationTemplates``), whatever the padding: frame ids of every length mod 8,
     cable names of lengths 1 to 8, no cables; stamps up to the largest int32; special floats kept."""
     rng = np.random.default_rng(n_nodes + len(frame))
     names = [f"c{i}" + "x" * (i % 8) for i in range(n_cables)]
     ends = rng.integers(0, n_nodes, size=(n_cables, 2))
     ends[:, 1] = (ends[:, 0] + 1 + rng.integers(0, n_nodes - 1, size=n_cables)) % n_nodes  # two distinct nodes
-    templates = publication_templates(frame, n_nodes, names)
-    fast = PublicationCdr(templates, ends)
+    reference = PublicationTemplates(frame, n_nodes, names, ends)
+    fast = PublicationCdr(reference)
     for ns in (0, 1_234_567_891, (2**31 - 1) * 10**9 + 999_999_999):
         x, v = rng.normal(size=(n_nodes, 3)), rng.normal(size=(n_nodes, 3))
         tensions, impulses = awkward_floats(rng, n_cables), awkward_floats(rng, n_cables)
-        expected = encode_with_templates(templates, ns, x, v, ends, tensions, impulses)
+        expected = reference.encode(ns, x, v, tensions, impulses)
         assert fast.encode(ns, x, v, tensions, impulses) == expected
     with pytest.raises(ValueError, match="do not fit"):
         fast.encode(2**31 * 10**9, x, v, tensions, impulses)

@@ -48,7 +48,7 @@ from ..results import ContactEvent, StepResult, step_result
 from ..simulator import Simulator
 from . import messages as M
 from .markers import Markers
-from .publication import PUBLISHED, PublicationCdr, publication_templates
+from .publication import PUBLISHED, PublicationCdr, PublicationTemplates
 
 __all__ = ["Qos", "TopicSpec", "TOPICS", "SERVICES", "NodeSettings", "SimNodeLogic", "stamp_ns", "encode_contacts",
            "decode_contacts", "RUNTIME_PARAMETERS", "FAILURE_STATUS"]
@@ -301,8 +301,8 @@ class SimNodeLogic:
         self._markers.prepare(step_result(sim.time, sim.positions, sim.velocities, np.zeros(n_cables),
                                           np.zeros(n_cables), sim.slack(), (), None))
         # the bytes of every publication's outputs, in one compiled pass
-        self._cdr = PublicationCdr(publication_templates(settings.frame_id, len(scene.node_names), self._cable_names),
-                                   sim.system.cable_ends)
+        self._cdr = PublicationCdr(PublicationTemplates(settings.frame_id, len(scene.node_names), self._cable_names,
+                                                        sim.system.cable_ends))
         # the cable lengths (m) and elongation rates (m/s) of a publication's message objects, worked out in place
         self._cable_ends = np.ascontiguousarray(sim.system.cable_ends, dtype=np.int64)
         self._length = np.empty(len(self._cable_names))
@@ -636,7 +636,7 @@ class SimNodeLogic:
 
     def _messages(self, ns: int, header, positions, length, rate, tensions, impulses) -> list:
         """The message objects of :data:`~.publication.PUBLISHED` (the arrays as in
-        :func:`~.publication.publication_templates`); ``header``: stamped ``ns``, in the node's frame."""
+        :class:`~.publication.PublicationTemplates`); ``header``: stamped ``ns``, in the node's frame."""
         q = M.new("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0)
         poses = [M.new("geometry_msgs/msg/Pose", position=M.point(*p), orientation=q) for p in positions.tolist()]
         return [M.new("rosgraph_msgs/msg/Clock", clock=M.time(ns)),

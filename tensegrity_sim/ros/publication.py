@@ -1,10 +1,10 @@
 """The CDR bytes of the four outputs of every publication of the node: ``/clock``, ``~/node_poses``,
 ``~/cable_states`` and ``~/cable_impulses`` (``msg_docs/``), written in one compiled pass.
 
-:func:`publication_templates` builds one :class:`~.cdr.CdrTemplate` per output: the bytes rosbags
-serialises for the node's frame id, cable names and sizes, with slots for the stamp and the arrays.
-:func:`encode_with_templates` fills them in turn (numpy assignments into views): the plain reference.
-:class:`PublicationCdr` lays the four templates' bytes side by side in one buffer, placed so that every
+:class:`PublicationTemplates` holds one :class:`~.cdr.CdrTemplate` per output (the bytes rosbags
+serialises for the node's frame id, cable names and sizes, with slots for the stamp and the arrays) and
+fills them in turn (numpy assignments into views): the plain reference. :class:`PublicationCdr` lays
+the four templates' bytes side by side in one buffer, placed so that every
 float64 of them is 8-byte aligned, and writes the stamp, the positions, the cable lengths and rates,
 tensions and impulse sums with one call of :func:`._publication_kernels.write_publication`; tests require
 the very bytes of the reference.
@@ -22,7 +22,7 @@ from .._system_kernels import member_kinematics
 from ._publication_kernels import LAYOUT, write_publication
 from .cdr import CdrTemplate
 
-__all__ = ["PUBLISHED", "PUBLISHED_TYPES", "publication_templates", "encode_with_templates", "PublicationCdr"]
+__all__ = ["PUBLISHED", "PUBLISHED_TYPES", "PublicationTemplates", "PublicationCdr"]
 
 # the outputs of every publication, in the order they go out, and their types
 PUBLISHED = ("clock", "node_poses", "cable_states", "cable_impulses")
@@ -31,53 +31,59 @@ PUBLISHED_TYPES = {"clock": "rosgraph_msgs/msg/Clock", "node_poses": "geometry_m
 _STAMP = ("header.stamp.sec", "header.stamp.nanosec")
 
 
-def publication_templates(frame_id: str, n_nodes: int, cable_names: list[str]) -> dict[str, CdrTemplate]:
-    """CDR templates of :data:`PUBLISHED`. What never changes in them is fixed here (the frame id, which
-    is not a runtime parameter, the cable names, the number of nodes and cables, the identity orientation
-    of the poses); the slots take the stamp and the arrays, in the order :func:`encode_with_templates`
-    gives them: clock (sec, nanosec); node_poses (sec, nanosec, positions (N, 3) m); cable_states (sec,
-    nanosec, lengths m, rates m/s, tensions N, each (n_cables,)); cable_impulses (sec, nanosec, impulse
-    sums (n_cables,) N*s). They encode the messages the node logic builds as objects, byte for byte (the
-    tests check it)."""
-    header = {"frame_id": frame_id}
-    zeros = np.zeros(len(cable_names))
-    return {
-        "clock": CdrTemplate(PUBLISHED_TYPES["clock"], {}, ("clock.sec", "clock.nanosec")),
-        "node_poses": CdrTemplate(PUBLISHED_TYPES["node_poses"], {
-            "header": header, "poses": [{"orientation": {"w": 1.0}}] * n_nodes}, (*_STAMP, "poses[].position")),
-        "cable_states": CdrTemplate(PUBLISHED_TYPES["cable_states"], {
-            "header": header, "name": list(cable_names), "position": zeros, "velocity": zeros, "effort": zeros},
-            (*_STAMP, "position", "velocity", "effort")),
-        "cable_impulses": CdrTemplate(PUBLISHED_TYPES["cable_impulses"], {
-            "header": header, "name": list(cable_names), "effort": zeros}, (*_STAMP, "effort")),
-    }
+class PublicationTemplates:
+    """The plain reference: one :class:`~.cdr.CdrTemplate` per output of :data:`PUBLISHED`, filled in
+    turn. ``frame_id`` of the poses and cable states, ``n_nodes``, ``cable_names`` (n_cables,) and
+    ``cable_ends`` (n_cables, 2) node indices of the cables.
 
+    What never changes in the templates is fixed here (the frame id, which is not a runtime parameter, the
+    cable names, the number of nodes and cables, the identity orientation of the poses); the slots take
+    the stamp and the arrays: clock (sec, nanosec); node_poses (sec, nanosec, positions (N, 3) m);
+    cable_states (sec, nanosec, lengths m, rates m/s, tensions N, each (n_cables,)); cable_impulses (sec,
+    nanosec, impulse sums (n_cables,) N*s). They encode the messages the node logic builds as objects,
+    byte for byte (the tests check it).
+    """
 
-def encode_with_templates(templates: dict[str, CdrTemplate], ns: int, positions: np.ndarray,
-                          velocities: np.ndarray, cable_ends: np.ndarray, tensions: np.ndarray,
-                          impulses: np.ndarray) -> list[bytes]:
-    """The CDR bytes of :data:`PUBLISHED` stamped ``ns``, from :func:`publication_templates`' ``templates``:
-    positions and velocities (N, 3) m, m/s; ``cable_ends`` (nc, 2) int64; tensions and impulse sums
-    (nc,) N, N*s. The plain reference of :meth:`PublicationCdr.encode`."""
-    sec, nanosec = divmod(ns, 1_000_000_000)
-    length, rate = np.empty(len(cable_ends)), np.empty(len(cable_ends))
-    member_kinematics(positions, velocities, cable_ends, length, rate)
-    return [templates["clock"].encode(sec, nanosec),
-            templates["node_poses"].encode(sec, nanosec, positions),
-            templates["cable_states"].encode(sec, nanosec, length, rate, tensions),
-            templates["cable_impulses"].encode(sec, nanosec, impulses)]
+    def __init__(self, frame_id: str, n_nodes: int, cable_names, cable_ends: np.ndarray):
+        header = {"frame_id": frame_id}
+        zeros = np.zeros(len(cable_names))
+        self.cable_ends = np.ascontiguousarray(cable_ends, dtype=np.int64)
+        self.templates = {
+            "clock": CdrTemplate(PUBLISHED_TYPES["clock"], {}, ("clock.sec", "clock.nanosec")),
+            "node_poses": CdrTemplate(PUBLISHED_TYPES["node_poses"], {
+                "header": header, "poses": [{"orientation": {"w": 1.0}}] * n_nodes}, (*_STAMP, "poses[].position")),
+            "cable_states": CdrTemplate(PUBLISHED_TYPES["cable_states"], {
+                "header": header, "name": list(cable_names), "position": zeros, "velocity": zeros, "effort": zeros},
+                (*_STAMP, "position", "velocity", "effort")),
+            "cable_impulses": CdrTemplate(PUBLISHED_TYPES["cable_impulses"], {
+                "header": header, "name": list(cable_names), "effort": zeros}, (*_STAMP, "effort")),
+        }
+
+    def encode(self, ns: int, positions: np.ndarray, velocities: np.ndarray, tensions: np.ndarray,
+               impulses: np.ndarray) -> list[bytes]:
+        """The CDR bytes of :data:`PUBLISHED` stamped ``ns``: positions and velocities (N, 3) m, m/s (the
+        cable lengths and rates from them, :func:`~tensegrity_sim._system_kernels.member_kinematics`),
+        tensions and impulse sums (n_cables,) N, N*s."""
+        sec, nanosec = divmod(ns, 1_000_000_000)
+        length, rate = np.empty(len(self.cable_ends)), np.empty(len(self.cable_ends))
+        member_kinematics(positions, velocities, self.cable_ends, length, rate)
+        t = self.templates
+        return [t["clock"].encode(sec, nanosec),
+                t["node_poses"].encode(sec, nanosec, positions),
+                t["cable_states"].encode(sec, nanosec, length, rate, tensions),
+                t["cable_impulses"].encode(sec, nanosec, impulses)]
 
 
 class PublicationCdr:
-    """:func:`encode_with_templates` in one compiled pass (module docstring): ``templates`` from
-    :func:`publication_templates`, ``cable_ends`` (nc, 2) node indices of the cables.
+    """:meth:`PublicationTemplates.encode` of ``reference`` in one compiled pass (module docstring).
 
     ValueError (never expected) if a slot of the templates is not where the compiled pass writes it: an
     unaligned float64, a stamp whose nanosec does not follow its sec, positions not 3 float64s in a row.
     """
 
-    def __init__(self, templates: dict[str, CdrTemplate], cable_ends: np.ndarray):
-        self._ends = np.ascontiguousarray(cable_ends, dtype=np.int64)
+    def __init__(self, reference: PublicationTemplates):
+        templates = reference.templates
+        self._ends = reference.cable_ends
         pieces = [templates[key].encode(*[0] * len(templates[key].slots)) for key in PUBLISHED]
         # message k starts at 4 mod 8, so its body (after the 4-byte encapsulation header), to which CDR
         # aligns, starts at 0 mod 8 in the buffer, and so does every float64 of it
@@ -124,8 +130,7 @@ class PublicationCdr:
 
     def encode(self, ns: int, positions: np.ndarray, velocities: np.ndarray, tensions: np.ndarray,
                impulses: np.ndarray) -> list[bytes]:
-        """The CDR bytes of :data:`PUBLISHED` stamped ``ns`` (0 <= ns < 2**31 s): positions and velocities
-        (N, 3) m, m/s; tensions and impulse sums (nc,) N, N*s; as :func:`encode_with_templates`."""
+        """:meth:`PublicationTemplates.encode`, for stamps of 0 <= ``ns`` < 2**31 s (an int32's seconds)."""
         sec, nanosec = divmod(ns, 1_000_000_000)
         if not 0 <= sec < 2**31:
             raise ValueError(f"stamp {ns} ns: the seconds do not fit a builtin_interfaces/Time (int32)")
