@@ -34,5 +34,7 @@ def write_publication(f64, u32, layout, x, v, ends, tensions, impulses, sec, nan
         for j in range(3):
             f64[p + i * stride + j] = x[i, j]
     member_kinematics(x, v, ends, f64[layout[6]:layout[6] + n], f64[layout[7]:layout[7] + n])
-    f64[layout[8]:layout[8] + n] = tensions
-    f64[layout[9]:layout[9] + n] = impulses
+    # element by element: a slice assignment would cost 3 s of numba compilation on a first run
+    for i in range(n):
+        f64[layout[8] + i] = tensions[i]
+        f64[layout[9] + i] = impulses[i]
