@@ -26,7 +26,8 @@ file) and left out of the per-step times. Times are CPU time of this process (``
 not wall-clock time, so that other work on a shared machine does not count. Never asserts a time.
 
 ``--crash-safety`` instead compares, per step, the log as written before issue 13 (mcap's 1 MiB chunks,
-no flush until the end) with the crash-safe log (``log.CHUNK_SIZE`` chunks, a write-out and fsync every
+no flush until the end, each message handed to the writer at once) with the crash-safe log
+(``log.PENDING_SIZE`` bytes of messages waiting, ``log.CHUNK_SIZE`` chunks, a write-out and fsync every
 ``log.FLUSH_PERIOD`` s): the difference against the node's step time is the price of bounding what a crash
 loses. These are wall-clock times (``time.perf_counter``, an fsync waits for the disk, which CPU time
 would not show), best of ``--repeats`` runs taking turns, each run long enough to flush several times.
@@ -47,7 +48,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run as a script
 
 import tensegrity_sim as ts  # noqa: E402
 from bench.tables import write_csv  # noqa: E402
-from tensegrity_sim.ros.log import CHUNK_SIZE, FLUSH_PERIOD, LogRecorder, LogWriter  # noqa: E402
+from tensegrity_sim.ros.log import CHUNK_SIZE, FLUSH_PERIOD, PENDING_SIZE, LogRecorder, LogWriter  # noqa: E402
 from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic  # noqa: E402
 from tensegrity_sim.ros.publication import PublicationTemplates  # noqa: E402
 
@@ -162,7 +163,8 @@ def crash_safety(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> dic
                     logic.publish()
         return run, (writer.finish if writer is not None else lambda: None)
 
-    configs = {"node": lambda: node(None), "before": lambda: node({"chunk_size": 1 << 20, "flush_period": None}),
+    configs = {"node": lambda: node(None),
+               "before": lambda: node({"chunk_size": 1 << 20, "pending_size": 0, "flush_period": None}),
                "crash-safe": lambda: node({})}
     return best_per_step(configs, steps, repeats, clock=time.perf_counter)
 
@@ -180,9 +182,9 @@ def main():
     args = parser.parse_args()
     names = args.scenes or list(ts.builtin_scenes())
     if args.crash_safety:
-        print(f"crash-safe log: chunks of {CHUNK_SIZE // 1024} KiB, written out and synced every {FLUSH_PERIOD:g} s; "
-              f"before: 1 MiB chunks, never flushed. Wall-clock per step, best of {args.repeats} x {args.steps} "
-              f"steps")
+        print(f"crash-safe log: {PENDING_SIZE // 1024} KiB of messages waiting, chunks of {CHUNK_SIZE // 1024} KiB, "
+              f"written out and synced every {FLUSH_PERIOD:g} s; before: 1 MiB chunks, never flushed. Wall-clock "
+              f"per step, best of {args.repeats} x {args.steps} steps")
         print(f"{'scene':<14}{'node':>10}{'before':>10}{'crash-safe':>12}  {'cost/node':>9}")
         with tempfile.TemporaryDirectory() as folder:
             for name in names:
