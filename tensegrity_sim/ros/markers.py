@@ -22,7 +22,7 @@ _SHAPES_KEPT = 64  # MarkerArray templates kept (a shape: the markers and their 
 _NO_POINTS = np.zeros((0, 3))
 
 # (namespace, points (k, 3) m or None to delete it, per-point colours (k, 4) RGBA or None)
-Content = list[tuple[str, "np.ndarray | None", "np.ndarray | None"]]
+Content = list[tuple[str, np.ndarray | None, np.ndarray | None]]
 
 
 class _MarkerStyle:

@@ -275,9 +275,10 @@ class SimNodeLogic:
     clock(): monotonic wall-clock seconds (``time.monotonic``; a fake one in tests).
     logger: where refusals, warnings (``warning``) and the reason of a pause after a failed step (``error``)
     go (a ``logging.Logger``-like object).
-    recorder: an object with ``record(topic_name, data, log_time_ns)`` (``data``: the message's CDR bytes)
-    and ``restart(run_info)`` (the MCAP log, :class:`~tensegrity_sim.ros.log.LogRecorder`), or None; it can be
-    attached after construction.
+    recorder: an object with ``record(records, log_time_ns)`` (``records``: the (topic name, CDR bytes) of
+    the messages at that time, in order: a publication's outputs in one call) and ``restart(run_info)``
+    (the MCAP log, :class:`~tensegrity_sim.ros.log.LogRecorder`), or None; it can be attached after
+    construction.
     """
 
     def __init__(self, sim: Simulator, settings: NodeSettings, *, transport: Transport | None = None,
