@@ -46,7 +46,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 from .. import __version__
 from . import messages as M
-from .node_logic import Qos
+from .interface import Qos
 
 __all__ = ["RUN_INFO", "LogWriter", "LogWriteError", "LogRecorder", "SignalLatch", "log_file_path",
            "qos_profiles_yaml", "CHUNK_SIZE", "PENDING_SIZE", "FLUSH_PERIOD"]

@@ -21,13 +21,12 @@ import numpy as np
 from .._system_kernels import member_kinematics
 from ._publication_kernels import LAYOUT, write_publication
 from .cdr import CdrTemplate
+from .interface import TOPICS
 
-__all__ = ["PUBLISHED", "PUBLISHED_TYPES", "PublicationTemplates", "PublicationCdr"]
+__all__ = ["PUBLISHED", "PublicationTemplates", "PublicationCdr"]
 
-# the outputs of every publication, in the order they go out, and their types
+# the outputs of every publication (keys of TOPICS), in the order they go out
 PUBLISHED = ("clock", "node_poses", "cable_states", "cable_impulses")
-PUBLISHED_TYPES = {"clock": "rosgraph_msgs/msg/Clock", "node_poses": "geometry_msgs/msg/PoseArray",
-                   "cable_states": "sensor_msgs/msg/JointState", "cable_impulses": "sensor_msgs/msg/JointState"}
 _STAMP = ("header.stamp.sec", "header.stamp.nanosec")
 
 
@@ -49,13 +48,13 @@ class PublicationTemplates:
         zeros = np.zeros(len(cable_names))
         self.cable_ends = np.ascontiguousarray(cable_ends, dtype=np.int64)
         self.templates = {
-            "clock": CdrTemplate(PUBLISHED_TYPES["clock"], {}, ("clock.sec", "clock.nanosec")),
-            "node_poses": CdrTemplate(PUBLISHED_TYPES["node_poses"], {
+            "clock": CdrTemplate(TOPICS["clock"].typename, {}, ("clock.sec", "clock.nanosec")),
+            "node_poses": CdrTemplate(TOPICS["node_poses"].typename, {
                 "header": header, "poses": [{"orientation": {"w": 1.0}}] * n_nodes}, (*_STAMP, "poses[].position")),
-            "cable_states": CdrTemplate(PUBLISHED_TYPES["cable_states"], {
+            "cable_states": CdrTemplate(TOPICS["cable_states"].typename, {
                 "header": header, "name": list(cable_names), "position": zeros, "velocity": zeros, "effort": zeros},
                 (*_STAMP, "position", "velocity", "effort")),
-            "cable_impulses": CdrTemplate(PUBLISHED_TYPES["cable_impulses"], {
+            "cable_impulses": CdrTemplate(TOPICS["cable_impulses"].typename, {
                 "header": header, "name": list(cable_names), "effort": zeros}, (*_STAMP, "effort")),
         }
 
