@@ -436,3 +436,25 @@ def test_self_stress_rule_matches_reference(name):
         sim.step()
     assert calls["compared"] >= 100
     assert calls["refined"] > 0 or name == "tower"
+
+
+@pytest.mark.parametrize("name", ["prism3", "icosahedron", "tower"])
+def test_member_kinematics_matches_reference(name):
+    """The cable lengths and elongation rates the node publishes (compiled) against ``System.geometry`` and
+    ``System.member_rates`` (numpy), over configurations and velocities from tiny to large scales."""
+    from tensegrity_sim._system_kernels import member_kinematics
+    sim = ts.Simulator(ts.load_scene(name), method="elastic")
+    system = sim.system
+    ends = np.ascontiguousarray(system.cable_ends, dtype=np.int64)
+    rng = np.random.default_rng(7)
+    length, rate = np.empty(len(ends)), np.empty(len(ends))
+    for scale in (1e-3, 1.0, 1e3):
+        x = sim.positions + scale * rng.normal(size=sim.positions.shape)
+        v = scale * rng.normal(size=x.shape)
+        member_kinematics(x, v, ends, length, rate)
+        _, ref_length, n = system.geometry(x, system.cable_ends)
+        ref_rate = system.member_rates(v, n, system.cable_ends)
+        np.testing.assert_allclose(length, ref_length, rtol=TOL, atol=0.0)
+        # a rate is a sum of terms of either sign: agreement relative to the speeds
+        np.testing.assert_allclose(rate, ref_rate, rtol=0.0, atol=TOL * np.abs(v).max())
+        assert np.all(length > 0) and np.abs(rate).max() > 0.1 * scale
