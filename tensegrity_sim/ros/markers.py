@@ -104,14 +104,14 @@ class Markers:
         self._cable_ends = system.cable_ends
         self._supports = np.flatnonzero(~system.free)
         self._ground_grid = _ground_grid(scene, size)
-        self._force_scale = 0.0   # the largest ground force seen (N): drawn 0.3 scene sizes long
         self._scene_size = size
         self._templates: dict[tuple, CdrTemplate] = {}  # marker shape -> template, oldest use first
         self.clear()
 
     def clear(self) -> None:
-        """Forget the largest tension seen and what is on screen (a reset)."""
+        """Forget the largest tension and ground force seen and what is on screen (a reset)."""
         self._tension_scale = 0.0                    # the largest tension seen: red in the markers
+        self._force_scale = 0.0   # the largest ground force seen (N): drawn 0.3 scene sizes long
         self._shown: set[str] = set()                # marker namespaces on screen
 
     def prepare(self, r: StepResult) -> None:
