@@ -50,7 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _qp_kernels as kernels
+from . import _daqp_kernels as daqp_kernels, _qp_kernels as kernels
 from .base import StepError
 
 __all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SparseSolver", "SOLVERS",
@@ -240,25 +240,34 @@ class DaqpSolver(QPSolver):
         self._daqp = daqp
         self._sqrt_mass = np.sqrt(self.mass)
         self._hessian = np.eye(len(self.mass))
+        # daqp_quadprog itself, for the compiled path: daqp.solve's answer bit for bit (_daqp_kernels.py)
+        self._entry, self._raw_settings = daqp_kernels.entry_point(daqp, self.settings)
 
     def _solve(self, v0, rows, warm, unit: float = 1.0):
         """DAQP on the problem divided by ``unit`` (m/s), the answer scaled back."""
         k, n_eq, r = len(rows), rows.n_eq, rows.targets
+        if self.compiled and rows.weights is None:
+            v, y, flag, iterations = daqp_kernels.solve_rows(
+                self._entry, self._raw_settings, self._hessian, self._sqrt_mass, rows.nodes, rows.directions,
+                self.n_free, v0, r, n_eq, np.zeros(k, dtype=bool) if warm is None else warm, unit)
+            if flag < 1:
+                raise self._failure(flag, iterations, k)
+            return v, y
         lower = np.full(k, -1e30)
         lower[:n_eq] = r[:n_eq]
         sense = np.zeros(k, dtype=np.int32) if warm is None else warm.astype(np.int32)   # 1: start active
         sense[:n_eq] = 5
-        if self.compiled and rows.weights is None:
-            a_scaled = kernels.dense_rows(rows.nodes, rows.directions, self.n_free, self._sqrt_mass)
-        else:
-            a_scaled = rows.dense(self.n_free) / self._sqrt_mass
+        a_scaled = rows.dense(self.n_free) / self._sqrt_mass
         lower[:n_eq] /= unit
         z, _, flag, info = self._daqp.solve(self._hessian, -self._sqrt_mass * (v0 / unit), a_scaled,
                                             r / unit, lower, sense, **self.settings)
         if flag < 1:
-            raise QPError(self.name, self._STATUS.get(flag, f"exitflag {flag}"),
-                          f"after {info['iterations']} iterations on {k} rows")
+            raise self._failure(flag, info["iterations"], k)
         return (z / self._sqrt_mass) * unit, unit * np.asarray(info["lam"], dtype=float)
+
+    def _failure(self, flag: int, iterations: int, k: int) -> QPError:
+        """The error of DAQP's exit ``flag`` < 1 after ``iterations`` on ``k`` rows."""
+        return QPError(self.name, self._STATUS.get(flag, f"exitflag {flag}"), f"after {iterations} iterations on {k} rows")
 
     def solve(self, v0, rows, warm=None):
         """:meth:`QPSolver.solve`; an answer the check refuses as inaccurate is solved again at unit
