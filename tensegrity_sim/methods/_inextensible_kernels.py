@@ -10,9 +10,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._qp_kernels import dot3, row_rates
+from ._daqp_kernels import solve_rows
+from ._qp_kernels import answer_residuals, dot3, row_rates
+from ._self_stress_kernels import locked_space
 
-__all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed"]
+__all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed", "midpoint"]
 
 
 @njit(cache=True)
@@ -201,3 +203,100 @@ def landed(v_f, v, v_free, y, ends, nodes, directions, length, limits, tau, floo
         if (abs(miss[i]) if warm[i] else miss[i]) > tol * (2.0 / tau) * limits[i]:
             done = False
     return done, targets, warm
+
+
+@njit(cache=True)
+def _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, directions, v0_free, targets, n_eq, warm,
+                   feasibility_tol, velocity_floor):
+    """``DaqpSolver.solve`` at unit scale with ``QPSolver._check``: ``v`` (n_free, 3) m/s, the multipliers
+    (k,) N*s and whether the answer passed (DAQP succeeded, finite, the optimality conditions met to
+    ``feasibility_tol`` relative plus ``velocity_floor`` m/s). A failed one goes back to the Python path,
+    which raises its error or solves again at another scale."""
+    n_free = v0_free.shape[0]
+    v_flat, y, flag, _ = solve_rows(entry, settings, hessian, sqrt_mass, nodes, directions, n_free,
+                                    v0_free.reshape(-1), targets, n_eq, warm, 1.0)
+    v = v_flat.reshape((n_free, 3))
+    if flag < 1 or not (np.isfinite(v_flat).all() and np.isfinite(y).all()):
+        return v, y, False
+    scale, violation, impulse, stationarity, smallest, short = answer_residuals(
+        v, y, v0_free, nodes, directions, targets, n_eq, mass, feasibility_tol)
+    tol = feasibility_tol * scale + velocity_floor
+    ok = not (violation > tol or stationarity > feasibility_tol * impulse or smallest < -feasibility_tol * impulse
+              or short > tol)
+    return v, y, ok
+
+
+@njit(cache=True)
+def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding, row_nodes, free_nodes,
+             cable_ends, taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor,
+             landing_tol, landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact):
+    """``InextensibleMethod._midpoint`` without contact rows, its QP solved by DAQP (``_solve_checked``),
+    in one call: the rows (:func:`select_rows`, member table ``ends``, ``limits`` with the landing
+    targets' reel already applied), the landing iterations (``_land``: up to ``landing_iter`` solves,
+    :func:`landed` to ``landing_tol``), the end of the sub-step and, when the structure can lock
+    (``locked``), the self-stress rule's binding rows and basis (``_self_stress_kernels.locked_space``,
+    its fit stays numpy). ``row_nodes`` (n_eq + nc, 2): the free-node index of each member end;
+    ``free_nodes`` (n_free,) int: the free nodes; ``taut`` (nc,) m: a cable's at-limit length.
+
+    Returns ``ok`` (False: a QP answer the Python path must handle, nothing else is meaningful), ``x_f``,
+    ``v_f`` (N, 3), the multipliers (k,) N*s, ``cables`` (nc,) bool (the cable rows), the rows' nodes
+    (k, 2) and directions (k, 3), the cable vectors (nc, 3) and lengths (nc,) m at ``x_f`` (as
+    ``System.geometry``), and ``locked_space``'s binding rows, members, ``A_B^T`` and basis (or None:
+    the caller's SVD; empty when not ``locked``)."""
+    nc = cable_ends.shape[0]
+    cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = select_rows(
+        x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding)
+    k = sel.shape[0]
+    nodes = np.empty((k, 2), dtype=row_nodes.dtype)
+    m_ends = np.empty((k, 2), dtype=ends.dtype)
+    for r in range(k):
+        for j in range(2):
+            nodes[r, j] = row_nodes[sel[r], j]
+            m_ends[r, j] = ends[sel[r], j]
+    n_free = free_nodes.shape[0]
+    y = np.zeros(k)
+    ok = True
+    if k == 0:   # nothing can be taut: free motion, no QP
+        v_f = v0.copy()
+    else:
+        v0_free = np.empty((n_free, 3))
+        for i in range(n_free):
+            for j in range(3):
+                v0_free[i, j] = v0[free_nodes[i], j]
+        v_f = np.zeros_like(v0)
+        shortest = m_limits.min()
+        v_start = v
+        for _ in range(landing_iter):
+            v_free, y, ok = _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, m_n, v0_free, targets,
+                                           n_eq, warm, feasibility_tol, velocity_floor)
+            if not ok:
+                break
+            for i in range(n_free):
+                for j in range(3):
+                    v_f[free_nodes[i], j] = v_free[i, j]
+            done, new_targets, new_warm = landed(v_f, v_start, v_free, y, m_ends, nodes, m_n, m_length, m_limits,
+                                                 tau, floor_rate, n_eq, shortest, landing_tol)
+            if done:
+                break
+            targets = new_targets
+            warm = new_warm
+            v_start = v_f.copy()
+    x_f = x_m + (0.5 * tau) * v_f
+    d = np.empty((nc, 3))
+    length = np.empty(nc)
+    for c in range(nc):
+        for j in range(3):
+            d[c, j] = x_f[cable_ends[c, 1], j] - x_f[cable_ends[c, 0], j]
+        length[c] = np.sqrt(dot3(d[c, 0], d[c, 1], d[c, 2], d[c, 0], d[c, 1], d[c, 2]))
+    binding = np.zeros(0, dtype=np.bool_)
+    members = np.zeros(0, dtype=load_cables.dtype)
+    a_t = np.zeros((3 * n_free, 0))
+    basis = None
+    if ok and locked and k:
+        rows_cables = np.flatnonzero(cables)
+        at_limit = np.empty(rows_cables.shape[0], dtype=np.bool_)
+        for i in range(rows_cables.shape[0]):
+            at_limit[i] = length[rows_cables[i]] >= taut[rows_cables[i]]
+        binding, members, a_t, basis = locked_space(nodes, m_n, n_free, n_eq, rows_cables, at_limit, y, load_basis,
+                                                    load_cables, load_largest, refine, rank_tol, exact)
+    return ok, x_f, v_f, y, cables, nodes, m_n, d, length, binding, members, a_t, basis

@@ -96,7 +96,7 @@ from ..system import System
 from . import _inextensible_kernels as kernels
 from .base import MethodStep, State, StepMethod
 from .friction import ContactSet
-from .qp import QPError, Rows, choose_solver, make_solver
+from .qp import _FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, QPError, Rows, choose_solver, make_solver
 from .rigid import RigidStruts
 from .self_stress import TAUT_TOL, SelfStress, reference_tensions
 
@@ -155,6 +155,7 @@ class InextensibleMethod(StepMethod):
                 f"are commanded", LengthOffsetWarning, stacklevel=4)
         free = system.free
         self._free = free
+        self._free_nodes = np.flatnonzero(free)
         index = np.full(system.n_nodes, -1)
         index[free] = np.arange(int(free.sum()))
         self._inv_mass = system.inv_mass[:, None]
@@ -193,6 +194,9 @@ class InextensibleMethod(StepMethod):
         # a structure that can lock counts a cable this close to its limit as at it (self_stress.TAUT_TOL)
         self._taut_tol = TAUT_TOL if self.self_stress.possible else LIMIT_TOL
         self.compiled = compiled   # the solver's rows and check and the self-stress rule follow (the property)
+        # a compiled sub-step in one kernel call where it applies (_one_kernel); False: through the solver's
+        # and the self-stress rule's Python API, with the same kernels and bits (test_compiled.py)
+        self.one_kernel = True
 
     @property
     def compiled(self) -> bool:
@@ -374,6 +378,10 @@ class InextensibleMethod(StepMethod):
         # make the second half-step cover the whole reel, launching its ends at twice the motor's speed
         landing = limits - (0.5 * tau) * reel if reeling else limits
         all_limits = np.concatenate([self._rigid_lengths, landing])
+        if self._one_kernel():
+            done = self._midpoint_kernel(x_m, v, v0, tau, all_limits, floor, taut, reel, holding)
+            if done is not None:
+                return done
         if self.compiled:
             cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = kernels.select_rows(
                 x_m, v, v0, tau, self._ends, n_eq, all_limits, floor, self._cables_move, reel, holding)
@@ -398,6 +406,40 @@ class InextensibleMethod(StepMethod):
         impulses[cables] = y[n_eq:]
         x_f = x_m + (0.5 * tau) * v_f
         return x_f, v_f, impulses, self._publish(rows, np.flatnonzero(cables), y, tau, x_f, taut)
+
+    def _one_kernel(self) -> bool:
+        """Whether a sub-step runs in ``_inextensible_kernels.midpoint``: compiled, dense DAQP, no contact
+        rows (a ground or a member contact response), the self-stress rule compiled too, and neither the
+        solver's ``solve`` nor the rule's ``impulses`` replaced on the instance (a benchmark's clock, a
+        test's recorder: they see every call, through the API)."""
+        solver, rule = self.solver, self.self_stress
+        return (self.one_kernel and self.ground is None and self.compiled and rule.compiled
+                and type(solver) is DaqpSolver and not {"solve", "_solve", "_check"} & vars(solver).keys()
+                and "impulses" not in vars(rule))
+
+    def _midpoint_kernel(self, x_m, v, v0, tau, all_limits, floor, taut, reel, holding):
+        """:meth:`_midpoint` in one kernel call (plus the self-stress rule's numpy fit); None when a QP
+        answer needs the Python path (a failed or refused solve: it raises or solves again)."""
+        solver = self.solver
+        locked = self.self_stress.possible
+        ok, x_f, v_f, y, cables, nodes, directions, d, length, binding, members, a_t, basis = kernels.midpoint(
+            x_m, v, v0, tau, self._ends, self._n_eq, all_limits, floor, self._cables_move, reel, holding,
+            self._row_nodes, self._free_nodes, self.system.cable_ends, taut, solver._entry, solver._raw_settings,
+            solver._hessian, solver._sqrt_mass, solver.mass, _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL,
+            _LANDING_ITER, locked, *self.self_stress.load_space)
+        if not ok:
+            return None
+        self._end_geometry = (x_f, d, length)
+        impulses = np.zeros(len(cables))
+        n_eq = self._n_eq
+        if len(y) == 0:
+            return x_f, v_f, impulses, impulses
+        impulses[cables] = y[n_eq:]
+        if not locked:
+            return x_f, v_f, impulses, impulses.copy()
+        published = np.zeros(len(cables))
+        published[cables] = self.self_stress.locked_impulses(binding, members, a_t, basis, y, tau, n_eq)[n_eq:]
+        return x_f, v_f, impulses, published
 
     def _rows_reference(self, x_m, v, v0, tau, all_limits, floor, reel, holding):
         """The numpy reference of ``_inextensible_kernels.select_rows`` (same arguments and results)."""

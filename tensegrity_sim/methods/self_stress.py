@@ -155,16 +155,26 @@ class SelfStress:
 
     def _impulses_compiled(self, rows, cables, at_limit, y, tau):
         """:meth:`impulses` in the kernels of ``_self_stress_kernels.py`` (see there for what stays numpy)."""
-        binding, members, a_t, basis = kernels.locked_space(
-            rows.nodes, rows.directions, self.n_free, rows.n_eq, cables, at_limit, y, self._load_basis,
-            self._load_cables, self._load_largest, self.refine, RANK_TOL, _EXACT)
+        space = kernels.locked_space(rows.nodes, rows.directions, self.n_free, rows.n_eq, cables, at_limit, y,
+                                     *self.load_space)
+        return self.locked_impulses(*space, y, tau, rows.n_eq)
+
+    @property
+    def load_space(self) -> tuple:
+        """What ``_self_stress_kernels.locked_space`` takes after the QP answer: the load time's basis
+        (k_load, d), cables (int) and largest singular value, ``refine`` and the tolerances."""
+        return self._load_basis, self._load_cables, self._load_largest, self.refine, RANK_TOL, _EXACT
+
+    def locked_impulses(self, binding, members, a_t, basis, y, tau, n_eq):
+        """:meth:`impulses` from the result of ``locked_space`` (``binding`` (k,) bool, the binding cables
+        ``members``, ``A_B^T``, the basis or None for an SVD) for multipliers ``y`` (k,) N*s over ``tau`` s."""
         if basis is None:
             basis = self_stress_space(a_t)[0]
         if not basis.shape[1]:
             return y
         y_b = y[binding]
         share = basis.T @ y_b
-        return self._fit(basis, y_b - basis @ share, y, binding, a_t, self.reference[members] * tau, rows.n_eq)
+        return self._fit(basis, y_b - basis @ share, y, binding, a_t, self.reference[members] * tau, n_eq)
 
     def _impulses_reference(self, rows, cables, at_limit, y, tau):
         """The numpy reference of :meth:`impulses` (for a structure that can lock)."""
