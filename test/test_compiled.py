@@ -361,9 +361,9 @@ def test_inextensible_step_matches_reference(name):
 
 @pytest.mark.parametrize("name", INEXTENSIBLE + ["icosahedron_thrown"])
 def test_one_kernel_substep_is_the_api_path_bitwise(name):
-    """The sub-step in one kernel call (rows, DAQP's C call and its answer check, the landing, the
-    self-stress rule's basis) against the same kernels called one by one through the solver's and the
-    rule's API: the same trajectory to the last bit, a reel-in command mid-run included, and the
+    """The step (one without events) or the sub-step in one kernel call (rows, DAQP's C call and its
+    answer check, the landing, the self-stress rule's basis) against the same kernels called one by one
+    through the solver's and the rule's API: the same trajectory to the last bit, a reel-in command mid-run included, and the
     one-kernel path taken (it leaves contact rows, other backends and refused answers to the API)."""
     if name == "icosahedron_thrown":
         make, dt, steps, solver = icosahedron_thrown, 1e-3, 300, None
@@ -375,13 +375,12 @@ def test_one_kernel_substep_is_the_api_path_bitwise(name):
         one, api = (ts.Simulator(make(), method="inextensible", dt=dt, solver=solver) for _ in range(2))
     api._method.one_kernel = False
     taken = [0]
-    kernel = one._method._midpoint_kernel
-
-    def counted(*args):
-        done = kernel(*args)
-        taken[0] += done is not None
-        return done
-    one._method._midpoint_kernel = counted
+    for path in ("_step_kernel", "_midpoint_kernel"):   # a step in one call, or a sub-step of an event's step
+        def counted(*args, kernel=getattr(one._method, path)):
+            done = kernel(*args)
+            taken[0] += done is not None
+            return done
+        setattr(one._method, path, counted)
     for k in range(steps):
         if k == steps // 2 and name not in ("rigid_prism", "icosahedron_thrown"):   # those two are locked
             for sim in (one, api):

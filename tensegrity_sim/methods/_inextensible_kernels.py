@@ -14,7 +14,7 @@ from ._daqp_kernels import solve_rows
 from ._qp_kernels import answer_residuals, dot3, row_rates
 from ._self_stress_kernels import locked_space
 
-__all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed", "midpoint"]
+__all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed", "midpoint", "cable_geometry", "step"]
 
 
 @njit(cache=True)
@@ -300,3 +300,87 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
         binding, members, a_t, basis = locked_space(nodes, m_n, n_free, n_eq, rows_cables, at_limit, y, load_basis,
                                                     load_cables, load_largest, refine, rank_tol, exact)
     return ok, x_f, v_f, y, cables, nodes, m_n, d, length, binding, members, a_t, basis
+
+
+@njit(cache=True)
+def cable_geometry(x, cable_ends):
+    """Cable vectors (nc, 3) and lengths (nc,) m at ``x`` (N, 3), as ``System.geometry``."""
+    nc = cable_ends.shape[0]
+    d = np.empty((nc, 3))
+    length = np.empty(nc)
+    for c in range(nc):
+        for j in range(3):
+            d[c, j] = x[cable_ends[c, 1], j] - x[cable_ends[c, 0], j]
+        length[c] = np.sqrt(dot3(d[c, 0], d[c, 1], d[c, 2], d[c, 0], d[c, 1], d[c, 2]))
+    return d, length
+
+
+@njit(cache=True)
+def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint, inv_mass, ends,
+         n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
+         settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked,
+         load_basis, load_cables, load_largest, refine, rank_tol, exact):
+    """``InextensibleMethod._step_impl`` of a step that is one sub-step (no snap located inside it, no
+    impact at its start), without elastic struts or contact rows, in one call: the motors' limits
+    (:func:`motor_limits`), the impact test, the free motion from ``x``, ``v`` (N, 3) under ``f_ext``
+    (N, 3) N (``inv_mass`` (N, 1) 1/kg), the snap search (:func:`first_snap`) and :func:`midpoint`.
+    ``holding``, ``hint`` (nc,) bool: the cables known to hold and the QP's warm start.
+
+    Returns ``ok`` (False: the step has an event or a QP answer the Python path must handle; nothing else
+    is meaningful), ``x``, ``v`` (N, 3) at the end, the QP's cable impulses (nc,) N*s, the cables that
+    hold (nc,) bool, the rest lengths in effect (nc,) m, the taut thresholds (nc,) m, then
+    :func:`midpoint`'s cable rows (nc,) bool, multipliers (k,) N*s, end geometry and self-stress space."""
+    new_applied, reel, limits, floor, taut, reeling = motor_limits(commanded, applied, most, dt, offsets,
+                                                                    limit_tol, taut_tol)
+    nc = cable_ends.shape[0]
+    d, length = cable_geometry(x, cable_ends)
+    at_limit = np.empty(nc, dtype=np.bool_)
+    maybe = False
+    all_at = True
+    for c in range(nc):
+        at_limit[c] = length[c] >= floor[c] and cables_move[c]
+        maybe |= at_limit[c] and not holding[c]
+        all_at &= at_limit[c]
+    ok = True
+    if maybe and (v != 0.0).any():   # a cable at its limit that did not hold separating: an impact
+        for c in range(nc):
+            if at_limit[c] and not holding[c]:
+                a = cable_ends[c, 0]
+                b = cable_ends[c, 1]
+                rate = dot3(v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2], d[c, 0] / length[c],
+                            d[c, 1] / length[c], d[c, 2] / length[c])
+                if rate * dt > limit_tol * limits[c]:
+                    ok = False
+    x_m = x + (0.5 * dt) * v
+    v0 = np.empty_like(v)
+    for i in range(v.shape[0]):
+        scale = dt * inv_mass[i, 0]
+        for j in range(3):
+            v0[i, j] = v[i, j] + scale * f_ext[i, j]
+    if ok and not all_at:
+        slack = np.empty(nc, dtype=np.bool_)
+        for c in range(nc):
+            slack[c] = not at_limit[c] and cables_move[c]
+        theta = first_snap(d, limits, v, v0, dt, cable_ends, slack, newton_iter)
+        ok = not (min_event * dt < theta * dt < dt - min_event * dt)
+    all_limits = np.empty(n_eq + nc)
+    all_limits[:n_eq] = rigid_lengths
+    for c in range(nc):
+        all_limits[n_eq + c] = limits[c] - (0.5 * dt) * reel[c] if reeling else limits[c]
+    impulses = np.zeros(nc)
+    if not ok:   # the caller's Python path
+        return (False, x, v, impulses, holding, new_applied, taut, holding, np.zeros(0), d, length,
+                np.zeros(0, dtype=np.bool_), load_cables[:0], np.zeros((3 * free_nodes.shape[0], 0)), None)
+    done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis = midpoint(
+        x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
+        taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter,
+        locked, load_basis, load_cables, load_largest, refine, rank_tol, exact)
+    new_holding = np.zeros(nc, dtype=np.bool_)
+    r = n_eq
+    for c in range(nc):
+        if cables[c]:
+            impulses[c] = y[r]
+            r += 1
+        new_holding[c] = impulses[c] > 0 and at_limit[c]
+    return (ok and done, x_f, v_f, impulses, new_holding, new_applied, taut, cables, y, d_f, length_f, binding,
+            members, a_t, basis)

@@ -266,6 +266,10 @@ class InextensibleMethod(StepMethod):
         return d, length
 
     def _step_impl(self, state: State) -> MethodStep:
+        if self._one_kernel() and not len(self._elastic_ends):
+            done = self._step_kernel(state)
+            if done is not None:
+                return done
         x, v = state.positions, state.velocities
         if self.compiled:
             applied, reel, limits, floor, taut, reeling = kernels.motor_limits(
@@ -316,6 +320,34 @@ class InextensibleMethod(StepMethod):
         # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
         slack = (end_length < taut) & ~(impulses > 0)
         return MethodStep(x, v, impulses, slack, contact, pairs)
+
+    def _step_kernel(self, state: State) -> MethodStep | None:
+        """:meth:`_step_impl` of a step without events (one sub-step, no impact at its start) in one kernel
+        call (``_inextensible_kernels.step``) plus the self-stress rule's numpy fit; None when the step
+        needs the Python path (an event, or a QP answer it must handle)."""
+        solver, rule = self.solver, self.self_stress
+        (ok, x, v, qp_impulses, holding, applied, taut, cables, y, d, length, binding, members, a_t,
+         basis) = kernels.step(
+            state.positions, state.velocities, self.system.gravity_force + state.external_forces,
+            state.rest_lengths, self._applied, self.reel_speed * self.dt, self.dt, self.length_offsets, LIMIT_TOL,
+            self._taut_tol, self._holding, self._hint, self._inv_mass, self._ends, self._n_eq,
+            self._rigid_lengths, self._cables_move, self._row_nodes, self._free_nodes, self.system.cable_ends,
+            _MIN_EVENT, _NEWTON_ITER, solver._entry, solver._raw_settings, solver._hessian, solver._sqrt_mass,
+            solver.mass, _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, rule.possible,
+            *rule.load_space)
+        if not ok:
+            return None
+        self._end_geometry = (x, d, length)
+        published = qp_impulses
+        if rule.possible and len(y):
+            published = np.zeros(len(cables))
+            published[cables] = rule.locked_impulses(binding, members, a_t, basis, y, self.dt, self._n_eq)[self._n_eq:]
+        impulses = np.zeros(len(cables))
+        impulses += published
+        self._holding = self._hint = holding
+        self._applied = applied
+        # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
+        return MethodStep(x, v, impulses, (length < taut) & ~(impulses > 0), None, None)
 
     def _motor_limits_reference(self, commanded):
         """The numpy reference of ``_inextensible_kernels.motor_limits`` for the ``commanded`` rest
