@@ -362,7 +362,7 @@ def test_inextensible_step_matches_reference(name):
 @pytest.mark.parametrize("name", INEXTENSIBLE + ["icosahedron_thrown"])
 def test_one_kernel_substep_is_the_api_path_bitwise(name):
     """The step (one without events) or the sub-step in one kernel call (rows, DAQP's C call and its
-    answer check, the landing, the self-stress rule's basis) against the same kernels called one by one
+    answer check, the landing, the self-stress rule's basis and, for a step, its fit) against the same kernels called one by one
     through the solver's and the rule's API: the same trajectory to the last bit, a reel-in command mid-run included, and the
     one-kernel path taken (it leaves contact rows, other backends and refused answers to the API)."""
     if name == "icosahedron_thrown":
@@ -388,6 +388,7 @@ def test_one_kernel_substep_is_the_api_path_bitwise(name):
         a, b = one.step(), api.step()
         for field in ("positions", "velocities", "impulses", "slack"):
             assert np.array_equal(getattr(a, field), getattr(b, field)), f"{field}, step {k}"
+    assert one._method.self_stress.residual == api._method.self_stress.residual   # the fit's dropped impulse
     assert (taken[0] >= steps) == (one._method.solver.name == "daqp"), taken
 
 

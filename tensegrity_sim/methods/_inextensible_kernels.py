@@ -14,7 +14,7 @@ from ._daqp_kernels import solve_rows
 from ._qp_kernels import answer_residuals, dot3, row_rates
 from ._self_stress_kernels import locked_space
 
-__all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed", "midpoint", "cable_geometry", "step"]
+__all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed", "midpoint", "cable_geometry", "fit_one", "step"]
 
 
 @njit(cache=True)
@@ -316,20 +316,64 @@ def cable_geometry(x, cable_ends):
 
 
 @njit(cache=True)
+def fit_one(ddot, dgemv, y, binding, basis, a_t, reference, members, tau, n_eq):
+    """``SelfStress.locked_impulses`` for a one-dimensional self-stress ``basis`` (k_b, 1), its products
+    made by numpy's BLAS functions ``ddot``/``dgemv`` (``_numpy_blas.py``), so to numpy's bits: the
+    binding rows' multipliers ``y[binding]`` with their self-stress share replaced by the one closest to
+    the binding cables' (``members``) ``reference`` tensions (N) times ``tau`` s. Returns whether no cable
+    pulls (else the caller's numpy fit, which keeps every impulse >= 0 by a small QP), the binding rows'
+    published impulses (k_b,) N*s and the node impulse the share dropped (``SelfStress.residual``, N*s)."""
+    kb = basis.shape[0]
+    nb = kb - n_eq
+    y_b = np.empty(kb)
+    column = np.empty(kb)
+    r = 0
+    for i in range(y.shape[0]):
+        if binding[i]:
+            y_b[r] = y[i]
+            r += 1
+    for r in range(kb):
+        column[r] = basis[r, 0]
+    ref = np.empty(nb)
+    for c in range(nb):
+        ref[c] = reference[members[c]] * tau
+    cable_part = column[n_eq:].copy()
+    share = ddot(kb, column.ctypes.data, 1, y_b.ctypes.data, 1)
+    alpha = (ddot(nb, cable_part.ctypes.data, 1, ref.ctypes.data, 1)
+             / ddot(nb, cable_part.ctypes.data, 1, cable_part.ctypes.data, 1))
+    out = np.empty(kb)
+    change = np.empty(kb)
+    for r in range(kb):
+        out[r] = (y_b[r] - column[r] * share) + column[r] * alpha   # products of one term: exact as numpy's
+        if r >= n_eq and out[r] < 0.0:
+            return False, out, 0.0
+        change[r] = out[r] - y_b[r]
+    node = np.empty(a_t.shape[0])
+    dgemv(101, 111, a_t.shape[0], kb, 1.0, a_t.ctypes.data, kb, change.ctypes.data, 1, 0.0, node.ctypes.data, 1)
+    return True, out, np.abs(node).max()
+
+
+@njit(cache=True)
 def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint, inv_mass, ends,
          n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
          settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked,
-         load_basis, load_cables, load_largest, refine, rank_tol, exact):
+         load_basis, load_cables, load_largest, refine, rank_tol, exact, ddot, dgemv, reference):
     """``InextensibleMethod._step_impl`` of a step that is one sub-step (no snap located inside it, no
     impact at its start), without elastic struts or contact rows, in one call: the motors' limits
     (:func:`motor_limits`), the impact test, the free motion from ``x``, ``v`` (N, 3) under ``f_ext``
     (N, 3) N (``inv_mass`` (N, 1) 1/kg), the snap search (:func:`first_snap`) and :func:`midpoint`.
     ``holding``, ``hint`` (nc,) bool: the cables known to hold and the QP's warm start.
 
+    When the structure can lock (``locked``), the self-stress rule's fit runs here too (:func:`fit_one`
+    with numpy's ``ddot``/``dgemv``, the cables' ``reference`` tensions) if its self-stress is one
+    dimensional and no cable would pull.
+
     Returns ``ok`` (False: the step has an event or a QP answer the Python path must handle; nothing else
     is meaningful), ``x``, ``v`` (N, 3) at the end, the QP's cable impulses (nc,) N*s, the cables that
-    hold (nc,) bool, the rest lengths in effect (nc,) m, the taut thresholds (nc,) m, then
-    :func:`midpoint`'s cable rows (nc,) bool, multipliers (k,) N*s, end geometry and self-stress space."""
+    hold (nc,) bool, the rest lengths in effect (nc,) m, the taut thresholds (nc,) m, ``fitted`` (the
+    published impulses (nc,) N*s that follow are final, and the fit's dropped node impulse, N*s; else
+    the caller fits), then :func:`midpoint`'s cable rows (nc,) bool, multipliers (k,) N*s, end geometry
+    and self-stress space."""
     new_applied, reel, limits, floor, taut, reeling = motor_limits(commanded, applied, most, dt, offsets,
                                                                     limit_tol, taut_tol)
     nc = cable_ends.shape[0]
@@ -369,8 +413,8 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
         all_limits[n_eq + c] = limits[c] - (0.5 * dt) * reel[c] if reeling else limits[c]
     impulses = np.zeros(nc)
     if not ok:   # the caller's Python path
-        return (False, x, v, impulses, holding, new_applied, taut, holding, np.zeros(0), d, length,
-                np.zeros(0, dtype=np.bool_), load_cables[:0], np.zeros((3 * free_nodes.shape[0], 0)), None)
+        return (False, x, v, impulses, holding, new_applied, taut, False, impulses, 0.0, holding, np.zeros(0), d,
+                length, np.zeros(0, dtype=np.bool_), load_cables[:0], np.zeros((3 * free_nodes.shape[0], 0)), None)
     done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis = midpoint(
         x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
         taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter,
@@ -382,5 +426,25 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
             impulses[c] = y[r]
             r += 1
         new_holding[c] = impulses[c] > 0 and at_limit[c]
-    return (ok and done, x_f, v_f, impulses, new_holding, new_applied, taut, cables, y, d_f, length_f, binding,
-            members, a_t, basis)
+    published = impulses
+    fitted = True
+    node = 0.0
+    if locked and y.shape[0]:
+        fitted = basis is not None and basis.shape[1] <= 1
+        if fitted and basis.shape[1] == 1:
+            fitted, out, node = fit_one(ddot, dgemv, y, binding, basis, a_t, reference, members, dt, n_eq)
+            published = np.zeros(nc)
+            r = 0   # row
+            b = 0   # binding row
+            for c in range(-n_eq, nc):
+                if c >= 0 and not cables[c]:
+                    continue
+                if binding[r]:
+                    if c >= 0:
+                        published[c] = out[b]
+                    b += 1
+                elif c >= 0:
+                    published[c] = y[r]
+                r += 1
+    return (ok and done, x_f, v_f, impulses, new_holding, new_applied, taut, fitted, published, node, cables, y,
+            d_f, length_f, binding, members, a_t, basis)

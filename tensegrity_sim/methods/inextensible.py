@@ -94,6 +94,7 @@ import numpy as np
 
 from ..system import System
 from . import _inextensible_kernels as kernels
+from ._numpy_blas import numpy_blas
 from .base import MethodStep, State, StepMethod
 from .friction import ContactSet
 from .qp import _FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, QPError, Rows, choose_solver, make_solver
@@ -197,6 +198,7 @@ class InextensibleMethod(StepMethod):
         # a compiled sub-step in one kernel call where it applies (_one_kernel); False: through the solver's
         # and the self-stress rule's Python API, with the same kernels and bits (test_compiled.py)
         self.one_kernel = True
+        self._blas = numpy_blas()   # numpy's ddot/dgemv: the step kernel's fit to numpy's bits (else no step kernel)
 
     @property
     def compiled(self) -> bool:
@@ -266,7 +268,7 @@ class InextensibleMethod(StepMethod):
         return d, length
 
     def _step_impl(self, state: State) -> MethodStep:
-        if self._one_kernel() and not len(self._elastic_ends):
+        if self._one_kernel() and not len(self._elastic_ends) and self._blas is not None:
             done = self._step_kernel(state)
             if done is not None:
                 return done
@@ -326,20 +328,21 @@ class InextensibleMethod(StepMethod):
         call (``_inextensible_kernels.step``) plus the self-stress rule's numpy fit; None when the step
         needs the Python path (an event, or a QP answer it must handle)."""
         solver, rule = self.solver, self.self_stress
-        (ok, x, v, qp_impulses, holding, applied, taut, cables, y, d, length, binding, members, a_t,
-         basis) = kernels.step(
+        (ok, x, v, qp_impulses, holding, applied, taut, fitted, published, node, cables, y, d, length, binding,
+         members, a_t, basis) = kernels.step(
             state.positions, state.velocities, self.system.gravity_force + state.external_forces,
             state.rest_lengths, self._applied, self.reel_speed * self.dt, self.dt, self.length_offsets, LIMIT_TOL,
             self._taut_tol, self._holding, self._hint, self._inv_mass, self._ends, self._n_eq,
             self._rigid_lengths, self._cables_move, self._row_nodes, self._free_nodes, self.system.cable_ends,
             _MIN_EVENT, _NEWTON_ITER, solver._entry, solver._raw_settings, solver._hessian, solver._sqrt_mass,
             solver.mass, _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, rule.possible,
-            *rule.load_space)
+            *rule.load_space, *self._blas, rule.reference)
         if not ok:
             return None
         self._end_geometry = (x, d, length)
-        published = qp_impulses
-        if rule.possible and len(y):
+        if fitted:
+            rule.residual = max(rule.residual, node)
+        else:
             published = np.zeros(len(cables))
             published[cables] = rule.locked_impulses(binding, members, a_t, basis, y, self.dt, self._n_eq)[self._n_eq:]
         impulses = np.zeros(len(cables))
