@@ -4,15 +4,21 @@ vector), where a loop written out differs in the last bits (summation order)."""
 import numpy as np
 from numba import njit
 
+from tensegrity_sim.methods._c_calls import ddot_at, dgemv_at
 from tensegrity_sim.methods._numpy_blas import numpy_blas
 
 
 @njit
-def _products(ddot, dgemv, column, other, matrix, vector):
+def _products(ddot, dgemv, wide, column, other, matrix, vector):
+    """``column . other`` and ``matrix @ vector`` by numpy's BLAS at ``ddot``, ``dgemv`` (``wide``: 64-bit
+    integers)."""
     out = np.empty(matrix.shape[0])
-    dgemv(101, 111, matrix.shape[0], matrix.shape[1], 1.0, matrix.ctypes.data, matrix.shape[1], vector.ctypes.data,
-          1, 0.0, out.ctypes.data, 1)
-    return ddot(column.shape[0], column.ctypes.data, 1, other.ctypes.data, 1), out
+    m, n, a, x, y = matrix.shape[0], matrix.shape[1], matrix.ctypes.data, vector.ctypes.data, out.ctypes.data
+    if wide:
+        dgemv_at(dgemv, True, m, n, a, x, y)
+        return ddot_at(ddot, True, column.shape[0], column.ctypes.data, other.ctypes.data), out
+    dgemv_at(dgemv, False, m, n, a, x, y)
+    return ddot_at(ddot, False, column.shape[0], column.ctypes.data, other.ctypes.data), out
 
 
 def test_numpy_blas_is_numpy_matmul_bitwise():

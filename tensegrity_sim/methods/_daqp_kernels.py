@@ -24,14 +24,10 @@ import ctypes
 import numpy as np
 from numba import njit
 
+from ._c_calls import quadprog_at
 from ._qp_kernels import dense_rows
 
 __all__ = ["Settings", "entry_point", "quadprog", "solve_rows"]
-
-# one C prototype for daqp_quadprog(DAQPResult*, DAQPProblem*, DAQPSettings*): the pointers as integers
-# (the same registers on the ABIs above), which is what a kernel has of an array (``a.ctypes.data``)
-_PROTOTYPE = ctypes.CFUNCTYPE(None, ctypes.c_size_t, ctypes.c_size_t, ctypes.c_size_t)
-
 
 class Settings(ctypes.Structure):
     """DAQP 0.11.0's ``DAQPSettings``."""
@@ -46,8 +42,9 @@ class Settings(ctypes.Structure):
 
 
 def entry_point(daqp_module, settings: dict):
-    """``daqp_quadprog`` of the imported ``daqp_module`` as a function a kernel can call, and the
-    settings struct as bytes (uint8 array): DAQP's defaults with ``settings`` (name: value) over them."""
+    """The address of ``daqp_quadprog`` in the imported ``daqp_module`` (what :func:`quadprog` calls,
+    ``_c_calls.py``), and the settings struct as bytes (uint8 array): DAQP's defaults with ``settings``
+    (name: value) over them."""
     library = ctypes.CDLL(daqp_module.__file__)
     defaults = library.daqp_default_settings
     defaults.restype = None
@@ -56,7 +53,7 @@ def entry_point(daqp_module, settings: dict):
     for name, value in settings.items():
         setattr(struct, name, value)
     raw = np.frombuffer(bytes(struct), dtype=np.uint8).copy()
-    return _PROTOTYPE(("daqp_quadprog", library)), raw
+    return ctypes.cast(library.daqp_quadprog, ctypes.c_void_p).value, raw
 
 
 @njit(cache=True)
@@ -83,7 +80,7 @@ def quadprog(entry, settings, hessian, f, a, bupper, blower, sense):
     result[0] = x.ctypes.data
     if m:
         result[1] = lam.ctypes.data
-    entry(result.ctypes.data, problem.ctypes.data, settings.ctypes.data)
+    quadprog_at(entry, result.ctypes.data, problem.ctypes.data, settings.ctypes.data)
     flags = result.view(np.int32)          # int exitflag, iter at bytes 32 and 36
     return x, lam, flags[8], flags[9]
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ._c_calls import ddot_at, dgemv_at
 from ._daqp_kernels import solve_rows
 from ._qp_kernels import answer_residuals, dot3, row_rates
 from ._self_stress_kernels import locked_space
@@ -316,9 +317,18 @@ def cable_geometry(x, cable_ends):
 
 
 @njit(cache=True)
-def fit_one(ddot, dgemv, y, binding, basis, a_t, reference, members, tau, n_eq):
+def _ddot(address, wide, x, y):
+    """``x . y`` (contiguous vectors) by the BLAS ``ddot`` at ``address`` (``wide``: 64-bit integers)."""
+    if wide:
+        return ddot_at(address, True, x.shape[0], x.ctypes.data, y.ctypes.data)
+    return ddot_at(address, False, x.shape[0], x.ctypes.data, y.ctypes.data)
+
+
+@njit(cache=True)
+def fit_one(ddot, dgemv, wide, y, binding, basis, a_t, reference, members, tau, n_eq):
     """``SelfStress.locked_impulses`` for a one-dimensional self-stress ``basis`` (k_b, 1), its products
-    made by numpy's BLAS functions ``ddot``/``dgemv`` (``_numpy_blas.py``), so to numpy's bits: the
+    made by numpy's BLAS functions at ``ddot``/``dgemv`` (``_numpy_blas.py``; ``wide``: 64-bit
+    integers), so to numpy's bits: the
     binding rows' multipliers ``y[binding]`` with their self-stress share replaced by the one closest to
     the binding cables' (``members``) ``reference`` tensions (N) times ``tau`` s. Returns whether no cable
     pulls (else the caller's numpy fit, which keeps every impulse >= 0 by a small QP), the binding rows'
@@ -338,9 +348,8 @@ def fit_one(ddot, dgemv, y, binding, basis, a_t, reference, members, tau, n_eq):
     for c in range(nb):
         ref[c] = reference[members[c]] * tau
     cable_part = column[n_eq:].copy()
-    share = ddot(kb, column.ctypes.data, 1, y_b.ctypes.data, 1)
-    alpha = (ddot(nb, cable_part.ctypes.data, 1, ref.ctypes.data, 1)
-             / ddot(nb, cable_part.ctypes.data, 1, cable_part.ctypes.data, 1))
+    share = _ddot(ddot, wide, column, y_b)
+    alpha = _ddot(ddot, wide, cable_part, ref) / _ddot(ddot, wide, cable_part, cable_part)
     out = np.empty(kb)
     change = np.empty(kb)
     for r in range(kb):
@@ -349,7 +358,10 @@ def fit_one(ddot, dgemv, y, binding, basis, a_t, reference, members, tau, n_eq):
             return False, out, 0.0
         change[r] = out[r] - y_b[r]
     node = np.empty(a_t.shape[0])
-    dgemv(101, 111, a_t.shape[0], kb, 1.0, a_t.ctypes.data, kb, change.ctypes.data, 1, 0.0, node.ctypes.data, 1)
+    if wide:
+        dgemv_at(dgemv, True, a_t.shape[0], kb, a_t.ctypes.data, change.ctypes.data, node.ctypes.data)
+    else:
+        dgemv_at(dgemv, False, a_t.shape[0], kb, a_t.ctypes.data, change.ctypes.data, node.ctypes.data)
     return True, out, np.abs(node).max()
 
 
@@ -357,7 +369,7 @@ def fit_one(ddot, dgemv, y, binding, basis, a_t, reference, members, tau, n_eq):
 def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint, inv_mass, ends,
          n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
          settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked,
-         load_basis, load_cables, load_largest, refine, rank_tol, exact, ddot, dgemv, reference):
+         load_basis, load_cables, load_largest, refine, rank_tol, exact, ddot, dgemv, wide, reference):
     """``InextensibleMethod._step_impl`` of a step that is one sub-step (no snap located inside it, no
     impact at its start), without elastic struts or contact rows, in one call: the motors' limits
     (:func:`motor_limits`), the impact test, the free motion from ``x``, ``v`` (N, 3) under ``f_ext``
@@ -365,7 +377,7 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     ``holding``, ``hint`` (nc,) bool: the cables known to hold and the QP's warm start.
 
     When the structure can lock (``locked``), the self-stress rule's fit runs here too (:func:`fit_one`
-    with numpy's ``ddot``/``dgemv``, the cables' ``reference`` tensions) if its self-stress is one
+    with numpy's ``ddot``/``dgemv``, ``wide`` as there, the cables' ``reference`` tensions) if its self-stress is one
     dimensional and no cable would pull.
 
     Returns ``ok`` (False: the step has an event or a QP answer the Python path must handle; nothing else
@@ -432,7 +444,7 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     if locked and y.shape[0]:
         fitted = basis is not None and basis.shape[1] <= 1
         if fitted and basis.shape[1] == 1:
-            fitted, out, node = fit_one(ddot, dgemv, y, binding, basis, a_t, reference, members, dt, n_eq)
+            fitted, out, node = fit_one(ddot, dgemv, wide, y, binding, basis, a_t, reference, members, dt, n_eq)
             published = np.zeros(nc)
             r = 0   # row
             b = 0   # binding row

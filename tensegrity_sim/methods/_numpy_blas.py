@@ -15,28 +15,24 @@ import ctypes
 
 __all__ = ["numpy_blas"]
 
-_CANDIDATES = (("scipy_cblas_{}64_", ctypes.c_int64), ("cblas_{}64_", ctypes.c_int64),
-               ("scipy_cblas_{}", ctypes.c_int), ("cblas_{}", ctypes.c_int))
+# the symbol names of numpy's BLAS builds (numpy 2 wheels, numpy 1 wheels, LP64 builds) and whether their
+# integers are 64-bit
+_CANDIDATES = (("scipy_cblas_{}64_", True), ("cblas_{}64_", True), ("scipy_cblas_{}", False), ("cblas_{}", False))
 
 
 def numpy_blas():
-    """``(ddot, dgemv)`` of numpy's BLAS as ctypes functions taking pointers as integers (CBLAS argument
-    order; ``dgemv``'s layout and transpose as the CBLAS enums), or None when numpy's module does not
-    resolve a CBLAS ``ddot`` (then the kernels' callers keep numpy's products)."""
+    """``(ddot, dgemv, wide)``: the addresses of numpy's BLAS ``cblas_ddot`` and ``cblas_dgemv`` (what
+    ``_c_calls.ddot_at``/``dgemv_at`` call) and whether its integers are 64-bit; None when numpy's
+    module does not resolve a CBLAS ``ddot`` (then the kernels' callers keep numpy's products)."""
     try:
         from numpy._core import _multiarray_umath as module
     except ImportError:   # numpy < 2
         from numpy.core import _multiarray_umath as module
     library = ctypes.CDLL(module.__file__)
-    pointer, real = ctypes.c_size_t, ctypes.c_double
-    for name, size in _CANDIDATES:
+    for name, wide in _CANDIDATES:
         try:
             ddot, dgemv = getattr(library, name.format("ddot")), getattr(library, name.format("dgemv"))
         except AttributeError:
             continue
-        ddot_type = ctypes.CFUNCTYPE(real, size, pointer, size, pointer, size)
-        dgemv_type = ctypes.CFUNCTYPE(None, ctypes.c_int, ctypes.c_int, size, size, real, pointer, size, pointer,
-                                      size, real, pointer, size)
-        return (ddot_type(ctypes.cast(ddot, ctypes.c_void_p).value),
-                dgemv_type(ctypes.cast(dgemv, ctypes.c_void_p).value))
+        return ctypes.cast(ddot, ctypes.c_void_p).value, ctypes.cast(dgemv, ctypes.c_void_p).value, wide
     return None
