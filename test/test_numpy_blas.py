@@ -13,12 +13,11 @@ def _products(ddot, dgemv, wide, column, other, matrix, vector):
     """``column . other`` and ``matrix @ vector`` by numpy's BLAS at ``ddot``, ``dgemv`` (``wide``: 64-bit
     integers)."""
     out = np.empty(matrix.shape[0])
-    m, n, a, x, y = matrix.shape[0], matrix.shape[1], matrix.ctypes.data, vector.ctypes.data, out.ctypes.data
     if wide:
-        dgemv_at(dgemv, True, m, n, a, x, y)
-        return ddot_at(ddot, True, column.shape[0], column.ctypes.data, other.ctypes.data), out
-    dgemv_at(dgemv, False, m, n, a, x, y)
-    return ddot_at(ddot, False, column.shape[0], column.ctypes.data, other.ctypes.data), out
+        dgemv_at(dgemv, True, matrix, vector, out)
+        return ddot_at(ddot, True, column, other), out
+    dgemv_at(dgemv, False, matrix, vector, out)
+    return ddot_at(ddot, False, column, other), out
 
 
 def test_numpy_blas_is_numpy_matmul_bitwise():

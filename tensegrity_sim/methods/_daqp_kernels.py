@@ -80,7 +80,7 @@ def quadprog(entry, settings, hessian, f, a, bupper, blower, sense):
     result[0] = x.ctypes.data
     if m:
         result[1] = lam.ctypes.data
-    quadprog_at(entry, result.ctypes.data, problem.ctypes.data, settings.ctypes.data)
+    quadprog_at(entry, result, problem, settings)
     flags = result.view(np.int32)          # int exitflag, iter at bytes 32 and 36
     return x, lam, flags[8], flags[9]
 

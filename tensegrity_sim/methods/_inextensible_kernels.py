@@ -15,7 +15,8 @@ from ._daqp_kernels import solve_rows
 from ._qp_kernels import answer_residuals, dot3, row_rates
 from ._self_stress_kernels import locked_space
 
-__all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed", "midpoint", "cable_geometry", "fit_one", "step"]
+__all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed", "midpoint", "cable_geometry",
+           "fit_one", "step"]
 
 
 @njit(cache=True)
@@ -230,7 +231,8 @@ def _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, directions,
 @njit(cache=True)
 def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding, row_nodes, free_nodes,
              cable_ends, taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor,
-             landing_tol, landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact):
+             landing_tol, landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, getrf,
+             getrs):
     """``InextensibleMethod._midpoint`` without contact rows, its QP solved by DAQP (``_solve_checked``),
     in one call: the rows (:func:`select_rows`, member table ``ends``, ``limits`` with the landing
     targets' reel already applied), the landing iterations (``_land``: up to ``landing_iter`` solves,
@@ -299,7 +301,7 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
         for i in range(rows_cables.shape[0]):
             at_limit[i] = length[rows_cables[i]] >= taut[rows_cables[i]]
         binding, members, a_t, basis = locked_space(nodes, m_n, n_free, n_eq, rows_cables, at_limit, y, load_basis,
-                                                    load_cables, load_largest, refine, rank_tol, exact)
+                                                    load_cables, load_largest, refine, rank_tol, exact, getrf, getrs)
     return ok, x_f, v_f, y, cables, nodes, m_n, d, length, binding, members, a_t, basis
 
 
@@ -320,8 +322,8 @@ def cable_geometry(x, cable_ends):
 def _ddot(address, wide, x, y):
     """``x . y`` (contiguous vectors) by the BLAS ``ddot`` at ``address`` (``wide``: 64-bit integers)."""
     if wide:
-        return ddot_at(address, True, x.shape[0], x.ctypes.data, y.ctypes.data)
-    return ddot_at(address, False, x.shape[0], x.ctypes.data, y.ctypes.data)
+        return ddot_at(address, True, x, y)
+    return ddot_at(address, False, x, y)
 
 
 @njit(cache=True)
@@ -359,9 +361,9 @@ def fit_one(ddot, dgemv, wide, y, binding, basis, a_t, reference, members, tau, 
         change[r] = out[r] - y_b[r]
     node = np.empty(a_t.shape[0])
     if wide:
-        dgemv_at(dgemv, True, a_t.shape[0], kb, a_t.ctypes.data, change.ctypes.data, node.ctypes.data)
+        dgemv_at(dgemv, True, a_t, change, node)
     else:
-        dgemv_at(dgemv, False, a_t.shape[0], kb, a_t.ctypes.data, change.ctypes.data, node.ctypes.data)
+        dgemv_at(dgemv, False, a_t, change, node)
     return True, out, np.abs(node).max()
 
 
@@ -369,7 +371,8 @@ def fit_one(ddot, dgemv, wide, y, binding, basis, a_t, reference, members, tau, 
 def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint, inv_mass, ends,
          n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
          settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked,
-         load_basis, load_cables, load_largest, refine, rank_tol, exact, ddot, dgemv, wide, reference):
+         load_basis, load_cables, load_largest, refine, rank_tol, exact, getrf, getrs, ddot, dgemv, wide,
+         reference):
     """``InextensibleMethod._step_impl`` of a step that is one sub-step (no snap located inside it, no
     impact at its start), without elastic struts or contact rows, in one call: the motors' limits
     (:func:`motor_limits`), the impact test, the free motion from ``x``, ``v`` (N, 3) under ``f_ext``
@@ -430,7 +433,7 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis = midpoint(
         x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
         taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter,
-        locked, load_basis, load_cables, load_largest, refine, rank_tol, exact)
+        locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, getrf, getrs)
     new_holding = np.zeros(nc, dtype=np.bool_)
     r = n_eq
     for c in range(nc):

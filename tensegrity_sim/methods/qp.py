@@ -267,7 +267,8 @@ class DaqpSolver(QPSolver):
 
     def _failure(self, flag: int, iterations: int, k: int) -> QPError:
         """The error of DAQP's exit ``flag`` < 1 after ``iterations`` on ``k`` rows."""
-        return QPError(self.name, self._STATUS.get(flag, f"exitflag {flag}"), f"after {iterations} iterations on {k} rows")
+        return QPError(self.name, self._STATUS.get(flag, f"exitflag {flag}"),
+                       f"after {iterations} iterations on {k} rows")
 
     def solve(self, v0, rows, warm=None):
         """:meth:`QPSolver.solve`; an answer the check refuses as inaccurate is solved again at unit

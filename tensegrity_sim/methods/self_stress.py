@@ -63,6 +63,7 @@ import numpy as np
 from scipy.linalg import LinAlgWarning, lu_factor as _lu_factor, lu_solve as _lu_solve
 
 from . import _self_stress_kernels as kernels
+from ._c_calls import scipy_lapack
 from .qp import Rows
 
 __all__ = ["RANK_TOL", "TAUT_TOL", "SelfStress", "reference_tensions", "self_stress_space"]
@@ -117,6 +118,7 @@ class SelfStress:
         self.refine = True    # False: an SVD at every step (the reference the refinement must match)
         self.compiled = True  # the rule in one numba kernel (_self_stress_kernels.py); False: the numpy reference
         self._load_cables = np.ascontiguousarray(load_cables, dtype=np.int64)
+        self._lu = (scipy_lapack("dgetrf"), scipy_lapack("dgetrs"))   # the kernel's refinement (one LU, two solves)
 
     def _space(self, a_t: np.ndarray, members: bytes) -> np.ndarray:
         """The self-stress basis (k, d) of ``a_t`` (3 n_free, k). When the binding rows are all the
@@ -162,8 +164,9 @@ class SelfStress:
     @property
     def load_space(self) -> tuple:
         """What ``_self_stress_kernels.locked_space`` takes after the QP answer: the load time's basis
-        (k_load, d), cables (int) and largest singular value, ``refine`` and the tolerances."""
-        return self._load_basis, self._load_cables, self._load_largest, self.refine, RANK_TOL, _EXACT
+        (k_load, d), cables (int) and largest singular value, ``refine``, the tolerances and the LU
+        routines' addresses."""
+        return self._load_basis, self._load_cables, self._load_largest, self.refine, RANK_TOL, _EXACT, *self._lu
 
     def locked_impulses(self, binding, members, a_t, basis, y, tau, n_eq):
         """:meth:`impulses` from the result of ``locked_space`` (``binding`` (k,) bool, the binding cables
