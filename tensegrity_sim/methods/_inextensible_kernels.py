@@ -384,11 +384,11 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     dimensional and no cable would pull.
 
     Returns ``ok`` (False: the step has an event or a QP answer the Python path must handle; nothing else
-    is meaningful), ``x``, ``v`` (N, 3) at the end, the QP's cable impulses (nc,) N*s, the cables that
-    hold (nc,) bool, the rest lengths in effect (nc,) m, the taut thresholds (nc,) m, ``fitted`` (the
-    published impulses (nc,) N*s that follow are final, and the fit's dropped node impulse, N*s; else
-    the caller fits), then :func:`midpoint`'s cable rows (nc,) bool, multipliers (k,) N*s, end geometry
-    and self-stress space."""
+    is meaningful), ``x``, ``v`` (N, 3) at the end, the cables that hold (nc,) bool, the rest lengths in
+    effect (nc,) m, the taut thresholds (nc,) m, ``fitted`` (the step's impulses (nc,) N*s and slack
+    flags (nc,) bool that follow are final, and the fit's dropped node impulse, N*s; else the caller
+    fits), then :func:`midpoint`'s cable rows (nc,) bool, multipliers (k,) N*s, end geometry and
+    self-stress space."""
     new_applied, reel, limits, floor, taut, reeling = motor_limits(commanded, applied, most, dt, offsets,
                                                                     limit_tol, taut_tol)
     nc = cable_ends.shape[0]
@@ -428,8 +428,9 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
         all_limits[n_eq + c] = limits[c] - (0.5 * dt) * reel[c] if reeling else limits[c]
     impulses = np.zeros(nc)
     if not ok:   # the caller's Python path
-        return (False, x, v, impulses, holding, new_applied, taut, False, impulses, 0.0, holding, np.zeros(0), d,
-                length, np.zeros(0, dtype=np.bool_), load_cables[:0], np.zeros((3 * free_nodes.shape[0], 0)), None)
+        return (False, x, v, holding, new_applied, taut, False, impulses, holding, 0.0, holding,
+                np.zeros(0), d, length, np.zeros(0, dtype=np.bool_), load_cables[:0],
+                np.zeros((3 * free_nodes.shape[0], 0)), None)
     done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis = midpoint(
         x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
         taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter,
@@ -461,5 +462,11 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
                 elif c >= 0:
                     published[c] = y[r]
                 r += 1
-    return (ok and done, x_f, v_f, impulses, new_holding, new_applied, taut, fitted, published, node, cables, y,
-            d_f, length_f, binding, members, a_t, basis)
+    # the step's impulses as the Python path sums them (0.0 + published: a -0.0 becomes 0.0) and its flags
+    summed = np.zeros(nc)
+    slack = np.empty(nc, dtype=np.bool_)
+    for c in range(nc):
+        summed[c] += published[c]
+        slack[c] = length_f[c] < taut[c] and not summed[c] > 0
+    return (ok and done, x_f, v_f, new_holding, new_applied, taut, fitted, summed, slack, node, cables, y, d_f,
+            length_f, binding, members, a_t, basis)

@@ -328,8 +328,8 @@ class InextensibleMethod(StepMethod):
         call (``_inextensible_kernels.step``) plus the self-stress rule's numpy fit; None when the step
         needs the Python path (an event, or a QP answer it must handle)."""
         solver, rule = self.solver, self.self_stress
-        (ok, x, v, qp_impulses, holding, applied, taut, fitted, published, node, cables, y, d, length, binding,
-         members, a_t, basis) = kernels.step(
+        (ok, x, v, holding, applied, taut, fitted, impulses, slack, node, cables, y, d, length, binding, members,
+         a_t, basis) = kernels.step(
             state.positions, state.velocities, self.system.gravity_force + state.external_forces,
             state.rest_lengths, self._applied, self.reel_speed * self.dt, self.dt, self.length_offsets, LIMIT_TOL,
             self._taut_tol, self._holding, self._hint, self._inv_mass, self._ends, self._n_eq,
@@ -345,12 +345,13 @@ class InextensibleMethod(StepMethod):
         else:
             published = np.zeros(len(cables))
             published[cables] = rule.locked_impulses(binding, members, a_t, basis, y, self.dt, self._n_eq)[self._n_eq:]
-        impulses = np.zeros(len(cables))
-        impulses += published
+            impulses = np.zeros(len(cables))
+            impulses += published
+            # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
+            slack = (length < taut) & ~(impulses > 0)
         self._holding = self._hint = holding
         self._applied = applied
-        # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
-        return MethodStep(x, v, impulses, (length < taut) & ~(impulses > 0), None, None)
+        return MethodStep(x, v, impulses, slack, None, None)
 
     def _motor_limits_reference(self, commanded):
         """The numpy reference of ``_inextensible_kernels.motor_limits`` for the ``commanded`` rest
