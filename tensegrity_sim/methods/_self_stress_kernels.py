@@ -6,7 +6,8 @@ other last bits), and the share's removal and fit (``SelfStress._fit``): the sol
 2e10 N*s on a locked structure being reeled in, against published impulses of 1 N*s, so their
 difference keeps ~4e-6 N*s of round-off, and a published impulse that is round-off around zero decides
 a cable's slack flag (measured on the built-in tower); only numpy's own products (its BLAS's summation
-order) give the same bits. The kernel's basis is the reference's to its last bits on the icosahedron and
+order) give the same bits, which is why the inextensible method's one-call step
+(``_inextensible_kernels.fit_one``) makes them with numpy's BLAS functions themselves (``_numpy_blas.py``). The kernel's basis is the reference's to its last bits on the icosahedron and
 the rigid prism and to ~1e-14 on the tower (numba's matrix product and LAPACK build against numpy's);
 ``test_compiled.py`` holds the published impulses to 1e-12.
 

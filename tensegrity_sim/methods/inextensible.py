@@ -124,7 +124,16 @@ class LengthOffsetWarning(UserWarning):
 class InextensibleMethod(StepMethod):
     """``compiled``: the motors' limits, the sub-steps' rows and targets, the QP's rows and answer check
     and the self-stress rule's basis in numba kernels (True) or in the numpy reference (False); the QP
-    backend is the same."""
+    backend is the same.
+
+    Compiled, with dense DAQP and no contact rows, a step runs in one kernel call
+    (``_inextensible_kernels.step``: the motors, the impact test, the free motion, the snap search, the
+    rows, DAQP's C function and its answer check, the landing, the self-stress rule with its fit) when it
+    has no event (no snap located inside it, no impact at its start) and no elastic struts; a sub-step
+    of any other step in one call too (``midpoint``), but for the rule's fit. Anything those kernels do
+    not cover (an event, a refused QP answer, an SVD of the rule, a pulling cable in its fit) takes the
+    Python path with the same kernels, to the same bits (``test_compiled.py``); ``one_kernel = False``
+    takes it always."""
 
     name = "inextensible"
     options = ("solver", "reel_speed")

@@ -29,14 +29,18 @@ A backend that fails (infeasible rows, iteration limit) raises :class:`QPError` 
 message. The answers of the backends with ``verify`` (DAQP, OSQP, NNLS; the sparse backend verifies its
 guesses itself) are checked against the optimality conditions, to ``1e-7`` relative, and refused if they
 fail them. The check and DAQP's dense rows are numba kernels (``_qp_kernels.py``: one pass over the rows,
-``A`` never formed for the check), beside their numpy reference (``compiled = False``).
+``A`` never formed for the check), beside their numpy reference (``compiled = False``); the compiled
+path calls DAQP's C function ``daqp_quadprog`` itself, with the inputs ``daqp.solve`` would pass it
+(``_daqp_kernels.py``: the same answer to the bit).
 
 **A compiled guess in front of DAQP, measured and not adopted** (issue 10; ``python bench/qp_guess.py
 --steps 400``, CPU time per QP, the QPs of 400 steps at dt = 1 ms, on the shared 2-core machine under
 load): the hint's rows solved as equalities in numba (Cholesky of ``W_GG``, the KKT conditions checked
 in the same kernel) answered 95 % of the thrown icosahedron's QPs and 90 % of a rattling prism's, in
-23 and 17 us against 66 and 62 us for DAQP with its check (``daqp.solve`` itself is ~58 us of that,
-mostly its Python wrapper's set-up: one iteration from the warm start). On the prism its answers are
+23 and 17 us against 66 and 62 us for DAQP with its check. (Of ``daqp.solve``'s time its Python
+wrapper is only ~3 us: the same QPs of the thrown icosahedron, 240 of them, took 27 us through it and
+23-25 us through the C call of ``_daqp_kernels.py``, though 216 of them took one iteration from the warm
+start; ``daqp_quadprog`` itself sets up the problem each call.) On the prism its answers are
 DAQP's to 4e-16 in velocity and 3e-14 in the multipliers; on the icosahedron, whose rows carry a
 self-stress, to 8e-11 in velocity and 1.5e-9 in the multipliers, relative to multipliers that reach
 2e10 N*s while a cable is reeled in (published impulses ~1 N*s): the difference is ~30 N*s along the

@@ -48,7 +48,9 @@ binding rows are not all of the load time's members, else two inverse iterations
 basis (cheaper, and as history-free as the SVD); measured by
 ``bench/prestress_tensions.py``. The rows' matrix and that refinement run in a numba kernel
 (``_self_stress_kernels.py``; ``compiled = False``: the numpy reference), the SVD and the share's fit
-in numpy (see the kernel's module for why); on the rattling rigid prism of
+in numpy (see the kernel's module for why), except in the inextensible method's one-call step
+(``_inextensible_kernels.step``), which fits a one-dimensional self-stress with numpy's own BLAS
+functions (``_numpy_blas.py``: numpy's products to the bit); on the rattling rigid prism of
 ``test_inextensible.py::test_free_prestressed_structure_momentum_and_energy`` a step costs 0.64 of what
 it did with the rule all numpy (CPU time, the two taking turns on the loaded 2-core machine).
 
