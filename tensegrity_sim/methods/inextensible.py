@@ -334,18 +334,18 @@ class InextensibleMethod(StepMethod):
 
     def _step_kernel(self, state: State) -> MethodStep | None:
         """:meth:`_step_impl` of a step without events (one sub-step, no impact at its start) in one kernel
-        call (``_inextensible_kernels.step``) plus the self-stress rule's numpy fit; None when the step
-        needs the Python path (an event, or a QP answer it must handle)."""
-        solver, rule = self.solver, self.self_stress
+        call (``_inextensible_kernels.step``; the self-stress rule's numpy fit after it when the kernel
+        could not fit); None when the step needs the Python path (an event, or a QP answer it must
+        handle)."""
+        rule = self.self_stress
         (ok, x, v, holding, applied, taut, fitted, impulses, slack, node, cables, y, d, length, binding, members,
          a_t, basis) = kernels.step(
             state.positions, state.velocities, self.system.gravity_force + state.external_forces,
             state.rest_lengths, self._applied, self.reel_speed * self.dt, self.dt, self.length_offsets, LIMIT_TOL,
             self._taut_tol, self._holding, self._hint, self._inv_mass, self._ends, self._n_eq,
             self._rigid_lengths, self._cables_move, self._row_nodes, self._free_nodes, self.system.cable_ends,
-            _MIN_EVENT, _NEWTON_ITER, solver._entry, solver._raw_settings, solver._hessian, solver._sqrt_mass,
-            solver.mass, _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, rule.possible,
-            *rule.load_space, *self._blas, rule.reference)
+            _MIN_EVENT, _NEWTON_ITER, *self.solver.c_call, _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL,
+            _LANDING_ITER, rule.possible, *rule.load_space, *self._blas, rule.reference)
         if not ok:
             return None
         self._end_geometry = (x, d, length)
@@ -465,13 +465,11 @@ class InextensibleMethod(StepMethod):
     def _midpoint_kernel(self, x_m, v, v0, tau, all_limits, floor, taut, reel, holding):
         """:meth:`_midpoint` in one kernel call (plus the self-stress rule's numpy fit); None when a QP
         answer needs the Python path (a failed or refused solve: it raises or solves again)."""
-        solver = self.solver
         locked = self.self_stress.possible
         ok, x_f, v_f, y, cables, nodes, directions, d, length, binding, members, a_t, basis = kernels.midpoint(
             x_m, v, v0, tau, self._ends, self._n_eq, all_limits, floor, self._cables_move, reel, holding,
-            self._row_nodes, self._free_nodes, self.system.cable_ends, taut, solver._entry, solver._raw_settings,
-            solver._hessian, solver._sqrt_mass, solver.mass, _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL,
-            _LANDING_ITER, locked, *self.self_stress.load_space)
+            self._row_nodes, self._free_nodes, self.system.cable_ends, taut, *self.solver.c_call, _FEASIBILITY_TOL,
+            _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, locked, *self.self_stress.load_space)
         if not ok:
             return None
         self._end_geometry = (x_f, d, length)

@@ -269,6 +269,13 @@ class DaqpSolver(QPSolver):
             raise self._failure(flag, info["iterations"], k)
         return (z / self._sqrt_mass) * unit, unit * np.asarray(info["lam"], dtype=float)
 
+    @property
+    def c_call(self) -> tuple:
+        """What a kernel needs to solve as :meth:`_solve` does (``_inextensible_kernels``): the address of
+        ``daqp_quadprog``, the settings struct, the identity Hessian, ``sqrt(mass)`` and the mass per
+        degree of freedom (3 n_free,)."""
+        return self._entry, self._raw_settings, self._hessian, self._sqrt_mass, self.mass
+
     def _failure(self, flag: int, iterations: int, k: int) -> QPError:
         """The error of DAQP's exit ``flag`` < 1 after ``iterations`` on ``k`` rows."""
         return QPError(self.name, self._STATUS.get(flag, f"exitflag {flag}"),
