@@ -94,9 +94,10 @@ import numpy as np
 
 from ..system import System
 from . import _inextensible_kernels as kernels
+from ._numpy_blas import numpy_blas
 from .base import MethodStep, State, StepMethod
 from .friction import ContactSet
-from .qp import QPError, Rows, choose_solver, make_solver
+from .qp import _FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, QPError, Rows, choose_solver, make_solver
 from .rigid import RigidStruts
 from .self_stress import TAUT_TOL, SelfStress, reference_tensions
 
@@ -123,7 +124,16 @@ class LengthOffsetWarning(UserWarning):
 class InextensibleMethod(StepMethod):
     """``compiled``: the motors' limits, the sub-steps' rows and targets, the QP's rows and answer check
     and the self-stress rule's basis in numba kernels (True) or in the numpy reference (False); the QP
-    backend is the same."""
+    backend is the same.
+
+    Compiled, with dense DAQP and no contact rows, a step runs in one kernel call
+    (``_inextensible_kernels.step``: the motors, the impact test, the free motion, the snap search, the
+    rows, DAQP's C function and its answer check, the landing, the self-stress rule with its fit) when it
+    has no event (no snap located inside it, no impact at its start) and no elastic struts; a sub-step
+    of any other step in one call too (``midpoint``), but for the rule's fit. Anything those kernels do
+    not cover (an event, a refused QP answer, an SVD of the rule, a pulling cable in its fit) takes the
+    Python path with the same kernels, to the same bits (``test_compiled.py``); ``one_kernel = False``
+    takes it always."""
 
     name = "inextensible"
     options = ("solver", "reel_speed")
@@ -155,6 +165,7 @@ class InextensibleMethod(StepMethod):
                 f"are commanded", LengthOffsetWarning, stacklevel=4)
         free = system.free
         self._free = free
+        self._free_nodes = np.flatnonzero(free)
         index = np.full(system.n_nodes, -1)
         index[free] = np.arange(int(free.sum()))
         self._inv_mass = system.inv_mass[:, None]
@@ -193,6 +204,10 @@ class InextensibleMethod(StepMethod):
         # a structure that can lock counts a cable this close to its limit as at it (self_stress.TAUT_TOL)
         self._taut_tol = TAUT_TOL if self.self_stress.possible else LIMIT_TOL
         self.compiled = compiled   # the solver's rows and check and the self-stress rule follow (the property)
+        # a compiled sub-step in one kernel call where it applies (_one_kernel); False: through the solver's
+        # and the self-stress rule's Python API, with the same kernels and bits (test_compiled.py)
+        self.one_kernel = True
+        self._blas = numpy_blas()   # numpy's ddot/dgemv: the step kernel's fit to numpy's bits (else no step kernel)
 
     @property
     def compiled(self) -> bool:
@@ -262,6 +277,10 @@ class InextensibleMethod(StepMethod):
         return d, length
 
     def _step_impl(self, state: State) -> MethodStep:
+        if self._one_kernel() and not len(self._elastic_ends) and self._blas is not None:
+            done = self._step_kernel(state)
+            if done is not None:
+                return done
         x, v = state.positions, state.velocities
         if self.compiled:
             applied, reel, limits, floor, taut, reeling = kernels.motor_limits(
@@ -312,6 +331,36 @@ class InextensibleMethod(StepMethod):
         # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
         slack = (end_length < taut) & ~(impulses > 0)
         return MethodStep(x, v, impulses, slack, contact, pairs)
+
+    def _step_kernel(self, state: State) -> MethodStep | None:
+        """:meth:`_step_impl` of a step without events (one sub-step, no impact at its start) in one kernel
+        call (``_inextensible_kernels.step``; the self-stress rule's numpy fit after it when the kernel
+        could not fit); None when the step needs the Python path (an event, or a QP answer it must
+        handle)."""
+        rule = self.self_stress
+        (ok, x, v, holding, applied, taut, fitted, impulses, slack, node, cables, y, d, length, binding, members,
+         a_t, basis) = kernels.step(
+            state.positions, state.velocities, self.system.gravity_force + state.external_forces,
+            state.rest_lengths, self._applied, self.reel_speed * self.dt, self.dt, self.length_offsets, LIMIT_TOL,
+            self._taut_tol, self._holding, self._hint, self._inv_mass, self._ends, self._n_eq,
+            self._rigid_lengths, self._cables_move, self._row_nodes, self._free_nodes, self.system.cable_ends,
+            _MIN_EVENT, _NEWTON_ITER, *self.solver.c_call, _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL,
+            _LANDING_ITER, rule.possible, *rule.load_space, *self._blas, rule.reference)
+        if not ok:
+            return None
+        self._end_geometry = (x, d, length)
+        if fitted:
+            rule.residual = max(rule.residual, node)
+        else:
+            published = np.zeros(len(cables))
+            published[cables] = rule.locked_impulses(binding, members, a_t, basis, y, self.dt, self._n_eq)[self._n_eq:]
+            impulses = np.zeros(len(cables))
+            impulses += published
+            # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
+            slack = (length < taut) & ~(impulses > 0)
+        self._holding = self._hint = holding
+        self._applied = applied
+        return MethodStep(x, v, impulses, slack, None, None)
 
     def _motor_limits_reference(self, commanded):
         """The numpy reference of ``_inextensible_kernels.motor_limits`` for the ``commanded`` rest
@@ -374,6 +423,10 @@ class InextensibleMethod(StepMethod):
         # make the second half-step cover the whole reel, launching its ends at twice the motor's speed
         landing = limits - (0.5 * tau) * reel if reeling else limits
         all_limits = np.concatenate([self._rigid_lengths, landing])
+        if self._one_kernel():
+            done = self._midpoint_kernel(x_m, v, v0, tau, all_limits, floor, taut, reel, holding)
+            if done is not None:
+                return done
         if self.compiled:
             cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = kernels.select_rows(
                 x_m, v, v0, tau, self._ends, n_eq, all_limits, floor, self._cables_move, reel, holding)
@@ -398,6 +451,38 @@ class InextensibleMethod(StepMethod):
         impulses[cables] = y[n_eq:]
         x_f = x_m + (0.5 * tau) * v_f
         return x_f, v_f, impulses, self._publish(rows, np.flatnonzero(cables), y, tau, x_f, taut)
+
+    def _one_kernel(self) -> bool:
+        """Whether a sub-step runs in ``_inextensible_kernels.midpoint``: compiled, dense DAQP, no contact
+        rows (a ground or a member contact response), the self-stress rule compiled too, and neither the
+        solver's ``solve`` nor the rule's ``impulses`` replaced on the instance (a benchmark's clock, a
+        test's recorder: they see every call, through the API)."""
+        solver, rule = self.solver, self.self_stress
+        return (self.one_kernel and self.ground is None and self.compiled and rule.compiled
+                and type(solver) is DaqpSolver and not {"solve", "_solve", "_check"} & vars(solver).keys()
+                and "impulses" not in vars(rule))
+
+    def _midpoint_kernel(self, x_m, v, v0, tau, all_limits, floor, taut, reel, holding):
+        """:meth:`_midpoint` in one kernel call (plus the self-stress rule's numpy fit); None when a QP
+        answer needs the Python path (a failed or refused solve: it raises or solves again)."""
+        locked = self.self_stress.possible
+        ok, x_f, v_f, y, cables, nodes, directions, d, length, binding, members, a_t, basis = kernels.midpoint(
+            x_m, v, v0, tau, self._ends, self._n_eq, all_limits, floor, self._cables_move, reel, holding,
+            self._row_nodes, self._free_nodes, self.system.cable_ends, taut, *self.solver.c_call, _FEASIBILITY_TOL,
+            _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, locked, *self.self_stress.load_space)
+        if not ok:
+            return None
+        self._end_geometry = (x_f, d, length)
+        impulses = np.zeros(len(cables))
+        n_eq = self._n_eq
+        if len(y) == 0:
+            return x_f, v_f, impulses, impulses
+        impulses[cables] = y[n_eq:]
+        if not locked:
+            return x_f, v_f, impulses, impulses.copy()
+        published = np.zeros(len(cables))
+        published[cables] = self.self_stress.locked_impulses(binding, members, a_t, basis, y, tau, n_eq)[n_eq:]
+        return x_f, v_f, impulses, published
 
     def _rows_reference(self, x_m, v, v0, tau, all_limits, floor, reel, holding):
         """The numpy reference of ``_inextensible_kernels.select_rows`` (same arguments and results)."""
