@@ -12,11 +12,12 @@ from numba import njit
 
 from ._c_calls import ddot_at, dgemv_at
 from ._daqp_kernels import solve_rows
+from ._elastic_kernels import keep
 from ._qp_kernels import answer_residuals, dot3, row_rates
 from ._self_stress_kernels import locked_space
 
 __all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed", "midpoint", "cable_geometry",
-           "fit_one", "step"]
+           "fit_one", "step", "steps"]
 
 
 @njit(cache=True)
@@ -470,3 +471,37 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
         slack[c] = length_f[c] < taut[c] and not summed[c] > 0
     return (ok and done, x_f, v_f, new_holding, new_applied, taut, fitted, summed, slack, node, cables, y, d_f,
             length_f, binding, members, a_t, basis)
+
+
+@njit(cache=True)
+def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, out_x, out_v, out_impulses, out_slack,
+          f_ext, commanded, most, dt, offsets, limit_tol, taut_tol, inv_mass, ends, n_eq, rigid_lengths,
+          cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian,
+          sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
+          load_cables, load_largest, refine, rank_tol, exact, getrf, getrs, ddot, dgemv, wide, reference):
+    """Steps ``first``, ``first + 1``, ... of ``n_steps`` from ``x``, ``v`` (N, 3), the inputs held, each
+    :func:`step` from the cables known to hold ``holding`` and the warm start ``hint`` (nc,) bool (after a
+    step both are the cables that held, as in ``InextensibleMethod._step_impl``), until one needs the Python path (an event, a QP answer it must
+    handle, the rule's numpy fit). Sums the impulses into ``total`` (nc,) and keeps steps ``every``,
+    ``2 every``, ... and the last in the outputs (``_elastic_kernels.keep``: (K, N, 3, 1), (K, nc, 1)).
+    Returns the first step not taken (``n_steps``: all), the positions and velocities before it, the
+    rest lengths in effect, ``holding`` and ``hint`` then and the rule's largest dropped node impulse, N*s."""
+    n = x.shape[0]
+    nc = cable_ends.shape[0]
+    for i in range(first, n_steps):
+        (ok, x_f, v_f, new_holding, new_applied, _, fitted, impulses, slack, node, _, _, _, _, _, _, _,
+         _) = step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint,
+                   inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends,
+                   min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass, feasibility_tol,
+                   velocity_floor, landing_tol, landing_iter, locked, load_basis, load_cables, load_largest,
+                   refine, rank_tol, exact, getrf, getrs, ddot, dgemv, wide, reference)
+        if not (ok and fitted):
+            return i, x, v, applied, holding, hint, residual
+        x, v, applied, holding, hint = x_f, v_f, new_applied, new_holding, new_holding
+        residual = max(residual, node)
+        for c in range(nc):
+            total[c] += impulses[c]
+        if (i + 1) % every == 0 or i + 1 == n_steps:
+            keep(x.reshape((n, 3, 1)), v.reshape((n, 3, 1)), 0, total, slack, i // every, 0, out_x, out_v,
+                 out_impulses, out_slack)
+    return n_steps, x, v, applied, holding, hint, residual

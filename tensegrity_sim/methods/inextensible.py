@@ -94,6 +94,7 @@ import numpy as np
 
 from ..system import System
 from . import _inextensible_kernels as kernels
+from ._elastic_kernels import keep
 from ._numpy_blas import numpy_blas
 from .base import MethodStep, State, StepMethod
 from .friction import ContactSet
@@ -137,6 +138,7 @@ class InextensibleMethod(StepMethod):
 
     name = "inextensible"
     options = ("solver", "reel_speed")
+    carry_outlives_inputs = True
 
     def __init__(self, system: System, dt: float, *, solver: str | None = None, reel_speed: float = REEL_SPEED,
                  compiled: bool = True):
@@ -339,13 +341,8 @@ class InextensibleMethod(StepMethod):
         handle)."""
         rule = self.self_stress
         (ok, x, v, holding, applied, taut, fitted, impulses, slack, node, cables, y, d, length, binding, members,
-         a_t, basis) = kernels.step(
-            state.positions, state.velocities, self.system.gravity_force + state.external_forces,
-            state.rest_lengths, self._applied, self.reel_speed * self.dt, self.dt, self.length_offsets, LIMIT_TOL,
-            self._taut_tol, self._holding, self._hint, self._inv_mass, self._ends, self._n_eq,
-            self._rigid_lengths, self._cables_move, self._row_nodes, self._free_nodes, self.system.cable_ends,
-            _MIN_EVENT, _NEWTON_ITER, *self.solver.c_call, _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL,
-            _LANDING_ITER, rule.possible, *rule.load_space, *self._blas, rule.reference)
+         a_t, basis) = kernels.step(state.positions, state.velocities, *self._step_inputs(state),
+                                    self._holding, self._hint, *self._step_constants())
         if not ok:
             return None
         self._end_geometry = (x, d, length)
@@ -361,6 +358,73 @@ class InextensibleMethod(StepMethod):
         self._holding = self._hint = holding
         self._applied = applied
         return MethodStep(x, v, impulses, slack, None, None)
+
+    def _step_inputs(self, state: State) -> tuple:
+        """The step kernel's arguments after ``x``, ``v`` that the inputs and the motors set: the force
+        (N, 3) N, the commanded rest lengths, the rest lengths in effect, the motors' reach over a step (m),
+        dt, the length offsets and the tolerances."""
+        return (self.system.gravity_force + state.external_forces, state.rest_lengths, self._applied,
+                self.reel_speed * self.dt, self.dt, self.length_offsets, LIMIT_TOL, self._taut_tol)
+
+    def _step_constants(self) -> tuple:
+        """The step kernel's arguments after the cables that hold: the system's tables, DAQP's C call,
+        the tolerances, the self-stress rule's load-time space and numpy's BLAS."""
+        rule = self.self_stress
+        return (self._inv_mass, self._ends, self._n_eq, self._rigid_lengths, self._cables_move, self._row_nodes,
+                self._free_nodes, self.system.cable_ends, _MIN_EVENT, _NEWTON_ITER, *self.solver.c_call,
+                _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, rule.possible, *rule.load_space,
+                *self._blas, rule.reference)
+
+    # ------------------------------------------------------------------ the compiled loop
+    def has_loop(self) -> bool:
+        """A compiled loop where every step can run in the step kernel: dense DAQP, no contact rows, no
+        elastic struts (``_one_kernel``); a step the kernel leaves to Python is taken there, in the loop."""
+        return self._one_kernel() and not len(self._elastic_ends) and self._blas is not None
+
+    def carry(self):
+        """What a step leaves to the next (a motor's position, the cables that hold, the warm start, the
+        rule's largest dropped impulse): a command or a reset does not recompute it from the state, so the
+        simulator rewinds the steps computed ahead before either (``carry_outlives_inputs``)."""
+        return self._applied.copy(), self._holding.copy(), self._hint.copy(), self.self_stress.residual
+
+    def restore(self, carry) -> None:
+        applied, holding, hint, self.self_stress.residual = carry
+        self._applied, self._holding, self._hint = applied.copy(), holding.copy(), hint.copy()
+        self._end_geometry = None
+
+    def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
+                impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`StepMethod.advance` in ``_inextensible_kernels.steps``, with each step the kernel leaves
+        to Python taken by :meth:`step`'s own path (the same bits as stepping one at a time). A step that
+        fails (:class:`QPError`, an answer that is not finite) ends the loop: it and what would follow are
+        NaN, which the simulator takes for a step it must retake alone (and raise at)."""
+        x, v = state.positions, state.velocities
+        inputs, constants = self._step_inputs(state), self._step_constants()
+        out = positions[..., None], velocities[..., None], impulses[..., None], slack[..., None]
+        total = np.zeros(self.system.n_cables)
+        rule, i = self.self_stress, 0
+        while True:
+            i, x, v, self._applied, self._holding, self._hint, rule.residual = kernels.steps(
+                i, steps, every, x, v, self._applied, self._holding, self._hint, rule.residual, total, *out,
+                inputs[0], inputs[1], *inputs[3:], *constants)
+            if i == steps:
+                break
+            try:
+                r = self._step_impl(State(x, v, state.rest_lengths, state.external_forces, state.step_count + i))
+            except QPError:
+                r = None
+            if r is None or not np.isfinite(r.positions).all():
+                positions[i // every:] = velocities[i // every:] = impulses[i // every:] = np.nan
+                break
+            x, v = r.positions, r.velocities
+            total += r.impulses
+            i += 1
+            if i % every == 0 or i == steps:
+                keep(x.reshape(-1, 3, 1), v.reshape(-1, 3, 1), 0, total, r.slack, (i - 1) // every, 0, *out)
+            if i == steps:
+                break
+        self._end_geometry = None
+        return x.copy(), v.copy()
 
     def _motor_limits_reference(self, commanded):
         """The numpy reference of ``_inextensible_kernels.motor_limits`` for the ``commanded`` rest
