@@ -27,8 +27,13 @@ INSTALL_REQUIRES = [
     "tqdm>=4.66.2,<5",
     # compiled stepping kernels (methods/_*_kernels.py); 0.68.1 supports numpy 1.22 to 2.5
     "numba>=0.68.1,<0.69",
-    # QP backends of the inextensible method (tensegrity_sim.methods.qp): DAQP is the default
-    "daqp>=0.11.0,<0.12",
+    # numba's code generator, used directly for calls to C functions by address (methods/_c_calls.py);
+    # the range numba 0.68 requires
+    "llvmlite>=0.50.0,<0.51",
+    # QP backends of the inextensible method (tensegrity_sim.methods.qp): DAQP is the default. Exactly
+    # 0.11.0: the compiled path calls its C function daqp_quadprog with the struct layouts of that
+    # release's headers (methods/_daqp_kernels.py); another release may lay them out differently
+    "daqp>=0.11.0,<0.11.1",
     "osqp>=1.1.3,<2",
     # MCAP logs and ROS 2 Jazzy message types without ROS (tensegrity_sim.ros)
     "mcap>=1.6.0,<2",

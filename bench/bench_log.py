@@ -11,7 +11,13 @@ steps after a warm-up (the four configurations taking turns):
 * ``node``: the node logic stepping and publishing every output at 100 Hz to a transport that takes
   message objects (as rclpy's publishers do) and drops them: the node without a log;
 * ``node+log``: the same, every input and output also written to an MCAP file;
-* ``run --log``: the node logic with no transport and a log, as ``tensegrity-sim run --log`` runs.
+* ``run --log``: the node logic with no transport and a log, as ``tensegrity-sim run --log`` runs;
+* ``run --log, templates``: the same with each publication encoded by the plain reference
+  (:class:`~tensegrity_sim.ros.publication.PublicationTemplates`: four templates filled in turn)
+  instead of the compiled pass (``PublicationCdr``);
+* with ``--against REV``: ``run --log @REV``, the same run with this repository's ``tensegrity_sim`` at
+  git revision REV (``main``, a commit), imported beside this checkout's as a package of its own, so that
+  the two versions are timed in turns in one process (the ratio is the speed-up).
 
 ``log`` = node+log - node is the logging cost; it is printed against the node's step time and against the
 1 ms a step may take at 1 kHz. Opening a log (run info, schemas, channels) and finishing it (rosbag2
@@ -20,7 +26,8 @@ file) and left out of the per-step times. Times are CPU time of this process (``
 not wall-clock time, so that other work on a shared machine does not count. Never asserts a time.
 
 ``--crash-safety`` instead compares, per step, the log as written before issue 13 (mcap's 1 MiB chunks,
-no flush until the end) with the crash-safe log (``log.CHUNK_SIZE`` chunks, a write-out and fsync every
+no flush until the end, each message handed to the writer at once) with the crash-safe log
+(``log.PENDING_SIZE`` bytes of messages waiting, ``log.CHUNK_SIZE`` chunks, a write-out and fsync every
 ``log.FLUSH_PERIOD`` s): the difference against the node's step time is the price of bounding what a crash
 loses. These are wall-clock times (``time.perf_counter``, an fsync waits for the disk, which CPU time
 would not show), best of ``--repeats`` runs taking turns, each run long enough to flush several times.
@@ -28,6 +35,9 @@ would not show), best of ``--repeats`` runs taking turns, each run long enough t
 from __future__ import annotations
 
 import argparse
+import importlib
+import re
+import subprocess
 import sys
 import tempfile
 import time
@@ -38,8 +48,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run as a script
 
 import tensegrity_sim as ts  # noqa: E402
 from bench.tables import write_csv  # noqa: E402
-from tensegrity_sim.ros.log import CHUNK_SIZE, FLUSH_PERIOD, LogRecorder, LogWriter  # noqa: E402
+from tensegrity_sim.ros.log import CHUNK_SIZE, FLUSH_PERIOD, PENDING_SIZE, LogRecorder, LogWriter  # noqa: E402
 from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic  # noqa: E402
+from tensegrity_sim.ros.publication import PublicationTemplates  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
 
 DT = 1e-3
 PUBLISH_RATE = 100.0
@@ -64,9 +77,22 @@ def best_per_step(configs: dict, steps: int, repeats: int, clock=time.process_ti
     return {name: t / steps for name, t in best.items()}
 
 
-def measure(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> dict[str, float]:
-    """Seconds per step of bare, node, node+log and run --log, and seconds per file of open+finish (see
-    the module docstring)."""
+def import_revision(rev: str, folder: Path):
+    """This repository's ``tensegrity_sim`` at git revision ``rev`` as a package of its own
+    (``tensegrity_sim_<rev>``, extracted into ``folder``); the package imports itself relatively, so the
+    two versions live side by side (built-in scenes come from this checkout: the same files)."""
+    name = "tensegrity_sim_" + re.sub(r"\W", "_", rev)
+    archive = subprocess.run(["git", "archive", rev, "tensegrity_sim"], cwd=ROOT, capture_output=True, check=True)
+    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive.stdout, check=True)
+    (folder / "tensegrity_sim").rename(folder / name)
+    sys.path.insert(0, str(folder))
+    return importlib.import_module(name)
+
+
+def measure(scene: ts.Scene, steps: int, repeats: int, folder: Path, against=None) -> dict[str, float]:
+    """Seconds per step of bare, node, node+log, run --log (with the compiled and the reference encoder,
+    and with the package ``against`` when given: :func:`import_revision`), and seconds per file of
+    open+finish (see the module docstring)."""
     settings = NodeSettings(scene=scene.name, dt=DT, publish_rate=PUBLISH_RATE)
     path = folder / f"{scene.name}.mcap"
 
@@ -78,10 +104,21 @@ def measure(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> dict[str
                 sim.step()
         return run, lambda: None
 
-    def node(transport=True, log=False):
-        logic = SimNodeLogic(ts.Simulator(scene, dt=DT), settings,
-                             transport=(lambda key, message: None) if transport else None)
-        recorder = LogRecorder(path, logic.channels(), logic.run_info()) if log else None
+    def node(transport=True, log=False, templates=False, package=None):
+        if package is None:
+            logic = SimNodeLogic(ts.Simulator(scene, dt=DT), settings,
+                                 transport=(lambda key, message: None) if transport else None)
+            recorder = LogRecorder(path, logic.channels(), logic.run_info()) if log else None
+        else:  # the other version's node logic and log, as run --log runs them
+            other = importlib.import_module(f"{package.__name__}.ros.node_logic")
+            logic = other.SimNodeLogic(package.Simulator(package.Scene.from_dict(scene.to_dict()), dt=DT),
+                                       other.NodeSettings(scene=scene.name, dt=DT, publish_rate=PUBLISH_RATE))
+            recorder = importlib.import_module(f"{package.__name__}.ros.log").LogRecorder(
+                path, logic.channels(), logic.run_info())
+        if templates:  # the plain reference encoder in place of the compiled pass
+            sys_ = logic.sim.system
+            logic._cdr = PublicationTemplates(settings.frame_id, sys_.n_nodes, logic.sim.scene.cable_names,
+                                              sys_.cable_ends)
         logic.recorder = recorder
 
         def run(n):
@@ -97,8 +134,12 @@ def measure(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> dict[str
         LogRecorder(path, logic.channels(), logic.run_info()).finish()
         return time.process_time() - start
 
-    times = best_per_step({"bare": bare, "node": node, "node+log": lambda: node(log=True),
-                           "run --log": lambda: node(transport=False, log=True)}, steps, repeats)
+    configs = {"bare": bare, "node": node, "node+log": lambda: node(log=True),
+               "run --log": lambda: node(transport=False, log=True),
+               "run --log, templates": lambda: node(transport=False, log=True, templates=True)}
+    if against is not None:
+        configs[f"run --log @{against.__name__.removeprefix('tensegrity_sim_')}"] = lambda: node(transport=False, log=True, package=against)
+    times = best_per_step(configs, steps, repeats)
     return {**times, "open+finish": min(open_finish() for _ in range(repeats))}
 
 
@@ -113,7 +154,7 @@ def crash_safety(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> dic
         writer = None
         if writer_options is not None:
             writer = LogWriter(path, logic.channels(), logic.run_info(), **writer_options)
-            logic.recorder = SimpleNamespace(record=writer.write)  # a LogRecorder without its restarts
+            logic.recorder = SimpleNamespace(record=writer.write_all)  # a LogRecorder without its restarts
 
         def run(n):
             for _ in range(n):
@@ -122,7 +163,8 @@ def crash_safety(scene: ts.Scene, steps: int, repeats: int, folder: Path) -> dic
                     logic.publish()
         return run, (writer.finish if writer is not None else lambda: None)
 
-    configs = {"node": lambda: node(None), "before": lambda: node({"chunk_size": 1 << 20, "flush_period": None}),
+    configs = {"node": lambda: node(None),
+               "before": lambda: node({"chunk_size": 1 << 20, "pending_size": 0, "flush_period": None}),
                "crash-safe": lambda: node({})}
     return best_per_step(configs, steps, repeats, clock=time.perf_counter)
 
@@ -133,14 +175,16 @@ def main():
     parser.add_argument("--steps", type=int, default=5000)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--csv", type=Path, help="also write the times to this CSV file")
+    parser.add_argument("--against", metavar="REV",
+                        help="also time run --log with tensegrity_sim at this git revision (module docstring)")
     parser.add_argument("--crash-safety", action="store_true",
                         help="compare the log before issue 13 with the crash-safe log (module docstring)")
     args = parser.parse_args()
     names = args.scenes or list(ts.builtin_scenes())
     if args.crash_safety:
-        print(f"crash-safe log: chunks of {CHUNK_SIZE // 1024} KiB, written out and synced every {FLUSH_PERIOD:g} s; "
-              f"before: 1 MiB chunks, never flushed. Wall-clock per step, best of {args.repeats} x {args.steps} "
-              f"steps")
+        print(f"crash-safe log: {PENDING_SIZE // 1024} KiB of messages waiting, chunks of {CHUNK_SIZE // 1024} KiB, "
+              f"written out and synced every {FLUSH_PERIOD:g} s; before: 1 MiB chunks, never flushed. Wall-clock "
+              f"per step, best of {args.repeats} x {args.steps} steps")
         print(f"{'scene':<14}{'node':>10}{'before':>10}{'crash-safe':>12}  {'cost/node':>9}")
         with tempfile.TemporaryDirectory() as folder:
             for name in names:
@@ -153,17 +197,22 @@ def main():
           f"{settings.markers_every} publications; times per step, best of {args.repeats} x {args.steps} steps")
     print(f"{'scene':<14}{'bare':>10}{'node':>10}{'node+log':>10}{'log':>10}  {'log/node':>9}  {'log/1ms':>8}"
           f"  {'run --log':>10}  {'open+finish':>12}")
-    rows = []
+    rows, others = [], []
     with tempfile.TemporaryDirectory() as folder:
+        against = import_revision(args.against, Path(folder)) if args.against else None
         for name in names:
             scene = ts.load_scene(name)
-            t = measure(scene, args.steps, args.repeats, Path(folder))
-            rows += [{"scene": scene.name, "configuration": k, "us_per_step": 1e6 * t[k], "steps_per_s": 1.0 / t[k]}
-                     for k in ("bare", "node", "node+log", "run --log")]
+            t = measure(scene, args.steps, args.repeats, Path(folder), against)
+            rows += [{"scene": scene.name, "configuration": k, "us_per_step": 1e6 * v, "steps_per_s": 1.0 / v}
+                     for k, v in t.items() if k != "open+finish"]
             log = t["node+log"] - t["node"]
             print(f"{scene.name:<14}{t['bare'] * 1e6:>8.1f}us{t['node'] * 1e6:>8.1f}us{t['node+log'] * 1e6:>8.1f}us"
                   f"{log * 1e6:>8.1f}us  {100 * log / t['node']:>8.1f}%  {100 * log / DT:>7.2f}%"
                   f"  {t['run --log'] * 1e6:>8.1f}us  {t['open+finish'] * 1e3:>10.1f}ms", flush=True)
+            others += [f"{scene.name:<14}run --log {1.0 / t['run --log']:>9,.0f} steps/s; " + "; ".join(
+                f"{k[len('run --log'):].lstrip(', ')} {t[k] * 1e6:.1f}us ({t[k] / t['run --log']:.2f}x its time)"
+                for k in t if k.startswith("run --log") and k != "run --log")]
+    print("\n".join(others))
     if args.csv is not None:
         write_csv(args.csv, rows)
 

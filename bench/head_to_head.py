@@ -10,7 +10,8 @@ were; ``--methods ""``: none); ``--stages ""`` skips the towers (and keeps their
   ``mj_step(model, data, nstep)``; the elastic method against MuJoCo's Euler with spring tendons, the
   inextensible one against MuJoCo's Euler with *limited* tendons (its model of an inextensible cable).
   The inextensible rows add the step with the self-stress rule in its numpy reference (what compiling
-  it gained).
+  it gained) and the step with its kernels called one by one through the solver's and the rule's API
+  (``one_kernel = False``: what running a step in one kernel call gained).
 * **Towers** of ``--stages`` stages (no gravity), inextensible, at rest and moving (random node
   velocities of 0.05 m/s): the steady cost per step after a warm-up, and separately the cost of the first
   step after a command (``set_rest_lengths`` with the current lengths, as a controller holding its
@@ -69,11 +70,14 @@ def icosahedron_rows(repeats: int, methods=("elastic", "inextensible")) -> list[
             "MuJoCo mj_step(nstep)": (peer.advance, peer.reset),
         }
         pairs = [(0, 1), (2, 3)]
-        if method == "inextensible":   # what compiling the self-stress rule gained (issue 10)
+        if method == "inextensible":   # what compiling the self-stress rule and the one-call step gained (issue 10)
             plain = ts.Simulator(scene, method=method, dt=1e-3, contacts=())
             plain._method.self_stress.compiled = False
             contenders["tensegrity_sim step(), self-stress rule numpy"] = (_python_loop(plain.step), plain.reset)
-            pairs.append((4, 1))
+            api = ts.Simulator(scene, method=method, dt=1e-3, contacts=())
+            api._method.one_kernel = False
+            contenders["tensegrity_sim step(), kernels called through the API"] = (_python_loop(api.step), api.reset)
+            pairs += [(4, 1), (5, 1)]
         timings = time_alternating(contenders, repeats=repeats, target=0.2, clock=time.process_time)
         best = {name: t.best for name, t in timings.items()}
         names = list(contenders)

@@ -227,7 +227,7 @@ def _close(row: dict, session, wall: float, case: Case, ref: Reference) -> dict:
             "steps_per_s": row["steps"] / wall,
             "pos_err_m": _pos_diff(measured.final, ref.final),
             "imp_err_Ns": math.nan if case.impulse_note else
-            float(np.max(np.abs(measured.final.impulses - ref.final.impulses))),
+            float(np.max(np.abs(measured.final.impulses - ref.final.impulses), initial=0.0)),
             "energy_err_J": measured.energy_error}
 
 

@@ -262,7 +262,7 @@ def _cmd_recover(args: argparse.Namespace) -> int:
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
-    from .ros.node_logic import NodeSettings
+    from .ros.interface import NodeSettings
 
     settings = NodeSettings(**{name: getattr(args, name) for name in NodeSettings().parameters})  # checks them
     if args.foxglove is not None:
@@ -332,7 +332,7 @@ def _add_serve(verbs) -> None:
     """``serve``: its node parameters are NodeSettings' fields, with their defaults and descriptions."""
     from dataclasses import fields
 
-    from .ros.node_logic import NodeSettings
+    from .ros.interface import NodeSettings
 
     serve = verbs.add_parser(
         "serve", help="run the simulator live as the ROS 2 node (rclpy, or DDS without ROS)",

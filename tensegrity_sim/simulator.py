@@ -164,6 +164,7 @@ class Simulator:
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
         """Back to the scene's initial state (time 0, initial rest lengths, no external force)."""
+        self._settle()
         s = self.scene
         self._state = State(s.positions, s.velocities, s.cable_rest_lengths, np.zeros((len(s.nodes), 3)))
         self._method.prepare(self._state)
@@ -207,6 +208,7 @@ class Simulator:
     def applied_rest_lengths(self) -> np.ndarray:
         """The rest lengths in effect (n_cables,) m: ``rest_lengths`` once the motors have reached them
         (the inextensible method follows a command at ``reel_speed``)."""
+        self._settle()
         return self._method.applied_rest_lengths(self._state)
 
     @property
@@ -235,6 +237,7 @@ class Simulator:
         if bad.size:
             name = self.scene.cable_names[bad[0]]
             raise ValueError(f"rest_lengths[{name!r}]: must be > 0, got {float(new[bad[0]])!r}")
+        self._settle()
         self._state.rest_lengths = new
         self._inputs_changed()
 
@@ -242,8 +245,16 @@ class Simulator:
         """External node forces, N: ``{node name: [fx, fy, fz]}`` (partial) or an (N, 3) array.
         Held until replaced; a force on a fixed node has no effect."""
         new = self._by_name_or_array(values, "external_forces", self._node_index, 3, self._state.external_forces)
+        self._settle()
         self._state.external_forces = new
         self._inputs_changed()
+
+    def _settle(self) -> None:
+        """Before an input changes or the method is asked about the present: a method whose loop carries
+        what a command does not rebuild from the state (``carry_outlives_inputs``) is put back at the
+        state, the steps computed ahead dropped (the others are dropped by :meth:`_inputs_changed`)."""
+        if self._ahead is not None and self._method.carry_outlives_inputs:
+            self._rewind()
 
     def _inputs_changed(self) -> None:
         """The state changed from outside: the method recomputes what it cached, and the steps computed
@@ -381,6 +392,7 @@ class Simulator:
 
     def slack(self) -> np.ndarray:
         """(n_cables,) bool: the cables slack now, in the method's model."""
+        self._settle()
         return self._method.slack(self._state.positions, self._state.rest_lengths)
 
     def run(self, duration: float | None = None, *, steps: int | None = None, every: int = 1,
@@ -423,14 +435,16 @@ class Simulator:
     def _run_compiled(self, steps, every, pos, vel, imp, slack, contacts) -> int:
         """:meth:`run` in the method's compiled loop: straight into the trajectory's arrays, or, with
         contact detection, in chunks of every step that the detector then walks through. Returns the
-        steps done: a part whose result is not finite is not committed (the method's cache is dropped)
-        and is left to :meth:`step`, which raises :class:`NonFiniteError` at the very step, as a run
+        steps done: a part whose result is not finite is not committed (the method's carry is put back,
+        its cache dropped) and is left to :meth:`step`, which raises :class:`NonFiniteError` at the very step, as a run
         step by step does."""
         st, method = self._state, self._method
         add = np.add.reduce
         if self._contacts is None:
+            carry = method.carry()
             x, v = method.advance(st, steps, every, pos, vel, imp, slack)
             if not math.isfinite(add(x, None) + add(v, None) + add(imp, None)):
+                method.restore(carry)
                 method.invalidate()
                 imp[...] = 0.0
                 return 0
@@ -444,8 +458,10 @@ class Simulator:
         done = 0
         while done < steps:
             m = min(chunk, steps - done)
+            carry = method.carry()
             x, v = method.advance(st, m, 1, c_pos[:m], c_vel[:m], c_imp[:m], c_slack[:m])
             if not math.isfinite(add(x, None) + add(v, None) + add(c_imp[:m], None)):
+                method.restore(carry)
                 method.invalidate()
                 return done
             i = self._quiet_steps(c_pos[:m])   # the detector is called for the other steps only

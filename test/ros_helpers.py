@@ -80,8 +80,8 @@ class FakeRecorder:
         self.records: list[tuple[str, object, int]] = []
         self.restarts = 0
 
-    def record(self, topic, message, log_time_ns):
-        self.records.append((topic, message, log_time_ns))
+    def record(self, records, log_time_ns):
+        self.records += [(topic, data, log_time_ns) for topic, data in records]
 
     def restart(self, run_info):
         self.restarts += 1

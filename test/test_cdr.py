@@ -2,7 +2,8 @@
 log gets from the templates. References are built with the type store's classes directly, not with
 ``cdr.prototype``, and cover the padding cases (frame ids and names of every length mod 4, empty and
 non-empty arrays, 1 to 300 poses), float32 and bool fields, fixed-size arrays, and float64 values whose
-bits must survive (NaN payloads, -0.0, infinities, subnormals)."""
+bits must survive (NaN payloads, -0.0, infinities, subnormals). The node's compiled encoder of a
+publication (``PublicationCdr``) against the templates it replaces, byte for byte."""
 import struct
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 
 from tensegrity_sim.ros.cdr import CdrTemplate, prototype
 from tensegrity_sim.ros.messages import TYPESTORE
+from tensegrity_sim.ros.publication import PublicationCdr, PublicationTemplates
 
 STAMP = ("header.stamp.sec", "header.stamp.nanosec")
 
@@ -232,3 +234,26 @@ def test_a_walk_that_disagrees_with_rosbags_is_refused():
     with pytest.raises(ValueError) as err:
         CdrTemplate("rosgraph_msgs/msg/Clock", None, ("clock.sec",), store=LongerBytes())
     assert str(err.value) == "rosgraph_msgs/msg/Clock: the CDR walk ends at byte 12, rosbags' bytes at 16"
+
+
+@pytest.mark.parametrize("frame", ["", "w", "map", "worl", "world", "base_l", "base_li", "base_link", "ünïcode"])
+@pytest.mark.parametrize("n_nodes, n_cables", [(2, 1), (3, 0), (12, 24), (41, 100)])
+def test_publication_in_one_pass_is_the_templates_bytes(frame, n_nodes, n_cables):
+    """``PublicationCdr`` (one compiled pass over one buffer) writes the very bytes of the four templates
+    filled in turn (``PublicationTemplates``), whatever the padding: frame ids of every length mod 8,
+    cable names of lengths 1 to 8, no cables; stamps up to the largest int32; special floats kept."""
+    rng = np.random.default_rng(n_nodes + len(frame))
+    names = [f"c{i}" + "x" * (i % 8) for i in range(n_cables)]
+    ends = rng.integers(0, n_nodes, size=(n_cables, 2))
+    ends[:, 1] = (ends[:, 0] + 1 + rng.integers(0, n_nodes - 1, size=n_cables)) % n_nodes  # two distinct nodes
+    reference = PublicationTemplates(frame, n_nodes, names, ends)
+    fast = PublicationCdr(reference)
+    for ns in (0, 1_234_567_891, (2**31 - 1) * 10**9 + 999_999_999):
+        x, v = rng.normal(size=(n_nodes, 3)), rng.normal(size=(n_nodes, 3))
+        tensions, impulses = awkward_floats(rng, n_cables), awkward_floats(rng, n_cables)
+        expected = reference.encode(ns, x, v, tensions, impulses)
+        assert fast.encode(ns, x, v, tensions, impulses) == expected
+    with pytest.raises(ValueError, match="do not fit"):
+        fast.encode(2**31 * 10**9, x, v, tensions, impulses)
+    with pytest.raises(ValueError, match="other sizes"):
+        fast.encode(0, x[:-1], v[:-1], tensions, impulses)

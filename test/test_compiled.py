@@ -359,6 +359,84 @@ def test_inextensible_step_matches_reference(name):
         assert np.array_equal(a.slack, b.slack), f"slack, step {k}"
 
 
+@pytest.mark.parametrize("name", INEXTENSIBLE + ["icosahedron_thrown"])
+def test_one_kernel_substep_is_the_api_path_bitwise(name):
+    """The step (one without events) or the sub-step in one kernel call (rows, DAQP's C call and its
+    answer check, the landing, the self-stress rule's basis and, for a step, its fit) against the same kernels called one by one
+    through the solver's and the rule's API: the same trajectory to the last bit, a reel-in command mid-run included, and the
+    one-kernel path taken (it leaves contact rows, other backends and refused answers to the API)."""
+    if name == "icosahedron_thrown":
+        make, dt, steps, solver = icosahedron_thrown, 1e-3, 300, None
+    else:
+        make, dt, steps, solver = _inextensible_scenes()[name]
+        steps = min(steps, 60 if name == "tower" else steps)   # its QPs are slow; the command at step 30 included
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LengthOffsetWarning)
+        one, api = (ts.Simulator(make(), method="inextensible", dt=dt, solver=solver) for _ in range(2))
+    api._method.one_kernel = False
+    one._method.has_loop = lambda: False   # each step through the method (the loop: the test below)
+    taken = [0]
+    for path in ("_step_kernel", "_midpoint_kernel"):   # a step in one call, or a sub-step of an event's step
+        def counted(*args, kernel=getattr(one._method, path)):
+            done = kernel(*args)
+            taken[0] += done is not None
+            return done
+        setattr(one._method, path, counted)
+    for k in range(steps):
+        if k == steps // 2 and name not in ("rigid_prism", "icosahedron_thrown"):   # those two are locked
+            for sim in (one, api):
+                sim.set_rest_lengths(sim.rest_lengths * 0.999)
+        a, b = one.step(), api.step()
+        for field in ("positions", "velocities", "impulses", "slack"):
+            assert np.array_equal(getattr(a, field), getattr(b, field)), f"{field}, step {k}"
+    assert one._method.self_stress.residual == api._method.self_stress.residual   # the fit's dropped impulse
+    assert (taken[0] >= steps) == (one._method.solver.name == "daqp"), taken
+
+
+@pytest.mark.parametrize("name", ["sling", "two_masses", "chain", "pendulum", "rigid_prism", "icosahedron_thrown"])
+def test_inextensible_loop_is_the_api_path_bitwise(name):
+    """Steps computed ahead in the compiled loop (``_inextensible_kernels.steps``, its events taken by
+    the Python path inside it), handed out by ``step()`` and kept by ``run(every=7)``, against each step
+    through the API: the same bits, with a command, a force, the queries that read the motors and the
+    flags, and a reset mid-run (each rewinds the steps ahead to the state)."""
+    if name == "icosahedron_thrown":
+        make, dt, steps = icosahedron_thrown, 1e-3, 300
+    else:
+        make, dt, steps, _ = _inextensible_scenes()[name]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LengthOffsetWarning)
+        loop, api = (ts.Simulator(make(), method="inextensible", dt=dt) for _ in range(2))
+    api._method.one_kernel = False
+    assert loop._method.has_loop() and not api._method.has_loop()
+    node = loop.scene.node_names[-1]
+    ahead = 0
+    reel = steps // 3
+    for k in range(steps):
+        # a reel-in the motors follow over ~10 steps, and a new command while they do (the steps ahead
+        # hold motors that ran on); the rigid prism and the thrown icosahedron are locked: no reel-in
+        if k in (reel, reel + 8) and name not in ("rigid_prism", "icosahedron_thrown"):
+            for sim in (loop, api):
+                sim.set_rest_lengths(sim.rest_lengths * (0.99 if k == reel else 1.0 / 0.99))
+        if k == steps // 2:
+            for sim in (loop, api):
+                sim.set_external_forces({node: [0.0, 0.0, 3.0]})
+        if k in (steps // 4, reel + 5, 2 * steps // 3):
+            assert np.array_equal(loop.applied_rest_lengths, api.applied_rest_lengths), k
+            assert np.array_equal(loop.slack(), api.slack()), k
+        a, b = loop.step(), api.step()
+        ahead = max(ahead, loop._ahead.count if loop._ahead is not None else 0)
+        for field in ("positions", "velocities", "impulses", "tensions", "slack"):
+            assert np.array_equal(getattr(a, field), getattr(b, field)), f"{field}, step {k}"
+    assert ahead >= 16   # the steps were computed ahead
+    for sim in (loop, api):
+        sim.reset()
+        sim.step()
+    a, b = (sim.run(steps=steps // 2, every=7) for sim in (loop, api))
+    for field in ("positions", "velocities", "impulses", "tensions", "slack"):
+        assert np.array_equal(getattr(a, field), getattr(b, field)), f"run: {field}"
+    assert loop._method.self_stress.residual == api._method.self_stress.residual
+
+
 @pytest.mark.parametrize("backend", ["daqp", "osqp", "nnls"])
 def test_answer_check_matches_reference(backend):
     """The compiled optimality check reports the numpy reference's residuals (to 1e-12 relative) on
@@ -427,7 +505,7 @@ def test_self_stress_rule_matches_reference(name):
         calls["compared"] += 1
         calls["refined"] += refined(rows.nodes, rows.directions, rule.n_free, rows.n_eq, cables, at_limit, y,
                                     rule._load_basis, rule._load_cables, rule._load_largest, True, RANK_TOL,
-                                    _EXACT)[3] is not None
+                                    _EXACT, *rule._lu)[3] is not None
         return fast
     rule.impulses = both
     for k in range(min(steps, 200)):
@@ -436,3 +514,25 @@ def test_self_stress_rule_matches_reference(name):
         sim.step()
     assert calls["compared"] >= 100
     assert calls["refined"] > 0 or name == "tower"
+
+
+@pytest.mark.parametrize("name", ["prism3", "icosahedron", "tower"])
+def test_member_kinematics_matches_reference(name):
+    """The cable lengths and elongation rates the node publishes (compiled) against ``System.geometry`` and
+    ``System.member_rates`` (numpy), over configurations and velocities from tiny to large scales."""
+    from tensegrity_sim._system_kernels import member_kinematics
+    sim = ts.Simulator(ts.load_scene(name), method="elastic")
+    system = sim.system
+    ends = np.ascontiguousarray(system.cable_ends, dtype=np.int64)
+    rng = np.random.default_rng(7)
+    length, rate = np.empty(len(ends)), np.empty(len(ends))
+    for scale in (1e-3, 1.0, 1e3):
+        x = sim.positions + scale * rng.normal(size=sim.positions.shape)
+        v = scale * rng.normal(size=x.shape)
+        member_kinematics(x, v, ends, length, rate)
+        _, ref_length, n = system.geometry(x, system.cable_ends)
+        ref_rate = system.member_rates(v, n, system.cable_ends)
+        np.testing.assert_allclose(length, ref_length, rtol=TOL, atol=0.0)
+        # a rate is a sum of terms of either sign: agreement relative to the speeds
+        np.testing.assert_allclose(rate, ref_rate, rtol=0.0, atol=TOL * np.abs(v).max())
+        assert np.all(length > 0) and np.abs(rate).max() > 0.1 * scale

@@ -301,3 +301,33 @@ def test_markers_draw_the_ground_and_its_forces():
     direction = (lines[:, 1] - lines[:, 0]) / np.linalg.norm(lines[:, 1] - lines[:, 0], axis=1)[:, None]
     np.testing.assert_allclose(direction, force / np.linalg.norm(force, axis=1)[:, None], atol=1e-12)
     np.testing.assert_array_equal(lines[:, 0, :2], r.positions[:, :2])
+
+
+def test_a_reset_forgets_the_largest_ground_force_of_the_markers():
+    """After a reset the ground forces are drawn against the forces of the new run alone, as a fresh
+    node draws them (a replay of the new log starts from a fresh node): 30 N pressing the strut down
+    before the reset must not shorten the lines after it."""
+    from ros_helpers import make_logic
+
+    def force_lines(sent):
+        markers = {m.ns: m for m in [msg for key, msg in sent if key == "markers"][-1].markers}
+        return np.array([[p.x, p.y, p.z] for p in markers["contact_forces"].points])
+
+    fresh, fresh_sent, _ = make_logic(strut(), method="inextensible", publish_rate=1000.0)
+    fresh.step()
+    fresh.publish()
+    logic, sent, _ = make_logic(strut(), method="inextensible", publish_rate=1000.0)
+    logic.sim.set_external_forces({"a": [0.0, 0.0, -30.0]})
+    logic.step()
+    logic.publish()
+    pressed = force_lines(sent)
+    logic.reset()
+    logic.step()
+    logic.publish()
+    after = force_lines(sent)
+    np.testing.assert_array_equal(after, force_lines(fresh_sent))
+    # the pressed node's line was the longest before the reset (the free node's ~G / (G + 30) of it),
+    # and after it the free node's line is as long: drawn against the new run's largest force alone
+    longest = np.linalg.norm(pressed[1] - pressed[0])
+    assert np.linalg.norm(pressed[3] - pressed[2]) < 0.5 * longest
+    assert np.linalg.norm(after[1] - after[0]) == pytest.approx(longest, rel=1e-12)

@@ -22,6 +22,7 @@ from tensegrity_sim.cli import main, simulate
 from tensegrity_sim.commands import parse_commands
 from tensegrity_sim.ros import messages as M
 from tensegrity_sim.ros.log import LogRecorder, LogWriter, SignalLatch, log_file_path
+from tensegrity_sim.ros.log_reader import LogReader
 from tensegrity_sim.ros.node_logic import TOPICS, NodeSettings, SimNodeLogic
 from tensegrity_sim.ros.offline import CommandDriver
 from tensegrity_sim.ros.replay import replay
@@ -255,3 +256,60 @@ def test_signal_latch_raises_at_the_safe_point_only():
             time.sleep(0.01)
     assert exit_.value.code == 128 + signal.SIGTERM  # raised on leaving the block, not lost
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers restored
+
+
+def test_writing_a_publication_at_once_is_writing_its_messages_in_turn(tmp_path):
+    """``LogWriter.write_all`` (what the node records a publication through) writes the very file that
+    ``write`` called once per message does: the same bytes, sequence numbers and counts included, across
+    several chunks."""
+    spec = TOPICS["clock"]
+    channels = [("/clock", spec.typename, spec.qos), ("/b", spec.typename, spec.qos)]
+    batches = [[(topic, M.serialize(M.new(spec.typename, clock=M.time(k + j)), spec.typename))
+                for j, topic in enumerate(("/clock", "/b", "/clock"))] for k in range(3000)]
+    files = []
+    for at_once in (False, True):
+        path = tmp_path / str(at_once) / "log.mcap"  # the same name: the rosbag2 metadata holds it
+        with LogWriter(path, channels, {"a": "b"}, chunk_size=4096, flush_period=None) as writer:
+            for k, batch in enumerate(batches):
+                if at_once:
+                    writer.write_all(batch, 1000 * k)
+                else:
+                    for topic, data in batch:
+                        writer.write(topic, data, 1000 * k)
+        assert writer.counts == {"/clock": 6000, "/b": 3000}
+        files.append(path.read_bytes())
+    assert files[0] == files[1] and len(files[0]) > 10 * 4096
+    with open(tmp_path / "True" / "log.mcap", "rb") as f:
+        read = [(c.topic, m.data, m.log_time, m.publish_time, m.sequence)
+                for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
+    sequences = {"/clock": iter(range(6000)), "/b": iter(range(3000))}  # per channel, from 0
+    assert read == [(topic, data, 1000 * k, 1000 * k, next(sequences[topic]))
+                    for k, batch in enumerate(batches) for topic, data in batch]
+
+
+def test_messages_wait_up_to_the_pending_size_and_the_flush_period(tmp_path):
+    """Crash safety with waiting messages: they go to mcap's writer once ``pending_size`` bytes of them wait,
+    and once the flush period has passed everything written is on disk, readable as an unfinished log
+    (what a crash would leave)."""
+    spec = TOPICS["clock"]
+    now = [0.0]
+    path = tmp_path / "log.mcap"
+    writer = LogWriter(path, [("/clock", spec.typename, spec.qos)], {"a": "b"}, chunk_size=1 << 20,
+                       pending_size=100, flush_period=1.0, clock=lambda: now[0])
+    data = M.serialize(M.new(spec.typename, clock=M.time(0)), spec.typename)  # 12 bytes
+    for k in range(8):  # 96 bytes: all wait
+        writer.write("/clock", data, k)
+    assert writer.counts["/clock"] == 0
+    writer.write("/clock", data, 8)  # 108 bytes: all nine go on (into the chunk in progress, in memory)
+    assert writer.counts["/clock"] == 9
+    writer.write("/clock", data, 9)
+    with LogReader(path) as reader:
+        assert sum(1 for _ in reader.messages()) == 0 and reader.unfinished
+    now[0] = 1.0  # the flush period has passed: the next write sends everything out and syncs it
+    writer.write("/clock", data, 10)
+    with LogReader(path) as reader:
+        assert [m.log_time for m in reader.messages()] == list(range(11))
+    writer.write("/clock", data, 11)
+    writer.finish()
+    with LogReader(path) as reader:
+        assert [m.sequence for m in reader.messages()] == list(range(12)) and not reader.unfinished

@@ -339,9 +339,10 @@ class BytesRecorder:
     def __init__(self):
         self.records = []
 
-    def record(self, topic, data, log_time_ns):
-        assert isinstance(data, bytes)
-        self.records.append((topic, data, log_time_ns))
+    def record(self, records, log_time_ns):
+        for topic, data in records:
+            assert isinstance(data, bytes)
+            self.records.append((topic, data, log_time_ns))
 
 
 @pytest.mark.parametrize("scene, frame_id", [(prism(gravity=9.81), "world"), (ts.load_scene("icosahedron"), "map"),

@@ -10,9 +10,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._qp_kernels import dot3, row_rates
+from ._c_calls import ddot_at, dgemv_at
+from ._daqp_kernels import solve_rows
+from ._elastic_kernels import keep
+from ._qp_kernels import answer_residuals, dot3, row_rates
+from ._self_stress_kernels import locked_space
 
-__all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed"]
+__all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed", "midpoint", "cable_geometry",
+           "fit_one", "step", "steps"]
 
 
 @njit(cache=True)
@@ -201,3 +206,302 @@ def landed(v_f, v, v_free, y, ends, nodes, directions, length, limits, tau, floo
         if (abs(miss[i]) if warm[i] else miss[i]) > tol * (2.0 / tau) * limits[i]:
             done = False
     return done, targets, warm
+
+
+@njit(cache=True)
+def _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, directions, v0_free, targets, n_eq, warm,
+                   feasibility_tol, velocity_floor):
+    """``DaqpSolver.solve`` at unit scale with ``QPSolver._check``: ``v`` (n_free, 3) m/s, the multipliers
+    (k,) N*s and whether the answer passed (DAQP succeeded, finite, the optimality conditions met to
+    ``feasibility_tol`` relative plus ``velocity_floor`` m/s). A failed one goes back to the Python path,
+    which raises its error or solves again at another scale."""
+    n_free = v0_free.shape[0]
+    v_flat, y, flag, _ = solve_rows(entry, settings, hessian, sqrt_mass, nodes, directions, n_free,
+                                    v0_free.reshape(-1), targets, n_eq, warm, 1.0)
+    v = v_flat.reshape((n_free, 3))
+    if flag < 1 or not (np.isfinite(v_flat).all() and np.isfinite(y).all()):
+        return v, y, False
+    scale, violation, impulse, stationarity, smallest, short = answer_residuals(
+        v, y, v0_free, nodes, directions, targets, n_eq, mass, feasibility_tol)
+    tol = feasibility_tol * scale + velocity_floor
+    ok = not (violation > tol or stationarity > feasibility_tol * impulse or smallest < -feasibility_tol * impulse
+              or short > tol)
+    return v, y, ok
+
+
+@njit(cache=True)
+def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding, row_nodes, free_nodes,
+             cable_ends, taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor,
+             landing_tol, landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, getrf,
+             getrs):
+    """``InextensibleMethod._midpoint`` without contact rows, its QP solved by DAQP (``_solve_checked``),
+    in one call: the rows (:func:`select_rows`, member table ``ends``, ``limits`` with the landing
+    targets' reel already applied), the landing iterations (``_land``: up to ``landing_iter`` solves,
+    :func:`landed` to ``landing_tol``), the end of the sub-step and, when the structure can lock
+    (``locked``), the self-stress rule's binding rows and basis (``_self_stress_kernels.locked_space``,
+    its fit stays numpy). ``row_nodes`` (n_eq + nc, 2): the free-node index of each member end;
+    ``free_nodes`` (n_free,) int: the free nodes; ``taut`` (nc,) m: a cable's at-limit length.
+
+    Returns ``ok`` (False: a QP answer the Python path must handle, nothing else is meaningful), ``x_f``,
+    ``v_f`` (N, 3), the multipliers (k,) N*s, ``cables`` (nc,) bool (the cable rows), the rows' nodes
+    (k, 2) and directions (k, 3), the cable vectors (nc, 3) and lengths (nc,) m at ``x_f`` (as
+    ``System.geometry``), and ``locked_space``'s binding rows, members, ``A_B^T`` and basis (or None:
+    the caller's SVD; empty when not ``locked``)."""
+    nc = cable_ends.shape[0]
+    cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = select_rows(
+        x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding)
+    k = sel.shape[0]
+    nodes = np.empty((k, 2), dtype=row_nodes.dtype)
+    m_ends = np.empty((k, 2), dtype=ends.dtype)
+    for r in range(k):
+        for j in range(2):
+            nodes[r, j] = row_nodes[sel[r], j]
+            m_ends[r, j] = ends[sel[r], j]
+    n_free = free_nodes.shape[0]
+    y = np.zeros(k)
+    ok = True
+    if k == 0:   # nothing can be taut: free motion, no QP
+        v_f = v0.copy()
+    else:
+        v0_free = np.empty((n_free, 3))
+        for i in range(n_free):
+            for j in range(3):
+                v0_free[i, j] = v0[free_nodes[i], j]
+        v_f = np.zeros_like(v0)
+        shortest = m_limits.min()
+        v_start = v
+        for _ in range(landing_iter):
+            v_free, y, ok = _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, m_n, v0_free, targets,
+                                           n_eq, warm, feasibility_tol, velocity_floor)
+            if not ok:
+                break
+            for i in range(n_free):
+                for j in range(3):
+                    v_f[free_nodes[i], j] = v_free[i, j]
+            done, new_targets, new_warm = landed(v_f, v_start, v_free, y, m_ends, nodes, m_n, m_length, m_limits,
+                                                 tau, floor_rate, n_eq, shortest, landing_tol)
+            if done:
+                break
+            targets = new_targets
+            warm = new_warm
+            v_start = v_f.copy()
+    x_f = x_m + (0.5 * tau) * v_f
+    d = np.empty((nc, 3))
+    length = np.empty(nc)
+    for c in range(nc):
+        for j in range(3):
+            d[c, j] = x_f[cable_ends[c, 1], j] - x_f[cable_ends[c, 0], j]
+        length[c] = np.sqrt(dot3(d[c, 0], d[c, 1], d[c, 2], d[c, 0], d[c, 1], d[c, 2]))
+    binding = np.zeros(0, dtype=np.bool_)
+    members = np.zeros(0, dtype=load_cables.dtype)
+    a_t = np.zeros((3 * n_free, 0))
+    basis = None
+    if ok and locked and k:
+        rows_cables = np.flatnonzero(cables)
+        at_limit = np.empty(rows_cables.shape[0], dtype=np.bool_)
+        for i in range(rows_cables.shape[0]):
+            at_limit[i] = length[rows_cables[i]] >= taut[rows_cables[i]]
+        binding, members, a_t, basis = locked_space(nodes, m_n, n_free, n_eq, rows_cables, at_limit, y, load_basis,
+                                                    load_cables, load_largest, refine, rank_tol, exact, getrf, getrs)
+    return ok, x_f, v_f, y, cables, nodes, m_n, d, length, binding, members, a_t, basis
+
+
+@njit(cache=True)
+def cable_geometry(x, cable_ends):
+    """Cable vectors (nc, 3) and lengths (nc,) m at ``x`` (N, 3), as ``System.geometry``."""
+    nc = cable_ends.shape[0]
+    d = np.empty((nc, 3))
+    length = np.empty(nc)
+    for c in range(nc):
+        for j in range(3):
+            d[c, j] = x[cable_ends[c, 1], j] - x[cable_ends[c, 0], j]
+        length[c] = np.sqrt(dot3(d[c, 0], d[c, 1], d[c, 2], d[c, 0], d[c, 1], d[c, 2]))
+    return d, length
+
+
+@njit(cache=True)
+def _ddot(address, wide, x, y):
+    """``x . y`` (contiguous vectors) by the BLAS ``ddot`` at ``address`` (``wide``: 64-bit integers)."""
+    if wide:
+        return ddot_at(address, True, x, y)
+    return ddot_at(address, False, x, y)
+
+
+@njit(cache=True)
+def fit_one(ddot, dgemv, wide, y, binding, basis, a_t, reference, members, tau, n_eq):
+    """``SelfStress.locked_impulses`` for a one-dimensional self-stress ``basis`` (k_b, 1), its products
+    made by numpy's BLAS functions at ``ddot``/``dgemv`` (``_numpy_blas.py``; ``wide``: 64-bit
+    integers), so to numpy's bits: the
+    binding rows' multipliers ``y[binding]`` with their self-stress share replaced by the one closest to
+    the binding cables' (``members``) ``reference`` tensions (N) times ``tau`` s. Returns whether no cable
+    pulls (else the caller's numpy fit, which keeps every impulse >= 0 by a small QP), the binding rows'
+    published impulses (k_b,) N*s and the node impulse the share dropped (``SelfStress.residual``, N*s)."""
+    kb = basis.shape[0]
+    nb = kb - n_eq
+    y_b = np.empty(kb)
+    column = np.empty(kb)
+    r = 0
+    for i in range(y.shape[0]):
+        if binding[i]:
+            y_b[r] = y[i]
+            r += 1
+    for r in range(kb):
+        column[r] = basis[r, 0]
+    ref = np.empty(nb)
+    for c in range(nb):
+        ref[c] = reference[members[c]] * tau
+    cable_part = column[n_eq:].copy()
+    share = _ddot(ddot, wide, column, y_b)
+    alpha = _ddot(ddot, wide, cable_part, ref) / _ddot(ddot, wide, cable_part, cable_part)
+    out = np.empty(kb)
+    change = np.empty(kb)
+    for r in range(kb):
+        out[r] = (y_b[r] - column[r] * share) + column[r] * alpha   # products of one term: exact as numpy's
+        if r >= n_eq and out[r] < 0.0:
+            return False, out, 0.0
+        change[r] = out[r] - y_b[r]
+    node = np.empty(a_t.shape[0])
+    if wide:
+        dgemv_at(dgemv, True, a_t, change, node)
+    else:
+        dgemv_at(dgemv, False, a_t, change, node)
+    return True, out, np.abs(node).max()
+
+
+@njit(cache=True)
+def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint, inv_mass, ends,
+         n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
+         settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked,
+         load_basis, load_cables, load_largest, refine, rank_tol, exact, getrf, getrs, ddot, dgemv, wide,
+         reference):
+    """``InextensibleMethod._step_impl`` of a step that is one sub-step (no snap located inside it, no
+    impact at its start), without elastic struts or contact rows, in one call: the motors' limits
+    (:func:`motor_limits`), the impact test, the free motion from ``x``, ``v`` (N, 3) under ``f_ext``
+    (N, 3) N (``inv_mass`` (N, 1) 1/kg), the snap search (:func:`first_snap`) and :func:`midpoint`.
+    ``holding``, ``hint`` (nc,) bool: the cables known to hold and the QP's warm start.
+
+    When the structure can lock (``locked``), the self-stress rule's fit runs here too (:func:`fit_one`
+    with numpy's ``ddot``/``dgemv``, ``wide`` as there, the cables' ``reference`` tensions) if its self-stress is one
+    dimensional and no cable would pull.
+
+    Returns ``ok`` (False: the step has an event or a QP answer the Python path must handle; nothing else
+    is meaningful), ``x``, ``v`` (N, 3) at the end, the cables that hold (nc,) bool, the rest lengths in
+    effect (nc,) m, the taut thresholds (nc,) m, ``fitted`` (the step's impulses (nc,) N*s and slack
+    flags (nc,) bool that follow are final, and the fit's dropped node impulse, N*s; else the caller
+    fits), then :func:`midpoint`'s cable rows (nc,) bool, multipliers (k,) N*s, end geometry and
+    self-stress space."""
+    new_applied, reel, limits, floor, taut, reeling = motor_limits(commanded, applied, most, dt, offsets,
+                                                                    limit_tol, taut_tol)
+    nc = cable_ends.shape[0]
+    d, length = cable_geometry(x, cable_ends)
+    at_limit = np.empty(nc, dtype=np.bool_)
+    maybe = False
+    all_at = True
+    for c in range(nc):
+        at_limit[c] = length[c] >= floor[c] and cables_move[c]
+        maybe |= at_limit[c] and not holding[c]
+        all_at &= at_limit[c]
+    ok = True
+    if maybe and (v != 0.0).any():   # a cable at its limit that did not hold separating: an impact
+        for c in range(nc):
+            if at_limit[c] and not holding[c]:
+                a = cable_ends[c, 0]
+                b = cable_ends[c, 1]
+                rate = dot3(v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2], d[c, 0] / length[c],
+                            d[c, 1] / length[c], d[c, 2] / length[c])
+                if rate * dt > limit_tol * limits[c]:
+                    ok = False
+    x_m = x + (0.5 * dt) * v
+    v0 = np.empty_like(v)
+    for i in range(v.shape[0]):
+        scale = dt * inv_mass[i, 0]
+        for j in range(3):
+            v0[i, j] = v[i, j] + scale * f_ext[i, j]
+    if ok and not all_at:
+        slack = np.empty(nc, dtype=np.bool_)
+        for c in range(nc):
+            slack[c] = not at_limit[c] and cables_move[c]
+        theta = first_snap(d, limits, v, v0, dt, cable_ends, slack, newton_iter)
+        ok = not (min_event * dt < theta * dt < dt - min_event * dt)
+    all_limits = np.empty(n_eq + nc)
+    all_limits[:n_eq] = rigid_lengths
+    for c in range(nc):
+        all_limits[n_eq + c] = limits[c] - (0.5 * dt) * reel[c] if reeling else limits[c]
+    impulses = np.zeros(nc)
+    if not ok:   # the caller's Python path
+        return (False, x, v, holding, new_applied, taut, False, impulses, holding, 0.0, holding,
+                np.zeros(0), d, length, np.zeros(0, dtype=np.bool_), load_cables[:0],
+                np.zeros((3 * free_nodes.shape[0], 0)), None)
+    done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis = midpoint(
+        x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
+        taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter,
+        locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, getrf, getrs)
+    new_holding = np.zeros(nc, dtype=np.bool_)
+    r = n_eq
+    for c in range(nc):
+        if cables[c]:
+            impulses[c] = y[r]
+            r += 1
+        new_holding[c] = impulses[c] > 0 and at_limit[c]
+    published = impulses
+    fitted = True
+    node = 0.0
+    if locked and y.shape[0]:
+        fitted = basis is not None and basis.shape[1] <= 1
+        if fitted and basis.shape[1] == 1:
+            fitted, out, node = fit_one(ddot, dgemv, wide, y, binding, basis, a_t, reference, members, dt, n_eq)
+            published = np.zeros(nc)
+            r = 0   # row
+            b = 0   # binding row
+            for c in range(-n_eq, nc):
+                if c >= 0 and not cables[c]:
+                    continue
+                if binding[r]:
+                    if c >= 0:
+                        published[c] = out[b]
+                    b += 1
+                elif c >= 0:
+                    published[c] = y[r]
+                r += 1
+    # the step's impulses as the Python path sums them (0.0 + published: a -0.0 becomes 0.0) and its flags
+    summed = np.zeros(nc)
+    slack = np.empty(nc, dtype=np.bool_)
+    for c in range(nc):
+        summed[c] += published[c]
+        slack[c] = length_f[c] < taut[c] and not summed[c] > 0
+    return (ok and done, x_f, v_f, new_holding, new_applied, taut, fitted, summed, slack, node, cables, y, d_f,
+            length_f, binding, members, a_t, basis)
+
+
+@njit(cache=True)
+def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, out_x, out_v, out_impulses, out_slack,
+          f_ext, commanded, most, dt, offsets, limit_tol, taut_tol, inv_mass, ends, n_eq, rigid_lengths,
+          cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian,
+          sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
+          load_cables, load_largest, refine, rank_tol, exact, getrf, getrs, ddot, dgemv, wide, reference):
+    """Steps ``first``, ``first + 1``, ... of ``n_steps`` from ``x``, ``v`` (N, 3), the inputs held, each
+    :func:`step` from the cables known to hold ``holding`` and the warm start ``hint`` (nc,) bool (after a
+    step both are the cables that held, as in ``InextensibleMethod._step_impl``), until one needs the Python path (an event, a QP answer it must
+    handle, the rule's numpy fit). Sums the impulses into ``total`` (nc,) and keeps steps ``every``,
+    ``2 every``, ... and the last in the outputs (``_elastic_kernels.keep``: (K, N, 3, 1), (K, nc, 1)).
+    Returns the first step not taken (``n_steps``: all), the positions and velocities before it, the
+    rest lengths in effect, ``holding`` and ``hint`` then and the rule's largest dropped node impulse, N*s."""
+    n = x.shape[0]
+    nc = cable_ends.shape[0]
+    for i in range(first, n_steps):
+        (ok, x_f, v_f, new_holding, new_applied, _, fitted, impulses, slack, node, _, _, _, _, _, _, _,
+         _) = step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint,
+                   inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends,
+                   min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass, feasibility_tol,
+                   velocity_floor, landing_tol, landing_iter, locked, load_basis, load_cables, load_largest,
+                   refine, rank_tol, exact, getrf, getrs, ddot, dgemv, wide, reference)
+        if not (ok and fitted):
+            return i, x, v, applied, holding, hint, residual
+        x, v, applied, holding, hint = x_f, v_f, new_applied, new_holding, new_holding
+        residual = max(residual, node)
+        for c in range(nc):
+            total[c] += impulses[c]
+        if (i + 1) % every == 0 or i + 1 == n_steps:
+            keep(x.reshape((n, 3, 1)), v.reshape((n, 3, 1)), 0, total, slack, i // every, 0, out_x, out_v,
+                 out_impulses, out_slack)
+    return n_steps, x, v, applied, holding, hint, residual

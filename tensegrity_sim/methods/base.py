@@ -22,7 +22,10 @@ Rules for whoever writes a new method (compare ``scipy.integrate.OdeSolver``):
 10. A method with a compiled multi-step loop says so in ``has_loop()`` and implements ``advance()``
     (``Simulator.run`` then runs in it, inputs held); its results must equal those of ``step()``.
     ``carry()``/``restore(carry)`` save and put back what the loop carries from one step to the next
-    (``Simulator.step`` runs steps ahead in the loop and rewinds to a saved carry when it must).
+    (``Simulator.step`` runs steps ahead in the loop and rewinds to a saved carry when it must). A
+    carry that ``invalidate()`` does not rebuild from the state (``carry_outlives_inputs``: a motor's
+    position, a warm start) makes the simulator rewind the steps ahead before an input changes or the
+    method is asked about the present (``slack``, ``applied_rest_lengths``).
 11. ``applied_rest_lengths(state)`` are the rest lengths the cables follow now, if a method lags the
     commanded ones (a motor's finite speed).
 """
@@ -78,6 +81,7 @@ class StepMethod:
     """Base class of the stepping methods (see the module docstring for the rules)."""
 
     name: str = ""
+    carry_outlives_inputs = False   # rule 10: True: rewind the steps ahead before an input changes
     options: tuple[str, ...] = ()
 
     def __init__(self, system: System, dt: float):

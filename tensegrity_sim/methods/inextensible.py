@@ -94,9 +94,11 @@ import numpy as np
 
 from ..system import System
 from . import _inextensible_kernels as kernels
+from ._elastic_kernels import keep
+from ._numpy_blas import numpy_blas
 from .base import MethodStep, State, StepMethod
 from .friction import ContactSet
-from .qp import QPError, Rows, choose_solver, make_solver
+from .qp import _FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, QPError, Rows, choose_solver, make_solver
 from .rigid import RigidStruts
 from .self_stress import TAUT_TOL, SelfStress, reference_tensions
 
@@ -123,10 +125,20 @@ class LengthOffsetWarning(UserWarning):
 class InextensibleMethod(StepMethod):
     """``compiled``: the motors' limits, the sub-steps' rows and targets, the QP's rows and answer check
     and the self-stress rule's basis in numba kernels (True) or in the numpy reference (False); the QP
-    backend is the same."""
+    backend is the same.
+
+    Compiled, with dense DAQP and no contact rows, a step runs in one kernel call
+    (``_inextensible_kernels.step``: the motors, the impact test, the free motion, the snap search, the
+    rows, DAQP's C function and its answer check, the landing, the self-stress rule with its fit) when it
+    has no event (no snap located inside it, no impact at its start) and no elastic struts; a sub-step
+    of any other step in one call too (``midpoint``), but for the rule's fit. Anything those kernels do
+    not cover (an event, a refused QP answer, an SVD of the rule, a pulling cable in its fit) takes the
+    Python path with the same kernels, to the same bits (``test_compiled.py``); ``one_kernel = False``
+    takes it always."""
 
     name = "inextensible"
     options = ("solver", "reel_speed")
+    carry_outlives_inputs = True
 
     def __init__(self, system: System, dt: float, *, solver: str | None = None, reel_speed: float = REEL_SPEED,
                  compiled: bool = True):
@@ -155,6 +167,7 @@ class InextensibleMethod(StepMethod):
                 f"are commanded", LengthOffsetWarning, stacklevel=4)
         free = system.free
         self._free = free
+        self._free_nodes = np.flatnonzero(free)
         index = np.full(system.n_nodes, -1)
         index[free] = np.arange(int(free.sum()))
         self._inv_mass = system.inv_mass[:, None]
@@ -193,6 +206,10 @@ class InextensibleMethod(StepMethod):
         # a structure that can lock counts a cable this close to its limit as at it (self_stress.TAUT_TOL)
         self._taut_tol = TAUT_TOL if self.self_stress.possible else LIMIT_TOL
         self.compiled = compiled   # the solver's rows and check and the self-stress rule follow (the property)
+        # a compiled sub-step in one kernel call where it applies (_one_kernel); False: through the solver's
+        # and the self-stress rule's Python API, with the same kernels and bits (test_compiled.py)
+        self.one_kernel = True
+        self._blas = numpy_blas()   # numpy's ddot/dgemv: the step kernel's fit to numpy's bits (else no step kernel)
 
     @property
     def compiled(self) -> bool:
@@ -262,6 +279,10 @@ class InextensibleMethod(StepMethod):
         return d, length
 
     def _step_impl(self, state: State) -> MethodStep:
+        if self._one_kernel() and not len(self._elastic_ends) and self._blas is not None:
+            done = self._step_kernel(state)
+            if done is not None:
+                return done
         x, v = state.positions, state.velocities
         if self.compiled:
             applied, reel, limits, floor, taut, reeling = kernels.motor_limits(
@@ -312,6 +333,98 @@ class InextensibleMethod(StepMethod):
         # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
         slack = (end_length < taut) & ~(impulses > 0)
         return MethodStep(x, v, impulses, slack, contact, pairs)
+
+    def _step_kernel(self, state: State) -> MethodStep | None:
+        """:meth:`_step_impl` of a step without events (one sub-step, no impact at its start) in one kernel
+        call (``_inextensible_kernels.step``; the self-stress rule's numpy fit after it when the kernel
+        could not fit); None when the step needs the Python path (an event, or a QP answer it must
+        handle)."""
+        rule = self.self_stress
+        (ok, x, v, holding, applied, taut, fitted, impulses, slack, node, cables, y, d, length, binding, members,
+         a_t, basis) = kernels.step(state.positions, state.velocities, *self._step_inputs(state),
+                                    self._holding, self._hint, *self._step_constants())
+        if not ok:
+            return None
+        self._end_geometry = (x, d, length)
+        if fitted:
+            rule.residual = max(rule.residual, node)
+        else:
+            published = np.zeros(len(cables))
+            published[cables] = rule.locked_impulses(binding, members, a_t, basis, y, self.dt, self._n_eq)[self._n_eq:]
+            impulses = np.zeros(len(cables))
+            impulses += published
+            # slack: short of its limit and no impulse over the step (a locked cable carrying prestress is taut)
+            slack = (length < taut) & ~(impulses > 0)
+        self._holding = self._hint = holding
+        self._applied = applied
+        return MethodStep(x, v, impulses, slack, None, None)
+
+    def _step_inputs(self, state: State) -> tuple:
+        """The step kernel's arguments after ``x``, ``v`` that the inputs and the motors set: the force
+        (N, 3) N, the commanded rest lengths, the rest lengths in effect, the motors' reach over a step (m),
+        dt, the length offsets and the tolerances."""
+        return (self.system.gravity_force + state.external_forces, state.rest_lengths, self._applied,
+                self.reel_speed * self.dt, self.dt, self.length_offsets, LIMIT_TOL, self._taut_tol)
+
+    def _step_constants(self) -> tuple:
+        """The step kernel's arguments after the cables that hold: the system's tables, DAQP's C call,
+        the tolerances, the self-stress rule's load-time space and numpy's BLAS."""
+        rule = self.self_stress
+        return (self._inv_mass, self._ends, self._n_eq, self._rigid_lengths, self._cables_move, self._row_nodes,
+                self._free_nodes, self.system.cable_ends, _MIN_EVENT, _NEWTON_ITER, *self.solver.c_call,
+                _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, rule.possible, *rule.load_space,
+                *self._blas, rule.reference)
+
+    # ------------------------------------------------------------------ the compiled loop
+    def has_loop(self) -> bool:
+        """A compiled loop where every step can run in the step kernel: dense DAQP, no contact rows, no
+        elastic struts (``_one_kernel``); a step the kernel leaves to Python is taken there, in the loop."""
+        return self._one_kernel() and not len(self._elastic_ends) and self._blas is not None
+
+    def carry(self):
+        """What a step leaves to the next (a motor's position, the cables that hold, the warm start, the
+        rule's largest dropped impulse): a command or a reset does not recompute it from the state, so the
+        simulator rewinds the steps computed ahead before either (``carry_outlives_inputs``)."""
+        return self._applied.copy(), self._holding.copy(), self._hint.copy(), self.self_stress.residual
+
+    def restore(self, carry) -> None:
+        applied, holding, hint, self.self_stress.residual = carry
+        self._applied, self._holding, self._hint = applied.copy(), holding.copy(), hint.copy()
+        self._end_geometry = None
+
+    def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
+                impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`StepMethod.advance` in ``_inextensible_kernels.steps``, with each step the kernel leaves
+        to Python taken by :meth:`step`'s own path (the same bits as stepping one at a time). A step that
+        fails (:class:`QPError`, an answer that is not finite) ends the loop: it and what would follow are
+        NaN, which the simulator takes for a step it must retake alone (and raise at)."""
+        x, v = state.positions, state.velocities
+        inputs, constants = self._step_inputs(state), self._step_constants()
+        out = positions[..., None], velocities[..., None], impulses[..., None], slack[..., None]
+        total = np.zeros(self.system.n_cables)
+        rule, i = self.self_stress, 0
+        while True:
+            i, x, v, self._applied, self._holding, self._hint, rule.residual = kernels.steps(
+                i, steps, every, x, v, self._applied, self._holding, self._hint, rule.residual, total, *out,
+                inputs[0], inputs[1], *inputs[3:], *constants)
+            if i == steps:
+                break
+            try:
+                r = self._step_impl(State(x, v, state.rest_lengths, state.external_forces, state.step_count + i))
+            except QPError:
+                r = None
+            if r is None or not np.isfinite(r.positions).all():
+                positions[i // every:] = velocities[i // every:] = impulses[i // every:] = np.nan
+                break
+            x, v = r.positions, r.velocities
+            total += r.impulses
+            i += 1
+            if i % every == 0 or i == steps:
+                keep(x.reshape(-1, 3, 1), v.reshape(-1, 3, 1), 0, total, r.slack, (i - 1) // every, 0, *out)
+            if i == steps:
+                break
+        self._end_geometry = None
+        return x.copy(), v.copy()
 
     def _motor_limits_reference(self, commanded):
         """The numpy reference of ``_inextensible_kernels.motor_limits`` for the ``commanded`` rest
@@ -374,6 +487,10 @@ class InextensibleMethod(StepMethod):
         # make the second half-step cover the whole reel, launching its ends at twice the motor's speed
         landing = limits - (0.5 * tau) * reel if reeling else limits
         all_limits = np.concatenate([self._rigid_lengths, landing])
+        if self._one_kernel():
+            done = self._midpoint_kernel(x_m, v, v0, tau, all_limits, floor, taut, reel, holding)
+            if done is not None:
+                return done
         if self.compiled:
             cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = kernels.select_rows(
                 x_m, v, v0, tau, self._ends, n_eq, all_limits, floor, self._cables_move, reel, holding)
@@ -398,6 +515,39 @@ class InextensibleMethod(StepMethod):
         impulses[cables] = y[n_eq:]
         x_f = x_m + (0.5 * tau) * v_f
         return x_f, v_f, impulses, self._publish(rows, np.flatnonzero(cables), y, tau, x_f, taut)
+
+    def _one_kernel(self) -> bool:
+        """Whether a sub-step runs in ``_inextensible_kernels.midpoint``: compiled, dense DAQP, no contact
+        rows (a ground or a member contact response), the self-stress rule compiled too and dense (its
+        sparse path, for large structures, is Python's), and neither the solver's ``solve`` nor the rule's
+        ``impulses`` replaced on the instance (a benchmark's clock, a test's recorder: they see every
+        call, through the API)."""
+        solver, rule = self.solver, self.self_stress
+        return (self.one_kernel and self.ground is None and self.compiled and rule.compiled and not rule.sparse
+                and type(solver) is DaqpSolver and not {"solve", "_solve", "_check"} & vars(solver).keys()
+                and "impulses" not in vars(rule))
+
+    def _midpoint_kernel(self, x_m, v, v0, tau, all_limits, floor, taut, reel, holding):
+        """:meth:`_midpoint` in one kernel call (plus the self-stress rule's numpy fit); None when a QP
+        answer needs the Python path (a failed or refused solve: it raises or solves again)."""
+        locked = self.self_stress.possible
+        ok, x_f, v_f, y, cables, nodes, directions, d, length, binding, members, a_t, basis = kernels.midpoint(
+            x_m, v, v0, tau, self._ends, self._n_eq, all_limits, floor, self._cables_move, reel, holding,
+            self._row_nodes, self._free_nodes, self.system.cable_ends, taut, *self.solver.c_call, _FEASIBILITY_TOL,
+            _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, locked, *self.self_stress.load_space)
+        if not ok:
+            return None
+        self._end_geometry = (x_f, d, length)
+        impulses = np.zeros(len(cables))
+        n_eq = self._n_eq
+        if len(y) == 0:
+            return x_f, v_f, impulses, impulses
+        impulses[cables] = y[n_eq:]
+        if not locked:
+            return x_f, v_f, impulses, impulses.copy()
+        published = np.zeros(len(cables))
+        published[cables] = self.self_stress.locked_impulses(binding, members, a_t, basis, y, tau, n_eq)[n_eq:]
+        return x_f, v_f, impulses, published
 
     def _rows_reference(self, x_m, v, v0, tau, all_limits, floor, reel, holding):
         """The numpy reference of ``_inextensible_kernels.select_rows`` (same arguments and results)."""

@@ -29,14 +29,18 @@ A backend that fails (infeasible rows, iteration limit) raises :class:`QPError` 
 message. The answers of the backends with ``verify`` (DAQP, OSQP, NNLS; the sparse backend verifies its
 guesses itself) are checked against the optimality conditions, to ``1e-7`` relative, and refused if they
 fail them. The check and DAQP's dense rows are numba kernels (``_qp_kernels.py``: one pass over the rows,
-``A`` never formed for the check), beside their numpy reference (``compiled = False``).
+``A`` never formed for the check), beside their numpy reference (``compiled = False``); the compiled
+path calls DAQP's C function ``daqp_quadprog`` itself, with the inputs ``daqp.solve`` would pass it
+(``_daqp_kernels.py``: the same answer to the bit).
 
 **A compiled guess in front of DAQP, measured and not adopted** (issue 10; ``python bench/qp_guess.py
 --steps 400``, CPU time per QP, the QPs of 400 steps at dt = 1 ms, on the shared 2-core machine under
 load): the hint's rows solved as equalities in numba (Cholesky of ``W_GG``, the KKT conditions checked
 in the same kernel) answered 95 % of the thrown icosahedron's QPs and 90 % of a rattling prism's, in
-23 and 17 us against 66 and 62 us for DAQP with its check (``daqp.solve`` itself is ~58 us of that,
-mostly its Python wrapper's set-up: one iteration from the warm start). On the prism its answers are
+23 and 17 us against 66 and 62 us for DAQP with its check. (Of ``daqp.solve``'s time its Python
+wrapper is only ~3 us: the same QPs of the thrown icosahedron, 240 of them, took 27 us through it and
+23-25 us through the C call of ``_daqp_kernels.py``, though 216 of them took one iteration from the warm
+start; ``daqp_quadprog`` itself sets up the problem each call.) On the prism its answers are
 DAQP's to 4e-16 in velocity and 3e-14 in the multipliers; on the icosahedron, whose rows carry a
 self-stress, to 8e-11 in velocity and 1.5e-9 in the multipliers, relative to multipliers that reach
 2e10 N*s while a cable is reeled in (published impulses ~1 N*s): the difference is ~30 N*s along the
@@ -50,7 +54,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _qp_kernels as kernels
+from . import _daqp_kernels as daqp_kernels, _qp_kernels as kernels
 from .base import StepError
 
 __all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SparseSolver", "SOLVERS",
@@ -240,25 +244,42 @@ class DaqpSolver(QPSolver):
         self._daqp = daqp
         self._sqrt_mass = np.sqrt(self.mass)
         self._hessian = np.eye(len(self.mass))
+        # daqp_quadprog itself, for the compiled path: daqp.solve's answer bit for bit (_daqp_kernels.py)
+        self._entry, self._raw_settings = daqp_kernels.entry_point(daqp, self.settings)
 
     def _solve(self, v0, rows, warm, unit: float = 1.0):
         """DAQP on the problem divided by ``unit`` (m/s), the answer scaled back."""
         k, n_eq, r = len(rows), rows.n_eq, rows.targets
+        if self.compiled and rows.weights is None:
+            v, y, flag, iterations = daqp_kernels.solve_rows(
+                self._entry, self._raw_settings, self._hessian, self._sqrt_mass, rows.nodes, rows.directions,
+                self.n_free, v0, r, n_eq, np.zeros(k, dtype=bool) if warm is None else warm, unit)
+            if flag < 1:
+                raise self._failure(flag, iterations, k)
+            return v, y
         lower = np.full(k, -1e30)
         lower[:n_eq] = r[:n_eq]
         sense = np.zeros(k, dtype=np.int32) if warm is None else warm.astype(np.int32)   # 1: start active
         sense[:n_eq] = 5
-        if self.compiled and rows.weights is None:
-            a_scaled = kernels.dense_rows(rows.nodes, rows.directions, self.n_free, self._sqrt_mass)
-        else:
-            a_scaled = rows.dense(self.n_free) / self._sqrt_mass
+        a_scaled = rows.dense(self.n_free) / self._sqrt_mass
         lower[:n_eq] /= unit
         z, _, flag, info = self._daqp.solve(self._hessian, -self._sqrt_mass * (v0 / unit), a_scaled,
                                             r / unit, lower, sense, **self.settings)
         if flag < 1:
-            raise QPError(self.name, self._STATUS.get(flag, f"exitflag {flag}"),
-                          f"after {info['iterations']} iterations on {k} rows")
+            raise self._failure(flag, info["iterations"], k)
         return (z / self._sqrt_mass) * unit, unit * np.asarray(info["lam"], dtype=float)
+
+    @property
+    def c_call(self) -> tuple:
+        """What a kernel needs to solve as :meth:`_solve` does (``_inextensible_kernels``): the address of
+        ``daqp_quadprog``, the settings struct, the identity Hessian, ``sqrt(mass)`` and the mass per
+        degree of freedom (3 n_free,)."""
+        return self._entry, self._raw_settings, self._hessian, self._sqrt_mass, self.mass
+
+    def _failure(self, flag: int, iterations: int, k: int) -> QPError:
+        """The error of DAQP's exit ``flag`` < 1 after ``iterations`` on ``k`` rows."""
+        return QPError(self.name, self._STATUS.get(flag, f"exitflag {flag}"),
+                       f"after {iterations} iterations on {k} rows")
 
     def solve(self, v0, rows, warm=None):
         """:meth:`QPSolver.solve`; an answer the check refuses as inaccurate is solved again at unit

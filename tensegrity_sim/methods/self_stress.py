@@ -48,7 +48,9 @@ binding rows are not all of the load time's members, else two inverse iterations
 basis (cheaper, and as history-free as the SVD); measured by
 ``bench/prestress_tensions.py``. The rows' matrix and that refinement run in a numba kernel
 (``_self_stress_kernels.py``; ``compiled = False``: the numpy reference), the SVD and the share's fit
-in numpy (see the kernel's module for why); on the rattling rigid prism of
+in numpy (see the kernel's module for why), except in the inextensible method's one-call step
+(``_inextensible_kernels.step``), which fits a one-dimensional self-stress with numpy's own BLAS
+functions (``_numpy_blas.py``: numpy's products to the bit); on the rattling rigid prism of
 ``test_inextensible.py::test_free_prestressed_structure_momentum_and_energy`` a step costs 0.64 of what
 it did with the rule all numpy (CPU time, the two taking turns on the loaded 2-core machine).
 
@@ -105,6 +107,7 @@ import numpy as np
 from scipy.linalg import LinAlgWarning, lu_factor as _lu_factor, lu_solve as _lu_solve
 
 from . import _self_stress_kernels as kernels
+from ._c_calls import scipy_lapack
 from .qp import Rows
 
 __all__ = ["RANK_TOL", "SPARSE_NODES", "TAUT_TOL", "SelfStress", "reference_tensions", "self_stress_space",
@@ -192,6 +195,7 @@ class SelfStress:
         self.counts = {"sparse": 0, "dense": 0}   # calls of a structure that can lock, by the path that answered
         self._kept = None     # (rows' key, SparseSpace) of the last implicit space (see _implicit)
         self._load_cables = np.ascontiguousarray(load_cables, dtype=np.int64)
+        self._lu = (scipy_lapack("dgetrf"), scipy_lapack("dgetrs"))   # the kernel's refinement (one LU, two solves)
 
     @property
     def _load_basis(self) -> np.ndarray:
@@ -301,16 +305,27 @@ class SelfStress:
 
     def _impulses_compiled(self, rows, cables, at_limit, y, tau):
         """:meth:`impulses` in the kernels of ``_self_stress_kernels.py`` (see there for what stays numpy)."""
-        binding, members, a_t, basis = kernels.locked_space(
-            rows.nodes, rows.directions, self.n_free, rows.n_eq, cables, at_limit, y, self._load_basis,
-            self._load_cables, self._load_largest, self.refine, RANK_TOL, _EXACT)
+        space = kernels.locked_space(rows.nodes, rows.directions, self.n_free, rows.n_eq, cables, at_limit, y,
+                                     *self.load_space)
+        return self.locked_impulses(*space, y, tau, rows.n_eq)
+
+    @property
+    def load_space(self) -> tuple:
+        """What ``_self_stress_kernels.locked_space`` takes after the QP answer: the load time's basis
+        (k_load, d), cables (int) and largest singular value, ``refine``, the tolerances and the LU
+        routines' addresses."""
+        return self._load_basis, self._load_cables, self._load_largest, self.refine, RANK_TOL, _EXACT, *self._lu
+
+    def locked_impulses(self, binding, members, a_t, basis, y, tau, n_eq):
+        """:meth:`impulses` from the result of ``locked_space`` (``binding`` (k,) bool, the binding cables
+        ``members``, ``A_B^T``, the basis or None for an SVD) for multipliers ``y`` (k,) N*s over ``tau`` s."""
         if basis is None:
             basis = self_stress_space(a_t)[0]
         if not basis.shape[1]:
             return y
         y_b = y[binding]
         share = basis.T @ y_b
-        return self._fit(basis, y_b - basis @ share, y, binding, a_t, self.reference[members] * tau, rows.n_eq)
+        return self._fit(basis, y_b - basis @ share, y, binding, a_t, self.reference[members] * tau, n_eq)
 
     def _impulses_reference(self, rows, cables, at_limit, y, tau):
         """The numpy reference of :meth:`impulses` (for a structure that can lock)."""

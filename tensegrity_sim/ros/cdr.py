@@ -40,6 +40,7 @@ __all__ = ["CdrTemplate", "prototype"]
 _DTYPES = {"bool": "?", "byte": "u1", "char": "u1", "int8": "i1", "uint8": "u1", "int16": "<i2",
            "uint16": "<u2", "int32": "<i4", "uint32": "<u4", "int64": "<i8", "uint64": "<u8",
            "float32": "<f4", "float64": "<f8"}
+_SIZES = {kind: np.dtype(dtype).itemsize for kind, dtype in _DTYPES.items()}
 _HEADER = 4  # bytes of the encapsulation header before the body
 
 
@@ -100,14 +101,19 @@ class CdrTemplate:
         self._buffer = bytearray(store.serialize_cdr(message, typename))
         for slot in self.slots:
             _resolve(typename, slot, store)
-        # the walk names element i of a sequence "name[i]"; a slot's "[]" stands for any i
-        self._patterns = [(re.compile(re.escape(slot).replace(r"\[\]", r"\[\d+\]")), slot) for slot in self.slots]
+        # the walk names element i of a sequence "name[i]"; a slot's "[]" stands for any i. One pattern
+        # for all slots (group s<k>: slot k; the first slot that matches wins), tried at every field the walk
+        # visits: one regex call per field instead of one per slot (a MarkerArray template's walk visits
+        # ~600 fields, and building one sat in the step loop of the first publication of each new shape)
+        any_index = [re.escape(slot).replace(r"\[\]", r"\[\d+\]") for slot in self.slots]
+        self._pattern = re.compile("|".join(f"(?P<s{k}>{p})" for k, p in enumerate(any_index)) or "(?!)")
         # slot -> one (field description, [(body offset, primitive), ...]) per place the path matched
         self._matches: dict[str, list[tuple[object, list[tuple[int, str]]]]] = {s: [] for s in self.slots}
         end = self._walk((Nodetype.NAME, typename), message, 0, "", None)
         if _HEADER + end != len(self._buffer):
             raise ValueError(f"{typename}: the CDR walk ends at byte {_HEADER + end}, rosbags' bytes at "
                              f"{len(self._buffer)}")
+        self._places: dict[str, tuple[int, tuple[int, ...], tuple[int, ...], np.dtype]] = {}
         self._views = [self._view(slot) for slot in self.slots]
 
     def encode(self, *values) -> bytes:
@@ -118,21 +124,30 @@ class CdrTemplate:
                 view[...] = value
         return bytes(self._buffer)
 
+    def place(self, slot: str) -> tuple[int, tuple[int, ...], tuple[int, ...], np.dtype] | None:
+        """Where :meth:`encode` writes the numbers of ``slot`` in its bytes: (byte offset of the first, the
+        slot's shape, strides in bytes along it, dtype), or None for a slot with no numbers; for an
+        encoder that writes them itself (:class:`~.publication.PublicationCdr`). KeyError for a slot the
+        template does not have."""
+        if slot not in self._places and slot not in self.slots:
+            raise KeyError(f"{self.typename}: no slot {slot!r} (slots: {', '.join(self.slots)})")
+        return self._places.get(slot)
+
     # ---------------------------------------------------------------- layout
     def _walk(self, desc, value, pos: int, path: str, match: list | None) -> int:
         """The body offset after ``value`` (a field of description ``desc``) written at ``pos``; the
         (offset, primitive) of every primitive under a slot path go to that slot's matches."""
         if match is None:
-            slot = next((slot for pattern, slot in self._patterns if pattern.fullmatch(path)), None)
-            if slot is not None:
+            found = self._pattern.fullmatch(path)
+            if found is not None:
                 match = []
-                self._matches[slot].append((desc, match))
+                self._matches[self.slots[int(found.lastgroup[1:])]].append((desc, match))
         node, detail = desc
         if node == Nodetype.BASE:
             kind = detail[0]
             if kind == "string":
                 return _align(pos, 4) + 4 + len(value.encode()) + 1
-            size = np.dtype(_DTYPES[kind]).itemsize
+            size = _SIZES[kind]
             pos = _align(pos, size)
             if match is not None:
                 match.append((pos, kind))
@@ -169,6 +184,7 @@ class CdrTemplate:
         expected = [first + m * stride + j * dtype.itemsize for m in range(len(matches)) for j in range(per)]
         if any(len(match) != per for _, match in matches) or [p for p, _ in leaves] != expected:
             raise ValueError(f"{self.typename}: the numbers of slot {slot!r} are not evenly spaced")
+        self._places[slot] = (_HEADER + first, shape, strides, dtype)
         return np.ndarray(shape, dtype, buffer=self._buffer, offset=_HEADER + first, strides=strides)
 
 

@@ -18,10 +18,12 @@ Chunks are not compressed (rosbag2's default too): compressing would cost step t
 :class:`LogWriter` finishes idempotently, as a context manager, so exceptions finish the file;
 :class:`SignalLatch` turns SIGINT/SIGTERM into an exception at a safe point (never inside a write).
 
-**Crash safety.** What a crash that finishes nothing (SIGKILL, a power cut) can lose is bounded: a chunk
-is written out when it holds :data:`CHUNK_SIZE` bytes or when :data:`FLUSH_PERIOD` seconds of wall-clock
-time have passed since the last write-out (then synced to the disk), whichever comes first; everything
-before the chunk in progress is complete on disk. Chunk CRCs and the data-section CRC are written, so a
+**Crash safety.** What a crash that finishes nothing (SIGKILL, a power cut) can lose is bounded: messages
+wait in memory until :data:`PENDING_SIZE` bytes of them wait, then go into the chunk in progress together;
+a chunk is written out when it holds :data:`CHUNK_SIZE` bytes; and when :data:`FLUSH_PERIOD` seconds of
+wall-clock time have passed since the last write-out, the waiting messages and the chunk, however small,
+are written out and synced to the disk. Everything before the chunk in progress is complete on disk, so a
+crash loses at most PENDING_SIZE + CHUNK_SIZE = 80 KiB of messages and FLUSH_PERIOD s of wall-clock time. Chunk CRCs and the data-section CRC are written, so a
 reader can tell a damaged record from a cut-off one. ``tensegrity-sim info`` and ``replay`` read such an
 unfinished log up to its last complete record, and ``tensegrity-sim recover`` writes a finished copy
 (:mod:`.log_reader`). A write that fails (a full disk, a file-size limit) raises :class:`LogWriteError`
@@ -44,18 +46,23 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 from .. import __version__
 from . import messages as M
-from .node_logic import Qos
+from .interface import Qos
 
 __all__ = ["RUN_INFO", "LogWriter", "LogWriteError", "LogRecorder", "SignalLatch", "log_file_path",
-           "qos_profiles_yaml", "CHUNK_SIZE", "FLUSH_PERIOD"]
+           "qos_profiles_yaml", "CHUNK_SIZE", "PENDING_SIZE", "FLUSH_PERIOD"]
 
 RUN_INFO = "tensegrity_sim"   # name of the metadata record that makes a log re-runnable
 ROSBAG2_METADATA_VERSION = 9  # Jazzy
 _INFINITE = {"sec": 9223372036, "nsec": 854775807}  # RMW_DURATION_INFINITE, as rosbag2 records it
-# Crash safety (module docstring): the most a crash can lose is one chunk in progress, which holds at most
-# CHUNK_SIZE bytes (a few hundred publications of a small scene) and at most FLUSH_PERIOD s of wall-clock
-# time. Their cost, measured by bench/bench_log.py --crash-safety, is in the README.
+# Crash safety (module docstring): the most a crash can lose is the messages waiting (at most PENDING_SIZE
+# bytes) and one chunk in progress (at most CHUNK_SIZE bytes): 80 KiB, a few hundred publications of a
+# small scene, and at most FLUSH_PERIOD s of wall-clock time. Their cost, measured by
+# bench/bench_log.py --crash-safety, is in the README. Messages wait because mcap's writer takes several
+# in one run faster than one at a time (its Python code stays in the CPU's caches): ~0.5 us a step of the
+# node path's ~10 us (icosahedron, 100 Hz publications, pending_size 0 and 16 KiB taking turns in one
+# process). PENDING_SIZE = 0 hands every message on at once: the bound of issue 13, 64 KiB.
 CHUNK_SIZE = 64 * 1024   # bytes (mcap's default: 1 MiB)
+PENDING_SIZE = 16 * 1024  # bytes
 FLUSH_PERIOD = 1.0       # s
 
 
@@ -101,15 +108,16 @@ class LogWriter:
 
     channels: (topic name, type name "pkg/msg/Name", :class:`Qos`) of every topic, in order.
     run_info: the ``tensegrity_sim`` metadata (strings), written first so even a cut-off file has it.
-    chunk_size (bytes), flush_period (s, None: never): the crash-safety bounds (module docstring).
+    chunk_size, pending_size (bytes), flush_period (s, None: never): the crash-safety bounds (module
+    docstring).
     clock(): monotonic wall-clock seconds, for the flush period.
     Opening writes the header and the run info at once, so a path that cannot be written is refused here
     (:class:`LogWriteError`), before a run starts.
     """
 
     def __init__(self, path: str | Path, channels: Iterable[tuple[str, str, Qos]], run_info: Mapping[str, str],
-                 *, chunk_size: int = CHUNK_SIZE, flush_period: float | None = FLUSH_PERIOD,
-                 clock=time.monotonic):
+                 *, chunk_size: int = CHUNK_SIZE, pending_size: int = PENDING_SIZE,
+                 flush_period: float | None = FLUSH_PERIOD, clock=time.monotonic):
         self.path = Path(path)
         self.counts: dict[str, int] = {}
         self._finished = False
@@ -139,31 +147,57 @@ class LogWriter:
                 topic=topic, message_encoding="cdr", schema_id=schemas[typename],
                 metadata={"offered_qos_profiles": qos_profiles_yaml(qos), "topic_type_hash": M.type_hash(typename)})
             self._channels[topic] = (channel_id, typename, qos)
+        self._channel_ids = {topic: channel[0] for topic, channel in self._channels.items()}
         self.counts = {topic: 0 for topic in self._channels}
         self._start: int | None = None
         self._end = 0
         self._clock = clock
         self._flush_period = flush_period
         self._next_flush = clock() + flush_period if flush_period is not None else None
+        self._pending: list[tuple[int, str, bytes, int]] = []  # (channel id, topic, data, log time) waiting
+        self._pending_bytes = 0
+        self._pending_size = pending_size
 
     def write(self, topic: str, data: bytes, log_time_ns: int) -> None:
         """Append ``data`` (a message of the topic's type in CDR, encapsulation header first, as
         :func:`.messages.serialize` gives it) at ``log_time_ns``. Raises :class:`LogWriteError` if the file
         cannot take it (it then keeps every chunk written before)."""
-        channel_id = self._channels[topic][0]
+        self.write_all(((topic, data),), log_time_ns)
+
+    def write_all(self, records: Iterable[tuple[str, bytes]], log_time_ns: int) -> None:
+        """Append every ``(topic, data)`` of ``records`` in turn at ``log_time_ns``, as :meth:`write` does
+        one: the same file as that many :meth:`write` calls (a publication's outputs at once). They wait in
+        memory with the messages before them until the crash-safety bounds send them on (module
+        docstring); a :class:`LogWriteError` may so come from a later call than the message it names."""
+        pending, ids = self._pending, self._channel_ids
+        for topic, data in records:
+            pending.append((ids[topic], topic, data, log_time_ns))
+            self._pending_bytes += len(data)
+        if self._start is None:
+            self._start = log_time_ns
+        if log_time_ns > self._end:
+            self._end = log_time_ns
+        flush = self._next_flush is not None and self._clock() >= self._next_flush
+        if flush or self._pending_bytes >= self._pending_size:
+            self._drain(flush)
+
+    def _drain(self, flush: bool) -> None:
+        """Hand the waiting messages to mcap's writer in turn; with ``flush``, then write the chunk in
+        progress out, however small, and sync the file to the disk."""
+        add, counts = self._writer.add_message, self.counts
+        pending, self._pending, self._pending_bytes = self._pending, [], 0
+        log_time_ns = self._end
         try:
-            self._writer.add_message(channel_id=channel_id, log_time=log_time_ns, publish_time=log_time_ns,
-                                     data=data, sequence=self.counts[topic])
-            if self._next_flush is not None and self._clock() >= self._next_flush:
+            for channel_id, topic, data, log_time_ns in pending:
+                sequence = counts[topic]
+                add(channel_id, log_time_ns, data, log_time_ns, sequence)
+                counts[topic] = sequence + 1
+            if flush:
                 self._writer.flush()          # the chunk in progress, however small, goes out
                 os.fsync(self._file.fileno())  # and to the disk, not only to the OS
                 self._next_flush = self._clock() + self._flush_period
         except OSError as exc:
             self._failed(exc, log_time_ns)
-        self.counts[topic] += 1
-        if self._start is None:
-            self._start = log_time_ns
-        self._end = max(self._end, log_time_ns)
 
     def _failed(self, exc: OSError, log_time_ns: int) -> NoReturn:
         """A write failed: close the file as a crash would leave it and raise :class:`LogWriteError`."""
@@ -186,6 +220,7 @@ class LogWriter:
         """Write the rosbag2 metadata and the summary and close the file; later calls do nothing."""
         if self._finished:
             return
+        self._drain(False)
         self._finished = True
         try:
             self._writer.add_metadata("rosbag2", {"serialized_metadata": self._rosbag2_metadata()})
@@ -245,9 +280,9 @@ class LogRecorder:
     def path(self) -> Path:
         return self.paths[-1]
 
-    def record(self, topic: str, data: bytes, log_time_ns: int) -> None:
-        """Append CDR ``data`` on ``topic`` at ``log_time_ns`` (see :meth:`LogWriter.write`)."""
-        self._writer.write(topic, data, log_time_ns)
+    def record(self, records: Iterable[tuple[str, bytes]], log_time_ns: int) -> None:
+        """Append every (topic, CDR data) of ``records`` at ``log_time_ns`` (see :meth:`LogWriter.write_all`)."""
+        self._writer.write_all(records, log_time_ns)
 
     def restart(self, run_info: Mapping[str, str]) -> Path:
         """Finish this file and start the next, embedding ``run_info``; returns its path."""

@@ -35,7 +35,7 @@ from mcap.stream_reader import MAGIC_SIZE, CRCValidationError, breakup_chunk
 from mcap.writer import MCAP0_MAGIC
 
 from .log import RUN_INFO, LogWriter
-from .node_logic import TOPICS, Qos
+from .interface import TOPICS, Qos
 
 __all__ = ["LogError", "LogCorruptError", "LogReader", "LogMessage", "recover"]
 

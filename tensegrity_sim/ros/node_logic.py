@@ -9,10 +9,10 @@
   publishers, a DDS writer, a list in a test), or as CDR bytes to a raw transport, and as CDR bytes to
   an optional recorder (the MCAP log). Between two publications the cable impulses of every step are
   summed and every contact event is queued, so publishing slower than stepping loses nothing. The
-  outputs of every publication (clock, poses, cable states and impulses) and the markers are encoded
-  straight from the arrays by :class:`~.cdr.CdrTemplate` objects (built once per node, and once per
-  marker shape), so logging costs little; message objects are built only for a transport that takes
-  them, and nothing at all when no one listens;
+  outputs of every publication (clock, poses, cable states and impulses) are encoded straight from the
+  arrays in one compiled pass (:class:`~.publication.PublicationCdr`), the markers (:mod:`.markers`) by
+  :class:`~.cdr.CdrTemplate` objects (one per marker shape), so logging costs little; message objects
+  are built only for a transport that takes them, and nothing at all when no one listens;
 * the **services** (reset, pause, resume, single step) are plain methods returning ``(success, message)``;
 * a **failed step** (a :class:`~tensegrity_sim.StepError`: a QP of the inextensible method without a
   solution, or a result that is not finite) never escapes: the inputs that made it impossible are refused
@@ -20,8 +20,8 @@
 * **runtime parameter changes** (:meth:`SimNodeLogic.update`) go out, and into the log, as
   ``/parameter_events``, so a replay applies them where the run did.
 
-Topics are named by key (``"node_poses"``...); :data:`TOPICS` gives their names, types, direction and
-QoS. The node is single-threaded (one executor thread calls everything), so nothing here locks.
+Topics are named by key (``"node_poses"``...); :data:`~.interface.TOPICS` gives their names, types,
+direction and QoS; the parameters are :class:`~.interface.NodeSettings`. The node is single-threaded (one executor thread calls everything), so nothing here locks.
 
 Publication is decided by the caller of :meth:`~SimNodeLogic.step` and :meth:`~SimNodeLogic.publish`
 (the real-time :meth:`~SimNodeLogic.tick`, the single-step service, the offline runner, the replay), so a
@@ -33,283 +33,33 @@ import json
 import logging
 import math
 import time
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, replace
 from datetime import datetime, timezone
 from typing import Callable
 
 import numpy as np
 
 from .. import __version__
-from ..checks import MIN_DT, describe, real
+from .._system_kernels import member_kinematics
+from ..checks import describe
 from ..methods import StepError
-from ..methods.qp import SOLVERS
-from ..results import ContactEvent, StepResult
+from ..results import ContactEvent, StepResult, step_result
 from ..simulator import Simulator
 from . import messages as M
-from .cdr import CdrTemplate
+from .contact_messages import decode_contacts, encode_contacts
+from .interface import (FAILURE_STATUS, RUNTIME_PARAMETERS, SERVICES, TOPICS, NodeSettings, Qos, TopicSpec,
+                        resolve_topic, stamp_ns)
+from .markers import Markers
+from .publication import PUBLISHED, PublicationCdr, PublicationTemplates
 
+# the node's interface (.interface) and its contact messages (.contact_messages) are re-exported, for the
+# code that imports them with the node logic
 __all__ = ["Qos", "TopicSpec", "TOPICS", "SERVICES", "NodeSettings", "SimNodeLogic", "stamp_ns", "encode_contacts",
-           "decode_contacts", "RUNTIME_PARAMETERS", "FAILURE_STATUS"]
+           "decode_contacts", "RUNTIME_PARAMETERS", "FAILURE_STATUS", "resolve_topic"]
 
 
-# --------------------------------------------------------------------------- topics
-@dataclass(frozen=True)
-class Qos:
-    """The QoS a topic is offered (publisher) or requested (subscription) with."""
-
-    reliability: str = "reliable"     # "reliable" | "best_effort"
-    depth: int = 10                   # history: keep_last(depth)
-    durability: str = "volatile"      # "volatile" | "transient_local"
-
-
-@dataclass(frozen=True)
-class TopicSpec:
-    """name: relative to the node (``~/x``) or absolute (``/clock``); typename: "pkg/msg/Name";
-    direction: "in" (subscribed) or "out" (published)."""
-
-    name: str
-    typename: str
-    direction: str
-    qos: Qos
-
-
-# Impulses and contact events are sums and events: a subscriber that needs every one has room for one
-# second of publications at 100 Hz before the publisher's history overwrites anything.
-TOPICS: dict[str, TopicSpec] = {
-    "cable_rest_lengths": TopicSpec("~/cable_rest_lengths", "sensor_msgs/msg/JointState", "in", Qos()),
-    "external_wrench": TopicSpec("~/external_wrench", "geometry_msgs/msg/WrenchStamped", "in", Qos()),
-    "clock": TopicSpec("/clock", "rosgraph_msgs/msg/Clock", "out", Qos(depth=1)),
-    "node_poses": TopicSpec("~/node_poses", "geometry_msgs/msg/PoseArray", "out", Qos()),
-    "cable_states": TopicSpec("~/cable_states", "sensor_msgs/msg/JointState", "out", Qos()),
-    "cable_impulses": TopicSpec("~/cable_impulses", "sensor_msgs/msg/JointState", "out", Qos(depth=100)),
-    "contacts": TopicSpec("~/contacts", "diagnostic_msgs/msg/DiagnosticArray", "out", Qos(depth=100)),
-    "markers": TopicSpec("~/markers", "visualization_msgs/msg/MarkerArray", "out", Qos()),
-    "diagnostics": TopicSpec("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "out", Qos()),
-    # rclcpp's and rclpy's parameter-events QoS (rmw_qos_profile_parameter_events): keep_last 1000
-    "parameter_events": TopicSpec("/parameter_events", "rcl_interfaces/msg/ParameterEvent", "out", Qos(depth=1000)),
-}
-
-
-# std_srvs/Trigger services: name (under the node, ~/name) -> the SimNodeLogic method answering it
-SERVICES: dict[str, str] = {"reset": "reset", "pause": "pause", "resume": "resume", "step": "single_step"}
-
-
-def resolve_topic(name: str, node_name: str) -> str:
-    """``~/x`` under the node's fully qualified name (``/ns/node``); absolute names unchanged."""
-    return node_name.rstrip("/") + name[1:] if name.startswith("~/") else name
-
-
-def stamp_ns(seconds: float) -> int:
-    """Simulation time (s) as integer nanoseconds, the unit of every stamp and log time."""
-    return int(round(seconds * 1e9))
-
-
-# --------------------------------------------------------------------------- parameters
-# Bounds that keep the schedule's arithmetic (steps per tick, steps per publication) in range: a rate
-# below MIN_RATE (one per 11.6 days) means "never", a real-time factor above MAX_REAL_TIME_FACTOR means
-# "as fast as possible", which 0 says.
-MIN_RATE = 1e-6                 # Hz
-MAX_REAL_TIME_FACTOR = 1e6
 # No tick holds the executor longer than this, wall-clock (services and subscriptions wait for a tick).
 TICK_WALL_LIMIT = 0.1           # s
-
-
-def _doc(text: str, runtime: bool = False) -> dict:
-    return {"doc": text, "runtime": runtime}
-
-
-@dataclass(frozen=True)
-class NodeSettings:
-    """The node's parameters, validated on construction (a bad one raises ``ValueError`` naming it).
-
-    ``fields(NodeSettings)`` is the parameter list: the rclpy node declares them with these defaults and
-    descriptions, ``config/sim_node.yaml`` and ``msg_docs/parameters.md`` list them.
-    """
-
-    scene: str = field(default="prism3", metadata=_doc("built-in scene name or path to a scene YAML file"))
-    method: str = field(default="auto", metadata=_doc("stepping method: elastic | inextensible | auto"))
-    solver: str = field(default="auto", metadata=_doc(
-        f"QP backend of the inextensible method: {' | '.join(SOLVERS)}, or auto (or empty) for the method's "
-        f"default"))
-    dt: float = field(default=1e-3, metadata=_doc("simulated time per step, s"))
-    step_rate: float = field(default=1000.0, metadata=_doc(
-        "rate of the stepping timer, Hz of wall-clock (steady) time; each tick runs the steps due"))
-    publish_rate: float = field(default=100.0, metadata=_doc(
-        "outputs per second of simulated time, Hz; at most 1/dt (rounded to a whole number of steps)",
-        runtime=True))
-    marker_rate: float = field(default=10.0, metadata=_doc(
-        "markers per second of simulated time, Hz: every round(publish_rate / marker_rate)-th publication "
-        "(a display needs no more, and a MarkerArray costs more to serialise than all other outputs)",
-        runtime=True))
-    real_time_factor: float = field(default=1.0, metadata=_doc(
-        f"simulated seconds per wall-clock second, at most {MAX_REAL_TIME_FACTOR:g}; 0 = as fast as possible",
-        runtime=True))
-    frame_id: str = field(default="world", metadata=_doc("frame of node_poses and markers"))
-    log_path: str = field(default="bags", metadata=_doc(
-        "MCAP log: a .mcap file, a directory (a timestamped file in it), or empty for no log"))
-    max_rest_length_rate: float = field(default=0.0, metadata=_doc(
-        "fastest a rest length may change, m/s (a motor reels at a finite speed); 0 = no limit"))
-    node_name: str = field(default="/tensegrity_sim", metadata=_doc(
-        "fully qualified node name, the prefix of ~/ topics (set by the node, not a parameter)"))
-
-    def __post_init__(self):
-        for name in ("scene", "method", "frame_id", "node_name"):
-            value = getattr(self, name)
-            if not isinstance(value, str) or not value:
-                raise ValueError(f"parameter {name!r}: must be a non-empty string, got {value!r}")
-        if not isinstance(self.log_path, str):
-            raise ValueError(f"parameter 'log_path': must be a string, got {self.log_path!r}")
-        if self.solver not in ("auto", "", *SOLVERS):
-            raise ValueError(f"parameter 'solver': must be one of {', '.join(SOLVERS)}, auto or empty, got "
-                             f"{self.solver!r}")
-        if not self.node_name.startswith("/"):
-            raise ValueError(f"parameter 'node_name': must be fully qualified (start with /), got "
-                             f"{self.node_name!r}")
-        for name, minimum, strict, maximum in (
-                ("dt", 0.0, True, math.inf), ("step_rate", MIN_RATE, False, math.inf),
-                ("publish_rate", MIN_RATE, False, math.inf), ("marker_rate", MIN_RATE, False, math.inf),
-                ("real_time_factor", 0.0, False, MAX_REAL_TIME_FACTOR), ("max_rest_length_rate", 0.0, False, math.inf)):
-            value = getattr(self, name)
-            try:
-                number = real(value, name)
-            except ValueError:
-                raise ValueError(f"parameter {name!r}: must be a finite number, got {describe(value)}") from None
-            if number < minimum or (strict and number == minimum):
-                raise ValueError(f"parameter {name!r}: must be {'>' if strict else '>='} {minimum:g}, got {value!r}")
-            if number > maximum:
-                raise ValueError(f"parameter {name!r}: must be <= {maximum:g}, got {value!r}")
-            object.__setattr__(self, name, number)
-        if self.dt < MIN_DT:
-            raise ValueError(f"parameter 'dt': must be >= {MIN_DT:g} s (stamps are integer nanoseconds), got "
-                             f"{self.dt!r}")
-        if self.publish_rate * self.dt > 1.0 + 1e-12:
-            raise ValueError(f"parameter 'publish_rate': must be at most 1/dt = {1.0 / self.dt:g} Hz (one "
-                             f"publication per step), got {self.publish_rate!r}")
-        # asked after every step (SimNodeLogic.publication_due): worked out once
-        object.__setattr__(self, "_publish_every", max(1, int(round(1.0 / (self.publish_rate * self.dt)))))
-
-    @property
-    def publish_every(self) -> int:
-        """Steps between two publications: ``round(1 / (publish_rate dt))``, at least 1."""
-        return self._publish_every
-
-    @property
-    def markers_every(self) -> int:
-        """Publications between two marker arrays: ``round(publish_rate / marker_rate)``, at least 1."""
-        return max(1, int(round(self.publish_rate / self.marker_rate)))
-
-    @property
-    def qp_solver(self) -> str | None:
-        """``Simulator(..., solver=)``: the backend named, or None for the method's default."""
-        return None if self.solver in ("auto", "") else self.solver
-
-    @property
-    def parameters(self) -> dict:
-        """The ROS parameters (every field but ``node_name``) and their values."""
-        return {k: v for k, v in asdict(self).items() if k != "node_name"}
-
-
-RUNTIME_PARAMETERS = tuple(f.name for f in fields(NodeSettings) if f.metadata.get("runtime"))
-
-# the /diagnostics status of a failed step is named "<node name>: step failed" (the periodic one "...: stepping")
-FAILURE_STATUS = "step failed"
-
-
-# --------------------------------------------------------------------------- markers
-_LINE_LIST, _CUBE_LIST, _SPHERE_LIST = 5, 6, 7
-_ADD, _DELETE = 0, 2
-_MARKER_SHAPES_KEPT = 64  # MarkerArray templates a node keeps (a shape: the markers and their point counts)
-
-
-class _MarkerStyle:
-    """What never changes in a marker of one namespace: its fields but the header, action and points,
-    built once (building message objects is most of what publishing costs)."""
-
-    def __init__(self, ns: str, marker_id: int, kind: int, scale: float, color: tuple):
-        self.spec = {"ns": ns, "id": marker_id, "type": kind, "pose": {"orientation": {"w": 1.0}},
-                     "scale": dict.fromkeys("xyz", scale), "color": dict(zip("rgba", color))}
-        empty_header = M.header(0, "")
-        self.fields = dict(
-            ns=ns, id=marker_id, type=kind,
-            pose=M.new("geometry_msgs/msg/Pose", position=M.point(0.0, 0.0, 0.0),
-                       orientation=M.new("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0)),
-            scale=M.vector3(scale, scale, scale), color=M.color(*color),
-            lifetime=M.new("builtin_interfaces/msg/Duration", sec=0, nanosec=0), frame_locked=False,
-            texture_resource="",
-            texture=M.new("sensor_msgs/msg/CompressedImage", header=empty_header, format="", data=M.uint8s()),
-            uv_coordinates=[], text="", mesh_resource="",
-            mesh_file=M.new("visualization_msgs/msg/MeshFile", filename="", data=M.uint8s()),
-            mesh_use_embedded_materials=False)
-
-    def marker(self, header, points: np.ndarray | None, colors: np.ndarray | None = None):
-        """ADD with ``points`` (k, 3) m (and per-point ``colors`` (k, 4) RGBA), or DELETE when ``points``
-        is None."""
-        return M.new("visualization_msgs/msg/Marker", header=header, action=_DELETE if points is None else _ADD,
-                     points=[] if points is None else [M.point(*p) for p in points.tolist()],
-                     colors=[] if colors is None else [M.color(*c) for c in colors.tolist()], **self.fields)
-
-    def prototype(self, frame_id: str, points: int | None, colored: bool) -> dict:
-        """The fields of :meth:`marker` for :func:`~.cdr.prototype`: ``points`` points (None: DELETE), as
-        many colours if ``colored``; the stamp, points and colours are left to slots."""
-        return {**self.spec, "header": {"frame_id": frame_id}, "action": _DELETE if points is None else _ADD,
-                "points": [{}] * (points or 0), "colors": [{}] * (points or 0) if colored else []}
-
-
-def _ground_grid(scene, size: float) -> np.ndarray:
-    """A square grid of lines (LINE_LIST points (k, 3) m) on the ground plane under the scene's start,
-    four scene sizes wide, lines half a size apart; none without a ground."""
-    if scene.ground is None:
-        return np.zeros((0, 3))
-    cx, cy = scene.positions[:, :2].mean(axis=0)
-    ticks = np.arange(-4, 5) * 0.5 * size
-    lo, hi = ticks[0], ticks[-1]
-    lines = [[(cx + t, cy + lo), (cx + t, cy + hi)] for t in ticks] + [[(cx + lo, cy + t), (cx + hi, cy + t)]
-                                                                       for t in ticks]
-    xy = np.array(lines, dtype=float).reshape(-1, 2)
-    return np.column_stack([xy, np.full(len(xy), scene.ground.height)])
-
-
-# --------------------------------------------------------------------------- contacts encoding
-def encode_contacts(events: list[ContactEvent], header):
-    """``~/contacts`` (diagnostic_msgs/DiagnosticArray): one ``DiagnosticStatus`` per event, in time order.
-
-    ``name`` = ``"contact <member_a> <member_b>"``, ``message`` = kind, ``level`` = OK, and ``values``
-    (key/value strings, numbers written so that ``float()`` / ``json.loads`` give back the exact float64):
-    ``kind`` (begin|end), ``member_a``, ``member_b``, ``time`` (s), ``point_a``, ``point_b`` ([x, y, z] m),
-    ``normal`` ([x, y, z], unit, a to b), ``distance`` (m, negative = penetration), ``normal_impulse``
-    (N*s) and ``tangential_impulse`` ([x, y, z] N*s): the contact's impulses over the event's step (a
-    ground contact's landing impulse; zero for contacts that are only detected).
-    """
-    status = []
-    for e in events:
-        values = {
-            "kind": e.kind, "member_a": e.members[0], "member_b": e.members[1], "time": repr(float(e.time)),
-            "point_a": json.dumps(np.asarray(e.point_a, dtype=float).tolist()),
-            "point_b": json.dumps(np.asarray(e.point_b, dtype=float).tolist()),
-            "normal": json.dumps(np.asarray(e.normal, dtype=float).tolist()),
-            "distance": repr(float(e.distance)),
-            "normal_impulse": repr(float(e.normal_impulse)),
-            "tangential_impulse": json.dumps(np.asarray(e.tangential_impulse, dtype=float).tolist()),
-        }
-        status.append(M.new("diagnostic_msgs/msg/DiagnosticStatus", level=M.byte(0),
-                            name=f"contact {e.members[0]} {e.members[1]}", message=e.kind, hardware_id="",
-                            values=M.key_values(values)))
-    return M.new("diagnostic_msgs/msg/DiagnosticArray", header=header, status=status)
-
-
-def decode_contacts(message) -> list[ContactEvent]:
-    """The contact events of a ``~/contacts`` message (the inverse of :func:`encode_contacts`)."""
-    out = []
-    for status in message.status:
-        v = {kv.key: kv.value for kv in status.values}
-        out.append(ContactEvent(kind=v["kind"], members=(v["member_a"], v["member_b"]), time=float(v["time"]),
-                                point_a=np.array(json.loads(v["point_a"])),
-                                point_b=np.array(json.loads(v["point_b"])),
-                                normal=np.array(json.loads(v["normal"])), distance=float(v["distance"]),
-                                # absent from logs written before the ground existed
-                                normal_impulse=float(v.get("normal_impulse", 0.0)),
-                                tangential_impulse=np.array(json.loads(v.get("tangential_impulse", "[0, 0, 0]")))))
-    return out
 
 
 # --------------------------------------------------------------------------- the node logic
@@ -327,9 +77,10 @@ class SimNodeLogic:
     clock(): monotonic wall-clock seconds (``time.monotonic``; a fake one in tests).
     logger: where refusals, warnings (``warning``) and the reason of a pause after a failed step (``error``)
     go (a ``logging.Logger``-like object).
-    recorder: an object with ``record(topic_name, data, log_time_ns)`` (``data``: the message's CDR bytes)
-    and ``restart(run_info)`` (the MCAP log, :class:`~tensegrity_sim.ros.log.LogRecorder`), or None; it can be
-    attached after construction.
+    recorder: an object with ``record(records, log_time_ns)`` (``records``: the (topic name, CDR bytes) of
+    the messages at that time, in order: a publication's outputs in one call) and ``restart(run_info)``
+    (the MCAP log, :class:`~tensegrity_sim.ros.log.LogRecorder`), or None; it can be attached after
+    construction.
     """
 
     def __init__(self, sim: Simulator, settings: NodeSettings, *, transport: Transport | None = None,
@@ -348,27 +99,17 @@ class SimNodeLogic:
         self._cable_index = {n: i for i, n in enumerate(scene.cable_names)}
         self._node_index = {n: i for i, n in enumerate(scene.node_names)}
         self._inputs = {"cable_rest_lengths": self._apply_rest_lengths, "external_wrench": self._apply_wrench}
-        # Marker sizes: the members' radii where the scene gives them, else a fraction of its size.
-        x0 = scene.positions
-        size = float(np.linalg.norm(x0.max(axis=0) - x0.min(axis=0))) or 1.0
-        strut_r = max((s.radius for s in scene.struts), default=0.0)
-        cable_r = max((c.radius for c in scene.cables), default=0.0)
-        strut_width = 2 * strut_r if strut_r > 0 else 0.01 * size
-        cable_width = 2 * cable_r if cable_r > 0 else 0.004 * size
-        self._marker_styles = {
-            "struts": _MarkerStyle("struts", 0, _LINE_LIST, strut_width, (0.25, 0.4, 0.8, 1.0)),
-            "cables": _MarkerStyle("cables", 1, _LINE_LIST, cable_width, (1.0, 1.0, 1.0, 1.0)),
-            "slack_cables": _MarkerStyle("slack_cables", 2, _LINE_LIST, 0.5 * cable_width, (0.6, 0.6, 0.6, 0.5)),
-            "supports": _MarkerStyle("supports", 3, _CUBE_LIST, 3.0 * strut_width, (0.5, 0.5, 0.5, 1.0)),
-            "contacts": _MarkerStyle("contacts", 4, _SPHERE_LIST, 3.0 * strut_width, (1.0, 0.0, 0.0, 1.0)),
-            "ground": _MarkerStyle("ground", 5, _LINE_LIST, 0.5 * cable_width, (0.45, 0.35, 0.25, 1.0)),
-            "contact_forces": _MarkerStyle("contact_forces", 6, _LINE_LIST, strut_width, (1.0, 0.55, 0.0, 1.0)),
-        }
-        self._ground_grid = _ground_grid(scene, size)
-        self._force_scale = 0.0   # the largest ground force seen (N): drawn 0.3 scene sizes long
-        self._scene_size = size
-        self._templates = self._cdr_templates()
-        self._marker_templates: dict[tuple, CdrTemplate] = {}  # marker shape -> template, oldest use first
+        self._markers = Markers(sim, settings.frame_id)
+        n_cables = len(self._cable_names)
+        self._markers.prepare(step_result(sim.time, sim.positions, sim.velocities, np.zeros(n_cables),
+                                          np.zeros(n_cables), sim.slack(), (), None))
+        # the bytes of every publication's outputs, in one compiled pass
+        self._cdr = PublicationCdr(PublicationTemplates(settings.frame_id, len(scene.node_names), self._cable_names,
+                                                        sim.system.cable_ends))
+        # the cable lengths (m) and elongation rates (m/s) of a publication's message objects, worked out in place
+        self._cable_ends = np.ascontiguousarray(sim.system.cable_ends, dtype=np.int64)
+        self._length = np.empty(len(self._cable_names))
+        self._rate = np.empty(len(self._cable_names))
         # counters for diagnostics and the summary
         self.refused = {k: 0 for k in self._inputs}
         self.received = {k: 0 for k in self._inputs}
@@ -385,29 +126,6 @@ class SimNodeLogic:
         self._clear()
         self._anchor()
 
-    def _cdr_templates(self) -> dict[str, CdrTemplate]:
-        """CDR encoders of the outputs sent at every publication. What never changes in them is fixed here
-        (the frame id, which is not a runtime parameter, the cable names, the number of nodes and cables,
-        the identity orientation of the poses); the slots take the stamp and the arrays, in the order
-        :meth:`publish` gives them: clock (sec, nanosec); node_poses (sec, nanosec, positions (N, 3) m);
-        cable_states (sec, nanosec, lengths m, rates m/s, tensions N, each (n_cables,));
-        cable_impulses (sec, nanosec, impulse sums (n_cables,) N*s). They encode the messages
-        :meth:`_messages` builds, byte for byte (the tests check it)."""
-        header = {"frame_id": self.settings.frame_id}
-        stamp = ("header.stamp.sec", "header.stamp.nanosec")
-        zeros = np.zeros(len(self._cable_names))
-        return {
-            "clock": CdrTemplate(TOPICS["clock"].typename, {}, ("clock.sec", "clock.nanosec")),
-            "node_poses": CdrTemplate(TOPICS["node_poses"].typename, {
-                "header": header, "poses": [{"orientation": {"w": 1.0}}] * len(self.sim.scene.node_names)},
-                (*stamp, "poses[].position")),
-            "cable_states": CdrTemplate(TOPICS["cable_states"].typename, {
-                "header": header, "name": self._cable_names, "position": zeros, "velocity": zeros, "effort": zeros},
-                (*stamp, "position", "velocity", "effort")),
-            "cable_impulses": CdrTemplate(TOPICS["cable_impulses"].typename, {
-                "header": header, "name": self._cable_names, "effort": zeros}, (*stamp, "effort")),
-        }
-
     # ------------------------------------------------------------------ state kept between publications
     def _clear(self) -> None:
         n_cables = len(self._cable_names)
@@ -416,8 +134,7 @@ class SimNodeLogic:
         self._impulse_sum = np.zeros(n_cables)       # N*s since the previous publication
         self._contact_queue: list[ContactEvent] = []  # events since the previous publication
         self._active_contacts: dict[tuple[str, str], ContactEvent] = {}  # for the markers
-        self._tension_scale = 0.0                    # the largest tension seen: red in the markers
-        self._shown: set[str] = set()                # marker namespaces on screen
+        self._markers.clear()
         self._last: StepResult | None = None
         # what the inputs applied since the last step changed, to undo if the step fails with them:
         # (targets, applied rest lengths, external forces) before the first of them, and their topic keys
@@ -472,7 +189,7 @@ class SimNodeLogic:
             return self._refuse(key, f"not a {typename} message ({type(exc).__name__}: {describe(str(exc))}): "
                                      f"{describe(message)}")
         if self.recorder is not None:
-            self.recorder.record(self.topic_names[key], data, self.stamp_ns())
+            self.recorder.record([(self.topic_names[key], data)], self.stamp_ns())
         message = M.deserialize(data, typename)
         undo = self._undo or (self._target, self._applied, self.sim.external_forces, [])
         try:
@@ -607,8 +324,9 @@ class SimNodeLogic:
         """``/diagnostics`` of one failed step (WARN: stepping goes on; ERROR: paused), stamped with the
         time the step started from; nothing in it depends on the wall clock, so a replay compares it."""
         ns = self.stamp_ns()
-        self._send("diagnostics", ns, M.new("diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
-                                            status=[self._status(FAILURE_STATUS, level, text, {})]))
+        self._send(ns, [self._output("diagnostics", M.new(
+            "diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
+            status=[self._status(FAILURE_STATUS, level, text, {})]))])
 
     @property
     def publication_due(self) -> bool:
@@ -673,155 +391,77 @@ class SimNodeLogic:
         r = self._last
         if r is None:
             return
-        ns = self.stamp_ns()
         events = self._contact_queue
         for e in events:
             if e.kind == "begin":
                 self._active_contacts[e.members] = e
             else:
                 self._active_contacts.pop(e.members, None)
-        keys = ["clock", "node_poses", "cable_states", "cable_impulses"]
-        if self._until_markers == 0:
-            keys.append("markers")
+        markers = self._until_markers == 0
+        if markers:
             self._until_markers = self.settings.markers_every
         self._until_markers -= 1
-        if events:
-            keys.append("contacts")
-        outputs = self._outputs(keys, ns, r) if self._transport is not None or self.recorder is not None else []
-        self._impulse_sum = np.zeros(self._impulse_sum.shape)
+        if self._transport is not None or self.recorder is not None:
+            ns = stamp_ns(self.sim.time)
+            self._send(ns, self._outputs(ns, r, markers, events))
+        self._impulse_sum.fill(0.0)  # the messages hold copies
         self._contact_queue = []
         self._since_publish = 0
         self.publications += 1
-        for key, message, data in outputs:
-            self._send(key, ns, message, data)
 
-    def _outputs(self, keys: list[str], ns: int, r: StepResult) -> list[tuple[str, object, bytes | None]]:
-        """(key, message object or None, CDR bytes or None) of the outputs ``keys``: objects where the
-        transport takes them (and for contacts, which are serialised from them), bytes from the templates
-        where the log or a raw transport takes them."""
-        sys = self.sim.system
-        _, length, n = sys.geometry(r.positions, sys.cable_ends)
-        rate = sys.member_rates(r.velocities, n, sys.cable_ends)
+    def _outputs(self, ns: int, r: StepResult, markers: bool, events: list[ContactEvent]
+                 ) -> list[tuple[str, object, bytes | None]]:
+        """(key, message object or None, CDR bytes or None) of one publication at ``ns`` after step ``r``:
+        :data:`~.publication.PUBLISHED`, then markers if ``markers``, then contacts if ``events``. Objects
+        where the transport takes them (and for contacts, which are serialised from them), bytes where the
+        log or a raw transport takes them (:class:`~.publication.PublicationCdr`, the markers' templates)."""
         takes_objects = self._transport is not None and not self._raw
-        messages = {}
-        if takes_objects or "contacts" in keys:
-            header = M.header(ns, self.settings.frame_id)
-            if takes_objects:
-                messages = self._messages(ns, header, r.positions, length, rate, r.tensions, self._impulse_sum)
-            if "contacts" in keys:
-                messages["contacts"] = encode_contacts(self._contact_queue, header)
-        markers = self._marker_content(r) if "markers" in keys else None
-        if takes_objects and markers is not None:
-            messages["markers"] = self._markers(header, markers)
-        data = {}
+        header = M.header(ns, self.settings.frame_id) if takes_objects or events else None
+        drawn = self._markers.content(r, self._active_contacts.values()) if markers else None
         if self.recorder is not None or self._raw:
-            sec, nanosec = divmod(ns, 1_000_000_000)
-            t = self._templates
-            data = {"clock": t["clock"].encode(sec, nanosec),
-                    "node_poses": t["node_poses"].encode(sec, nanosec, r.positions),
-                    "cable_states": t["cable_states"].encode(sec, nanosec, length, rate, r.tensions),
-                    "cable_impulses": t["cable_impulses"].encode(sec, nanosec, self._impulse_sum)}
-            if markers is not None:
-                data["markers"] = self._marker_bytes(sec, nanosec, markers)
-        return [(key, messages.get(key), data.get(key)) for key in keys]
+            data = self._cdr.encode(ns, r.positions, r.velocities, r.tensions, self._impulse_sum)
+            if drawn is not None:
+                data.append(self._markers.cdr(ns, drawn))
+        else:
+            data = [None] * (5 if drawn is not None else 4)
+        if takes_objects:
+            length, rate = self._length, self._rate
+            member_kinematics(r.positions, r.velocities, self._cable_ends, length, rate)
+            messages = self._messages(ns, header, r.positions, length, rate, r.tensions, self._impulse_sum)
+            if drawn is not None:
+                messages.append(self._markers.message(header, drawn))
+        else:
+            messages = [None] * len(data)
+        outputs = list(zip((*PUBLISHED, "markers"), messages, data))
+        if events:
+            outputs.append(self._output("contacts", encode_contacts(events, header)))
+        return outputs
 
-    def _messages(self, ns: int, header, positions, length, rate, tensions, impulses) -> dict:
-        """The message objects of clock, node_poses, cable_states and cable_impulses (the arrays as in
-        :meth:`_cdr_templates`); ``header``: stamped ``ns``, in the node's frame."""
+    def _messages(self, ns: int, header, positions, length, rate, tensions, impulses) -> list:
+        """The message objects of :data:`~.publication.PUBLISHED` (the arrays as in
+        :class:`~.publication.PublicationTemplates`); ``header``: stamped ``ns``, in the node's frame."""
         q = M.new("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0)
         poses = [M.new("geometry_msgs/msg/Pose", position=M.point(*p), orientation=q) for p in positions.tolist()]
-        return {"clock": M.new("rosgraph_msgs/msg/Clock", clock=M.time(ns)),
-                "node_poses": M.new("geometry_msgs/msg/PoseArray", header=header, poses=poses),
-                "cable_states": M.joint_state(header, self._cable_names, length, rate, tensions),
-                "cable_impulses": M.joint_state(header, self._cable_names, effort=impulses)}
+        return [M.new("rosgraph_msgs/msg/Clock", clock=M.time(ns)),
+                M.new("geometry_msgs/msg/PoseArray", header=header, poses=poses),
+                M.joint_state(header, self._cable_names, length, rate, tensions),
+                M.joint_state(header, self._cable_names, effort=impulses)]
 
-    def _send(self, key: str, ns: int, message, data: bytes | None = None) -> None:
-        """Record and send one output at ``ns``: ``message``, its object (None if only bytes are taken),
-        ``data``, its CDR bytes (serialised from ``message`` when None and needed)."""
-        if data is None and (self.recorder is not None or self._raw):
-            data = M.serialize(message, TOPICS[key].typename)
+    def _output(self, key: str, message) -> tuple[str, object, bytes | None]:
+        """(key, message, its CDR bytes where the log or a raw transport takes them, else None)."""
+        wants_bytes = self.recorder is not None or self._raw
+        return key, message, M.serialize(message, TOPICS[key].typename) if wants_bytes else None
+
+    def _send(self, ns: int, outputs: list[tuple[str, object, bytes | None]]) -> None:
+        """Record and send ``outputs`` at ``ns``, in order: (key, message object or None if only bytes are
+        taken, its CDR bytes or None if neither the log nor a raw transport takes them). The log takes them
+        in one call (:meth:`~.log.LogRecorder.record`), then the transport one by one."""
         if self.recorder is not None:
-            self.recorder.record(self.topic_names[key], data, ns)
+            names = self.topic_names
+            self.recorder.record([(names[key], data) for key, _, data in outputs], ns)
         if self._transport is not None:
-            self._transport(key, data if self._raw else message)
-
-    def _marker_content(self, r: StepResult) -> list[tuple[str, np.ndarray | None, np.ndarray | None]]:
-        """The markers of one MarkerArray, as (namespace, points (k, 3) m or None to delete it, colours
-        (k, 4) RGBA or None): struts (thick blue lines); taut cables (lines coloured blue -> red by
-        tension, red = the largest tension seen so far); slack cables (thin grey lines); supports (grey
-        cubes at fixed nodes); active contacts (red spheres at both closest points); the ground (a brown
-        grid) and its forces on the nodes (orange lines). A namespace with nothing to show is deleted
-        once, then left out."""
-        sys = self.sim.system
-        x = r.positions
-        taut = ~r.slack
-        self._tension_scale = max(self._tension_scale, float(r.tensions.max(initial=0.0)))
-        level = np.repeat(r.tensions[taut] / self._tension_scale if self._tension_scale > 0 else r.tensions[taut], 2)
-        contacts = [p for e in self._active_contacts.values() for p in (e.point_a, e.point_b)]
-        content = {
-            "struts": (x[sys.strut_ends].reshape(-1, 3), None),
-            "cables": (x[sys.cable_ends[taut]].reshape(-1, 3),
-                       np.column_stack([level, np.full_like(level, 0.2), 1.0 - level, np.ones_like(level)])),
-            "slack_cables": (x[sys.cable_ends[r.slack]].reshape(-1, 3), None),
-            "supports": (x[~sys.free], None),
-            "contacts": (np.array(contacts, dtype=float).reshape(-1, 3), None),
-            "ground": (self._ground_grid, None),
-            "contact_forces": self._contact_forces(r),
-        }
-        markers = []
-        for ns, (points, colors) in content.items():
-            if len(points):
-                markers.append((ns, points, colors))
-                self._shown.add(ns)
-            elif ns in self._shown:
-                markers.append((ns, None, None))
-                self._shown.discard(ns)
-        return markers
-
-    def _contact_forces(self, r: StepResult):
-        """Lines from each node's ground contact point along the ground's mean force over the step
-        (impulse / dt), the largest force seen drawn 0.3 scene sizes long: (points (2k, 3), None)."""
-        if r.contact_impulses is None or self.sim.scene.ground is None:
-            return np.zeros((0, 3)), None
-        force = r.contact_impulses / self.sim.dt
-        magnitude = np.linalg.norm(force, axis=1)
-        on = magnitude > 0
-        self._force_scale = max(self._force_scale, float(magnitude.max(initial=0.0)))
-        start = r.positions[on].copy()
-        start[:, 2] = self.sim.scene.ground.height
-        end = start + force[on] * (0.3 * self._scene_size / max(self._force_scale, 1e-300))
-        return np.stack([start, end], axis=1).reshape(-1, 3), None
-
-    def _markers(self, header, markers: list):
-        """The MarkerArray object of :meth:`_marker_content`'s ``markers``."""
-        return M.new("visualization_msgs/msg/MarkerArray",
-                     markers=[self._marker_styles[ns].marker(header, points, colors) for ns, points, colors in markers])
-
-    def _marker_bytes(self, sec: int, nanosec: int, markers: list) -> bytes:
-        """The CDR bytes of :meth:`_markers`. Which markers there are and how many points each has (its
-        shape) changes with the slack cables and the contacts, so there is one template per shape, made
-        when the shape is first seen (a few rosbags serialisations' worth) and kept
-        (:data:`_MARKER_SHAPES_KEPT` of them, the oldest forgotten first)."""
-        shape = tuple((ns, None if points is None else len(points)) for ns, points, _ in markers)
-        template = self._marker_templates.pop(shape, None)
-        if template is None:
-            fields, slots = [], []
-            for i, (ns, points, colors) in enumerate(markers):
-                fields.append(self._marker_styles[ns].prototype(
-                    self.settings.frame_id, None if points is None else len(points), colors is not None))
-                slots += [f"markers[{i}].header.stamp.sec", f"markers[{i}].header.stamp.nanosec"]
-                if points is not None:
-                    slots.append(f"markers[{i}].points[]")
-                if colors is not None:
-                    slots.append(f"markers[{i}].colors[]")
-            template = CdrTemplate(TOPICS["markers"].typename, {"markers": fields}, slots)
-            if len(self._marker_templates) >= _MARKER_SHAPES_KEPT:
-                self._marker_templates.pop(next(iter(self._marker_templates)))
-        self._marker_templates[shape] = template  # (re)inserted last: the most recently used
-        values = []
-        for _, points, colors in markers:
-            values += [sec, nanosec] + [a for a in (points, colors) if a is not None]
-        return template.encode(*values)
+            for key, message, data in outputs:
+                self._transport(key, data if self._raw else message)
 
     # ------------------------------------------------------------------ services
     def pause(self) -> tuple[bool, str]:
@@ -871,8 +511,8 @@ class SimNodeLogic:
         self._anchor()
         if changes:
             ns = self.stamp_ns()
-            self._send("parameter_events", ns, M.parameter_event(
-                ns, self.settings.node_name, {name: getattr(self.settings, name) for name in changes}))
+            self._send(ns, [self._output("parameter_events", M.parameter_event(
+                ns, self.settings.node_name, {name: getattr(self.settings, name) for name in changes}))])
         return self.settings
 
     # ------------------------------------------------------------------ reporting
@@ -890,8 +530,9 @@ class SimNodeLogic:
             level, text = 0, "paused" if self.paused else "stepping"
         values = {k: str(v) for k, v in self.statistics().items()}
         ns = self.stamp_ns()
-        self._send("diagnostics", ns, M.new("diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
-                                            status=[self._status("stepping", level, text, values)]))
+        self._send(ns, [self._output("diagnostics", M.new(
+            "diagnostic_msgs/msg/DiagnosticArray", header=M.header(ns, ""),
+            status=[self._status("stepping", level, text, values)]))])
 
     def _status(self, what: str, level: int, text: str, values: dict):
         """One DiagnosticStatus named ``"<node name>: <what>"``, hardware id = the scene's name."""

@@ -24,7 +24,8 @@ from ..results import ContactEvent
 from ..scene import Scene
 from ..viz.record import RunRecord
 from .log_reader import LogError, LogReader
-from .node_logic import TOPICS, decode_contacts
+from .contact_messages import decode_contacts
+from .interface import TOPICS
 from .replay import _decode, _run_info, replay
 
 __all__ = ["RunRecord", "read_log", "with_energy"]
