@@ -247,7 +247,6 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
     (k, 2) and directions (k, 3), the cable vectors (nc, 3) and lengths (nc,) m at ``x_f`` (as
     ``System.geometry``), and ``locked_space``'s binding rows, members, ``A_B^T`` and basis (or None:
     the caller's SVD; empty when not ``locked``)."""
-    nc = cable_ends.shape[0]
     cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = select_rows(
         x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding)
     k = sel.shape[0]
@@ -286,12 +285,7 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
             warm = new_warm
             v_start = v_f.copy()
     x_f = x_m + (0.5 * tau) * v_f
-    d = np.empty((nc, 3))
-    length = np.empty(nc)
-    for c in range(nc):
-        for j in range(3):
-            d[c, j] = x_f[cable_ends[c, 1], j] - x_f[cable_ends[c, 0], j]
-        length[c] = np.sqrt(dot3(d[c, 0], d[c, 1], d[c, 2], d[c, 0], d[c, 1], d[c, 2]))
+    d, length = cable_geometry(x_f, cable_ends)
     binding = np.zeros(0, dtype=np.bool_)
     members = np.zeros(0, dtype=load_cables.dtype)
     a_t = np.zeros((3 * n_free, 0))
