@@ -1,8 +1,9 @@
 """The stepping core beside MuJoCo, contenders taking turns in one process (issue 10's targets).
 
 Run: ``python bench/head_to_head.py [--repeats R] [--methods elastic,inextensible] [--stages 10,20,30,50,100]
-[--budget S] [--out DIR]``. ``--methods`` times the icosahedron rows of those methods only (the others'
-rows in ``head_to_head.csv`` are kept as they were); ``--stages ""`` skips the towers (and keeps their CSV).
+[--velocities 0,0.05] [--configs default,main] [--warmup N] [--budget S] [--out DIR]``. ``--methods`` times
+the icosahedron rows of those methods only (the others' rows in ``head_to_head.csv`` are kept as they
+were; ``--methods ""``: none); ``--stages ""`` skips the towers (and keeps their CSV).
 
 * **Icosahedron thrown** (``bench.cases``: struts rigid, dt = 1 ms): ``Simulator.step()`` in a Python
   loop against MuJoCo's ``mj_step(model, data)`` in a Python loop, and ``Simulator.run()`` against
@@ -15,7 +16,11 @@ rows in ``head_to_head.csv`` are kept as they were); ``--stages ""`` skips the t
   velocities of 0.05 m/s): the steady cost per step after a warm-up, and separately the cost of the first
   step after a command (``set_rest_lengths`` with the current lengths, as a controller holding its
   command at 100 Hz sends), each the best of ``--repeats``; the growth exponent of the steady cost; the
-  shares of the steady cost spent in the QP and in the self-stress rule's publishing.
+  shares of the steady cost spent in the QP and in the self-stress rule's publishing. ``--configs``
+  names the configurations timed in turns on twin simulators (``tower_rows``): ``default`` (the paths
+  the size picks), ``main`` (the dense self-stress rule and the sparse backend without its dual
+  active-set method: the paths before issue 10's large-structure work), or a ``+``-joined choice of a
+  QP backend, the dual method and the rule's path.
 
 Every figure is CPU time of this process (``time.process_time``), the contenders of a row timed in
 turn, repeat after repeat, so that a disturbance on a shared machine hits them alike; the best of the
@@ -97,65 +102,125 @@ def _clock_calls(obj, name: str, spent: dict) -> None:
     setattr(obj, name, timed)
 
 
-def tower_rows(stages, repeats: int, budget: float) -> list[dict]:
+def _configured(scene, config: str) -> ts.Simulator:
+    """An inextensible simulator of ``scene`` (dt = 1 ms) in configuration ``config``: ``default`` (the
+    paths its size picks) or ``+``-joined choices ``qp=<backend>`` (a QP backend by name), ``dual=off``
+    (the sparse backend without its dual active-set method: DAQP after a failed guess), ``rule=dense``
+    or ``rule=sparse`` (the self-stress rule's path); ``main`` is ``dual=off+rule=dense``, the paths
+    before issue 10's large-structure work."""
+    choices = dict(part.split("=") for part in config.replace("main", "dual=off+rule=dense").split("+")
+                   if part != "default")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ts.LengthOffsetWarning)
+        sim = ts.Simulator(scene, method="inextensible", dt=1e-3, contacts=(), solver=choices.get("qp"))
+    if "rule" in choices:
+        sim._method.self_stress.sparse = choices["rule"] == "sparse"
+    if choices.get("dual") == "off" and hasattr(sim._method.solver, "dual"):
+        sim._method.solver.dual = False
+    return sim
+
+
+def tower_rows(stages, repeats: int, budget: float, velocities=(0.0, 0.05), configs=("default",),
+               warmup: int = 10) -> list[dict]:
     """Steady and after-a-command cost per step of the inextensible method on towers, at rest and moving,
     and the shares of the steady cost spent in the QP backend (``qp_share``) and in publishing the
-    impulses of rows that carry a self-stress (``publish_share``, ``methods/self_stress.py``)."""
+    impulses of rows that carry a self-stress (``publish_share``, ``methods/self_stress.py``), for each
+    of ``configs`` (:func:`_configured`), their twin simulators taking turns block by block;
+    ``guessed_share``: the QPs the sparse backend's guess answered, ``dual_share`` those its dual
+    active-set method answered; ``sparse_share``: the rule's calls its sparse path answered."""
     rows = []
     for n in stages:
-        for velocity in (0.0, 0.05):
+        for velocity in velocities:
             scene = agitated(tower_scene(n), velocity)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", ts.LengthOffsetWarning)
-                sim = ts.Simulator(scene, method="inextensible", dt=1e-3, contacts=())
-            start = time.process_time()
-            sim.step()                       # the very first step: no hint at all
-            cold = time.process_time() - start
-            for _ in range(10):              # warm-up
-                sim.step()
-            inside = {"solve": 0.0, "impulses": 0.0}
-            _clock_calls(sim._method.solver, "solve", inside)
-            _clock_calls(sim._method.self_stress, "impulses", inside)
-            steady, after, steps = math.inf, math.inf, 0
-            steady_total, steady_inside = 0.0, {"solve": 0.0, "impulses": 0.0}
+            sims, cold = {}, {}
+            for config in configs:
+                sim = _configured(scene, config)
+                start = time.process_time()
+                sim.step()                       # the very first step: no hint at all
+                cold[config] = time.process_time() - start
+                for _ in range(warmup):
+                    sim.step()
+                sims[config] = sim
+            inside = {config: {"solve": 0.0, "impulses": 0.0} for config in configs}
+            for config, sim in sims.items():
+                _clock_calls(sim._method.solver, "solve", inside[config])
+                _clock_calls(sim._method.self_stress, "impulses", inside[config])
+            steady, after = dict.fromkeys(configs, math.inf), dict.fromkeys(configs, math.inf)
+            steady_total = dict.fromkeys(configs, 0.0)
+            steady_inside = {config: {"solve": 0.0, "impulses": 0.0} for config in configs}
+            steps = 0
             spent = time.process_time()
             for _ in range(repeats):
-                before = dict(inside)
-                start = time.process_time()
-                for _ in range(5):
+                for config, sim in sims.items():
+                    before = dict(inside[config])
+                    start = time.process_time()
+                    for _ in range(5):
+                        sim.step()
+                    block = time.process_time() - start
+                    steady[config] = min(steady[config], block / 5)
+                    steady_total[config] += block
+                    for name in steady_inside[config]:
+                        steady_inside[config][name] += inside[config][name] - before[name]
+                    sim.set_rest_lengths(sim.rest_lengths)   # a command (the same lengths: held)
+                    start = time.process_time()
                     sim.step()
-                block = time.process_time() - start
-                steady = min(steady, block / 5)
-                steady_total += block
-                for name in steady_inside:
-                    steady_inside[name] += inside[name] - before[name]
-                sim.set_rest_lengths(sim.rest_lengths)   # a command (the same lengths: held)
-                start = time.process_time()
-                sim.step()
-                after = min(after, time.process_time() - start)
+                    after[config] = min(after[config], time.process_time() - start)
                 steps += 6
                 if time.process_time() - spent > budget:
                     break
-            counts = getattr(sim._method.solver, "counts", None)
-            rows.append({"stages": n, "members": len(scene.struts) + len(scene.cables),
-                         "velocity": velocity, "solver": sim.method_settings["solver"],
-                         "first_ms": 1e3 * cold, "steady_ms": 1e3 * steady, "after_command_ms": 1e3 * after,
-                         "after_over_steady": after / steady,
-                         "qp_share": steady_inside["solve"] / steady_total,
-                         "publish_share": steady_inside["impulses"] / steady_total,
-                         "guessed_share": (counts["guessed"] / max(sum(counts.values()), 1)) if counts else math.nan})
-            print(f"  tower{n} v={velocity}: steady {1e3 * steady:.2f} ms, after a command {1e3 * after:.2f} ms, "
-                  f"first {1e3 * cold:.1f} ms ({steps} steps timed); steady: QP {rows[-1]['qp_share']:.0%}, "
-                  f"self-stress publishing {rows[-1]['publish_share']:.0%}", flush=True)
+            for config, sim in sims.items():
+                counts = getattr(sim._method.solver, "counts", {})
+                rule_counts = sim._method.self_stress.counts
+                qps = max(sum(counts.values()), 1)
+                rows.append({"stages": n, "members": len(scene.struts) + len(scene.cables),
+                             "velocity": velocity, "config": config, "solver": sim.method_settings["solver"],
+                             "first_ms": 1e3 * cold[config], "steady_ms": 1e3 * steady[config],
+                             "after_command_ms": 1e3 * after[config], "after_over_steady": after[config] / steady[config],
+                             "qp_share": steady_inside[config]["solve"] / steady_total[config],
+                             "publish_share": steady_inside[config]["impulses"] / steady_total[config],
+                             "guessed_share": counts["guessed"] / qps if counts else math.nan,
+                             "dual_share": counts.get("dual", 0) / qps if counts else math.nan,
+                             "sparse_share": rule_counts["sparse"] / max(sum(rule_counts.values()), 1)})
+                print(f"  tower{n} v={velocity} {config}: steady {1e3 * steady[config]:.2f} ms, after a command "
+                      f"{1e3 * after[config]:.2f} ms, first {1e3 * cold[config]:.1f} ms ({steps} steps timed); "
+                      f"steady: QP {rows[-1]['qp_share']:.0%}, self-stress publishing {rows[-1]['publish_share']:.0%}; "
+                      f"QPs {counts}, rule {rule_counts}", flush=True)
     return rows
 
 
-def exponent(rows, velocity) -> float:
-    pts = [(r["members"], r["steady_ms"]) for r in rows if r["velocity"] == velocity]
+def exponent(rows, velocity, config="default") -> float:
+    pts = [(r["members"], r["steady_ms"]) for r in rows if r["velocity"] == velocity and r["config"] == config]
     if len(pts) < 2:
         return math.nan
     m, c = map(np.array, zip(*pts))
     return float(np.polyfit(np.log(m), np.log(c), 1)[0])
+
+
+def plot_towers(rows, path) -> None:
+    """Steady cost per step (ms) against members, log-log, one line per configuration and velocity, with
+    its growth exponent; the step after a command as open markers."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6.0, 4.2))
+    for config in dict.fromkeys(r["config"] for r in rows):
+        for velocity in sorted({r["velocity"] for r in rows}):
+            pts = sorted((r["members"], r["steady_ms"], r["after_command_ms"]) for r in rows
+                         if r["config"] == config and r["velocity"] == velocity)
+            if not pts:
+                continue
+            m, steady, after = map(np.array, zip(*pts))
+            label = f"{config}, {'moving' if velocity else 'at rest'} (p = {exponent(rows, velocity, config):.2f})"
+            line, = ax.loglog(m, steady, "-o" if velocity else "--s", ms=3.5, label=label)
+            ax.loglog(m, after, "o" if velocity else "s", ms=6, mfc="none", color=line.get_color())
+    ax.set_xlabel("members (towers, inextensible, no gravity, dt = 1 ms)")
+    ax.set_ylabel("CPU time per step (ms)")
+    ax.set_title("steady step (filled) and the step after a command (open); p: growth exponent", fontsize=8)
+    ax.grid(True, which="both", lw=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
 
 
 def main(argv=None) -> int:
@@ -164,6 +229,11 @@ def main(argv=None) -> int:
     parser.add_argument("--methods", default="elastic,inextensible", help="icosahedron rows to time")
     parser.add_argument("--stages", default="10,20,30,50,100", help='tower sizes ("": no towers)')
     parser.add_argument("--budget", type=float, default=60.0, help="CPU seconds per tower configuration at most")
+    parser.add_argument("--velocities", default="0,0.05", help="tower node velocity scales (m/s) to time")
+    parser.add_argument("--configs", default="default,main",
+                        help="tower configurations timed in turns (see _configured): default, main, or "
+                             "+-joined qp=<backend>, dual=off, rule=dense|sparse")
+    parser.add_argument("--warmup", type=int, default=10, help="tower steps before the timing")
     parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results")
     args = parser.parse_args(argv)
     methods = [m for m in args.methods.split(",") if m]
@@ -173,14 +243,20 @@ def main(argv=None) -> int:
               f"{r['peer_us']:>9.2f} us   ratio (peer/ours) {r['ratio']:.2f}", flush=True)
     table = args.out / "head_to_head.csv"
     kept = [r for r in read_csv(table) if r["method"] not in methods] if table.exists() else []
-    write_csv(table, sorted(kept + rows, key=lambda r: r["method"]), list(rows[0]) if rows else None)
+    if kept or rows:
+        write_csv(table, sorted(kept + rows, key=lambda r: r["method"]), list(rows[0]) if rows else None)
     stages = [int(s) for s in args.stages.split(",") if s]
     if not stages:   # --stages "": the icosahedron only
         return 0
-    towers = tower_rows(stages, args.repeats, args.budget)
+    velocities = [float(v) for v in args.velocities.split(",") if v]
+    configs = [c for c in args.configs.split(",") if c]
+    towers = tower_rows(stages, args.repeats, args.budget, velocities, configs, args.warmup)
     write_csv(args.out / "towers_inextensible.csv", towers)
-    for velocity in (0.0, 0.05):
-        print(f"towers v={velocity}: growth exponent of the steady cost {exponent(towers, velocity):.2f}")
+    plot_towers(towers, args.out / "towers_inextensible.png")
+    for velocity in velocities:
+        for config in configs:
+            print(f"towers v={velocity} {config}: growth exponent of the steady cost "
+                  f"{exponent(towers, velocity, config):.2f}")
     return 0
 
 

@@ -316,7 +316,8 @@ def hanging_chain(n, ratio=1.0, spacing=0.1):
 def test_large_structure_gets_the_sparse_backend_and_holds_its_weight():
     """120 masses (1 kg and 1e4 kg alternately) hanging from an anchor: auto picks the sparse backend
     (at least qp.SPARSE_NODES free nodes) and says so. The first QP goes to DAQP (under free fall only
-    the top cable is violated, and each correction of the empty guess adds one cable); every later
+    the top cable is violated, and each correction of the empty guess adds one cable; the dual
+    active-set method starts at qp.DUAL_NODES); every later
     one is answered by its guess, the previous step's active set (the chain's rows are independent).
     The chain stays at rest and every cable's impulse is the weight below it times dt, to 1e-12."""
     h, n = 1e-3, qp.SPARSE_NODES + 20
@@ -328,7 +329,7 @@ def test_large_structure_gets_the_sparse_backend_and_holds_its_weight():
     weight_below = 9.81 * np.cumsum(masses[::-1])[::-1]
     np.testing.assert_allclose(traj.impulses, np.broadcast_to(weight_below * h, traj.impulses.shape), rtol=1e-12)
     assert np.max(np.abs(traj.velocities)) < 1e-12
-    assert sim._method.solver.counts == {"guessed": 199, "daqp": 1}
+    assert sim._method.solver.counts == {"guessed": 199, "dual": 0, "daqp": 1}
 
 
 def rattling_tower(stages, speed, seed=0):
@@ -343,23 +344,26 @@ def rattling_tower(stages, speed, seed=0):
     return ts.Scene.from_dict(d)
 
 
-def test_sparse_backend_follows_daqp_on_a_rattling_tower():
-    """The sparse backend (guess and verify, DAQP when the guess fails) against DAQP alone on a moving
-    3-stage tower for 60 steps: cables go slack and snap taut again, and the trajectories agree to
-    1e-12 m and 1e-10 m/s (measured: 2e-19 m, 1.5e-16 m/s; the slack flags may differ, as they follow
-    the impulses, which the tower's redundant cables leave non-unique). Most QPs are answered by the
-    guess, some by its DAQP fallback."""
+@pytest.mark.parametrize("dual", [False, True])
+def test_sparse_backend_follows_daqp_on_a_rattling_tower(dual):
+    """The sparse backend (guess and verify, then DAQP, or its dual active-set method, forced on this
+    small tower) against DAQP alone on a moving 3-stage tower for 60 steps: cables go slack and snap
+    taut again, and the trajectories agree to 1e-12 m and 1e-10 m/s (measured: 2e-19 m, 1.5e-16 m/s
+    with DAQP after the guess; 5e-19 m, 3.6e-16 m/s with the dual method, which answered all 71 QPs the
+    guess could not; the slack flags may differ, as they follow the impulses, which the tower's
+    redundant cables leave non-unique)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LengthOffsetWarning)
         runs = {name: ts.Simulator(rattling_tower(3, 0.05), method="inextensible", dt=1e-3, solver=name)
                 for name in ("daqp", "sparse")}
+    runs["sparse"]._method.solver.dual = dual
     trajs = {name: sim.run(steps=60) for name, sim in runs.items()}
     slack = trajs["daqp"].slack
     assert slack.any() and (~slack).any() and (slack[1:] != slack[:-1]).any()   # slack and snapping
     np.testing.assert_allclose(trajs["sparse"].positions, trajs["daqp"].positions, rtol=0, atol=1e-12)
     np.testing.assert_allclose(trajs["sparse"].velocities, trajs["daqp"].velocities, rtol=0, atol=1e-10)
     counts = runs["sparse"]._method.solver.counts
-    assert counts["guessed"] > counts["daqp"] > 0
+    assert counts["guessed"] > counts["dual" if dual else "daqp"] > 0 == counts["daqp" if dual else "dual"]
 
 
 @pytest.mark.parametrize("n, solver", [(1, "daqp"), (qp.SPARSE_NODES - 1, "daqp"), (qp.SPARSE_NODES, "sparse")])

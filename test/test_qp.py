@@ -183,7 +183,8 @@ def test_guess_of_the_right_active_set_is_the_solution(case):
     """Hinted with quadprog's active set, the guess is solved and verified without DAQP whenever that
     set is independent, and its answer is quadprog's: the same velocities to 1e-9, the same active
     set exactly. Where the set is dependent (duplicated members, four members on three degrees of
-    freedom) its system is singular and DAQP answers; the velocities are the same either way."""
+    freedom) its system is singular and the dual active-set method or DAQP answers; the velocities are
+    the same either way."""
     guessed = 0
     for seed in range(4):
         v0, mass, rows = random_problem(seed, **CASES[case])
@@ -193,11 +194,11 @@ def test_guess_of_the_right_active_set_is_the_solution(case):
         v, y = solver.solve(v0, rows, active)
         assert np.max(np.abs(v - reference)) < 1e-9 * np.max(np.abs(reference)), (case, seed)
         if independent(rows, len(mass), active):
-            assert solver.counts == {"guessed": 1, "daqp": 0}
+            assert solver.counts == {"guessed": 1, "dual": 0, "daqp": 0}
             np.testing.assert_array_equal(y != 0, active)
             np.testing.assert_allclose(y, multipliers, rtol=1e-8, atol=1e-12 * np.max(np.abs(multipliers)))
         else:
-            assert solver.counts == {"guessed": 0, "daqp": 1}
+            assert solver.counts["guessed"] == 0 and sum(solver.counts.values()) == 1
         guessed += solver.counts["guessed"]
     assert guessed or case in ("duplicated members", "duplicated, mass ratio 1e4")
 
@@ -233,6 +234,7 @@ def test_a_wrong_guess_is_refused_then_corrected(wrong, mass_ratio):
         assert np.max(np.abs(equality_solution(v0, mass, rows, hint) - reference)) > 1e-6 * np.max(np.abs(reference))
         for tries in (1, 4):
             solver = qp.SparseSolver(mass)
+            solver.dual = False   # the guess alone (the dual active-set method: test_dual_active_set_*)
             solver.settings = {**solver.settings, "tries": tries}
             v, y = solver.solve(v0, rows, hint)
             assert np.max(np.abs(v - reference)) < 1e-9 * np.max(np.abs(reference)), (wrong, seed, tries)
@@ -256,8 +258,9 @@ def test_singular_guess_falls_back_to_daqp():
     original = dup - (len(rows) - 4)
     assert active[dup].any()
     solver = qp.SparseSolver(mass)
+    solver.dual = False
     v, y = solver.solve(v0, rows, active)
-    assert solver.counts == {"guessed": 0, "daqp": 1}
+    assert solver.counts == {"guessed": 0, "dual": 0, "daqp": 1}
     assert np.max(np.abs(v - reference)) < 1e-9 * np.max(np.abs(reference))
     np.testing.assert_allclose(y[dup] + y[original], multipliers[dup] + multipliers[original],
                                atol=1e-9 * np.max(np.abs(multipliers)))
@@ -282,7 +285,72 @@ def test_kept_factorisation_follows_the_directions():
         np.testing.assert_array_equal(multipliers != 0, active)   # the same active set throughout
         v, _ = solver.solve(v0, changed, active)
         assert np.max(np.abs(v - reference)) < 1e-9 * np.max(np.abs(reference))
-    assert len(factorisations) == 2 and solver.counts == {"guessed": 3, "daqp": 0}
+    assert len(factorisations) == 2 and solver.counts == {"guessed": 3, "dual": 0, "daqp": 0}
+
+
+@pytest.mark.parametrize("case", CASES, ids=list(CASES))
+def test_dual_active_set_is_quadprogs_solution(case):
+    """With no hint and one guess, the QPs go to the dual active-set method (Goldfarb-Idnani on a sparse
+    factor with Schur-complement updates), whose answer is quadprog's: velocities to 1e-9, and the
+    multipliers too where they are unique (an independent active set); on by default only from
+    ``DUAL_NODES`` free nodes (measured, qp.py), here forced. Dependent rows (duplicated
+    members, four members on three degrees of freedom) are left out of its working set, not passed
+    to DAQP: it answers every problem here, larger ones included (quadprog calls 2 of the larger ones
+    with duplicated members at mass ratio 1e4 inconsistent: DAQP is their reference)."""
+    for seed in range(6):
+        v0, mass, rows = random_problem(seed, **CASES[case], n_free=8 + 6 * seed, n_members=18 + 16 * seed)
+        try:
+            reference, multipliers = quadprog_solution(v0, mass, rows)
+        except ValueError:
+            reference, multipliers = qp.DaqpSolver(mass).solve(v0, rows)
+        solver = qp.SparseSolver(mass)
+        assert not solver.dual   # fewer than DUAL_NODES free nodes: DAQP unless asked
+        solver.dual = True
+        solver.settings = {**solver.settings, "tries": 1}
+        v, y = solver.solve(v0, rows, None)
+        assert solver.counts["guessed"] + solver.counts["dual"] == 1, (case, seed, solver.counts)
+        assert np.max(np.abs(v - reference)) < 1e-9 * np.max(np.abs(reference)), (case, seed)
+        np.testing.assert_allclose(v0 - (rows.dense(len(mass)).T @ y / np.repeat(mass, 3)).reshape(-1, 3), v,
+                                   rtol=0, atol=1e-12 * np.max(np.abs(v0)))   # the impulses give the velocities
+        active = multipliers != 0
+        if independent(rows, len(mass), active | (y != 0)):
+            np.testing.assert_allclose(y, multipliers, rtol=1e-8, atol=1e-10 * np.max(np.abs(multipliers)))
+
+
+def test_working_set_solves_as_a_dense_factorisation(monkeypatch):
+    """The dual method's working set (a sparse factor of a base set and a Schur complement of the rows
+    added and dropped since) solves ``W_AA x = b`` as numpy's dense solve of the same ``W_AA`` does, to
+    1e-10, through a sequence of additions, removals, undone changes and refactorisations of the base."""
+    monkeypatch.setattr(qp._WorkingSet, "BORDER", 5)
+    v0, mass, rows = random_problem(1, n_free=30, n_members=60, n_eq=0)
+    a = rows.sparse(len(mass))
+    inv_mass = 1.0 / np.repeat(mass, 3)
+    w = (a.toarray() * inv_mass) @ a.toarray().T
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+    rng = np.random.default_rng(0)
+    active = np.zeros(len(rows), dtype=bool)
+    for row in rng.permutation(len(rows))[:25]:   # an independent base
+        active[row] = independent(rows, len(mass), active | (np.arange(len(rows)) == row))
+    work = qp._WorkingSet(sp.csr_matrix(w), np.flatnonzero(active), splu)
+    changes = 0
+    for _ in range(40):
+        row = int(rng.integers(len(rows)))
+        if active[row]:
+            work.drop(row)
+        elif independent(rows, len(mass), active | (np.arange(len(rows)) == row)):
+            work.add(row)
+        else:
+            continue
+        active[row] = not active[row]
+        changes += 1
+        b = rng.normal(size=len(rows))
+        x = work.solve(np.where(active, b, 0.0))
+        idx = np.flatnonzero(active)
+        expected = np.zeros(len(rows))
+        expected[idx] = np.linalg.solve(w[np.ix_(idx, idx)], b[idx])
+        np.testing.assert_allclose(x, expected, rtol=0, atol=1e-10 * np.max(np.abs(expected)))
+    assert changes >= 20
 
 
 def test_daqp_survives_degenerate_rest_problems():

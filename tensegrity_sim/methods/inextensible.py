@@ -518,11 +518,12 @@ class InextensibleMethod(StepMethod):
 
     def _one_kernel(self) -> bool:
         """Whether a sub-step runs in ``_inextensible_kernels.midpoint``: compiled, dense DAQP, no contact
-        rows (a ground or a member contact response), the self-stress rule compiled too, and neither the
-        solver's ``solve`` nor the rule's ``impulses`` replaced on the instance (a benchmark's clock, a
-        test's recorder: they see every call, through the API)."""
+        rows (a ground or a member contact response), the self-stress rule compiled too and dense (its
+        sparse path, for large structures, is Python's), and neither the solver's ``solve`` nor the rule's
+        ``impulses`` replaced on the instance (a benchmark's clock, a test's recorder: they see every
+        call, through the API)."""
         solver, rule = self.solver, self.self_stress
-        return (self.one_kernel and self.ground is None and self.compiled and rule.compiled
+        return (self.one_kernel and self.ground is None and self.compiled and rule.compiled and not rule.sparse
                 and type(solver) is DaqpSolver and not {"solve", "_solve", "_check"} & vars(solver).keys()
                 and "impulses" not in vars(rule))
 

@@ -58,7 +58,7 @@ from . import _daqp_kernels as daqp_kernels, _qp_kernels as kernels
 from .base import StepError
 
 __all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SparseSolver", "SOLVERS",
-           "SPARSE_NODES", "choose_solver", "make_solver"]
+           "SPARSE_NODES", "DUAL_NODES", "choose_solver", "make_solver"]
 
 # A returned answer may miss the optimality conditions by at most _FEASIBILITY_TOL relative to the
 # problem's velocity (impulse) scale, plus _VELOCITY_FLOOR m/s, before it is refused.
@@ -396,9 +396,10 @@ class NnlsSolver(QPSolver):
 
 
 class SparseSolver(QPSolver):
-    """Guess and verify, sparse, in front of DAQP: the active set is guessed, the equality-constrained
-    problem of that guess solved exactly with a sparse factorisation, and the answer kept only if it
-    meets every optimality condition of the QP; otherwise DAQP solves the QP.
+    """Guess and verify, sparse, then a sparse dual active-set method, in front of DAQP: the active set
+    is guessed, the equality-constrained problem of that guess solved exactly with a sparse
+    factorisation, and the answer kept only if it meets every optimality condition of the QP; otherwise
+    the dual active-set method (:meth:`_dual_active_set`) solves it, and DAQP only if that fails.
 
     The guess is the hint ``warm`` (the rows active at the end of the previous sub-step). With the
     guessed rows ``G``, the Delassus matrix ``W_GG = A_G M^-1 A_G^T`` (sparse: two rows couple only
@@ -416,13 +417,28 @@ class SparseSolver(QPSolver):
       does to its own member's rate (dual feasibility, independent of the masses' scale).
 
     When a check fails, the guess is corrected by what it found (violated rows in, pulling rows out)
-    and tried again, at most ``tries`` guesses in all; then DAQP, warm-started from the hint. A
-    singular ``W_GG`` (dependent rows: a self-stress among the guessed members, a duplicated cable)
-    goes straight to DAQP, which keeps an independent working set. The factorisation is reused while
-    the guessed rows are the same members in the same directions (the method's repeated solves within
-    a sub-step change only the targets).
+    and tried again, at most ``tries`` guesses in all. A singular ``W_GG`` (dependent rows: a
+    self-stress among the guessed members, a duplicated cable) ends the guessing. The factorisation is
+    reused while the guessed rows are the same members in the same directions (the method's repeated
+    solves within a sub-step change only the targets).
 
-    ``counts`` tallies the QPs answered by a guess and by DAQP.
+    Then, from ``DUAL_NODES`` free nodes (``dual``; below, or False: DAQP, warm-started from the hint),
+    Goldfarb and Idnani's dual method, which keeps an independent working set as DAQP does, on a sparse
+    factor of its ``W_AA`` that a Schur complement updates row by row (:class:`_WorkingSet`); its answer
+    is verified by the same checks as a guess. It is what the towers' QPs needed: the guess's corrections add every violated row at once,
+    which makes the set dependent (a 30-stage tower's QP: 500 rows held, 19 violated, the corrected set
+    singular), so ~30 % of them went to dense DAQP. On the QPs of a moving 30-stage tower that went to
+    DAQP, its velocities are DAQP's to 1e-16 where DAQP meets the constraints, and better where DAQP does
+    not (a row violated by 9.4e-7 m/s in DAQP's answer, 1e-17 in its own, the objective 4e-7 lower);
+    its cost per QP is 0.3x DAQP's warm-started from a good hint (15-40 ms against 50-80 ms) and 1-2x
+    from a poor one (1100-1450 working-set changes on a 50-stage tower, ~0.5 ms each). Tried on top and
+    not kept: starting it from the previous QP's active set, from the hint with the rows that depend on
+    the others removed (pivots of a sparse LU) and the pulling rows dropped one at a time, and keeping
+    the hint across a sub-step cut at a snap (a short sub-step holds few rows, and the next QP adds
+    ~600 rows one by one): each still took ~1000 changes (dropping a row makes others pull), and the
+    step cost the same (1.0-1.1 s on a moving 50-stage tower, separate runs).
+
+    ``counts`` tallies the QPs answered by a guess, by the dual method and by DAQP.
 
     **Replacements tried for issue 10 (moving towers), none kept.** Measured on the moving 10-stage
     tower (random 0.05 m/s node velocities, no gravity, dt = 1 ms, 20 steps, CPU time, contenders
@@ -457,18 +473,19 @@ class SparseSolver(QPSolver):
 
     The tower's QPs are what makes this hard: more cables than degrees of freedom (exact self-stresses,
     e.g. the first stage's top triangle depends on the six cables that tie it to the fixed nodes) and
-    many nearly binding rows. A sparse dual active-set method that keeps its factorisation across
-    working-set changes (what DAQP does densely) is the missing piece; scipy has no sparse factor
-    update, and each change costs a new factorisation here.
+    many nearly binding rows. The dual active-set method above is the piece that was missing (scipy
+    has no sparse factor update: the Schur complement stands in for one, and the base is factorised
+    again every ``_WorkingSet.BORDER`` changes).
     """
 
     name = "sparse"
-    verify = False   # the guess is verified against the optimality conditions above, DAQP is trusted
+    verify = False   # the guess and the dual method are verified by the conditions above, DAQP is trusted
     # tries: 12 rather than 3 on moving towers (random 0.05 m/s node velocities, dt = 1 ms, CPU time per
     # step): 20 stages 203 -> 155 ms (QPs answered by a guess 5% -> 71%), 30 stages 657 -> 421 ms.
     # Regularising W_GG (proximal refinement) and dropping the pulling rows of a dependent guess instead
     # of giving up on it answered no more QPs (they then ran out of tries): not kept.
-    settings = {"tries": 12, "tol": 1e-12, "tol_floor": 1e-12, "refinements": 3}
+    settings = {"tries": 12, "tol": 1e-12, "tol_floor": 1e-12, "refinements": 3, "dual_iter": 4000,
+                "dependent": 1e-10}
 
     def __init__(self, mass):
         from scipy.sparse.linalg import splu
@@ -476,7 +493,10 @@ class SparseSolver(QPSolver):
         self._splu = splu
         self.fallback = DaqpSolver(mass)
         self._factor = None   # (nodes, directions, weights, A_G, A_G^T, diag W_GG, SuperLU factor) of the last guess
-        self.counts = {"guessed": 0, "daqp": 0}
+        self._start = None    # (guess, v, y) of the last guess that pulled on no row (see _attempt)
+        # the dual active-set method between the guess and DAQP from DUAL_NODES free nodes (False: DAQP)
+        self.dual = self.n_free >= DUAL_NODES
+        self.counts = {"guessed": 0, "dual": 0, "daqp": 0}
 
     @property
     def compiled(self) -> bool:
@@ -488,6 +508,7 @@ class SparseSolver(QPSolver):
 
     def _solve(self, v0, rows, warm):
         active = np.zeros(len(rows), dtype=bool) if warm is None else warm.copy()
+        self._start = None
         for _ in range(self.settings["tries"]):
             active[: rows.n_eq] = True
             v, y, active = self._attempt(v0, rows, active)
@@ -496,6 +517,11 @@ class SparseSolver(QPSolver):
                 return v, y
             if active is None:
                 break
+        if self.dual:
+            answer = self._dual_active_set(v0, rows, warm)
+            if answer is not None:
+                self.counts["dual"] += 1
+                return answer
         self.counts["daqp"] += 1
         try:
             return self.fallback._solve(v0, rows, warm)
@@ -525,7 +551,9 @@ class SparseSolver(QPSolver):
 
     def _attempt(self, v0, rows: Rows, active: np.ndarray):
         """The solution of guess ``active`` (k,) bool: ``(v, y, None)`` if it solves the QP; else
-        ``(None, None, corrected guess)``, or ``(None, None, None)`` when it cannot be solved exactly."""
+        ``(None, None, corrected guess)``, or ``(None, None, None)`` when it cannot be solved exactly.
+        The equality solution of the last guess that pulled on no row (``v``, ``y``: a dual feasible
+        start for :meth:`_dual_active_set`) is kept in ``self._start``."""
         r, n_eq = rows.targets, rows.n_eq
         scale = max(float(np.max(np.abs(v0), initial=0.0)), float(np.max(np.abs(r), initial=0.0)))
         tol = self.settings["tol"] * scale + self.settings["tol_floor"]
@@ -556,12 +584,195 @@ class SparseSolver(QPSolver):
             pulling[guess] = y_g * w < -tol
             pulling[:n_eq] = False
         violated = ~active & (rows.rates(v.reshape(-1, 3)) - r > tol)
+        if not pulling.any():
+            self._start = (active.copy(), v, y)
         if violated.any() or pulling.any():
             return None, None, (active & ~pulling) | violated
         return v, y, None
 
+    def _dual_active_set(self, v0, rows: Rows, warm):
+        """Goldfarb and Idnani's dual method from the last guess that pulled on no row (or from the
+        equality rows alone), its working set's ``W_AA`` a sparse factor updated by a Schur complement
+        (:class:`_WorkingSet`): the most violated row joins; while a row of the set would pull first, a
+        partial step drops it; a row that depends on the set (a self-stress: ``W_AA`` would be
+        singular) moves the multipliers along that self-stress only, until one drops. The set stays
+        independent, the velocities are those of the set's equality problem with impulses >= 0, and a
+        row joins only when nothing is violated less. The final set is solved again from scratch and
+        verified by :meth:`_attempt`; None if it does not pass, or after ``dual_iter`` changes."""
+        k, n_eq, r = len(rows), rows.n_eq, rows.targets
+        if self._start is None:   # the hint, without the rows it pulls on; else the equality rows alone
+            active = np.zeros(k, dtype=bool) if warm is None else warm.copy()
+            for _ in range(self.settings["tries"]):
+                active[:n_eq] = True
+                _, _, corrected = self._attempt(v0, rows, active)
+                if self._start is not None or corrected is None:
+                    break
+                active &= corrected
+            if self._start is None:
+                active[n_eq:] = False
+                self._attempt(v0, rows, active)
+                if self._start is None:
+                    return None
+        active, v, y = self._start
+        active = active.copy()
+        a = rows.sparse(self.n_free)
+        scale = max(float(np.max(np.abs(v0), initial=0.0)), float(np.max(np.abs(r), initial=0.0)))
+        tol = self.settings["tol"] * scale + self.settings["tol_floor"]
+        v, y = v.copy(), y.copy()
+        scaled = a.copy()
+        scaled.data *= self.inv_mass[a.indices]
+        w_all = (scaled @ a.T).tocsr()   # W = A M^-1 A^T, whose rows the steps read
+        work = _WorkingSet(w_all, np.flatnonzero(active), self._splu)
+        if work.lu is False:
+            return None
+        p = -1   # the row joining the set (it keeps its partial multiplier until it has joined)
+        for _ in range(self.settings["dual_iter"]):
+            if p < 0:
+                violation = np.where(active, -np.inf, a @ v - r)   # the equality rows are in the set already
+                p = int(np.argmax(violation))
+                if violation[p] <= tol:
+                    answer = self._attempt(v0, rows, active)
+                    return None if answer[0] is None else answer[:2]
+                a_p = _dense_row(a, p)
+                m_p = self.inv_mass * a_p
+                w_p = _dense_row(w_all, p)             # W_ip of every row i
+            r_vec = work.solve(np.where(active, w_p, 0.0))
+            if r_vec is None:
+                return None
+            pivot = float(w_p[p] - w_p @ r_vec)      # W_pp - W_pA W_AA^-1 W_Ap: 0 for a dependent row
+            full = (float(a_p @ v) - r[p]) / pivot if pivot > self.settings["dependent"] * w_p[p] else np.inf
+            ratio = np.full(k, np.inf)
+            dropping = active & (r_vec > 0.0)
+            dropping[:n_eq] = False
+            ratio[dropping] = y[dropping] / r_vec[dropping]
+            j = int(np.argmin(ratio))
+            step = min(full, ratio[j])
+            if not np.isfinite(step):
+                return None   # dependent and nothing can drop: the rows are infeasible (DAQP says how)
+            if np.isfinite(full):
+                v = v + step * (self.inv_mass * (a.T @ r_vec) - m_p)
+            y -= step * r_vec
+            y[p] += step
+            if full <= ratio[j]:
+                active[p] = True
+                work.add(p)
+                p = -1
+            else:
+                active[j] = False
+                y[j] = 0.0
+                work.drop(j)
+        return None
+
     def describe(self) -> dict:
         return {"solver": self.name, **self.settings, "fallback": self.fallback.describe()}
+
+
+def _dense_row(a, i: int) -> np.ndarray:
+    """Row ``i`` of the CSR matrix ``a`` as a dense vector."""
+    out = np.zeros(a.shape[1])
+    span = slice(a.indptr[i], a.indptr[i + 1])
+    np.add.at(out, a.indices[span], a.data[span])
+    return out
+
+
+class _WorkingSet:
+    """Solves with ``W_AA = A_A M^-1 A_A^T`` of a working set ``A`` that changes one row at a time: a
+    SuperLU factor of a base set ``B`` and a dense Schur complement of the rows added since (``E``) and
+    the base rows dropped since (``D``, held at zero by a multiplier of their own), i.e. the bordered
+    system ``[[W_BB, V], [V^T, C]]`` with ``V = [W_BE, I_BD]``. After ``BORDER`` changes the base is
+    factorised again (the complement grows as their square)."""
+
+    BORDER = 60
+
+    def __init__(self, w, base: np.ndarray, splu):
+        self.w, self._splu = w, splu   # W = A M^-1 A^T of every row (CSR)
+        self._rebase(base)
+
+    def _rebase(self, base: np.ndarray) -> None:
+        self.base = base
+        self.where = {int(row): i for i, row in enumerate(base)}
+        self.items = []   # (row, added): an added row, or a dropped base row
+        self._v = np.zeros((len(base), self.BORDER))   # V, W_BB^-1 V and the Schur complement, by item
+        self._y = np.zeros((len(base), self.BORDER))
+        self._c = np.zeros((self.BORDER, self.BORDER))
+        self.lu = None
+        if len(base):
+            try:
+                self.lu = self._splu(self.w[base][:, base].tocsc(), permc_spec="MMD_AT_PLUS_A",
+                                     diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+            except RuntimeError:   # exactly singular: the caller's start was not independent
+                self.lu = False
+
+    def _rows(self):
+        """The working set's rows, the base's still in it and the added ones."""
+        dropped = {row for row, added in self.items if not added}
+        return ([row for row in self.base if int(row) not in dropped]
+                + [row for row, added in self.items if added])
+
+    def _append(self, row: int, added: bool) -> None:
+        if self.lu is False:   # a singular base: solve() says so
+            return
+        if added:
+            w_col = _dense_row(self.w, row)
+            col = w_col[self.base]
+        else:
+            w_col = None
+            col = np.zeros(len(self.base))
+            col[self.where[row]] = 1.0
+        solved = self.lu.solve(col) if len(self.base) else col
+        m = len(self.items)
+        c_new = np.array([w_col[other] if (added and other_added) else 0.0 for other, other_added in self.items])
+        schur_col = c_new - self._v[:, :m].T @ solved
+        self._v[:, m] = col
+        self._y[:, m] = solved
+        self._c[:m, m] = self._c[m, :m] = schur_col
+        self._c[m, m] = (w_col[row] if added else 0.0) - col @ solved
+        self.items.append((row, added))
+
+    def _remove(self, index: int) -> None:
+        m = len(self.items)
+        keep = np.flatnonzero(np.arange(m) != index)
+        for block in (self._v, self._y):
+            block[:, : m - 1] = block[:, keep]
+        self._c[: m - 1, : m - 1] = self._c[np.ix_(keep, keep)]
+        del self.items[index]
+
+    def _change(self, row: int, added: bool) -> None:
+        for i, (other, other_added) in enumerate(self.items):
+            if other == row:   # a change undone
+                self._remove(i)
+                return
+        if len(self.items) >= self.BORDER:
+            rows = self._rows()
+            self._rebase(np.array(sorted(rows + [row] if added else [r for r in rows if r != row]), dtype=int))
+            return
+        self._append(row, added)
+
+    def add(self, row: int) -> None:
+        self._change(row, True)
+
+    def drop(self, row: int) -> None:
+        self._change(row, False)
+
+    def solve(self, b: np.ndarray):
+        """``x`` (k,) with ``W_AA x_A = b_A`` and zero outside ``A`` (``b`` (k,)); None if the base is singular."""
+        if self.lu is False:
+            return None
+        x = np.zeros(len(b))
+        x_b = self.lu.solve(b[self.base]) if len(self.base) else np.zeros(0)
+        m = len(self.items)
+        if m:
+            rhs = np.array([b[row] if added else 0.0 for row, added in self.items]) - self._v[:, :m].T @ x_b
+            z = np.linalg.solve(self._c[:m, :m], rhs)
+            x_b = x_b - self._y[:, :m] @ z
+            for (row, added), value in zip(self.items, z):
+                if added:
+                    x[row] = value
+        x[self.base] = x_b
+        for row, added in self.items:
+            if not added:
+                x[row] = 0.0
+        return x
 
 
 SOLVERS: dict[str, type[QPSolver]] = {
@@ -575,7 +786,16 @@ SOLVERS: dict[str, type[QPSolver]] = {
 # process, OPENBLAS_NUM_THREADS=1), daqp / sparse: moving (0.05 m/s) 0.22, 0.19, 0.23, 0.65, 0.89 at
 # 3, 15, 27, 57, 87 free nodes (1, 3, 5, 10, 15 stages) and 0.99 at 117 (20 stages); at rest 0.81, 0.49,
 # 0.88, 1.51, 2.44, 2.48. A moving structure pays most for a failing guess: the switch is where they cross.
+# Again with the dual active-set method (``bench/head_to_head.py --configs qp=daqp,qp=sparse``, best of 3
+# x 5 steps): moving 0.15, 0.33, 0.52, 0.83 at 5, 10, 15, 20 stages, at rest 1.0, 1.6, 2.2, 3.2; from 30
+# stages the sparse backend wins moving too (the dual method 2.1x faster than its DAQP fallback at 50
+# stages). The switch stays here, between the moving and the resting crossings.
 SPARSE_NODES = 100
+# From this many free nodes on, the sparse backend's dual active-set method answers what its guess cannot
+# (DAQP below). Measured on moving towers (0.05 m/s, ``bench/head_to_head.py --configs default,main``
+# and the two alone, CPU time per steady step), with / without it: 1.47x at 20 stages (117 free nodes),
+# 0.97-1.0x at 30 (177), 0.47x at 50 (297); at rest the guess answers all but the first QP.
+DUAL_NODES = 150
 
 
 def choose_solver(n_free: int) -> tuple[str, str]:

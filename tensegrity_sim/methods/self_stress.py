@@ -54,6 +54,48 @@ functions (``_numpy_blas.py``: numpy's products to the bit); on the rattling rig
 ``test_inextensible.py::test_free_prestressed_structure_momentum_and_energy`` a step costs 0.64 of what
 it did with the rule all numpy (CPU time, the two taking turns on the loaded 2-core machine).
 
+**Large structures (issue 10).** From ``SPARSE_NODES`` free nodes the rule runs on sparse matrices
+(``SelfStress.sparse``; False: the dense rule above, its reference) and publishes the same impulses by
+other arithmetic; the velocities are the QP's either way, so the trajectory is the same to the bit:
+
+* few self-stresses (at most ``_IMPLICIT`` more binding rows than degrees of freedom: a moving
+  structure; an impact; any call a cable would pull on): an explicit basis of
+  ``N`` by :func:`sparse_self_stress_space` (block inverse iteration on ``A_B A_B^T`` with a sparse LU,
+  the eigenvectors below ``RANK_TOL^2`` of its largest eigenvalue, i.e. the same threshold on the same
+  singular values), then the dense rule's own fit (:meth:`SelfStress._fit`, its nonnegative QP
+  included);
+* many (a structure at rest: 114 self-stresses on a 20-stage tower, ~450 on a 50-stage one): the space
+  kept implicit (:class:`SparseSpace`: ``A_B^T s`` in the span of the near-null eigenvectors of
+  ``A_B^T A_B``, two KKT systems by sparse LU), unless a cable would pull (then the explicit basis).
+  The space and its factors are kept while the binding rows are the same to the bit (a structure at
+  rest, also after a command that holds it): a 50-stage tower's step at rest 45 ms -> 4.2 ms.
+
+A call neither resolves goes to the dense rule (counted in ``SelfStress.counts``). Agreement with the
+dense rule, the published impulses over the largest multiplier of a call
+(``test_prestress.py::test_sparse_rule_matches_the_dense``): 4e-13 on the rattling built-in tower, 2e-15
+on the thrown icosahedron and rigid prism, 6e-15 on a 30-stage tower at rest; 1.6e-11 over 44 calls of a
+moving 20-stage tower. One call in 32 of a moving 30-stage tower differed by 2e-8: its nonnegative share
+is DAQP's, at DAQP's default tolerances, in both paths, and the two bases (equal to 1e-12) steer it to
+answers 4e-9 N*s apart; with DAQP's tolerances at 1e-12 the two answers differ by 0.09 N*s (the QP in
+the share is degenerate: 55 unknowns, many more active rows), a limit of the rule's nonnegative fit itself,
+left as it is.
+
+*The threshold.* Singular values at the threshold are ill-defined whichever the path: a 30-stage tower
+at rest has one at 0.95e-3 of the largest, a moving 10-stage tower one at 1.02e-3. The sparse path
+decides on the same singular values, squared (Ritz values converged to 1e-14 of the largest
+eigenvalue, ARPACK's to 1e-13: ~1e-8 relative at the threshold), so it takes the same side unless one
+sits that close to it. The threshold stays ``RANK_TOL``: making it relative to the gap would change the
+dense rule's answers on the built-in scenes, which must keep their bits. The implicit space resolves
+singular values down to ~1e-6 of the largest (``_SHIFT``: in ``A_B^T A_B`` a mechanism's zero and a
+smaller singular value cannot be told apart), and gives a call with an eigenvalue in that blind band to
+the explicit basis (``A_B A_B^T`` has no mechanisms).
+
+*Switch point*, measured (``bench/head_to_head.py --configs rule=dense,rule=sparse``, CPU time per steady
+step, the two taking turns, ``OPENBLAS_NUM_THREADS=1``), dense / sparse: at rest 6.3 / 27.9 ms (15
+stages, 87 free nodes), 3.0 / 43.6 (20 stages, 117), 4.3 / 62.9 (25, 147), 171 / 24 (30, 177: the dense
+rule's refinement fails there, the singular value at 0.95e-3); moving (0.05 m/s) 209 / 183, 458 / 375,
+596 / 586, 824 / 516. Hence ``SPARSE_NODES`` = 150.
+
 **Flags.** A cable is slack when it is shorter than its limit *and* carried no impulse over the step
 (:meth:`~.inextensible.InextensibleMethod.slack`), so a cable at its limit that carries prestress is taut.
 """
@@ -68,7 +110,8 @@ from . import _self_stress_kernels as kernels
 from ._c_calls import scipy_lapack
 from .qp import Rows
 
-__all__ = ["RANK_TOL", "TAUT_TOL", "SelfStress", "reference_tensions", "self_stress_space"]
+__all__ = ["RANK_TOL", "SPARSE_NODES", "TAUT_TOL", "SelfStress", "reference_tensions", "self_stress_space",
+           "sparse_self_stress_space", "SparseSpace"]
 
 # Singular values of A_B^T below RANK_TOL * the largest span the self-stress space. Measured on the
 # thrown icosahedron (bench/prestress_tensions.py): 2e-5 for the self-stress against 0.18 for the next
@@ -82,6 +125,31 @@ RANK_TOL = 1e-3
 TAUT_TOL = 1e-6
 # A basis whose |A^T s| is below _EXACT times the largest singular value is a self-stress to round-off.
 _EXACT = 1e-13
+# From this many free nodes on, the rule runs on sparse matrices (module docstring: measured between 25
+# and 30 stages of a tower, where the dense rule's refinement stops working at rest)
+SPARSE_NODES = 150
+# The sparse path, relative to the largest eigenvalue of A_B^T A_B: the regularisation of the KKT
+# systems' multiplier block (refined away), and the floor below which an eigenvalue is a mechanism's zero
+# (the round-off of a zero eigenvalue of the squared matrix is ~1e-16; a singular value of 1e-6 of the
+# largest is 1e-12 here).
+_SHIFT = 1e-12
+# Up to this many more binding rows than degrees of freedom, the sparse path computes an explicit basis of
+# the self-stress space (sparse_self_stress_space) first; beyond, it keeps the space implicit first
+# (SparseSpace): a 30-stage tower at rest (264 more) took 85 ms a step with an explicit basis, ~3 with
+# the implicit space it keeps.
+_IMPLICIT = 64
+# The explicit basis holds at most this many self-stresses beyond that excess (mechanisms add to it: a
+# moving 100-stage tower had 92 self-stresses with 16 rows more than degrees of freedom; at 64 its calls
+# went to the dense SVD, 21 s a step).
+_EXPLICIT = 256
+_GUARD = 8           # the block's columns beyond the space (the iteration converges as the first excluded eigenvalue)
+_BLOCK_ITER = 16
+_RITZ_TOL = 1e-14    # of the largest eigenvalue: a kept Ritz pair's residual |W x - theta x| at convergence
+_REFINEMENTS = 8     # refinements of a KKT solve before the sparse path gives the step to the SVD ...
+# ... unless one moves the answer by less than this, relative: the regularisation's error shrinks by
+# _SHIFT / RANK_TOL^2 = 1e-6 a refinement, and what is left is round-off amplified by the near-null
+# directions (measured: 1e-16 on the towers, 1.3e-13 on the thrown icosahedron, sigma 3e-5 of the largest)
+_REFINE_TOL = 1e-10
 
 
 def reference_tensions(stiffness: np.ndarray, length_offsets: np.ndarray) -> np.ndarray:
@@ -113,14 +181,35 @@ class SelfStress:
     def __init__(self, n_free: int, reference: np.ndarray, rows_at_load: Rows, load_cables: np.ndarray):
         self.n_free = n_free
         self.reference = reference
-        self._load_basis, _, self._load_largest = self_stress_space(rows_at_load.dense(n_free).T)
+        self._rows_at_load = rows_at_load
+        self._load = None     # (basis, largest singular value) of the load time's rows, when first needed
         self._load_members = np.asarray(load_cables).tobytes()
-        self.possible = self._load_basis.shape[1] > 0
+        # more rows than degrees of freedom always carry a self-stress (the SVD pads its zeros): a large
+        # structure needs no dense SVD to know
+        self.possible = len(rows_at_load) > 3 * n_free or self._load_basis.shape[1] > 0
         self.residual = 0.0   # N*s: the largest node impulse dropped with a near-null share (module docstring)
         self.refine = True    # False: an SVD at every step (the reference the refinement must match)
         self.compiled = True  # the rule in one numba kernel (_self_stress_kernels.py); False: the numpy reference
+        # the sparse path (_impulses_sparse) from SPARSE_NODES free nodes on; False: the dense rule (its reference)
+        self.sparse = n_free >= SPARSE_NODES
+        self.counts = {"sparse": 0, "dense": 0}   # calls of a structure that can lock, by the path that answered
+        self._kept = None     # (rows' key, SparseSpace) of the last implicit space (see _implicit)
         self._load_cables = np.ascontiguousarray(load_cables, dtype=np.int64)
         self._lu = (scipy_lapack("dgetrf"), scipy_lapack("dgetrs"))   # the kernel's refinement (one LU, two solves)
+
+    @property
+    def _load_basis(self) -> np.ndarray:
+        """The self-stress basis (k_load, d) of the load time's rows (one SVD, on first use)."""
+        if self._load is None:
+            basis, _, largest = self_stress_space(self._rows_at_load.dense(self.n_free).T)
+            self._load = (basis, largest)
+        return self._load[0]
+
+    @property
+    def _load_largest(self) -> float:
+        """The largest singular value of the load time's rows."""
+        self._load_basis   # computes it
+        return self._load[1]
 
     def _space(self, a_t: np.ndarray, members: bytes) -> np.ndarray:
         """The self-stress basis (k, d) of ``a_t`` (3 n_free, k). When the binding rows are all the
@@ -153,9 +242,66 @@ class SelfStress:
         their limit. ``y`` itself (the same array) when the rows carry no self-stress."""
         if not self.possible:
             return y
+        if self.sparse:
+            published = self._impulses_sparse(rows, cables, at_limit, y, tau)
+            if published is not None:
+                self.counts["sparse"] += 1
+                return published
+        self.counts["dense"] += 1
         if self.compiled:
             return self._impulses_compiled(rows, cables, at_limit, y, tau)
         return self._impulses_reference(rows, cables, at_limit, y, tau)
+
+    def _impulses_sparse(self, rows, cables, at_limit, y, tau):
+        """:meth:`impulses` on sparse matrices, or None where the dense rule must answer. A sub-step's
+        many self-stresses (more than ``_IMPLICIT`` more rows than degrees of freedom: a structure at
+        rest) are first kept implicit (:class:`SparseSpace`), which answers unless a cable would pull (the
+        nonnegative share is a QP over the whole space); otherwise an explicit basis
+        (:func:`sparse_self_stress_space`) goes through the dense rule's own fit (:meth:`_fit`), the
+        nonnegative one included. None where neither resolves the space."""
+        n_eq = rows.n_eq
+        binding = np.concatenate([np.ones(n_eq, dtype=bool), at_limit]) | (y != 0.0)
+        index = np.flatnonzero(binding)
+        a = rows.subset(index, rows.targets[index], 0).sparse(self.n_free)
+        y_b = y[binding]
+        ref = self.reference[cables[binding[n_eq:]]] * tau
+        # an impact's share (tau = 0: no reference to fit) pulled on some cable at every impact of the
+        # moving towers: it goes straight to the explicit basis
+        if tau > 0.0 and len(index) - a.shape[1] > _IMPLICIT:
+            out = self._implicit(a, y_b, ref, n_eq)
+            if out is not None:
+                self.residual = max(self.residual, float(np.max(np.abs(a.T @ (out - y_b)), initial=0.0)))
+                published = y.copy()
+                published[binding] = out
+                return published
+        basis = sparse_self_stress_space(a)
+        if basis is None:
+            return None
+        if not basis.shape[1]:
+            return y
+        return self._fit(basis, y_b - basis @ (basis.T @ y_b), y, binding, a.T, ref, n_eq)
+
+    def _implicit(self, a, y_b, ref, n_eq):
+        """The published impulses (k_b,) N*s of the binding rows ``a`` with multipliers ``y_b`` through
+        :class:`SparseSpace`, or None (a cable would pull, or the space is not resolved). The space and
+        its factorisations are kept while the rows are the same to the bit (a structure at rest), so
+        the answer still depends on this call's arguments alone."""
+        key = (a.indptr.tobytes(), a.indices.tobytes(), a.data.tobytes())
+        if self._kept is not None and self._kept[0] == key:
+            space = self._kept[1]
+        else:
+            space = SparseSpace.of(a)
+            self._kept = (key, space)
+        if space is None:
+            return None
+        share = space.fit(np.ones(len(y_b)), y_b)
+        cable = np.zeros(len(y_b))
+        cable[n_eq:] = 1.0
+        fitted = space.fit(cable, np.concatenate([np.zeros(n_eq), ref]))
+        if share is None or fitted is None:
+            return None
+        out = (y_b - share) + fitted
+        return None if np.any(out[n_eq:] < 0.0) else out
 
     def _impulses_compiled(self, rows, cables, at_limit, y, tau):
         """:meth:`impulses` in the kernels of ``_self_stress_kernels.py`` (see there for what stays numpy)."""
@@ -225,3 +371,136 @@ class SelfStress:
         z, _, flag, _ = daqp.solve(h, f, np.ascontiguousarray(n_c), upper, -dynamic_c,
                                    np.zeros(len(dynamic_c), dtype=np.int32))
         return z if flag >= 1 else alpha
+
+
+def sparse_self_stress_space(a, rank_tol: float = RANK_TOL):
+    """:func:`self_stress_space`'s basis (k, d) for the rows ``a`` (scipy sparse, k x 3 n_free) from sparse
+    matrices: the eigenvectors of ``W = A_B A_B^T`` with eigenvalues below ``rank_tol^2`` times the largest
+    (the squared singular values), by block inverse iteration with a sparse LU of ``W + delta I``
+    (``delta`` = ``_SHIFT`` times the largest) and a Rayleigh-Ritz step each time, on ``_GUARD`` more
+    columns than the space has vectors, until the kept Ritz pairs' residuals are round-off. Single-vector
+    Lanczos (ARPACK's shift-invert) is not used: it cannot resolve the null space's multiplicity (it
+    returned 1-9 vectors that were not self-stresses among 13-49 on a moving 10-stage tower). None
+    when that does not settle within ``_BLOCK_ITER`` iterations or the space outgrows ``_EXPLICIT`` plus
+    the excess of rows over degrees of freedom."""
+    from scipy.sparse import identity
+    from scipy.sparse.linalg import ArpackNoConvergence, eigsh, splu
+    k, n3 = a.shape
+    if k < 3:   # too small for ARPACK (its k < n - 1): the dense SVD of a tiny matrix
+        return self_stress_space(a.T.toarray(), rank_tol)[0]
+    w = (a @ a.T).tocsc()
+    try:
+        largest = float(eigsh(w, k=1, which="LA", v0=np.ones(k), tol=1e-10, return_eigenvectors=False)[0])
+        lu = splu((w + _SHIFT * largest * identity(k)).tocsc(), permc_spec="MMD_AT_PLUS_A")
+    except (ArpackNoConvergence, RuntimeError):
+        return None
+    thr = rank_tol * rank_tol * largest
+    most = max(k - n3, 0) + _EXPLICIT
+    # a fixed start block, so that a replay has the same bits
+    x = np.random.default_rng(0).standard_normal((k, min(max(k - n3, 0) + _GUARD, k)))
+    for _ in range(_BLOCK_ITER):
+        x, _ = np.linalg.qr(lu.solve(x))
+        theta, q = np.linalg.eigh(x.T @ (w @ x))
+        x = x @ q
+        kept = theta < thr
+        if kept.all():   # the block is too small to hold the space and a guard: twice the columns
+            if x.shape[1] >= min(most, k):
+                return None
+            more = min(x.shape[1], most - x.shape[1], k - x.shape[1])
+            x = np.hstack([x, np.random.default_rng(x.shape[1]).standard_normal((k, more))])
+            continue
+        residual = np.linalg.norm(w @ x[:, kept] - x[:, kept] * theta[kept], axis=0)
+        if residual.max(initial=0.0) <= _RITZ_TOL * largest:
+            return x[:, kept]
+    return None
+
+
+class SparseSpace:
+    """The self-stress space ``N`` of the rule for rows ``A_B`` (k, 3 n_free), kept implicit: every
+    ``s`` with ``A_B^T s`` in the span of ``U``, where ``U`` (3 n_free, m) holds the eigenvectors of
+    ``G = A_B^T A_B`` whose eigenvalues lie between the mechanisms' zeros and ``RANK_TOL^2`` times the
+    largest (the near-null singular directions ``v = A_B u / sigma``; the exact null space of
+    ``A_B^T`` needs no basis). Built by :meth:`of`; :meth:`fit` is the rule's least squares over ``N``.
+    """
+
+    def __init__(self, a, u: np.ndarray, largest: float):
+        self.a = a.tocsc()
+        self.u = u
+        self.largest = largest      # the largest eigenvalue of G (the squared largest singular value)
+        self._factors = {}          # the KKT systems' matrices and LU factors, by weight
+
+    @classmethod
+    def of(cls, a, rank_tol: float = RANK_TOL):
+        """The space of ``a`` (scipy sparse, k x 3 n_free), or None when its spectrum is not resolved
+        here: an eigenvalue of ``G`` between 1e-2 of the mechanisms' floor (``_SHIFT``) and the floor,
+        where a singular value of ~1e-6 of the largest and a mechanism cannot be told apart in ``G``, or
+        a near-null pair that ARPACK did not converge to 1e-10 of the largest eigenvalue (single-vector
+        Lanczos can return a wrong pair among clustered eigenvalues: ``sparse_self_stress_space``)."""
+        from scipy.sparse.linalg import ArpackNoConvergence, eigsh
+        g = (a.T @ a).tocsc()
+        n = g.shape[0]
+        start = np.ones(n)   # ARPACK's start vector: fixed, so that a replay has the same bits
+        try:
+            largest = float(eigsh(g, k=1, which="LA", v0=start, tol=1e-10, return_eigenvectors=False)[0])
+            thr = rank_tol * rank_tol * largest
+            # shift-invert at half the threshold: every eigenvalue in (0, thr) is nearer to the shift than
+            # the mechanisms' zeros and than anything above thr, so the nearest m hold them all as soon
+            # as one of the m is not among them
+            m = 4
+            while True:
+                m = min(m, n - 2)
+                lam, vec = eigsh(g, k=m, sigma=0.5 * thr, which="LM", v0=start, tol=1e-13)
+                band = (lam > _SHIFT * largest) & (lam < thr)
+                if not band.all() or m == n - 2:
+                    break
+                m *= 2
+        except (ArpackNoConvergence, RuntimeError):
+            return None
+        if np.any((lam > 1e-2 * _SHIFT * largest) & (lam <= _SHIFT * largest)):
+            return None
+        u = np.ascontiguousarray(vec[:, band])
+        if np.linalg.norm(g @ u - u * lam[band], axis=0).max(initial=0.0) > 1e-10 * largest:
+            return None
+        return cls(a, u, largest)
+
+    def _factorise(self, weight: np.ndarray):
+        """The KKT matrix of :meth:`fit` for ``weight`` and the LU factor of its regularised form (None
+        if that is exactly singular)."""
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+        a, u = self.a, self.u
+        k, n3 = a.shape
+        m = u.shape[1]
+        dense_u = sp.csc_matrix(u)
+        exact = sp.bmat([[sp.diags(weight), None, a],
+                         [None, sp.csc_matrix((m, m)), -dense_u.T],
+                         [a.T, -dense_u, sp.csc_matrix((n3, n3))]], format="csc")
+        shifted = exact - sp.diags(np.concatenate([np.zeros(k + m), np.full(n3, _SHIFT * self.largest)]))
+        try:
+            return exact, splu(shifted, permc_spec="MMD_AT_PLUS_A")   # 0.7x the time of COLAMD's (tower30)
+        except RuntimeError:   # exactly singular
+            return exact, None
+
+    def fit(self, weight: np.ndarray, target: np.ndarray):
+        """``s = argmin |W (s - target)|`` over ``s`` in ``N`` (``weight`` (k,) 0 or 1, the diagonal of
+        ``W``, nonzero on every self-stress), by the KKT system of ``min 1/2 |W(s - t)|^2`` s.t.
+        ``A_B^T s = U c``; its multiplier block is regularised by ``_SHIFT`` times the largest
+        eigenvalue (a mechanism makes it singular) and refined on the exact system. None if the
+        refinement does not settle."""
+        k, n3 = self.a.shape
+        m = self.u.shape[1]
+        key = weight.tobytes()
+        if key not in self._factors:
+            self._factors[key] = self._factorise(weight)
+        exact, lu = self._factors[key]
+        if lu is None:
+            return None
+        b = np.concatenate([weight * target, np.zeros(m + n3)])
+        x = lu.solve(b)
+        size = max(float(np.max(np.abs(target), initial=0.0)), 1e-300)
+        for _ in range(_REFINEMENTS):
+            step = lu.solve(b - exact @ x)
+            x += step
+            if np.max(np.abs(step[:k]), initial=0.0) <= _REFINE_TOL * size:
+                return x[:k]
+        return None
