@@ -125,8 +125,8 @@ def accuracy(args):
     import quadprog
     names = [n for n in args.solvers.split(",") if n != "auto"] + ["osqp-default"]
     velocity = args.velocity or 0.3
-    print(f"QPs of runs; error = max |v - v_quadprog| / max(|v_quadprog|, |v_free|) over the QPs quadprog solves; "
-          f"time = mean per QP, warm-started from the run's hints")
+    print("QPs of runs; error = max |v - v_quadprog| / max(|v_quadprog|, |v_free|) over the QPs quadprog solves; "
+          "time = mean per QP, warm-started from the run's hints")
     print(f"{'scene':<14}{'v m/s':>6}{'ratio':>6}{'QPs':>5}{'rows':>6}  " + "".join(f"{n:>24}" for n in names),
           flush=True)
     cases = [(name, scene, velocity, 1e4) for name, scene in scenes(stages=())]
