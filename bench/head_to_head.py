@@ -42,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run as a script
 import tensegrity_sim as ts  # noqa: E402
 from bench.bench_steps import agitated  # noqa: E402
 from bench.cases import work_precision_cases  # noqa: E402
-from bench.scale import tower_scene  # noqa: E402
+from bench.scale import finish_plot, loglog_slope, tower_scene  # noqa: E402
 from bench.tables import read_csv, write_csv  # noqa: E402
 from bench.timing import time_alternating  # noqa: E402
 
@@ -189,11 +189,9 @@ def tower_rows(stages, repeats: int, budget: float, velocities=(0.0, 0.05), conf
 
 
 def exponent(rows, velocity, config="default") -> float:
-    pts = [(r["members"], r["steady_ms"]) for r in rows if r["velocity"] == velocity and r["config"] == config]
-    if len(pts) < 2:
-        return math.nan
-    m, c = map(np.array, zip(*pts))
-    return float(np.polyfit(np.log(m), np.log(c), 1)[0])
+    """The growth exponent of the steady step of ``config`` at ``velocity``."""
+    return loglog_slope([(r["members"], r["steady_ms"]) for r in rows
+                         if r["velocity"] == velocity and r["config"] == config])
 
 
 def plot_towers(rows, path) -> None:
@@ -216,11 +214,7 @@ def plot_towers(rows, path) -> None:
     ax.set_xlabel("members (towers, inextensible, no gravity, dt = 1 ms)")
     ax.set_ylabel("CPU time per step (ms)")
     ax.set_title("steady step (filled) and the step after a command (open); p: growth exponent", fontsize=8)
-    ax.grid(True, which="both", lw=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    finish_plot(fig, ax, path)
 
 
 def main(argv=None) -> int:

@@ -92,14 +92,29 @@ def scale_rows(runners, stages=STAGES_FULL, progress=None) -> list[dict]:
     return rows
 
 
-def growth_exponent(rows: list[dict], simulator: str, variant: str, min_stages: int = 10) -> float:
-    """Slope of log(us_per_step) against log(members) over towers of ``min_stages`` stages or more."""
-    pts = [(r["members"], r["us_per_step"]) for r in rows if (r["simulator"], r["variant"]) == (simulator, variant)
-           and r["stages"] >= min_stages and np.isfinite(r["us_per_step"])]
+def loglog_slope(pts) -> float:
+    """Slope of log(cost) against log(members) of (members, cost) pairs (NaN for fewer than two)."""
     if len(pts) < 2:
         return math.nan
     m, c = map(np.array, zip(*pts))
     return float(np.polyfit(np.log(m), np.log(c), 1)[0])
+
+
+def growth_exponent(rows: list[dict], simulator: str, variant: str, min_stages: int = 10) -> float:
+    """Slope of log(us_per_step) against log(members) over towers of ``min_stages`` stages or more."""
+    return loglog_slope([(r["members"], r["us_per_step"]) for r in rows
+                         if (r["simulator"], r["variant"]) == (simulator, variant) and r["stages"] >= min_stages
+                         and np.isfinite(r["us_per_step"])])
+
+
+def finish_plot(fig, ax, path) -> None:
+    """Grid, legend, layout; save ``fig`` to ``path`` (PNG, 90 dpi) and close it."""
+    import matplotlib.pyplot as plt
+    ax.grid(True, which="both", lw=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
 
 
 def realtime_rows(runners, rates=(500.0, 1000.0)) -> list[dict]:
@@ -198,8 +213,4 @@ def plot_scale(rows: list[dict], path) -> None:
     ax.set_xlabel("members (towers of 1 to 100 stages)")
     ax.set_ylabel("wall time per step (µs)")
     ax.set_title("cost per step, dt = 1 ms; p: slope over >= 10 stages", fontsize=9)
-    ax.grid(True, which="both", lw=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    finish_plot(fig, ax, path)
