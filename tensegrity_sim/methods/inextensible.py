@@ -341,8 +341,8 @@ class InextensibleMethod(StepMethod):
         handle)."""
         rule = self.self_stress
         (ok, x, v, holding, applied, taut, fitted, impulses, slack, node, cables, y, d, length, binding, members,
-         a_t, basis) = kernels.step(state.positions, state.velocities, *self._step_inputs(state),
-                                    self._holding, self._hint, *self._step_constants())
+         a_t, basis) = kernels.step(state.positions, state.velocities, *self._step_inputs(state), self._applied,
+                                    *self._motors(), self._holding, self._hint, *self._step_constants())
         if not ok:
             return None
         self._end_geometry = (x, d, length)
@@ -360,11 +360,14 @@ class InextensibleMethod(StepMethod):
         return MethodStep(x, v, impulses, slack, None, None)
 
     def _step_inputs(self, state: State) -> tuple:
-        """The step kernel's arguments after ``x``, ``v`` that the inputs and the motors set: the force
-        (N, 3) N, the commanded rest lengths, the rest lengths in effect, the motors' reach over a step (m),
+        """The step kernels' arguments that the inputs set: the force (N, 3) N and the commanded rest
+        lengths (n_cables,) m."""
+        return self.system.gravity_force + state.external_forces, state.rest_lengths
+
+    def _motors(self) -> tuple:
+        """The step kernels' arguments after the rest lengths in effect: the motors' reach over a step (m),
         dt, the length offsets and the tolerances."""
-        return (self.system.gravity_force + state.external_forces, state.rest_lengths, self._applied,
-                self.reel_speed * self.dt, self.dt, self.length_offsets, LIMIT_TOL, self._taut_tol)
+        return self.reel_speed * self.dt, self.dt, self.length_offsets, LIMIT_TOL, self._taut_tol
 
     def _step_constants(self) -> tuple:
         """The step kernel's arguments after the cables that hold: the system's tables, DAQP's C call,
@@ -399,14 +402,14 @@ class InextensibleMethod(StepMethod):
         fails (:class:`QPError`, an answer that is not finite) ends the loop: it and what would follow are
         NaN, which the simulator takes for a step it must retake alone (and raise at)."""
         x, v = state.positions, state.velocities
-        inputs, constants = self._step_inputs(state), self._step_constants()
+        inputs, motors, constants = self._step_inputs(state), self._motors(), self._step_constants()
         out = positions[..., None], velocities[..., None], impulses[..., None], slack[..., None]
         total = np.zeros(self.system.n_cables)
         rule, i = self.self_stress, 0
         while True:
             i, x, v, self._applied, self._holding, self._hint, rule.residual = kernels.steps(
                 i, steps, every, x, v, self._applied, self._holding, self._hint, rule.residual, total, *out,
-                inputs[0], inputs[1], *inputs[3:], *constants)
+                *inputs, *motors, *constants)
             if i == steps:
                 break
             try:
