@@ -345,24 +345,35 @@ def rattling_tower(stages, speed, seed=0):
 
 
 @pytest.mark.parametrize("dual", [False, True])
-def test_sparse_backend_follows_daqp_on_a_rattling_tower(dual):
+def test_sparse_backend_follows_daqp_on_a_rattling_tower(dual, monkeypatch):
     """The sparse backend (guess and verify, then DAQP, or its dual active-set method, forced on this
-    small tower) against DAQP alone on a moving 3-stage tower for 60 steps: cables go slack and snap
-    taut again, and the trajectories agree to 1e-12 m and 1e-10 m/s (measured: 2e-19 m, 1.5e-16 m/s
-    with DAQP after the guess; 5e-19 m, 3.6e-16 m/s with the dual method, which answered all 71 QPs the
-    guess could not; the slack flags may differ, as they follow the impulses, which the tower's
-    redundant cables leave non-unique)."""
+    small tower) on a moving 3-stage tower for 60 steps, cables going slack and snapping taut again:
+    every QP it solves is solved again by DAQP alone, and the velocities agree to 1e-10 relative (the
+    multipliers need not: the tower's redundant cables leave them non-unique). Compared QP by QP, not end
+    to end: whole trajectories agreed to 1.5e-16 m/s on one machine and parted by 9e-9 m/s at step 10 on
+    another (AVX-512), where every QP of both runs still met quadprog's to 1e-12 m/s: a snap time near a
+    sub-step's threshold is decided by round-off, and a rattling structure amplifies it."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LengthOffsetWarning)
-        runs = {name: ts.Simulator(rattling_tower(3, 0.05), method="inextensible", dt=1e-3, solver=name)
-                for name in ("daqp", "sparse")}
-    runs["sparse"]._method.solver.dual = dual
-    trajs = {name: sim.run(steps=60) for name, sim in runs.items()}
-    slack = trajs["daqp"].slack
+        sim = ts.Simulator(rattling_tower(3, 0.05), method="inextensible", dt=1e-3, solver="sparse")
+    solver = sim._method.solver
+    solver.dual = dual
+    problems = []
+    solve = solver.solve
+
+    def recording(v0, rows, warm=None):
+        v, y = solve(v0, rows, warm)
+        problems.append((v0.copy(), qp.Rows(rows.nodes, rows.directions.copy(), rows.targets.copy(), rows.n_eq),
+                         None if warm is None else warm.copy(), v))
+        return v, y
+    monkeypatch.setattr(solver, "solve", recording)
+    slack = sim.run(steps=60).slack
     assert slack.any() and (~slack).any() and (slack[1:] != slack[:-1]).any()   # slack and snapping
-    np.testing.assert_allclose(trajs["sparse"].positions, trajs["daqp"].positions, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(trajs["sparse"].velocities, trajs["daqp"].velocities, rtol=0, atol=1e-10)
-    counts = runs["sparse"]._method.solver.counts
+    daqp = qp.DaqpSolver(solver.mass[::3])
+    for v0, rows, warm, v in problems:
+        expected, _ = daqp.solve(v0, rows, warm)
+        assert np.max(np.abs(v - expected)) <= 1e-10 * max(np.max(np.abs(expected)), 1e-300)
+    counts = solver.counts
     assert counts["guessed"] > counts["dual" if dual else "daqp"] > 0 == counts["daqp" if dual else "dual"]
 
 

@@ -395,3 +395,36 @@ def test_daqp_solves_problems_at_a_tiny_velocity_scale():
     from bench.runners import default_runners
     rows = hovering_cable(default_runners()[1], quick=True)
     assert [row["verdict"] for row in rows] == ["pass", "pass"], rows
+
+
+# ---------------------------------------------------------------- DAQP's working-set answer
+@pytest.mark.parametrize("case", CASES, ids=list(CASES))
+def test_daqp_working_set_answer_matches_its_reference_and_quadprog(case):
+    """Warm-started with quadprog's active set, ``_qp_kernels.working_set_answer`` answers wherever that
+    set is independent and every row of it pushes, with quadprog's velocities (1e-9) and multipliers,
+    and to 1e-12 the numpy reference's (``DaqpSolver._working_set_reference``); a dependent set
+    (duplicated members, four members on three degrees of freedom) is refused by both, and so is a set
+    with a row too many (it would pull) or too few (a row outside is violated)."""
+    from tensegrity_sim.methods import _qp_kernels
+    answered = 0
+    for seed in range(4):
+        v0, mass, rows = random_problem(seed, **CASES[case])
+        reference, multipliers = quadprog_solution(v0, mass, rows)
+        active = multipliers > 1e-9 * np.max(np.abs(multipliers))
+        active[:rows.n_eq] = False
+        solver = qp.DaqpSolver(mass)
+        for warm, right in ((active, True), (~active, False)):
+            ok, v, y = _qp_kernels.working_set_answer(
+                rows.nodes, rows.directions, solver.inv_mass.reshape(-1, 3), v0, rows.targets, rows.n_eq, warm,
+                *(solver.settings[name] for name in ("primal_tol", "dual_tol", "sing_tol")))
+            plain = solver._working_set_reference(v0.ravel(), rows, warm)
+            assert ok == (plain is not None), (case, seed, right)
+            if not ok:
+                continue
+            assert right and independent(rows, len(mass), active | (np.arange(len(rows)) < rows.n_eq))
+            np.testing.assert_allclose(v.ravel(), plain[0], rtol=0, atol=1e-12 * np.max(np.abs(plain[0])))
+            np.testing.assert_allclose(y, plain[1], rtol=0, atol=1e-12 * np.max(np.abs(plain[1])))
+            assert np.max(np.abs(v - reference)) < 1e-9 * np.max(np.abs(reference)), (case, seed)
+            np.testing.assert_allclose(y, multipliers, rtol=1e-8, atol=1e-12 * np.max(np.abs(multipliers)))
+            answered += 1
+    assert answered or case in ("duplicated members", "duplicated, mass ratio 1e4")

@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from ._c_calls import quadprog_at
-from ._qp_kernels import dense_rows
+from ._qp_kernels import dense_rows, working_set_answer
 
 __all__ = ["Settings", "entry_point", "quadprog", "solve_rows"]
 
@@ -39,6 +39,11 @@ class Settings(ctypes.Structure):
                 ("abs_subopt", ctypes.c_double), ("sing_tol", ctypes.c_double), ("refactor_tol", ctypes.c_double),
                 ("time_limit", ctypes.c_double), ("w_soft", ctypes.c_double), ("eq_reduction", ctypes.c_int),
                 ("presolve", ctypes.c_int)]
+
+
+# where DAQP's tolerances sit in the settings struct, in doubles (working_set_answer uses them)
+_PRIMAL_TOL, _DUAL_TOL, _SING_TOL = (getattr(Settings, name).offset // 8
+                                     for name in ("primal_tol", "dual_tol", "sing_tol"))
 
 
 def entry_point(daqp_module, settings: dict):
@@ -86,17 +91,28 @@ def quadprog(entry, settings, hessian, f, a, bupper, blower, sense):
 
 
 @njit(cache=True)
-def solve_rows(entry, settings, hessian, sqrt_mass, nodes, directions, n_free, v0, targets, n_eq, warm, unit):
+def solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, directions, n_free, v0, targets, n_eq, warm, unit,
+               guess):
     """``DaqpSolver._solve`` of member rows (``_qp_kernels``' layout: ``nodes`` (k, 2), ``directions``
     (k, 3), ``targets`` (k,) m/s, the first ``n_eq`` equalities), built and scaled as there: free
-    velocities ``v0`` (3 n_free,) m/s, ``sqrt_mass`` (3 n_free,) kg^1/2, ``hessian`` the identity,
-    ``warm`` (k,) bool the rows to start active, the problem divided by ``unit`` m/s. Returns ``v``
-    (3 n_free,) m/s, the multipliers (k,) N*s, DAQP's exit flag and iterations."""
+    velocities ``v0`` (3 n_free,) m/s, ``sqrt_mass`` and ``mass`` (3 n_free,) kg^1/2 and kg,
+    ``hessian`` the identity, ``warm`` (k,) bool the rows to start active, the problem divided by
+    ``unit`` m/s. With ``guess``, the working set ``warm`` is tried first (``_qp_kernels.working_set_answer``, at
+    DAQP's ``primal_tol`` and ``dual_tol``, its pivots at ``sing_tol``, read from ``settings``); DAQP only when it is not the
+    active set. Returns ``v`` (3 n_free,) m/s, the multipliers (k,) N*s, DAQP's exit flag and iterations
+    (1 and 0 for the working set's answer)."""
     k = targets.shape[0]
+    bupper = targets / unit
+    if guess:
+        tolerances = settings.view(np.float64)
+        guessed, v, y = working_set_answer(nodes, directions, (1.0 / mass).reshape((n_free, 3)),
+                                           (v0 / unit).reshape((n_free, 3)), bupper, n_eq, warm,
+                                           tolerances[_PRIMAL_TOL], tolerances[_DUAL_TOL], tolerances[_SING_TOL])
+        if guessed:
+            return v.reshape(-1) * unit, unit * y, 1, 0
     a = dense_rows(nodes, directions, n_free, sqrt_mass)
     lower = np.full(k, -1e30)
     sense = np.empty(k, dtype=np.int32)
-    bupper = targets / unit
     for i in range(k):
         sense[i] = 5 if i < n_eq else np.int32(warm[i])
         if i < n_eq:

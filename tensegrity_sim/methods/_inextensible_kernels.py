@@ -216,8 +216,8 @@ def _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, directions,
     ``feasibility_tol`` relative plus ``velocity_floor`` m/s). A failed one goes back to the Python path,
     which raises its error or solves again at another scale."""
     n_free = v0_free.shape[0]
-    v_flat, y, flag, _ = solve_rows(entry, settings, hessian, sqrt_mass, nodes, directions, n_free,
-                                    v0_free.reshape(-1), targets, n_eq, warm, 1.0)
+    v_flat, y, flag, _ = solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, directions, n_free,
+                                    v0_free.reshape(-1), targets, n_eq, warm, 1.0, True)
     v = v_flat.reshape((n_free, 3))
     if flag < 1 or not (np.isfinite(v_flat).all() and np.isfinite(y).all()):
         return v, y, False

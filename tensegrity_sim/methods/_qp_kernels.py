@@ -12,7 +12,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["dense_rows", "row_rates", "answer_residuals", "dot3"]
+__all__ = ["dense_rows", "row_rates", "working_set_answer", "answer_residuals", "dot3"]
+
+_SWEEPS = 8   # working_set_answer: at most this many refinements of its answer
 
 
 @njit(cache=True)
@@ -40,18 +42,159 @@ def dense_rows(nodes, directions, n_free, column_divisor):
 
 
 @njit(cache=True)
+def _rate(v, nodes, directions, i):
+    """Row ``i``'s rate ``A_i v`` (m/s) for free-node velocities ``v`` (n_free, 3)."""
+    nb = nodes[i, 1]
+    na = nodes[i, 0]
+    u0 = (v[nb, 0] if nb >= 0 else 0.0) - (v[na, 0] if na >= 0 else 0.0)
+    u1 = (v[nb, 1] if nb >= 0 else 0.0) - (v[na, 1] if na >= 0 else 0.0)
+    u2 = (v[nb, 2] if nb >= 0 else 0.0) - (v[na, 2] if na >= 0 else 0.0)
+    return dot3(u0, u1, u2, directions[i, 0], directions[i, 1], directions[i, 2])
+
+
+@njit(cache=True)
 def row_rates(v, nodes, directions):
     """``A v`` (k,) m/s for free-node velocities ``v`` (n_free, 3)."""
     k = nodes.shape[0]
     out = np.empty(k)
-    u = np.zeros(3)
     for i in range(k):
-        for j in range(3):
-            vb = v[nodes[i, 1], j] if nodes[i, 1] >= 0 else 0.0
-            va = v[nodes[i, 0], j] if nodes[i, 0] >= 0 else 0.0
-            u[j] = vb - va
-        out[i] = dot3(u[0], u[1], u[2], directions[i, 0], directions[i, 1], directions[i, 2])
+        out[i] = _rate(v, nodes, directions, i)
     return out
+
+
+@njit(cache=True)
+def _row_length(inv_mass, nodes, i):
+    """The length ``|A_i M^-1/2|`` (kg^-1/2) of row ``i`` in the mass-scaled problem (``inv_mass`` (n_free, 3))."""
+    na = nodes[i, 0]
+    nb = nodes[i, 1]
+    return np.sqrt((inv_mass[na, 0] if na >= 0 else 0.0) + (inv_mass[nb, 0] if nb >= 0 else 0.0))
+
+
+@njit(cache=True)
+def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, primal_tol, dual_tol, pivot_tol):
+    """The QP's answer if its active set is the working set: the ``n_eq`` equality rows and the rows
+    ``warm`` (k,) bool (the previous sub-step's active rows), as ``DaqpSolver._working_set_reference``
+    computes it in numpy. ``inv_mass`` (n_free, 3) 1/kg, ``v0`` (n_free, 3) m/s, ``targets`` (k,) m/s.
+
+    The working set's Delassus matrix ``W = A_W M^-1 A_W^T`` (two rows couple only where their members
+    share a free node, so it is built node by node) is factorised by Cholesky, refused when a pivot falls
+    below ``pivot_tol`` times its largest diagonal entry (dependent rows); ``W y = A_W v0 - r_W`` and
+    ``v = v0 - M^-1 A_W^T y``, refined on the rows' own residual (at most twice) until every working row
+    is within ``primal_tol`` of its target. The answer is the QP's solution when every inequality row of
+    the set pushes (``y_i > 0``) and no other row is violated: DAQP, warm-started from the same set, then
+    stops after its first iteration with that set, and this is its answer by other arithmetic. Both are
+    measured as DAQP measures them, on the mass-scaled rows normalised to unit length, with margins:
+    a row of the set must push by more than ``dual_tol`` (a multiplier within round-off of zero is left
+    to DAQP, so that which cables hold, ``y > 0``, is DAQP's decision there: a rattling tower's redundant
+    cables carry such multipliers), and a violation is at most ``primal_tol`` m/s also where DAQP's
+    normalised measure is wider (so every answer passes ``QPSolver._check``, absolute from 1e-12 m/s,
+    which DAQP's tolerances alone did not on a prism hovering at 1e-9 m/s).
+
+    Returns ``ok`` (False: the set is not the active set, or is dependent; nothing else is meaningful),
+    ``v`` (n_free, 3) m/s and the multipliers ``y`` (k,) N*s (0 outside the set)."""
+    k = targets.shape[0]
+    n_free = v0.shape[0]
+    g = 0
+    for i in range(k):
+        g += i < n_eq or warm[i]
+    rows = np.empty(g, dtype=np.int64)
+    g = 0
+    for i in range(k):
+        if i < n_eq or warm[i]:
+            rows[g] = i
+            g += 1
+    # the working rows at each free node (CSR: start, row, sign of the node's entry)
+    start = np.zeros(n_free + 1, dtype=np.int64)
+    for r in range(g):
+        for e in range(2):
+            if nodes[rows[r], e] >= 0:
+                start[nodes[rows[r], e] + 1] += 1
+    for i in range(n_free):
+        start[i + 1] += start[i]
+    fill = start[:-1].copy()
+    at = np.empty(start[n_free], dtype=np.int64)
+    sign = np.empty(start[n_free])
+    for r in range(g):
+        for e in range(2):
+            node = nodes[rows[r], e]
+            if node >= 0:
+                at[fill[node]] = r
+                sign[fill[node]] = 2.0 * e - 1.0
+                fill[node] += 1
+    w = np.zeros((g, g))   # its lower triangle, then its Cholesky factor in place
+    for node in range(n_free):
+        for p in range(start[node], start[node + 1]):
+            da = directions[rows[at[p]]]
+            for q in range(p, start[node + 1]):
+                db = directions[rows[at[q]]]
+                entry = sign[p] * sign[q] * inv_mass[node, 0] * dot3(da[0], da[1], da[2], db[0], db[1], db[2])
+                w[max(at[p], at[q]), min(at[p], at[q])] += entry
+    largest = 0.0
+    for r in range(g):
+        largest = max(largest, w[r, r])
+    for j in range(g):
+        s = w[j, j]
+        for p in range(j):
+            s -= w[j, p] * w[j, p]
+        if not s > pivot_tol * largest:
+            return False, v0, np.zeros(k)
+        w[j, j] = np.sqrt(s)
+        for i in range(j + 1, g):
+            s = w[i, j]
+            for p in range(j):
+                s -= w[i, p] * w[j, p]
+            w[i, j] = s / w[j, j]
+    v = v0.copy()
+    y = np.zeros(k)
+    res = np.empty(g)
+    floor = 0.0   # the velocity scale, for the refinement's round-off floor
+    for i in range(n_free):
+        for j in range(3):
+            floor = max(floor, abs(v0[i, j]))
+    for r in range(g):
+        floor = max(floor, abs(targets[rows[r]]))
+    floor *= 4.0 * np.finfo(np.float64).eps
+    moved = previous = np.inf
+    for sweep in range(_SWEEPS + 1):
+        close = True
+        for r in range(g):
+            res[r] = _rate(v, nodes, directions, rows[r]) - targets[rows[r]]
+            close &= abs(res[r]) <= primal_tol * min(_row_length(inv_mass, nodes, rows[r]), 1.0)
+        # refined until a correction moves v by round-off or stops shrinking (nearly dependent rows
+        # leave v as accurate as A allows, not W: the icosahedron's QPs against quadprog's)
+        if close and (moved <= floor or previous < np.inf and moved > 0.5 * previous):
+            break
+        if sweep == _SWEEPS or moved > previous:
+            return False, v, y
+        previous = moved
+        moved = 0.0
+        for r in range(g):   # W dy = res: L z = res, then L^T dy = z
+            s = res[r]
+            for p in range(r):
+                s -= w[r, p] * res[p]
+            res[r] = s / w[r, r]
+        for r in range(g - 1, -1, -1):
+            s = res[r]
+            for p in range(r + 1, g):
+                s -= w[p, r] * res[p]
+            res[r] = s / w[r, r]
+        for r in range(g):
+            i = rows[r]
+            y[i] += res[r]
+            for e in range(2):
+                node = nodes[i, e]
+                if node >= 0:
+                    for j in range(3):
+                        change = inv_mass[node, j] * ((2.0 * e - 1.0) * directions[i, j]) * res[r]
+                        v[node, j] -= change
+                        moved = max(moved, abs(change))
+    for i in range(n_eq, k):
+        length = _row_length(inv_mass, nodes, i)
+        if warm[i] and not y[i] * length > dual_tol:
+            return False, v, y
+        if not warm[i] and _rate(v, nodes, directions, i) - targets[i] > primal_tol * min(length, 1.0):
+            return False, v, y
+    return True, v, y
 
 
 @njit(cache=True)

@@ -79,7 +79,7 @@ import numpy as np
 
 from ..system import System
 from .member_contact import Armed, MemberContacts, tangents
-from .qp import QPError, QPSolver, Rows
+from .qp import DaqpSolver, QPError, QPSolver, Rows
 
 __all__ = ["ContactSet", "FrictionalSolver", "FrictionError", "FIXED_POINT_TOL", "TOUCH_TOL"]
 
@@ -123,6 +123,8 @@ class ContactSet:
         # the nodes that can touch the ground (none without one)
         self._grounded = self.free if ground is not None else np.zeros(0, dtype=int)
         self.members = MemberContacts(system) if system.scene.contact_response.response else None
+        if isinstance(inner, DaqpSolver):
+            inner.working_set = False   # DAQP alone: see DaqpSolver.working_set
         self.solver = FrictionalSolver(inner, self)
         self.impulses = np.zeros((system.n_nodes, 3))
         self.pair_impulses: dict[tuple[int, int], tuple[float, np.ndarray]] = {}

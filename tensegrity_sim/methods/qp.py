@@ -33,26 +33,27 @@ fail them. The check and DAQP's dense rows are numba kernels (``_qp_kernels.py``
 path calls DAQP's C function ``daqp_quadprog`` itself, with the inputs ``daqp.solve`` would pass it
 (``_daqp_kernels.py``: the same answer to the bit).
 
-**A compiled guess in front of DAQP, measured and not adopted** (issue 10; ``python bench/qp_guess.py
---steps 400``, CPU time per QP, the QPs of 400 steps at dt = 1 ms, on the shared 2-core machine under
-load): the hint's rows solved as equalities in numba (Cholesky of ``W_GG``, the KKT conditions checked
-in the same kernel) answered 95 % of the thrown icosahedron's QPs and 90 % of a rattling prism's, in
-23 and 17 us against 66 and 62 us for DAQP with its check. (Of ``daqp.solve``'s time its Python
-wrapper is only ~3 us: the same QPs of the thrown icosahedron, 240 of them, took 27 us through it and
-23-25 us through the C call of ``_daqp_kernels.py``, though 216 of them took one iteration from the warm
-start; ``daqp_quadprog`` itself sets up the problem each call.) On the prism its answers are
-DAQP's to 4e-16 in velocity and 3e-14 in the multipliers; on the icosahedron, whose rows carry a
-self-stress, to 8e-11 in velocity and 1.5e-9 in the multipliers, relative to multipliers that reach
-2e10 N*s while a cable is reeled in (published impulses ~1 N*s): the difference is ~30 N*s along the
-nearly dependent direction, where DAQP keeps an independent working set and the guess all rows. Which
-cables hold (``y > 0``) and the published impulses' round-off would change, so the guess is not used;
-what it would save (~40 us a QP) is a tenth of a locked step.
+**The working set first** (issue 10): DAQP is warm-started from the rows that held in the previous
+sub-step, and on a moving structure that set is almost always the active set, so DAQP stops after one
+iteration; but ``daqp_quadprog`` sets the whole problem up again each call (the thrown icosahedron's
+30 rows: 16 us a QP, one iteration). :class:`DaqpSolver` therefore first solves the working set's
+equality problem itself (``_qp_kernels.working_set_answer``: its Delassus matrix built node by node,
+Cholesky, refined) and keeps the answer only where DAQP would stop there too: every row of the set
+pushing by more than DAQP's ``dual_tol``, none outside violated by more than its ``primal_tol``; else
+DAQP answers. The thrown icosahedron's QP: 5.7 against 16.8 us (CPU time, the two called in turn on the
+same QP), its velocities DAQP's to 4e-13 m/s, its multipliers to 2e-9 N*s of 2.9 N*s along the nearly
+dependent direction that the self-stress rule then replaces (``self_stress.py``). A row whose
+multiplier is at round-off of zero goes to DAQP, so which cables hold (``y > 0``) stays DAQP's decision
+there. Like DAQP itself, the kernel is part of the backend in both configurations (``compiled`` or
+not); its numpy reference, :meth:`DaqpSolver._working_set_reference`, is held to it in ``test_qp.py``.
+The ground's QPs keep DAQP alone (:attr:`DaqpSolver.working_set`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg as scipy_linalg
 
 from . import _daqp_kernels as daqp_kernels, _qp_kernels as kernels
 from .base import StepError
@@ -235,6 +236,10 @@ class DaqpSolver(QPSolver):
     # working set) it has reported success with tensions of 1e18 N; the optimality check refuses that.
     verify = True
     settings = {"primal_tol": 1e-12, "dual_tol": 1e-12, "sing_tol": 1e-14, "iter_limit": 10_000, "cycle_tol": 100}
+    # the warm start's working set answered directly when it is the active set (_qp_kernels.working_set_answer)
+    # before DAQP is called; off for the ground's QPs (friction.ContactSet), whose sticking nodes stop at
+    # exactly 0 m/s in DAQP's arithmetic (test_ground.py) and at round-off of it in the working set's
+    working_set = True
     _STATUS = {-1: "infeasible", -2: "cycling", -3: "unbounded", -4: "iteration limit",
                -5: "non-convex", -6: "initial working set overdetermined", -7: "time limit"}
 
@@ -248,18 +253,26 @@ class DaqpSolver(QPSolver):
         self._entry, self._raw_settings = daqp_kernels.entry_point(daqp, self.settings)
 
     def _solve(self, v0, rows, warm, unit: float = 1.0):
-        """DAQP on the problem divided by ``unit`` (m/s), the answer scaled back."""
+        """The working set ``warm`` if it is the active set, else DAQP, on the problem divided by ``unit``
+        (m/s), the answer scaled back."""
         k, n_eq, r = len(rows), rows.n_eq, rows.targets
+        warm = np.zeros(k, dtype=bool) if warm is None else warm
         if self.compiled and rows.weights is None:
             v, y, flag, iterations = daqp_kernels.solve_rows(
-                self._entry, self._raw_settings, self._hessian, self._sqrt_mass, rows.nodes, rows.directions,
-                self.n_free, v0, r, n_eq, np.zeros(k, dtype=bool) if warm is None else warm, unit)
+                self._entry, self._raw_settings, self._hessian, self._sqrt_mass, self.mass, rows.nodes,
+                rows.directions, self.n_free, v0, r, n_eq, warm, unit, self.working_set)
             if flag < 1:
                 raise self._failure(flag, iterations, k)
             return v, y
+        if self.working_set and rows.weights is None:   # the kernel's working-set answer, then DAQP's wrapper
+            guessed, v, y = kernels.working_set_answer(
+                rows.nodes, rows.directions, self.inv_mass.reshape(-1, 3), (v0 / unit).reshape(-1, 3), r / unit,
+                n_eq, warm, self.settings["primal_tol"], self.settings["dual_tol"], self.settings["sing_tol"])
+            if guessed:
+                return v.reshape(-1) * unit, unit * y
         lower = np.full(k, -1e30)
         lower[:n_eq] = r[:n_eq]
-        sense = np.zeros(k, dtype=np.int32) if warm is None else warm.astype(np.int32)   # 1: start active
+        sense = warm.astype(np.int32)   # 1: start active
         sense[:n_eq] = 5
         a_scaled = rows.dense(self.n_free) / self._sqrt_mass
         lower[:n_eq] /= unit
@@ -268,6 +281,40 @@ class DaqpSolver(QPSolver):
         if flag < 1:
             raise self._failure(flag, info["iterations"], k)
         return (z / self._sqrt_mass) * unit, unit * np.asarray(info["lam"], dtype=float)
+
+    def _working_set_reference(self, v0, rows: Rows, warm):
+        """The numpy reference of ``_qp_kernels.working_set_answer``: ``(v, y)`` (3 n_free,) m/s and (k,)
+        N*s when the equality rows and the rows ``warm`` are the QP's active set (their Cholesky-factorised
+        Delassus matrix, refined on the rows' residual; ``primal_tol`` on unit-length mass-scaled rows, at
+        most ``primal_tol`` m/s; no pull), else None."""
+        k, n_eq = len(rows), rows.n_eq
+        work = np.flatnonzero((np.arange(k) < n_eq) | warm)
+        a = rows.dense(self.n_free)
+        a_w = a[work]
+        delassus = (a_w * self.inv_mass) @ a_w.T
+        largest = float(np.max(np.diag(delassus), initial=0.0))
+        try:
+            factor = np.linalg.cholesky(delassus)
+        except np.linalg.LinAlgError:
+            return None
+        if len(work) and not np.min(np.diag(factor)) ** 2 > self.settings["sing_tol"] * largest:
+            return None
+        # each row's tolerance: primal_tol on the row scaled to unit length in z = M^1/2 v, at most primal_tol
+        tol = self.settings["primal_tol"] * np.minimum(np.sqrt((a * a) @ self.inv_mass), 1.0)
+        v, y = v0.copy(), np.zeros(k)
+        for sweep in range(4):
+            res = a_w @ v - rows.targets[work]
+            if sweep and np.all(np.abs(res) <= tol[work]):
+                break
+            if sweep == 3:
+                return None
+            step = scipy_linalg.cho_solve((factor, True), res)
+            y[work] += step
+            v -= self.inv_mass * (a_w.T @ step)
+        inequality = np.arange(k) >= n_eq
+        if np.any(inequality & (y < 0.0)) or np.any(inequality & ~warm & (a @ v - rows.targets > tol)):
+            return None
+        return v, y
 
     @property
     def c_call(self) -> tuple:
