@@ -1,6 +1,5 @@
 """Calls from numba kernels to C functions given by address: DAQP's ``daqp_quadprog``
-(``_daqp_kernels.py``), numpy's BLAS ``ddot``/``dgemv`` (``_numpy_blas.py``) and scipy's LAPACK
-(:func:`scipy_lapack`, the library numba's own ``np.linalg`` calls).
+(``_daqp_kernels.py``) and numpy's BLAS ``ddot``/``dgemv`` (``_numpy_blas.py``).
 
 A kernel could take the ctypes function objects as arguments (numba's first-class functions), but each
 such argument costs ~4.5 us of dispatch per call (measured: 13.6 us for three, against 0.36 us for a
@@ -13,13 +12,11 @@ the width of the BLAS's integers: 64 bits for numpy's wheels (ILP64), 32 for a d
 """
 from __future__ import annotations
 
-import ctypes
-
 from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-__all__ = ["quadprog_at", "ddot_at", "dgemv_at", "pointers_at", "scipy_lapack"]
+__all__ = ["quadprog_at", "ddot_at", "dgemv_at"]
 
 _I64, _I32, _F64 = ir.IntType(64), ir.IntType(32), ir.DoubleType()
 
@@ -102,30 +99,3 @@ def dgemv_at(typingctx, address, wide, a, x, y):
                           ir.Constant(_F64, 0.0), _pointer(context, builder, y, args[4]), one])
         return context.get_dummy_value()
     return types.none(types.int64, wide, a, x, y), codegen
-
-
-@intrinsic
-def pointers_at(typingctx, address, arrays):
-    """The C function at ``address`` that takes only pointers (a LAPACK routine's Fortran-style
-    arguments), called with the data pointers of the tuple of ``arrays``."""
-    if not (isinstance(arrays, types.BaseTuple) and _arrays(*arrays)):
-        return None
-
-    def codegen(context, builder, signature, args):
-        pointers = [_pointer(context, builder, kind, builder.extract_value(args[1], i))
-                    for i, kind in enumerate(arrays)]
-        builder.call(_function(builder, args[0], ir.VoidType(), [_I64] * len(pointers)), pointers)
-        return context.get_dummy_value()
-    return types.none(types.int64, arrays), codegen
-
-
-def scipy_lapack(name: str) -> int:
-    """The address of LAPACK routine ``name`` (e.g. ``"dgetrf"``) as ``scipy.linalg.cython_lapack``
-    exports it: the routines numba's ``np.linalg`` calls, so the same bits (``dgesv`` is ``dgetrf``
-    then ``dgetrs``)."""
-    from scipy.linalg import cython_lapack
-    capsule = cython_lapack.__pyx_capi__[name]
-    get_name, get_pointer = ctypes.pythonapi.PyCapsule_GetName, ctypes.pythonapi.PyCapsule_GetPointer
-    get_name.restype, get_name.argtypes = ctypes.c_char_p, [ctypes.py_object]
-    get_pointer.restype, get_pointer.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
-    return get_pointer(capsule, get_name(capsule))

@@ -232,8 +232,7 @@ def _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, directions,
 @njit(cache=True)
 def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding, row_nodes, free_nodes,
              cable_ends, taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor,
-             landing_tol, landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, getrf,
-             getrs):
+             landing_tol, landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact):
     """``InextensibleMethod._midpoint`` without contact rows, its QP solved by DAQP (``_solve_checked``),
     in one call: the rows (:func:`select_rows`, member table ``ends``, ``limits`` with the landing
     targets' reel already applied), the landing iterations (``_land``: up to ``landing_iter`` solves,
@@ -296,7 +295,7 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
         for i in range(rows_cables.shape[0]):
             at_limit[i] = length[rows_cables[i]] >= taut[rows_cables[i]]
         binding, members, a_t, basis = locked_space(nodes, m_n, n_free, n_eq, rows_cables, at_limit, y, load_basis,
-                                                    load_cables, load_largest, refine, rank_tol, exact, getrf, getrs)
+                                                    load_cables, load_largest, refine, rank_tol, exact)
     return ok, x_f, v_f, y, cables, nodes, m_n, d, length, binding, members, a_t, basis
 
 
@@ -366,7 +365,7 @@ def fit_one(ddot, dgemv, wide, y, binding, basis, a_t, reference, members, tau, 
 def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint, inv_mass, ends,
          n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
          settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked,
-         load_basis, load_cables, load_largest, refine, rank_tol, exact, getrf, getrs, ddot, dgemv, wide,
+         load_basis, load_cables, load_largest, refine, rank_tol, exact, ddot, dgemv, wide,
          reference):
     """``InextensibleMethod._step_impl`` of a step that is one sub-step (no snap located inside it, no
     impact at its start), without elastic struts or contact rows, in one call: the motors' limits
@@ -429,7 +428,7 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis = midpoint(
         x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
         taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter,
-        locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, getrf, getrs)
+        locked, load_basis, load_cables, load_largest, refine, rank_tol, exact)
     new_holding = np.zeros(nc, dtype=np.bool_)
     r = n_eq
     for c in range(nc):
@@ -472,7 +471,7 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
           f_ext, commanded, most, dt, offsets, limit_tol, taut_tol, inv_mass, ends, n_eq, rigid_lengths,
           cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian,
           sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
-          load_cables, load_largest, refine, rank_tol, exact, getrf, getrs, ddot, dgemv, wide, reference):
+          load_cables, load_largest, refine, rank_tol, exact, ddot, dgemv, wide, reference):
     """Steps ``first``, ``first + 1``, ... of ``n_steps`` from ``x``, ``v`` (N, 3), the inputs held, each
     :func:`step` from the cables known to hold ``holding`` and the warm start ``hint`` (nc,) bool (after a
     step both are the cables that held, as in ``InextensibleMethod._step_impl``), until one needs the Python path (an event, a QP answer it must
@@ -488,7 +487,7 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
                    inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends,
                    min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass, feasibility_tol,
                    velocity_floor, landing_tol, landing_iter, locked, load_basis, load_cables, load_largest,
-                   refine, rank_tol, exact, getrf, getrs, ddot, dgemv, wide, reference)
+                   refine, rank_tol, exact, ddot, dgemv, wide, reference)
         if not (ok and fitted):
             return i, x, v, applied, holding, hint, residual
         x, v, applied, holding, hint = x_f, v_f, new_applied, new_holding, new_holding

@@ -12,9 +12,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["dense_rows", "row_rates", "working_set_answer", "answer_residuals", "dot3"]
+__all__ = ["dense_rows", "row_rates", "delassus", "cholesky", "cho_solve", "working_set_answer",
+           "answer_residuals", "dot3"]
 
 _SWEEPS = 8   # working_set_answer: at most this many refinements of its answer
+# The factorisation's and the solves' inner products may be summed in any order, so that they vectorise:
+# summed strictly in order, each waits for the previous addition (a 30-row Cholesky 3.5 -> 1 us)
+_REASSOCIATE = {"reassoc", "contract"}
 
 
 @njit(cache=True)
@@ -71,6 +75,85 @@ def _row_length(inv_mass, nodes, i):
 
 
 @njit(cache=True)
+def delassus(nodes, directions, rows, inv_mass):
+    """The lower triangle (g, g) of ``W = A_R M^-1 A_R^T`` for the rows ``rows`` (g,) int of the member
+    rows ``nodes``, ``directions`` (``inv_mass`` (n_free, 3) 1/kg; ones: the Gram matrix ``A_R A_R^T``).
+    Two rows couple only where their members share a free node, so it is built node by node."""
+    g = rows.shape[0]
+    n_free = inv_mass.shape[0]
+    start = np.zeros(n_free + 1, dtype=np.int64)   # the rows at each free node (CSR), with their entry's sign
+    for r in range(g):
+        for e in range(2):
+            if nodes[rows[r], e] >= 0:
+                start[nodes[rows[r], e] + 1] += 1
+    for i in range(n_free):
+        start[i + 1] += start[i]
+    fill = start[:-1].copy()
+    at = np.empty(start[n_free], dtype=np.int64)
+    sign = np.empty(start[n_free])
+    for r in range(g):
+        for e in range(2):
+            node = nodes[rows[r], e]
+            if node >= 0:
+                at[fill[node]] = r
+                sign[fill[node]] = 2.0 * e - 1.0
+                fill[node] += 1
+    w = np.zeros((g, g))
+    for node in range(n_free):
+        for p in range(start[node], start[node + 1]):
+            da = directions[rows[at[p]]]
+            for q in range(p, start[node + 1]):
+                db = directions[rows[at[q]]]
+                entry = sign[p] * sign[q] * inv_mass[node, 0] * dot3(da[0], da[1], da[2], db[0], db[1], db[2])
+                w[max(at[p], at[q]), min(at[p], at[q])] += entry
+    return w
+
+
+@njit(cache=True, fastmath=_REASSOCIATE)
+def cholesky(w, pivot_tol):
+    """``w`` (g, g), its lower triangle symmetric positive definite, overwritten by its Cholesky factor
+    ``L`` (``w = L L^T``) and ``L^T`` above the diagonal. Returns whether every pivot exceeded ``pivot_tol`` times the largest diagonal
+    entry (else ``w`` is left half factorised) and the smallest pivot over the largest diagonal entry
+    (~ the reciprocal condition number)."""
+    g = w.shape[0]
+    largest = 0.0
+    for r in range(g):
+        largest = max(largest, w[r, r])
+    smallest = np.inf
+    for j in range(g):
+        s = w[j, j]
+        for p in range(j):
+            s -= w[j, p] * w[j, p]
+        if not s > pivot_tol * largest:
+            return False, 0.0
+        smallest = min(smallest, s)
+        w[j, j] = np.sqrt(s)
+        for i in range(j + 1, g):
+            s = w[i, j]
+            for p in range(j):
+                s -= w[i, p] * w[j, p]
+            w[i, j] = s / w[j, j]
+            w[j, i] = w[i, j]   # L^T in the upper triangle, for cho_solve's back substitution by rows
+    return True, smallest / largest if g else 1.0
+
+
+@njit(cache=True, fastmath=_REASSOCIATE)
+def cho_solve(factor, b):
+    """``b`` (g,) overwritten by ``(L L^T)^-1 b`` for the Cholesky factor ``L`` of :func:`cholesky`."""
+    g = b.shape[0]
+    for r in range(g):
+        s = b[r]
+        for p in range(r):
+            s -= factor[r, p] * b[p]
+        b[r] = s / factor[r, r]
+    for r in range(g - 1, -1, -1):
+        s = b[r]
+        for p in range(r + 1, g):
+            s -= factor[r, p] * b[p]
+        b[r] = s / factor[r, r]
+
+
+@njit(cache=True)
 def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, primal_tol, dual_tol, pivot_tol):
     """The QP's answer if its active set is the working set: the ``n_eq`` equality rows and the rows
     ``warm`` (k,) bool (the previous sub-step's active rows), as ``DaqpSolver._working_set_reference``
@@ -79,8 +162,8 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
     The working set's Delassus matrix ``W = A_W M^-1 A_W^T`` (two rows couple only where their members
     share a free node, so it is built node by node) is factorised by Cholesky, refused when a pivot falls
     below ``pivot_tol`` times its largest diagonal entry (dependent rows); ``W y = A_W v0 - r_W`` and
-    ``v = v0 - M^-1 A_W^T y``, refined on the rows' own residual (at most twice) until every working row
-    is within ``primal_tol`` of its target. The answer is the QP's solution when every inequality row of
+    ``v = v0 - M^-1 A_W^T y``, refined on the rows' own residual until every working row is within
+    ``primal_tol`` of its target and a correction moves ``v`` by round-off. The answer is the QP's solution when every inequality row of
     the set pushes (``y_i > 0``) and no other row is violated: DAQP, warm-started from the same set, then
     stops after its first iteration with that set, and this is its answer by other arithmetic. Both are
     measured as DAQP measures them, on the mass-scaled rows normalised to unit length, with margins:
@@ -103,81 +186,41 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
         if i < n_eq or warm[i]:
             rows[g] = i
             g += 1
-    # the working rows at each free node (CSR: start, row, sign of the node's entry)
-    start = np.zeros(n_free + 1, dtype=np.int64)
-    for r in range(g):
-        for e in range(2):
-            if nodes[rows[r], e] >= 0:
-                start[nodes[rows[r], e] + 1] += 1
-    for i in range(n_free):
-        start[i + 1] += start[i]
-    fill = start[:-1].copy()
-    at = np.empty(start[n_free], dtype=np.int64)
-    sign = np.empty(start[n_free])
-    for r in range(g):
-        for e in range(2):
-            node = nodes[rows[r], e]
-            if node >= 0:
-                at[fill[node]] = r
-                sign[fill[node]] = 2.0 * e - 1.0
-                fill[node] += 1
-    w = np.zeros((g, g))   # its lower triangle, then its Cholesky factor in place
-    for node in range(n_free):
-        for p in range(start[node], start[node + 1]):
-            da = directions[rows[at[p]]]
-            for q in range(p, start[node + 1]):
-                db = directions[rows[at[q]]]
-                entry = sign[p] * sign[q] * inv_mass[node, 0] * dot3(da[0], da[1], da[2], db[0], db[1], db[2])
-                w[max(at[p], at[q]), min(at[p], at[q])] += entry
-    largest = 0.0
-    for r in range(g):
-        largest = max(largest, w[r, r])
-    for j in range(g):
-        s = w[j, j]
-        for p in range(j):
-            s -= w[j, p] * w[j, p]
-        if not s > pivot_tol * largest:
-            return False, v0, np.zeros(k)
-        w[j, j] = np.sqrt(s)
-        for i in range(j + 1, g):
-            s = w[i, j]
-            for p in range(j):
-                s -= w[i, p] * w[j, p]
-            w[i, j] = s / w[j, j]
+    w = delassus(nodes, directions, rows, inv_mass)
+    factored, inverse_condition = cholesky(w, pivot_tol)
+    if not factored:
+        return False, v0, np.zeros(k)
+    length = np.empty(k)   # each row's length in the mass-scaled problem, and its primal tolerance (m/s)
+    tol = np.empty(k)
+    for i in range(k):
+        length[i] = _row_length(inv_mass, nodes, i)
+        tol[i] = primal_tol * min(length[i], 1.0)
     v = v0.copy()
     y = np.zeros(k)
     res = np.empty(g)
-    floor = 0.0   # the velocity scale, for the refinement's round-off floor
+    # Refined until a correction moves v by no more than the round-off its residual leaves: the velocity
+    # scale's round-off times sqrt(cond W) (nearly dependent rows leave v as accurate as A allows, not
+    # W: the icosahedron's QPs, 1e-11 of quadprog's after two corrections), or until one stops shrinking
+    floor = 0.0
     for i in range(n_free):
         for j in range(3):
             floor = max(floor, abs(v0[i, j]))
     for r in range(g):
         floor = max(floor, abs(targets[rows[r]]))
-    floor *= 4.0 * np.finfo(np.float64).eps
+    floor *= 4.0 * np.finfo(np.float64).eps / np.sqrt(inverse_condition)
     moved = previous = np.inf
     for sweep in range(_SWEEPS + 1):
         close = True
         for r in range(g):
             res[r] = _rate(v, nodes, directions, rows[r]) - targets[rows[r]]
-            close &= abs(res[r]) <= primal_tol * min(_row_length(inv_mass, nodes, rows[r]), 1.0)
-        # refined until a correction moves v by round-off or stops shrinking (nearly dependent rows
-        # leave v as accurate as A allows, not W: the icosahedron's QPs against quadprog's)
+            close &= abs(res[r]) <= tol[rows[r]]
         if close and (moved <= floor or previous < np.inf and moved > 0.5 * previous):
             break
         if sweep == _SWEEPS or moved > previous:
             return False, v, y
         previous = moved
         moved = 0.0
-        for r in range(g):   # W dy = res: L z = res, then L^T dy = z
-            s = res[r]
-            for p in range(r):
-                s -= w[r, p] * res[p]
-            res[r] = s / w[r, r]
-        for r in range(g - 1, -1, -1):
-            s = res[r]
-            for p in range(r + 1, g):
-                s -= w[p, r] * res[p]
-            res[r] = s / w[r, r]
+        cho_solve(w, res)
         for r in range(g):
             i = rows[r]
             y[i] += res[r]
@@ -189,10 +232,9 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
                         v[node, j] -= change
                         moved = max(moved, abs(change))
     for i in range(n_eq, k):
-        length = _row_length(inv_mass, nodes, i)
-        if warm[i] and not y[i] * length > dual_tol:
+        if warm[i] and not y[i] * length[i] > dual_tol:
             return False, v, y
-        if not warm[i] and _rate(v, nodes, directions, i) - targets[i] > primal_tol * min(length, 1.0):
+        if not warm[i] and _rate(v, nodes, directions, i) - targets[i] > tol[i]:
             return False, v, y
     return True, v, y
 

@@ -107,7 +107,6 @@ import numpy as np
 from scipy.linalg import LinAlgWarning, lu_factor as _lu_factor, lu_solve as _lu_solve
 
 from . import _self_stress_kernels as kernels
-from ._c_calls import scipy_lapack
 from .qp import Rows
 
 __all__ = ["RANK_TOL", "SPARSE_NODES", "TAUT_TOL", "SelfStress", "reference_tensions", "self_stress_space",
@@ -195,7 +194,6 @@ class SelfStress:
         self.counts = {"sparse": 0, "dense": 0}   # calls of a structure that can lock, by the path that answered
         self._kept = None     # (rows' key, SparseSpace) of the last implicit space (see _implicit)
         self._load_cables = np.ascontiguousarray(load_cables, dtype=np.int64)
-        self._lu = (scipy_lapack("dgetrf"), scipy_lapack("dgetrs"))   # the kernel's refinement (one LU, two solves)
 
     @property
     def _load_basis(self) -> np.ndarray:
@@ -312,9 +310,8 @@ class SelfStress:
     @property
     def load_space(self) -> tuple:
         """What ``_self_stress_kernels.locked_space`` takes after the QP answer: the load time's basis
-        (k_load, d), cables (int) and largest singular value, ``refine``, the tolerances and the LU
-        routines' addresses."""
-        return self._load_basis, self._load_cables, self._load_largest, self.refine, RANK_TOL, _EXACT, *self._lu
+        (k_load, d), cables (int) and largest singular value, ``refine`` and the tolerances."""
+        return self._load_basis, self._load_cables, self._load_largest, self.refine, RANK_TOL, _EXACT
 
     def locked_impulses(self, binding, members, a_t, basis, y, tau, n_eq):
         """:meth:`impulses` from the result of ``locked_space`` (``binding`` (k,) bool, the binding cables
