@@ -15,7 +15,8 @@ from numba import njit
 __all__ = ["dense_rows", "row_rates", "delassus", "cholesky", "cho_solve", "working_set_answer",
            "answer_residuals", "dot3"]
 
-_SWEEPS = 8   # working_set_answer: at most this many refinements of its answer
+_SWEEPS = 8   # working_set_answer: at most this many refinements of its answer, ...
+_SETTLED = 1e-9   # ... the last moving it by at most this fraction of the velocity scale
 # The factorisation's and the solves' inner products may be summed in any order, so that they vectorise:
 # summed strictly in order, each waits for the previous addition (a 30-row Cholesky 3.5 -> 1 us)
 _REASSOCIATE = {"reassoc", "contract"}
@@ -112,21 +113,18 @@ def delassus(nodes, directions, rows, inv_mass):
 @njit(cache=True, fastmath=_REASSOCIATE)
 def cholesky(w, pivot_tol):
     """``w`` (g, g), its lower triangle symmetric positive definite, overwritten by its Cholesky factor
-    ``L`` (``w = L L^T``) and ``L^T`` above the diagonal. Returns whether every pivot exceeded ``pivot_tol`` times the largest diagonal
-    entry (else ``w`` is left half factorised) and the smallest pivot over the largest diagonal entry
-    (~ the reciprocal condition number)."""
+    ``L`` (``w = L L^T``) and ``L^T`` above the diagonal. Returns whether every pivot exceeded
+    ``pivot_tol`` times the largest diagonal entry (else ``w`` is left half factorised)."""
     g = w.shape[0]
     largest = 0.0
     for r in range(g):
         largest = max(largest, w[r, r])
-    smallest = np.inf
     for j in range(g):
         s = w[j, j]
         for p in range(j):
             s -= w[j, p] * w[j, p]
         if not s > pivot_tol * largest:
-            return False, 0.0
-        smallest = min(smallest, s)
+            return False
         w[j, j] = np.sqrt(s)
         for i in range(j + 1, g):
             s = w[i, j]
@@ -134,7 +132,7 @@ def cholesky(w, pivot_tol):
                 s -= w[i, p] * w[j, p]
             w[i, j] = s / w[j, j]
             w[j, i] = w[i, j]   # L^T in the upper triangle, for cho_solve's back substitution by rows
-    return True, smallest / largest if g else 1.0
+    return True
 
 
 @njit(cache=True, fastmath=_REASSOCIATE)
@@ -163,15 +161,15 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
     share a free node, so it is built node by node) is factorised by Cholesky, refused when a pivot falls
     below ``pivot_tol`` times its largest diagonal entry (dependent rows); ``W y = A_W v0 - r_W`` and
     ``v = v0 - M^-1 A_W^T y``, refined on the rows' own residual until every working row is within
-    ``primal_tol`` of its target and a correction moves ``v`` by round-off. The answer is the QP's solution when every inequality row of
-    the set pushes (``y_i > 0``) and no other row is violated: DAQP, warm-started from the same set, then
-    stops after its first iteration with that set, and this is its answer by other arithmetic. Both are
-    measured as DAQP measures them, on the mass-scaled rows normalised to unit length, with margins:
-    a row of the set must push by more than ``dual_tol`` (a multiplier within round-off of zero is left
-    to DAQP, so that which cables hold, ``y > 0``, is DAQP's decision there: a rattling tower's redundant
-    cables carry such multipliers), and a violation is at most ``primal_tol`` m/s also where DAQP's
-    normalised measure is wider (so every answer passes ``QPSolver._check``, absolute from 1e-12 m/s,
-    which DAQP's tolerances alone did not on a prism hovering at 1e-9 m/s).
+    ``primal_tol`` of its target and a correction moves ``v`` by at most ``_SETTLED`` of the velocity
+    scale. The answer is the QP's solution when every inequality row of the set pushes (``y_i > 0``)
+    and no other row is violated: DAQP, warm-started from the same set, then stops after its first
+    iteration with that set, and this is its answer by other arithmetic. Both are measured as DAQP
+    measures them, on the mass-scaled rows normalised to unit length, with margins: a row of the set
+    must push by more than ``dual_tol`` (a multiplier within round-off of zero is left to DAQP, so that
+    which cables hold, ``y > 0``, is DAQP's decision there), and a violation is at most ``primal_tol``
+    m/s also where DAQP's normalised measure is wider (so every answer passes ``QPSolver._check``,
+    absolute from 1e-12 m/s, which DAQP's tolerances alone did not on a prism hovering at 1e-9 m/s).
 
     Returns ``ok`` (False: the set is not the active set, or is dependent; nothing else is meaningful),
     ``v`` (n_free, 3) m/s and the multipliers ``y`` (k,) N*s (0 outside the set)."""
@@ -187,8 +185,7 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
             rows[g] = i
             g += 1
     w = delassus(nodes, directions, rows, inv_mass)
-    factored, inverse_condition = cholesky(w, pivot_tol)
-    if not factored:
+    if not cholesky(w, pivot_tol):
         return False, v0, np.zeros(k)
     length = np.empty(k)   # each row's length in the mass-scaled problem, and its primal tolerance (m/s)
     tol = np.empty(k)
@@ -198,16 +195,18 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
     v = v0.copy()
     y = np.zeros(k)
     res = np.empty(g)
-    # Refined until a correction moves v by no more than the round-off its residual leaves: the velocity
-    # scale's round-off times sqrt(cond W) (nearly dependent rows leave v as accurate as A allows, not
-    # W: the icosahedron's QPs, 1e-11 of quadprog's after two corrections), or until one stops shrinking
+    change = np.empty((n_free, 3))
+    # Refined on the rows' residual until a correction moves v by at most _SETTLED of the velocity scale
+    # (or stops shrinking): nearly dependent rows leave the first solve off by the square of A's
+    # conditioning, and each correction shrinks that 4-5 times (the thrown icosahedron's rows, singular
+    # values 7e-6 apart: corrections of 1.6, 2.6e-10, 3.6e-11 m/s; two leave v ~4e-11 off quadprog's)
     floor = 0.0
     for i in range(n_free):
         for j in range(3):
             floor = max(floor, abs(v0[i, j]))
     for r in range(g):
         floor = max(floor, abs(targets[rows[r]]))
-    floor *= 4.0 * np.finfo(np.float64).eps / np.sqrt(inverse_condition)
+    floor *= _SETTLED
     moved = previous = np.inf
     for sweep in range(_SWEEPS + 1):
         close = True
@@ -219,8 +218,8 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
         if sweep == _SWEEPS or moved > previous:
             return False, v, y
         previous = moved
-        moved = 0.0
         cho_solve(w, res)
+        change[:, :] = 0.0   # M^-1 A_W^T dy, scattered row by row
         for r in range(g):
             i = rows[r]
             y[i] += res[r]
@@ -228,9 +227,12 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
                 node = nodes[i, e]
                 if node >= 0:
                     for j in range(3):
-                        change = inv_mass[node, j] * ((2.0 * e - 1.0) * directions[i, j]) * res[r]
-                        v[node, j] -= change
-                        moved = max(moved, abs(change))
+                        change[node, j] += (2.0 * e - 1.0) * directions[i, j] * res[r]
+        moved = 0.0
+        for i in range(n_free):
+            for j in range(3):
+                v[i, j] -= inv_mass[i, j] * change[i, j]
+                moved = max(moved, abs(inv_mass[i, j] * change[i, j]))
     for i in range(n_eq, k):
         if warm[i] and not y[i] * length[i] > dual_tol:
             return False, v, y

@@ -49,13 +49,14 @@ def _column_norm_max(nodes, directions, n_free, basis):
 def _refined_space(nodes, directions, n_free, load_basis, load_largest, rank_tol, exact):
     """``SelfStress._space`` when the binding rows (``nodes``, ``directions``) are the load time's
     members: the load basis if it is exact, else refined by two inverse iterations on ``A A^T`` and kept
-    if below ``rank_tol``; else (an ``A A^T`` that is not positive definite in floating point, or a
-    refinement that is not below) None: the caller's SVD.
+    if below ``rank_tol``; else (an ``A A^T`` that is not positive definite in floating point, as a
+    tower's at its load geometry with twelve self-stresses, or a refinement that is not below) None:
+    the caller's SVD.
 
     ``A A^T`` is built row pair by row pair where two members share a node and factorised by Cholesky
     (``_qp_kernels``: the QP's Delassus matrix with unit masses), each iteration's columns orthonormalised
-    (a single column: divided by its norm, signed as LAPACK's QR signs it). The reference (numpy's
-    ``lu_factor``, ``lu_solve`` and QR of the dense product) gets the same basis to round-off (~1e-16
+    (a single column: divided by its norm, signed as LAPACK's QR signs it). The reference (scipy's
+    ``cho_factor``, ``cho_solve`` and numpy's QR of the dense product) gets the same basis to round-off (~1e-16
     relative on the thrown icosahedron, whose self-stress singular value is ~1e-5 of the next), at
     about half the cost of the dense product and LAPACK's LU and QR that it replaces (the thrown
     icosahedron's 30 rows: 10.1 -> 5.7 us a call from Python, on the loaded 2-core machine)."""
@@ -63,8 +64,7 @@ def _refined_space(nodes, directions, n_free, load_basis, load_largest, rank_tol
         return load_basis
     k, d = load_basis.shape
     factor = delassus(nodes, directions, np.arange(k), np.ones((n_free, 3)))
-    factored, _ = cholesky(factor, 0.0)
-    if not factored:
+    if not cholesky(factor, 0.0):
         return None
     basis = load_basis
     for _ in range(2):

@@ -56,6 +56,7 @@ import numpy as np
 import scipy.linalg as scipy_linalg
 
 from . import _daqp_kernels as daqp_kernels, _qp_kernels as kernels
+from ._qp_kernels import _SETTLED, _SWEEPS
 from .base import StepError
 
 __all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SparseSolver", "SOLVERS",
@@ -285,8 +286,9 @@ class DaqpSolver(QPSolver):
     def _working_set_reference(self, v0, rows: Rows, warm):
         """The numpy reference of ``_qp_kernels.working_set_answer``: ``(v, y)`` (3 n_free,) m/s and (k,)
         N*s when the equality rows and the rows ``warm`` are the QP's active set (their Cholesky-factorised
-        Delassus matrix, refined on the rows' residual; ``primal_tol`` on unit-length mass-scaled rows, at
-        most ``primal_tol`` m/s; no pull), else None."""
+        Delassus matrix, refined on the rows' residual until a correction moves ``v`` by at most
+        ``_SETTLED`` of the velocity scale; ``primal_tol`` and ``dual_tol`` on unit-length mass-scaled
+        rows, the primal one at most ``primal_tol`` m/s), else None."""
         k, n_eq = len(rows), rows.n_eq
         work = np.flatnonzero((np.arange(k) < n_eq) | warm)
         a = rows.dense(self.n_free)
@@ -299,20 +301,27 @@ class DaqpSolver(QPSolver):
             return None
         if len(work) and not np.min(np.diag(factor)) ** 2 > self.settings["sing_tol"] * largest:
             return None
-        # each row's tolerance: primal_tol on the row scaled to unit length in z = M^1/2 v, at most primal_tol
-        tol = self.settings["primal_tol"] * np.minimum(np.sqrt((a * a) @ self.inv_mass), 1.0)
+        length = np.sqrt((a * a) @ self.inv_mass)   # each row's length in z = M^1/2 v
+        tol = self.settings["primal_tol"] * np.minimum(length, 1.0)
+        floor = _SETTLED * max(float(np.max(np.abs(v0), initial=0.0)),
+                               float(np.max(np.abs(rows.targets[work]), initial=0.0)))
         v, y = v0.copy(), np.zeros(k)
-        for sweep in range(4):
+        moved = previous = np.inf
+        for sweep in range(_SWEEPS + 1):
             res = a_w @ v - rows.targets[work]
-            if sweep and np.all(np.abs(res) <= tol[work]):
+            if np.all(np.abs(res) <= tol[work]) and (moved <= floor or previous < np.inf and moved > 0.5 * previous):
                 break
-            if sweep == 3:
+            if sweep == _SWEEPS or moved > previous:
                 return None
             step = scipy_linalg.cho_solve((factor, True), res)
             y[work] += step
-            v -= self.inv_mass * (a_w.T @ step)
+            change = self.inv_mass * (a_w.T @ step)
+            v -= change
+            previous, moved = moved, float(np.max(np.abs(change), initial=0.0))
         inequality = np.arange(k) >= n_eq
-        if np.any(inequality & (y < 0.0)) or np.any(inequality & ~warm & (a @ v - rows.targets > tol)):
+        if np.any(inequality & warm & ~(y * length > self.settings["dual_tol"])):
+            return None
+        if np.any(inequality & ~warm & (a @ v - rows.targets > tol)):
             return None
         return v, y
 

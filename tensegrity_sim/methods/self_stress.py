@@ -101,10 +101,8 @@ rule's refinement fails there, the singular value at 0.95e-3); moving (0.05 m/s)
 """
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
-from scipy.linalg import LinAlgWarning, lu_factor as _lu_factor, lu_solve as _lu_solve
+from scipy.linalg import LinAlgError, cho_factor as _cho_factor, cho_solve as _cho_solve
 
 from . import _self_stress_kernels as kernels
 from .qp import Rows
@@ -215,18 +213,17 @@ class SelfStress:
         inverse iteration on ``A A^T`` (its self-stress singular values are ~1e-4 of the next ones: each
         step divides the error by ~1e8) is ~8 times cheaper than an SVD, and like the SVD it depends on
         this step alone (a replay, a twin that saw other commands: the same bits). It is kept if it is
-        still below ``RANK_TOL``; any other set of rows gets an SVD."""
+        still below ``RANK_TOL``; any other set of rows gets an SVD, and so does an ``A A^T`` that is not
+        positive definite in floating point (a tower at its load geometry, with twelve self-stresses)."""
         basis = self._load_basis
         if self.refine and members == self._load_members:
             if np.linalg.norm(a_t @ basis, axis=0).max() <= _EXACT * self._load_largest:
                 return basis   # an exact self-stress (a structure at rest in its load shape)
             try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("error", LinAlgWarning)   # an exactly singular A A^T: the SVD below
-                    lu = _lu_factor(a_t.T @ a_t, check_finite=False)
+                factor = _cho_factor(a_t.T @ a_t, lower=True, check_finite=False)
                 for _ in range(2):
-                    basis, _ = np.linalg.qr(_lu_solve(lu, basis, check_finite=False))
-            except LinAlgWarning:
+                    basis, _ = np.linalg.qr(_cho_solve(factor, basis, check_finite=False))
+            except LinAlgError:
                 basis = None
             if basis is not None and np.linalg.norm(a_t @ basis, axis=0).max() < RANK_TOL * self._load_largest:
                 return basis
