@@ -3,6 +3,10 @@
 The numerical core (scene, system, methods, simulator) imports nothing from ROS, MCAP or file
 formats beyond the scene loader.
 """
+from ._kernel_cache import drop_stale as _drop_stale_kernels
+
+_drop_stale_kernels()   # before any compiled kernel is loaded from numba's cache (see _kernel_cache)
+
 from .accuracy import AccuracyChoice, choose_accuracy
 from .batch import BatchSimulator
 from .contact import ActiveContact

@@ -1,0 +1,43 @@
+"""The package's numba cache is dropped when a kernel source changes (``tensegrity_sim/_kernel_cache.py``):
+numba itself checks a cached kernel against its own file only."""
+from tensegrity_sim import _kernel_cache
+
+
+def _package(tmp_path):
+    """A package tree with two kernel modules, a plain module and cached kernels of both."""
+    (tmp_path / "methods" / "__pycache__").mkdir(parents=True)
+    (tmp_path / "methods" / "_a_kernels.py").write_text("def a(): return 1\n")
+    (tmp_path / "methods" / "_b_kernels.py").write_text("def b(): return a()\n")
+    (tmp_path / "plain.py").write_text("x = 1\n")
+    cached = [tmp_path / "methods" / "__pycache__" / name for name in ("_b_kernels.b-1.py311.nbi",
+                                                                      "_b_kernels.b-1.py311.1.nbc")]
+    for path in cached:
+        path.write_bytes(b"compiled")
+    return cached
+
+
+def test_a_changed_kernel_source_drops_every_cached_kernel(tmp_path):
+    cached = _package(tmp_path)
+    assert _kernel_cache.drop_stale(tmp_path)          # no stamp yet: dropped, stamped
+    assert not any(path.exists() for path in cached)
+    stamp = tmp_path / "__pycache__" / _kernel_cache.STAMP
+    assert stamp.read_text() == _kernel_cache.sources_digest(tmp_path)
+    for path in cached:                                   # compiled again by numba
+        path.write_bytes(b"compiled")
+    assert not _kernel_cache.drop_stale(tmp_path)      # nothing changed: kept
+    (tmp_path / "plain.py").write_text("x = 2\n")
+    assert not _kernel_cache.drop_stale(tmp_path)      # not a kernel source: kept
+    assert all(path.exists() for path in cached)
+    # the callee's file changes, the caller's cache (another file) must go
+    (tmp_path / "methods" / "_a_kernels.py").write_text("def a(): return 2\n")
+    assert _kernel_cache.drop_stale(tmp_path)
+    assert not any(path.exists() for path in cached)
+
+
+def test_the_package_is_stamped_with_its_kernel_sources():
+    """Importing the package stamped its cache with the digest of its own kernel sources."""
+    stamp = _kernel_cache.PACKAGE / "__pycache__" / _kernel_cache.STAMP
+    assert stamp.read_text() == _kernel_cache.sources_digest()
+    names = {path.name for path in _kernel_cache._sources(_kernel_cache.PACKAGE)}
+    assert {"_qp_kernels.py", "_daqp_kernels.py", "_inextensible_kernels.py", "_c_calls.py",
+            "_system_kernels.py", "_publication_kernels.py"} <= names
