@@ -625,6 +625,7 @@ class SparseSolver(QPSolver):
         work = _WorkingSet(w_all, np.flatnonzero(active), self._splu)
         if work.lu is False:
             return None
+        a_t = a.T
         p = -1   # the row joining the set (it keeps its partial multiplier until it has joined)
         for _ in range(self.settings["dual_iter"]):
             if p < 0:
@@ -650,7 +651,7 @@ class SparseSolver(QPSolver):
             if not np.isfinite(step):
                 return None   # dependent and nothing can drop: the rows are infeasible (DAQP says how)
             if np.isfinite(full):
-                v = v + step * (self.inv_mass * (a.T @ r_vec) - m_p)
+                v = v + step * (self.inv_mass * (a_t @ r_vec) - m_p)
             y -= step * r_vec
             y[p] += step
             if full <= ratio[j]:
@@ -668,10 +669,11 @@ class SparseSolver(QPSolver):
 
 
 def _dense_row(a, i: int) -> np.ndarray:
-    """Row ``i`` of the CSR matrix ``a`` as a dense vector."""
+    """Row ``i`` of the CSR matrix ``a`` as a dense vector (its column indices unique within a row, as
+    :meth:`Rows.sparse` and a sparse product leave them)."""
     out = np.zeros(a.shape[1])
     span = slice(a.indptr[i], a.indptr[i + 1])
-    np.add.at(out, a.indices[span], a.data[span])
+    out[a.indices[span]] = a.data[span]
     return out
 
 
@@ -690,8 +692,11 @@ class _WorkingSet:
 
     def _rebase(self, base: np.ndarray) -> None:
         self.base = base
-        self.where = {int(row): i for i, row in enumerate(base)}
-        self.items = []   # (row, added): an added row, or a dropped base row
+        self.where = np.full(self.w.shape[0], -1)   # each row's place in the base (-1: not in it)
+        self.where[base] = np.arange(len(base))
+        self.m = 0                                  # the items: an added row, or a dropped base row
+        self._rows = np.zeros(self.BORDER, dtype=int)
+        self._added = np.zeros(self.BORDER, dtype=bool)
         self._v = np.zeros((len(base), self.BORDER))   # V, W_BB^-1 V and the Schur complement, by item
         self._y = np.zeros((len(base), self.BORDER))
         self._c = np.zeros((self.BORDER, self.BORDER))
@@ -703,48 +708,49 @@ class _WorkingSet:
             except RuntimeError:   # exactly singular: the caller's start was not independent
                 self.lu = False
 
-    def _rows(self):
+    def _members(self) -> np.ndarray:
         """The working set's rows, the base's still in it and the added ones."""
-        dropped = {row for row, added in self.items if not added}
-        return ([row for row in self.base if int(row) not in dropped]
-                + [row for row, added in self.items if added])
+        rows, added = self._rows[: self.m], self._added[: self.m]
+        return np.concatenate([np.setdiff1d(self.base, rows[~added]), rows[added]])
 
     def _append(self, row: int, added: bool) -> None:
         if self.lu is False:   # a singular base: solve() says so
             return
+        m = self.m
         if added:
             w_col = _dense_row(self.w, row)
             col = w_col[self.base]
+            c_new = np.where(self._added[:m], w_col[self._rows[:m]], 0.0)
         else:
-            w_col = None
             col = np.zeros(len(self.base))
             col[self.where[row]] = 1.0
+            c_new = np.zeros(m)
         solved = self.lu.solve(col) if len(self.base) else col
-        m = len(self.items)
-        c_new = np.array([w_col[other] if (added and other_added) else 0.0 for other, other_added in self.items])
         schur_col = c_new - self._v[:, :m].T @ solved
         self._v[:, m] = col
         self._y[:, m] = solved
         self._c[:m, m] = self._c[m, :m] = schur_col
         self._c[m, m] = (w_col[row] if added else 0.0) - col @ solved
-        self.items.append((row, added))
+        self._rows[m], self._added[m] = row, added
+        self.m = m + 1
 
     def _remove(self, index: int) -> None:
-        m = len(self.items)
+        m = self.m
         keep = np.flatnonzero(np.arange(m) != index)
         for block in (self._v, self._y):
             block[:, : m - 1] = block[:, keep]
         self._c[: m - 1, : m - 1] = self._c[np.ix_(keep, keep)]
-        del self.items[index]
+        self._rows[: m - 1], self._added[: m - 1] = self._rows[keep], self._added[keep]
+        self.m = m - 1
 
     def _change(self, row: int, added: bool) -> None:
-        for i, (other, other_added) in enumerate(self.items):
-            if other == row:   # a change undone
-                self._remove(i)
-                return
-        if len(self.items) >= self.BORDER:
-            rows = self._rows()
-            self._rebase(np.array(sorted(rows + [row] if added else [r for r in rows if r != row]), dtype=int))
+        undone = np.flatnonzero(self._rows[: self.m] == row)
+        if len(undone):   # a change undone
+            self._remove(int(undone[0]))
+            return
+        if self.m >= self.BORDER:
+            rows = self._members()
+            self._rebase(np.sort(np.append(rows, row) if added else rows[rows != row]))
             return
         self._append(row, added)
 
@@ -760,18 +766,16 @@ class _WorkingSet:
             return None
         x = np.zeros(len(b))
         x_b = self.lu.solve(b[self.base]) if len(self.base) else np.zeros(0)
-        m = len(self.items)
+        m = self.m
         if m:
-            rhs = np.array([b[row] if added else 0.0 for row, added in self.items]) - self._v[:, :m].T @ x_b
+            rows, added = self._rows[:m], self._added[:m]
+            rhs = np.where(added, b[rows], 0.0) - self._v[:, :m].T @ x_b
             z = np.linalg.solve(self._c[:m, :m], rhs)
             x_b = x_b - self._y[:, :m] @ z
-            for (row, added), value in zip(self.items, z):
-                if added:
-                    x[row] = value
-        x[self.base] = x_b
-        for row, added in self.items:
-            if not added:
-                x[row] = 0.0
+            x[self.base] = x_b
+            x[rows] = np.where(added, z, 0.0)
+        else:
+            x[self.base] = x_b
         return x
 
 
