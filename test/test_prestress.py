@@ -225,3 +225,29 @@ def test_sparse_rule_matches_the_dense(name):
         sim.step()
     assert worst[0] <= 1e-10
     assert answered[0] >= 0.9 * sum(answered) and answered[0] >= 3
+
+
+def test_the_inertia_count_is_the_self_stress_spaces_size():
+    """The sparse path sizes its block by the eigenvalues of ``A_B A_B^T`` below the threshold, counted by
+    Sylvester's law of inertia (``_space_size``): the count of the dense eigenvalues, and the number of
+    vectors the block inverse iteration keeps, at every call of a moving 5-stage tower."""
+    from tensegrity_sim.methods.self_stress import RANK_TOL, _space_size, sparse_self_stress_space
+    scene = random_velocities(ts.Scene.from_dict(formfinding.tower(5, gravity=(0.0, 0.0, 0.0))), seed=1, scale=0.05)
+    sim, steps = simulator(scene, "inextensible", 1e-3), 10
+    rule = sim._method.self_stress
+    sizes = []
+
+    def record(rows, cables, at_limit, y, tau):
+        binding = np.concatenate([np.ones(rows.n_eq, dtype=bool), at_limit]) | (y != 0.0)
+        index = np.flatnonzero(binding)
+        a = rows.subset(index, rows.targets[index], 0).sparse(rule.n_free)
+        eigenvalues = np.linalg.eigvalsh((a @ a.T).toarray())
+        thr = RANK_TOL ** 2 * eigenvalues[-1]
+        sizes.append((_space_size((a @ a.T).tocsc(), thr), int(np.count_nonzero(eigenvalues < thr)),
+                      sparse_self_stress_space(a).shape[1]))
+        return rule._impulses_reference(rows, cables, at_limit, y, tau)
+    rule.impulses = record
+    for _ in range(steps):
+        sim.step()
+    assert len(sizes) >= 10 and any(size > 0 for size, _, _ in sizes)
+    assert all(count == dense == kept for count, dense, kept in sizes), sizes
