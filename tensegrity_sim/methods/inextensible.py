@@ -320,7 +320,8 @@ class InextensibleMethod(StepMethod):
                     x_m, v0 = self._free_motion(x, v, tau, f_ext)
             x, v, y, published = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, reeling, hint)
             impulses += published
-            holding = hint = (y > 0) & at_limit
+            holding = (y > 0) & at_limit
+            hint = holding | self._hint if self.solver.wide_hint else holding
             if not cut:
                 break
             remaining -= tau
