@@ -156,8 +156,8 @@ class QPSolver:
     name = ""
     verify = True   # recheck feasibility of every answer (backends that may return a poor one)
     compiled = True   # build rows and check answers with the numba kernels (False: the numpy reference)
-    # the inextensible method's hint for a sub-step after an event: the rows that held after the event
-    # (False) or those and the ones that held at the step's start (True: SparseSolver.wide_hint)
+    # the inextensible method's hint for the rest of a step after an event: the rows that held after the
+    # event (False) or those and the ones that held at the step's start (True: SparseSolver.wide_hint)
     wide_hint = False
 
     def __init__(self, mass: np.ndarray):
@@ -503,8 +503,10 @@ class SparseSolver(QPSolver):
         # QPSolver.wide_hint, with the dual method: a moving tower's snap a few ns into a step leaves a
         # short sub-step that holds a third of the rows (449 of 1701 on a 100-stage tower), and the dual
         # method then added the rest one by one (2375 working-set changes; 1201 from the wide hint). The
-        # velocities are the same (to the bit on moving 30- and 50-stage towers over 10 and 8 steps);
-        # without the dual method, DAQP's warm start would change its last bits.
+        # velocities are the same (to the bit on moving 30- and 50-stage towers over 10 and 8 steps, the
+        # QPs answered by a guess and by the dual method as many as before: the short sub-steps keep the
+        # narrow hint, which a wide one made fail more guesses); without the dual method, DAQP's warm
+        # start would change its last bits.
         self.wide_hint = self.dual
 
     @property
