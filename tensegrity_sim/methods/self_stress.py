@@ -70,7 +70,10 @@ other arithmetic; the velocities are the QP's either way, so the trajectory is t
   The space and its factors are kept while the binding rows are the same to the bit (a structure at
   rest, also after a command that holds it): a 50-stage tower's step at rest 45 ms -> 4.2 ms.
 
-A call neither resolves goes to the dense rule (counted in ``SelfStress.counts``). Agreement with the
+Below ``SPARSE_NODES``, from ``MOVING_NODES`` free nodes (``SelfStress.moving``), the dense rule takes the
+basis of binding rows that are not the load time's (a moving structure) from
+:func:`sparse_self_stress_space` too, instead of an SVD (its own fit after it; the SVD if the iteration
+does not settle). A call neither resolves goes to the dense rule (counted in ``SelfStress.counts``). Agreement with the
 dense rule, the published impulses over the largest multiplier of a call
 (``test_prestress.py::test_sparse_rule_matches_the_dense``): 4e-13 on the rattling built-in tower, 2e-15
 on the thrown icosahedron and rigid prism, 6e-15 on a 30-stage tower at rest; 1.6e-11 over 44 calls of a
@@ -110,7 +113,7 @@ from . import _self_stress_kernels as kernels
 from ._c_calls import scipy_lapack
 from .qp import Rows
 
-__all__ = ["RANK_TOL", "SPARSE_NODES", "TAUT_TOL", "SelfStress", "reference_tensions", "self_stress_space",
+__all__ = ["MOVING_NODES", "RANK_TOL", "SPARSE_NODES", "TAUT_TOL", "SelfStress", "reference_tensions", "self_stress_space",
            "sparse_self_stress_space", "SparseSpace"]
 
 # Singular values of A_B^T below RANK_TOL * the largest span the self-stress space. Measured on the
@@ -128,6 +131,12 @@ _EXACT = 1e-13
 # From this many free nodes on, the rule runs on sparse matrices (module docstring: measured between 25
 # and 30 stages of a tower, where the dense rule's refinement stops working at rest)
 SPARSE_NODES = 150
+# From this many free nodes on, the dense rule takes the basis of binding rows that are not the load
+# time's (a moving structure) from the sparse block inverse iteration rather than an SVD. Measured per
+# call on moving towers (0.05 m/s, the rule's calls of 3-4 steps replayed, CPU time, the two in turn):
+# SVD / sparse 1.3-6.4 / 2.1-7.2 ms at 57 free nodes (10 stages, even), 9.7-13.6 / 3.7-6.3 ms at 87 (15
+# stages), 22-27 / 5.6-10.6 ms at 117 (20 stages).
+MOVING_NODES = 80
 # The sparse path, relative to the largest eigenvalue of A_B^T A_B: the regularisation of the KKT
 # systems' multiplier block (refined away), and the floor below which an eigenvalue is a mechanism's zero
 # (the round-off of a zero eigenvalue of the squared matrix is ~1e-16; a singular value of 1e-6 of the
@@ -192,6 +201,9 @@ class SelfStress:
         self.compiled = True  # the rule in one numba kernel (_self_stress_kernels.py); False: the numpy reference
         # the sparse path (_impulses_sparse) from SPARSE_NODES free nodes on; False: the dense rule (its reference)
         self.sparse = n_free >= SPARSE_NODES
+        # below, the dense rule's basis of binding rows that are not the load time's by the sparse block
+        # inverse iteration from MOVING_NODES free nodes on (_moving_space); False: the SVD
+        self.moving = n_free >= MOVING_NODES
         self.counts = {"sparse": 0, "dense": 0}   # calls of a structure that can lock, by the path that answered
         self._kept = None     # (rows' key, SparseSpace) of the last implicit space (see _implicit)
         self._load_cables = np.ascontiguousarray(load_cables, dtype=np.int64)
@@ -320,12 +332,24 @@ class SelfStress:
         """:meth:`impulses` from the result of ``locked_space`` (``binding`` (k,) bool, the binding cables
         ``members``, ``A_B^T``, the basis or None for an SVD) for multipliers ``y`` (k,) N*s over ``tau`` s."""
         if basis is None:
-            basis = self_stress_space(a_t)[0]
+            basis = self._moving_space(a_t)
         if not basis.shape[1]:
             return y
         y_b = y[binding]
         share = basis.T @ y_b
         return self._fit(basis, y_b - basis @ share, y, binding, a_t, self.reference[members] * tau, n_eq)
+
+    def _moving_space(self, a_t: np.ndarray) -> np.ndarray:
+        """The self-stress basis of binding rows ``a_t`` (``A_B^T``) that are not the load time's (or whose
+        refinement failed): the SVD's, or from ``MOVING_NODES`` free nodes (``moving``) the sparse block
+        inverse iteration's (:func:`sparse_self_stress_space`, the same space to round-off), unless it
+        does not settle."""
+        if self.moving:
+            from scipy.sparse import csr_matrix
+            basis = sparse_self_stress_space(csr_matrix(a_t.T))
+            if basis is not None:
+                return basis
+        return self_stress_space(a_t)[0]
 
     def _impulses_reference(self, rows, cables, at_limit, y, tau):
         """The numpy reference of :meth:`impulses` (for a structure that can lock)."""
