@@ -62,7 +62,7 @@ other arithmetic; the velocities are the QP's either way, so the trajectory is t
   structure; an impact; any call a cable would pull on): an explicit basis of
   ``N`` by :func:`sparse_self_stress_space` (block inverse iteration on ``A_B A_B^T`` with a sparse LU,
   the eigenvectors below ``RANK_TOL^2`` of its largest eigenvalue, i.e. the same threshold on the same
-  singular values), then the dense rule's own fit (:meth:`SelfStress._fit`, its nonnegative QP
+  singular values, on a block as wide as the space, counted first), then the dense rule's own fit (:meth:`SelfStress._fit`, its nonnegative QP
   included);
 * many (a structure at rest: 114 self-stresses on a 20-stage tower, ~450 on a 50-stage one): the space
   kept implicit (:class:`SparseSpace`: ``A_B^T s`` in the span of the near-null eigenvectors of
@@ -73,8 +73,8 @@ other arithmetic; the velocities are the QP's either way, so the trajectory is t
 Below ``SPARSE_NODES``, from ``MOVING_NODES`` free nodes (``SelfStress.moving``), the dense rule takes the
 basis of binding rows that are not the load time's (a moving structure) from
 :func:`sparse_self_stress_space` too, instead of an SVD (its own fit after it; the SVD if the iteration
-does not settle). A call neither resolves goes to the dense rule (counted in ``SelfStress.counts``). Agreement with the
-dense rule, the published impulses over the largest multiplier of a call
+does not settle). A call neither resolves goes to the dense rule (counted in ``SelfStress.counts``).
+Agreement with the dense rule, the published impulses over the largest multiplier of a call
 (``test_prestress.py::test_sparse_rule_matches_the_dense``): 4e-13 on the rattling built-in tower, 2e-15
 on the thrown icosahedron and rigid prism, 6e-15 on a 30-stage tower at rest; 1.6e-11 over 44 calls of a
 moving 20-stage tower. One call in 32 of a moving 30-stage tower differed by 2e-8: its nonnegative share
