@@ -509,7 +509,7 @@ class SparseSolver(QPSolver):
         self.counts = {"guessed": 0, "dual": 0, "daqp": 0}
         # QPSolver.wide_hint, with the dual method: a moving tower's snap a few ns into a step leaves a
         # short sub-step that holds a third of the rows (449 of 1701 on a 100-stage tower), and the dual
-        # method then added the rest one by one (2375 working-set changes; 1201 from the wide hint). The
+        # method then added the rest one by one (2375 working-set changes; 1603 from the wide hint). The
         # velocities are the same (to the bit on moving 30- and 50-stage towers over 10 and 8 steps, the
         # QPs answered by a guess and by the dual method as many as before: the short sub-steps keep the
         # narrow hint, which a wide one made fail more guesses); without the dual method, DAQP's warm
