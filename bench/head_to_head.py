@@ -118,7 +118,7 @@ def _configured(scene, config: str) -> ts.Simulator:
         rule.sparse = choices["rule"] == "sparse"
         rule.moving = rule.moving and rule.sparse
     if choices.get("dual") == "off" and hasattr(sim._method.solver, "dual"):
-        sim._method.solver.dual = sim._method.solver.wide_hint = False
+        sim._method.solver.dual = False
     return sim
 
 

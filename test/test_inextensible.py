@@ -366,29 +366,6 @@ def test_sparse_backend_follows_daqp_on_a_rattling_tower(dual):
     assert counts["guessed"] > counts["dual" if dual else "daqp"] > 0 == counts["daqp" if dual else "dual"]
 
 
-def test_the_wide_hint_changes_the_work_not_the_trajectory(monkeypatch):
-    """The sparse backend's dual method, hinted after an event with the rows that held at the step's start
-    too (``wide_hint``), on a moving 3-stage tower for 60 steps: the trajectory of the narrow hint to
-    1e-12 m and 1e-10 m/s (measured: the same bits), in fewer working-set changes (1831 against 1937)."""
-    changes = []
-    change = qp._WorkingSet._change
-    monkeypatch.setattr(qp._WorkingSet, "_change", lambda self, row, added: changes.append(1) or change(self, row, added))
-    trajs, work = {}, {}
-    for wide in (False, True):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", LengthOffsetWarning)
-            sim = ts.Simulator(rattling_tower(3, 0.05), method="inextensible", dt=1e-3, solver="sparse")
-        sim._method.solver.dual = True
-        sim._method.solver.wide_hint = wide
-        sim._method.solver.compiled = False   # the dual method's numpy reference, whose working set counts
-        changes.clear()
-        trajs[wide] = sim.run(steps=60)
-        work[wide] = len(changes)
-    np.testing.assert_allclose(trajs[True].positions, trajs[False].positions, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(trajs[True].velocities, trajs[False].velocities, rtol=0, atol=1e-10)
-    assert 0 < work[True] < work[False]
-
-
 def test_the_compiled_dual_method_follows_its_reference(monkeypatch):
     """The dual active-set method's compiled steps (``_dual_kernels.dual_steps``) against their numpy
     reference (``SparseSolver._dual_steps_reference``), from the same start at each of the 51 QPs of a

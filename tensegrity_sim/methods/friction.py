@@ -258,8 +258,6 @@ class FrictionalSolver:
     ground), the scale of the Coulomb law's projection form.
     """
 
-    wide_hint = False   # QPSolver.wide_hint: the hint after an event is the rows that held after it
-
     def __init__(self, inner: QPSolver, ground: ContactSet):
         self.inner = inner
         self.ground = ground

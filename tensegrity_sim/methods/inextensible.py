@@ -318,8 +318,6 @@ class InextensibleMethod(StepMethod):
                 if cut:
                     tau = theta * tau
                     x_m, v0 = self._free_motion(x, v, tau, f_ext)
-            if event and not cut and self.solver.wide_hint:   # the rest of the step after an event
-                hint = hint | self._hint
             x, v, y, published = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, reeling, hint)
             impulses += published
             holding = hint = (y > 0) & at_limit

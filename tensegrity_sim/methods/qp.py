@@ -156,9 +156,6 @@ class QPSolver:
     name = ""
     verify = True   # recheck feasibility of every answer (backends that may return a poor one)
     compiled = True   # build rows and check answers with the numba kernels (False: the numpy reference)
-    # the inextensible method's hint for the rest of a step after an event: the rows that held after the
-    # event (False) or those and the ones that held at the step's start (True: SparseSolver.wide_hint)
-    wide_hint = False
 
     def __init__(self, mass: np.ndarray):
         self.n_free = len(mass)
@@ -439,7 +436,11 @@ class SparseSolver(QPSolver):
     the others removed (pivots of a sparse LU) and the pulling rows dropped one at a time, and keeping
     the hint across a sub-step cut at a snap (a short sub-step holds few rows, and the next QP adds
     ~600 rows one by one): each still took ~1000 changes (dropping a row makes others pull), and the
-    step cost the same (1.0-1.1 s on a moving 50-stage tower, separate runs).
+    step cost the same (1.0-1.1 s on a moving 50-stage tower, separate runs). Tried again with the
+    compiled steps below (the rest of a step after a snap hinted with the rows that held at the step's
+    start too): a 100-stage tower's sub-step took 1603 changes instead of 2375, but at one QP in ~160
+    the method then ended on a working set whose solve from scratch failed, DAQP took it (8.6 s) and
+    the velocities moved by DAQP's tolerance; with the narrow hint none did in 24 steps: not kept.
 
     The dual method's steps between two factorisations of its base run in a numba kernel
     (``_dual_kernels.dual_steps``; ``compiled = False``: :meth:`_dual_steps_reference`, its numpy
@@ -507,14 +508,6 @@ class SparseSolver(QPSolver):
         # the dual active-set method between the guess and DAQP from DUAL_NODES free nodes (False: DAQP)
         self.dual = self.n_free >= DUAL_NODES
         self.counts = {"guessed": 0, "dual": 0, "daqp": 0}
-        # QPSolver.wide_hint, with the dual method: a moving tower's snap a few ns into a step leaves a
-        # short sub-step that holds a third of the rows (449 of 1701 on a 100-stage tower), and the dual
-        # method then added the rest one by one (2375 working-set changes; 1603 from the wide hint). The
-        # velocities are the same (to the bit on moving 30- and 50-stage towers over 10 and 8 steps, the
-        # QPs answered by a guess and by the dual method as many as before: the short sub-steps keep the
-        # narrow hint, which a wide one made fail more guesses); without the dual method, DAQP's warm
-        # start would change its last bits.
-        self.wide_hint = self.dual
 
     @property
     def compiled(self) -> bool:
@@ -655,18 +648,15 @@ class SparseSolver(QPSolver):
         p, budget = -1, self.settings["dual_iter"]
         while True:
             base = np.flatnonzero(active)
-            factor, singular = (np.zeros(1, dtype=index), np.zeros(0, dtype=index), np.zeros(0)) * 2, False
+            factor = (np.zeros(1, dtype=index), np.zeros(0, dtype=index), np.zeros(0)) * 2
             perms = (np.zeros(0, dtype=index),) * 2
-            if len(base):
-                try:
-                    lu = self._splu(w_all[base][:, base].tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                                    options={"SymmetricMode": True})
-                    l, u = lu.L, lu.U
-                    factor = (l.indptr.astype(index), l.indices.astype(index), l.data,
-                              u.indptr.astype(index), u.indices.astype(index), u.data)
-                    perms = (lu.perm_r.astype(index), lu.perm_c.astype(index))
-                except RuntimeError:   # exactly singular: the start was not independent
-                    singular = True
+            lu = _base_factor(self._splu, w_all, base) if len(base) else None
+            if lu is not None:
+                l, u = lu.L, lu.U
+                factor = (l.indptr.astype(index), l.indices.astype(index), l.data,
+                          u.indptr.astype(index), u.indices.astype(index), u.data)
+                perms = (lu.perm_r.astype(index), lu.perm_c.astype(index))
+            singular = len(base) > 0 and lu is None   # exactly singular: the start was not independent
             status, p, changes = kernels.dual_steps(
                 *a_arrays, *w_arrays, self.inv_mass, r, n_eq, tol, self.settings["dependent"], _WorkingSet.BORDER,
                 v, y, active, p, budget, base, singular, *factor, *perms)
@@ -724,6 +714,16 @@ class SparseSolver(QPSolver):
         return {"solver": self.name, **self.settings, "fallback": self.fallback.describe()}
 
 
+def _base_factor(splu, w, base: np.ndarray):
+    """SuperLU's factor of ``W_BB`` (``w`` CSR, the rows and columns ``base``), symmetric positive
+    (semi)definite: a symmetric ordering, no pivoting; None if it is exactly singular."""
+    try:
+        return splu(w[base][:, base].tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                    options={"SymmetricMode": True})
+    except RuntimeError:
+        return None
+
+
 def _dense_row(a, i: int) -> np.ndarray:
     """Row ``i`` of the CSR matrix ``a`` as a dense vector (its column indices unique within a row, as
     :meth:`Rows.sparse` and a sparse product leave them)."""
@@ -757,12 +757,8 @@ class _WorkingSet:
         self._y = np.zeros((len(base), self.BORDER))
         self._c = np.zeros((self.BORDER, self.BORDER))
         self.lu = None
-        if len(base):
-            try:
-                self.lu = self._splu(self.w[base][:, base].tocsc(), permc_spec="MMD_AT_PLUS_A",
-                                     diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-            except RuntimeError:   # exactly singular: the caller's start was not independent
-                self.lu = False
+        if len(base):   # False if exactly singular: the caller's start was not independent
+            self.lu = _base_factor(self._splu, self.w, base) or False
 
     def _members(self) -> np.ndarray:
         """The working set's rows, the base's still in it and the added ones."""

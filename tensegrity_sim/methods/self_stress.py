@@ -62,8 +62,8 @@ other arithmetic; the velocities are the QP's either way, so the trajectory is t
   structure; an impact; any call a cable would pull on): an explicit basis of
   ``N`` by :func:`sparse_self_stress_space` (block inverse iteration on ``A_B A_B^T`` with a sparse LU,
   the eigenvectors below ``RANK_TOL^2`` of its largest eigenvalue, i.e. the same threshold on the same
-  singular values, on a block as wide as the space, counted first), then the dense rule's own fit (:meth:`SelfStress._fit`, its nonnegative QP
-  included);
+  singular values, on a block as wide as the space, counted first), then the dense rule's own fit
+  (:meth:`SelfStress._fit`, its nonnegative QP included);
 * many (a structure at rest: 114 self-stresses on a 20-stage tower, ~450 on a 50-stage one): the space
   kept implicit (:class:`SparseSpace`: ``A_B^T s`` in the span of the near-null eigenvectors of
   ``A_B^T A_B``, two KKT systems by sparse LU), unless a cable would pull (then the explicit basis).
@@ -113,8 +113,8 @@ from . import _self_stress_kernels as kernels
 from ._c_calls import scipy_lapack
 from .qp import Rows
 
-__all__ = ["MOVING_NODES", "RANK_TOL", "SPARSE_NODES", "TAUT_TOL", "SelfStress", "reference_tensions", "self_stress_space",
-           "sparse_self_stress_space", "SparseSpace"]
+__all__ = ["MOVING_NODES", "RANK_TOL", "SPARSE_NODES", "TAUT_TOL", "SelfStress", "reference_tensions",
+           "self_stress_space", "sparse_self_stress_space", "SparseSpace"]
 
 # Singular values of A_B^T below RANK_TOL * the largest span the self-stress space. Measured on the
 # thrown icosahedron (bench/prestress_tensions.py): 2e-5 for the self-stress against 0.18 for the next
