@@ -159,6 +159,11 @@ _REFINEMENTS = 8     # refinements of a KKT solve before the sparse path gives t
 # _SHIFT / RANK_TOL^2 = 1e-6 a refinement, and what is left is round-off amplified by the near-null
 # directions (measured: 1e-16 on the towers, 1.3e-13 on the thrown icosahedron, sigma 3e-5 of the largest)
 _REFINE_TOL = 1e-10
+# Rows of the implicit space's members whose entries (the members' unit directions) moved by at most this
+# since the space was built keep it (SparseSpace.moved): a 100-stage tower at rest, whose round-off
+# velocities (up to 4e-13 m/s after 30 steps) move its rows' last bits, rebuilt it at 8 to 19 of 30 steps
+# (~100 ms each, against ~4 for a kept one), depending on its round-off history
+_MOVED = 1e-12
 
 
 def reference_tensions(stiffness: np.ndarray, length_offsets: np.ndarray) -> np.ndarray:
@@ -205,7 +210,7 @@ class SelfStress:
         # inverse iteration from MOVING_NODES free nodes on (_moving_space); False: the SVD
         self.moving = n_free >= MOVING_NODES
         self.counts = {"sparse": 0, "dense": 0}   # calls of a structure that can lock, by the path that answered
-        self._kept = None     # (rows' key, SparseSpace) of the last implicit space (see _implicit)
+        self._kept = None     # (rows' pattern, entries, SparseSpace) of the last implicit space (_implicit)
         self._settled = None  # the binding cables of the sparse path's last sub-step whose share pulled on none
         self._pulled = False  # whether the last fit's least-squares share pulled on a cable (_fit)
         self._load_cables = np.ascontiguousarray(load_cables, dtype=np.int64)
@@ -307,13 +312,20 @@ class SelfStress:
         """The published impulses (k_b,) N*s of the binding rows ``a`` with multipliers ``y_b`` through
         :class:`SparseSpace`, or None (a cable would pull, or the space is not resolved). The space and
         its factorisations are kept while the rows are the same to the bit (a structure at rest), so
-        the answer still depends on this call's arguments alone."""
-        key = (a.indptr.tobytes(), a.indices.tobytes(), a.data.tobytes())
-        if self._kept is not None and self._kept[0] == key:
-            space = self._kept[1]
+        the answer still depends on this call's arguments alone; and for rows moved by round-off since
+        (the same members, no entry moved by more than ``_MOVED``: a structure at rest, whose round-off
+        velocities move its rows' last bits), :meth:`SparseSpace.moved` answers for the new rows to
+        round-off, with the kept space's vectors and factors."""
+        pattern = (a.indptr.tobytes(), a.indices.tobytes())
+        kept = self._kept
+        if kept is not None and kept[0] == pattern and np.array_equal(kept[1], a.data):
+            space = kept[2]
+        elif (kept is not None and kept[0] == pattern and kept[2] is not None
+              and np.max(np.abs(a.data - kept[1]), initial=0.0) <= _MOVED):
+            space = kept[2].moved(a)
         else:
             space = SparseSpace.of(a)
-            self._kept = (key, space)
+            self._kept = (pattern, a.data.copy(), space)
         if space is None:
             return None
         share = space.fit(np.ones(len(y_b)), y_b)
@@ -522,18 +534,32 @@ class SparseSpace:
             return None
         return cls(a, u, largest)
 
+    def moved(self, a) -> "SparseSpace":
+        """The space of rows ``a`` (scipy sparse) that are this one's moved by round-off (the same
+        pattern): this one's near-null vectors ``U`` and LU factors, the KKT matrices of ``a`` (which
+        :meth:`fit`'s refinement solves), so the answers are ``a``'s own to round-off."""
+        space = SparseSpace(a, self.u, self.largest)
+        space._factors = {key: (space._kkt(np.frombuffer(key)), lu) for key, (_, lu) in self._factors.items()}
+        return space
+
+    def _kkt(self, weight: np.ndarray):
+        """The KKT matrix of :meth:`fit` for ``weight`` (CSC)."""
+        import scipy.sparse as sp
+        a, u = self.a, self.u
+        m, n3 = u.shape[1], a.shape[1]
+        dense_u = sp.csc_matrix(u)
+        return sp.bmat([[sp.diags(weight), None, a],
+                        [None, sp.csc_matrix((m, m)), -dense_u.T],
+                        [a.T, -dense_u, sp.csc_matrix((n3, n3))]], format="csc")
+
     def _factorise(self, weight: np.ndarray):
         """The KKT matrix of :meth:`fit` for ``weight`` and the LU factor of its regularised form (None
         if that is exactly singular)."""
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
-        a, u = self.a, self.u
-        k, n3 = a.shape
-        m = u.shape[1]
-        dense_u = sp.csc_matrix(u)
-        exact = sp.bmat([[sp.diags(weight), None, a],
-                         [None, sp.csc_matrix((m, m)), -dense_u.T],
-                         [a.T, -dense_u, sp.csc_matrix((n3, n3))]], format="csc")
+        k, n3 = self.a.shape
+        m = self.u.shape[1]
+        exact = self._kkt(weight)
         shifted = exact - sp.diags(np.concatenate([np.zeros(k + m), np.full(n3, _SHIFT * self.largest)]))
         try:
             return exact, splu(shifted, permc_spec="MMD_AT_PLUS_A")   # 0.7x the time of COLAMD's (tower30)
