@@ -68,7 +68,8 @@ other arithmetic; the velocities are the QP's either way, so the trajectory is t
   kept implicit (:class:`SparseSpace`: ``A_B^T s`` in the span of the near-null eigenvectors of
   ``A_B^T A_B``, two KKT systems by sparse LU), unless a cable would pull (then the explicit basis).
   The space and its factors are kept while the binding rows are the same to the bit (a structure at
-  rest, also after a command that holds it): a 50-stage tower's step at rest 45 ms -> 4.2 ms.
+  rest, also after a command that holds it): a 50-stage tower's step at rest 45 ms -> 4.2 ms; and,
+  answering for the new rows to round-off, while they have moved by round-off only (``_MOVED``).
 
 Below ``SPARSE_NODES``, from ``MOVING_NODES`` free nodes (``SelfStress.moving``), the dense rule takes the
 basis of binding rows that are not the load time's (a moving structure) from
