@@ -152,7 +152,7 @@ _IMPLICIT = 64
 # moving 100-stage tower had 92 self-stresses with 16 rows more than degrees of freedom; at 64 its calls
 # went to the dense SVD, 21 s a step).
 _EXPLICIT = 256
-_GUARD = 8           # the block's columns beyond the space (the iteration converges as the first excluded eigenvalue)
+_GUARD = 8           # the block's columns beyond the space, at least (sparse_self_stress_space: a quarter of it)
 _BLOCK_ITER = 16
 _RITZ_TOL = 1e-14    # of the largest eigenvalue: a kept Ritz pair's residual |W x - theta x| at convergence
 _REFINEMENTS = 8     # refinements of a KKT solve before the sparse path gives the step to the SVD ...
@@ -425,13 +425,20 @@ def sparse_self_stress_space(a, rank_tol: float = RANK_TOL):
     """:func:`self_stress_space`'s basis (k, d) for the rows ``a`` (scipy sparse, k x 3 n_free) from sparse
     matrices: the eigenvectors of ``W = A_B A_B^T`` with eigenvalues below ``rank_tol^2`` times the largest
     (the squared singular values), by block inverse iteration with a sparse LU of ``W + delta I``
-    (``delta`` = ``_SHIFT`` times the largest) and a Rayleigh-Ritz step each time, on ``_GUARD`` more
-    columns than the space has vectors, until the kept Ritz pairs' residuals are round-off. The space's
-    size is counted first (:func:`_space_size`, one more sparse LU), so the block starts at its final
-    width: started at the excess of rows over degrees of freedom and doubled while too narrow, it ended
-    up to 1.8x wider than the space (a moving 100-stage tower's sub-step: 339 self-stresses, 622
-    columns, 4 iterations), and the rule's calls of moving 30-, 50- and 100-stage towers (2 steps each,
-    replayed) took 0.80x, 0.84x and 0.72x the time with the count. Single-vector
+    (``delta`` = ``_SHIFT`` times the largest) and a Rayleigh-Ritz step each time, on a quarter more
+    columns than the space has vectors (at least ``_GUARD``), until the kept Ritz pairs' residuals are
+    round-off. The space's size is counted first (:func:`_space_size`, one more sparse LU), so the block
+    starts at its final width: started at the excess of rows over degrees of freedom and doubled while
+    too narrow, it ended up to 1.8x wider than the space (a moving 100-stage tower's sub-step: 339
+    self-stresses, 622 columns, 4 iterations). The guard sets how well the residual test pins the space
+    down when a kept singular value sits near the threshold: with 8 columns, a moving 100-stage tower's
+    sub-step (380 self-stresses, the largest kept singular value 0.62e-3 of the largest, the next 1.08e-3)
+    ended on a projector 1.2e-11 from the SVD's after 5 iterations, and the nonnegative share (a
+    degenerate QP) turned that into published impulses 0.45 of the largest multiplier from the dense
+    rule's; with a quarter (95), 7e-13 after 3 iterations, and 2.3e-12 from the dense rule (the doubled
+    block's: 6.7e-13 and 2.9e-12). Replayed, the rule's calls of moving 30-, 50- and 100-stage towers (2
+    steps each) took 0.68x, 0.81x and 0.81x the time of the doubled block's (the implicit attempts that
+    moving towers no longer make included). Single-vector
     Lanczos (ARPACK's shift-invert) is not used: it cannot resolve the null space's multiplicity (it
     returned 1-9 vectors that were not self-stresses among 13-49 on a moving 10-stage tower). None
     when that does not settle within ``_BLOCK_ITER`` iterations or the space outgrows ``_EXPLICIT`` plus
@@ -455,7 +462,7 @@ def sparse_self_stress_space(a, rank_tol: float = RANK_TOL):
     elif size > most:
         return None
     # a fixed start block, so that a replay has the same bits
-    x = np.random.default_rng(0).standard_normal((k, min(size + _GUARD, k)))
+    x = np.random.default_rng(0).standard_normal((k, min(size + max(_GUARD, size // 4), k)))
     for _ in range(_BLOCK_ITER):
         x, _ = np.linalg.qr(lu.solve(x))
         theta, q = np.linalg.eigh(x.T @ (w @ x))
