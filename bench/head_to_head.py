@@ -113,8 +113,10 @@ def _configured(scene, config: str) -> ts.Simulator:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ts.LengthOffsetWarning)
         sim = ts.Simulator(scene, method="inextensible", dt=1e-3, contacts=(), solver=choices.get("qp"))
-    if "rule" in choices:
-        sim._method.self_stress.sparse = choices["rule"] == "sparse"
+    if "rule" in choices:   # dense: the SVD for rows that are not the load time's too (no moving path)
+        rule = sim._method.self_stress
+        rule.sparse = choices["rule"] == "sparse"
+        rule.moving = rule.moving and rule.sparse
     if choices.get("dual") == "off" and hasattr(sim._method.solver, "dual"):
         sim._method.solver.dual = False
     return sim

@@ -492,7 +492,18 @@ class SparseSolver(QPSolver):
     the others removed (pivots of a sparse LU) and the pulling rows dropped one at a time, and keeping
     the hint across a sub-step cut at a snap (a short sub-step holds few rows, and the next QP adds
     ~600 rows one by one): each still took ~1000 changes (dropping a row makes others pull), and the
-    step cost the same (1.0-1.1 s on a moving 50-stage tower, separate runs).
+    step cost the same (1.0-1.1 s on a moving 50-stage tower, separate runs). Tried again with the
+    compiled steps below (the rest of a step after a snap hinted with the rows that held at the step's
+    start too): a 100-stage tower's sub-step took 1603 changes instead of 2375, but at one QP in ~160
+    the method then ended on a working set whose solve from scratch failed, DAQP took it (8.6 s) and
+    the velocities moved by DAQP's tolerance; with the narrow hint none did in 24 steps: not kept.
+
+    The dual method's steps between two factorisations of its base run in a numba kernel
+    (``_dual_kernels.dual_steps``; ``compiled = False``: :meth:`_dual_steps_reference`, its numpy
+    reference): on 63 QPs captured from moving 30-, 50- and 100-stage towers the 25 that reach it took
+    1.94 s against 3.73 s (the two in turn, one process), the answers the same bits (the final working
+    set is solved again from scratch either way); a working-set change of a 100-stage tower's sub-step
+    costs ~150 us, two thirds of it the two triangular solves and the Schur complement.
 
     ``counts`` tallies the QPs answered by a guess, by the dual method and by DAQP.
 
@@ -670,31 +681,67 @@ class SparseSolver(QPSolver):
                 if self._start is None:
                     return None
         active, v, y = self._start
-        active = active.copy()
+        active, v, y = active.copy(), v.copy(), y.copy()
         a = rows.sparse(self.n_free)
         scale = max(float(np.max(np.abs(v0), initial=0.0)), float(np.max(np.abs(r), initial=0.0)))
         tol = self.settings["tol"] * scale + self.settings["tol_floor"]
-        v, y = v.copy(), y.copy()
         scaled = a.copy()
         scaled.data *= self.inv_mass[a.indices]
         w_all = (scaled @ a.T).tocsr()   # W = A M^-1 A^T, whose rows the steps read
+        steps = self._dual_steps if self.compiled else self._dual_steps_reference
+        if not steps(a, w_all, r, n_eq, tol, v, y, active):
+            return None
+        answer = self._attempt(v0, rows, active)
+        return None if answer[0] is None else answer[:2]
+
+    def _dual_steps(self, a, w_all, r, n_eq, tol, v, y, active) -> bool:
+        """:meth:`_dual_steps_reference` in the compiled kernel (``_dual_kernels.dual_steps``), called
+        again after each factorisation of the working set's base."""
+        from . import _dual_kernels as kernels
+        index = np.int64
+        a_arrays = (a.indptr.astype(index), a.indices.astype(index), a.data)
+        w_arrays = (w_all.indptr.astype(index), w_all.indices.astype(index), w_all.data)
+        p, budget = -1, self.settings["dual_iter"]
+        while True:
+            base = np.flatnonzero(active)
+            factor = (np.zeros(1, dtype=index), np.zeros(0, dtype=index), np.zeros(0)) * 2
+            perms = (np.zeros(0, dtype=index),) * 2
+            lu = _base_factor(self._splu, w_all, base) if len(base) else None
+            if lu is not None:
+                l, u = lu.L, lu.U
+                factor = (l.indptr.astype(index), l.indices.astype(index), l.data,
+                          u.indptr.astype(index), u.indices.astype(index), u.data)
+                perms = (lu.perm_r.astype(index), lu.perm_c.astype(index))
+            singular = len(base) > 0 and lu is None   # exactly singular: the start was not independent
+            status, p, changes = kernels.dual_steps(
+                *a_arrays, *w_arrays, self.inv_mass, r, n_eq, tol, self.settings["dependent"], _WorkingSet.BORDER,
+                v, y, active, p, budget, base, singular, *factor, *perms)
+            budget -= changes
+            if status != kernels.REBASE:
+                return status == kernels.CONVERGED
+
+    def _dual_steps_reference(self, a, w_all, r, n_eq, tol, v, y, active) -> bool:
+        """The steps of :meth:`_dual_active_set` from the working set ``active`` (k,) bool with velocities
+        ``v`` and multipliers ``y`` (all three updated in place) until no row is violated beyond ``tol``
+        (True) or the method fails (False); the numpy reference of :meth:`_dual_steps`."""
+        k = len(r)
         work = _WorkingSet(w_all, np.flatnonzero(active), self._splu)
         if work.lu is False:
-            return None
+            return False
+        a_t = a.T
         p = -1   # the row joining the set (it keeps its partial multiplier until it has joined)
         for _ in range(self.settings["dual_iter"]):
             if p < 0:
                 violation = np.where(active, -np.inf, a @ v - r)   # the equality rows are in the set already
                 p = int(np.argmax(violation))
                 if violation[p] <= tol:
-                    answer = self._attempt(v0, rows, active)
-                    return None if answer[0] is None else answer[:2]
+                    return True
                 a_p = _dense_row(a, p)
                 m_p = self.inv_mass * a_p
                 w_p = _dense_row(w_all, p)             # W_ip of every row i
             r_vec = work.solve(np.where(active, w_p, 0.0))
             if r_vec is None:
-                return None
+                return False
             pivot = float(w_p[p] - w_p @ r_vec)      # W_pp - W_pA W_AA^-1 W_Ap: 0 for a dependent row
             full = (float(a_p @ v) - r[p]) / pivot if pivot > self.settings["dependent"] * w_p[p] else np.inf
             ratio = np.full(k, np.inf)
@@ -704,9 +751,9 @@ class SparseSolver(QPSolver):
             j = int(np.argmin(ratio))
             step = min(full, ratio[j])
             if not np.isfinite(step):
-                return None   # dependent and nothing can drop: the rows are infeasible (DAQP says how)
+                return False   # dependent and nothing can drop: the rows are infeasible (DAQP says how)
             if np.isfinite(full):
-                v = v + step * (self.inv_mass * (a.T @ r_vec) - m_p)
+                v += step * (self.inv_mass * (a_t @ r_vec) - m_p)
             y -= step * r_vec
             y[p] += step
             if full <= ratio[j]:
@@ -717,17 +764,28 @@ class SparseSolver(QPSolver):
                 active[j] = False
                 y[j] = 0.0
                 work.drop(j)
-        return None
+        return False
 
     def describe(self) -> dict:
         return {"solver": self.name, **self.settings, "fallback": self.fallback.describe()}
 
 
+def _base_factor(splu, w, base: np.ndarray):
+    """SuperLU's factor of ``W_BB`` (``w`` CSR, the rows and columns ``base``), symmetric positive
+    (semi)definite: a symmetric ordering, no pivoting; None if it is exactly singular."""
+    try:
+        return splu(w[base][:, base].tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                    options={"SymmetricMode": True})
+    except RuntimeError:
+        return None
+
+
 def _dense_row(a, i: int) -> np.ndarray:
-    """Row ``i`` of the CSR matrix ``a`` as a dense vector."""
+    """Row ``i`` of the CSR matrix ``a`` as a dense vector (its column indices unique within a row, as
+    :meth:`Rows.sparse` and a sparse product leave them)."""
     out = np.zeros(a.shape[1])
     span = slice(a.indptr[i], a.indptr[i + 1])
-    np.add.at(out, a.indices[span], a.data[span])
+    out[a.indices[span]] = a.data[span]
     return out
 
 
@@ -746,61 +804,61 @@ class _WorkingSet:
 
     def _rebase(self, base: np.ndarray) -> None:
         self.base = base
-        self.where = {int(row): i for i, row in enumerate(base)}
-        self.items = []   # (row, added): an added row, or a dropped base row
+        self.where = np.full(self.w.shape[0], -1)   # each row's place in the base (-1: not in it)
+        self.where[base] = np.arange(len(base))
+        self.m = 0                                  # the items: an added row, or a dropped base row
+        self._rows = np.zeros(self.BORDER, dtype=int)
+        self._added = np.zeros(self.BORDER, dtype=bool)
         self._v = np.zeros((len(base), self.BORDER))   # V, W_BB^-1 V and the Schur complement, by item
         self._y = np.zeros((len(base), self.BORDER))
         self._c = np.zeros((self.BORDER, self.BORDER))
         self.lu = None
-        if len(base):
-            try:
-                self.lu = self._splu(self.w[base][:, base].tocsc(), permc_spec="MMD_AT_PLUS_A",
-                                     diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-            except RuntimeError:   # exactly singular: the caller's start was not independent
-                self.lu = False
+        if len(base):   # False if exactly singular: the caller's start was not independent
+            self.lu = _base_factor(self._splu, self.w, base) or False
 
-    def _rows(self):
+    def _members(self) -> np.ndarray:
         """The working set's rows, the base's still in it and the added ones."""
-        dropped = {row for row, added in self.items if not added}
-        return ([row for row in self.base if int(row) not in dropped]
-                + [row for row, added in self.items if added])
+        rows, added = self._rows[: self.m], self._added[: self.m]
+        return np.concatenate([np.setdiff1d(self.base, rows[~added]), rows[added]])
 
     def _append(self, row: int, added: bool) -> None:
         if self.lu is False:   # a singular base: solve() says so
             return
+        m = self.m
         if added:
             w_col = _dense_row(self.w, row)
             col = w_col[self.base]
+            c_new = np.where(self._added[:m], w_col[self._rows[:m]], 0.0)
         else:
-            w_col = None
             col = np.zeros(len(self.base))
             col[self.where[row]] = 1.0
+            c_new = np.zeros(m)
         solved = self.lu.solve(col) if len(self.base) else col
-        m = len(self.items)
-        c_new = np.array([w_col[other] if (added and other_added) else 0.0 for other, other_added in self.items])
         schur_col = c_new - self._v[:, :m].T @ solved
         self._v[:, m] = col
         self._y[:, m] = solved
         self._c[:m, m] = self._c[m, :m] = schur_col
         self._c[m, m] = (w_col[row] if added else 0.0) - col @ solved
-        self.items.append((row, added))
+        self._rows[m], self._added[m] = row, added
+        self.m = m + 1
 
     def _remove(self, index: int) -> None:
-        m = len(self.items)
+        m = self.m
         keep = np.flatnonzero(np.arange(m) != index)
         for block in (self._v, self._y):
             block[:, : m - 1] = block[:, keep]
         self._c[: m - 1, : m - 1] = self._c[np.ix_(keep, keep)]
-        del self.items[index]
+        self._rows[: m - 1], self._added[: m - 1] = self._rows[keep], self._added[keep]
+        self.m = m - 1
 
     def _change(self, row: int, added: bool) -> None:
-        for i, (other, other_added) in enumerate(self.items):
-            if other == row:   # a change undone
-                self._remove(i)
-                return
-        if len(self.items) >= self.BORDER:
-            rows = self._rows()
-            self._rebase(np.array(sorted(rows + [row] if added else [r for r in rows if r != row]), dtype=int))
+        undone = np.flatnonzero(self._rows[: self.m] == row)
+        if len(undone):   # a change undone
+            self._remove(int(undone[0]))
+            return
+        if self.m >= self.BORDER:
+            rows = self._members()
+            self._rebase(np.sort(np.append(rows, row) if added else rows[rows != row]))
             return
         self._append(row, added)
 
@@ -816,18 +874,16 @@ class _WorkingSet:
             return None
         x = np.zeros(len(b))
         x_b = self.lu.solve(b[self.base]) if len(self.base) else np.zeros(0)
-        m = len(self.items)
+        m = self.m
         if m:
-            rhs = np.array([b[row] if added else 0.0 for row, added in self.items]) - self._v[:, :m].T @ x_b
+            rows, added = self._rows[:m], self._added[:m]
+            rhs = np.where(added, b[rows], 0.0) - self._v[:, :m].T @ x_b
             z = np.linalg.solve(self._c[:m, :m], rhs)
             x_b = x_b - self._y[:, :m] @ z
-            for (row, added), value in zip(self.items, z):
-                if added:
-                    x[row] = value
-        x[self.base] = x_b
-        for row, added in self.items:
-            if not added:
-                x[row] = 0.0
+            x[self.base] = x_b
+            x[rows] = np.where(added, z, 0.0)
+        else:
+            x[self.base] = x_b
         return x
 
 

@@ -62,16 +62,20 @@ other arithmetic; the velocities are the QP's either way, so the trajectory is t
   structure; an impact; any call a cable would pull on): an explicit basis of
   ``N`` by :func:`sparse_self_stress_space` (block inverse iteration on ``A_B A_B^T`` with a sparse LU,
   the eigenvectors below ``RANK_TOL^2`` of its largest eigenvalue, i.e. the same threshold on the same
-  singular values), then the dense rule's own fit (:meth:`SelfStress._fit`, its nonnegative QP
-  included);
+  singular values, on a block as wide as the space, counted first), then the dense rule's own fit
+  (:meth:`SelfStress._fit`, its nonnegative QP included);
 * many (a structure at rest: 114 self-stresses on a 20-stage tower, ~450 on a 50-stage one): the space
   kept implicit (:class:`SparseSpace`: ``A_B^T s`` in the span of the near-null eigenvectors of
   ``A_B^T A_B``, two KKT systems by sparse LU), unless a cable would pull (then the explicit basis).
   The space and its factors are kept while the binding rows are the same to the bit (a structure at
-  rest, also after a command that holds it): a 50-stage tower's step at rest 45 ms -> 4.2 ms.
+  rest, also after a command that holds it): a 50-stage tower's step at rest 45 ms -> 4.2 ms; and,
+  answering for the new rows to round-off, while they have moved by round-off only (``_MOVED``).
 
-A call neither resolves goes to the dense rule (counted in ``SelfStress.counts``). Agreement with the
-dense rule, the published impulses over the largest multiplier of a call
+Below ``SPARSE_NODES``, from ``MOVING_NODES`` free nodes (``SelfStress.moving``), the dense rule takes the
+basis of binding rows that are not the load time's (a moving structure) from
+:func:`sparse_self_stress_space` too, instead of an SVD (its own fit after it; the SVD if the iteration
+does not settle). A call neither resolves goes to the dense rule (counted in ``SelfStress.counts``).
+Agreement with the dense rule, the published impulses over the largest multiplier of a call
 (``test_prestress.py::test_sparse_rule_matches_the_dense``): 4e-13 on the rattling built-in tower, 2e-15
 on the thrown icosahedron and rigid prism, 6e-15 on a 30-stage tower at rest; 1.6e-11 over 44 calls of a
 moving 20-stage tower. One call in 32 of a moving 30-stage tower differed by 2e-8: its nonnegative share
@@ -107,8 +111,8 @@ from scipy.linalg import LinAlgError, cho_factor as _cho_factor, cho_solve as _c
 from . import _self_stress_kernels as kernels
 from .qp import Rows
 
-__all__ = ["RANK_TOL", "SPARSE_NODES", "TAUT_TOL", "SelfStress", "reference_tensions", "self_stress_space",
-           "sparse_self_stress_space", "SparseSpace"]
+__all__ = ["MOVING_NODES", "RANK_TOL", "SPARSE_NODES", "TAUT_TOL", "SelfStress", "reference_tensions",
+           "self_stress_space", "sparse_self_stress_space", "SparseSpace"]
 
 # Singular values of A_B^T below RANK_TOL * the largest span the self-stress space. Measured on the
 # thrown icosahedron (bench/prestress_tensions.py): 2e-5 for the self-stress against 0.18 for the next
@@ -125,6 +129,12 @@ _EXACT = 1e-13
 # From this many free nodes on, the rule runs on sparse matrices (module docstring: measured between 25
 # and 30 stages of a tower, where the dense rule's refinement stops working at rest)
 SPARSE_NODES = 150
+# From this many free nodes on, the dense rule takes the basis of binding rows that are not the load
+# time's (a moving structure) from the sparse block inverse iteration rather than an SVD. Measured per
+# call on moving towers (0.05 m/s, the rule's calls of 3-4 steps replayed, CPU time, the two in turn):
+# SVD / sparse 1.3-6.4 / 2.1-7.2 ms at 57 free nodes (10 stages, even), 9.7-13.6 / 3.7-6.3 ms at 87 (15
+# stages), 22-27 / 5.6-10.6 ms at 117 (20 stages).
+MOVING_NODES = 80
 # The sparse path, relative to the largest eigenvalue of A_B^T A_B: the regularisation of the KKT
 # systems' multiplier block (refined away), and the floor below which an eigenvalue is a mechanism's zero
 # (the round-off of a zero eigenvalue of the squared matrix is ~1e-16; a singular value of 1e-6 of the
@@ -139,7 +149,7 @@ _IMPLICIT = 64
 # moving 100-stage tower had 92 self-stresses with 16 rows more than degrees of freedom; at 64 its calls
 # went to the dense SVD, 21 s a step).
 _EXPLICIT = 256
-_GUARD = 8           # the block's columns beyond the space (the iteration converges as the first excluded eigenvalue)
+_GUARD = 8           # the block's columns beyond the space, at least (sparse_self_stress_space: a quarter of it)
 _BLOCK_ITER = 16
 _RITZ_TOL = 1e-14    # of the largest eigenvalue: a kept Ritz pair's residual |W x - theta x| at convergence
 _REFINEMENTS = 8     # refinements of a KKT solve before the sparse path gives the step to the SVD ...
@@ -147,6 +157,11 @@ _REFINEMENTS = 8     # refinements of a KKT solve before the sparse path gives t
 # _SHIFT / RANK_TOL^2 = 1e-6 a refinement, and what is left is round-off amplified by the near-null
 # directions (measured: 1e-16 on the towers, 1.3e-13 on the thrown icosahedron, sigma 3e-5 of the largest)
 _REFINE_TOL = 1e-10
+# Rows of the implicit space's members whose entries (the members' unit directions) moved by at most this
+# since the space was built keep it (SparseSpace.moved): a 100-stage tower at rest, whose round-off
+# velocities (up to 4e-13 m/s after 30 steps) move its rows' last bits, rebuilt it at 8 to 19 of 30 steps
+# (~100 ms each, against ~4 for a kept one), depending on its round-off history
+_MOVED = 1e-12
 
 
 def reference_tensions(stiffness: np.ndarray, length_offsets: np.ndarray) -> np.ndarray:
@@ -189,8 +204,13 @@ class SelfStress:
         self.compiled = True  # the rule in one numba kernel (_self_stress_kernels.py); False: the numpy reference
         # the sparse path (_impulses_sparse) from SPARSE_NODES free nodes on; False: the dense rule (its reference)
         self.sparse = n_free >= SPARSE_NODES
+        # below, the dense rule's basis of binding rows that are not the load time's by the sparse block
+        # inverse iteration from MOVING_NODES free nodes on (_moving_space); False: the SVD
+        self.moving = n_free >= MOVING_NODES
         self.counts = {"sparse": 0, "dense": 0}   # calls of a structure that can lock, by the path that answered
-        self._kept = None     # (rows' key, SparseSpace) of the last implicit space (see _implicit)
+        self._kept = None     # (rows' pattern, entries, SparseSpace) of the last implicit space (_implicit)
+        self._settled = None  # the binding cables of the sparse path's last sub-step whose share pulled on none
+        self._pulled = False  # whether the last fit's least-squares share pulled on a cable (_fit)
         self._load_cables = np.ascontiguousarray(load_cables, dtype=np.int64)
 
     @property
@@ -260,9 +280,14 @@ class SelfStress:
         a = rows.subset(index, rows.targets[index], 0).sparse(self.n_free)
         y_b = y[binding]
         ref = self.reference[cables[binding[n_eq:]]] * tau
+        members = cables[binding[n_eq:]].tobytes()
         # an impact's share (tau = 0: no reference to fit) pulled on some cable at every impact of the
-        # moving towers: it goes straight to the explicit basis
-        if tau > 0.0 and len(index) - a.shape[1] > _IMPLICIT:
+        # moving towers: it goes straight to the explicit basis; so does a sub-step's unless its members
+        # are the load time's or those of the last sub-step whose share pulled on none (a structure at
+        # rest): on moving 50- and 100-stage towers every implicit share pulled, and the attempts took
+        # a sixth of the rule's time (0.73 of 4.37 s over 2 steps of the 100-stage tower)
+        if (tau > 0.0 and len(index) - a.shape[1] > _IMPLICIT
+                and members in (self._load_members, self._settled)):
             out = self._implicit(a, y_b, ref, n_eq)
             if out is not None:
                 self.residual = max(self.residual, float(np.max(np.abs(a.T @ (out - y_b)), initial=0.0)))
@@ -274,19 +299,29 @@ class SelfStress:
             return None
         if not basis.shape[1]:
             return y
-        return self._fit(basis, y_b - basis @ (basis.T @ y_b), y, binding, a.T, ref, n_eq)
+        published = self._fit(basis, y_b - basis @ (basis.T @ y_b), y, binding, a.T, ref, n_eq)
+        if tau > 0.0:
+            self._settled = None if self._pulled else members
+        return published
 
     def _implicit(self, a, y_b, ref, n_eq):
         """The published impulses (k_b,) N*s of the binding rows ``a`` with multipliers ``y_b`` through
         :class:`SparseSpace`, or None (a cable would pull, or the space is not resolved). The space and
         its factorisations are kept while the rows are the same to the bit (a structure at rest), so
-        the answer still depends on this call's arguments alone."""
-        key = (a.indptr.tobytes(), a.indices.tobytes(), a.data.tobytes())
-        if self._kept is not None and self._kept[0] == key:
-            space = self._kept[1]
+        the answer still depends on this call's arguments alone; and for rows moved by round-off since
+        (the same members, no entry moved by more than ``_MOVED``: a structure at rest, whose round-off
+        velocities move its rows' last bits), :meth:`SparseSpace.moved` answers for the new rows to
+        round-off, with the kept space's vectors and factors."""
+        pattern = (a.indptr.tobytes(), a.indices.tobytes())
+        kept = self._kept
+        if kept is not None and kept[0] == pattern and np.array_equal(kept[1], a.data):
+            space = kept[2]
+        elif (kept is not None and kept[0] == pattern and kept[2] is not None
+              and np.max(np.abs(a.data - kept[1]), initial=0.0) <= _MOVED):
+            space = kept[2].moved(a)
         else:
             space = SparseSpace.of(a)
-            self._kept = (key, space)
+            self._kept = (pattern, a.data.copy(), space)
         if space is None:
             return None
         share = space.fit(np.ones(len(y_b)), y_b)
@@ -314,12 +349,24 @@ class SelfStress:
         """:meth:`impulses` from the result of ``locked_space`` (``binding`` (k,) bool, the binding cables
         ``members``, ``A_B^T``, the basis or None for an SVD) for multipliers ``y`` (k,) N*s over ``tau`` s."""
         if basis is None:
-            basis = self_stress_space(a_t)[0]
+            basis = self._moving_space(a_t)
         if not basis.shape[1]:
             return y
         y_b = y[binding]
         share = basis.T @ y_b
         return self._fit(basis, y_b - basis @ share, y, binding, a_t, self.reference[members] * tau, n_eq)
+
+    def _moving_space(self, a_t: np.ndarray) -> np.ndarray:
+        """The self-stress basis of binding rows ``a_t`` (``A_B^T``) that are not the load time's (or whose
+        refinement failed): the SVD's, or from ``MOVING_NODES`` free nodes (``moving``) the sparse block
+        inverse iteration's (:func:`sparse_self_stress_space`, the same space to round-off), unless it
+        does not settle."""
+        if self.moving:
+            from scipy.sparse import csr_matrix
+            basis = sparse_self_stress_space(csr_matrix(a_t.T))
+            if basis is not None:
+                return basis
+        return self_stress_space(a_t)[0]
 
     def _impulses_reference(self, rows, cables, at_limit, y, tau):
         """The numpy reference of :meth:`impulses` (for a structure that can lock)."""
@@ -345,7 +392,8 @@ class SelfStress:
         # d = 1 (the usual case): the one division LAPACK's 1 x 1 solve makes (the same bits, measured)
         alpha = rhs / gram[0] if len(gram) == 1 else np.linalg.solve(gram, rhs)
         out = dynamic + basis @ alpha
-        if np.any(out[n_eq:] < 0.0):
+        self._pulled = bool(np.any(out[n_eq:] < 0.0))
+        if self._pulled:
             alpha = self._nonnegative(n_c, dynamic[n_eq:], ref, alpha)
             out = dynamic + basis @ alpha
         out[n_eq:] = np.maximum(out[n_eq:], 0.0)    # round-off below zero
@@ -371,12 +419,24 @@ def sparse_self_stress_space(a, rank_tol: float = RANK_TOL):
     """:func:`self_stress_space`'s basis (k, d) for the rows ``a`` (scipy sparse, k x 3 n_free) from sparse
     matrices: the eigenvectors of ``W = A_B A_B^T`` with eigenvalues below ``rank_tol^2`` times the largest
     (the squared singular values), by block inverse iteration with a sparse LU of ``W + delta I``
-    (``delta`` = ``_SHIFT`` times the largest) and a Rayleigh-Ritz step each time, on ``_GUARD`` more
-    columns than the space has vectors, until the kept Ritz pairs' residuals are round-off. Single-vector
+    (``delta`` = ``_SHIFT`` times the largest) and a Rayleigh-Ritz step each time, on a quarter more
+    columns than the space has vectors (at least ``_GUARD``), until the kept Ritz pairs' residuals are
+    round-off. The space's size is counted first (:func:`_space_size`, one more sparse LU), so the block
+    starts at its final width: started at the excess of rows over degrees of freedom and doubled while
+    too narrow, it ended up to 1.8x wider than the space (a moving 100-stage tower's sub-step: 339
+    self-stresses, 622 columns, 4 iterations). The guard sets how well the residual test pins the space
+    down when a kept singular value sits near the threshold: with 8 columns, a moving 100-stage tower's
+    sub-step (380 self-stresses, the largest kept singular value 0.62e-3 of the largest, the next 1.08e-3)
+    ended on a projector 1.2e-11 from the SVD's after 5 iterations, and the nonnegative share (a
+    degenerate QP) turned that into published impulses 0.45 of the largest multiplier from the dense
+    rule's; with a quarter (95), 7e-13 after 3 iterations, and 2.3e-12 from the dense rule (the doubled
+    block's: 6.7e-13 and 2.9e-12). Replayed, the rule's calls of moving 30-, 50- and 100-stage towers (2
+    steps each) took 0.68x, 0.81x and 0.81x the time of the doubled block's (the implicit attempts that
+    moving towers no longer make included). Single-vector
     Lanczos (ARPACK's shift-invert) is not used: it cannot resolve the null space's multiplicity (it
     returned 1-9 vectors that were not self-stresses among 13-49 on a moving 10-stage tower). None
     when that does not settle within ``_BLOCK_ITER`` iterations or the space outgrows ``_EXPLICIT`` plus
-    the excess of rows over degrees of freedom."""
+    the excess of rows over degrees of freedom (known from the count, before any iteration)."""
     from scipy.sparse import identity
     from scipy.sparse.linalg import ArpackNoConvergence, eigsh, splu
     k, n3 = a.shape
@@ -390,8 +450,13 @@ def sparse_self_stress_space(a, rank_tol: float = RANK_TOL):
         return None
     thr = rank_tol * rank_tol * largest
     most = max(k - n3, 0) + _EXPLICIT
+    size = _space_size(w, thr)
+    if size is None:
+        size = max(k - n3, 0)
+    elif size > most:
+        return None
     # a fixed start block, so that a replay has the same bits
-    x = np.random.default_rng(0).standard_normal((k, min(max(k - n3, 0) + _GUARD, k)))
+    x = np.random.default_rng(0).standard_normal((k, min(size + max(_GUARD, size // 4), k)))
     for _ in range(_BLOCK_ITER):
         x, _ = np.linalg.qr(lu.solve(x))
         theta, q = np.linalg.eigh(x.T @ (w @ x))
@@ -407,6 +472,20 @@ def sparse_self_stress_space(a, rank_tol: float = RANK_TOL):
         if residual.max(initial=0.0) <= _RITZ_TOL * largest:
             return x[:, kept]
     return None
+
+
+def _space_size(w, thr: float):
+    """How many eigenvalues of ``w`` (symmetric, scipy CSC) lie below ``thr``, by Sylvester's law of
+    inertia: the negative pivots of ``w - thr I`` factorised as ``L D L^T`` (SuperLU with a symmetric
+    ordering and no pivoting, ``U = D L^T``); None if that factorisation meets an exact zero pivot."""
+    from scipy.sparse import identity
+    from scipy.sparse.linalg import splu
+    try:
+        lu = splu((w - thr * identity(w.shape[0])).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                  options={"SymmetricMode": True})
+    except RuntimeError:
+        return None
+    return int(np.count_nonzero(lu.U.diagonal() < 0.0))
 
 
 class SparseSpace:
@@ -457,18 +536,32 @@ class SparseSpace:
             return None
         return cls(a, u, largest)
 
+    def moved(self, a) -> "SparseSpace":
+        """The space of rows ``a`` (scipy sparse) that are this one's moved by round-off (the same
+        pattern): this one's near-null vectors ``U`` and LU factors, the KKT matrices of ``a`` (which
+        :meth:`fit`'s refinement solves), so the answers are ``a``'s own to round-off."""
+        space = SparseSpace(a, self.u, self.largest)
+        space._factors = {key: (space._kkt(np.frombuffer(key)), lu) for key, (_, lu) in self._factors.items()}
+        return space
+
+    def _kkt(self, weight: np.ndarray):
+        """The KKT matrix of :meth:`fit` for ``weight`` (CSC)."""
+        import scipy.sparse as sp
+        a, u = self.a, self.u
+        m, n3 = u.shape[1], a.shape[1]
+        dense_u = sp.csc_matrix(u)
+        return sp.bmat([[sp.diags(weight), None, a],
+                        [None, sp.csc_matrix((m, m)), -dense_u.T],
+                        [a.T, -dense_u, sp.csc_matrix((n3, n3))]], format="csc")
+
     def _factorise(self, weight: np.ndarray):
         """The KKT matrix of :meth:`fit` for ``weight`` and the LU factor of its regularised form (None
         if that is exactly singular)."""
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
-        a, u = self.a, self.u
-        k, n3 = a.shape
-        m = u.shape[1]
-        dense_u = sp.csc_matrix(u)
-        exact = sp.bmat([[sp.diags(weight), None, a],
-                         [None, sp.csc_matrix((m, m)), -dense_u.T],
-                         [a.T, -dense_u, sp.csc_matrix((n3, n3))]], format="csc")
+        k, n3 = self.a.shape
+        m = self.u.shape[1]
+        exact = self._kkt(weight)
         shifted = exact - sp.diags(np.concatenate([np.zeros(k + m), np.full(n3, _SHIFT * self.largest)]))
         try:
             return exact, splu(shifted, permc_spec="MMD_AT_PLUS_A")   # 0.7x the time of COLAMD's (tower30)
