@@ -99,8 +99,9 @@ def solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, directions, n_f
     ``hessian`` the identity, ``warm`` (k,) bool the rows to start active, the problem divided by
     ``unit`` m/s. With ``guess``, the working set ``warm`` is tried first
     (``_qp_kernels.working_set_answer``, at DAQP's ``primal_tol`` and ``dual_tol``, its pivots at
-    ``sing_tol``, read from ``settings``); DAQP only when it is not the active set. Returns ``v`` (3 n_free,) m/s, the multipliers (k,) N*s, DAQP's exit flag and iterations
-    (1 and 0 for the working set's answer)."""
+    ``sing_tol``, read from ``settings``); DAQP only when it is not the active set. Returns ``v``
+    (3 n_free,) m/s, the multipliers (k,) N*s, DAQP's exit flag and iterations (1 and 0 for the working
+    set's answer)."""
     k = targets.shape[0]
     bupper = targets / unit
     if guess:
