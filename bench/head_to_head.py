@@ -11,7 +11,8 @@ were; ``--methods ""``: none); ``--stages ""`` skips the towers (and keeps their
   inextensible one against MuJoCo's Euler with *limited* tendons (its model of an inextensible cable).
   The inextensible rows add the step with the self-stress rule in its numpy reference (what compiling
   it gained) and the step with its kernels called one by one through the solver's and the rule's API
-  (``one_kernel = False``: what running a step in one kernel call gained).
+  (``one_kernel = False``: what running a step in one kernel call gained). Every timed run starts
+  ``SETTLE`` steps after a reset, each contender stepped there untimed: steady stepping after warm-up.
 * **Towers** of ``--stages`` stages (no gravity), inextensible, at rest and moving (random node
   velocities of 0.05 m/s): the steady cost per step after a warm-up, and separately the cost of the first
   step after a command (``set_rest_lengths`` with the current lengths, as a controller holding its
@@ -46,11 +47,25 @@ from bench.scale import finish_plot, loglog_slope, tower_scene  # noqa: E402
 from bench.tables import read_csv, write_csv  # noqa: E402
 from bench.timing import time_alternating  # noqa: E402
 
+SETTLE = 50   # steps each contender takes, untimed, after a reset and before a timed run (_settled)
+
+
 def _python_loop(step):
     def run(n):
         for _ in range(n):
             step()
     return run
+
+
+def _settled(contender):
+    """A reset of ``contender`` (a :class:`tensegrity_sim.Simulator` or a ``MujocoPeer``) that then steps
+    it ``SETTLE`` steps, untimed: the timed runs measure steady stepping, not the first steps after a
+    reset (the thrown icosahedron's first inextensible steps take the Python path, ~400 us each for the
+    impact of its initial velocities on its locked rows: 8 of them added ~3 us a step to runs of ~1000
+    steps timed from a reset)."""
+    if isinstance(contender, ts.Simulator):
+        return lambda: (contender.reset(), contender.run(steps=SETTLE, every=SETTLE))
+    return lambda: (contender.reset(), contender.advance(SETTLE))
 
 
 def icosahedron_rows(repeats: int, methods=("elastic", "inextensible")) -> list[dict]:
@@ -64,19 +79,19 @@ def icosahedron_rows(repeats: int, methods=("elastic", "inextensible")) -> list[
         peer = MujocoPeer(scene, model=method, dt=1e-3, integrator="Euler")
         model, data = peer.model, peer.data
         contenders = {
-            "tensegrity_sim step()": (_python_loop(sim.step), sim.reset),
-            "MuJoCo mj_step() loop": (_python_loop(lambda: mujoco.mj_step(model, data)), peer.reset),
-            "tensegrity_sim run()": (lambda n: sim.run(steps=n, every=n), sim.reset),
-            "MuJoCo mj_step(nstep)": (peer.advance, peer.reset),
+            "tensegrity_sim step()": (_python_loop(sim.step), _settled(sim)),
+            "MuJoCo mj_step() loop": (_python_loop(lambda: mujoco.mj_step(model, data)), _settled(peer)),
+            "tensegrity_sim run()": (lambda n: sim.run(steps=n, every=n), _settled(sim)),
+            "MuJoCo mj_step(nstep)": (peer.advance, _settled(peer)),
         }
         pairs = [(0, 1), (2, 3)]
         if method == "inextensible":   # what compiling the self-stress rule and the one-call step gained (issue 10)
             plain = ts.Simulator(scene, method=method, dt=1e-3, contacts=())
             plain._method.self_stress.compiled = False
-            contenders["tensegrity_sim step(), self-stress rule numpy"] = (_python_loop(plain.step), plain.reset)
+            contenders["tensegrity_sim step(), self-stress rule numpy"] = (_python_loop(plain.step), _settled(plain))
             api = ts.Simulator(scene, method=method, dt=1e-3, contacts=())
             api._method.one_kernel = False
-            contenders["tensegrity_sim step(), kernels called through the API"] = (_python_loop(api.step), api.reset)
+            contenders["tensegrity_sim step(), kernels called through the API"] = (_python_loop(api.step), _settled(api))
             pairs += [(4, 1), (5, 1)]
         timings = time_alternating(contenders, repeats=repeats, target=0.2, clock=time.process_time)
         best = {name: t.best for name, t in timings.items()}
