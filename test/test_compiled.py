@@ -13,7 +13,7 @@ from tensegrity_sim.methods import _qp_kernels as kernels
 from tensegrity_sim.methods import _self_stress_kernels as self_stress_kernels
 from tensegrity_sim.methods import qp
 from tensegrity_sim.methods.inextensible import LengthOffsetWarning
-from tensegrity_sim.methods.self_stress import _EXACT, RANK_TOL
+from tensegrity_sim.methods.self_stress import _EXACT, _NO_FACTOR, RANK_TOL
 
 TOL = 1e-12
 
@@ -505,7 +505,7 @@ def test_self_stress_rule_matches_reference(name):
         calls["compared"] += 1
         calls["refined"] += refined(rows.nodes, rows.directions, rule.n_free, rows.n_eq, cables, at_limit, y,
                                     rule._load_basis, rule._load_cables, rule._load_largest, True, RANK_TOL,
-                                    _EXACT)[3] is not None
+                                    _EXACT, rule.weight, False, *_NO_FACTOR)[3] is not None
         return fast
     rule.impulses = both
     for k in range(min(steps, 200)):

@@ -414,7 +414,7 @@ def test_daqp_working_set_answer_matches_its_reference_and_quadprog(case):
         active[:rows.n_eq] = False
         solver = qp.DaqpSolver(mass)
         for warm, right in ((active, True), (~active, False)):
-            ok, v, y = _qp_kernels.working_set_answer(
+            ok, v, y, _, _ = _qp_kernels.working_set_answer(
                 rows.nodes, rows.directions, solver.inv_mass.reshape(-1, 3), v0, rows.targets, rows.n_eq, warm,
                 *(solver.settings[name] for name in ("primal_tol", "dual_tol", "sing_tol")))
             plain = solver._working_set_reference(v0.ravel(), rows, warm)

@@ -101,16 +101,17 @@ def solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, directions, n_f
     (``_qp_kernels.working_set_answer``, at DAQP's ``primal_tol`` and ``dual_tol``, its pivots at
     ``sing_tol``, read from ``settings``); DAQP only when it is not the active set. Returns ``v``
     (3 n_free,) m/s, the multipliers (k,) N*s, DAQP's exit flag and iterations (1 and 0 for the working
-    set's answer)."""
+    set's answer), and the working set's Cholesky factor and rows (empty when DAQP answered: see
+    ``_self_stress_kernels.locked_space``, which refines with the factor)."""
     k = targets.shape[0]
     bupper = targets / unit
     if guess:
         tolerances = settings.view(np.float64)
-        guessed, v, y = working_set_answer(nodes, directions, (1.0 / mass).reshape((n_free, 3)),
-                                           (v0 / unit).reshape((n_free, 3)), bupper, n_eq, warm,
-                                           tolerances[_PRIMAL_TOL], tolerances[_DUAL_TOL], tolerances[_SING_TOL])
+        guessed, v, y, factor, rows = working_set_answer(
+            nodes, directions, (1.0 / mass).reshape((n_free, 3)), (v0 / unit).reshape((n_free, 3)), bupper, n_eq,
+            warm, tolerances[_PRIMAL_TOL], tolerances[_DUAL_TOL], tolerances[_SING_TOL])
         if guessed:
-            return v.reshape(-1) * unit, unit * y, 1, 0
+            return v.reshape(-1) * unit, unit * y, 1, 0, factor, rows
     a = dense_rows(nodes, directions, n_free, sqrt_mass)
     lower = np.full(k, -1e30)
     sense = np.empty(k, dtype=np.int32)
@@ -120,4 +121,4 @@ def solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, directions, n_f
             lower[i] = targets[i] / unit
     f = -sqrt_mass * (v0 / unit)
     z, lam, flag, iterations = quadprog(entry, settings, hessian, f, a, bupper, lower, sense)
-    return (z / sqrt_mass) * unit, unit * lam, flag, iterations
+    return (z / sqrt_mass) * unit, unit * lam, flag, iterations, np.zeros((0, 0)), np.zeros(0, dtype=np.int64)

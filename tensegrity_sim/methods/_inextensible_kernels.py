@@ -214,25 +214,27 @@ def _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, directions,
     """``DaqpSolver.solve`` at unit scale with ``QPSolver._check``: ``v`` (n_free, 3) m/s, the multipliers
     (k,) N*s and whether the answer passed (DAQP succeeded, finite, the optimality conditions met to
     ``feasibility_tol`` relative plus ``velocity_floor`` m/s). A failed one goes back to the Python path,
-    which raises its error or solves again at another scale."""
+    which raises its error or solves again at another scale. Also the working set's Cholesky factor and
+    rows (``solve_rows``)."""
     n_free = v0_free.shape[0]
-    v_flat, y, flag, _ = solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, directions, n_free,
-                                    v0_free.reshape(-1), targets, n_eq, warm, 1.0, True)
+    v_flat, y, flag, _, factor, rows = solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, directions,
+                                                  n_free, v0_free.reshape(-1), targets, n_eq, warm, 1.0, True)
     v = v_flat.reshape((n_free, 3))
     if flag < 1 or not (np.isfinite(v_flat).all() and np.isfinite(y).all()):
-        return v, y, False
+        return v, y, False, factor, rows
     scale, violation, impulse, stationarity, smallest, short = answer_residuals(
         v, y, v0_free, nodes, directions, targets, n_eq, mass, feasibility_tol)
     tol = feasibility_tol * scale + velocity_floor
     ok = not (violation > tol or stationarity > feasibility_tol * impulse or smallest < -feasibility_tol * impulse
               or short > tol)
-    return v, y, ok
+    return v, y, ok, factor, rows
 
 
 @njit(cache=True)
 def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding, row_nodes, free_nodes,
              cable_ends, taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor,
-             landing_tol, landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact):
+             landing_tol, landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact,
+             weight, shared):
     """``InextensibleMethod._midpoint`` without contact rows, its QP solved by DAQP (``_solve_checked``),
     in one call: the rows (:func:`select_rows`, member table ``ends``, ``limits`` with the landing
     targets' reel already applied), the landing iterations (``_land``: up to ``landing_iter`` solves,
@@ -258,6 +260,8 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
     n_free = free_nodes.shape[0]
     y = np.zeros(k)
     ok = True
+    factor = np.zeros((0, 0))   # the last QP's working set and its factor, which the rule may refine with
+    work = np.zeros(0, dtype=np.int64)
     if k == 0:   # nothing can be taut: free motion, no QP
         v_f = v0.copy()
     else:
@@ -269,8 +273,9 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
         shortest = m_limits.min()
         v_start = v
         for _ in range(landing_iter):
-            v_free, y, ok = _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, m_n, v0_free, targets,
-                                           n_eq, warm, feasibility_tol, velocity_floor)
+            v_free, y, ok, factor, work = _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, m_n,
+                                                         v0_free, targets, n_eq, warm, feasibility_tol,
+                                                         velocity_floor)
             if not ok:
                 break
             for i in range(n_free):
@@ -295,7 +300,8 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
         for i in range(rows_cables.shape[0]):
             at_limit[i] = length[rows_cables[i]] >= taut[rows_cables[i]]
         binding, members, a_t, basis = locked_space(nodes, m_n, n_free, n_eq, rows_cables, at_limit, y, load_basis,
-                                                    load_cables, load_largest, refine, rank_tol, exact)
+                                                    load_cables, load_largest, refine, rank_tol, exact, weight, shared,
+                                                    work, factor)
     return ok, x_f, v_f, y, cables, nodes, m_n, d, length, binding, members, a_t, basis
 
 
@@ -365,7 +371,7 @@ def fit_one(ddot, dgemv, wide, y, binding, basis, a_t, reference, members, tau, 
 def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint, inv_mass, ends,
          n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
          settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked,
-         load_basis, load_cables, load_largest, refine, rank_tol, exact, ddot, dgemv, wide,
+         load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide,
          reference):
     """``InextensibleMethod._step_impl`` of a step that is one sub-step (no snap located inside it, no
     impact at its start), without elastic struts or contact rows, in one call: the motors' limits
@@ -428,7 +434,7 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis = midpoint(
         x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
         taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter,
-        locked, load_basis, load_cables, load_largest, refine, rank_tol, exact)
+        locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared)
     new_holding = np.zeros(nc, dtype=np.bool_)
     r = n_eq
     for c in range(nc):
@@ -471,7 +477,7 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
           f_ext, commanded, most, dt, offsets, limit_tol, taut_tol, inv_mass, ends, n_eq, rigid_lengths,
           cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian,
           sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
-          load_cables, load_largest, refine, rank_tol, exact, ddot, dgemv, wide, reference):
+          load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference):
     """Steps ``first``, ``first + 1``, ... of ``n_steps`` from ``x``, ``v`` (N, 3), the inputs held, each
     :func:`step` from the cables known to hold ``holding`` and the warm start ``hint`` (nc,) bool (after a
     step both are the cables that held, as in ``InextensibleMethod._step_impl``), until one needs the Python path (an event, a QP answer it must
@@ -487,7 +493,7 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
                    inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends,
                    min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass, feasibility_tol,
                    velocity_floor, landing_tol, landing_iter, locked, load_basis, load_cables, load_largest,
-                   refine, rank_tol, exact, ddot, dgemv, wide, reference)
+                   refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference)
         if not (ok and fitted):
             return i, x, v, applied, holding, hint, residual
         x, v, applied, holding, hint = x_f, v_f, new_applied, new_holding, new_holding

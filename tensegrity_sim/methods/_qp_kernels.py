@@ -172,7 +172,8 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
     absolute from 1e-12 m/s, which DAQP's tolerances alone did not on a prism hovering at 1e-9 m/s).
 
     Returns ``ok`` (False: the set is not the active set, or is dependent; nothing else is meaningful),
-    ``v`` (n_free, 3) m/s and the multipliers ``y`` (k,) N*s (0 outside the set)."""
+    ``v`` (n_free, 3) m/s, the multipliers ``y`` (k,) N*s (0 outside the set), the Cholesky factor
+    (g, g) of the set's Delassus matrix (``cholesky``'s layout) and the set's rows (g,) int."""
     k = targets.shape[0]
     n_free = v0.shape[0]
     g = 0
@@ -186,7 +187,7 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
             g += 1
     w = delassus(nodes, directions, rows, inv_mass)
     if not cholesky(w, pivot_tol):
-        return False, v0, np.zeros(k)
+        return False, v0, np.zeros(k), w, rows
     length = np.empty(k)   # each row's length in the mass-scaled problem, and its primal tolerance (m/s)
     tol = np.empty(k)
     for i in range(k):
@@ -216,7 +217,7 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
         if close and (moved <= floor or previous < np.inf and moved > 0.5 * previous):
             break
         if sweep == _SWEEPS or moved > previous:
-            return False, v, y
+            return False, v, y, w, rows
         previous = moved
         cho_solve(w, res)
         change[:, :] = 0.0   # M^-1 A_W^T dy, scattered row by row
@@ -235,10 +236,10 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
                 moved = max(moved, abs(inv_mass[i, j] * change[i, j]))
     for i in range(n_eq, k):
         if warm[i] and not y[i] * length[i] > dual_tol:
-            return False, v, y
+            return False, v, y, w, rows
         if not warm[i] and _rate(v, nodes, directions, i) - targets[i] > tol[i]:
-            return False, v, y
-    return True, v, y
+            return False, v, y, w, rows
+    return True, v, y, w, rows
 
 
 @njit(cache=True)

@@ -46,26 +46,30 @@ def _column_norm_max(nodes, directions, n_free, basis):
 
 
 @njit(cache=True)
-def _refined_space(nodes, directions, n_free, load_basis, load_largest, rank_tol, exact):
+def _refined_space(nodes, directions, n_free, load_basis, load_largest, rank_tol, exact, weight, factor):
     """``SelfStress._space`` when the binding rows (``nodes``, ``directions``) are the load time's
     members: the load basis if it is exact, else refined by two inverse iterations on ``A A^T`` and kept
     if below ``rank_tol``; else (an ``A A^T`` that is not positive definite in floating point, as a
     tower's at its load geometry with twelve self-stresses, or a refinement that is not below) None:
     the caller's SVD.
 
-    ``A A^T`` is built row pair by row pair where two members share a node and factorised by Cholesky
-    (``_qp_kernels``: the QP's Delassus matrix with unit masses), each iteration's columns orthonormalised
-    (a single column: divided by its norm, signed as LAPACK's QR signs it). The reference (scipy's
-    ``cho_factor``, ``cho_solve`` and numpy's QR of the dense product) gets the same basis to round-off (~1e-16
-    relative on the thrown icosahedron, whose self-stress singular value is ~1e-5 of the next), at
-    about half the cost of the dense product and LAPACK's LU and QR that it replaces (the thrown
-    icosahedron's 30 rows: 10.1 -> 5.7 us a call from Python, on the loaded 2-core machine)."""
+    The iterations solve with a Cholesky factor of ``A W A^T`` (``weight`` (n_free, 3): the inverse
+    masses when they are all equal, a multiple of ``A A^T`` with the same eigenvectors, else ones),
+    built row pair by row pair where two members share a node (``_qp_kernels.delassus``), or given as
+    ``factor`` (g, g): the QP's own factor of the same rows (``locked_space``), when it has one. Each
+    iteration's columns are orthonormalised (a single column: divided by its norm, signed as LAPACK's QR
+    signs it). The reference (scipy's ``cho_factor``, ``cho_solve`` and numpy's QR of the dense product
+    ``A A^T``) gets the same basis to round-off (~1e-16 relative on the thrown icosahedron, whose
+    self-stress singular value is ~1e-5 of the next), at about half the cost of the dense product and
+    LAPACK's LU and QR that it replaces (the thrown icosahedron's 30 rows: 10.1 -> 5.7 us a call from
+    Python, on the loaded 2-core machine), and at a third of that with the QP's factor."""
     if _column_norm_max(nodes, directions, n_free, load_basis) <= exact * load_largest:
         return load_basis
     k, d = load_basis.shape
-    factor = delassus(nodes, directions, np.arange(k), np.ones((n_free, 3)))
-    if not cholesky(factor, 0.0):
-        return None
+    if factor.shape[0] != k:
+        factor = delassus(nodes, directions, np.arange(k), weight)
+        if not cholesky(factor, 0.0):
+            return None
     basis = load_basis
     for _ in range(2):
         solved = np.empty((k, d))
@@ -86,11 +90,14 @@ def _refined_space(nodes, directions, n_free, load_basis, load_largest, rank_tol
 
 @njit(cache=True)
 def locked_space(nodes, directions, n_free, n_eq, cables, at_limit, y, load_basis, load_cables, load_largest,
-                 refine, rank_tol, exact):
+                 refine, rank_tol, exact, weight, shared, qp_rows, qp_factor):
     """The binding rows of a QP answer and their self-stress basis: rows ``nodes``, ``directions`` (k
     rows, the first ``n_eq`` rigid struts, then the cables ``cables`` (k - n_eq,) int), multipliers ``y``
     (k,) N*s, ``at_limit`` (k - n_eq,) bool; the load time's basis (k_load, d), its cables
-    ``load_cables`` (int) and largest singular value.
+    ``load_cables`` (int) and largest singular value; ``weight`` as in ``_refined_space``, ``shared``
+    (the inverse masses are all equal, ``weight`` is them) and the QP's working rows ``qp_rows`` (g,)
+    int and Cholesky factor ``qp_factor`` (g, g) of its Delassus matrix (``_qp_kernels.cholesky``;
+    (0, 0): none), which the refinement takes when the binding rows are those rows.
     Returns ``binding`` (k,) bool, the binding cables
     (k_b - n_eq,) int, ``A_B^T`` (3 n_free, k_b) and the refined basis (k_b, d), or None when the
     binding rows are not the load time's or the refinement fails: then the caller takes an SVD
@@ -119,5 +126,15 @@ def locked_space(nodes, directions, n_free, n_eq, cables, at_limit, y, load_basi
             if members[i] != load_cables[i]:
                 same = False
                 break
-    basis = _refined_space(b_nodes, b_dirs, n_free, load_basis, load_largest, rank_tol, exact) if same else None
+    basis = None
+    if same:
+        # the QP's factor is that of A W A^T for the same rows when they are the binding rows
+        reuse = shared and qp_rows.shape[0] == kb
+        r = 0
+        for i in range(k):
+            if reuse and binding[i]:
+                reuse = qp_rows[r] == i
+                r += 1
+        basis = _refined_space(b_nodes, b_dirs, n_free, load_basis, load_largest, rank_tol, exact, weight,
+                               qp_factor if reuse else np.zeros((0, 0)))
     return binding, members, a_t, basis

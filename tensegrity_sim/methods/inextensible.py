@@ -202,7 +202,7 @@ class InextensibleMethod(StepMethod):
         self.reference_tensions = reference_tensions(system.stiffness[system.n_struts:], self.length_offsets)
         self.self_stress = SelfStress(int(free.sum()), self.reference_tensions,
                                       Rows(self._row_nodes[moving], n_load, np.zeros(len(moving)), self._n_eq),
-                                      np.flatnonzero(self._cables_move))
+                                      np.flatnonzero(self._cables_move), system.masses[free])
         # a structure that can lock counts a cable this close to its limit as at it (self_stress.TAUT_TOL)
         self._taut_tol = TAUT_TOL if self.self_stress.possible else LIMIT_TOL
         self.compiled = compiled   # the solver's rows and check and the self-stress rule follow (the property)

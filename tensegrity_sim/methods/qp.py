@@ -259,14 +259,14 @@ class DaqpSolver(QPSolver):
         k, n_eq, r = len(rows), rows.n_eq, rows.targets
         warm = np.zeros(k, dtype=bool) if warm is None else warm
         if self.compiled and rows.weights is None:
-            v, y, flag, iterations = daqp_kernels.solve_rows(
+            v, y, flag, iterations, _, _ = daqp_kernels.solve_rows(
                 self._entry, self._raw_settings, self._hessian, self._sqrt_mass, self.mass, rows.nodes,
                 rows.directions, self.n_free, v0, r, n_eq, warm, unit, self.working_set)
             if flag < 1:
                 raise self._failure(flag, iterations, k)
             return v, y
         if self.working_set and rows.weights is None:   # the kernel's working-set answer, then DAQP's wrapper
-            guessed, v, y = kernels.working_set_answer(
+            guessed, v, y, _, _ = kernels.working_set_answer(
                 rows.nodes, rows.directions, self.inv_mass.reshape(-1, 3), (v0 / unit).reshape(-1, 3), r / unit,
                 n_eq, warm, self.settings["primal_tol"], self.settings["dual_tol"], self.settings["sing_tol"])
             if guessed:

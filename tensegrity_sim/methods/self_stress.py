@@ -157,6 +157,8 @@ _REFINEMENTS = 8     # refinements of a KKT solve before the sparse path gives t
 # _SHIFT / RANK_TOL^2 = 1e-6 a refinement, and what is left is round-off amplified by the near-null
 # directions (measured: 1e-16 on the towers, 1.3e-13 on the thrown icosahedron, sigma 3e-5 of the largest)
 _REFINE_TOL = 1e-10
+# locked_space's QP working set and factor where the caller has none: the refinement factorises itself
+_NO_FACTOR = (np.zeros(0, dtype=np.int64), np.zeros((0, 0)))
 # Rows of the implicit space's members whose entries (the members' unit directions) moved by at most this
 # since the space was built keep it (SparseSpace.moved): a 100-stage tower at rest, whose round-off
 # velocities (up to 4e-13 m/s after 30 steps) move its rows' last bits, rebuilt it at 8 to 19 of 30 steps
@@ -188,9 +190,12 @@ class SelfStress:
     """The publishing rule of the module docstring for one system.
 
     ``n_free``: free nodes; ``reference``: (n_cables,) N; ``rows_at_load``: every member's row at load
-    time (the rigid struts, then the cables ``load_cables`` (int), those with a free end)."""
+    time (the rigid struts, then the cables ``load_cables`` (int), those with a free end); ``mass``
+    (n_free,) kg: the free nodes' masses (when they are all equal, the compiled refinement iterates on
+    the QP's Delassus matrix, a multiple of ``A A^T``, and takes the QP's own factor of it: ``weight``)."""
 
-    def __init__(self, n_free: int, reference: np.ndarray, rows_at_load: Rows, load_cables: np.ndarray):
+    def __init__(self, n_free: int, reference: np.ndarray, rows_at_load: Rows, load_cables: np.ndarray,
+                 mass: np.ndarray):
         self.n_free = n_free
         self.reference = reference
         self._rows_at_load = rows_at_load
@@ -212,6 +217,10 @@ class SelfStress:
         self._settled = None  # the binding cables of the sparse path's last sub-step whose share pulled on none
         self._pulled = False  # whether the last fit's least-squares share pulled on a cable (_fit)
         self._load_cables = np.ascontiguousarray(load_cables, dtype=np.int64)
+        # the inverse masses per degree of freedom as the QP backend computes them (1 / its mass, (n_free, 3))
+        inverse = 1.0 / np.repeat(np.asarray(mass, dtype=float), 3).reshape(-1, 3)
+        self._shared = bool(np.all(inverse == inverse.flat[0])) if inverse.size else False
+        self.weight = inverse if self._shared else np.ones((n_free, 3))
 
     @property
     def _load_basis(self) -> np.ndarray:
@@ -336,14 +345,16 @@ class SelfStress:
     def _impulses_compiled(self, rows, cables, at_limit, y, tau):
         """:meth:`impulses` in the kernels of ``_self_stress_kernels.py`` (see there for what stays numpy)."""
         space = kernels.locked_space(rows.nodes, rows.directions, self.n_free, rows.n_eq, cables, at_limit, y,
-                                     *self.load_space)
+                                     *self.load_space, *_NO_FACTOR)
         return self.locked_impulses(*space, y, tau, rows.n_eq)
 
     @property
     def load_space(self) -> tuple:
         """What ``_self_stress_kernels.locked_space`` takes after the QP answer: the load time's basis
-        (k_load, d), cables (int) and largest singular value, ``refine`` and the tolerances."""
-        return self._load_basis, self._load_cables, self._load_largest, self.refine, RANK_TOL, _EXACT
+        (k_load, d), cables (int) and largest singular value, ``refine``, the tolerances, the refinement's
+        ``weight`` and whether it is the QP's (equal masses)."""
+        return (self._load_basis, self._load_cables, self._load_largest, self.refine, RANK_TOL, _EXACT, self.weight,
+                self._shared)
 
     def locked_impulses(self, binding, members, a_t, basis, y, tau, n_eq):
         """:meth:`impulses` from the result of ``locked_space`` (``binding`` (k,) bool, the binding cables
