@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._qp_kernels import cho_solve, cholesky, delassus, dense_rows
+from ._qp_kernels import add_row, cho_solve, cholesky, delassus, dense_rows
 
 __all__ = ["locked_space"]
 
@@ -32,11 +32,7 @@ def _column_norm_max(nodes, directions, n_free, basis):
     for c in range(basis.shape[1]):
         force[:, :] = 0.0
         for r in range(basis.shape[0]):
-            for e in range(2):
-                node = nodes[r, e]
-                if node >= 0:
-                    for j in range(3):
-                        force[node, j] += (2.0 * e - 1.0) * directions[r, j] * basis[r, c]
+            add_row(force, nodes, directions, r, basis[r, c])
         s = 0.0
         for i in range(n_free):
             for j in range(3):
