@@ -45,27 +45,13 @@ from bench.bench_steps import agitated  # noqa: E402
 from bench.cases import work_precision_cases  # noqa: E402
 from bench.scale import finish_plot, loglog_slope, tower_scene  # noqa: E402
 from bench.tables import read_csv, write_csv  # noqa: E402
-from bench.timing import time_alternating  # noqa: E402
-
-SETTLE = 50   # steps each contender takes, untimed, after a reset and before a timed run (_settled)
-
+from bench.timing import SETTLE, time_alternating  # noqa: E402
 
 def _python_loop(step):
     def run(n):
         for _ in range(n):
             step()
     return run
-
-
-def _settled(contender):
-    """A reset of ``contender`` (a :class:`tensegrity_sim.Simulator` or a ``MujocoPeer``) that then steps
-    it ``SETTLE`` steps, untimed: the timed runs measure steady stepping, not the first steps after a
-    reset (the thrown icosahedron's first inextensible steps take the Python path, ~400 us each for the
-    impact of its initial velocities on its locked rows: 8 of them added ~3 us a step to runs of ~1000
-    steps timed from a reset)."""
-    if isinstance(contender, ts.Simulator):
-        return lambda: (contender.reset(), contender.run(steps=SETTLE, every=SETTLE))
-    return lambda: (contender.reset(), contender.advance(SETTLE))
 
 
 def icosahedron_rows(repeats: int, methods=("elastic", "inextensible")) -> list[dict]:
@@ -79,21 +65,22 @@ def icosahedron_rows(repeats: int, methods=("elastic", "inextensible")) -> list[
         peer = MujocoPeer(scene, model=method, dt=1e-3, integrator="Euler")
         model, data = peer.model, peer.data
         contenders = {
-            "tensegrity_sim step()": (_python_loop(sim.step), _settled(sim)),
-            "MuJoCo mj_step() loop": (_python_loop(lambda: mujoco.mj_step(model, data)), _settled(peer)),
-            "tensegrity_sim run()": (lambda n: sim.run(steps=n, every=n), _settled(sim)),
-            "MuJoCo mj_step(nstep)": (peer.advance, _settled(peer)),
+            "tensegrity_sim step()": (_python_loop(sim.step), sim.reset),
+            "MuJoCo mj_step() loop": (_python_loop(lambda: mujoco.mj_step(model, data)), peer.reset),
+            "tensegrity_sim run()": (lambda n: sim.run(steps=n, every=n), sim.reset),
+            "MuJoCo mj_step(nstep)": (peer.advance, peer.reset),
         }
         pairs = [(0, 1), (2, 3)]
         if method == "inextensible":   # what compiling the self-stress rule and the one-call step gained (issue 10)
             plain = ts.Simulator(scene, method=method, dt=1e-3, contacts=())
             plain._method.self_stress.compiled = False
-            contenders["tensegrity_sim step(), self-stress rule numpy"] = (_python_loop(plain.step), _settled(plain))
+            contenders["tensegrity_sim step(), self-stress rule numpy"] = (_python_loop(plain.step), plain.reset)
             api = ts.Simulator(scene, method=method, dt=1e-3, contacts=())
             api._method.one_kernel = False
-            contenders["tensegrity_sim step(), kernels called through the API"] = (_python_loop(api.step), _settled(api))
+            contenders["tensegrity_sim step(), kernels called through the API"] = (_python_loop(api.step), api.reset)
             pairs += [(4, 1), (5, 1)]
-        timings = time_alternating(contenders, repeats=repeats, target=0.2, clock=time.process_time)
+        timings = time_alternating(contenders, repeats=repeats, target=0.2, clock=time.process_time,
+                                   settle=SETTLE)
         best = {name: t.best for name, t in timings.items()}
         names = list(contenders)
         for ours, theirs in ((names[i], names[j]) for i, j in pairs):

@@ -21,7 +21,7 @@ import tensegrity_sim as ts
 from tensegrity_sim import formfinding
 
 from .runners import mujoco_available
-from .timing import Timing, time_alternating, time_runs
+from .timing import SETTLE, Timing, time_alternating, time_runs
 
 __all__ = ["STAGES_FULL", "STAGES_QUICK", "tower_scene", "scale_rows", "growth_exponent", "realtime_rows",
            "throughput_rows", "plot_scale"]
@@ -146,7 +146,7 @@ def _ours_loop(sim: ts.Simulator):
 def throughput_rows(scenes: dict, runners, progress=None) -> list[dict]:
     """Steps/s at dt = 1 ms (best and median of the runs) of tensegrity_sim and MuJoCo on each of
     ``scenes`` ({name: Scene}), in this process, all configurations of a scene taking turns
-    (:func:`~.timing.time_alternating`). ``ratio`` is tensegrity_sim's best steps/s over that MuJoCo
+    (:func:`~.timing.time_alternating`), each run ``SETTLE`` steps after a reset (steady stepping). ``ratio`` is tensegrity_sim's best steps/s over that MuJoCo
     configuration's, ``ratio_median`` the same with medians; the elastic method is compared with
     MuJoCo's spring tendons (Euler, implicitfast, RK4), the inextensible one with its limited tendons
     (Euler, RK4; MuJoCo's model of an inextensible cable)."""
@@ -174,7 +174,7 @@ def throughput_rows(scenes: dict, runners, progress=None) -> list[dict]:
                     continue
                 contenders[("MuJoCo", label)] = (peer.advance, peer.reset)
                 theirs[label] = method
-        timings = time_alternating(contenders, repeats=REPEATS, target=TARGET_SECONDS)
+        timings = time_alternating(contenders, repeats=REPEATS, target=TARGET_SECONDS, settle=SETTLE)
         nan = Timing((math.nan,))
         for variant in ours:
             t = timings.get(("tensegrity_sim", variant), nan)
