@@ -15,50 +15,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ._superlu_kernels import lu_solve
+
 __all__ = ["dual_steps", "CONVERGED", "REBASE", "FAILED"]
 
 CONVERGED, REBASE, FAILED = 0, 1, 2
-
-
-@njit(cache=True)
-def _lu_solve(b, l_ptr, l_idx, l_dat, u_ptr, u_idx, u_dat, u_diag, perm_r, perm_c):
-    """``x`` with ``B x = b`` for SuperLU's ``Pr B Pc = L U`` (``L`` unit lower, ``U`` upper, both CSC;
-    ``u_diag`` the position of each column's diagonal in ``U``)."""
-    n = b.shape[0]
-    w = np.empty(n)
-    for i in range(n):
-        w[perm_r[i]] = b[i]
-    for j in range(n):
-        wj = w[j]
-        if wj != 0.0:
-            for q in range(l_ptr[j], l_ptr[j + 1]):
-                i = l_idx[q]
-                if i > j:
-                    w[i] -= l_dat[q] * wj
-    for j in range(n - 1, -1, -1):
-        w[j] /= u_dat[u_diag[j]]
-        wj = w[j]
-        if wj != 0.0:
-            for q in range(u_ptr[j], u_ptr[j + 1]):
-                i = u_idx[q]
-                if i < j:
-                    w[i] -= u_dat[q] * wj
-    x = np.empty(n)
-    for i in range(n):
-        x[i] = w[perm_c[i]]
-    return x
-
-
-@njit(cache=True)
-def _diagonal_positions(ptr, idx):
-    """The position of each column's diagonal entry in a CSC matrix (-1: none)."""
-    n = ptr.shape[0] - 1
-    out = np.full(n, -1, dtype=np.int64)
-    for j in range(n):
-        for q in range(ptr[j], ptr[j + 1]):
-            if idx[q] == j:
-                out[j] = q
-    return out
 
 
 @njit(cache=True)
@@ -80,10 +41,10 @@ def _dot(a, b):
 
 @njit(cache=True)
 def dual_steps(a_ptr, a_idx, a_dat, w_ptr, w_idx, w_dat, inv_mass, r, n_eq, tol, dependent, border, v, y, active,
-               p, budget, base, singular, l_ptr, l_idx, l_dat, u_ptr, u_idx, u_dat, perm_r, perm_c):
+               p, budget, base, singular, l_ptr, l_idx, l_dat, u_ptr, u_idx, u_dat, u_diag, perm_r, perm_c):
     """Steps of ``SparseSolver._dual_active_set`` from working set ``active`` (k,) bool, whose rows are the
     base ``base`` (sorted; SuperLU's factor of its ``W_BB`` in the arrays after ``singular``, which is
-    True if that factorisation failed), velocities ``v`` (3 n_free,) and multipliers ``y`` (k,) (both
+    True if that factorisation failed; ``_superlu_kernels.factor_arrays``), velocities ``v`` (3 n_free,) and multipliers ``y`` (k,) (both
     updated in place, as ``active`` is), the row ``p`` joining the set (-1: none yet), at most ``budget``
     changes of the set. Returns ``(status, p, changes)``: ``CONVERGED`` (no row violated beyond ``tol``),
     ``REBASE`` (``border`` changes since the base: the caller factorises the set again and calls back
@@ -92,7 +53,6 @@ def dual_steps(a_ptr, a_idx, a_dat, w_ptr, w_idx, w_dat, inv_mass, r, n_eq, tol,
     k = r.shape[0]
     n3 = v.shape[0]
     nb = base.shape[0]
-    u_diag = _diagonal_positions(u_ptr, u_idx)
     where = np.full(k, -1, dtype=np.int64)
     for i in range(nb):
         where[base[i]] = i
@@ -137,7 +97,7 @@ def dual_steps(a_ptr, a_idx, a_dat, w_ptr, w_idx, w_dat, inv_mass, r, n_eq, tol,
         for i in range(nb):
             b_base[i] = w_p[base[i]] if active[base[i]] else 0.0
             whole = whole and (active[base[i]] or w_p[base[i]] == 0.0)
-        x_b = _lu_solve(b_base, l_ptr, l_idx, l_dat, u_ptr, u_idx, u_dat, u_diag, perm_r, perm_c) if nb else b_base
+        x_b = lu_solve(b_base, l_ptr, l_idx, l_dat, u_ptr, u_idx, u_dat, u_diag, perm_r, perm_c) if nb else b_base
         solved_p = x_b.copy()   # W_BB^-1 b_base, which p's column needs when it joins (if whole)
         if m:
             rhs = np.empty(m)
@@ -222,7 +182,7 @@ def dual_steps(a_ptr, a_idx, a_dat, w_ptr, w_idx, w_dat, inv_mass, r, n_eq, tol,
         if joined and whole:   # the same solve as r_vec's, of the same vector
             solved = solved_p
         elif nb:
-            solved = _lu_solve(col, l_ptr, l_idx, l_dat, u_ptr, u_idx, u_dat, u_diag, perm_r, perm_c)
+            solved = lu_solve(col, l_ptr, l_idx, l_dat, u_ptr, u_idx, u_dat, u_diag, perm_r, perm_c)
         else:
             solved = col
         for c in range(m):

@@ -698,24 +698,20 @@ class SparseSolver(QPSolver):
         """:meth:`_dual_steps_reference` in the compiled kernel (``_dual_kernels.dual_steps``), called
         again after each factorisation of the working set's base."""
         from . import _dual_kernels as kernels
+        from ._superlu_kernels import factor_arrays
         index = np.int64
         a_arrays = (a.indptr.astype(index), a.indices.astype(index), a.data)
         w_arrays = (w_all.indptr.astype(index), w_all.indices.astype(index), w_all.data)
         p, budget = -1, self.settings["dual_iter"]
         while True:
             base = np.flatnonzero(active)
-            factor = (np.zeros(1, dtype=index), np.zeros(0, dtype=index), np.zeros(0)) * 2
-            perms = (np.zeros(0, dtype=index),) * 2
             lu = _base_factor(self._splu, w_all, base) if len(base) else None
-            if lu is not None:
-                l, u = lu.L, lu.U
-                factor = (l.indptr.astype(index), l.indices.astype(index), l.data,
-                          u.indptr.astype(index), u.indices.astype(index), u.data)
-                perms = (lu.perm_r.astype(index), lu.perm_c.astype(index))
+            factor = (factor_arrays(lu) if lu is not None else
+                      (np.zeros(1, dtype=index), np.zeros(0, dtype=index), np.zeros(0)) * 2 + (np.zeros(0, dtype=index),) * 3)
             singular = len(base) > 0 and lu is None   # exactly singular: the start was not independent
             status, p, changes = kernels.dual_steps(
                 *a_arrays, *w_arrays, self.inv_mass, r, n_eq, tol, self.settings["dependent"], _WorkingSet.BORDER,
-                v, y, active, p, budget, base, singular, *factor, *perms)
+                v, y, active, p, budget, base, singular, *factor)
             budget -= changes
             if status != kernels.REBASE:
                 return status == kernels.CONVERGED
