@@ -222,17 +222,24 @@ class InextensibleMethod(StepMethod):
     # ------------------------------------------------------------------ contract
     def invalidate(self) -> None:
         """A command or a reset: no cable is known to hold (each one at its limit is checked for a snap),
-        but the QP keeps its warm start (``_hint``, the cables that held before): a guess it verifies,
-        which spares a large structure's first step after a command a cold start."""
+        but across a command the QP keeps its warm start (``_hint``, the cables that held before): a guess
+        it verifies, which spares a large structure's first step after a command a cold start (a reset
+        drops it: :meth:`prepare`)."""
         self._holding = np.zeros(self.system.n_cables, dtype=bool)
         self._end_geometry = None
 
     def prepare(self, state: State) -> None:
         """Initial velocities that would stretch a rigid strut lose that component (momentum unchanged).
-        Initial velocities that stretch a taut cable are an impact at t = 0, resolved by the first step."""
+        Initial velocities that stretch a taut cable are an impact at t = 0, resolved by the first step.
+        A reset forgets what the steps before it left (the QP's warm start, the rule's kept spaces and
+        starts), so that a reset simulator steps as a fresh one does, to the bit: a sparse backend's
+        guess from an old hint once took another path to the same QP answer (1.3e-12 N apart on a
+        moving 15-stage tower)."""
         if self.rigid.count:
             state.velocities = state.velocities + self.rigid.project_velocities(state.positions, state.velocities)
         self._applied = state.rest_lengths.copy()
+        self._holding = self._hint = np.zeros(self.system.n_cables, dtype=bool)
+        self.self_stress.forget()
 
     def applied_rest_lengths(self, state: State) -> np.ndarray:
         """The rest lengths in effect (n_cables,) m: the commanded ones, reached at ``reel_speed``."""
@@ -279,6 +286,7 @@ class InextensibleMethod(StepMethod):
         return d, length
 
     def _step_impl(self, state: State) -> MethodStep:
+        self.self_stress.begin_step()
         if self._one_kernel() and not len(self._elastic_ends) and self._blas is not None:
             done = self._step_kernel(state)
             if done is not None:
