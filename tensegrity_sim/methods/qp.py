@@ -902,8 +902,12 @@ SPARSE_NODES = 100
 # From this many free nodes on, the sparse backend's dual active-set method answers what its guess cannot
 # (DAQP below). Measured on moving towers (0.05 m/s, ``bench/head_to_head.py --configs default,main``
 # and the two alone, CPU time per steady step), with / without it: 1.47x at 20 stages (117 free nodes),
-# 0.97-1.0x at 30 (177), 0.47x at 50 (297); at rest the guess answers all but the first QP.
-DUAL_NODES = 150
+# 0.97-1.0x at 30 (177), 0.47x at 50 (297), with the dual method in Python; compiled
+# (``_dual_kernels.py``), the two in turn in one process, best of 4 x 3 steps after 11: 0.77x at 18
+# stages (105 free nodes), 0.71x at 20, 0.59x at 25 (147), the velocities then the dual method's
+# verified answers instead of DAQP's (positions 3e-11 to 5e-10 m apart after 23 steps, DAQP's
+# tolerance). So the sparse backend always has it; a smaller structure that names it does not.
+DUAL_NODES = SPARSE_NODES
 
 
 def choose_solver(n_free: int) -> tuple[str, str]:
