@@ -133,8 +133,11 @@ SPARSE_NODES = 150
 # time's (a moving structure) from the sparse block inverse iteration rather than an SVD. Measured per
 # call on moving towers (0.05 m/s, the rule's calls of 3-4 steps replayed, CPU time, the two in turn):
 # SVD / sparse 1.3-6.4 / 2.1-7.2 ms at 57 free nodes (10 stages, even), 9.7-13.6 / 3.7-6.3 ms at 87 (15
-# stages), 22-27 / 5.6-10.6 ms at 117 (20 stages).
-MOVING_NODES = 80
+# stages), 22-27 / 5.6-10.6 ms at 117 (20 stages). Again with the compiled solves, Cholesky's QR and the
+# start from the step's previous call (whole steps, the two in turn, best of 4 x 5 after 11), SVD / block:
+# 2.8 / 6.1 ms a step at 27 free nodes (5 stages), 21.6 / 28.0 at 45 (8), 41.5 / 42.4 at 57 (10), 75.8 /
+# 64.1 at 75 (13); the trajectories the same bits.
+MOVING_NODES = 64
 # The sparse path, relative to the largest eigenvalue of A_B^T A_B: the regularisation of the KKT
 # systems' multiplier block (refined away), and the floor below which an eigenvalue is a mechanism's zero
 # (the round-off of a zero eigenvalue of the squared matrix is ~1e-16; a singular value of 1e-6 of the
