@@ -16,33 +16,28 @@ __all__ = ["factor_arrays", "lu_solve"]
 
 
 def factor_arrays(lu) -> tuple:
-    """What :func:`lu_solve` takes after the right-hand sides, from SuperLU's factor ``lu``: ``L``'s and
-    ``U``'s CSC arrays (int64 indices), the position of each of ``U``'s diagonal entries, ``perm_r`` and
-    ``perm_c``."""
-    index = np.int64
-    l, u = lu.L, lu.U
-    u_ptr, u_idx = u.indptr.astype(index), u.indices.astype(index)
-    return (l.indptr.astype(index), l.indices.astype(index), l.data, u_ptr, u_idx, u.data,
-            diagonal_positions(u_ptr, u_idx), lu.perm_r.astype(index), lu.perm_c.astype(index))
+    """What :func:`lu_solve` takes after the right-hand sides, from SuperLU's factor ``lu``: the strictly
+    lower part of ``L`` and the strictly upper part of ``U`` as CSC arrays (int64 indices, each column's
+    entries in SuperLU's order), ``U``'s diagonal, ``perm_r`` and ``perm_c``."""
+    return (*_strict(lu.L, lower=True), *_strict(lu.U, lower=False), lu.U.diagonal(),
+            lu.perm_r.astype(np.int64), lu.perm_c.astype(np.int64))
 
 
-@njit(cache=True)
-def diagonal_positions(ptr, idx):
-    """The position of each column's diagonal entry in a CSC matrix (-1: none)."""
-    n = ptr.shape[0] - 1
-    out = np.full(n, -1, dtype=np.int64)
-    for j in range(n):
-        for q in range(ptr[j], ptr[j + 1]):
-            if idx[q] == j:
-                out[j] = q
-    return out
+def _strict(m, lower: bool) -> tuple:
+    """The CSC arrays of ``m``'s entries below (``lower``) or above its diagonal."""
+    n = m.shape[1]
+    columns = np.repeat(np.arange(n), np.diff(m.indptr))
+    keep = m.indices > columns if lower else m.indices < columns
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(columns[keep], minlength=n), out=ptr[1:])
+    return ptr, m.indices[keep].astype(np.int64), m.data[keep]
 
 
 @njit(cache=True)
 def lu_solve(b, l_ptr, l_idx, l_dat, u_ptr, u_idx, u_dat, u_diag, perm_r, perm_c):
-    """``x`` with ``B x = b`` for SuperLU's ``Pr B Pc = L U`` (``L`` unit lower, ``U`` upper, both CSC;
-    ``u_diag`` the position of each column's diagonal in ``U``): ``b`` (n,) or a block (n, m), numba
-    compiling each on its own. A row of the intermediate result that is zero is skipped (a sparse
+    """``x`` with ``B x = b`` for SuperLU's ``Pr B Pc = L U`` (:func:`factor_arrays`: ``L`` unit lower and
+    ``U`` upper, their off-diagonal parts CSC, ``u_diag`` ``U``'s diagonal): ``b`` (n,) or a block (n, m),
+    numba compiling each on its own. A row of the intermediate result that is zero is skipped (a sparse
     right-hand side costs what its fill does)."""
     n = b.shape[0]
     w = np.empty_like(b)
@@ -52,17 +47,13 @@ def lu_solve(b, l_ptr, l_idx, l_dat, u_ptr, u_idx, u_dat, u_diag, perm_r, perm_c
         if _zero(w, j):
             continue
         for q in range(l_ptr[j], l_ptr[j + 1]):
-            i = l_idx[q]
-            if i > j:
-                _subtract(w, i, l_dat[q], j)
+            _subtract(w, l_idx[q], l_dat[q], j)
     for j in range(n - 1, -1, -1):
-        _divide(w, j, u_dat[u_diag[j]])
+        _divide(w, j, u_diag[j])
         if _zero(w, j):
             continue
         for q in range(u_ptr[j], u_ptr[j + 1]):
-            i = u_idx[q]
-            if i < j:
-                _subtract(w, i, u_dat[q], j)
+            _subtract(w, u_idx[q], u_dat[q], j)
     x = np.empty_like(b)
     for i in range(n):
         _copy(x, i, w, perm_c[i])

@@ -707,7 +707,8 @@ class SparseSolver(QPSolver):
             base = np.flatnonzero(active)
             lu = _base_factor(self._splu, w_all, base) if len(base) else None
             factor = (factor_arrays(lu) if lu is not None else
-                      (np.zeros(1, dtype=index), np.zeros(0, dtype=index), np.zeros(0)) * 2 + (np.zeros(0, dtype=index),) * 3)
+                      (np.zeros(1, dtype=index), np.zeros(0, dtype=index), np.zeros(0)) * 2
+                      + (np.zeros(0), np.zeros(0, dtype=index), np.zeros(0, dtype=index)))
             singular = len(base) > 0 and lu is None   # exactly singular: the start was not independent
             status, p, changes = kernels.dual_steps(
                 *a_arrays, *w_arrays, self.inv_mass, r, n_eq, tol, self.settings["dependent"], _WorkingSet.BORDER,

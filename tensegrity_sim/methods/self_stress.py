@@ -542,23 +542,35 @@ def _block_space(a, rank_tol: float, start: np.ndarray | None = None):
 def _block_iteration(x, ritz, iterations, a_t, w, factor, thr, largest, most):
     """The block inverse iteration of :func:`_block_space` from ``x`` (k, b) (``ritz``: its columns are
     Ritz vectors already), at most ``iterations`` times: (the kept Ritz vectors, the final block), or
-    (None, None) if it does not settle or the block would outgrow ``most`` columns."""
+    (None, None) if it does not settle or the block would outgrow ``most`` columns. Converged Ritz
+    vectors are locked as they come: the kept vectors, in ascending order up to the first whose residual
+    is not yet round-off, leave the block, which goes on orthogonal to them (the solves projected off
+    them twice), so that the iterations a vector near the threshold needs are paid on the few columns
+    still moving (a moving 100-stage tower's sub-step: 4 iterations on 396 columns, ~290 of them
+    converged after the second)."""
     from ._superlu_kernels import lu_solve
     k = x.shape[0]
+    locked = np.zeros((k, 0))
     for _ in range(iterations):
-        theta, x = _rayleigh_ritz(a_t, lu_solve(x, *factor), ritz)
+        y = lu_solve(x, *factor)
+        for _ in range(2 if locked.shape[1] else 0):
+            y -= locked @ (locked.T @ y)
+        theta, x = _rayleigh_ritz(a_t, y, ritz)
         ritz = True
         kept = theta < thr
         if kept.all():   # the block is too small to hold the space and a guard: twice the columns
-            if x.shape[1] >= most:
+            held = locked.shape[1] + x.shape[1]
+            if held >= most:
                 return None, None
-            more = min(x.shape[1], most - x.shape[1], k - x.shape[1])
-            x = np.hstack([x, np.random.default_rng(x.shape[1]).standard_normal((k, more))])
+            more = min(held, most - held, k - held)
+            x = np.hstack([x, np.random.default_rng(held).standard_normal((k, more))])
             ritz = False
             continue
-        residual = np.linalg.norm(w @ x[:, kept] - x[:, kept] * theta[kept], axis=0)
-        if residual.max(initial=0.0) <= _RITZ_TOL * largest:
-            return x[:, kept], x
+        converged = np.linalg.norm(w @ x[:, kept] - x[:, kept] * theta[kept], axis=0) <= _RITZ_TOL * largest
+        if converged.all():
+            return np.hstack([locked, x[:, kept]]), np.hstack([locked, x])
+        lock = int(np.argmin(converged))   # the converged vectors before the first that is not
+        locked, x = np.hstack([locked, x[:, :lock]]), x[:, lock:]
     return None, None
 
 
