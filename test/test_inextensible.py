@@ -345,6 +345,36 @@ def rattling_tower(stages, speed, seed=0):
     return ts.Scene.from_dict(d)
 
 
+def test_the_last_sub_step_warmed_by_the_previous_steps_moves_the_same(monkeypatch):
+    """The sparse backend warms the last sub-step of a step cut at snaps with the cables that held in the
+    previous such step's last sub-step (``QPSolver.last_hint``): on a rattling 20-stage tower the same
+    QP answers to the bit over 10 steps (every one verified), with fewer changes of the dual active-set
+    method's working set (measured 2,526 against 4,077)."""
+    from tensegrity_sim.methods import _dual_kernels
+    scene = rattling_tower(20, 0.05)
+    steps = _dual_kernels.dual_steps
+    runs, changes = [], []
+    for last_hint in (False, True):
+        total = [0]
+
+        def counted(*args):
+            out = steps(*args)
+            total[0] += out[2]
+            return out
+        monkeypatch.setattr(_dual_kernels, "dual_steps", counted)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", LengthOffsetWarning)
+            sim = ts.Simulator(scene, method="inextensible", dt=1e-3)
+        assert sim._method.solver.last_hint
+        sim._method.solver.last_hint = last_hint
+        runs.append(sim.run(steps=10))
+        changes.append(total[0])
+        assert sim._method.solver.counts["daqp"] == 0
+    for name in ("positions", "velocities", "impulses"):
+        np.testing.assert_array_equal(getattr(runs[1], name), getattr(runs[0], name))
+    assert changes[1] < 0.8 * changes[0]
+
+
 @pytest.mark.parametrize("dual", [False, True])
 def test_sparse_backend_follows_daqp_on_a_rattling_tower(dual, monkeypatch):
     """The sparse backend (guess and verify, then DAQP, or its dual active-set method, forced on this

@@ -44,12 +44,12 @@ def dual_steps(a_ptr, a_idx, a_dat, w_ptr, w_idx, w_dat, inv_mass, r, n_eq, tol,
                p, budget, base, singular, l_ptr, l_idx, l_dat, u_ptr, u_idx, u_dat, u_diag, perm_r, perm_c):
     """Steps of ``SparseSolver._dual_active_set`` from working set ``active`` (k,) bool, whose rows are the
     base ``base`` (sorted; SuperLU's factor of its ``W_BB`` in the arrays after ``singular``, which is
-    True if that factorisation failed; ``_superlu_kernels.factor_arrays``), velocities ``v`` (3 n_free,) and multipliers ``y`` (k,) (both
-    updated in place, as ``active`` is), the row ``p`` joining the set (-1: none yet), at most ``budget``
-    changes of the set. Returns ``(status, p, changes)``: ``CONVERGED`` (no row violated beyond ``tol``),
-    ``REBASE`` (``border`` changes since the base: the caller factorises the set again and calls back
-    with ``p``) or ``FAILED`` (a singular base, a dependent row with nothing to drop, or no changes
-    left)."""
+    True if that factorisation failed; ``_superlu_kernels.factor_arrays``), velocities ``v`` (3 n_free,)
+    and multipliers ``y`` (k,) (both updated in place, as ``active`` is), the row ``p`` joining the set
+    (-1: none yet), at most ``budget`` changes of the set. Returns ``(status, p, changes)``:
+    ``CONVERGED`` (no row violated beyond ``tol``), ``REBASE`` (``border`` changes since the base: the
+    caller factorises the set again and calls back with ``p``) or ``FAILED`` (a singular base, a
+    dependent row with nothing to drop, or no changes left)."""
     k = r.shape[0]
     n3 = v.shape[0]
     nb = base.shape[0]

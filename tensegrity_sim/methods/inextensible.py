@@ -194,6 +194,9 @@ class InextensibleMethod(StepMethod):
         self._elastic_incidence = system.incidence_matrix(self._elastic_ends)
         self._holding = np.zeros(system.n_cables, dtype=bool)
         self._hint = self._holding   # the QP's warm start of the first sub-step (see invalidate)
+        # the cables that held in the last sub-step of the last step cut at snaps: the warm start of such a
+        # step's last sub-step, where the backend asks for it (QPSolver.last_hint)
+        self._last_hint = self._holding
         self._end_geometry = None   # (positions, cable vectors, lengths) last computed (a step's end)
         self._applied = scene.cable_rest_lengths   # the rest lengths in effect (the motors' positions), m
         # what the impulses of a locked structure are published as (issue 20, methods/self_stress.py)
@@ -238,7 +241,7 @@ class InextensibleMethod(StepMethod):
         if self.rigid.count:
             state.velocities = state.velocities + self.rigid.project_velocities(state.positions, state.velocities)
         self._applied = state.rest_lengths.copy()
-        self._holding = self._hint = np.zeros(self.system.n_cables, dtype=bool)
+        self._holding = self._hint = self._last_hint = np.zeros(self.system.n_cables, dtype=bool)
         self.self_stress.forget()
 
     def applied_rest_lengths(self, state: State) -> np.ndarray:
@@ -326,10 +329,14 @@ class InextensibleMethod(StepMethod):
                 if cut:
                     tau = theta * tau
                     x_m, v0 = self._free_motion(x, v, tau, f_ext)
-            x, v, y, published = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, reeling, hint)
+            last = event > 0 and not cut and getattr(self.solver, "last_hint", False)
+            x, v, y, published = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, reeling,
+                                                self._last_hint if last else hint)
             impulses += published
             holding = hint = (y > 0) & at_limit
             if not cut:
+                if last:
+                    self._last_hint = y > 0
                 break
             remaining -= tau
         self._holding = self._hint = holding
@@ -396,11 +403,13 @@ class InextensibleMethod(StepMethod):
         """What a step leaves to the next (a motor's position, the cables that hold, the warm start, the
         rule's largest dropped impulse): a command or a reset does not recompute it from the state, so the
         simulator rewinds the steps computed ahead before either (``carry_outlives_inputs``)."""
-        return self._applied.copy(), self._holding.copy(), self._hint.copy(), self.self_stress.residual
+        return (self._applied.copy(), self._holding.copy(), self._hint.copy(), self._last_hint.copy(),
+                self.self_stress.residual)
 
     def restore(self, carry) -> None:
-        applied, holding, hint, self.self_stress.residual = carry
+        applied, holding, hint, last, self.self_stress.residual = carry
         self._applied, self._holding, self._hint = applied.copy(), holding.copy(), hint.copy()
+        self._last_hint = last.copy()
         self._end_geometry = None
 
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
