@@ -154,7 +154,6 @@ _IMPLICIT = 64
 _EXPLICIT = 256
 _GUARD = 8           # the block's columns beyond the space, at least (sparse_self_stress_space: a quarter of it)
 _BLOCK_ITER = 16
-_WARM_ITER = 16       # iterations from the step's previous block before the random start takes over (_block_space)
 _RITZ_TOL = 1e-14    # of the largest eigenvalue: a kept Ritz pair's residual |W x - theta x| at convergence
 # _rayleigh_ritz takes Cholesky's QR of a block whose R spans at most this on its diagonal (its loss of
 # orthogonality grows as the square of the condition number): measured 1.0-3.9 on the second and later
@@ -501,9 +500,9 @@ def _block_space(a, rank_tol: float, start: np.ndarray | None = None):
     the random one (``SelfStress._basis``: the step's previous call's block, matched by member): its
     columns are taken as Ritz vectors (Cholesky's QR at once where their solves allow), cut or widened
     (random columns) to the counted space and its guard, and its answer kept only where it ends on as
-    many eigenvalues below the threshold as the count gives, within ``_WARM_ITER`` iterations; the random
-    start otherwise. The answer is verified either way (every kept Ritz pair's residual round-off, the
-    count met): on the calls of two steps of a moving 100-stage tower, the 7 started from the step's
+    many eigenvalues below the threshold as the count gives, within ``_BLOCK_ITER`` iterations; the random
+    start otherwise. The answer is verified either way by every kept Ritz pair's residual (round-off),
+    the started one also by the count: on the calls of two steps of a moving 100-stage tower, the 7 started from the step's
     previous block (the same members) settled in one iteration instead of two, on bases 1.2e-14 from
     the random start's."""
     from scipy.sparse import identity
@@ -532,7 +531,7 @@ def _block_space(a, rank_tol: float, start: np.ndarray | None = None):
     if start is not None and counted:
         if start.shape[1] < width:
             start = np.hstack([start, np.random.default_rng(start.shape[1]).standard_normal((k, width - start.shape[1]))])
-        found = _block_iteration(start[:, :width], True, _WARM_ITER, *iterate)
+        found = _block_iteration(start[:, :width], True, _BLOCK_ITER, *iterate)
         if found[0] is not None and found[0].shape[1] == size:
             return found
     # a fixed start block, so that a replay has the same bits
