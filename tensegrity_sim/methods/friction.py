@@ -260,6 +260,8 @@ class FrictionalSolver:
     ground), the scale of the Coulomb law's projection form.
     """
 
+    last_hint = False   # QPSolver.last_hint: the last sub-step after an event keeps the sub-step before's hint
+
     def __init__(self, inner: QPSolver, ground: ContactSet):
         self.inner = inner
         self.ground = ground

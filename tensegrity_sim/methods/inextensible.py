@@ -329,7 +329,7 @@ class InextensibleMethod(StepMethod):
                 if cut:
                     tau = theta * tau
                     x_m, v0 = self._free_motion(x, v, tau, f_ext)
-            last = event > 0 and not cut and getattr(self.solver, "last_hint", False)
+            last = event > 0 and not cut and self.solver.last_hint
             x, v, y, published = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, reeling,
                                                 self._last_hint if last else hint)
             impulses += published
