@@ -306,7 +306,7 @@ def test_the_moving_basis_matches_the_svd():
     assert rule.moving and not rule.sparse and rule.n_free >= MOVING_NODES
     bases, worst = [], [0.0]
     space = rule._moving_space
-    rule._moving_space = lambda a_t, ids: bases.append(space(a_t, ids)) or bases[-1]
+    rule._moving_space = lambda *args: bases.append(space(*args)) or bases[-1]
 
     def both(rows, cables, at_limit, y, tau):
         published = rule._impulses_compiled(rows, cables, at_limit, y, tau)

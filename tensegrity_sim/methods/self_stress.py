@@ -278,11 +278,12 @@ class SelfStress:
         step leave nothing behind)."""
         self._block = None
 
-    def _basis(self, a, ids: np.ndarray):
-        """:func:`sparse_self_stress_space` of the rows ``a`` (scipy sparse) whose members are ``ids`` (the
-        rigid struts' indices, then ``n_eq`` + each cable's), started from the final block of this step's
-        previous call (a sub-step or an impact of the same step: the space moves little between them), its
-        rows matched by member (zero for a member new to the rows); that call's block is then this one's."""
+    def _basis(self, a, n_eq: int, cables: np.ndarray):
+        """:func:`sparse_self_stress_space` of the rows ``a`` (scipy sparse): the ``n_eq`` rigid struts, then
+        the cables ``cables`` (int), started from the final block of this step's previous call (a sub-step
+        or an impact of the same step: the space moves little between them), its rows matched by member
+        (zero for a member new to the rows); that call's block is then this one's."""
+        ids = np.concatenate([np.arange(n_eq), n_eq + cables])   # the members: struts, then n_eq + cable
         start = None
         if self._block is not None:
             before, block = self._block
@@ -340,7 +341,7 @@ class SelfStress:
                 published = y.copy()
                 published[binding] = out
                 return published
-        basis = self._basis(a, np.concatenate([np.arange(n_eq), n_eq + cables[binding[n_eq:]]]))
+        basis = self._basis(a, n_eq, cables[binding[n_eq:]])
         if basis is None:
             return None
         if not basis.shape[1]:
@@ -397,21 +398,21 @@ class SelfStress:
         """:meth:`impulses` from the result of ``locked_space`` (``binding`` (k,) bool, the binding cables
         ``members``, ``A_B^T``, the basis or None for an SVD) for multipliers ``y`` (k,) N*s over ``tau`` s."""
         if basis is None:
-            basis = self._moving_space(a_t, np.concatenate([np.arange(n_eq), n_eq + members]))
+            basis = self._moving_space(a_t, n_eq, members)
         if not basis.shape[1]:
             return y
         y_b = y[binding]
         share = basis.T @ y_b
         return self._fit(basis, y_b - basis @ share, y, binding, a_t, self.reference[members] * tau, n_eq)
 
-    def _moving_space(self, a_t: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    def _moving_space(self, a_t: np.ndarray, n_eq: int, cables: np.ndarray) -> np.ndarray:
         """The self-stress basis of binding rows ``a_t`` (``A_B^T``) that are not the load time's (or whose
-        refinement failed): the SVD's, or from ``MOVING_NODES`` free nodes (``moving``) the sparse block
-        inverse iteration's (:func:`sparse_self_stress_space`, the same space to round-off), unless it
-        does not settle."""
+        refinement failed; ``n_eq`` rigid struts, then the cables ``cables``): the SVD's, or from
+        ``MOVING_NODES`` free nodes (``moving``) the sparse block inverse iteration's
+        (:func:`sparse_self_stress_space`, the same space to round-off), unless it does not settle."""
         if self.moving:
             from scipy.sparse import csr_matrix
-            basis = self._basis(csr_matrix(a_t.T), ids)
+            basis = self._basis(csr_matrix(a_t.T), n_eq, cables)
             if basis is not None:
                 return basis
         return self_stress_space(a_t)[0]
@@ -502,9 +503,9 @@ def _block_space(a, rank_tol: float, start: np.ndarray | None = None):
     (random columns) to the counted space and its guard, and its answer kept only where it ends on as
     many eigenvalues below the threshold as the count gives, within ``_BLOCK_ITER`` iterations; the random
     start otherwise. The answer is verified either way by every kept Ritz pair's residual (round-off),
-    the started one also by the count: on the calls of two steps of a moving 100-stage tower, the 7 started from the step's
-    previous block (the same members) settled in one iteration instead of two, on bases 1.2e-14 from
-    the random start's."""
+    the started one also by the count: on the calls of two steps of a moving 100-stage tower, the 7
+    started from the step's previous block (the same members) settled in one iteration instead of two,
+    on bases 1.2e-14 from the random start's."""
     from scipy.sparse import identity
     from scipy.sparse.linalg import ArpackNoConvergence, eigsh, splu
 
@@ -530,7 +531,8 @@ def _block_space(a, rank_tol: float, start: np.ndarray | None = None):
     iterate = (a.T.tocsr(), w, factor_arrays(lu), thr, largest, min(most, k))
     if start is not None and counted:
         if start.shape[1] < width:
-            start = np.hstack([start, np.random.default_rng(start.shape[1]).standard_normal((k, width - start.shape[1]))])
+            more = np.random.default_rng(start.shape[1]).standard_normal((k, width - start.shape[1]))
+            start = np.hstack([start, more])
         found = _block_iteration(start[:, :width], True, _BLOCK_ITER, *iterate)
         if found[0] is not None and found[0].shape[1] == size:
             return found
