@@ -266,14 +266,14 @@ def test_singular_guess_falls_back_to_daqp():
                                atol=1e-9 * np.max(np.abs(multipliers)))
 
 
-def test_kept_factorisation_follows_the_directions():
+def test_kept_factorisation_follows_the_directions(monkeypatch):
     """The factorisation is kept while the guessed rows are the same members in the same directions:
     new targets reuse it, new directions (the same members, moved) do not. Every answer is quadprog's."""
     v0, mass, rows = random_problem(5, n_eq=0)
     solver = qp.SparseSolver(mass)
     factorisations = []
-    splu = solver._splu
-    solver._splu = lambda *a, **k: factorisations.append(1) or splu(*a, **k)
+    factorise = qp.symmetric_lu
+    monkeypatch.setattr(qp, "symmetric_lu", lambda m: factorisations.append(1) or factorise(m))
     _, multipliers = quadprog_solution(v0, mass, rows)
     active = multipliers != 0
     targets = rows.targets.copy()
@@ -327,12 +327,11 @@ def test_working_set_solves_as_a_dense_factorisation(monkeypatch):
     inv_mass = 1.0 / np.repeat(mass, 3)
     w = (a.toarray() * inv_mass) @ a.toarray().T
     import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
     rng = np.random.default_rng(0)
     active = np.zeros(len(rows), dtype=bool)
     for row in rng.permutation(len(rows))[:25]:   # an independent base
         active[row] = independent(rows, len(mass), active | (np.arange(len(rows)) == row))
-    work = qp._WorkingSet(sp.csr_matrix(w), np.flatnonzero(active), splu)
+    work = qp._WorkingSet(sp.csr_matrix(w), np.flatnonzero(active))
     changes = 0
     for _ in range(40):
         row = int(rng.integers(len(rows)))

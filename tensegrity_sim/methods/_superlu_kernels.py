@@ -4,7 +4,7 @@ permutations applied in numba, on one right-hand side (the sparse backend's dual
 ``self_stress.sparse_self_stress_space``), where SuperLU's own solve took 26 ms for 300 columns of a
 moving 100-stage tower's ``A_B A_B^T + delta I`` (1937 rows, 80,000 entries in ``L`` and ``U``) and
 this one 6 ms: its inner loops run along a row of the block, contiguous in memory. The factorisation
-stays SuperLU's; the solves are the textbook forward and backward substitutions, column by column of
+stays SuperLU's (:func:`symmetric_lu` for the symmetric matrices of the QP backend and the rule); the solves are the textbook forward and backward substitutions, column by column of
 the factors (so the last bits are not SuperLU's: its supernodes sum in another order).
 """
 from __future__ import annotations
@@ -12,7 +12,18 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["factor_arrays", "lu_solve"]
+__all__ = ["factor_arrays", "lu_solve", "symmetric_lu"]
+
+
+def symmetric_lu(m):
+    """SuperLU's factor of the symmetric matrix ``m`` (scipy sparse) as ``L D L^T`` (its ``U = D L^T``): a
+    symmetric ordering (minimum degree on ``M^T + M``) and no pivoting; None if it meets an exactly zero
+    pivot."""
+    from scipy.sparse.linalg import splu
+    try:
+        return splu(m.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    except RuntimeError:
+        return None
 
 
 def factor_arrays(lu) -> tuple:

@@ -57,6 +57,7 @@ import scipy.linalg as scipy_linalg
 
 from . import _daqp_kernels as daqp_kernels, _qp_kernels as kernels
 from ._qp_kernels import _SETTLED, _SWEEPS
+from ._superlu_kernels import factor_arrays, symmetric_lu
 from .base import StepError
 
 __all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SparseSolver", "SOLVERS",
@@ -566,9 +567,7 @@ class SparseSolver(QPSolver):
                 "dependent": 1e-10}
 
     def __init__(self, mass):
-        from scipy.sparse.linalg import splu
         super().__init__(mass)
-        self._splu = splu
         self.fallback = DaqpSolver(mass)
         self._factor = None   # (nodes, directions, weights, A_G, A_G^T, diag W_GG, SuperLU factor) of the last guess
         self._start = None    # (guess, v, y) of the last guess that pulled on no row (see _attempt)
@@ -619,11 +618,7 @@ class SparseSolver(QPSolver):
         scaled = a.copy()
         scaled.data *= self.inv_mass[a.indices]
         w = scaled @ a.T   # CSR; symmetric, so its transpose is the same matrix in CSC, as SuperLU wants
-        try:   # W_GG is symmetric positive (semi)definite: a symmetric ordering, no pivoting
-            lu = self._splu(w.T, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                            options={"SymmetricMode": True})
-        except RuntimeError:   # exactly singular
-            lu = None
+        lu = symmetric_lu(w.T)   # W_GG is symmetric positive (semi)definite; None: exactly singular
         self._factor = (nodes, directions, weights, a, a.T, w.diagonal(), lu)
         return self._factor[3:]
 
@@ -709,14 +704,13 @@ class SparseSolver(QPSolver):
         """:meth:`_dual_steps_reference` in the compiled kernel (``_dual_kernels.dual_steps``), called
         again after each factorisation of the working set's base."""
         from . import _dual_kernels as kernels
-        from ._superlu_kernels import factor_arrays
         index = np.int64
         a_arrays = (a.indptr.astype(index), a.indices.astype(index), a.data)
         w_arrays = (w_all.indptr.astype(index), w_all.indices.astype(index), w_all.data)
         p, budget = -1, self.settings["dual_iter"]
         while True:
             base = np.flatnonzero(active)
-            lu = _base_factor(self._splu, w_all, base) if len(base) else None
+            lu = symmetric_lu(w_all[base][:, base]) if len(base) else None
             factor = (factor_arrays(lu) if lu is not None else
                       (np.zeros(1, dtype=index), np.zeros(0, dtype=index), np.zeros(0)) * 2
                       + (np.zeros(0), np.zeros(0, dtype=index), np.zeros(0, dtype=index)))
@@ -733,7 +727,7 @@ class SparseSolver(QPSolver):
         ``v`` and multipliers ``y`` (all three updated in place) until no row is violated beyond ``tol``
         (True) or the method fails (False); the numpy reference of :meth:`_dual_steps`."""
         k = len(r)
-        work = _WorkingSet(w_all, np.flatnonzero(active), self._splu)
+        work = _WorkingSet(w_all, np.flatnonzero(active))
         if work.lu is False:
             return False
         a_t = a.T
@@ -778,16 +772,6 @@ class SparseSolver(QPSolver):
         return {"solver": self.name, **self.settings, "fallback": self.fallback.describe()}
 
 
-def _base_factor(splu, w, base: np.ndarray):
-    """SuperLU's factor of ``W_BB`` (``w`` CSR, the rows and columns ``base``), symmetric positive
-    (semi)definite: a symmetric ordering, no pivoting; None if it is exactly singular."""
-    try:
-        return splu(w[base][:, base].tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                    options={"SymmetricMode": True})
-    except RuntimeError:
-        return None
-
-
 def _dense_row(a, i: int) -> np.ndarray:
     """Row ``i`` of the CSR matrix ``a`` as a dense vector (its column indices unique within a row, as
     :meth:`Rows.sparse` and a sparse product leave them)."""
@@ -806,8 +790,8 @@ class _WorkingSet:
 
     BORDER = 60
 
-    def __init__(self, w, base: np.ndarray, splu):
-        self.w, self._splu = w, splu   # W = A M^-1 A^T of every row (CSR)
+    def __init__(self, w, base: np.ndarray):
+        self.w = w   # W = A M^-1 A^T of every row (CSR)
         self._rebase(base)
 
     def _rebase(self, base: np.ndarray) -> None:
@@ -822,7 +806,7 @@ class _WorkingSet:
         self._c = np.zeros((self.BORDER, self.BORDER))
         self.lu = None
         if len(base):   # False if exactly singular: the caller's start was not independent
-            self.lu = _base_factor(self._splu, self.w, base) or False
+            self.lu = symmetric_lu(self.w[base][:, base]) or False
 
     def _members(self) -> np.ndarray:
         """The working set's rows, the base's still in it and the added ones."""

@@ -607,13 +607,10 @@ def _space_size(w, thr: float):
     inertia: the negative pivots of ``w - thr I`` factorised as ``L D L^T`` (SuperLU with a symmetric
     ordering and no pivoting, ``U = D L^T``); None if that factorisation meets an exact zero pivot."""
     from scipy.sparse import identity
-    from scipy.sparse.linalg import splu
-    try:
-        lu = splu((w - thr * identity(w.shape[0])).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                  options={"SymmetricMode": True})
-    except RuntimeError:
-        return None
-    return int(np.count_nonzero(lu.U.diagonal() < 0.0))
+
+    from ._superlu_kernels import symmetric_lu
+    lu = symmetric_lu(w - thr * identity(w.shape[0]))
+    return None if lu is None else int(np.count_nonzero(lu.U.diagonal() < 0.0))
 
 
 class SparseSpace:
