@@ -17,7 +17,9 @@ were; ``--methods ""``: none); ``--stages ""`` skips the towers (and keeps their
   velocities of 0.05 m/s): the steady cost per step after a warm-up, and separately the cost of the first
   step after a command (``set_rest_lengths`` with the current lengths, as a controller holding its
   command at 100 Hz sends), each the best of ``--repeats``; the growth exponent of the steady cost; the
-  shares of the steady cost spent in the QP and in the self-stress rule's publishing. ``--configs``
+  shares of the steady cost spent in the QP and in the self-stress rule's publishing; beside them, in
+  the same turns, MuJoCo's Euler with limited tendons on the same tower (its model of an inextensible
+  cable: soft constraints, one solve a step, no snap located). ``--configs``
   names the configurations timed in turns on twin simulators (``tower_rows``): ``default`` (the paths
   the size picks), ``main`` (the dense self-stress rule and the sparse backend without its dual
   active-set method: the paths before issue 10's large-structure work), or a ``+``-joined choice of a
@@ -46,6 +48,10 @@ from bench.cases import work_precision_cases  # noqa: E402
 from bench.scale import finish_plot, loglog_slope, tower_scene  # noqa: E402
 from bench.tables import read_csv, write_csv  # noqa: E402
 from bench.timing import SETTLE, time_alternating  # noqa: E402
+
+# MuJoCo steps a tower ~100x faster than this method: its turn in a tower block is this many steps
+_PEER_BLOCK = 50
+
 
 def _python_loop(step):
     def run(n):
@@ -131,7 +137,10 @@ def tower_rows(stages, repeats: int, budget: float, velocities=(0.0, 0.05), conf
     impulses of rows that carry a self-stress (``publish_share``, ``methods/self_stress.py``), for each
     of ``configs`` (:func:`_configured`), their twin simulators taking turns block by block;
     ``guessed_share``: the QPs the sparse backend's guess answered, ``dual_share`` those its dual
-    active-set method answered; ``sparse_share``: the rule's calls its sparse path answered."""
+    active-set method answered; ``sparse_share``: the rule's calls its sparse path answered; ``mujoco_ms``:
+    MuJoCo's steady step with limited tendons (the best of blocks of ``_PEER_BLOCK`` steps, one block after
+    each round of the configurations), ``mujoco_over_ours`` its ratio to the configuration's steady step."""
+    from bench.mujoco_peer import MujocoPeer
     rows = []
     for n in stages:
         for velocity in velocities:
@@ -145,6 +154,9 @@ def tower_rows(stages, repeats: int, budget: float, velocities=(0.0, 0.05), conf
                 for _ in range(warmup):
                     sim.step()
                 sims[config] = sim
+            peer = MujocoPeer(scene, model="inextensible", dt=1e-3, integrator="Euler")
+            peer.advance(warmup + 1)
+            peer_steady = math.inf
             inside = {config: {"solve": 0.0, "impulses": 0.0} for config in configs}
             for config, sim in sims.items():
                 _clock_calls(sim._method.solver, "solve", inside[config])
@@ -169,6 +181,9 @@ def tower_rows(stages, repeats: int, budget: float, velocities=(0.0, 0.05), conf
                     start = time.process_time()
                     sim.step()
                     after[config] = min(after[config], time.process_time() - start)
+                start = time.process_time()   # MuJoCo in its turn: _PEER_BLOCK steps of the same tower
+                peer.advance(_PEER_BLOCK)
+                peer_steady = min(peer_steady, (time.process_time() - start) / _PEER_BLOCK)
                 steps += 6
                 if time.process_time() - spent > budget:
                     break
@@ -180,13 +195,15 @@ def tower_rows(stages, repeats: int, budget: float, velocities=(0.0, 0.05), conf
                              "velocity": velocity, "config": config, "solver": sim.method_settings["solver"],
                              "first_ms": 1e3 * cold[config], "steady_ms": 1e3 * steady[config],
                              "after_command_ms": 1e3 * after[config], "after_over_steady": after[config] / steady[config],
+                             "mujoco_ms": 1e3 * peer_steady, "mujoco_over_ours": peer_steady / steady[config],
                              "qp_share": steady_inside[config]["solve"] / steady_total[config],
                              "publish_share": steady_inside[config]["impulses"] / steady_total[config],
                              "guessed_share": counts["guessed"] / qps if counts else math.nan,
                              "dual_share": counts.get("dual", 0) / qps if counts else math.nan,
                              "sparse_share": rule_counts["sparse"] / max(sum(rule_counts.values()), 1)})
                 print(f"  tower{n} v={velocity} {config}: steady {1e3 * steady[config]:.2f} ms, after a command "
-                      f"{1e3 * after[config]:.2f} ms, first {1e3 * cold[config]:.1f} ms ({steps} steps timed); "
+                      f"{1e3 * after[config]:.2f} ms, first {1e3 * cold[config]:.1f} ms ({steps} steps timed), "
+                      f"MuJoCo's limited tendons {1e3 * peer_steady:.2f} ms; "
                       f"steady: QP {rows[-1]['qp_share']:.0%}, self-stress publishing {rows[-1]['publish_share']:.0%}; "
                       f"QPs {counts}, rule {rule_counts}", flush=True)
     return rows
@@ -215,6 +232,12 @@ def plot_towers(rows, path) -> None:
             label = f"{config}, {'moving' if velocity else 'at rest'} (p = {exponent(rows, velocity, config):.2f})"
             line, = ax.loglog(m, steady, "-o" if velocity else "--s", ms=3.5, label=label)
             ax.loglog(m, after, "o" if velocity else "s", ms=6, mfc="none", color=line.get_color())
+    for velocity in sorted({r["velocity"] for r in rows}):
+        pts = sorted({(r["members"], r["mujoco_ms"]) for r in rows if r["velocity"] == velocity})
+        m, peer = map(np.array, zip(*pts))
+        ax.loglog(m, peer, ":^" if velocity else ":v", ms=3.5, color="0.4",
+                  label=f"MuJoCo limited tendons, {'moving' if velocity else 'at rest'} "
+                        f"(p = {loglog_slope(pts):.2f})")
     ax.set_xlabel("members (towers, inextensible, no gravity, dt = 1 ms)")
     ax.set_ylabel("CPU time per step (ms)")
     ax.set_title("steady step (filled) and the step after a command (open); p: growth exponent", fontsize=8)
