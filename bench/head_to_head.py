@@ -49,7 +49,8 @@ from bench.scale import finish_plot, loglog_slope, tower_scene  # noqa: E402
 from bench.tables import read_csv, write_csv  # noqa: E402
 from bench.timing import SETTLE, time_alternating  # noqa: E402
 
-# MuJoCo steps a tower 6-500x faster than this method (at rest, moving): its turn in a round is this many steps
+# MuJoCo steps a tower 4-8x (at rest) to 300-500x (moving) faster than this method: its turn in a round
+# is this many steps
 _PEER_BLOCK = 50
 
 
