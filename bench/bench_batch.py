@@ -16,7 +16,6 @@ per second = batch x steps / wall time.
 """
 from __future__ import annotations
 
-import csv
 import os
 import sys
 import warnings
@@ -28,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from bench.cases import icosahedron_thrown  # noqa: E402
 from bench.mujoco_peer import MujocoPeer  # noqa: E402
+from bench.tables import write_csv  # noqa: E402
 from bench.timing import time_runs  # noqa: E402
 from tensegrity_sim.batch import BatchSimulator  # noqa: E402
 
@@ -91,10 +91,7 @@ def measure() -> list[dict]:
 
 def write(rows: list[dict]) -> str:
     RESULTS.mkdir(exist_ok=True)
-    with open(RESULTS / "batch.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(RESULTS / "batch.csv", rows)
     lines = ["## Batches (issue 12)\n",
              "`python3 bench/bench_batch.py`: scene-steps per second of a whole batch (dt = 1 ms, best of "
              f"{REPEATS} turns in one process), against `mujoco.rollout` with as many threads as cores "
