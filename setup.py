@@ -87,6 +87,14 @@ EXTRAS_REQUIRE = {
     "bench": [
         "mujoco>=4.0.0,<5",      # the peer in bench/run_all.py (matplotlib is a core dependency)
     ],
+    # The documentation site (mkdocs.yml, docs/): mkdocs build --strict, run by test/test_docs.py in CI
+    "docs": [
+        "mkdocs>=1.6.1,<2",
+        "mkdocs-material>=9.8.2,<10",
+        "mkdocstrings>=1.0.8,<2",
+        "mkdocstrings-python>=2.0.11,<3",   # the API reference from the docstrings (griffe reads the source)
+        "pymdown-extensions>=13.1.2,<14",   # maths (arithmatex) and includes of msg_docs/ and CHANGELOG.md (snippets)
+    ],
 }
 
 setup(

@@ -17,7 +17,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-__all__ = ["write_csv", "read_csv", "provenance", "markdown_table", "source_line", "cell", "ROOT", "RESULTS"]
+__all__ = ["write_csv", "read_csv", "provenance", "markdown_table", "source_line", "cell", "select", "ROOT", "RESULTS"]
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -102,13 +102,10 @@ def cell(value, digits: int = 3) -> str:
     return str(value).replace("|", "\\|")
 
 
-def _matches(row: dict, where: dict) -> bool:
-    """Whether ``row`` has, for every column of ``where``, that value (or one of a list of values)."""
-    for column, wanted in where.items():
-        options = wanted if isinstance(wanted, (list, tuple)) else [wanted]
-        if row.get(column) not in options:
-            return False
-    return True
+def select(rows: list[dict], where: dict | None) -> list[dict]:
+    """The rows that hold, in every column of ``where``, its value (or one of its list of values)."""
+    where = {k: (v if isinstance(v, (list, tuple)) else [v]) for k, v in (where or {}).items()}
+    return [row for row in rows if all(row.get(column) in options for column, options in where.items())]
 
 
 def markdown_table(path: Path, columns: list[str] | dict | None = None, where: dict | None = None,
@@ -128,7 +125,7 @@ def markdown_table(path: Path, columns: list[str] | dict | None = None, where: d
     unknown = [c for c in [*headers, *(where or {})] if c not in rows[0]]
     if unknown:
         raise ValueError(f"{path}: no column {', '.join(map(repr, unknown))}; it has {', '.join(rows[0])}")
-    rows = [row for row in rows if _matches(row, where or {})]
+    rows = select(rows, where)
     if not rows:
         raise ValueError(f"{path}: no row matches {where}")
     lines = ["| " + " | ".join(headers.values()) + " |", "|" + " --- |" * len(headers)]

@@ -1,0 +1,87 @@
+"""README's speed table, generated from the benchmarks' CSV files (never typed by hand).
+
+    python3 scripts/readme_table.py           # rewrite the table in README.md from bench/results/
+    python3 scripts/readme_table.py --check   # exit 1 when README.md and the CSV files disagree (CI runs this)
+
+The table sits between the markers ``<!-- speed table -->`` and ``<!-- end speed table -->``. Its rows:
+the thrown icosahedron's CPU time per step beside MuJoCo's (``bench/results/head_to_head.csv``, written by
+``bench/head_to_head.py``) and a batch's scene-steps per second beside ``mujoco.rollout``
+(``bench/results/batch.csv``, ``bench/bench_batch.py``); each CSV's command, commit and machine are in its
+``.json`` sidecar and on the site's benchmarks page.
+"""
+from __future__ import annotations
+
+import argparse
+import difflib
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bench.tables import RESULTS, cell, provenance, read_csv, select  # noqa: E402
+
+README = ROOT / "README.md"
+BEGIN, END = "<!-- speed table -->", "<!-- end speed table -->"
+
+
+def _one(rows: list[dict], **where) -> dict:
+    found = select(rows, where)
+    if len(found) != 1:
+        raise SystemExit(f"readme_table: {len(found)} rows match {where}, not one")
+    return found[0]
+
+
+def table() -> str:
+    """The Markdown table (with its source line) that README shows between the markers."""
+    steps = read_csv(RESULTS / "head_to_head.csv")
+    batches = read_csv(RESULTS / "batch.csv")
+    lines = ["| thrown icosahedron, dt = 1 ms | tensegrity_sim | MuJoCo | MuJoCo's time / ours |",
+             "| --- | --- | --- | --- |"]
+    for method in ("elastic", "inextensible"):
+        for call, peer in (("run()", "mj_step(nstep)"), ("step()", "mj_step() loop")):
+            row = _one(steps, method=method, ours=f"tensegrity_sim {call}", peer=f"MuJoCo {peer}")
+            lines.append(f"| {method}, `{call}` | {cell(row['ours_us'])} µs/step | {cell(row['peer_us'])} µs/step "
+                         f"(`{peer.split()[0]}`, {row['peer_model']}) | **{cell(row['ratio'])}** |")
+    for case in ("icosahedron_thrown elastic", "icosahedron_thrown inextensible"):
+        ours = _one(batches, case=case, contender="BatchSimulator")
+        peer = _one(batches, case=case, contender="mujoco rollout")
+        lines.append(f"| {case.split()[1]}, batch of {ours['batch']:,} | {cell(ours['scene_steps_per_s'])} "
+                     f"scene-steps/s | {cell(peer['scene_steps_per_s'])} (`rollout`, {peer['threads']} threads) | "
+                     f"**{cell(ours['ratio_to_mujoco'])}** |")
+    commits = ", ".join(f"`{name}` at {provenance(RESULTS / name)['commit']}" for name in ("head_to_head.csv", "batch.csv"))
+    lines += ["", f"Generated from {commits} by `scripts/readme_table.py`; commands and machines: "
+              "[benchmarks](docs/benchmarks.md)."]
+    return "\n".join(lines)
+
+
+def render(readme: str) -> str:
+    """``readme`` with the text between the markers replaced by the current table."""
+    head, found, rest = readme.partition(BEGIN)
+    body, found_end, tail = rest.partition(END)
+    if not found or not found_end:
+        raise SystemExit(f"readme_table: README.md lacks the markers {BEGIN} ... {END}")
+    return f"{head}{BEGIN}\n{table()}\n{END}{tail}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="exit 1 if README.md's table differs from the CSVs")
+    args = parser.parse_args(argv)
+    current = README.read_text()
+    wanted = render(current)
+    if wanted == current:
+        return 0
+    if args.check:
+        sys.stderr.writelines(difflib.unified_diff(current.splitlines(True), wanted.splitlines(True),
+                                                   "README.md", "from bench/results"))
+        print("README.md's speed table disagrees with bench/results/: run python3 scripts/readme_table.py",
+              file=sys.stderr)
+        return 1
+    README.write_text(wanted)
+    print("rewrote the speed table in README.md")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
