@@ -8,10 +8,11 @@
   must match), for a figure in a sentence.
 * ``{{ source("x.csv") }}`` becomes the provenance line alone (for a figure of the CSV's run).
 * ``figures/scenes/<name>.png``: every built-in scene drawn from its YAML (struts thick, cables thin).
+* ``bench-results/<path>.png``: every figure the benchmarks drew into ``bench/results/``, as they are.
 * ``ros/interface/<page>.md``: every page of ``msg_docs/``, included as it is (the node's interface has one
   source: the files installed with the package).
 
-A macro that names a missing file, column or row fails the build (``PluginError``): a page never shows a
+Macros inside code (fenced blocks, code spans) are shown as written. A macro that names a missing file, column or row fails the build (``PluginError``): a page never shows a
 figure that its CSV no longer holds.
 """
 from __future__ import annotations
@@ -31,6 +32,7 @@ sys.path.insert(0, str(ROOT))
 from bench.tables import RESULTS, cell, markdown_table, read_csv, select, source_line  # noqa: E402
 
 MACRO = re.compile(r"\{\{\s*(table|value|source)\((.*?)\)\s*\}\}", re.S)
+CODE = re.compile(r"(^```.*?^```|`[^`\n]+`)", re.S | re.M)   # fenced blocks and code spans: shown, not expanded
 MSG_DOCS = ROOT / "msg_docs"
 
 
@@ -70,8 +72,10 @@ def _expand(match: re.Match, page: str) -> str:
 
 
 def on_page_markdown(markdown: str, page, config, files) -> str:
-    """Every macro of the page replaced by what the CSVs hold now."""
-    return MACRO.sub(lambda m: _expand(m, page.file.src_uri), markdown)
+    """Every macro of the page, outside code, replaced by what the CSVs hold now."""
+    parts = CODE.split(markdown)   # odd indices: the code
+    return "".join(part if i % 2 else MACRO.sub(lambda m: _expand(m, page.file.src_uri), part)
+                   for i, part in enumerate(parts))
 
 
 def _scene_figure(name: str) -> bytes:
@@ -112,11 +116,14 @@ def _scene_figure(name: str) -> bytes:
 
 
 def on_files(files, config):
-    """The generated files: the built-in scenes' figures and the msg_docs pages."""
+    """The generated files: the built-in scenes' figures, bench/results/'s figures and the msg_docs pages."""
     import tensegrity_sim as ts
 
     for name in ts.builtin_scenes():
         files.append(File.generated(config, f"figures/scenes/{name}.png", content=_scene_figure(name)))
+    for figure in sorted(RESULTS.rglob("*.png")):
+        files.append(File.generated(config, f"bench-results/{figure.relative_to(RESULTS).as_posix()}",
+                                    abs_src_path=str(figure)))
     for page in sorted(MSG_DOCS.glob("*.md")):
         files.append(File.generated(config, f"ros/interface/{page.name}", abs_src_path=str(page)))
     return files
