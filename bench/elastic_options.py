@@ -1,6 +1,6 @@
 """The elastic method's accuracy options beside MuJoCo: work-precision of the elastic cases (bungee, dead
-band, snap pair, thrown icosahedron, kicked tower) and the matched-error table, for the README's
-"Methods" section and ``auto``'s guidance (issue 15).
+band, snap pair, thrown icosahedron, kicked tower) and the matched-error table, for the
+documentation's methods page (docs/methods.md) and ``auto``'s guidance (issue 15).
 
 Every elastic configuration of tensegrity_sim (plain Verlet, located order 2, order 4) and MuJoCo's
 Euler, implicitfast and RK4 run on the same step grid, taking turns in one process

@@ -12,8 +12,8 @@
 * ``ros/interface/<page>.md``: every page of ``msg_docs/``, included as it is (the node's interface has one
   source: the files installed with the package).
 
-Macros inside code (fenced blocks, code spans) are shown as written. A macro that names a missing file, column or row fails the build (``PluginError``): a page never shows a
-figure that its CSV no longer holds.
+Macros inside code (fenced blocks, code spans) are shown as written. A macro that names a missing file,
+column or row fails the build (``PluginError``): a page never shows a figure that its CSV no longer holds.
 """
 from __future__ import annotations
 
@@ -107,7 +107,8 @@ def _scene_figure(name: str) -> bytes:
     for axis, c in zip("xyz", centre):
         getattr(ax, f"set_{axis}lim")(c - span, c + span)
     ax.set_box_aspect((1, 1, 1))
-    ax.set_title(f"{name}: {len(scene.nodes)} nodes, {len(scene.struts)} struts, {len(scene.cables)} cables", fontsize=9)
+    counts = f"{len(scene.nodes)} nodes, {len(scene.struts)} struts, {len(scene.cables)} cables"
+    ax.set_title(f"{name}: {counts}", fontsize=9)
     ax.tick_params(labelsize=6)
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")

@@ -318,7 +318,7 @@ def _add_sweep(verbs) -> None:
                     "designs) and write one Parquet row per run. Runs of one structure are stepped together. "
                     "Embedded in this process by default; --workers for local processes; --address to submit "
                     "the groups as tasks to a Ray cluster (pip install -e \".[sweep]\"). The spec format is in "
-                    "tensegrity_sim/sweep.py and README.md.")
+                    "tensegrity_sim/sweep.py and docs/batches.md.")
     sweep.add_argument("spec", help="the sweep spec (YAML)")
     sweep.add_argument("--out", required=True, metavar="RESULTS.parquet", help="the Parquet file to write")
     sweep.add_argument("--address", metavar="HOST:PORT",
@@ -392,7 +392,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"QP backend of the inextensible method (default: daqp below {SPARSE_NODES} free "
                           f"nodes, sparse from there)")
     run.add_argument("--order", type=int, choices=(2, 4), default=None,
-                     help="order of the elastic method (default: 2; 4 for small errors, README 'Methods')")
+                     help="order of the elastic method (default: 2; 4 for small errors, docs/methods.md)")
     run.add_argument("--dt", type=_positive_float, default=1e-3, help="step, s (default: 0.001)")
     run.add_argument("--duration", type=_positive_float, default=10.0, help="simulated time, s (default: 10)")
     run.add_argument("--commands", help="a rest-length/force schedule (YAML; see tensegrity_sim.commands)")

@@ -125,7 +125,7 @@ class Simulator:
     detection off. ``contact_kinds`` is what is in use.
     ``solver``: the QP backend of the inextensible method (``methods.qp.SOLVERS``; default: chosen by
     size, ``methods.qp.choose_solver``); ``method_settings`` reports the one in use and why.
-    ``order``: 2 (default) or 4, the elastic method's order (README, "Methods": which for which error);
+    ``order``: 2 (default) or 4, the elastic method's order (docs/methods.md: which for which error);
     ``locate_switches``: the elastic method splits a step at each slack/taut switch (default: at order 4
     only; ``method_settings`` says which).
     ``reel_speed``: the inextensible method's motor top speed, m/s (default 1 m/s; ``math.inf``: none):

@@ -18,7 +18,7 @@ METHODS: dict[str, type[StepMethod]] = {
 }
 
 
-# The auto rule's two thresholds (README, "Methods"):
+# The auto rule's two thresholds (docs/methods.md, "auto"):
 RESOLVED = 0.5      # omega * dt at or below which the step resolves a vibration (>= 12.6 steps per period)
 SEPARATION = 10.0   # a cable vibration this many times faster than the scene's other time scales is instantaneous
 

@@ -57,7 +57,7 @@ _INFINITE = {"sec": 9223372036, "nsec": 854775807}  # RMW_DURATION_INFINITE, as 
 # Crash safety (module docstring): the most a crash can lose is the messages waiting (at most PENDING_SIZE
 # bytes) and one chunk in progress (at most CHUNK_SIZE bytes): 80 KiB, a few hundred publications of a
 # small scene, and at most FLUSH_PERIOD s of wall-clock time. Their cost, measured by
-# bench/bench_log.py --crash-safety, is in the README. Messages wait because mcap's writer takes several
+# bench/bench_log.py --crash-safety, is in the CHANGELOG (issue 13). Messages wait because mcap's writer takes several
 # in one run faster than one at a time (its Python code stays in the CPU's caches): ~0.5 us a step of the
 # node path's ~10 us (icosahedron, 100 Hz publications, pending_size 0 and 16 KiB taking turns in one
 # process). PENDING_SIZE = 0 hands every message on at once: the bound of issue 13, 64 KiB.
