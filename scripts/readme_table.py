@@ -51,8 +51,8 @@ def table() -> str:
                      f"**{cell(ours['ratio_to_mujoco'])}** |")
     commits = ", ".join(f"`{name}` at {provenance(RESULTS / name)['commit']}"
                         for name in ("head_to_head.csv", "batch.csv"))
-    lines += ["", f"Generated from {commits} by `scripts/readme_table.py`; commands and machines: "
-              "[benchmarks](docs/benchmarks.md)."]
+    lines += ["", f"Generated from {commits} by `scripts/readme_table.py`;",
+              "commands and machines: [benchmarks](docs/benchmarks.md)."]
     return "\n".join(lines)
 
 
