@@ -59,11 +59,15 @@ def _value(name: str, column: str, where: dict | None = None, digits: int = 3) -
 
 
 def _expand(match: re.Match, page: str) -> str:
+    """The macro's text; a table indented as the macro is (inside a list item it stays in the item)."""
     kind, text = match.groups()
+    line_start = match.string.rfind("\n", 0, match.start()) + 1
+    indent = match.string[line_start:match.start()]
     try:
         args, kwargs = _arguments(text)
         if kind == "table":
-            return markdown_table(_csv(args[0]), *args[1:], **kwargs)
+            table = markdown_table(_csv(args[0]), *args[1:], **kwargs).rstrip("\n")
+            return table.replace("\n", "\n" + indent) if indent.isspace() else table
         if kind == "value":
             return _value(*args, **kwargs)
         return source_line(_csv(args[0]))
