@@ -109,10 +109,13 @@ def test_ros_install_steps_are_the_ones_ci_runs():
     """Every pip install of the ROS page asks for extras that one of CI's legs installs together."""
     legs = [set(m.split(",")) for m in re.findall(r"^leg \S+ \S+ ([\w,]+)", (ROOT / ".ci/run").read_text(), re.M)]
     assert any("ros" in leg for leg in legs)
-    installs = re.findall(r'-e "\.\[([\w,]+)\]"', "\n".join(command_lines(ROOT / "docs" / "ros.md")))
+    page = "\n".join(command_lines(ROOT / "docs" / "ros.md"))
+    installs = re.findall(r'-e "\.\[([\w,]+)\]"', page)
     assert installs
     for extras in installs:
         assert any(set(extras.split(",")) <= leg for leg in legs), extras
+    for step in (".ci/lower_bounds.py", "TENSEGRITY_SIM_REQUIRE_RCLPY=1", "-m pytest -q"):   # the leg's own steps
+        assert step in page and step in (ROOT / ".ci/run").read_text(), step
 
 
 def test_readme_table_matches_the_csvs():
