@@ -47,8 +47,8 @@ def table() -> str:
         ours = _one(batches, case=case, contender="BatchSimulator")
         peer = _one(batches, case=case, contender="mujoco rollout")
         lines.append(f"| {case.split()[1]}, batch of {ours['batch']:,} | {cell(ours['scene_steps_per_s'])} "
-                     f"scene-steps/s | {cell(peer['scene_steps_per_s'])} (`rollout`, {peer['threads']} threads) | "
-                     f"**{cell(ours['ratio_to_mujoco'])}** |")
+                     f"scene-steps/s | {cell(peer['scene_steps_per_s'])} scene-steps/s (`rollout`, "
+                     f"{peer['threads']} threads) | **{cell(ours['ratio_to_mujoco'])}** |")
     commits = ", ".join(f"`{name}` at {provenance(RESULTS / name)['commit']}"
                         for name in ("head_to_head.csv", "batch.csv"))
     lines += ["", f"Generated from {commits} by `scripts/readme_table.py`;",

@@ -124,6 +124,20 @@ def test_readme_table_matches_the_csvs():
     assert result.returncode == 0, result.stderr
 
 
+def test_readme_table_check_fails_on_a_changed_figure(tmp_path, monkeypatch):
+    """--check compares figure by figure: one ratio changed in README's table makes it exit 1."""
+    spec = importlib.util.spec_from_file_location("readme_table", ROOT / "scripts" / "readme_table.py")
+    readme_table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(readme_table)
+    text = README.read_text()
+    ratio = re.search(r"\*\*([0-9.]+)\*\*", text.split(readme_table.BEGIN)[1]).group(1)
+    changed = tmp_path / "README.md"
+    changed.write_text(text.replace(f"**{ratio}**", f"**{ratio}1**", 1))
+    monkeypatch.setattr(readme_table, "README", changed)
+    assert readme_table.main(["--check"]) == 1
+    assert readme_table.main([]) == 0 and changed.read_text() == text
+
+
 def test_write_csv_records_provenance(tmp_path, monkeypatch):
     """The sidecar names the command and the commit; the table quotes the numbers and the command."""
     monkeypatch.setattr(sys, "argv", [str(ROOT / "bench" / "bench_x.py"), "--quick"])
