@@ -75,6 +75,15 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
     assert namespace["sim"].rest_lengths[0] == pytest.approx(0.9)
 
 
+@pytest.mark.parametrize("page", [p for p in PAGES if blocks(p, "python")], ids=lambda p: str(p.relative_to(ROOT)))
+def test_page_python_examples_run(page, tmp_path, monkeypatch):
+    """Every Python block of a page runs as written, one namespace per page (blocks build on each other)."""
+    monkeypatch.chdir(tmp_path)
+    namespace = {}
+    for example in blocks(page, "python"):
+        exec(compile(example, str(page), "exec"), namespace)
+
+
 @pytest.mark.parametrize("page", [README, *PAGES], ids=lambda p: str(p.relative_to(ROOT)))
 def test_every_command_line_parses(page):
     """Every ``tensegrity-sim`` call shown parses with the real parser (argparse exits 2 on a bad one)."""
