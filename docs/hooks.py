@@ -11,6 +11,7 @@
 * ``bench-results/<path>.png``: every figure the benchmarks drew into ``bench/results/``, as they are.
 * ``ros/interface/<page>.md``: every page of ``msg_docs/``, included as it is (the node's interface has one
   source: the files installed with the package).
+* The API pages: the docstrings' Sphinx roles (``:func:``, ``:class:``, ...) dropped before the code they name.
 
 Macros inside code (fenced blocks, code spans) are shown as written. A macro that names a missing file,
 column or row fails the build (``PluginError``): a page never shows a figure that its CSV no longer holds.
@@ -32,6 +33,7 @@ sys.path.insert(0, str(ROOT))
 from bench.tables import RESULTS, cell, markdown_table, read_csv, select, source_line  # noqa: E402
 
 MACRO = re.compile(r"\{\{\s*(table|value|source)\((.*?)\)\s*\}\}", re.S)
+ROLE = re.compile(r":(?:py:)?(?:func|class|meth|mod|data|attr|exc|obj):<code>~?")
 CODE = re.compile(r"(^```.*?^```|`[^`\n]+`)", re.S | re.M)   # fenced blocks and code spans: shown, not expanded
 MSG_DOCS = ROOT / "msg_docs"
 
@@ -80,6 +82,12 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
     parts = CODE.split(markdown)   # odd indices: the code
     return "".join(part if i % 2 else MACRO.sub(lambda m: _expand(m, page.file.src_uri), part)
                    for i, part in enumerate(parts))
+
+
+def on_page_content(html: str, page, config, files) -> str:
+    """The docstrings' Sphinx roles (``:func:`name```, ``:class:`~a.b.C```) shown as the code they name: the
+    API pages render the docstrings as Markdown, which leaves the role's prefix in the text."""
+    return ROLE.sub("<code>", html)
 
 
 def _scene_figure(name: str) -> bytes:
