@@ -69,6 +69,7 @@ import numpy as np
 
 from ..system import System
 from . import _composition_kernels as composed
+from . import _elastic_ground_kernels as ground_kernels
 from . import _elastic_kernels as kernels
 from .base import MethodStep, State, StepMethod
 from .composition import MIN_SPLIT, STABILITY, WEIGHTS, Stepper
@@ -139,15 +140,19 @@ class ElasticMethod(StepMethod):
             self.ground = ContactSet(system, make_solver(None, system.masses[system.free]))
         self._contact = None   # the ground's impulses of the last step (N, 3) N*s, or None
         self._pairs = None     # the member contacts' of the last step (ContactSet.pair_impulses), or None
-        # the compiled kernels: plain Verlet (_elastic_kernels.py) and the options (_composition_kernels.py);
-        # contacts (a ground, a member response) and coupled rigid struts run the numpy primitive
-        self.compiled = compiled and not self.rigid.coupled and self.ground is None
+        # the compiled kernels: plain Verlet (_elastic_kernels.py), the options (_composition_kernels.py) and
+        # the ground (_elastic_ground_kernels.py); a member response and coupled rigid struts run the numpy
+        # primitive
+        self.compiled = compiled and not self.rigid.coupled and not system.scene.contact_response.response
+        self._ground_model = (ground_kernels.ground_arrays(system, self.rigid, TOUCH_TOL)
+                              if system.scene.ground is not None else None)
+        self.fallbacks = 0     # compiled steps with a ground retaken by the reference (a block unsolved)
         self._plain = self.order == 2 and not self.locate_switches
         self._weights = np.array(WEIGHTS[self.order])
         self._model = kernels.model_arrays(system, self.rigid)
         # the compiled path's carry from one step to the next (batch of one): accelerations (N, 3, 1),
         # cable tensions (n_cables, 1), rigid strut directions (nr, 3, 1), slack cables (n_cables, 1) at
-        # the last step's end
+        # the last step's end; with a ground, each node's last contact impulse (N, 3, 1) too
         self._carry = None
         if self.compiled:
             self._load_kernels()
@@ -159,7 +164,7 @@ class ElasticMethod(StepMethod):
         x, v = scene.positions.reshape(-1, 3, 1).copy(), scene.velocities.reshape(-1, 3, 1).copy()
         rest = scene.cable_rest_lengths.reshape(-1, 1).copy()
         out = (x[None].copy(), v[None].copy(), np.empty((0,) + rest.shape), np.empty((0,) + rest.shape, dtype=bool))
-        self._advance(State(x, v, rest, np.zeros_like(x)), x, v, 0, 1, *out)
+        self._advance(State(x, v, rest, np.zeros_like(x)), x, v, 0, 1, *out, np.empty((0,) + x.shape))
         self._carry = None
 
     def invalidate(self) -> None:
@@ -196,34 +201,55 @@ class ElasticMethod(StepMethod):
         return _Forces(f * sys.inv_mass[:, None], t[sys.n_struts:], n, e < 0, e)
 
     def _advance(self, state: State, x: np.ndarray, v: np.ndarray, steps: int, every: int, positions, velocities,
-                 impulses, slack) -> None:
+                 impulses, slack, contact=None) -> int:
         """The compiled loop (batch of one) from ``state`` but at ``x``, ``v`` (N, 3, 1), which it
-        advances in place; the outputs are those of :meth:`advance` with a trailing batch axis."""
+        advances in place; the outputs are those of :meth:`advance` with a trailing batch axis, and with a
+        ground ``contact`` (K, N, 3, 1) N*s its impulses. Returns -1, or (a ground) the step whose contact
+        block was not solved: ``x``, ``v`` are then at its start and the carry is dropped."""
         rest = state.rest_lengths.reshape(-1, 1)
         ext = state.external_forces.reshape(-1, 3, 1)
         if self._carry is None:   # the start forces: the last step's end, or computed here
             forces = (np.empty_like(x), np.empty((self.system.n_cables, 1)), np.empty((self.rigid.count, 3, 1)))
-            self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *forces),)
+            self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *forces),
+                                    np.zeros_like(x))   # with a ground: each node's last contact impulse
+        if self._ground_model is not None:
+            failed = np.empty(1, dtype=np.int64)
+            ground_kernels.ground_steps_serial(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
+                                               *self._ground_model, self._carry[4], positions, velocities, impulses,
+                                               slack, contact, failed)
+            if failed[0] >= 0:
+                self._carry = None
+            return int(failed[0])
         if self._plain:
             kernels.elastic_steps(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
                                   positions, velocities, impulses, slack)
         else:
             composed.composed_steps(x, v, rest, ext, self.dt, steps, every, self._weights, self.locate_switches,
-                                    MIN_SPLIT * self.dt, *self._model, *self._carry, positions, velocities,
+                                    MIN_SPLIT * self.dt, *self._model, *self._carry[:4], positions, velocities,
                                     impulses, slack)
+        return -1
 
     def _step_impl(self, state: State) -> MethodStep:
         if not self.compiled:
             return self._step_reference(state)
+        n = self.system.n_nodes
         x, v = state.positions.copy(), state.velocities.copy()
         impulses = np.empty((1, self.system.n_cables, 1))
         slack = np.empty((1, self.system.n_cables, 1), dtype=bool)
+        contact = np.empty((1, n, 3, 1))
         x3, v3 = x.reshape(-1, 3, 1), v.reshape(-1, 3, 1)
-        self._advance(state, x3, v3, 1, 1, x3[None], v3[None], impulses, slack)   # the step writes in place
-        return MethodStep(x, v, impulses.reshape(-1), slack.reshape(-1))
+        # the step writes in place
+        if self._advance(state, x3, v3, 1, 1, x3[None], v3[None], impulses, slack, contact) >= 0:
+            # a contact block the compiled solver left unsolved: the step in the reference (friction.py's QP
+            # fixed point and its projected fallback)
+            self.fallbacks += 1
+            self._cache = None
+            return self._step_reference(state)
+        return MethodStep(x, v, impulses.reshape(-1), slack.reshape(-1),
+                          None if self._ground_model is None else contact.reshape(n, 3))
 
     def has_loop(self) -> bool:
-        return self.compiled
+        return self.compiled and self._ground_model is None
 
     def carry(self):
         return None if self._carry is None else tuple(a.copy() for a in self._carry)
