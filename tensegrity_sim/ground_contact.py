@@ -79,6 +79,24 @@ class GroundDetector:
         self._inside = now
         return tuple(events)
 
+    def walk(self, x0: np.ndarray, v0: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
+             impulses: np.ndarray, t0: float, dt: float) -> list[ContactEvent]:
+        """The events of consecutive steps from ``x0``, ``v0`` (N, 3) to ``positions``, ``velocities``
+        (K, N, 3) in turn, with the ground's ``impulses`` (K, N, 3) N*s of each, the first starting at
+        ``t0`` s: :meth:`step` called for the steps where a node's contact begins or ends only (the others
+        would return no event and change nothing but the last impulses), found for all steps at once."""
+        k = len(positions)
+        if not k:
+            return []
+        now = ((positions[:, :, 2] - self.radii - self.height <= TOUCH_TOL) | (impulses[:, :, 2] > 0)) & self.free
+        changed = np.flatnonzero((now != np.vstack([self._inside[None], now[:-1]])).any(axis=1))
+        events: list[ContactEvent] = []
+        for i in changed.tolist():
+            start_x, start_v = (x0, v0) if i == 0 else (positions[i - 1], velocities[i - 1])
+            events.extend(self.step(start_x, positions[i], start_v, t0 + i * dt, dt, impulses[i]))
+        self.impulses = impulses[-1].copy()
+        return events
+
     def active(self, positions: np.ndarray) -> tuple[ActiveContact, ...]:
         """Every node touching the ground now, with its gap and the last step's impulses."""
         out = []

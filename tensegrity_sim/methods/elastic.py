@@ -79,6 +79,8 @@ from .rigid import RigidStruts
 
 __all__ = ["ElasticMethod"]
 
+_GROUND_CHUNK = 1024   # steps per compiled call of :meth:`ElasticMethod.advance` with a ground
+
 
 class _Forces(NamedTuple):
     """What the step needs at one configuration: accelerations (N, 3) m/s^2, cable tensions
@@ -249,7 +251,10 @@ class ElasticMethod(StepMethod):
                           None if self._ground_model is None else contact.reshape(n, 3))
 
     def has_loop(self) -> bool:
-        return self.compiled and self._ground_model is None
+        return self.compiled
+
+    def has_ground_loop(self) -> bool:
+        return self.compiled and self._ground_model is not None
 
     def carry(self):
         return None if self._carry is None else tuple(a.copy() for a in self._carry)
@@ -264,10 +269,48 @@ class ElasticMethod(StepMethod):
         return self._step_reference(state)
 
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
-                impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                impulses: np.ndarray, slack: np.ndarray, contact: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`StepMethod.advance`; with a ground, ``contact`` (K, N, 3) N*s gets its impulses, summed
+        like the cables' (None: not kept)."""
         x, v = state.positions.copy(), state.velocities.copy()
-        self._advance(state, x.reshape(-1, 3, 1), v.reshape(-1, 3, 1), steps, every, positions[..., None],
-                      velocities[..., None], impulses[..., None], slack[..., None])
+        x3, v3 = x.reshape(-1, 3, 1), v.reshape(-1, 3, 1)
+        if self._ground_model is None:
+            self._advance(state, x3, v3, steps, every, positions[..., None], velocities[..., None],
+                          impulses[..., None], slack[..., None])
+            return x, v
+        # a ground: chunks of single steps, summed into the kept ones here; a step whose contact block the
+        # compiled solver leaves unsolved is taken by the reference, and the compiled loop goes on after it
+        n, nc = x.shape[0], self.system.n_cables
+        chunk = min(steps, _GROUND_CHUNK)
+        c_x, c_v, c_contact = np.empty((chunk, n, 3, 1)), np.empty((chunk, n, 3, 1)), np.empty((chunk, n, 3, 1))
+        c_imp, c_slack = np.empty((chunk, nc, 1)), np.empty((chunk, nc, 1), dtype=bool)
+        impulses[...] = 0.0
+        if contact is not None:
+            contact[...] = 0.0
+        done = 0
+        while done < steps:
+            m = min(chunk, steps - done)
+            got = self._advance(state, x3, v3, m, 1, c_x[:m], c_v[:m], c_imp[:m], c_slack[:m], c_contact[:m])
+            if got < 0:
+                got = m
+            else:
+                self.fallbacks += 1
+                self._cache = None
+                out = self._step_reference(State(x.copy(), v.copy(), state.rest_lengths, state.external_forces))
+                x[...], v[...] = out.positions, out.velocities
+                c_x[got, ..., 0], c_v[got, ..., 0], c_contact[got, ..., 0] = x, v, out.contact_impulses
+                c_imp[got, :, 0], c_slack[got, :, 0] = out.impulses, out.slack
+                got += 1
+            g = done + np.arange(got)          # the steps in the run, from 0, and their kept rows
+            j = g // every
+            np.add.at(impulses, j, c_imp[:got, :, 0])
+            if contact is not None:
+                np.add.at(contact, j, c_contact[:got, ..., 0])
+            last = ((g + 1) % every == 0) | (g == steps - 1)
+            positions[j[last]], velocities[j[last]] = c_x[:got][last, ..., 0], c_v[:got][last, ..., 0]
+            slack[j[last]] = c_slack[:got][last, :, 0]
+            done += got
         return x, v
 
     def _step_reference(self, state: State) -> MethodStep:
