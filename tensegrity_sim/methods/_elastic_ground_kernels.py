@@ -15,8 +15,10 @@ The ground's model (:func:`ground_arrays`):
     node_strut (N,) int64        the moving rigid strut a node ends (its row in rigid_members), or -1
     touch_tol m                  a node within this of the ground touches it (friction.TOUCH_TOL)
 
-What a step carries beside ``_elastic_kernels``' carry: ``warm`` (N, 3, B) N*s, each node's last contact
-impulse (friction x, y, normal), the block solver's warm start.
+What a step carries beside ``_elastic_kernels``' carry: ``warm`` (2, N, 3, B) N*s, each node's contact
+impulse (friction x, y, normal) in the last drift (0) and closing (1) solve, the block solver's warm start
+for the same solve of the next step (the two differ: a resting node's drift impulse holds its weight over
+the drift, the closing one cancels the closing half-kick).
 """
 from __future__ import annotations
 
@@ -56,7 +58,7 @@ def ground_arrays(system, rigid, touch_tol: float) -> GroundModel:
 def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, node_strut, mu, warm, contact,
            work, inv2, vel, z, ends_k, target_k, vel3, z3):
     """The armed contacts' velocity problem of copy ``b``, block by block, in place on ``v``; adds the
-    contact impulses to ``contact`` (N, 3) and keeps them in ``warm``. ``dirs`` (nr, 3, B): the rigid
+    contact impulses to ``contact`` (N, 3) and keeps them in ``warm`` (N, 3, B), this solve's warm starts. ``dirs`` (nr, 3, B): the rigid
     struts' unit vectors at the configuration. The rest is scratch. Returns False if a block was not
     solved (``v`` is then partly changed: the caller starts the step again in the reference)."""
     for p in range(v.shape[0]):
@@ -148,7 +150,7 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
         landing[p] = max(-v[p, 2, b], 0.0) if gap > touch_tol else 0.0
         found = found or armed[p]
     if found and not _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut,
-                            mu, warm, contact, work, inv2, vel, z, ends_k, target_k, vel3, z3):
+                            mu, warm[0], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3):
         return False
     _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
     _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
@@ -160,7 +162,7 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
         found = found or armed[p]
     if found:
         return _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
-                      warm, contact, work, inv2, vel, z, ends_k, target_k, vel3, z3)
+                      warm[1], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3)
     return True
 
 

@@ -154,7 +154,7 @@ class ElasticMethod(StepMethod):
         self._model = kernels.model_arrays(system, self.rigid)
         # the compiled path's carry from one step to the next (batch of one): accelerations (N, 3, 1),
         # cable tensions (n_cables, 1), rigid strut directions (nr, 3, 1), slack cables (n_cables, 1) at
-        # the last step's end; with a ground, each node's last contact impulse (N, 3, 1) too
+        # the last step's end; with a ground, each node's last contact impulses (2, N, 3, 1) too
         self._carry = None
         if self.compiled:
             self._load_kernels()
@@ -212,8 +212,9 @@ class ElasticMethod(StepMethod):
         ext = state.external_forces.reshape(-1, 3, 1)
         if self._carry is None:   # the start forces: the last step's end, or computed here
             forces = (np.empty_like(x), np.empty((self.system.n_cables, 1)), np.empty((self.rigid.count, 3, 1)))
+            # with a ground: each node's last contact impulses (drift and closing solves)
             self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *forces),
-                                    np.zeros_like(x))   # with a ground: each node's last contact impulse
+                                    np.zeros((2,) + x.shape))
         if self._ground_model is not None:
             failed = np.empty(1, dtype=np.int64)
             ground_kernels.ground_steps_serial(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
