@@ -12,7 +12,7 @@ from .methods.friction import TOUCH_TOL
 from .results import ContactEvent
 from .system import System
 
-__all__ = ["GroundDetector", "GROUND"]
+__all__ = ["GroundDetector", "GROUND", "walk_copies"]
 
 GROUND = "ground"
 _DOWN = np.array([0.0, 0.0, -1.0])
@@ -85,16 +85,10 @@ class GroundDetector:
         (K, N, 3) in turn, with the ground's ``impulses`` (K, N, 3) N*s of each, the first starting at
         ``t0`` s: :meth:`step` called for the steps where a node's contact begins or ends only (the others
         would return no event and change nothing but the last impulses), found for all steps at once."""
-        k = len(positions)
-        if not k:
-            return []
-        now = ((positions[:, :, 2] - self.radii - self.height <= TOUCH_TOL) | (impulses[:, :, 2] > 0)) & self.free
-        changed = np.flatnonzero((now != np.vstack([self._inside[None], now[:-1]])).any(axis=1))
         events: list[ContactEvent] = []
-        for i in changed.tolist():
-            start_x, start_v = (x0, v0) if i == 0 else (positions[i - 1], velocities[i - 1])
-            events.extend(self.step(start_x, positions[i], start_v, t0 + i * dt, dt, impulses[i]))
-        self.impulses = impulses[-1].copy()
+        for per_step in walk_copies([self], x0[..., None], v0[..., None], positions[..., None],
+                                    velocities[..., None], impulses[..., None], t0, dt):
+            events.extend(per_step[0])
         return events
 
     def active(self, positions: np.ndarray) -> tuple[ActiveContact, ...]:
@@ -105,3 +99,25 @@ class GroundDetector:
             out.append(ActiveContact(e.members, e.time, e.point_a, e.point_b, e.normal, e.distance,
                                      e.normal_impulse, e.tangential_impulse))
         return tuple(out)
+
+
+def walk_copies(detectors: list[GroundDetector], x0: np.ndarray, v0: np.ndarray, positions: np.ndarray,
+                velocities: np.ndarray, impulses: np.ndarray, t0: float, dt: float) -> list[tuple[tuple, ...]]:
+    """:meth:`GroundDetector.walk` of B copies (one detector each) at once: ``x0``, ``v0`` (N, 3, B),
+    ``positions``, ``velocities``, ``impulses`` (K, N, 3, B). Returns each step's events per copy (K tuples
+    of B tuples); a detector is called only at the steps where one of its nodes' contacts begins or ends."""
+    k, n_copies = len(positions), len(detectors)
+    out = [[()] * n_copies for _ in range(k)]
+    if not k:
+        return [tuple(row) for row in out]
+    first = detectors[0]
+    inside = np.stack([d._inside for d in detectors], axis=-1)                                   # (N, B)
+    now = (positions[:, :, 2] - first.radii[:, None] - first.height <= TOUCH_TOL) | (impulses[:, :, 2] > 0)
+    now &= first.free[:, None]                                                                     # (K, N, B)
+    changed = (now != np.concatenate([inside[None], now[:-1]])).any(axis=1)                       # (K, B)
+    for i, b in zip(*np.nonzero(changed)):
+        start_x, start_v = (x0[..., b], v0[..., b]) if i == 0 else (positions[i - 1, ..., b], velocities[i - 1, ..., b])
+        out[i][b] = detectors[b].step(start_x, positions[i, ..., b], start_v, t0 + i * dt, dt, impulses[i, ..., b])
+    for b, d in enumerate(detectors):
+        d.impulses = impulses[-1, ..., b].copy()
+    return [tuple(row) for row in out]

@@ -174,10 +174,35 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
     ``v`` and the carry (``acc``, ``tension``, ``rigid_dirs``, ``warm``); the kept steps as
     ``_elastic_kernels.elastic_steps`` keeps them, and ``out_contact`` (K, N, 3, B) the ground's impulses
     summed like the cables'. ``failed`` (B,) int64: -1, or the step of the copy whose contact block was
-    not solved (the copy stops there: its ``x``, ``v`` are those at that step's start, its carry is not)."""
+    not solved (the copy stops there: its ``x``, ``v`` are those at that step's start, its carry is not).
+    Each copy is stepped in contiguous arrays of its own (a batch of one: the very arithmetic of
+    ``Simulator``'s loop, and no stride of B between a copy's numbers)."""
     n_nodes = x.shape[0]
     nc, n_copies = rest.shape
+    nr = rigid_members.shape[0]
     for b in prange(n_copies):
+        xb = np.empty((n_nodes, 3, 1))
+        vb = np.empty((n_nodes, 3, 1))
+        accb = np.empty((n_nodes, 3, 1))
+        extb = np.empty((n_nodes, 3, 1))
+        warmb = np.empty((2, n_nodes, 3, 1))
+        restb = np.empty((nc, 1))
+        tensionb = np.empty((nc, 1))
+        dirsb = np.empty((nr, 3, 1))
+        for i in range(n_nodes):
+            for j in range(3):
+                xb[i, j, 0] = x[i, j, b]
+                vb[i, j, 0] = v[i, j, b]
+                accb[i, j, 0] = acc[i, j, b]
+                extb[i, j, 0] = ext[i, j, b]
+                warmb[0, i, j, 0] = warm[0, i, j, b]
+                warmb[1, i, j, 0] = warm[1, i, j, b]
+        for ci in range(nc):
+            restb[ci, 0] = rest[ci, b]
+            tensionb[ci, 0] = tension[ci, b]
+        for k in range(nr):
+            for j in range(3):
+                dirsb[k, j, 0] = rigid_dirs[k, j, b]
         dx = np.empty((n_nodes, 3))
         imp = np.empty(nc)
         total = np.zeros(nc)
@@ -201,16 +226,16 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
         for s in range(n_steps):
             for i in range(n_nodes):
                 for j in range(3):
-                    x0[i, j] = x[i, j, b]
-                    v0[i, j] = v[i, j, b]
-            if not _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass,
-                                gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs,
-                                height, mu, restitution, radii, node_strut, touch_tol, warm, dx, imp, sl, contact,
-                                armed, target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, b):
+                    x0[i, j] = xb[i, j, 0]
+                    v0[i, j] = vb[i, j, 0]
+            if not _ground_step(xb, vb, restb, extb, h, ends, stiffness, floor, strut_rest, damping, inv_mass,
+                                gravity_force, rigid_members, rigid_length_sq, rigid_w, accb, tensionb, dirsb, height,
+                                mu, restitution, radii, node_strut, touch_tol, warmb, dx, imp, sl, contact, armed,
+                                target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, 0):
                 for i in range(n_nodes):
                     for j in range(3):
-                        x[i, j, b] = x0[i, j]
-                        v[i, j, b] = v0[i, j]
+                        xb[i, j, 0] = x0[i, j]
+                        vb[i, j, 0] = v0[i, j]
                 failed[b] = s
                 break
             for ci in range(nc):
@@ -222,14 +247,26 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
                 k = s // every
                 for i in range(n_nodes):
                     for j in range(3):
-                        out_x[k, i, j, b] = x[i, j, b]
-                        out_v[k, i, j, b] = v[i, j, b]
+                        out_x[k, i, j, b] = xb[i, j, 0]
+                        out_v[k, i, j, b] = vb[i, j, 0]
                         out_contact[k, i, j, b] = total_contact[i, j]
                         total_contact[i, j] = 0.0
                 for ci in range(nc):
                     out_impulses[k, ci, b] = total[ci]
                     out_slack[k, ci, b] = sl[ci]
                     total[ci] = 0.0
+        for i in range(n_nodes):
+            for j in range(3):
+                x[i, j, b] = xb[i, j, 0]
+                v[i, j, b] = vb[i, j, 0]
+                acc[i, j, b] = accb[i, j, 0]
+                warm[0, i, j, b] = warmb[0, i, j, 0]
+                warm[1, i, j, b] = warmb[1, i, j, 0]
+        for ci in range(nc):
+            tension[ci, b] = tensionb[ci, 0]
+        for k in range(nr):
+            for j in range(3):
+                rigid_dirs[k, j, b] = dirsb[k, j, 0]
 
 
 # one loop, two compilations: a batch spreads its copies over the cores; one copy (Simulator) runs without
