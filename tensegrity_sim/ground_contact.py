@@ -91,6 +91,11 @@ class GroundDetector:
             events.extend(per_step[0])
         return events
 
+    def changes(self, positions: np.ndarray, impulses: np.ndarray) -> np.ndarray:
+        """(K,) bool: the consecutive steps to ``positions`` (K, N, 3) with ``impulses`` (K, N, 3) at which
+        :meth:`step` would find an event; at the others it only keeps the impulses (``impulses = ...``)."""
+        return _changes([self], positions[..., None], impulses[..., None])[:, 0]
+
     def active(self, positions: np.ndarray) -> tuple[ActiveContact, ...]:
         """Every node touching the ground now, with its gap and the last step's impulses."""
         out = []
@@ -99,6 +104,17 @@ class GroundDetector:
             out.append(ActiveContact(e.members, e.time, e.point_a, e.point_b, e.normal, e.distance,
                                      e.normal_impulse, e.tangential_impulse))
         return tuple(out)
+
+
+def _changes(detectors: list[GroundDetector], positions: np.ndarray, impulses: np.ndarray) -> np.ndarray:
+    """(K, B) bool: the steps to ``positions`` (K, N, 3, B) with the ground's ``impulses`` (K, N, 3, B) at
+    which a node of copy b begins or ends a contact, each step compared with the one before (the first
+    with what each detector knows now): where :meth:`GroundDetector.step` has something to do."""
+    first = detectors[0]
+    inside = np.stack([d._inside for d in detectors], axis=-1)                                   # (N, B)
+    now = (positions[:, :, 2] - first.radii[:, None] - first.height <= TOUCH_TOL) | (impulses[:, :, 2] > 0)
+    now &= first.free[:, None]                                                                     # (K, N, B)
+    return (now != np.concatenate([inside[None], now[:-1]])).any(axis=1)
 
 
 def walk_copies(detectors: list[GroundDetector], x0: np.ndarray, v0: np.ndarray, positions: np.ndarray,
@@ -110,11 +126,7 @@ def walk_copies(detectors: list[GroundDetector], x0: np.ndarray, v0: np.ndarray,
     out = [[()] * n_copies for _ in range(k)]
     if not k:
         return [tuple(row) for row in out]
-    first = detectors[0]
-    inside = np.stack([d._inside for d in detectors], axis=-1)                                   # (N, B)
-    now = (positions[:, :, 2] - first.radii[:, None] - first.height <= TOUCH_TOL) | (impulses[:, :, 2] > 0)
-    now &= first.free[:, None]                                                                     # (K, N, B)
-    changed = (now != np.concatenate([inside[None], now[:-1]])).any(axis=1)                       # (K, B)
+    changed = _changes(detectors, positions, impulses)
     for i, b in zip(*np.nonzero(changed)):
         start_x, start_v = (x0[..., b], v0[..., b]) if i == 0 else (positions[i - 1, ..., b], velocities[i - 1, ..., b])
         out[i][b] = detectors[b].step(start_x, positions[i, ..., b], start_v, t0 + i * dt, dt, impulses[i, ..., b])

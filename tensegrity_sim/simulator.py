@@ -160,6 +160,7 @@ class Simulator:
         self._rows = _NO_ROWS     # the steps computed ahead still to hand out
         self._ahead_size = 1
         self._quiet = 0           # contact detection has nothing to do for the steps ahead before this one
+        self._ground_busy = None  # (k,) bool: the steps ahead at which a ground contact begins or ends
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -286,9 +287,12 @@ class Simulator:
             contacts = self._contacts.step(st.positions, x, st.step_count * self.dt, self.dt)
             self._quiet = i + 1 + self._quiet_steps(self._ahead.positions[i + 1:])
         if self._ground is not None:
-            landed = self._ground.step(st.positions, x, st.velocities, st.step_count * self.dt, self.dt, ground)
-            if landed:
-                contacts = tuple(sorted(contacts + landed, key=lambda e: e.time))
+            if self._ground_busy[i]:
+                landed = self._ground.step(st.positions, x, st.velocities, st.step_count * self.dt, self.dt, ground)
+                if landed:
+                    contacts = tuple(sorted(contacts + landed, key=lambda e: e.time))
+            else:   # no contact begins or ends: the detector only keeps the impulses (GroundDetector.changes)
+                self._ground.impulses = ground
         st.positions, st.velocities = x, v
         st.step_count += 1
         return step_result(st.step_count * self.dt, result_x, result_v, impulses, tensions, slack, contacts, ground)
@@ -318,6 +322,7 @@ class Simulator:
         else:
             ground = np.empty((k, n, 3))
             method.advance(st, k, 1, pos, vel, imp, slack, ground)
+            self._ground_busy = self._ground.changes(pos, ground)
         # finite_step's test of each step: the same sums (of a row, in the same order)
         add = np.add.reduce
         finite = np.isfinite(add(pos.reshape(k, -1), 1) + add(vel.reshape(k, -1), 1) + add(imp, 1))
