@@ -496,8 +496,14 @@ class Simulator:
                 if landed:
                     contacts.extend(landed)
                     contacts.sort(key=lambda e: e.time)
-                np.add.at(ground, j, c_ground[:m])
-            np.add.at(imp, j, c_imp[:m])
+                if every == 1:   # each step its own row: add.at's sums are the steps themselves
+                    ground[done:done + m] += c_ground[:m]
+                else:
+                    np.add.at(ground, j, c_ground[:m])
+            if every == 1:
+                imp[done:done + m] += c_imp[:m]
+            else:
+                np.add.at(imp, j, c_imp[:m])
             last = (g + 1) % every == 0
             last[-1] |= done + m == steps
             pos[j[last]], vel[j[last]], slack[j[last]] = c_pos[:m][last], c_vel[:m][last], c_slack[:m][last]

@@ -81,7 +81,7 @@ def lone_contact(inv, v, target, mu, z):
     v[2] += inv * y
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _residual(q, s, k, rho, target, mu, w, u0, z, u, phi, jac):
     """``u = u0 + W z``, ``phi`` (q,) and its generalised Jacobian ``jac`` (q, q) (module docstring);
     ``s`` 1 with a strut row first, 0 without; ``k`` contacts. Returns ``|phi|^2 / 2``."""
@@ -149,7 +149,7 @@ def _residual(q, s, k, rho, target, mu, w, u0, z, u, phi, jac):
     return 0.5 * total
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _cholesky_solve(q, a, rhs, out):
     """``out = a^-1 rhs`` for a symmetric positive definite ``a`` (q, q), factored in place."""
     for j in range(q):

@@ -283,6 +283,20 @@ class ElasticMethod(StepMethod):
         # a ground: chunks of single steps, summed into the kept ones here; a step whose contact block the
         # compiled solver leaves unsolved is taken by the reference, and the compiled loop goes on after it
         n, nc = x.shape[0], self.system.n_cables
+        if every == 1 and contact is not None:   # every step kept: straight into the outputs
+            done = 0
+            while done < steps:
+                got = self._advance(state, x3, v3, steps - done, 1, positions[done:, ..., None],
+                                    velocities[done:, ..., None], impulses[done:, :, None], slack[done:, :, None],
+                                    contact[done:, ..., None])
+                if got < 0:
+                    return x, v
+                done += got
+                out = self._retake(state, x, v)
+                positions[done], velocities[done], contact[done] = x, v, out.contact_impulses
+                impulses[done], slack[done] = out.impulses, out.slack
+                done += 1
+            return x, v
         chunk = min(steps, _GROUND_CHUNK)
         c_x, c_v, c_contact = np.empty((chunk, n, 3, 1)), np.empty((chunk, n, 3, 1)), np.empty((chunk, n, 3, 1))
         c_imp, c_slack = np.empty((chunk, nc, 1)), np.empty((chunk, nc, 1), dtype=bool)
@@ -296,10 +310,7 @@ class ElasticMethod(StepMethod):
             if got < 0:
                 got = m
             else:
-                self.fallbacks += 1
-                self._cache = None
-                out = self._step_reference(State(x.copy(), v.copy(), state.rest_lengths, state.external_forces))
-                x[...], v[...] = out.positions, out.velocities
+                out = self._retake(state, x, v)
                 c_x[got, ..., 0], c_v[got, ..., 0], c_contact[got, ..., 0] = x, v, out.contact_impulses
                 c_imp[got, :, 0], c_slack[got, :, 0] = out.impulses, out.slack
                 got += 1
@@ -313,6 +324,15 @@ class ElasticMethod(StepMethod):
             slack[j[last]] = c_slack[:got][last, :, 0]
             done += got
         return x, v
+
+    def _retake(self, state: State, x: np.ndarray, v: np.ndarray) -> MethodStep:
+        """The step from ``x``, ``v`` (N, 3; updated in place) whose contact block the compiled solver left
+        unsolved, taken by the reference (friction.py's QP fixed point and its projected fallback)."""
+        self.fallbacks += 1
+        self._cache = None
+        out = self._step_reference(State(x.copy(), v.copy(), state.rest_lengths, state.external_forces))
+        x[...], v[...] = out.positions, out.velocities
+        return out
 
     def _step_reference(self, state: State) -> MethodStep:
         x, v = state.positions, state.velocities
