@@ -94,7 +94,12 @@ class GroundDetector:
     def changes(self, positions: np.ndarray, impulses: np.ndarray) -> np.ndarray:
         """(K,) bool: the consecutive steps to ``positions`` (K, N, 3) with ``impulses`` (K, N, 3) at which
         :meth:`step` would find an event; at the others it only keeps the impulses (``impulses = ...``)."""
-        return _changes([self], positions[..., None], impulses[..., None])[:, 0]
+        now = (positions[:, :, 2] - self.radii - self.height <= TOUCH_TOL) | (impulses[:, :, 2] > 0)
+        now &= self.free
+        changed = np.empty(len(now), dtype=bool)
+        changed[0] = (now[0] != self._inside).any()
+        changed[1:] = (now[1:] != now[:-1]).any(axis=1)
+        return changed
 
     def active(self, positions: np.ndarray) -> tuple[ActiveContact, ...]:
         """Every node touching the ground now, with its gap and the last step's impulses."""
