@@ -82,53 +82,56 @@ def lone_contact(inv, v, target, mu, z):
 
 
 @njit(cache=True, inline="always")
-def _residual(q, s, k, rho, target, mu, w, u0, z, u, phi, jac):
-    """``u = u0 + W z``, ``phi`` (q,) and its generalised Jacobian ``jac`` (q, q) (module docstring);
-    ``s`` 1 with a strut row first, 0 without; ``k`` contacts. Returns ``|phi|^2 / 2``."""
+def _residual(q, s, k, target, mu, work, z, up, ur, pp, pr, jp):
+    """``u = u0 + W z`` into ``work[up, ur]``, ``phi`` (q,) into ``work[pp, pr]`` and its generalised
+    Jacobian (q, q) into ``work[jp]`` (module docstring; ``work``'s layout in :func:`solve_block`); ``s`` 1
+    with a strut row first, 0 without; ``k`` contacts. Returns ``|phi|^2 / 2``. The scratch is indexed, not
+    sliced: a view per array costs more than the arithmetic of a small block."""
     for i in range(q):
-        acc = u0[i]
+        acc = work[4, 0, i]
         for j in range(q):
-            acc += w[i, j] * z[j]
-        u[i] = acc
+            acc += work[1, i, j] * z[j]
+        work[up, ur, i] = acc
     for i in range(q):
         for j in range(q):
-            jac[i, j] = 0.0
+            work[jp, i, j] = 0.0
     if s:
-        phi[0] = rho[0] * u[0]
+        r0 = work[4, 6, 0]
+        work[pp, pr, 0] = r0 * work[up, ur, 0]
         for j in range(q):
-            jac[0, j] = rho[0] * w[0, j]
+            work[jp, 0, j] = r0 * work[1, 0, j]
     for c in range(k):
         o = s + 3 * c
-        r = rho[o]
+        r = work[4, 6, o]
         n = o + 2
-        qn = z[n] - r * (u[n] - target[c])
+        qn = z[n] - r * (work[up, ur, n] - target[c])
         yp = max(qn, 0.0)
-        phi[n] = z[n] - yp
+        work[pp, pr, n] = z[n] - yp
         # d yp / dz: the row e_n - r W[n] where qn > 0
         if qn > 0.0:
             for j in range(q):
-                jac[n, j] = r * w[n, j]
+                work[jp, n, j] = r * work[1, n, j]
         else:
-            jac[n, n] = 1.0
-        t0 = z[o] - r * u[o]
-        t1 = z[o + 1] - r * u[o + 1]
+            work[jp, n, n] = 1.0
+        t0 = z[o] - r * work[up, ur, o]
+        t1 = z[o + 1] - r * work[up, ur, o + 1]
         size = np.sqrt(t0 * t0 + t1 * t1)
         bound = mu * yp
         if size <= bound:   # inside the disc: P = q_t, phi_t = r u_t
-            phi[o] = z[o] - t0
-            phi[o + 1] = z[o + 1] - t1
+            work[pp, pr, o] = z[o] - t0
+            work[pp, pr, o + 1] = z[o + 1] - t1
             for j in range(q):
-                jac[o, j] = r * w[o, j]
-                jac[o + 1, j] = r * w[o + 1, j]
+                work[jp, o, j] = r * work[1, o, j]
+                work[jp, o + 1, j] = r * work[1, o + 1, j]
         else:               # on the edge: P = bound q_t / |q_t|
             h0 = t0 / size
             h1 = t1 / size
             ratio = bound / size
-            phi[o] = z[o] - bound * h0
-            phi[o + 1] = z[o + 1] - bound * h1
+            work[pp, pr, o] = z[o] - bound * h0
+            work[pp, pr, o + 1] = z[o + 1] - bound * h1
             for j in range(q):
-                d0 = -r * w[o, j]
-                d1 = -r * w[o + 1, j]
+                d0 = -r * work[1, o, j]
+                d1 = -r * work[1, o + 1, j]
                 if j == o:
                     d0 += 1.0
                 if j == o + 1:
@@ -136,43 +139,44 @@ def _residual(q, s, k, rho, target, mu, w, u0, z, u, phi, jac):
                 along = h0 * d0 + h1 * d1
                 dyp = 0.0
                 if qn > 0.0:
-                    dyp = -r * w[n, j]
+                    dyp = -r * work[1, n, j]
                     if j == n:
                         dyp += 1.0
-                jac[o, j] = -(ratio * (d0 - h0 * along) + h0 * mu * dyp)
-                jac[o + 1, j] = -(ratio * (d1 - h1 * along) + h1 * mu * dyp)
-            jac[o, o] += 1.0
-            jac[o + 1, o + 1] += 1.0
+                work[jp, o, j] = -(ratio * (d0 - h0 * along) + h0 * mu * dyp)
+                work[jp, o + 1, j] = -(ratio * (d1 - h1 * along) + h1 * mu * dyp)
+            work[jp, o, o] += 1.0
+            work[jp, o + 1, o + 1] += 1.0
     total = 0.0
     for i in range(q):
-        total += phi[i] * phi[i]
+        total += work[pp, pr, i] * work[pp, pr, i]
     return 0.5 * total
 
 
 @njit(cache=True, inline="always")
-def _cholesky_solve(q, a, rhs, out):
-    """``out = a^-1 rhs`` for a symmetric positive definite ``a`` (q, q), factored in place."""
+def _cholesky_solve(q, work):
+    """``work[4, 4] = work[3]^-1 work[4, 3]`` for the symmetric positive definite ``work[3]`` (q, q), factored
+    in place."""
     for j in range(q):
-        d = a[j, j]
+        d = work[3, j, j]
         for p in range(j):
-            d -= a[j, p] * a[j, p]
+            d -= work[3, j, p] * work[3, j, p]
         d = np.sqrt(d)
-        a[j, j] = d
+        work[3, j, j] = d
         for i in range(j + 1, q):
-            e = a[i, j]
+            e = work[3, i, j]
             for p in range(j):
-                e -= a[i, p] * a[j, p]
-            a[i, j] = e / d
+                e -= work[3, i, p] * work[3, j, p]
+            work[3, i, j] = e / d
     for i in range(q):
-        e = rhs[i]
+        e = work[4, 3, i]
         for p in range(i):
-            e -= a[i, p] * out[p]
-        out[i] = e / a[i, i]
+            e -= work[3, i, p] * work[4, 4, p]
+        work[4, 4, i] = e / work[3, i, i]
     for i in range(q - 1, -1, -1):
-        e = out[i]
+        e = work[4, 4, i]
         for p in range(i + 1, q):
-            e -= a[p, i] * out[p]
-        out[i] = e / a[i, i]
+            e -= work[3, p, i] * work[4, 4, p]
+        work[4, 4, i] = e / work[3, i, i]
 
 
 @njit(cache=True)
@@ -182,68 +186,64 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
     strut's is recomputed), ``inv`` (2,) 1/kg, ``strut`` whether the block has the strut row along the
     unit ``direction`` (3,) (end 0 to end 1), ``ends`` (k,) which end each contact is at, ``target`` (k,)
     m/s its normal target, ``mu`` its Coulomb coefficient. Returns the iterations taken, or -1 if
-    ``phi`` did not reach ``BLOCK_TOL`` (``v`` then unchanged)."""
+    ``phi`` did not reach ``BLOCK_TOL`` (``v`` then unchanged).
+
+    ``work`` (6, 7, 7): [0] G (q, 6), [1] W, [2] the Jacobian, [3] the damped normal matrix; rows of [4]:
+    u0, u, phi, -J^T phi, the step, the trial z, rho; rows of [5]: the trial's u and phi, the ends'
+    inverse masses per coordinate (6,)."""
     s = 1 if strut else 0
     q = s + 3 * k
-    g = work[0]
-    w = work[1]
-    jac = work[2]
-    a = work[3]
-    vec = work[4]
-    u0, u, phi, grad, d, trial, rho = vec[0], vec[1], vec[2], vec[3], vec[4], vec[5], vec[6]
-    trial_u = work[5][0]
-    trial_phi = work[5][1]
-    inv6 = work[5][2]
     for e in range(2):
         for j in range(3):
-            inv6[3 * e + j] = inv[e]
+            work[5, 2, 3 * e + j] = inv[e]
     for i in range(q):
         for j in range(6):
-            g[i, j] = 0.0
+            work[0, i, j] = 0.0
     if s:
         for j in range(3):
-            g[0, j] = -direction[j]
-            g[0, 3 + j] = direction[j]
+            work[0, 0, j] = -direction[j]
+            work[0, 0, 3 + j] = direction[j]
     for c in range(k):
         for j in range(3):
-            g[s + 3 * c + j, 3 * ends[c] + j] = 1.0
+            work[0, s + 3 * c + j, 3 * ends[c] + j] = 1.0
     for i in range(q):
         acc = 0.0
         for j in range(6):
-            acc += g[i, j] * v[j // 3, j % 3]
-        u0[i] = acc
+            acc += work[0, i, j] * v[j // 3, j % 3]
+        work[4, 0, i] = acc
         for j in range(q):
             acc = 0.0
             for p in range(6):
-                acc += g[i, p] * inv6[p] * g[j, p]
-            w[i, j] = acc
-    # the impulse scale: each end's momentum, each contact's target momentum
+                acc += work[0, i, p] * work[5, 2, p] * work[0, j, p]
+            work[1, i, j] = acc
+    # the impulse scale: each end's momentum, each contact's target momentum and warm start
     scale = 1e-300
     for e in range(2):
         if inv[e] > 0.0:
             for j in range(3):
                 scale = max(scale, abs(v[e, j]) / inv[e])
     for c in range(k):
-        rho[s + 3 * c] = 1.0 / inv[ends[c]]
-        rho[s + 3 * c + 1] = rho[s + 3 * c]
-        rho[s + 3 * c + 2] = rho[s + 3 * c]
-        scale = max(scale, abs(target[c]) * rho[s + 3 * c])
+        r = 1.0 / inv[ends[c]]
+        work[4, 6, s + 3 * c] = r
+        work[4, 6, s + 3 * c + 1] = r
+        work[4, 6, s + 3 * c + 2] = r
+        scale = max(scale, abs(target[c]) * r)
         for j in range(3):
             scale = max(scale, abs(z[s + 3 * c + j]))   # the warm start's impulses
     if s:
-        rho[0] = 1.0 / w[0, 0]
+        work[4, 6, 0] = 1.0 / work[1, 0, 0]
         # the strut's impulse that meets its row for the contacts' warm start
-        acc = u0[0]
+        acc = work[4, 0, 0]
         for j in range(1, q):
-            acc += w[0, j] * z[j]
-        z[0] = -acc / w[0, 0]
+            acc += work[1, 0, j] * z[j]
+        z[0] = -acc / work[1, 0, 0]
     tol = BLOCK_TOL * scale
-    merit = _residual(q, s, k, rho, target, mu, w, u0, z, u, phi, jac)
+    merit = _residual(q, s, k, target, mu, work, z, 4, 1, 4, 2, 2)
     done = -1
     for it in range(MAX_NEWTON + 1):
         worst = 0.0
         for i in range(q):
-            worst = max(worst, abs(phi[i]))
+            worst = max(worst, abs(work[4, 2, i]))
         if worst <= tol:
             done = it
             break
@@ -253,36 +253,34 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
         for i in range(q):
             acc = 0.0
             for p in range(q):
-                acc += jac[p, i] * phi[p]
-            grad[i] = acc
+                acc += work[2, p, i] * work[4, 2, p]
+            work[4, 3, i] = -acc
             for j in range(q):
                 acc = 0.0
                 for p in range(q):
-                    acc += jac[p, i] * jac[p, j]
-                a[i, j] = acc
-            a[i, i] += nu
-        for i in range(q):
-            grad[i] = -grad[i]
-        _cholesky_solve(q, a, grad, d)
+                    acc += work[2, p, i] * work[2, p, j]
+                work[3, i, j] = acc
+            work[3, i, i] += nu
+        _cholesky_solve(q, work)
         slope = 0.0
         for i in range(q):
-            slope -= grad[i] * d[i]    # grad holds -J^T phi
+            slope -= work[4, 3, i] * work[4, 4, i]    # row 3 holds -J^T phi
         step = 1.0
         while True:
             for i in range(q):
-                trial[i] = z[i] + step * d[i]
-            new = _residual(q, s, k, rho, target, mu, w, u0, trial, trial_u, trial_phi, a)
+                work[4, 5, i] = z[i] + step * work[4, 4, i]
+            new = _residual(q, s, k, target, mu, work, work[4, 5], 5, 0, 5, 1, 3)
             if new <= merit + _ARMIJO * step * slope or step <= _MIN_STEP:
                 break
             step *= 0.5
         for i in range(q):
-            z[i] = trial[i]
-        merit = _residual(q, s, k, rho, target, mu, w, u0, z, u, phi, jac)
+            z[i] = work[4, 5, i]
+        merit = _residual(q, s, k, target, mu, work, z, 4, 1, 4, 2, 2)
     if done < 0:
         return -1
     for j in range(6):
         acc = 0.0
         for i in range(q):
-            acc += g[i, j] * z[i]
-        v[j // 3, j % 3] += inv6[j] * acc
+            acc += work[0, i, j] * z[i]
+        v[j // 3, j % 3] += work[5, 2, j] * acc
     return done
