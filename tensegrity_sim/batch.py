@@ -5,8 +5,10 @@ their state (positions, velocities, rest lengths) and inputs (rest-length comman
 Every array a user sees has the batch as its **leading** axis, ``(B, N, 3)``, ``(B, n_cables)``, and a
 run returns ``(B, K, ...)`` (mujoco rollout's "nbatch x nstep" order). Inside, the elastic method keeps
 the batch as the *last* axis (:mod:`.methods.elastic_batch`) so that one step of all copies is a few
-array operations; the inextensible method solves one QP per copy and so steps a
-:class:`~tensegrity_sim.simulator.Simulator` per copy (style rule 8: a ``Simulator`` is a batch of one).
+array operations, and with a ground steps every copy in the compiled ground loop, the copies spread over
+all cores; the inextensible method solves one QP per copy and so steps a
+:class:`~tensegrity_sim.simulator.Simulator` per copy (style rule 8: a ``Simulator`` is a batch of one), as
+does the elastic method with a member contact response.
 
 Each copy equals a single ``Simulator`` run from the same state with the same inputs (to round-off;
 ``test/test_batch.py`` requires 1e-10). A step that fails in one copy (a QP without a solution, a
