@@ -1,6 +1,7 @@
 """Batched stepping beside MuJoCo's threaded ``rollout`` (issue 12's targets), in one process, taking turns.
 
     python3 bench/bench_batch.py            # writes bench/results/batch.csv and batch.md, prints both
+    python3 bench/bench_batch.py --ground   # the ground case only: bench/results/batch_ground.csv
 
 Cases (icosahedron thrown: rigid struts, 613 N/m cables, random node velocities; dt = 1 ms):
 
@@ -35,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from bench.cases import icosahedron_thrown  # noqa: E402
 from bench.mujoco_peer import MujocoPeer  # noqa: E402
+from bench.tables import write_csv  # noqa: E402
 from bench.timing import time_runs  # noqa: E402
 from tensegrity_sim import load_scene  # noqa: E402
 from tensegrity_sim.batch import BatchSimulator  # noqa: E402
@@ -47,13 +49,16 @@ CASES = [  # (cable model, batch, steps per timed call)
 ]
 
 
-def _mujoco(scene, model: str, batch: int, steps: int, threads: int):
-    """A callable doing ``steps`` steps of ``batch`` copies in ``mujoco.rollout`` with ``threads`` threads."""
+def _mujoco(scene, model: str, batch: int, steps: int, threads: int, integrator: str = "Euler", rest=None):
+    """A callable doing ``steps`` steps of ``batch`` copies in ``mujoco.rollout`` with ``threads`` threads;
+    ``rest``: the cables' rest lengths (n_cables,) m if not the scene's."""
     import mujoco
     from mujoco import rollout
 
-    peer = MujocoPeer(scene, model=model, dt=1e-3, integrator="Euler")
+    peer = MujocoPeer(scene, model=model, dt=1e-3, integrator=integrator)
     m = peer.model
+    if rest is not None:
+        m.tendon_lengthspring[peer._tendons, 1] = rest
     m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     state0 = np.empty(mujoco.mj_stateSize(m, spec))
@@ -80,30 +85,11 @@ def _rolled(scene):
     return rest
 
 
-def _mujoco_ground(scene, batch: int, steps: int, threads: int):
-    """``mujoco.rollout`` of the rolling icosahedron on its plane (implicitfast, sensors off)."""
-    import mujoco
-    from mujoco import rollout
-
-    peer = MujocoPeer(scene, model="elastic", dt=1e-3, integrator="implicitfast")
-    m = peer.model
-    m.tendon_lengthspring[peer._tendons, 1] = _rolled(scene)
-    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
-    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    state0 = np.empty(mujoco.mj_stateSize(m, spec))
-    mujoco.mj_getState(m, peer.data, state0, spec)
-    initial = np.tile(state0, (batch, 1))
-    datas = [mujoco.MjData(m) for _ in range(threads)]
-    out = np.empty((batch, steps, state0.size))
-    pool = rollout.Rollout(nthread=threads)
-    return lambda: pool.rollout(m, datas, initial, nstep=steps, state=out), pool
-
-
 def measure_ground(batch: int = 1024, steps: int = 500) -> list[dict]:
     """Issue 28's batch target: the rolling icosahedron on the ground, ours against mujoco.rollout."""
     scene = load_scene("icosahedron_ground")
     threads = os.cpu_count() or 1
-    mujoco_run, pool = _mujoco_ground(scene, batch, steps, threads)
+    mujoco_run, pool = _mujoco(scene, "elastic", batch, steps, threads, "implicitfast", _rolled(scene))
     fresh = {}
 
     def setup():
@@ -179,4 +165,11 @@ def write(rows: list[dict]) -> str:
 
 
 if __name__ == "__main__":
-    print(write(measure()))
+    if "--ground" in sys.argv[1:]:
+        ground_rows = measure_ground()
+        RESULTS.mkdir(exist_ok=True)
+        write_csv(RESULTS / "batch_ground.csv", ground_rows)
+        for row in ground_rows:
+            print(row)
+    else:
+        print(write(measure()))

@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ._elastic_kernels import _close, _drift
+from ._elastic_kernels import _close, _drift, gather_copy, keep, scatter_copy
 from ._friction_block_kernels import MAX_ROWS, lone_contact, solve_block
 
 __all__ = ["GroundModel", "ground_arrays", "ground_steps", "ground_steps_serial"]
@@ -189,20 +189,11 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
         restb = np.empty((nc, 1))
         tensionb = np.empty((nc, 1))
         dirsb = np.empty((nr, 3, 1))
+        gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, xb, vb, accb, extb, restb, tensionb, dirsb)
         for i in range(n_nodes):
             for j in range(3):
-                xb[i, j, 0] = x[i, j, b]
-                vb[i, j, 0] = v[i, j, b]
-                accb[i, j, 0] = acc[i, j, b]
-                extb[i, j, 0] = ext[i, j, b]
                 warmb[0, i, j, 0] = warm[0, i, j, b]
                 warmb[1, i, j, 0] = warm[1, i, j, b]
-        for ci in range(nc):
-            restb[ci, 0] = rest[ci, b]
-            tensionb[ci, 0] = tension[ci, b]
-        for k in range(nr):
-            for j in range(3):
-                dirsb[k, j, 0] = rigid_dirs[k, j, b]
         dx = np.empty((n_nodes, 3))
         imp = np.empty(nc)
         total = np.zeros(nc)
@@ -245,32 +236,19 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
                     total_contact[i, j] += contact[i, j]
             if (s + 1) % every == 0 or s == n_steps - 1:
                 k = s // every
+                keep(xb, vb, 0, total, sl, k, b, out_x, out_v, out_impulses, out_slack)
                 for i in range(n_nodes):
                     for j in range(3):
-                        out_x[k, i, j, b] = xb[i, j, 0]
-                        out_v[k, i, j, b] = vb[i, j, 0]
                         out_contact[k, i, j, b] = total_contact[i, j]
                         total_contact[i, j] = 0.0
-                for ci in range(nc):
-                    out_impulses[k, ci, b] = total[ci]
-                    out_slack[k, ci, b] = sl[ci]
-                    total[ci] = 0.0
+        scatter_copy(xb, vb, accb, tensionb, dirsb, b, x, v, acc, tension, rigid_dirs)
         for i in range(n_nodes):
             for j in range(3):
-                x[i, j, b] = xb[i, j, 0]
-                v[i, j, b] = vb[i, j, 0]
-                acc[i, j, b] = accb[i, j, 0]
                 warm[0, i, j, b] = warmb[0, i, j, 0]
                 warm[1, i, j, b] = warmb[1, i, j, 0]
-        for ci in range(nc):
-            tension[ci, b] = tensionb[ci, 0]
-        for k in range(nr):
-            for j in range(3):
-                rigid_dirs[k, j, b] = dirsb[k, j, 0]
 
 
 # one loop, two compilations: a batch spreads its copies over the cores; one copy (Simulator) runs without
 # the thread pool's start-up
 ground_steps = njit(cache=True, parallel=True)(_ground_steps)
 ground_steps_serial = njit(cache=True)(_ground_steps)
-

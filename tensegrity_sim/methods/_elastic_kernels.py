@@ -283,6 +283,39 @@ def verlet_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping,
 
 
 @njit(cache=True)
+def gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs):
+    """Copy ``b`` of the batch-last state and carry into the batch-of-one ``w*`` arrays (a copy stepped in
+    contiguous arrays of its own: the very arithmetic of a ``Simulator``, no stride of B)."""
+    for i in range(x.shape[0]):
+        for j in range(3):
+            wx[i, j, 0] = x[i, j, b]
+            wv[i, j, 0] = v[i, j, b]
+            wacc[i, j, 0] = acc[i, j, b]
+            wext[i, j, 0] = ext[i, j, b]
+    for ci in range(rest.shape[0]):
+        wten[ci, 0] = tension[ci, b]
+        wrest[ci, 0] = rest[ci, b]
+    for k in range(rigid_dirs.shape[0]):
+        for j in range(3):
+            wdirs[k, j, 0] = rigid_dirs[k, j, b]
+
+
+@njit(cache=True)
+def scatter_copy(wx, wv, wacc, wten, wdirs, b, x, v, acc, tension, rigid_dirs):
+    """The batch-of-one state and carry written back as copy ``b`` (:func:`gather_copy`'s inverse)."""
+    for i in range(x.shape[0]):
+        for j in range(3):
+            x[i, j, b] = wx[i, j, 0]
+            v[i, j, b] = wv[i, j, 0]
+            acc[i, j, b] = wacc[i, j, 0]
+    for ci in range(tension.shape[0]):
+        tension[ci, b] = wten[ci, 0]
+    for k in range(rigid_dirs.shape[0]):
+        for j in range(3):
+            rigid_dirs[k, j, b] = wdirs[k, j, 0]
+
+
+@njit(cache=True)
 def keep(x, v, c, total, slack, k, b, out_x, out_v, out_impulses, out_slack):
     """Write copy ``c`` of ``x``, ``v`` (N, 3, .) and the step's ``total`` impulses (nc,) N*s and ``slack``
     (nc,) as kept step ``k`` of copy ``b`` of the outputs (see :func:`elastic_steps`); ``total`` restarts
