@@ -165,6 +165,7 @@ class ElasticMethod(StepMethod):
         # cable tensions (n_cables, 1), rigid strut directions (nr, 3, 1), slack cables (n_cables, 1) at
         # the last step's end; with a ground, each node's last contact impulses (2, N, 3, 1) too
         self._carry = None
+        self._warm = None   # the contact solver's warm starts (2, N, 3, 1) kept when an input drops the carry
         if self.compiled:
             self._load_kernels()
 
@@ -180,6 +181,8 @@ class ElasticMethod(StepMethod):
 
     def invalidate(self) -> None:
         self._cache = None
+        if self._carry is not None:   # the contact solver's warm starts outlive an input (a hint, not state)
+            self._warm = self._carry[4]
         self._carry = None
 
     def prepare(self, state: State) -> None:
@@ -221,9 +224,10 @@ class ElasticMethod(StepMethod):
         ext = state.external_forces.reshape(-1, 3, 1)
         if self._carry is None:   # the start forces: the last step's end, or computed here
             forces = (np.empty_like(x), np.empty((self.system.n_cables, 1)), np.empty((self.rigid.count, 3, 1)))
-            # with a ground: each node's last contact impulses (drift and closing solves)
-            self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *forces),
-                                    np.zeros((2,) + x.shape))
+            # with a ground: each node's last contact impulses (drift and closing solves), kept over an input
+            warm = np.zeros((2,) + x.shape) if self._warm is None else self._warm
+            self._warm = None
+            self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *forces), warm)
         if self._ground_model is not None:
             failed = np.empty(1, dtype=np.int64)
             ground_kernels.ground_steps_serial(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
