@@ -1,6 +1,7 @@
 """Batched stepping beside MuJoCo's threaded ``rollout`` (issue 12's targets), in one process, taking turns.
 
     python3 bench/bench_batch.py            # writes bench/results/batch.csv and batch.md, prints both
+    python3 bench/bench_batch.py --ground   # the ground case only: bench/results/batch_ground.csv
 
 Cases (icosahedron thrown: rigid struts, 613 N/m cables, random node velocities; dt = 1 ms):
 
@@ -9,7 +10,14 @@ Cases (icosahedron thrown: rigid struts, 613 N/m cables, random node velocities;
 * inextensible, batch 256: ``BatchSimulator(method="inextensible")`` against MuJoCo's limited tendons.
 
 MuJoCo runs its Euler integrator (its cheapest step), contacts off and sensors off; we run without contact
-detection (the peer has none) and, for information, with it. Each contender does ``STEPS`` steps of the
+detection (the peer has none) and, for information, with it.
+
+* elastic on the ground, batch 1024 (issue 28): ``icosahedron_ground`` rolling (the roll's reel-in of c4,
+  c5 and c6 to 60 % held from the start: the robot tips over its base edge and rolls), every copy starting
+  afresh in each timed call in both; ours steps the ground in the compiled batch loop on every core, no
+  strut-strut detection (the peer's struts touch the plane only); MuJoCo with its plane contacts
+  (elliptic cones, impratio 100) and implicitfast (its Euler goes unstable in the roll), as many threads
+  as cores. Each contender does ``STEPS`` steps of the
 whole batch per timed call (MuJoCo's rollout also writes every step's state: with the batch that is what
 it is for); the rate is the best of ``REPEATS`` turns (a shared machine only ever adds time), scene-steps
 per second = batch x steps / wall time.
@@ -29,6 +37,7 @@ from bench.cases import icosahedron_thrown  # noqa: E402
 from bench.mujoco_peer import MujocoPeer  # noqa: E402
 from bench.tables import write_csv  # noqa: E402
 from bench.timing import time_runs  # noqa: E402
+from tensegrity_sim import load_scene  # noqa: E402
 from tensegrity_sim.batch import BatchSimulator  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -39,13 +48,16 @@ CASES = [  # (cable model, batch, steps per timed call)
 ]
 
 
-def _mujoco(scene, model: str, batch: int, steps: int, threads: int):
-    """A callable doing ``steps`` steps of ``batch`` copies in ``mujoco.rollout`` with ``threads`` threads."""
+def _mujoco(scene, model: str, batch: int, steps: int, threads: int, integrator: str = "Euler", rest=None):
+    """A callable doing ``steps`` steps of ``batch`` copies in ``mujoco.rollout`` with ``threads`` threads;
+    ``rest``: the cables' rest lengths (n_cables,) m if not the scene's."""
     import mujoco
     from mujoco import rollout
 
-    peer = MujocoPeer(scene, model=model, dt=1e-3, integrator="Euler")
+    peer = MujocoPeer(scene, model=model, dt=1e-3, integrator=integrator)
     m = peer.model
+    if rest is not None:
+        m.tendon_lengthspring[peer._tendons, 1] = rest
     m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     state0 = np.empty(mujoco.mj_stateSize(m, spec))
@@ -62,6 +74,49 @@ def _ours(scene, method: str, batch: int, steps: int, contacts):
         warnings.simplefilter("ignore")   # the inextensible method's prestress warning
         sim = BatchSimulator(scene, batch, method=method, dt=1e-3, contacts=contacts)
     return lambda: sim.run(steps=steps, every=steps)
+
+
+def _rolled(scene):
+    """The roll's held command: c4, c5, c6 at 60 % of their rest lengths (examples/roll.yaml at 0.3 s)."""
+    rest = scene.cable_rest_lengths.copy()
+    for name in ("c4", "c5", "c6"):
+        rest[scene.cable_names.index(name)] *= 0.6
+    return rest
+
+
+def measure_ground(batch: int = 1024, steps: int = 500) -> list[dict]:
+    """Issue 28's batch target: the rolling icosahedron on the ground, ours against mujoco.rollout."""
+    scene = load_scene("icosahedron_ground")
+    threads = os.cpu_count() or 1
+    mujoco_run, pool = _mujoco(scene, "elastic", batch, steps, threads, "implicitfast", _rolled(scene))
+    fresh = {}
+
+    def setup():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fresh["sim"] = BatchSimulator(scene, batch, method="elastic", dt=1e-3, contacts=())
+        fresh["sim"].set_rest_lengths(_rolled(scene))
+
+    contenders = {"mujoco rollout": (mujoco_run, None),
+                  "BatchSimulator": (lambda: fresh["sim"].run(steps=steps, every=steps), setup)}
+    best = {name: float("inf") for name in contenders}
+    for name, (run, prepare) in contenders.items():   # warm-up: compile, allocate
+        if prepare:
+            prepare()
+        run()
+    for _ in range(REPEATS):
+        for name, (run, prepare) in contenders.items():
+            best[name] = min(best[name], time_runs(run, setup=prepare, warmup=lambda: None, repeats=1).best)
+    pool.close()
+    mass = scene.masses
+    start = mass @ scene.positions / mass.sum()
+    moved = float(np.linalg.norm((mass @ fresh["sim"].positions[0] / mass.sum() - start)[:2]))
+    ref = batch * steps / best["mujoco rollout"]
+    load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    return [{"case": "icosahedron_ground rolling elastic", "batch": batch, "steps": steps, "contender": name,
+             "threads": threads, "scene_steps_per_s": round(batch * steps / t),
+             "ratio_to_mujoco": round(batch * steps / t / ref, 3),
+             "note": f"ours rolled {moved:.3f} m in {steps} ms; load {load}"} for name, t in best.items()]
 
 
 def measure() -> list[dict]:
@@ -85,25 +140,32 @@ def measure() -> list[dict]:
             rate = batch * steps / t
             rows.append({"case": f"icosahedron_thrown {model}", "batch": batch, "steps": steps,
                          "contender": name, "threads": threads if name.startswith("mujoco") else 1,
-                         "scene_steps_per_s": round(rate), "ratio_to_mujoco": round(rate / ref, 3)})
-    return rows
+                         "scene_steps_per_s": round(rate), "ratio_to_mujoco": round(rate / ref, 3), "note": ""})
+    return rows + measure_ground()
 
 
 def write(rows: list[dict]) -> str:
     RESULTS.mkdir(exist_ok=True)
     write_csv(RESULTS / "batch.csv", rows)
-    lines = ["## Batches (issue 12)\n",
+    lines = ["## Batches (issues 12, 28)\n",
              "`python3 bench/bench_batch.py`: scene-steps per second of a whole batch (dt = 1 ms, best of "
              f"{REPEATS} turns in one process), against `mujoco.rollout` with as many threads as cores "
              "(Euler, contacts and sensors off; limited tendons for the inextensible case).\n",
-             "| case | batch | contender | threads | scene-steps/s | ratio to MuJoCo |",
-             "| --- | --- | --- | --- | --- | --- |"]
+             "| case | batch | contender | threads | scene-steps/s | ratio to MuJoCo | note |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
     lines += [f"| {r['case']} | {r['batch']} | {r['contender']} | {r['threads']} | {r['scene_steps_per_s']:,} | "
-              f"{r['ratio_to_mujoco']:.2f} |" for r in rows]
+              f"{r['ratio_to_mujoco']:.2f} | {r['note']} |" for r in rows]
     text = "\n".join(lines) + "\n"
     (RESULTS / "batch.md").write_text(text)
     return text
 
 
 if __name__ == "__main__":
-    print(write(measure()))
+    if "--ground" in sys.argv[1:]:
+        ground_rows = measure_ground()
+        RESULTS.mkdir(exist_ok=True)
+        write_csv(RESULTS / "batch_ground.csv", ground_rows)
+        for row in ground_rows:
+            print(row)
+    else:
+        print(write(measure()))

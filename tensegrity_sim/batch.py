@@ -5,8 +5,10 @@ their state (positions, velocities, rest lengths) and inputs (rest-length comman
 Every array a user sees has the batch as its **leading** axis, ``(B, N, 3)``, ``(B, n_cables)``, and a
 run returns ``(B, K, ...)`` (mujoco rollout's "nbatch x nstep" order). Inside, the elastic method keeps
 the batch as the *last* axis (:mod:`.methods.elastic_batch`) so that one step of all copies is a few
-array operations; the inextensible method solves one QP per copy and so steps a
-:class:`~tensegrity_sim.simulator.Simulator` per copy (style rule 8: a ``Simulator`` is a batch of one).
+array operations, and with a ground steps every copy in the compiled ground loop, the copies spread over
+all cores; the inextensible method solves one QP per copy and so steps a
+:class:`~tensegrity_sim.simulator.Simulator` per copy (style rule 8: a ``Simulator`` is a batch of one), as
+does the elastic method with a member contact response.
 
 Each copy equals a single ``Simulator`` run from the same state with the same inputs (to round-off;
 ``test/test_batch.py`` requires 1e-10). A step that fails in one copy (a QP without a solution, a
@@ -24,6 +26,7 @@ import numpy as np
 
 from .checks import float_array, time_step
 from .contact import ContactDetector, make_detector
+from .ground_contact import GroundDetector, walk_copies
 from .methods import StepError, choose_method
 from .methods.elastic import ElasticMethod
 from .methods.elastic_batch import ElasticBatch
@@ -177,9 +180,9 @@ class BatchSimulator:
         n, nc = len(scene.nodes), len(scene.cables)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
-        # the batched elastic engine knows no contact response (ground or members): a scene with one steps a
+        # the batched elastic engine steps a ground but no member contact response: a scene with one steps a
         # Simulator per copy
-        if method == "elastic" and scene.ground is None and not scene.contact_response.response:
+        if method == "elastic" and not scene.contact_response.response:
             if solver is not None and requested:
                 raise ValueError(f"solver={solver!r} is an option of a method with a QP; method 'elastic' has none")
             self._engine = ElasticBatch(self.system, dt)
@@ -192,6 +195,9 @@ class BatchSimulator:
             self._rest = np.stack([s.cable_rest_lengths for s in scenes], axis=-1)
             self._f_ext = np.zeros((n, 3, self.batch))
             self._detectors = self._make_detectors(scene)
+            self._grounds = None if scene.ground is None else [GroundDetector(self.system) for _ in range(self.batch)]
+            for b, d in enumerate(self._grounds or ()):
+                d.reset(self._x[..., b])
             # copies stopped by a non-finite step: {copy: (steps done, positions, velocities)}
             self._frozen: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
         else:
@@ -350,9 +356,16 @@ class BatchSimulator:
             contacts = [((),) * self.batch] * steps
         else:
             contacts = []
+            first = previous
             for k in range(steps):
                 contacts.append(self._detect(previous, x_seq[k], (start + k) * self.dt))
                 previous = x_seq[k]
+            previous = first
+        if self._grounds is not None:
+            landed = walk_copies(self._grounds, previous, previous_v, x_seq, v_seq, self._engine.contact,
+                                 start * self.dt, self.dt)
+            contacts = [tuple(tuple(sorted(m + g, key=lambda e: e.time)) if g else m for m, g in zip(members, ground))
+                        for members, ground in zip(contacts, landed)]
         return (np.moveaxis(x_seq, -1, 1), np.moveaxis(v_seq, -1, 1), np.moveaxis(imp, -1, 1),
                 np.moveaxis(slack, -1, 1), contacts)
 

@@ -76,6 +76,32 @@ class RunSummary:
         return out
 
 
+def _held_steps(commands: CommandSchedule, sim: Simulator, base_rest: np.ndarray, last_forces, most: int) -> int:
+    """How many of the next steps (at most ``most``) ``commands`` leave the simulator's inputs as they are:
+    the rest lengths at each step's time equal the present ones (each scheduled cable on a flat stretch of
+    its ramps, or past its last point) and no force point falls among them. 0 if the next step changes one."""
+    t = sim.time
+    if not np.array_equal(commands.rest_lengths_at(t, base_rest), sim.rest_lengths):
+        return 0
+    forces = commands.forces_at(t)
+    if forces is not None and forces is not last_forces:
+        return 0
+    until = np.inf
+    later = commands.force_times[commands.force_times > t]
+    if later.size:
+        until = float(later[0])
+    for times, values in zip(commands.rest_times, commands.rest_values):
+        k = int(np.searchsorted(times, t, side="right"))   # the first point after t
+        while k < len(times) and values[k] == values[max(k - 1, 0)]:
+            k += 1                                         # flat: the stretch goes on
+        if k < len(times):
+            until = min(until, float(times[k - 1]) if k else float(times[0]))
+    if not np.isfinite(until):
+        return most
+    # the steps whose start time (step_count + j) dt lies before the stretch's end
+    return int(min(most, max(0, np.floor((until - t) / sim.dt))))
+
+
 def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None, *,
              progress: bool = False, on_step=None, driver=None) -> RunSummary:
     """Run ``steps`` steps applying ``commands`` before each step; return the summary.
@@ -95,10 +121,9 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
     bar = tqdm(total=steps, unit="step", disable=not progress, mininterval=0.5)
     start = time.perf_counter()
     try:
-        # nothing to do between steps: run in chunks (the method's compiled loop, where it has one)
-        chunked = commands is None and driver is None and on_step is None
-        for done in range(0, steps if chunked else 0, _CHUNK):
-            traj = sim.run(steps=min(_CHUNK, steps - done))
+        def take(traj) -> None:
+            """The summary's figures of a chunk run in the method's compiled loop."""
+            nonlocal max_t, max_cable, switches, contacts, begins, slack_prev
             if traj.tensions.size:
                 peak = traj.tensions.max(axis=1)
                 first = int(np.argmax(peak))   # the earliest step reaching the chunk's largest tension
@@ -111,7 +136,20 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
                 begins += event.kind == "begin"
                 pairs.add(event.members)
             bar.update(len(traj.time))
-        for _ in range(0 if chunked else steps):
+
+        # nothing to do between steps (no commands, or commands that hold for a while): run in chunks (the
+        # method's compiled loop, where it has one)
+        chunked = driver is None and on_step is None
+        done = 0
+        while done < steps:
+            held = steps - done if commands is None else 0
+            if chunked and commands is not None:
+                held = _held_steps(commands, sim, base_rest, last_forces, steps - done)
+            if chunked and held:
+                traj = sim.run(steps=min(_CHUNK, held))
+                take(traj)
+                done += len(traj.time)
+                continue
             if commands is not None:
                 t = sim.time
                 rest = commands.rest_lengths_at(t, base_rest)
@@ -122,6 +160,7 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
                     target.set_external_forces(forces)
                     last_forces = forces
             r = target.step()
+            done += 1
             if r.tensions.size:
                 k = int(np.argmax(r.tensions))
                 if r.tensions[k] > max_t:

@@ -12,7 +12,7 @@ from .methods.friction import TOUCH_TOL
 from .results import ContactEvent
 from .system import System
 
-__all__ = ["GroundDetector", "GROUND"]
+__all__ = ["GroundDetector", "GROUND", "walk_copies"]
 
 GROUND = "ground"
 _DOWN = np.array([0.0, 0.0, -1.0])
@@ -79,6 +79,28 @@ class GroundDetector:
         self._inside = now
         return tuple(events)
 
+    def walk(self, x0: np.ndarray, v0: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
+             impulses: np.ndarray, t0: float, dt: float) -> list[ContactEvent]:
+        """The events of consecutive steps from ``x0``, ``v0`` (N, 3) to ``positions``, ``velocities``
+        (K, N, 3) in turn, with the ground's ``impulses`` (K, N, 3) N*s of each, the first starting at
+        ``t0`` s: :meth:`step` called for the steps where a node's contact begins or ends only (the others
+        would return no event and change nothing but the last impulses), found for all steps at once."""
+        events: list[ContactEvent] = []
+        for per_step in walk_copies([self], x0[..., None], v0[..., None], positions[..., None],
+                                    velocities[..., None], impulses[..., None], t0, dt):
+            events.extend(per_step[0])
+        return events
+
+    def changes(self, positions: np.ndarray, impulses: np.ndarray) -> np.ndarray:
+        """(K,) bool: the consecutive steps to ``positions`` (K, N, 3) with ``impulses`` (K, N, 3) at which
+        :meth:`step` would find an event; at the others it only keeps the impulses (``impulses = ...``)."""
+        now = (positions[:, :, 2] - self.radii - self.height <= TOUCH_TOL) | (impulses[:, :, 2] > 0)
+        now &= self.free
+        changed = np.empty(len(now), dtype=bool)
+        changed[0] = (now[0] != self._inside).any()
+        changed[1:] = (now[1:] != now[:-1]).any(axis=1)
+        return changed
+
     def active(self, positions: np.ndarray) -> tuple[ActiveContact, ...]:
         """Every node touching the ground now, with its gap and the last step's impulses."""
         out = []
@@ -87,3 +109,32 @@ class GroundDetector:
             out.append(ActiveContact(e.members, e.time, e.point_a, e.point_b, e.normal, e.distance,
                                      e.normal_impulse, e.tangential_impulse))
         return tuple(out)
+
+
+def _changes(detectors: list[GroundDetector], positions: np.ndarray, impulses: np.ndarray) -> np.ndarray:
+    """(K, B) bool: the steps to ``positions`` (K, N, 3, B) with the ground's ``impulses`` (K, N, 3, B) at
+    which a node of copy b begins or ends a contact, each step compared with the one before (the first
+    with what each detector knows now): where :meth:`GroundDetector.step` has something to do."""
+    first = detectors[0]
+    inside = np.stack([d._inside for d in detectors], axis=-1)                                   # (N, B)
+    now = (positions[:, :, 2] - first.radii[:, None] - first.height <= TOUCH_TOL) | (impulses[:, :, 2] > 0)
+    now &= first.free[:, None]                                                                     # (K, N, B)
+    return (now != np.concatenate([inside[None], now[:-1]])).any(axis=1)
+
+
+def walk_copies(detectors: list[GroundDetector], x0: np.ndarray, v0: np.ndarray, positions: np.ndarray,
+                velocities: np.ndarray, impulses: np.ndarray, t0: float, dt: float) -> list[tuple[tuple, ...]]:
+    """:meth:`GroundDetector.walk` of B copies (one detector each) at once: ``x0``, ``v0`` (N, 3, B),
+    ``positions``, ``velocities``, ``impulses`` (K, N, 3, B). Returns each step's events per copy (K tuples
+    of B tuples); a detector is called only at the steps where one of its nodes' contacts begins or ends."""
+    k, n_copies = len(positions), len(detectors)
+    out = [[()] * n_copies for _ in range(k)]
+    if not k:
+        return [tuple(row) for row in out]
+    changed = _changes(detectors, positions, impulses)
+    for i, b in zip(*np.nonzero(changed)):
+        start_x, start_v = (x0[..., b], v0[..., b]) if i == 0 else (positions[i - 1, ..., b], velocities[i - 1, ..., b])
+        out[i][b] = detectors[b].step(start_x, positions[i, ..., b], start_v, t0 + i * dt, dt, impulses[i, ..., b])
+    for b, d in enumerate(detectors):
+        d.impulses = impulses[-1, ..., b].copy()
+    return [tuple(row) for row in out]

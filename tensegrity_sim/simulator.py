@@ -104,12 +104,13 @@ class _Ahead:
 
     __slots__ = ("stop", "count", "start", "start_count", "carry", "positions", "rows")
 
-    def __init__(self, start, start_count: int, carry, pos, vel, imp, slack, stop: int, dt: float):
+    def __init__(self, start, start_count: int, carry, pos, vel, imp, slack, stop: int, dt: float, ground=None):
         self.stop, self.count = stop, len(pos)
         self.start, self.start_count, self.carry, self.positions = start, start_count, carry, pos
         # the state takes one copy of the positions and velocities, the results another (a user may
         # write into theirs); every other field belongs to one result only
-        self.rows = zip(range(stop), pos, vel, pos.copy(), vel.copy(), imp, imp / dt, slack, np.zeros_like(pos))
+        self.rows = zip(range(stop), pos, vel, pos.copy(), vel.copy(), imp, imp / dt, slack,
+                        np.zeros_like(pos) if ground is None else ground)
 
 
 _NO_ROWS = iter(())
@@ -159,6 +160,7 @@ class Simulator:
         self._rows = _NO_ROWS     # the steps computed ahead still to hand out
         self._ahead_size = 1
         self._quiet = 0           # contact detection has nothing to do for the steps ahead before this one
+        self._ground_busy = None  # (k,) bool: the steps ahead at which a ground contact begins or ends
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -284,6 +286,13 @@ class Simulator:
         else:
             contacts = self._contacts.step(st.positions, x, st.step_count * self.dt, self.dt)
             self._quiet = i + 1 + self._quiet_steps(self._ahead.positions[i + 1:])
+        if self._ground is not None:
+            if self._ground_busy[i]:
+                landed = self._ground.step(st.positions, x, st.velocities, st.step_count * self.dt, self.dt, ground)
+                if landed:
+                    contacts = tuple(sorted(contacts + landed, key=lambda e: e.time))
+            else:   # no contact begins or ends: the detector only keeps the impulses (GroundDetector.changes)
+                self._ground.impulses = ground
         st.positions, st.velocities = x, v
         st.step_count += 1
         return step_result(st.step_count * self.dt, result_x, result_v, impulses, tensions, slack, contacts, ground)
@@ -298,7 +307,7 @@ class Simulator:
             self._rewind()
             return False
         method = self._method
-        if self._ground is not None or not method.has_loop():
+        if not method.has_loop() or (self._ground is not None and not method.has_ground_loop()):
             return False
         if a is not None:   # the last steps ahead were all taken, the inputs held: look further
             self._ahead_size = min(2 * self._ahead_size, _AHEAD)
@@ -307,13 +316,19 @@ class Simulator:
         pos, vel = np.empty((k, n, 3)), np.empty((k, n, 3))
         imp, slack = np.empty((k, nc)), np.empty((k, nc), dtype=bool)
         carry = method.carry()
-        method.advance(st, k, 1, pos, vel, imp, slack)
+        ground = None
+        if self._ground is None:
+            method.advance(st, k, 1, pos, vel, imp, slack)
+        else:
+            ground = np.empty((k, n, 3))
+            method.advance(st, k, 1, pos, vel, imp, slack, ground)
+            self._ground_busy = self._ground.changes(pos, ground)
         # finite_step's test of each step: the same sums (of a row, in the same order)
         add = np.add.reduce
         finite = np.isfinite(add(pos.reshape(k, -1), 1) + add(vel.reshape(k, -1), 1) + add(imp, 1))
         stop = k if finite.all() else int(np.argmin(finite))
         self._ahead = a = _Ahead((st.positions, st.velocities), st.step_count, carry, pos, vel, imp, slack, stop,
-                                 self.dt)
+                                 self.dt, ground)
         self._rows = a.rows
         self._quiet = k if self._contacts is None else self._quiet_steps(pos)
         return self._look_ahead() if stop == 0 else True
@@ -417,9 +432,9 @@ class Simulator:
         ground = np.zeros((len(kept), n, 3))   # the ground's impulses, summed like the cables'
         contacts = []
         done = 0
-        if callback is None and self._method.has_loop():
+        if callback is None and self._method.has_loop() and (self._ground is None or self._method.has_ground_loop()):
             self._rewind()
-            done = self._run_compiled(steps, every, pos, vel, imp, slack, contacts)
+            done = self._run_compiled(steps, every, pos, vel, imp, slack, contacts, ground)
         for k in range(done, steps):   # step by step (all of them, or from a compiled part that failed)
             r = self.step()
             j = k // every
@@ -432,7 +447,7 @@ class Simulator:
                 callback(k, r)
         return Trajectory(time, pos, vel, imp, imp / (span[:, None] * self.dt), slack, contacts, ground)
 
-    def _run_compiled(self, steps, every, pos, vel, imp, slack, contacts) -> int:
+    def _run_compiled(self, steps, every, pos, vel, imp, slack, contacts, ground) -> int:
         """:meth:`run` in the method's compiled loop: straight into the trajectory's arrays, or, with
         contact detection, in chunks of every step that the detector then walks through. Returns the
         steps done: a part whose result is not finite is not committed (the method's carry is put back,
@@ -440,7 +455,7 @@ class Simulator:
         step by step does."""
         st, method = self._state, self._method
         add = np.add.reduce
-        if self._contacts is None:
+        if self._contacts is None and self._ground is None:
             carry = method.carry()
             x, v = method.advance(st, steps, every, pos, vel, imp, slack)
             if not math.isfinite(add(x, None) + add(v, None) + add(imp, None)):
@@ -455,23 +470,40 @@ class Simulator:
         n, nc = pos.shape[1], imp.shape[1]
         c_pos, c_vel = np.empty((chunk, n, 3)), np.empty((chunk, n, 3))
         c_imp, c_slack = np.empty((chunk, nc)), np.empty((chunk, nc), dtype=bool)
+        c_ground = None if self._ground is None else np.empty((chunk, n, 3))
         done = 0
         while done < steps:
             m = min(chunk, steps - done)
             carry = method.carry()
-            x, v = method.advance(st, m, 1, c_pos[:m], c_vel[:m], c_imp[:m], c_slack[:m])
+            if self._ground is None:
+                x, v = method.advance(st, m, 1, c_pos[:m], c_vel[:m], c_imp[:m], c_slack[:m])
+            else:
+                x, v = method.advance(st, m, 1, c_pos[:m], c_vel[:m], c_imp[:m], c_slack[:m], c_ground[:m])
             if not math.isfinite(add(x, None) + add(v, None) + add(c_imp[:m], None)):
                 method.restore(carry)
                 method.invalidate()
                 return done
-            i = self._quiet_steps(c_pos[:m])   # the detector is called for the other steps only
+            i = m if self._contacts is None else self._quiet_steps(c_pos[:m])   # the detector: the other steps
             while i < m:
                 previous = c_pos[i - 1] if i else st.positions
                 contacts.extend(self._contacts.step(previous, c_pos[i], (st.step_count + i) * self.dt, self.dt))
                 i += 1 + self._quiet_steps(c_pos[i + 1:m])
             g = done + np.arange(m)              # the chunk's steps in the run, from 0
             j = g // every
-            np.add.at(imp, j, c_imp[:m])
+            if self._ground is not None:
+                landed = self._ground.walk(st.positions, st.velocities, c_pos[:m], c_vel[:m], c_ground[:m],
+                                           st.step_count * self.dt, self.dt)
+                if landed:
+                    contacts.extend(landed)
+                    contacts.sort(key=lambda e: e.time)
+                if every == 1:   # each step its own row: add.at's sums are the steps themselves
+                    ground[done:done + m] += c_ground[:m]
+                else:
+                    np.add.at(ground, j, c_ground[:m])
+            if every == 1:
+                imp[done:done + m] += c_imp[:m]
+            else:
+                np.add.at(imp, j, c_imp[:m])
             last = (g + 1) % every == 0
             last[-1] |= done + m == steps
             pos[j[last]], vel[j[last]], slack[j[last]] = c_pos[:m][last], c_vel[:m][last], c_slack[:m][last]

@@ -253,19 +253,71 @@ def test_bad_input_is_refused_and_changes_nothing():
     assert batch.step_count == 0
 
 
-def test_a_scene_with_a_ground_equals_single_runs():
-    """The batched elastic engine has no ground: such a scene is stepped copy by copy, as Simulator does."""
-    scene = ts.load_scene("icosahedron_ground")
-    batch = _quiet(lambda: BatchSimulator(scene, 2, method="elastic", dt=1e-3))
-    single = _quiet(lambda: ts.Simulator(scene, method="elastic", dt=1e-3))
-    traj, want = batch.run(steps=100, every=50), single.run(steps=100, every=50)
-    for b in range(2):
-        np.testing.assert_allclose(traj.positions[b], want.positions, rtol=0, atol=TOL)
+def _thrown_on_ground(batch_size, seed=28):
+    """icosahedron_ground lifted 20 cm and tilted, each copy thrown with its own velocity (the same for every
+    node, so that no rigid strut's length rate needs projecting: the copies start exactly as single runs
+    do), cables damped: landings on one end, bounces, sliding and sticking, lift-offs."""
+    raw = ts.load_scene("icosahedron_ground").to_dict()
+    raw["cables"] = [dict(c, damping=5.0) for c in raw["cables"]]
+    scene = ts.Scene.from_dict(raw)
+    rng = np.random.default_rng(seed)
+    tilt = 0.3
+    turn = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(tilt), -np.sin(tilt)], [0.0, np.sin(tilt), np.cos(tilt)]])
+    x = np.repeat((scene.positions @ turn.T)[None], batch_size, axis=0) + [0.0, 0.0, 0.3]
+    v = np.repeat(rng.normal(scale=1.0, size=(batch_size, 1, 3)), len(scene.nodes), axis=1)
+    return scene, x, v
+
+
+def test_a_scene_with_a_ground_steps_in_the_compiled_batch_as_single_runs_do():
+    """The batched elastic engine steps the ground (``_elastic_ground_kernels.ground_steps``, the copies
+    spread over the cores): every copy equals a Simulator run from its state to 1e-12 (the same arithmetic), with the same ground contact events, through a
+    rest-length command mid-run."""
+    scene, x, v = _thrown_on_ground(6)
+    batch = _quiet(lambda: BatchSimulator(scene, 6, method="elastic", dt=1e-3, positions=x, velocities=v,
+                                          contacts=()))
+    assert isinstance(batch._engine, ElasticBatch) and batch._copies is None
+    first = batch.run(steps=250, every=10)
+    batch.set_rest_lengths({"c4": 0.6})
+    second = batch.run(steps=250, every=10)
+    events = 0
+    for b in range(6):
+        sim = _quiet(lambda: ts.Simulator(batch._with_state(scene, x[b], v[b], b), method="elastic", dt=1e-3,
+                                          contacts=()))
+        want = [sim.run(steps=250, every=10)]
+        sim.set_rest_lengths({"c4": 0.6})
+        want.append(sim.run(steps=250, every=10))
+        for got, w in zip((first, second), want):
+            np.testing.assert_allclose(got.positions[b], w.positions, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(got.velocities[b], w.velocities, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(got.impulses[b], w.impulses, rtol=0, atol=1e-12)
+            assert [(c.kind, c.members) for c in got.contacts[b]] == [(c.kind, c.members) for c in w.contacts]
+            np.testing.assert_allclose([c.time for c in got.contacts[b]], [c.time for c in w.contacts], rtol=0,
+                                       atol=1e-12)
+            events += len(w.contacts)
+    assert events > 6 * 3   # landings and lift-offs, not only three nodes touching down
+
+
+def test_the_batch_ground_kernel_equals_its_reference():
+    """ElasticBatch with a ground, compiled against its reference (an ElasticMethod numpy reference per
+    copy: friction.py's QP fixed point): the same states to that reference's tolerance."""
+    scene, x, v = _thrown_on_ground(3, seed=5)
+    system = System(scene)
+    compiled, reference = ElasticBatch(system, 1e-3), ElasticBatch(system, 1e-3, compiled=False)
+    x, v = np.moveaxis(x, 0, -1).copy(), np.moveaxis(v, 0, -1).copy()
+    v = compiled.prepare(x, v)
+    rest = np.repeat(scene.cable_rest_lengths[:, None], 3, axis=1)
+    f_ext = np.zeros_like(x)
+    got = compiled.advance(x, v, rest, f_ext, 200)
+    want = reference.advance(x, v, rest, f_ext, 200)
+    np.testing.assert_allclose(got[0], want[0], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(got[1], want[1], rtol=0, atol=1e-6)
+    assert np.abs(reference.contact).max() > 0
+    np.testing.assert_allclose(compiled.contact[:, :, 2], reference.contact[:, :, 2], rtol=0, atol=1e-7)
 
 
 def test_a_scene_with_member_contact_response_equals_single_runs():
-    """Nor member contacts: a scene with ``contact: response: true`` is stepped copy by copy too (struts that
-    pass through each other in the batched engine stop on each other here)."""
+    """The batched engine has no member contact response: a scene with ``contact: response: true`` is stepped
+    copy by copy (struts that would pass through each other stop on each other here)."""
     from test_member_contact import crossing
     scene = crossing(0.25)
     batch = _quiet(lambda: BatchSimulator(scene, 2, method="elastic", dt=1e-3))

@@ -7,8 +7,19 @@ import pytest
 import tensegrity_sim as ts
 from tensegrity_sim.methods.friction import FrictionalSolver
 
-METHODS = ["inextensible", "elastic"]
+METHODS = ["inextensible", "elastic", "elastic-reference"]
 G, MU = 9.81, 0.5
+
+
+def simulator(scene, method, dt=1e-3):
+    """A Simulator of ``scene`` with ``method``; "elastic" steps the ground in the compiled loop
+    (``_elastic_ground_kernels.py``), "elastic-reference" in its numpy reference (friction.py's QP fixed point)."""
+    sim = ts.Simulator(scene, method=method.removesuffix("-reference"), dt=dt)
+    if method == "elastic-reference":
+        sim._method.compiled = False
+    elif method == "elastic":
+        assert sim._method.has_ground_loop() == (scene.ground is not None)
+    return sim
 
 
 def strut(v0=0.0, theta=0.0, mu=MU, height=0.0):
@@ -58,7 +69,7 @@ def test_scene_keys_round_trip():
 @pytest.mark.parametrize("method", METHODS)
 def test_sliding_strut_stops_at_the_closed_form(method):
     v0 = 2.0
-    sim = ts.Simulator(strut(v0), method=method, dt=1e-3)
+    sim = simulator(strut(v0), method)
     tr = sim.run(duration=0.6)
     t_stop, d_stop = v0 / (MU * G), v0 ** 2 / (2 * MU * G)
     stopped = np.flatnonzero(tr.velocities[:, 0, 0] == 0.0)
@@ -75,7 +86,7 @@ def test_sliding_strut_stops_at_the_closed_form(method):
 
 @pytest.mark.parametrize("method", METHODS)
 def test_no_creep_below_the_friction_angle(method):
-    sim = ts.Simulator(strut(theta=np.arctan(0.9 * MU)), method=method, dt=1e-3)
+    sim = simulator(strut(theta=np.arctan(0.9 * MU)), method)
     tr = sim.run(duration=1.0)
     assert np.abs(tr.positions - tr.positions[0]).max() < 1e-6
 
@@ -83,7 +94,7 @@ def test_no_creep_below_the_friction_angle(method):
 @pytest.mark.parametrize("method", METHODS)
 def test_sliding_down_a_slope_accelerates_at_the_closed_form(method):
     theta = np.arctan(1.2 * MU)
-    sim = ts.Simulator(strut(theta=theta), method=method, dt=1e-3)
+    sim = simulator(strut(theta=theta), method)
     tr = sim.run(duration=0.5)
     accel = (tr.velocities[-1, 0, 0] - tr.velocities[99, 0, 0]) / (tr.time[-1] - tr.time[99])
     expected = G * (np.sin(theta) - MU * np.cos(theta))
@@ -94,7 +105,7 @@ def test_sliding_down_a_slope_accelerates_at_the_closed_form(method):
 @pytest.mark.parametrize("method", METHODS)
 def test_momentum_balance_with_the_reported_impulses(method):
     """M (v_f - v_i) = dt * weight + the ground's impulses, every step (the struts' impulses are internal)."""
-    sim = ts.Simulator(strut(2.0, theta=0.3), method=method, dt=1e-3)
+    sim = simulator(strut(2.0, theta=0.3), method)
     v = sim.velocities
     for _ in range(50):
         r = sim.step()
@@ -110,7 +121,7 @@ def test_momentum_balance_with_the_reported_impulses(method):
 def test_point_mass_bounces_to_e_squared_h(method, e):
     scene = ts.Scene.from_dict({"gravity": [0, 0, -G], "ground": {"friction": 0.5, "restitution": e},
                                 "nodes": [{"name": "p", "position": [0, 0, 1.0], "mass": 1.0}]})
-    sim = ts.Simulator(scene, method=method, dt=1e-3)
+    sim = simulator(scene, method)
     tr = sim.run(duration=1.0)
     z = tr.positions[:, 0, 2]
     impact = np.sqrt(2.0 / G)
@@ -132,7 +143,7 @@ def test_a_fixed_node_beside_the_ground_leaves_a_bounce_unchanged(method):
     alone = {"gravity": [0, 0, -G], "ground": {"friction": 0.5, "restitution": 0.5}, "nodes": [ball]}
     tied = dict(alone, nodes=[ball, {"name": "post", "position": [0.0, 0.0, 0.5], "fixed": True}],
                 cables=[{"name": "c", "nodes": ["post", "p"], "stiffness": 100.0, "rest_length": 2.0}])
-    runs = [ts.Simulator(ts.Scene.from_dict(d), method=method, dt=1e-3).run(duration=1.0) for d in (alone, tied)]
+    runs = [simulator(ts.Scene.from_dict(d), method).run(duration=1.0) for d in (alone, tied)]
     assert np.array_equal(runs[0].positions[:, 0], runs[1].positions[:, 0])
     assert abs(runs[1].positions[:, 0, 2][runs[1].time > np.sqrt(2.0 / G) + 2e-3].max() - 0.25) <= 1e-3
 
@@ -147,7 +158,8 @@ def dropped(lift=0.3, damping=0.0, spin=1.0):
 
 
 @pytest.mark.parametrize("method, damping, duration, wobble", [("inextensible", 0.0, 1.0, 1e-12),
-                                                               ("elastic", 300.0, 2.0, 1e-5)])
+                                                               ("elastic", 300.0, 2.0, 1e-5),
+                                                               ("elastic-reference", 300.0, 2.0, 1e-5)])
 def test_dropped_icosahedron_lands_without_sinking_or_gaining_energy(method, damping, duration, wobble):
     """Landing spinning on a face: impacts, cable snaps (inextensible), friction modes; the ground's
     plastic impact and friction and the cables' snaps and damping only remove energy. ``wobble``
@@ -155,7 +167,7 @@ def test_dropped_icosahedron_lands_without_sinking_or_gaining_energy(method, dam
     velocity Verlet's energy error, which oscillates at O(h^2) instead of decreasing monotonically."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ts.LengthOffsetWarning)
-        sim = ts.Simulator(dropped(damping=damping), method=method, dt=1e-3)
+        sim = simulator(dropped(damping=damping), method)
     energy = [sim.energy()["total"]]
     lowest = np.inf
     for _ in range(int(round(duration / 1e-3))):
@@ -172,7 +184,7 @@ def test_dropped_icosahedron_lands_without_sinking_or_gaining_energy(method, dam
 def test_icosahedron_ground_starts_in_static_equilibrium(method):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ts.LengthOffsetWarning)
-        sim = ts.Simulator(ts.load_scene("icosahedron_ground"), method=method, dt=1e-3)
+        sim = simulator(ts.load_scene("icosahedron_ground"), method)
     x0 = sim.positions
     tr = sim.run(duration=0.3)
     assert np.abs(tr.positions - x0).max() < 1e-12
@@ -207,7 +219,7 @@ def test_drop_and_slide_against_mujoco_and_the_closed_form():
     scene = ts.Scene.from_dict(raw)
     closed = v0 * np.sqrt(2 * gap / G) + (v0 - MU * np.sqrt(2 * G * gap)) ** 2 / (2 * MU * G)
     for method in METHODS:
-        tr = ts.Simulator(scene, method=method, dt=1e-3).run(duration=0.7)
+        tr = simulator(scene, method).run(duration=0.7)
         assert tr.positions[-1, 0, 0] == pytest.approx(closed, rel=1e-5)
         assert tr.positions[:, :, 2].min() >= 0.01 - 1e-12
     model = mujoco.MjModel.from_xml_string(f"""<mujoco>

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._elastic_kernels import _step, keep
+from ._elastic_kernels import _step, gather_copy, keep, scatter_copy
 from .composition import _FLOW_ITER, _POLY_ITER, LOCATE_TOL, MAX_SWITCHES
 
 __all__ = ["composed_steps"]
@@ -208,20 +208,10 @@ def composed_steps(x, v, rest, ext, h, n_steps, every, weights, locate, min_spli
     imp = np.empty(nc)
     total = np.empty(nc)
     for b in range(n_copies):
-        for i in range(n_nodes):
-            for j in range(3):
-                wx[i, j, 0] = x[i, j, b]
-                wv[i, j, 0] = v[i, j, b]
-                wacc[i, j, 0] = acc[i, j, b]
-                wext[i, j, 0] = ext[i, j, b]
+        gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs)
         for ci in range(nc):
-            wten[ci, 0] = tension[ci, b]
-            wrest[ci, 0] = rest[ci, b]
             wslack[ci] = slack[ci, b]
             total[ci] = 0.0
-        for k in range(nr):
-            for j in range(3):
-                wdirs[k, j, 0] = rigid_dirs[k, j, b]
         for s in range(n_steps):
             _composed_step(wx, wv, wacc, wten, wdirs, wslack, h, weights, locate, min_split, wrest, wext, ends,
                            stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
@@ -230,14 +220,6 @@ def composed_steps(x, v, rest, ext, h, n_steps, every, weights, locate, min_spli
                 total[ci] += imp[ci]
             if (s + 1) % every == 0 or s == n_steps - 1:
                 keep(wx, wv, 0, total, wslack, s // every, b, out_x, out_v, out_impulses, out_slack)
-        for i in range(n_nodes):
-            for j in range(3):
-                x[i, j, b] = wx[i, j, 0]
-                v[i, j, b] = wv[i, j, 0]
-                acc[i, j, b] = wacc[i, j, 0]
+        scatter_copy(wx, wv, wacc, wten, wdirs, b, x, v, acc, tension, rigid_dirs)
         for ci in range(nc):
-            tension[ci, b] = wten[ci, 0]
             slack[ci, b] = wslack[ci]
-        for k in range(nr):
-            for j in range(3):
-                rigid_dirs[k, j, b] = wdirs[k, j, 0]

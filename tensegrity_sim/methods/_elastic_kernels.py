@@ -211,17 +211,11 @@ def _rattle(v, dirs, ends, inv_mass, rigid_members, w, dv, b):
 
 
 @njit(cache=True)
-def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-          rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, impulses, slack, b):
-    """One velocity Verlet (+ SHAKE/RATTLE) step of ``h`` of copy ``b``, in place on ``x``, ``v`` and the
-    carried ``acc``, ``tension``, ``rigid_dirs``; ``impulses`` (nc,) and ``slack`` (nc,) of the step;
-    ``dx`` (N, 3) is scratch."""
+def _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b):
+    """Copy ``b``'s drift ``x += h v`` and SHAKE's correction (added to ``v`` as ``dx / h``)."""
     n_nodes = x.shape[0]
-    nc = tension.shape[0]
-    half = 0.5 * h
     for i in range(n_nodes):
         for j in range(3):
-            v[i, j, b] += half * acc[i, j, b]
             x[i, j, b] += h * v[i, j, b]
     if rigid_members.shape[0]:
         _shake(x, rigid_dirs, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, dx, b)
@@ -229,6 +223,16 @@ def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_m
             for j in range(3):
                 x[i, j, b] += dx[i, j]
                 v[i, j, b] += dx[i, j] / h
+
+
+@njit(cache=True)
+def _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+           rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b):
+    """Copy ``b``'s end of a step: the forces at the drifted ``x``, the cables' impulses, the closing
+    half-kick and RATTLE."""
+    n_nodes = x.shape[0]
+    nc = tension.shape[0]
+    half = 0.5 * h
     for ci in range(nc):
         impulses[ci] = tension[ci, b]
     _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
@@ -240,6 +244,21 @@ def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_m
             v[i, j, b] += half * acc[i, j, b]
     if rigid_members.shape[0]:
         _rattle(v, rigid_dirs, ends, inv_mass, rigid_members, rigid_w, dx, b)
+
+
+@njit(cache=True)
+def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+          rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, impulses, slack, b):
+    """One velocity Verlet (+ SHAKE/RATTLE) step of ``h`` of copy ``b``, in place on ``x``, ``v`` and the
+    carried ``acc``, ``tension``, ``rigid_dirs``; ``impulses`` (nc,) and ``slack`` (nc,) of the step;
+    ``dx`` (N, 3) is scratch."""
+    half = 0.5 * h
+    for i in range(x.shape[0]):
+        for j in range(3):
+            v[i, j, b] += half * acc[i, j, b]
+    _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
+    _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+           rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b)
 
 
 @njit(cache=True)
@@ -261,6 +280,39 @@ def verlet_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping,
             impulses[ci, b] = imp[ci]
             slack[ci, b] = sl[ci]
     return impulses, slack
+
+
+@njit(cache=True)
+def gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs):
+    """Copy ``b`` of the batch-last state and carry into the batch-of-one ``w*`` arrays (a copy stepped in
+    contiguous arrays of its own: the very arithmetic of a ``Simulator``, no stride of B)."""
+    for i in range(x.shape[0]):
+        for j in range(3):
+            wx[i, j, 0] = x[i, j, b]
+            wv[i, j, 0] = v[i, j, b]
+            wacc[i, j, 0] = acc[i, j, b]
+            wext[i, j, 0] = ext[i, j, b]
+    for ci in range(rest.shape[0]):
+        wten[ci, 0] = tension[ci, b]
+        wrest[ci, 0] = rest[ci, b]
+    for k in range(rigid_dirs.shape[0]):
+        for j in range(3):
+            wdirs[k, j, 0] = rigid_dirs[k, j, b]
+
+
+@njit(cache=True)
+def scatter_copy(wx, wv, wacc, wten, wdirs, b, x, v, acc, tension, rigid_dirs):
+    """The batch-of-one state and carry written back as copy ``b`` (:func:`gather_copy`'s inverse)."""
+    for i in range(x.shape[0]):
+        for j in range(3):
+            x[i, j, b] = wx[i, j, 0]
+            v[i, j, b] = wv[i, j, 0]
+            acc[i, j, b] = wacc[i, j, 0]
+    for ci in range(tension.shape[0]):
+        tension[ci, b] = wten[ci, 0]
+    for k in range(rigid_dirs.shape[0]):
+        for j in range(3):
+            rigid_dirs[k, j, b] = wdirs[k, j, 0]
 
 
 @njit(cache=True)

@@ -111,6 +111,11 @@ class StepMethod:
         """Whether :meth:`advance` runs many steps in compiled code."""
         return False
 
+    def has_ground_loop(self) -> bool:
+        """Whether :meth:`advance` also steps the scene's ground (then it takes ``contact``, (K, N, 3) N*s,
+        for the ground's impulses); without it a scene with a ground is stepped one :meth:`step` at a time."""
+        return False
+
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
                 impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``steps`` steps from ``state`` (not modified), keeping steps ``every``, ``2 every``, ... and

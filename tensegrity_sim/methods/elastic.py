@@ -44,7 +44,8 @@ Two implementations of the same arithmetic: the numba kernels (used unless ``com
 ``_composition_kernels.py`` for the located and order-4 options, and the numpy code below (the primitive
 :meth:`ElasticMethod.verlet` composed by ``methods/composition.py``), the plain reference they must
 match to 1e-12 in tests. Rigid struts that share a node (class-k: coupled SHAKE/RATTLE, a Newton solve)
-and scenes with a ground are stepped by the reference only.
+and scenes with a member contact response are stepped by the reference only; a scene with a ground by
+``_elastic_ground_kernels.py`` (below).
 
 **Ground contact** (a scene with a ``ground``; ``methods/friction.py``): an impulse step for the contact
 set at each half-kick while the cables stay explicit. After the first half-kick, the nodes that would
@@ -57,7 +58,15 @@ order (a bounce's height is off by O(h v): measured 3e-5..7e-5 m for 1 m at 1 ms
 longer symplectic while a contact is closed — contact and friction impulses only remove energy
 (plastic impacts, dissipative friction), but Verlet's own O(h²) energy wobble remains (measured 4e-6
 relative per step on the dropped icosahedron). Away from the ground nothing changes. A scene with a
-ground steps plain Verlet (order 2, switches not located): the options are refused there. A member contact
+ground steps plain Verlet (order 2, switches not located): the options are refused there.
+
+Compiled, the ground's velocity problems are solved block by block (with elastic cables only a rigid
+strut couples nodes: ``_friction_block_kernels.py``, a damped semismooth Newton on the Alart–Curnier form
+with the exact disc, against the Coulomb law's projection form), the same answers as the QP fixed point to
+its tolerance (``test/test_friction_blocks.py``) and every closed form of ``test/test_ground.py`` on both
+paths. A block the Newton leaves unsolved (measured: 1 % of random blocks with arbitrary strut directions,
+masses and mu up to 1; none on the test scenes) has its step taken by the reference (``fallbacks`` counts
+them), and the compiled loop goes on after it. A member contact
 response (``contact: response: true``, ``methods/member_contact.py``) is the same impulse step with the
 member pairs' rows beside the ground's, at the same cost to the order and energy behaviour.
 """
@@ -69,6 +78,7 @@ import numpy as np
 
 from ..system import System
 from . import _composition_kernels as composed
+from . import _elastic_ground_kernels as ground_kernels
 from . import _elastic_kernels as kernels
 from .base import MethodStep, State, StepMethod
 from .composition import MIN_SPLIT, STABILITY, WEIGHTS, Stepper
@@ -77,6 +87,8 @@ from .qp import make_solver
 from .rigid import RigidStruts
 
 __all__ = ["ElasticMethod"]
+
+_GROUND_CHUNK = 1024   # steps per compiled call of :meth:`ElasticMethod.advance` with a ground
 
 
 class _Forces(NamedTuple):
@@ -97,7 +109,7 @@ class ElasticMethod(StepMethod):
     slack/taut switch (``methods/composition.py``); default (None): at order 4 only (at order 2 it
     costs a located part per switching step and, with the fastest vibration under-resolved, lets the
     energy random-walk: see the module docstring). ``compiled``: step with the numba kernels (True; not
-    for coupled rigid struts or a ground) or the numpy reference (False)."""
+    for coupled rigid struts or a member contact response) or the numpy reference (False)."""
 
     name = "elastic"
     options = ("order", "locate_switches")
@@ -139,16 +151,21 @@ class ElasticMethod(StepMethod):
             self.ground = ContactSet(system, make_solver(None, system.masses[system.free]))
         self._contact = None   # the ground's impulses of the last step (N, 3) N*s, or None
         self._pairs = None     # the member contacts' of the last step (ContactSet.pair_impulses), or None
-        # the compiled kernels: plain Verlet (_elastic_kernels.py) and the options (_composition_kernels.py);
-        # contacts (a ground, a member response) and coupled rigid struts run the numpy primitive
-        self.compiled = compiled and not self.rigid.coupled and self.ground is None
+        # the compiled kernels: plain Verlet (_elastic_kernels.py), the options (_composition_kernels.py) and
+        # the ground (_elastic_ground_kernels.py); a member response and coupled rigid struts run the numpy
+        # primitive
+        self.compiled = compiled and not self.rigid.coupled and not system.scene.contact_response.response
+        self._ground_model = (ground_kernels.ground_arrays(system, self.rigid, TOUCH_TOL)
+                              if system.scene.ground is not None else None)
+        self.fallbacks = 0     # compiled steps with a ground retaken by the reference (a block unsolved)
         self._plain = self.order == 2 and not self.locate_switches
         self._weights = np.array(WEIGHTS[self.order])
         self._model = kernels.model_arrays(system, self.rigid)
         # the compiled path's carry from one step to the next (batch of one): accelerations (N, 3, 1),
         # cable tensions (n_cables, 1), rigid strut directions (nr, 3, 1), slack cables (n_cables, 1) at
-        # the last step's end
+        # the last step's end; with a ground, each node's last contact impulses (2, N, 3, 1) too
         self._carry = None
+        self._warm = None   # the contact solver's warm starts (2, N, 3, 1) kept when an input drops the carry
         if self.compiled:
             self._load_kernels()
 
@@ -159,11 +176,13 @@ class ElasticMethod(StepMethod):
         x, v = scene.positions.reshape(-1, 3, 1).copy(), scene.velocities.reshape(-1, 3, 1).copy()
         rest = scene.cable_rest_lengths.reshape(-1, 1).copy()
         out = (x[None].copy(), v[None].copy(), np.empty((0,) + rest.shape), np.empty((0,) + rest.shape, dtype=bool))
-        self._advance(State(x, v, rest, np.zeros_like(x)), x, v, 0, 1, *out)
+        self._advance(State(x, v, rest, np.zeros_like(x)), x, v, 0, 1, *out, np.empty((0,) + x.shape))
         self._carry = None
 
     def invalidate(self) -> None:
         self._cache = None
+        if self._carry is not None:   # the contact solver's warm starts outlive an input (a hint, not state)
+            self._warm = self._carry[4]
         self._carry = None
 
     def prepare(self, state: State) -> None:
@@ -196,34 +215,60 @@ class ElasticMethod(StepMethod):
         return _Forces(f * sys.inv_mass[:, None], t[sys.n_struts:], n, e < 0, e)
 
     def _advance(self, state: State, x: np.ndarray, v: np.ndarray, steps: int, every: int, positions, velocities,
-                 impulses, slack) -> None:
+                 impulses, slack, contact=None) -> int:
         """The compiled loop (batch of one) from ``state`` but at ``x``, ``v`` (N, 3, 1), which it
-        advances in place; the outputs are those of :meth:`advance` with a trailing batch axis."""
+        advances in place; the outputs are those of :meth:`advance` with a trailing batch axis, and with a
+        ground ``contact`` (K, N, 3, 1) N*s its impulses. Returns -1, or (a ground) the step whose contact
+        block was not solved: ``x``, ``v`` are then at its start and the carry is dropped."""
         rest = state.rest_lengths.reshape(-1, 1)
         ext = state.external_forces.reshape(-1, 3, 1)
         if self._carry is None:   # the start forces: the last step's end, or computed here
             forces = (np.empty_like(x), np.empty((self.system.n_cables, 1)), np.empty((self.rigid.count, 3, 1)))
-            self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *forces),)
+            # with a ground: each node's last contact impulses (drift and closing solves), kept over an input
+            warm = np.zeros((2,) + x.shape) if self._warm is None else self._warm
+            self._warm = None
+            self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *forces), warm)
+        if self._ground_model is not None:
+            failed = np.empty(1, dtype=np.int64)
+            ground_kernels.ground_steps_serial(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
+                                               *self._ground_model, self._carry[4], positions, velocities, impulses,
+                                               slack, contact, failed)
+            if failed[0] >= 0:
+                self._carry = None
+            return int(failed[0])
         if self._plain:
             kernels.elastic_steps(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
                                   positions, velocities, impulses, slack)
         else:
             composed.composed_steps(x, v, rest, ext, self.dt, steps, every, self._weights, self.locate_switches,
-                                    MIN_SPLIT * self.dt, *self._model, *self._carry, positions, velocities,
+                                    MIN_SPLIT * self.dt, *self._model, *self._carry[:4], positions, velocities,
                                     impulses, slack)
+        return -1
 
     def _step_impl(self, state: State) -> MethodStep:
         if not self.compiled:
             return self._step_reference(state)
+        n = self.system.n_nodes
         x, v = state.positions.copy(), state.velocities.copy()
         impulses = np.empty((1, self.system.n_cables, 1))
         slack = np.empty((1, self.system.n_cables, 1), dtype=bool)
+        contact = np.empty((1, n, 3, 1))
         x3, v3 = x.reshape(-1, 3, 1), v.reshape(-1, 3, 1)
-        self._advance(state, x3, v3, 1, 1, x3[None], v3[None], impulses, slack)   # the step writes in place
-        return MethodStep(x, v, impulses.reshape(-1), slack.reshape(-1))
+        # the step writes in place
+        if self._advance(state, x3, v3, 1, 1, x3[None], v3[None], impulses, slack, contact) >= 0:
+            # a contact block the compiled solver left unsolved: the step in the reference (friction.py's QP
+            # fixed point and its projected fallback)
+            self.fallbacks += 1
+            self._cache = None
+            return self._step_reference(state)
+        return MethodStep(x, v, impulses.reshape(-1), slack.reshape(-1),
+                          None if self._ground_model is None else contact.reshape(n, 3))
 
     def has_loop(self) -> bool:
         return self.compiled
+
+    def has_ground_loop(self) -> bool:
+        return self.compiled and self._ground_model is not None
 
     def carry(self):
         return None if self._carry is None else tuple(a.copy() for a in self._carry)
@@ -238,11 +283,69 @@ class ElasticMethod(StepMethod):
         return self._step_reference(state)
 
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
-                impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                impulses: np.ndarray, slack: np.ndarray, contact: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`StepMethod.advance`; with a ground, ``contact`` (K, N, 3) N*s gets its impulses, summed
+        like the cables' (None: not kept)."""
         x, v = state.positions.copy(), state.velocities.copy()
-        self._advance(state, x.reshape(-1, 3, 1), v.reshape(-1, 3, 1), steps, every, positions[..., None],
-                      velocities[..., None], impulses[..., None], slack[..., None])
+        x3, v3 = x.reshape(-1, 3, 1), v.reshape(-1, 3, 1)
+        if self._ground_model is None:
+            self._advance(state, x3, v3, steps, every, positions[..., None], velocities[..., None],
+                          impulses[..., None], slack[..., None])
+            return x, v
+        # a ground: chunks of single steps, summed into the kept ones here; a step whose contact block the
+        # compiled solver leaves unsolved is taken by the reference, and the compiled loop goes on after it
+        n, nc = x.shape[0], self.system.n_cables
+        if every == 1 and contact is not None:   # every step kept: straight into the outputs
+            done = 0
+            while done < steps:
+                got = self._advance(state, x3, v3, steps - done, 1, positions[done:, ..., None],
+                                    velocities[done:, ..., None], impulses[done:, :, None], slack[done:, :, None],
+                                    contact[done:, ..., None])
+                if got < 0:
+                    return x, v
+                done += got
+                out = self._retake(state, x, v)
+                positions[done], velocities[done], contact[done] = x, v, out.contact_impulses
+                impulses[done], slack[done] = out.impulses, out.slack
+                done += 1
+            return x, v
+        chunk = min(steps, _GROUND_CHUNK)
+        c_x, c_v, c_contact = np.empty((chunk, n, 3, 1)), np.empty((chunk, n, 3, 1)), np.empty((chunk, n, 3, 1))
+        c_imp, c_slack = np.empty((chunk, nc, 1)), np.empty((chunk, nc, 1), dtype=bool)
+        impulses[...] = 0.0
+        if contact is not None:
+            contact[...] = 0.0
+        done = 0
+        while done < steps:
+            m = min(chunk, steps - done)
+            got = self._advance(state, x3, v3, m, 1, c_x[:m], c_v[:m], c_imp[:m], c_slack[:m], c_contact[:m])
+            if got < 0:
+                got = m
+            else:
+                out = self._retake(state, x, v)
+                c_x[got, ..., 0], c_v[got, ..., 0], c_contact[got, ..., 0] = x, v, out.contact_impulses
+                c_imp[got, :, 0], c_slack[got, :, 0] = out.impulses, out.slack
+                got += 1
+            g = done + np.arange(got)          # the steps in the run, from 0, and their kept rows
+            j = g // every
+            np.add.at(impulses, j, c_imp[:got, :, 0])
+            if contact is not None:
+                np.add.at(contact, j, c_contact[:got, ..., 0])
+            last = ((g + 1) % every == 0) | (g == steps - 1)
+            positions[j[last]], velocities[j[last]] = c_x[:got][last, ..., 0], c_v[:got][last, ..., 0]
+            slack[j[last]] = c_slack[:got][last, :, 0]
+            done += got
         return x, v
+
+    def _retake(self, state: State, x: np.ndarray, v: np.ndarray) -> MethodStep:
+        """The step from ``x``, ``v`` (N, 3; updated in place) whose contact block the compiled solver left
+        unsolved, taken by the reference (friction.py's QP fixed point and its projected fallback)."""
+        self.fallbacks += 1
+        self._cache = None
+        out = self._step_reference(State(x.copy(), v.copy(), state.rest_lengths, state.external_forces))
+        x[...], v[...] = out.positions, out.velocities
+        return out
 
     def _step_reference(self, state: State) -> MethodStep:
         x, v = state.positions, state.velocities

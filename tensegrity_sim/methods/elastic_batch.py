@@ -20,7 +20,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..system import System
+from . import _elastic_ground_kernels as ground_kernels
 from . import _elastic_kernels as kernels
+from .base import State
 from .elastic import ElasticMethod
 
 __all__ = ["ElasticBatch"]
@@ -32,12 +34,22 @@ class ElasticBatch:
     The state is held by the caller and passed in; this object caches only the forces at the last
     step's end (the next step's start), which :meth:`invalidate` drops (contract rule 4).
     ``compiled``: step with the numba kernels (True; not for coupled rigid struts) or the numpy reference.
+
+    A scene with a ground (no member response) is stepped by ``_elastic_ground_kernels.ground_steps``, the
+    copies spread over every core, each copy the very arithmetic of a ``Simulator``'s loop (the
+    reference: an :class:`ElasticMethod` reference per copy); :attr:`contact` then holds the ground's
+    impulses of the last :meth:`advance`, (steps, N, 3, B) N*s.
     """
 
     name = "elastic"
 
     def __init__(self, system: System, dt: float, *, compiled: bool = True):
         self.single = ElasticMethod(system, dt)   # checks the scene and dt, and does the rigid algebra
+        if system.scene.contact_response.response:
+            raise ValueError("the batched elastic method steps no member contact response")
+        self.ground = self.single._ground_model   # None without a ground
+        self.contact = None
+        self._copies = None   # with a ground, the reference's ElasticMethod per copy
         # coupled rigid struts (class-k) only have the reference, as in ElasticMethod
         self.compiled = compiled and not self.single.rigid.coupled
         self.system = system
@@ -58,6 +70,9 @@ class ElasticBatch:
 
     def invalidate(self) -> None:
         self._cache = None
+        if self._copies is not None:
+            for method in self._copies:
+                method.invalidate()
 
     def prepare(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Initial velocities (N, 3, B) without the components that would stretch a rigid strut."""
@@ -147,6 +162,8 @@ class ElasticBatch:
         external forces (N, 3, B) held. Returns every step's positions and velocities (steps, N, 3, B),
         impulses (steps, n_cables, B) N*s and slack cables (steps, n_cables, B). Inputs are not modified."""
         n, nc, b = x.shape[0], rest_lengths.shape[0], x.shape[2]
+        if self.ground is not None:
+            return self._advance_ground(x, v, rest_lengths, f_ext, steps)
         if not self.compiled:
             out_x, out_v = np.empty((steps, n, 3, b)), np.empty((steps, n, 3, b))
             out_imp, out_slack = np.empty((steps, nc, b)), np.empty((steps, nc, b), dtype=bool)
@@ -164,6 +181,48 @@ class ElasticBatch:
             kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._cache)
         kernels.elastic_steps_copies(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache,
                                      out_x, out_v, out_imp, out_slack)
+        return out_x, out_v, out_imp, out_slack
+
+    def _advance_ground(self, x, v, rest_lengths, f_ext, steps: int):
+        """:meth:`advance` with a ground; its impulses go to :attr:`contact`."""
+        n, nc, b = x.shape[0], rest_lengths.shape[0], x.shape[2]
+        out_x, out_v = np.empty((steps, n, 3, b)), np.empty((steps, n, 3, b))
+        out_imp, out_slack = np.empty((steps, nc, b)), np.empty((steps, nc, b), dtype=bool)
+        self.contact = out_contact = np.empty((steps, n, 3, b))
+        if not self.compiled:
+            if self._copies is None:
+                self._copies = [ElasticMethod(self.system, self.dt, compiled=False) for _ in range(b)]
+            for c, method in enumerate(self._copies):
+                state = State(x[..., c].copy(), v[..., c].copy(), rest_lengths[:, c].copy(), f_ext[..., c].copy())
+                for k in range(steps):
+                    out = method.step(state)
+                    state.positions, state.velocities = out.positions, out.velocities
+                    out_x[k, ..., c], out_v[k, ..., c], out_contact[k, ..., c] = out.positions, out.velocities, \
+                        out.contact_impulses
+                    out_imp[k, :, c], out_slack[k, :, c] = out.impulses, out.slack
+            return out_x, out_v, out_imp, out_slack
+        x, v, rest, ext = (np.array(a, dtype=float, order="C") for a in (x, v, rest_lengths, f_ext))
+        if self._cache is None:
+            self._cache = (np.empty_like(x), np.empty((nc, b)), np.empty((self.rigid.count, 3, b)))
+            kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._cache)
+            self._cache += (np.zeros((2,) + x.shape),)   # each node's last contact impulses (drift, closing)
+        failed = np.empty(b, dtype=np.int64)
+        ground_kernels.ground_steps(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache[:3], *self.ground,
+                                    self._cache[3], out_x, out_v, out_imp, out_slack, out_contact, failed)
+        for c in np.flatnonzero(failed >= 0):
+            # a contact block the compiled solver left unsolved: this copy goes on from that step's start as
+            # a Simulator's loop does (ElasticMethod.advance: that step by the reference, then compiled)
+            done = int(failed[c])
+            method = ElasticMethod(self.system, self.dt)
+            state = State(x[..., c].copy(), v[..., c].copy(), rest[:, c].copy(), ext[..., c].copy())
+            rows = steps - done
+            pos, vel, contact = np.empty((rows, n, 3)), np.empty((rows, n, 3)), np.empty((rows, n, 3))
+            imp, slack = np.empty((rows, nc)), np.empty((rows, nc), dtype=bool)
+            x[..., c], v[..., c] = method.advance(state, rows, 1, pos, vel, imp, slack, contact)
+            out_x[done:, ..., c], out_v[done:, ..., c], out_contact[done:, ..., c] = pos, vel, contact
+            out_imp[done:, :, c], out_slack[done:, :, c] = imp, slack
+            for mine, its in zip(self._cache, method.carry()[:3] + method.carry()[4:]):
+                mine[..., c] = its[..., 0]
         return out_x, out_v, out_imp, out_slack
 
     def slack(self, x, rest_lengths) -> np.ndarray:

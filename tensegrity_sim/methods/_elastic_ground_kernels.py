@@ -1,0 +1,254 @@
+"""The elastic method's step with a ground, compiled: ``_elastic_kernels.py``'s velocity Verlet with the
+contact impulse steps of :meth:`.elastic.ElasticMethod.verlet` (``methods/friction.py``'s model: after the
+first half-kick the nodes that would pass the ground during the drift get the impulse that lands them on
+it; after the closing half-kick the touching nodes get the impulse that stops them moving into it, with
+Newton's restitution for those that landed), each velocity problem solved block by block
+(``_friction_block_kernels.py``: a moving rigid strut with its ends' contacts, a lone node's closed form;
+with elastic cables nothing else couples the nodes). As in the reference, a solve also zeroes every
+other rigid strut's length rate (RATTLE's projection, the QP's rows of the struts without contacts).
+
+Batch axis last, as the other kernels; :func:`ground_steps` steps the copies on every core (``prange``).
+The ground's model (:func:`ground_arrays`):
+
+    height, mu, restitution      the plane z = height, its Coulomb coefficient and restitution
+    radii (N,) m                 each node's contact radius
+    node_strut (N,) int64        the moving rigid strut a node ends (its row in rigid_members), or -1
+    touch_tol m                  a node within this of the ground touches it (friction.TOUCH_TOL)
+
+What a step carries beside ``_elastic_kernels``' carry: ``warm`` (2, N, 3, B) N*s, each node's contact
+impulse (friction x, y, normal) in the last drift (0) and closing (1) solve, the block solver's warm start
+for the same solve of the next step (the two differ: a resting node's drift impulse holds its weight over
+the drift, the closing one cancels the closing half-kick).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from ._elastic_kernels import _close, _drift, gather_copy, keep, scatter_copy
+from ._friction_block_kernels import MAX_ROWS, lone_contact, solve_block
+
+__all__ = ["GroundModel", "ground_arrays", "ground_steps", "ground_steps_serial"]
+
+
+class GroundModel(NamedTuple):
+    """The ground's arrays of the kernels (module docstring), in their argument order."""
+
+    height: float
+    mu: float
+    restitution: float
+    radii: np.ndarray
+    node_strut: np.ndarray
+    touch_tol: float
+
+
+def ground_arrays(system, rigid, touch_tol: float) -> GroundModel:
+    """The kernels' ground arrays for a ``System`` with a ground and its ``RigidStruts``."""
+    ground = system.scene.ground
+    node_strut = np.full(system.n_nodes, -1, dtype=np.int64)
+    for k, (a, c) in enumerate(rigid.ends):
+        node_strut[a] = node_strut[c] = k
+    return GroundModel(float(ground.height), float(ground.friction), float(ground.restitution),
+                       np.ascontiguousarray(system.scene.node_radii, dtype=float), node_strut, float(touch_tol))
+
+
+@njit(cache=True)
+def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, node_strut, mu, warm, contact,
+           work, inv2, vel, z, ends_k, target_k, vel3, z3):
+    """The armed contacts' velocity problem of copy ``b``, block by block, in place on ``v``; adds the
+    contact impulses to ``contact`` (N, 3) and keeps them in ``warm`` (N, 3, B), this solve's warm starts. ``dirs`` (nr, 3, B): the rigid
+    struts' unit vectors at the configuration. The rest is scratch. Returns False if a block was not
+    solved (``v`` is then partly changed: the caller starts the step again in the reference)."""
+    for p in range(v.shape[0]):
+        if not armed[p]:
+            for j in range(3):
+                warm[p, j, b] = 0.0
+    for k in range(rigid_members.shape[0]):
+        m = rigid_members[k]
+        a = ends[m, 0]
+        c = ends[m, 1]
+        n0 = dirs[k, 0, b]
+        n1 = dirs[k, 1, b]
+        n2 = dirs[k, 2, b]
+        count = 0
+        if armed[a]:
+            ends_k[count] = 0
+            target_k[count] = target[a]
+            count += 1
+        if armed[c]:
+            ends_k[count] = 1
+            target_k[count] = target[c]
+            count += 1
+        if count == 0:   # RATTLE's projection (_rattle) of this strut alone
+            rate = ((v[c, 0, b] - v[a, 0, b]) * n0 + (v[c, 1, b] - v[a, 1, b]) * n1 + (v[c, 2, b] - v[a, 2, b]) * n2)
+            s = rate / rigid_w[k, k]
+            v[a, 0, b] += inv_mass[a] * (s * n0)
+            v[a, 1, b] += inv_mass[a] * (s * n1)
+            v[a, 2, b] += inv_mass[a] * (s * n2)
+            v[c, 0, b] -= inv_mass[c] * (s * n0)
+            v[c, 1, b] -= inv_mass[c] * (s * n1)
+            v[c, 2, b] -= inv_mass[c] * (s * n2)
+            continue
+        inv2[0] = inv_mass[a]
+        inv2[1] = inv_mass[c]
+        vel3[0] = n0
+        vel3[1] = n1
+        vel3[2] = n2
+        for j in range(3):
+            vel[0, j] = v[a, j, b]
+            vel[1, j] = v[c, j, b]
+        z[0] = 0.0
+        for i in range(count):
+            p = a if ends_k[i] == 0 else c
+            for j in range(3):
+                z[1 + 3 * i + j] = warm[p, j, b]
+        if solve_block(inv2, True, vel3, ends_k, target_k, count, mu, vel, z, work) < 0:
+            return False
+        for j in range(3):
+            v[a, j, b] = vel[0, j]
+            v[c, j, b] = vel[1, j]
+        for i in range(count):
+            p = a if ends_k[i] == 0 else c
+            for j in range(3):
+                contact[p, j] += z[1 + 3 * i + j]
+                warm[p, j, b] = z[1 + 3 * i + j]
+    for p in range(v.shape[0]):
+        if armed[p] and node_strut[p] < 0:
+            for j in range(3):
+                vel3[j] = v[p, j, b]
+            lone_contact(inv_mass[p], vel3, target[p], mu, z3)
+            for j in range(3):
+                v[p, j, b] = vel3[j]
+                contact[p, j] += z3[j]
+                warm[p, j, b] = z3[j]
+    return True
+
+
+@njit(cache=True)
+def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+                 rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu, restitution, radii,
+                 node_strut, touch_tol, warm, dx, impulses, slack, contact, armed, target, landing, work, inv2, vel,
+                 z, ends_k, target_k, vel3, z3, b):
+    """One step of copy ``b`` with the ground (module docstring), in place as ``_elastic_kernels._step``;
+    ``contact`` (N, 3) gets the ground's impulses of the step. Returns False if a contact block was not
+    solved (the copy's ``x``, ``v`` and carry are then not those of a step: the caller restarts it)."""
+    n_nodes = x.shape[0]
+    half = 0.5 * h
+    found = False
+    for p in range(n_nodes):
+        for j in range(3):
+            contact[p, j] = 0.0
+        vz0 = v[p, 2, b]
+        for j in range(3):
+            v[p, j, b] += half * acc[p, j, b]
+        gap = x[p, 2, b] - radii[p] - height
+        armed[p] = inv_mass[p] > 0.0 and gap - h * abs(v[p, 2, b]) <= touch_tol
+        # the drift's target lands the node on the ground, capped at the reversal of its start velocity
+        target[p] = min(-gap / h, -vz0)
+        landing[p] = max(-v[p, 2, b], 0.0) if gap > touch_tol else 0.0
+        found = found or armed[p]
+    if found and not _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut,
+                            mu, warm[0], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3):
+        return False
+    _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
+    _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+           rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b)
+    found = False
+    for p in range(n_nodes):
+        armed[p] = inv_mass[p] > 0.0 and x[p, 2, b] - radii[p] - height <= touch_tol
+        target[p] = restitution * landing[p]
+        found = found or armed[p]
+    if found:
+        return _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
+                      warm[1], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3)
+    return True
+
+
+def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
+                  gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, height,
+                  mu, restitution, radii, node_strut, touch_tol, warm, out_x, out_v, out_impulses, out_slack,
+                  out_contact, failed):
+    """``n_steps`` steps of ``h`` (s) of every copy (the copies spread over the cores), in place on ``x``,
+    ``v`` and the carry (``acc``, ``tension``, ``rigid_dirs``, ``warm``); the kept steps as
+    ``_elastic_kernels.elastic_steps`` keeps them, and ``out_contact`` (K, N, 3, B) the ground's impulses
+    summed like the cables'. ``failed`` (B,) int64: -1, or the step of the copy whose contact block was
+    not solved (the copy stops there: its ``x``, ``v`` are those at that step's start, its carry is not).
+    Each copy is stepped in contiguous arrays of its own (a batch of one: the very arithmetic of
+    ``Simulator``'s loop, and no stride of B between a copy's numbers)."""
+    n_nodes = x.shape[0]
+    nc, n_copies = rest.shape
+    nr = rigid_members.shape[0]
+    for b in prange(n_copies):
+        xb = np.empty((n_nodes, 3, 1))
+        vb = np.empty((n_nodes, 3, 1))
+        accb = np.empty((n_nodes, 3, 1))
+        extb = np.empty((n_nodes, 3, 1))
+        warmb = np.empty((2, n_nodes, 3, 1))
+        restb = np.empty((nc, 1))
+        tensionb = np.empty((nc, 1))
+        dirsb = np.empty((nr, 3, 1))
+        gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, xb, vb, accb, extb, restb, tensionb, dirsb)
+        for i in range(n_nodes):
+            for j in range(3):
+                warmb[0, i, j, 0] = warm[0, i, j, b]
+                warmb[1, i, j, 0] = warm[1, i, j, b]
+        dx = np.empty((n_nodes, 3))
+        imp = np.empty(nc)
+        total = np.zeros(nc)
+        sl = np.empty(nc, dtype=np.bool_)
+        contact = np.empty((n_nodes, 3))
+        total_contact = np.zeros((n_nodes, 3))
+        armed = np.empty(n_nodes, dtype=np.bool_)
+        target = np.empty(n_nodes)
+        landing = np.empty(n_nodes)
+        x0 = np.empty((n_nodes, 3))
+        v0 = np.empty((n_nodes, 3))
+        work = np.zeros((6, MAX_ROWS, MAX_ROWS))
+        inv2 = np.empty(2)
+        vel = np.empty((2, 3))
+        z = np.zeros(MAX_ROWS)
+        ends_k = np.empty(2, dtype=np.int64)
+        target_k = np.empty(2)
+        vel3 = np.empty(3)
+        z3 = np.empty(3)
+        failed[b] = -1
+        for s in range(n_steps):
+            for i in range(n_nodes):
+                for j in range(3):
+                    x0[i, j] = xb[i, j, 0]
+                    v0[i, j] = vb[i, j, 0]
+            if not _ground_step(xb, vb, restb, extb, h, ends, stiffness, floor, strut_rest, damping, inv_mass,
+                                gravity_force, rigid_members, rigid_length_sq, rigid_w, accb, tensionb, dirsb, height,
+                                mu, restitution, radii, node_strut, touch_tol, warmb, dx, imp, sl, contact, armed,
+                                target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, 0):
+                for i in range(n_nodes):
+                    for j in range(3):
+                        xb[i, j, 0] = x0[i, j]
+                        vb[i, j, 0] = v0[i, j]
+                failed[b] = s
+                break
+            for ci in range(nc):
+                total[ci] += imp[ci]
+            for i in range(n_nodes):
+                for j in range(3):
+                    total_contact[i, j] += contact[i, j]
+            if (s + 1) % every == 0 or s == n_steps - 1:
+                k = s // every
+                keep(xb, vb, 0, total, sl, k, b, out_x, out_v, out_impulses, out_slack)
+                for i in range(n_nodes):
+                    for j in range(3):
+                        out_contact[k, i, j, b] = total_contact[i, j]
+                        total_contact[i, j] = 0.0
+        scatter_copy(xb, vb, accb, tensionb, dirsb, b, x, v, acc, tension, rigid_dirs)
+        for i in range(n_nodes):
+            for j in range(3):
+                warm[0, i, j, b] = warmb[0, i, j, 0]
+                warm[1, i, j, b] = warmb[1, i, j, 0]
+
+
+# one loop, two compilations: a batch spreads its copies over the cores; one copy (Simulator) runs without
+# the thread pool's start-up
+ground_steps = njit(cache=True, parallel=True)(_ground_steps)
+ground_steps_serial = njit(cache=True)(_ground_steps)

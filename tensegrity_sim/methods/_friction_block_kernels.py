@@ -1,0 +1,286 @@
+"""The elastic method's frictional contact problem, one independent block at a time, compiled (numba).
+
+With elastic cables the velocity problem of a contact step (``methods/friction.py``'s ``ContactSet``)
+couples only the nodes that a rigid strut joins: it falls apart into independent *blocks*, a moving
+rigid strut with the contacts of its two ends (its length row and a normal and two friction unknowns per
+contact: at most 7 unknowns), or a node on no rigid strut with its own contact (a closed form). This
+module solves one block exactly, with the exact Coulomb disc; ``friction_blocks.py`` is the plain numpy
+implementation of the same algorithm (tests hold the two to 1e-12, and both to the QP fixed point of
+``friction.py`` on the ground scenes).
+
+**The block.** Its rows map the two ends' velocities ``v`` (2, 3) to ``u = G v`` (q,): the strut's length
+rate ``n . (v_1 - v_0)`` (an equality, target 0) and, per contact, the end's ``(v_x, v_y, v_z)``. Its
+unknowns ``z`` (q,) N*s are the strut's impulse and each contact's ``(f_x, f_y, y_n)``; ``v = v0 + M^-1 G^T z``
+and ``u = u0 + W z``, ``W = G M^-1 G^T`` (the Delassus matrix). The conditions, in the Alart–Curnier form
+with ``rho`` the end's mass (the contact's) and ``1 / W_00`` (the strut's):
+
+    strut:    phi_0 = rho_0 u_0
+    normal:   phi_n = y_n - max(0, y_n - rho (u_n - w))
+    friction: phi_t = f - proj_disc(mu max(0, y_n - rho (u_n - w))) (f - rho u_t)
+
+``phi = 0`` is exactly the law of ``friction.py`` (``y_n >= 0``, ``u_n >= w``, complementary; ``f`` in the
+disc, ``u_t = 0`` inside it, ``f = -mu y_n u_t / |u_t|`` on its edge).
+
+**The solver: a semismooth Newton on ``phi`` with Levenberg–Marquardt damping and an Armijo line search**
+on ``|phi|^2 / 2``. Why this: the generalised Jacobian of ``phi`` is singular exactly where a robot rests
+most often: a rigid strut lying on the ground and sticking at both ends (the friction along the strut is
+statically indeterminate: the two ends can trade it), so a plain Newton step is not defined there. The
+damped step ``(J^T J + nu I) d = -J^T phi`` with ``nu = (|phi| / S)^2`` (``S`` the block's impulse scale)
+is always defined, is a descent direction of the merit, and becomes Newton's step as ``phi -> 0``
+(Yamashita–Fukushima: superlinear under a local error bound, which holds for the indeterminate
+case); ``nu`` is kept within ``[1e-20, 1e-2]`` so that a poor warm start still takes near-Newton steps
+and ``J^T J + nu I`` stays definite where ``J`` is singular. Enumerating the 3^2 contact modes instead would need an inner iteration anyway (a sliding end's
+direction is coupled to the other end's through the strut), and the QP fixed point of ``friction.py``
+costs QPs per iterate. Measured: 1-3 iterations a block for the resting and sliding scenes, warm-started
+from the node's last impulse. The answer is accepted when ``max |phi| <= BLOCK_TOL S``, which is the
+projection form's natural residual (``friction.py``'s check with ``rho = m``) within that tolerance.
+
+Scratch: ``work`` (6, 7, 7) float64 (:func:`block_work`); the kernels allocate nothing per block.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["BLOCK_TOL", "MAX_NEWTON", "block_work", "solve_block", "lone_contact"]
+
+BLOCK_TOL = 1e-13      # relative to the block's impulse scale: max |phi| at the answer
+MAX_NEWTON = 60        # damped Newton iterations before a block is declared unsolved
+_ARMIJO = 1e-4         # sufficient decrease of the merit |phi|^2 / 2
+_MIN_STEP = 2.0 ** -40  # the line search's smallest step
+_MAX_DAMPING = 1e-2    # Levenberg–Marquardt's nu, at most (far from the answer: a step near Newton's) ...
+_MIN_DAMPING = 1e-20   # ... and at least (near it, where J may be singular: J^T J + nu I stays definite)
+MAX_ROWS = 7           # a strut's row and two contacts
+
+
+def block_work() -> np.ndarray:
+    """The scratch of :func:`solve_block`: (6, MAX_ROWS, MAX_ROWS) float64."""
+    return np.zeros((6, MAX_ROWS, MAX_ROWS))
+
+
+@njit(cache=True)
+def lone_contact(inv, v, target, mu, z):
+    """The closed form of a node on no rigid strut with a contact: ``W = I / m`` decouples the rows, so
+    ``y_n = max(0, m (w - v_z))`` and ``f = proj_disc(mu y_n)(-m v_t)``. ``v`` (3,) m/s changes in place;
+    ``z`` (3,) N*s gets ``(f_x, f_y, y_n)``."""
+    m = 1.0 / inv
+    y = max(0.0, m * (target - v[2]))
+    fx = -m * v[0]
+    fy = -m * v[1]
+    size = np.sqrt(fx * fx + fy * fy)
+    bound = mu * y
+    if size > bound:
+        scale = bound / size
+        fx *= scale
+        fy *= scale
+    z[0] = fx
+    z[1] = fy
+    z[2] = y
+    v[0] += inv * fx
+    v[1] += inv * fy
+    v[2] += inv * y
+
+
+@njit(cache=True, inline="always")
+def _residual(q, s, k, target, mu, work, z, up, ur, pp, pr, jp):
+    """``u = u0 + W z`` into ``work[up, ur]``, ``phi`` (q,) into ``work[pp, pr]`` and its generalised
+    Jacobian (q, q) into ``work[jp]`` (module docstring; ``work``'s layout in :func:`solve_block`); ``s`` 1
+    with a strut row first, 0 without; ``k`` contacts. Returns ``|phi|^2 / 2``. The scratch is indexed, not
+    sliced: a view per array costs more than the arithmetic of a small block."""
+    for i in range(q):
+        acc = work[4, 0, i]
+        for j in range(q):
+            acc += work[1, i, j] * z[j]
+        work[up, ur, i] = acc
+    for i in range(q):
+        for j in range(q):
+            work[jp, i, j] = 0.0
+    if s:
+        r0 = work[4, 6, 0]
+        work[pp, pr, 0] = r0 * work[up, ur, 0]
+        for j in range(q):
+            work[jp, 0, j] = r0 * work[1, 0, j]
+    for c in range(k):
+        o = s + 3 * c
+        r = work[4, 6, o]
+        n = o + 2
+        qn = z[n] - r * (work[up, ur, n] - target[c])
+        yp = max(qn, 0.0)
+        work[pp, pr, n] = z[n] - yp
+        # d yp / dz: the row e_n - r W[n] where qn > 0
+        if qn > 0.0:
+            for j in range(q):
+                work[jp, n, j] = r * work[1, n, j]
+        else:
+            work[jp, n, n] = 1.0
+        t0 = z[o] - r * work[up, ur, o]
+        t1 = z[o + 1] - r * work[up, ur, o + 1]
+        size = np.sqrt(t0 * t0 + t1 * t1)
+        bound = mu * yp
+        if size <= bound:   # inside the disc: P = q_t, phi_t = r u_t
+            work[pp, pr, o] = z[o] - t0
+            work[pp, pr, o + 1] = z[o + 1] - t1
+            for j in range(q):
+                work[jp, o, j] = r * work[1, o, j]
+                work[jp, o + 1, j] = r * work[1, o + 1, j]
+        else:               # on the edge: P = bound q_t / |q_t|
+            h0 = t0 / size
+            h1 = t1 / size
+            ratio = bound / size
+            work[pp, pr, o] = z[o] - bound * h0
+            work[pp, pr, o + 1] = z[o + 1] - bound * h1
+            for j in range(q):
+                d0 = -r * work[1, o, j]
+                d1 = -r * work[1, o + 1, j]
+                if j == o:
+                    d0 += 1.0
+                if j == o + 1:
+                    d1 += 1.0
+                along = h0 * d0 + h1 * d1
+                dyp = 0.0
+                if qn > 0.0:
+                    dyp = -r * work[1, n, j]
+                    if j == n:
+                        dyp += 1.0
+                work[jp, o, j] = -(ratio * (d0 - h0 * along) + h0 * mu * dyp)
+                work[jp, o + 1, j] = -(ratio * (d1 - h1 * along) + h1 * mu * dyp)
+            work[jp, o, o] += 1.0
+            work[jp, o + 1, o + 1] += 1.0
+    total = 0.0
+    for i in range(q):
+        total += work[pp, pr, i] * work[pp, pr, i]
+    return 0.5 * total
+
+
+@njit(cache=True, inline="always")
+def _cholesky_solve(q, work):
+    """``work[4, 4] = work[3]^-1 work[4, 3]`` for the symmetric positive definite ``work[3]`` (q, q), factored
+    in place."""
+    for j in range(q):
+        d = work[3, j, j]
+        for p in range(j):
+            d -= work[3, j, p] * work[3, j, p]
+        d = np.sqrt(d)
+        work[3, j, j] = d
+        for i in range(j + 1, q):
+            e = work[3, i, j]
+            for p in range(j):
+                e -= work[3, i, p] * work[3, j, p]
+            work[3, i, j] = e / d
+    for i in range(q):
+        e = work[4, 3, i]
+        for p in range(i):
+            e -= work[3, i, p] * work[4, 4, p]
+        work[4, 4, i] = e / work[3, i, i]
+    for i in range(q - 1, -1, -1):
+        e = work[4, 4, i]
+        for p in range(i + 1, q):
+            e -= work[3, p, i] * work[4, 4, p]
+        work[4, 4, i] = e / work[3, i, i]
+
+
+@njit(cache=True)
+def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
+    """One block (module docstring), in place: ``v`` (2, 3) m/s the two ends' velocities (the second
+    unused without a strut), ``z`` (MAX_ROWS,) N*s the unknowns (in: a warm start for the contacts'; the
+    strut's is recomputed), ``inv`` (2,) 1/kg, ``strut`` whether the block has the strut row along the
+    unit ``direction`` (3,) (end 0 to end 1), ``ends`` (k,) which end each contact is at, ``target`` (k,)
+    m/s its normal target, ``mu`` its Coulomb coefficient. Returns the iterations taken, or -1 if
+    ``phi`` did not reach ``BLOCK_TOL`` (``v`` then unchanged).
+
+    ``work`` (6, 7, 7): [0] G (q, 6), [1] W, [2] the Jacobian, [3] the damped normal matrix; rows of [4]:
+    u0, u, phi, -J^T phi, the step, the trial z, rho; rows of [5]: the trial's u and phi, the ends'
+    inverse masses per coordinate (6,)."""
+    s = 1 if strut else 0
+    q = s + 3 * k
+    for e in range(2):
+        for j in range(3):
+            work[5, 2, 3 * e + j] = inv[e]
+    for i in range(q):
+        for j in range(6):
+            work[0, i, j] = 0.0
+    if s:
+        for j in range(3):
+            work[0, 0, j] = -direction[j]
+            work[0, 0, 3 + j] = direction[j]
+    for c in range(k):
+        for j in range(3):
+            work[0, s + 3 * c + j, 3 * ends[c] + j] = 1.0
+    for i in range(q):
+        acc = 0.0
+        for j in range(6):
+            acc += work[0, i, j] * v[j // 3, j % 3]
+        work[4, 0, i] = acc
+        for j in range(q):
+            acc = 0.0
+            for p in range(6):
+                acc += work[0, i, p] * work[5, 2, p] * work[0, j, p]
+            work[1, i, j] = acc
+    # the impulse scale: each end's momentum, each contact's target momentum and warm start
+    scale = 1e-300
+    for e in range(2):
+        if inv[e] > 0.0:
+            for j in range(3):
+                scale = max(scale, abs(v[e, j]) / inv[e])
+    for c in range(k):
+        r = 1.0 / inv[ends[c]]
+        work[4, 6, s + 3 * c] = r
+        work[4, 6, s + 3 * c + 1] = r
+        work[4, 6, s + 3 * c + 2] = r
+        scale = max(scale, abs(target[c]) * r)
+        for j in range(3):
+            scale = max(scale, abs(z[s + 3 * c + j]))   # the warm start's impulses
+    if s:
+        work[4, 6, 0] = 1.0 / work[1, 0, 0]
+        # the strut's impulse that meets its row for the contacts' warm start
+        acc = work[4, 0, 0]
+        for j in range(1, q):
+            acc += work[1, 0, j] * z[j]
+        z[0] = -acc / work[1, 0, 0]
+    tol = BLOCK_TOL * scale
+    merit = _residual(q, s, k, target, mu, work, z, 4, 1, 4, 2, 2)
+    done = -1
+    for it in range(MAX_NEWTON + 1):
+        worst = 0.0
+        for i in range(q):
+            worst = max(worst, abs(work[4, 2, i]))
+        if worst <= tol:
+            done = it
+            break
+        if it == MAX_NEWTON:
+            break
+        nu = min(2.0 * merit / (scale * scale), _MAX_DAMPING) + _MIN_DAMPING
+        for i in range(q):
+            acc = 0.0
+            for p in range(q):
+                acc += work[2, p, i] * work[4, 2, p]
+            work[4, 3, i] = -acc
+            for j in range(q):
+                acc = 0.0
+                for p in range(q):
+                    acc += work[2, p, i] * work[2, p, j]
+                work[3, i, j] = acc
+            work[3, i, i] += nu
+        _cholesky_solve(q, work)
+        slope = 0.0
+        for i in range(q):
+            slope -= work[4, 3, i] * work[4, 4, i]    # row 3 holds -J^T phi
+        step = 1.0
+        while True:
+            for i in range(q):
+                work[4, 5, i] = z[i] + step * work[4, 4, i]
+            new = _residual(q, s, k, target, mu, work, work[4, 5], 5, 0, 5, 1, 3)
+            if new <= merit + _ARMIJO * step * slope or step <= _MIN_STEP:
+                break
+            step *= 0.5
+        for i in range(q):
+            z[i] = work[4, 5, i]
+        merit = _residual(q, s, k, target, mu, work, z, 4, 1, 4, 2, 2)
+    if done < 0:
+        return -1
+    for j in range(6):
+        acc = 0.0
+        for i in range(q):
+            acc += work[0, i, j] * z[i]
+        v[j // 3, j % 3] += work[5, 2, j] * acc
+    return done

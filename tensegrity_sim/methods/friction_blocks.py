@@ -1,0 +1,103 @@
+"""The plain numpy implementation of ``_friction_block_kernels.py``'s block solver (the same algorithm and
+arithmetic: the semismooth Newton with Levenberg–Marquardt damping on the Alart–Curnier form of one
+block's frictional contact problem; see that module's docstring), the reference the compiled kernel must
+match to 1e-12 in tests."""
+from __future__ import annotations
+
+import numpy as np
+
+from ._friction_block_kernels import _ARMIJO, _MAX_DAMPING, _MIN_DAMPING, _MIN_STEP, BLOCK_TOL, MAX_NEWTON
+
+__all__ = ["solve_block_reference", "lone_contact_reference"]
+
+
+def lone_contact_reference(inv: float, v: np.ndarray, target: float, mu: float):
+    """A node on no rigid strut: ``(v + inv z, z)`` with ``z = (f_x, f_y, y_n)`` N*s (the closed form of
+    ``lone_contact``) for its velocity ``v`` (3,) m/s."""
+    m = 1.0 / inv
+    y = max(0.0, m * (target - v[2]))
+    f = -m * v[:2]
+    size = np.hypot(*f)
+    if size > mu * y:
+        f = f * (mu * y / size)
+    z = np.array([f[0], f[1], y])
+    return v + inv * z, z
+
+
+def _residual(s, k, rho, target, mu, w, u0, z):
+    """``phi`` (q,), its generalised Jacobian (q, q) and ``|phi|^2 / 2`` (the kernel's ``_residual``)."""
+    q = len(z)
+    u = u0 + w @ z
+    phi = np.empty(q)
+    jac = np.zeros((q, q))
+    eye = np.eye(q)
+    if s:
+        phi[0] = rho[0] * u[0]
+        jac[0] = rho[0] * w[0]
+    for c in range(k):
+        o = s + 3 * c
+        r, n, t = rho[o], o + 2, slice(o, o + 2)
+        qn = z[n] - r * (u[n] - target[c])
+        yp = max(qn, 0.0)
+        phi[n] = z[n] - yp
+        dyp = eye[n] - r * w[n] if qn > 0.0 else np.zeros(q)
+        jac[n] = eye[n] - dyp
+        qt = z[t] - r * u[t]
+        dqt = eye[t] - r * w[t]
+        size = np.hypot(*qt)
+        bound = mu * yp
+        if size <= bound:
+            phi[t] = z[t] - qt
+            jac[t] = eye[t] - dqt
+        else:
+            hat = qt / size
+            phi[t] = z[t] - bound * hat
+            jac[t] = eye[t] - ((bound / size) * (dqt - np.outer(hat, hat @ dqt)) + np.outer(hat, mu * dyp))
+    return phi, jac, 0.5 * float(phi @ phi)
+
+
+def solve_block_reference(inv: np.ndarray, strut: bool, direction: np.ndarray, ends: np.ndarray, 
+                          target: np.ndarray, mu: float, v: np.ndarray, z: np.ndarray):
+    """``solve_block``'s answer, returned instead of written in place: ``(v, z, iterations)`` (``-1``:
+    unsolved, ``v`` unchanged); the arguments as there, ``z`` (1 + 3k or 3k,) the warm start."""
+    s, k = int(bool(strut)), len(ends)
+    q = s + 3 * k
+    z = np.array(z[:q], dtype=float)
+    g = np.zeros((q, 6))
+    if s:
+        g[0, :3], g[0, 3:] = -direction, direction
+    for c in range(k):
+        g[s + 3 * c: s + 3 * c + 3, 3 * ends[c]: 3 * ends[c] + 3] = np.eye(3)
+    inv6 = np.repeat(inv, 3)
+    u0 = g @ v.ravel()
+    w = (g * inv6) @ g.T
+    moving = inv > 0
+    scale = max(1e-300, float(np.max(np.abs(v[moving]) / inv[moving, None], initial=0.0)))
+    rho = np.empty(q)
+    for c in range(k):
+        rho[s + 3 * c: s + 3 * c + 3] = 1.0 / inv[ends[c]]
+        scale = max(scale, abs(target[c]) * rho[s + 3 * c], float(np.abs(z[s + 3 * c: s + 3 * c + 3]).max()))
+    if s:
+        rho[0] = 1.0 / w[0, 0]
+        z[0] = -(u0[0] + w[0, 1:] @ z[1:]) / w[0, 0]
+    tol = BLOCK_TOL * scale
+    phi, jac, merit = _residual(s, k, rho, target, mu, w, u0, z)
+    for it in range(MAX_NEWTON + 1):
+        if np.abs(phi).max() <= tol:
+            out = v.ravel() + inv6 * (g.T @ z)
+            return out.reshape(2, 3), z, it
+        if it == MAX_NEWTON:
+            break
+        nu = min(2.0 * merit / (scale * scale), _MAX_DAMPING) + _MIN_DAMPING
+        d = np.linalg.solve(jac.T @ jac + nu * np.eye(q), -(jac.T @ phi))
+        slope = float((jac.T @ phi) @ d)
+        step = 1.0
+        while True:
+            trial = z + step * d
+            new = _residual(s, k, rho, target, mu, w, u0, trial)[2]
+            if new <= merit + _ARMIJO * step * slope or step <= _MIN_STEP:
+                break
+            step *= 0.5
+        z = trial
+        phi, jac, merit = _residual(s, k, rho, target, mu, w, u0, z)
+    return v.copy(), z, -1

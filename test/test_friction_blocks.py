@@ -1,0 +1,152 @@
+"""The elastic method's compiled contact step (issue 28): the block solver (``_friction_block_kernels.py``)
+against its numpy twin (``friction_blocks.py``, the same arithmetic: 1e-12) and against the Coulomb law in
+its projection form; the compiled ground step against the reference's QP fixed point (``friction.py``) to
+that reference's tolerance on the scenes of ``test_ground.py``."""
+import warnings
+
+import numpy as np
+import pytest
+
+import tensegrity_sim as ts
+from tensegrity_sim.methods._friction_block_kernels import MAX_ROWS, block_work, lone_contact, solve_block
+from tensegrity_sim.methods.base import State
+from tensegrity_sim.methods.friction_blocks import lone_contact_reference, solve_block_reference
+
+from test_ground import G, MU, dropped, strut
+
+
+def random_block(rng):
+    """A random well-posed block: a rigid strut (random direction, masses 0.1-3 kg, sometimes horizontal)
+    with 0, 1 or 2 contacts, or a lone node's contact; random velocities, targets, mu and warm starts."""
+    k = int(rng.integers(0, 3))
+    strut_row = k == 0 or bool(rng.integers(0, 4))
+    k = min(k, 1) if not strut_row else k
+    inv = 1.0 / rng.uniform(0.1, 3.0, 2)
+    if not strut_row:
+        inv[1] = 0.0
+    direction = rng.normal(size=3)
+    if rng.random() < 0.3:
+        direction[2] = 0.0
+    direction /= np.linalg.norm(direction)
+    ends = np.arange(k, dtype=np.int64) if k == 2 else rng.integers(0, 2 if strut_row else 1, size=k)
+    target = 0.1 * rng.normal(size=k)
+    mu = float(rng.choice([0.0, 0.2, 0.5, 1.0]))
+    v = rng.normal(size=(2, 3))
+    z = np.zeros(MAX_ROWS)
+    s = int(strut_row)
+    z[s: s + 3 * k] = rng.normal(size=3 * k) * float(rng.integers(0, 2))
+    return inv, strut_row, direction, ends.astype(np.int64), target, mu, v, z
+
+
+def coulomb_residual(inv, strut_row, direction, ends, target, mu, v0, v, z):
+    """Independent check of a block's answer: (the strut's length rate m/s, the worst violation of the
+    normal law (``min(y_n, m (v_z - w)) = 0``) and of the Coulomb law's projection form ``f = proj_disc(mu y_n)(f - m v_t)``, N*s, and of
+    the momentum balance ``M (v - v0) = G^T z``)."""
+    s = int(strut_row)
+    rate = float(direction @ (v[1] - v[0])) if s else 0.0
+    worst = 0.0
+    push = np.zeros((2, 3))
+    if s:
+        push[0] -= z[0] * direction
+        push[1] += z[0] * direction
+    for c, e in enumerate(ends):
+        f, y = z[s + 3 * c: s + 3 * c + 2], z[s + 3 * c + 2]
+        m = 1.0 / inv[e]
+        u = v[e]
+        worst = max(worst, abs(min(y, m * (u[2] - target[c]))))   # the normal law's natural residual
+        trial = f - m * u[:2]
+        size = np.hypot(*trial)
+        projected = trial * min(1.0, mu * y / size) if size > 0 else trial
+        worst = max(worst, float(np.abs(f - projected).max()))
+        push[e] += z[s + 3 * c: s + 3 * c + 3]
+    balance = float(np.abs((v - v0) - inv[:, None] * push).max())
+    return rate, worst, balance
+
+
+def test_block_kernel_matches_its_numpy_twin_and_meets_the_coulomb_law():
+    rng = np.random.default_rng(28)
+    work = block_work()
+    solved = 0
+    for _ in range(2000):
+        inv, strut_row, direction, ends, target, mu, v, z = random_block(rng)
+        v_ref, z_ref, it_ref = solve_block_reference(inv, strut_row, direction, ends, target, mu, v, z)
+        v_k, z_k = v.copy(), z.copy()
+        it = solve_block(inv, strut_row, direction, ends, target, len(ends), mu, v_k, z_k, work)
+        assert (it < 0) == (it_ref < 0)
+        if it < 0:
+            continue
+        solved += 1
+        scale = max(1.0, float(np.abs(v).max()))
+        np.testing.assert_allclose(v_k, v_ref, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(z_k[: len(z_ref)], z_ref, rtol=0, atol=1e-12 * scale / inv[inv > 0].min())
+        rate, law, balance = coulomb_residual(inv, strut_row, direction, ends, target, mu, v, v_k, z_k)
+        assert abs(rate) <= 1e-12 * scale
+        assert law <= 1e-11 * scale / inv[inv > 0].min()
+        assert balance <= 1e-13 * scale
+    # the damped Newton answers nearly every random block (what it leaves goes to the reference: see below)
+    assert solved >= 0.99 * 2000
+
+
+def test_lone_contact_is_the_closed_form():
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        inv, v, target, mu = 1.0 / rng.uniform(0.1, 3.0), rng.normal(size=3), 0.1 * rng.normal(), rng.uniform(0, 1)
+        v_ref, z_ref = lone_contact_reference(inv, v, target, mu)
+        v_k, z_k = v.copy(), np.empty(3)
+        lone_contact(inv, v_k, target, mu, z_k)
+        np.testing.assert_allclose(v_k, v_ref, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(z_k, z_ref, rtol=0, atol=1e-15)
+        # the law: no sinking below the target, friction inside the disc, sticking unless on its edge
+        assert v_k[2] >= target - 1e-15 and z_k[2] >= 0.0
+        assert np.hypot(*z_k[:2]) <= mu * z_k[2] * (1 + 1e-12) + 1e-300
+        assert np.hypot(*v_k[:2]) <= 1e-15 or np.hypot(*z_k[:2]) >= mu * z_k[2] * (1 - 1e-12)
+
+
+def _scenes():
+    point = ts.Scene.from_dict({"gravity": [0, 0, -G], "ground": {"friction": 0.5, "restitution": 0.0},
+                                "nodes": [{"name": "p", "position": [0, 0, 0.05], "mass": 1.0, "velocity": [1, 0, 0]}]})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return {"sliding strut": strut(2.0), "holding incline": strut(theta=np.arctan(0.9 * MU)),
+                "sliding incline": strut(2.0, theta=0.3), "landing point": point,
+                "dropped icosahedron": dropped(lift=0.05, damping=300.0),
+                "icosahedron at rest": ts.load_scene("icosahedron_ground")}
+
+
+@pytest.mark.parametrize("name", list(_scenes()))
+def test_compiled_ground_step_agrees_with_the_qp_fixed_point(name):
+    """Along the reference's trajectory, each step taken from the same state by the compiled block solver
+    and by friction.py's QP fixed point (both answer to their tolerances: FIXED_POINT_TOL = 1e-10 relative
+    to the impulse scale) gives the same velocities, positions and ground impulses."""
+    scene = _scenes()[name]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        reference = ts.Simulator(scene, method="elastic", dt=1e-3)
+        compiled = ts.Simulator(scene, method="elastic", dt=1e-3)
+    reference._method.compiled = False
+    assert compiled._method.has_ground_loop()
+    method = compiled._method
+    # (bodies, N): each moving rigid strut's two ends, each other node alone
+    group = np.where(method._ground_model.node_strut >= 0, method._ground_model.node_strut, 0)
+    group = np.where(method._ground_model.node_strut >= 0, group, method.rigid.count + np.arange(len(group)))
+    by_body = (np.unique(group)[:, None] == group[None]).astype(float)
+    contacted = 0
+    for _ in range(300):
+        st = reference._state
+        method.invalidate()
+        mine = method.step(State(st.positions.copy(), st.velocities.copy(), st.rest_lengths.copy(),
+                                 st.external_forces.copy(), st.step_count))
+        reference._method.invalidate()   # both from the forces at the state (damping: at its velocities)
+        theirs = reference.step()
+        scale = max(1.0, float(np.abs(st.velocities).max()))
+        np.testing.assert_allclose(mine.velocities, theirs.velocities, rtol=0, atol=1e-8 * scale)
+        np.testing.assert_allclose(mine.positions, theirs.positions, rtol=0, atol=1e-11 * scale)
+        # the normal impulses node by node; the friction summed over each rigid strut's two ends (a strut
+        # sticking on both ends may share the friction along it in any way: statically indeterminate)
+        weight = float(scene.masses.max()) * G * 1e-3
+        np.testing.assert_allclose(mine.contact_impulses[:, 2], theirs.contact_impulses[:, 2], rtol=0,
+                                   atol=1e-8 * weight * scale)
+        np.testing.assert_allclose(by_body @ mine.contact_impulses, by_body @ theirs.contact_impulses, rtol=0,
+                                   atol=1e-8 * weight * scale)
+        contacted += bool(np.abs(theirs.contact_impulses).max() > 0)
+    assert contacted >= 50 and method.fallbacks == 0
