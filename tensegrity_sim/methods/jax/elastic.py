@@ -1,0 +1,339 @@
+"""The elastic method's step in JAX: the arithmetic of ``methods/_elastic_kernels.py`` (velocity Verlet,
+SHAKE/RATTLE of independent rigid struts in closed form, tension-only cables ``k max(floor, l - rest)``,
+damping only while taut and the total clipped at zero, impulses ``h/2 (t_start + t_end)``), with the same
+function names. Tests require the two to agree to 1e-12 in float64 (``test/test_jax.py``).
+
+Layout: the functions of one copy take arrays without a batch axis and are ``vmap``-ed over copies, so
+every batched array has the batch FIRST (JAX's and brax's order; the numba kernels put it last):
+
+    x, v (B, N, 3) m, m/s           positions, velocities
+    rest (B, nc) m                  cable rest lengths held (the base of a schedule)
+    ext (B, N, 3) N                 external forces held
+    acc (B, N, 3) m/s^2, tension (B, nc) N, dirs (B, nr, 3)   the forces at the step's start (the carry)
+
+A run (:func:`elastic_steps`) is one ``lax.scan`` over the steps; a command schedule (:class:`Inputs`:
+rest-length ramps, force steps, per copy) is evaluated inside it at each step's start time, and where an
+input changed at a step the start forces are recomputed there, as ``BatchSimulator.set_rest_lengths``
+makes the numba batch do (``invalidate``).
+
+Gradients: everything here is differentiable with ``jax.grad``/``jax.jacfwd`` (:func:`rollout`). The flow is
+piecewise smooth: a cable's tension ``k max(0, e)`` has a kink where it goes slack or taut, and the damping
+term switches on and off there. Away from a switch the derivative of a run is the derivative of the smooth
+flow (tested against central differences to 1e-6). A step where a cable crosses ``e = 0`` contributes the
+one-sided derivative of the branch the step evaluated (JAX differentiates ``max(e, 0)`` as 1 for ``e > 0`` and
+0 for ``e < 0``); the time of the switch inside the step is not differentiated (the switch is not located, as
+in the numba default), so the derivative of a run through a switch is that of the discrete map, which differs
+from the continuous flow's by O(h) per switch, and it jumps where a parameter change moves a switch from one
+step to the next. Finite differences across such a jump do not converge; a step that lands exactly on
+``e = 0`` takes the mean of the two branches (JAX's convention for ``maximum`` at a tie).
+"""
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+__all__ = ["ElasticModel", "Carry", "Inputs", "model_arrays", "held_inputs", "schedule_inputs", "elastic_forces",
+           "verlet_step", "elastic_steps", "rollout"]
+
+
+class ElasticModel(NamedTuple):
+    """What does not change during a run, as arrays (a pytree: a gradient may be taken with respect to any
+    float field). ``m`` members (struts first), ``N`` nodes, ``nr`` moving rigid struts.
+
+    stiffness (m,) N/m (0 for rigid struts), floor (m,) (-inf for struts, 0 for cables), strut_rest (n_struts,) m,
+    damping (nc,) N*s/m, masses (N,) kg, free (N,) 1.0 for a free node and 0.0 for a fixed one, gravity (3,)
+    m/s^2, incidence (N, m) (+1 at a member's first node, -1 at its second), ends (m, 2) int,
+    rigid_members (nr,) int (their rows in the member arrays), rigid_ends (nr, 2) int, rigid_incidence (N, nr),
+    rigid_length_sq (nr,) m^2."""
+
+    stiffness: jax.Array
+    floor: jax.Array
+    strut_rest: jax.Array
+    damping: jax.Array
+    masses: jax.Array
+    free: jax.Array
+    gravity: jax.Array
+    incidence: jax.Array
+    ends: jax.Array
+    rigid_members: jax.Array
+    rigid_ends: jax.Array
+    rigid_incidence: jax.Array
+    rigid_length_sq: jax.Array
+
+
+class Carry(NamedTuple):
+    """What one step hands the next, batch first: x, v (B, N, 3), acc (B, N, 3) m/s^2, tension (B, nc) N and the
+    rigid struts' unit vectors dirs (B, nr, 3) at the step's end."""
+
+    x: jax.Array
+    v: jax.Array
+    acc: jax.Array
+    tension: jax.Array
+    dirs: jax.Array
+
+
+class Inputs(NamedTuple):
+    """The inputs of a run, per copy (batch first). rest (B, nc) m and ext (B, N, 3) N: held, and the base of a
+    schedule. A schedule (:func:`schedule_inputs`; ``S = 0`` and ``F = 0`` without one): rest_cables (S,) int,
+    the scheduled cables; rest_times, rest_values (B, S, P) s, m: each one's points, linear between them and held
+    outside (padded past the last point with its value); force_times (B, F) s (padded with +inf) and
+    force_values (B, F, N, 3) N: the external forces from each point on."""
+
+    rest: jax.Array
+    ext: jax.Array
+    rest_cables: jax.Array
+    rest_times: jax.Array
+    rest_values: jax.Array
+    force_times: jax.Array
+    force_values: jax.Array
+
+
+def model_arrays(system, rigid, dtype=jnp.float64) -> ElasticModel:
+    """The model of a ``System`` and its ``RigidStruts`` (independent struts only: the closed-form SHAKE), in
+    ``dtype``."""
+    if rigid.coupled:
+        raise ValueError("the JAX backend steps independent rigid struts only (at most one rigid strut per node); "
+                         "this scene's share a node (class-k): use the numba backend")
+    f = partial(jnp.asarray, dtype=dtype)
+    return ElasticModel(
+        f(system.stiffness), f(system.floor), f(system.strut_rest), f(system.cable_damping), f(system.masses),
+        f(system.free.astype(float)), f(np.asarray(system.scene.gravity, dtype=float)),
+        f(_incidence(system.ends, len(system.masses))), jnp.asarray(system.ends, dtype=jnp.int32),
+        jnp.asarray(rigid.members, dtype=jnp.int32), jnp.asarray(rigid.ends.reshape(-1, 2), dtype=jnp.int32),
+        f(_incidence(rigid.ends.reshape(-1, 2), len(system.masses))), f(rigid.length_sq))
+
+
+def _incidence(ends: np.ndarray, n_nodes: int) -> np.ndarray:
+    """(N, m): +1 at each member's first node, -1 at its second (a tension t along the unit vector first ->
+    second pulls the first node by +t n)."""
+    out = np.zeros((n_nodes, len(ends)))
+    out[ends[:, 0], np.arange(len(ends))] = 1.0
+    out[ends[:, 1], np.arange(len(ends))] = -1.0
+    return out
+
+
+def held_inputs(rest, ext, dtype=jnp.float64) -> Inputs:
+    """Inputs held for the whole run: rest (B, nc) m, ext (B, N, 3) N."""
+    rest, ext = jnp.asarray(rest, dtype=dtype), jnp.asarray(ext, dtype=dtype)
+    b = rest.shape[0]
+    return Inputs(rest, ext, jnp.zeros(0, dtype=jnp.int32), jnp.zeros((b, 0, 1), dtype), jnp.zeros((b, 0, 1), dtype),
+                  jnp.zeros((b, 0), dtype), jnp.zeros((b, 0) + ext.shape[1:], dtype))
+
+
+def schedule_inputs(schedules, rest, ext, dtype=jnp.float64) -> Inputs:
+    """Inputs from ``commands.CommandSchedule``s: one for every copy or a sequence of B (one per copy), on top of
+    rest (B, nc) m and ext (B, N, 3) N (what a cable or a node the schedule does not name keeps)."""
+    rest, ext = np.asarray(rest, dtype=float), np.asarray(ext, dtype=float)
+    b = rest.shape[0]
+    schedules = [schedules] * b if not isinstance(schedules, (list, tuple)) else list(schedules)
+    if len(schedules) != b:
+        raise ValueError(f"commands: expected one schedule or {b} (one per copy), got {len(schedules)}")
+    cables = sorted({int(c) for s in schedules for c in s.rest_cables})
+    points = max([len(t) for s in schedules for t in s.rest_times] + [1])
+    forces = max(len(s.force_times) for s in schedules)
+    rest_times = np.zeros((b, len(cables), points))
+    rest_values = np.zeros((b, len(cables), points))
+    force_times = np.full((b, forces), np.inf)
+    force_values = np.zeros((b, forces) + ext.shape[1:])
+    for k, s in enumerate(schedules):
+        named = {int(c): (t, v) for c, t, v in zip(s.rest_cables, s.rest_times, s.rest_values)}
+        for j, c in enumerate(cables):
+            # a cable this copy does not schedule keeps its rest length: one point, held
+            t, v = named.get(c, (np.zeros(1), rest[k, c:c + 1]))
+            # past the last point: the last value at later times (interpolating between equal values holds it)
+            rest_times[k, j] = np.concatenate([t, t[-1] + np.arange(1, points - len(t) + 1)])
+            rest_values[k, j] = np.concatenate([v, np.full(points - len(v), v[-1])])
+        force_times[k, :len(s.force_times)] = s.force_times
+        force_values[k, :len(s.force_times)] = s.force_values
+    f = partial(jnp.asarray, dtype=dtype)
+    return Inputs(f(rest), f(ext), jnp.asarray(cables, dtype=jnp.int32), f(rest_times), f(rest_values),
+                  f(force_times), f(force_values))
+
+
+def _derived(model: ElasticModel):
+    """Inverse masses (N,) 1/kg (0 for fixed nodes), gravity forces (N, 3) N and the rigid struts'
+    ``W_kk = 1/m_a + 1/m_b`` (nr,), from the masses (so that a gradient with respect to them sees all three)."""
+    free = model.free > 0
+    inv_mass = jnp.where(free, 1.0 / jnp.where(free, model.masses, 1.0), 0.0)
+    gravity_force = (model.masses * model.free)[:, None] * model.gravity[None, :]
+    w = inv_mass[model.rigid_ends[:, 0]] + inv_mass[model.rigid_ends[:, 1]]
+    return inv_mass, gravity_force, w
+
+
+def _dot3(a, b):
+    """Row-wise dot products of (k, 3) arrays, summed in the kernels' order."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
+def _forces(model: ElasticModel, x, v, rest, ext):
+    """One copy: accelerations (N, 3), cable tensions (nc,), member unit vectors (m, 3) and slack cables (nc,)
+    at ``x`` (damping from ``v``) with rest lengths ``rest`` (nc,) and external forces ``ext`` (N, 3)."""
+    inv_mass, gravity_force, _ = _derived(model)
+    a, c = model.ends[:, 0], model.ends[:, 1]
+    d = x[c] - x[a]
+    length = jnp.sqrt(_dot3(d, d))
+    n = d / length[:, None]
+    ns = model.strut_rest.shape[0]
+    r = jnp.concatenate([model.strut_rest, rest])
+    t = model.stiffness * jnp.maximum(length - r, model.floor)
+    cables = t[ns:]
+    rate = _dot3(v[c[ns:]] - v[a[ns:]], n[ns:])
+    cables = jnp.where(cables > 0.0, cables + model.damping * rate, cables)
+    cables = jnp.maximum(cables, 0.0)   # a damped cable never pushes
+    t = jnp.concatenate([t[:ns], cables])
+    acc = (gravity_force + ext + model.incidence @ (t[:, None] * n)) * inv_mass[:, None]
+    return acc, cables, n, length[ns:] < rest
+
+
+def elastic_forces(model: ElasticModel, x, v, rest, ext):
+    """Every copy: accelerations (B, N, 3) m/s^2, cable tensions (B, nc) N, the rigid struts' unit vectors
+    (B, nr, 3) and the slack cables (B, nc) bool at ``x`` (B, N, 3) (damping from ``v``)."""
+    acc, tension, n, slack = jax.vmap(_forces, in_axes=(None, 0, 0, 0, 0))(model, x, v, rest, ext)
+    return acc, tension, n[:, model.rigid_members], slack
+
+
+def _push(model, inv_mass, strengths, dirs):
+    """Node displacements (or velocity changes) (N, 3) of equal-and-opposite pushes ``strengths`` (nr,) along
+    the rigid struts' ``dirs`` (nr, 3), scaled by the inverse masses."""
+    return inv_mass[:, None] * (model.rigid_incidence @ (strengths[:, None] * dirs))
+
+
+def _verlet(model: ElasticModel, h, x, v, acc, tension, dirs, rest, ext):
+    """One copy, one step of ``h``: velocity Verlet + SHAKE/RATTLE (``_elastic_kernels._step``). Returns the
+    new (x, v, acc, tension, dirs), the cable impulses (nc,) N*s and the slack cables (nc,) at the end."""
+    inv_mass, _, w = _derived(model)
+    half = 0.5 * h
+    v_half = v + half * acc
+    x_new = x + h * v_half
+    nr = model.rigid_members.shape[0]
+    if nr:
+        ra, rc = model.rigid_ends[:, 0], model.rigid_ends[:, 1]
+        r = x_new[rc] - x_new[ra]
+        p = _dot3(r, dirs)
+        q = _dot3(r, r) - model.rigid_length_sq
+        # SHAKE: the small root of w^2 g^2 - 2 w p g + q = 0, written to avoid cancellation
+        gamma = q / (w * (p + jnp.sqrt(jnp.maximum(p * p - q, 0.0))))
+        dx = _push(model, inv_mass, gamma, dirs)
+        x_new = x_new + dx
+        v_half = v_half + dx / h
+    acc_end, tension_end, n, slack = _forces(model, x_new, v_half, rest, ext)
+    impulses = half * (tension + tension_end)
+    v_new = v_half + half * acc_end
+    if nr:
+        dirs = n[model.rigid_members]
+        # RATTLE: zero every rigid strut's length rate along its end-of-step direction
+        rate = _dot3(v_new[rc] - v_new[ra], dirs)
+        v_new = v_new + _push(model, inv_mass, rate / w, dirs)
+    return (x_new, v_new, acc_end, tension_end, dirs), impulses, slack
+
+
+def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
+    """One step of ``h`` (s) of every copy from ``carry`` (rest (B, nc), ext (B, N, 3)). Returns the new
+    :class:`Carry`, the cable impulses (B, nc) N*s and the slack cables (B, nc) at the step's end."""
+    out, impulses, slack = jax.vmap(_verlet, in_axes=(None, None, 0, 0, 0, 0, 0, 0, 0))(model, h, *carry, rest, ext)
+    return Carry(*out), impulses, slack
+
+
+def start_carry(model: ElasticModel, x, v, rest, ext) -> Carry:
+    """The carry at the start of a run from positions ``x`` and velocities ``v`` (B, N, 3)."""
+    acc, tension, dirs, _ = elastic_forces(model, x, v, rest, ext)
+    return Carry(x, v, acc, tension, dirs)
+
+
+def _inputs_at(inputs: Inputs, t):
+    """Every copy's rest lengths (B, nc) and external forces (B, N, 3) in effect at time ``t`` (s)."""
+    rest, ext = inputs.rest, inputs.ext
+    if inputs.rest_cables.shape[0]:
+        ramp = jax.vmap(jax.vmap(jnp.interp, in_axes=(None, 0, 0)), in_axes=(None, 0, 0))
+        rest = rest.at[:, inputs.rest_cables].set(ramp(t, inputs.rest_times, inputs.rest_values))
+    if inputs.force_times.shape[1]:
+        k = jax.vmap(partial(jnp.searchsorted, side="right"), in_axes=(0, None))(inputs.force_times, t) - 1
+        step_force = jnp.take_along_axis(inputs.force_values, jnp.maximum(k, 0)[:, None, None, None], axis=1)[:, 0]
+        ext = jnp.where((k >= 0)[:, None, None], step_force, ext)
+    return rest, ext
+
+
+class Outputs(NamedTuple):
+    """A run's kept steps and its totals, batch first after the kept-step axis:
+    x, v (K, B, N, 3); impulses (K, B, nc) N*s summed since the previous kept step; slack (K, B, nc) bool;
+    peak_impulses (B, nc) N*s, each cable's largest step impulse; snaps (B, nc) int, slack-to-taut switches
+    between consecutive step ends (the run's start counts as the first); rest (B, nc), ext (B, N, 3): the
+    inputs in effect at the last step."""
+
+    x: jax.Array
+    v: jax.Array
+    impulses: jax.Array
+    slack: jax.Array
+    peak_impulses: jax.Array
+    snaps: jax.Array
+    rest: jax.Array
+    ext: jax.Array
+
+
+def _scan_steps(model, h, inputs, scheduled, loop, first, n):
+    """``n`` steps of every copy from ``loop`` = (carry, step index, rest and ext in effect, was_slack, peak,
+    snaps); returns the loop after them and the impulses summed over them with the last step's slack."""
+
+    def body(state, _):
+        (carry, k, rest_prev, ext_prev, was_slack, peak, snaps), total = state
+        if scheduled:
+            rest, ext = _inputs_at(inputs, (first + k).astype(h.dtype) * h)
+            changed = jnp.any(rest != rest_prev) | jnp.any(ext != ext_prev)
+            # a new input: the start forces at the step's start state with it (the numba batch's invalidate)
+            carry = lax.cond(changed, lambda: start_carry(model, carry.x, carry.v, rest, ext), lambda: carry)
+        else:
+            rest, ext = rest_prev, ext_prev
+        carry, impulses, slack = verlet_step(model, carry, rest, ext, h)
+        peak = jnp.maximum(peak, impulses)
+        snaps = snaps + (was_slack & ~slack)
+        return ((carry, k + 1, rest, ext, slack, peak, snaps), total + impulses), None
+
+    zero = jnp.zeros_like(loop[0].tension)
+    (loop, total), _ = lax.scan(body, (loop, zero), None, length=n)
+    return loop, total, loop[4]
+
+
+@partial(jax.jit, static_argnames=("n_steps", "every", "scheduled"))
+def elastic_steps(model: ElasticModel, carry: Carry, inputs: Inputs, h, n_steps: int, every: int = 1,
+                  first_step=0, was_slack=None, scheduled: bool = False):
+    """``n_steps`` steps of ``h`` (s) of every copy from ``carry`` (:func:`start_carry`), keeping steps
+    ``every``, ``2 every``, ... and the last (``K = ceil(n_steps / every)``). ``inputs`` are held, or, with
+    ``scheduled``, a schedule evaluated at each step's start time ``(first_step + k) h``. ``was_slack`` (B, nc):
+    the cables slack before the run (for the snaps; default: none). Returns the final :class:`Carry` and the
+    :class:`Outputs`."""
+    h = jnp.asarray(h, dtype=carry.x.dtype)
+    if was_slack is None:
+        was_slack = jnp.zeros(carry.tension.shape, dtype=bool)
+    rest0, ext0 = (inputs.rest, inputs.ext)
+    loop = (carry, jnp.asarray(0, dtype=jnp.int64), rest0, ext0, was_slack, jnp.zeros_like(carry.tension),
+            jnp.zeros(carry.tension.shape, dtype=jnp.int32))
+    full, rest_steps = divmod(n_steps, every)
+    if rest_steps == 0:
+        full, rest_steps = full - 1, every
+
+    def kept(loop, _):
+        loop, total, slack = _scan_steps(model, h, inputs, scheduled, loop, first_step, every)
+        return loop, (loop[0].x, loop[0].v, total, slack)
+
+    loop, (xs, vs, imps, slacks) = lax.scan(kept, loop, None, length=full)
+    loop, total, slack = _scan_steps(model, h, inputs, scheduled, loop, first_step, rest_steps)
+    last = (loop[0].x, loop[0].v, total, slack)
+    xs, vs, imps, slacks = (jnp.concatenate([a, b[None]]) for a, b in zip((xs, vs, imps, slacks), last))
+    carry, _, rest, ext, _, peak, snaps = loop
+    return carry, Outputs(xs, vs, imps, slacks, peak, snaps, rest, ext)
+
+
+def rollout(model: ElasticModel, x0, v0, inputs: Inputs, h, n_steps: int, every: int = 1, scheduled: bool = False):
+    """The differentiable run: :func:`elastic_steps` from positions ``x0`` and velocities ``v0`` (B, N, 3)
+    (their start forces computed here). Returns the :class:`Outputs`; ``jax.grad`` of any function of them with
+    respect to the model's fields (stiffness, damping, masses, ...), ``x0``, ``v0`` or the inputs (rest lengths,
+    external forces, a schedule's values) is the derivative of the discrete run (module docstring)."""
+    rest, ext = (inputs.rest, inputs.ext) if not scheduled else _inputs_at(inputs, jnp.zeros((), x0.dtype))
+    carry = start_carry(model, x0, v0, rest, ext)
+    return elastic_steps(model, carry, inputs._replace(rest=rest, ext=ext), h, n_steps, every,
+                         scheduled=scheduled)[1]
