@@ -87,6 +87,12 @@ EXTRAS_REQUIRE = {
     "bench": [
         "mujoco>=4.0.0,<5",      # the peer in bench/run_all.py (matplotlib is a core dependency)
     ],
+    # The elastic method in JAX (backend="jax", gradients, tensegrity-sim fit), on CPU. On an NVIDIA GPU install
+X
+    "jax": [
+        "jax>=0.10.2,<0.11",
+        "jaxlib>=0.10.2,<0.11",
+    ],
 }
 
 setup(

@@ -239,6 +239,7 @@ def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
     return Carry(*out), impulses, slack
 
 
+@jax.jit
 def start_carry(model: ElasticModel, x, v, rest, ext) -> Carry:
     """The carry at the start of a run from positions ``x`` and velocities ``v`` (B, N, 3)."""
     acc, tension, dirs, _ = elastic_forces(model, x, v, rest, ext)
@@ -275,12 +276,14 @@ class Outputs(NamedTuple):
     ext: jax.Array
 
 
-def _scan_steps(model, h, inputs, scheduled, loop, first, n):
-    """``n`` steps of every copy from ``loop`` = (carry, step index, rest and ext in effect, was_slack, peak,
-    snaps); returns the loop after them and the impulses summed over them with the last step's slack."""
+def _scan_steps(model, h, inputs, scheduled, n_steps, first, loop, every):
+    """``every`` steps of every copy from ``loop`` = (carry, step index k in the run, rest and ext in effect,
+    was_slack, peak, snaps); a step at ``k >= n_steps`` (the last kept step's padding) changes nothing. Returns
+    the loop after them and the impulses summed over them."""
 
     def body(state, _):
-        (carry, k, rest_prev, ext_prev, was_slack, peak, snaps), total = state
+        loop, total = state
+        carry, k, rest_prev, ext_prev, was_slack, peak, snaps = loop
         if scheduled:
             rest, ext = _inputs_at(inputs, (first + k).astype(h.dtype) * h)
             changed = jnp.any(rest != rest_prev) | jnp.any(ext != ext_prev)
@@ -289,13 +292,14 @@ def _scan_steps(model, h, inputs, scheduled, loop, first, n):
         else:
             rest, ext = rest_prev, ext_prev
         carry, impulses, slack = verlet_step(model, carry, rest, ext, h)
-        peak = jnp.maximum(peak, impulses)
-        snaps = snaps + (was_slack & ~slack)
-        return ((carry, k + 1, rest, ext, slack, peak, snaps), total + impulses), None
+        new = (carry, k + 1, rest, ext, slack, jnp.maximum(peak, impulses), snaps + (was_slack & ~slack))
+        active = k < n_steps
+        loop = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new, loop)
+        return (loop, total + jnp.where(active, impulses, 0.0)), None
 
     zero = jnp.zeros_like(loop[0].tension)
-    (loop, total), _ = lax.scan(body, (loop, zero), None, length=n)
-    return loop, total, loop[4]
+    (loop, total), _ = lax.scan(body, (loop, zero), None, length=every)
+    return loop, total
 
 
 @partial(jax.jit, static_argnames=("n_steps", "every", "scheduled"))
@@ -305,25 +309,21 @@ def elastic_steps(model: ElasticModel, carry: Carry, inputs: Inputs, h, n_steps:
     ``every``, ``2 every``, ... and the last (``K = ceil(n_steps / every)``). ``inputs`` are held, or, with
     ``scheduled``, a schedule evaluated at each step's start time ``(first_step + k) h``. ``was_slack`` (B, nc):
     the cables slack before the run (for the snaps; default: none). Returns the final :class:`Carry` and the
-    :class:`Outputs`."""
+    :class:`Outputs`.
+
+    One loop of K kept steps of ``every`` steps each, the steps past ``n_steps`` in the last masked out (so the
+    step is compiled once: the compile time, not the masked steps, is what a short run pays)."""
     h = jnp.asarray(h, dtype=carry.x.dtype)
     if was_slack is None:
         was_slack = jnp.zeros(carry.tension.shape, dtype=bool)
-    rest0, ext0 = (inputs.rest, inputs.ext)
-    loop = (carry, jnp.asarray(0, dtype=jnp.int64), rest0, ext0, was_slack, jnp.zeros_like(carry.tension),
-            jnp.zeros(carry.tension.shape, dtype=jnp.int32))
-    full, rest_steps = divmod(n_steps, every)
-    if rest_steps == 0:
-        full, rest_steps = full - 1, every
+    loop = (carry, jnp.asarray(0, dtype=jnp.int64), inputs.rest, inputs.ext, was_slack,
+            jnp.zeros_like(carry.tension), jnp.zeros(carry.tension.shape, dtype=jnp.int32))
 
     def kept(loop, _):
-        loop, total, slack = _scan_steps(model, h, inputs, scheduled, loop, first_step, every)
-        return loop, (loop[0].x, loop[0].v, total, slack)
+        loop, total = _scan_steps(model, h, inputs, scheduled, n_steps, first_step, loop, every)
+        return loop, (loop[0].x, loop[0].v, total, loop[4])
 
-    loop, (xs, vs, imps, slacks) = lax.scan(kept, loop, None, length=full)
-    loop, total, slack = _scan_steps(model, h, inputs, scheduled, loop, first_step, rest_steps)
-    last = (loop[0].x, loop[0].v, total, slack)
-    xs, vs, imps, slacks = (jnp.concatenate([a, b[None]]) for a, b in zip((xs, vs, imps, slacks), last))
+    loop, (xs, vs, imps, slacks) = lax.scan(kept, loop, None, length=-(-n_steps // every))
     carry, _, rest, ext, _, peak, snaps = loop
     return carry, Outputs(xs, vs, imps, slacks, peak, snaps, rest, ext)
 
