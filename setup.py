@@ -88,7 +88,8 @@ EXTRAS_REQUIRE = {
         "mujoco>=4.0.0,<5",      # the peer in bench/run_all.py (matplotlib is a core dependency)
     ],
     # The elastic method in JAX (backend="jax", gradients, tensegrity-sim fit), on CPU. On an NVIDIA GPU install
-X
+    # JAX's CUDA wheels instead (docs/jax.md): pip install "jax[cuda13]==0.10.2" ("jax[cuda12]" for a CUDA 12
+    # driver). 0.x: the next minor may break the API.
     "jax": [
         "jax>=0.10.2,<0.11",
         "jaxlib>=0.10.2,<0.11",
