@@ -29,6 +29,7 @@ step to the next. Finite differences across such a jump do not converge; a step 
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, fields, replace
 from functools import partial
 from typing import NamedTuple
 
@@ -41,15 +42,35 @@ __all__ = ["ElasticModel", "Carry", "Inputs", "model_arrays", "held_inputs", "sc
            "verlet_step", "elastic_steps", "rollout"]
 
 
-class ElasticModel(NamedTuple):
-    """What does not change during a run, as arrays (a pytree: a gradient may be taken with respect to any
-    float field). ``m`` members (struts first), ``N`` nodes, ``nr`` moving rigid struts.
+def _pytree(*meta: str):
+    """A frozen dataclass as a JAX pytree whose ``meta`` fields (the topology: tuples of node and member indices,
+    hashable) are static, so that a gradient may be taken with respect to the whole object (its float arrays)."""
+
+    def register(cls):
+        cls = dataclass(frozen=True)(cls)
+        cls._replace = replace   # NamedTuple's spelling of a copy with some fields changed
+        data = [f.name for f in fields(cls) if f.name not in meta]
+        return jax.tree_util.register_dataclass(cls, data_fields=data, meta_fields=list(meta))
+
+    return register
+
+
+def _index(values) -> tuple:
+    """An index array as a hashable (static) tuple of ints, or of pairs of ints."""
+    return tuple(tuple(int(i) for i in row) if np.ndim(row) else int(row) for row in np.asarray(values))
+
+
+@_pytree("ends", "rigid_members", "rigid_ends")
+class ElasticModel:
+    """What does not change during a run (a pytree: a gradient may be taken with respect to any array, the
+    topology's index tuples being static). ``m`` members (struts first), ``N`` nodes, ``nr`` moving rigid
+    struts.
 
     stiffness (m,) N/m (0 for rigid struts), floor (m,) (-inf for struts, 0 for cables), strut_rest (n_struts,) m,
     damping (nc,) N*s/m, masses (N,) kg, free (N,) 1.0 for a free node and 0.0 for a fixed one, gravity (3,)
-    m/s^2, incidence (N, m) (+1 at a member's first node, -1 at its second), ends (m, 2) int,
-    rigid_members (nr,) int (their rows in the member arrays), rigid_ends (nr, 2) int, rigid_incidence (N, nr),
-    rigid_length_sq (nr,) m^2."""
+    m/s^2, incidence (N, m) (+1 at a member's first node, -1 at its second), rigid_incidence (N, nr),
+    rigid_length_sq (nr,) m^2; static: ends (m pairs of node indices), rigid_members (nr rows in the member
+    arrays), rigid_ends (nr pairs)."""
 
     stiffness: jax.Array
     floor: jax.Array
@@ -59,11 +80,11 @@ class ElasticModel(NamedTuple):
     free: jax.Array
     gravity: jax.Array
     incidence: jax.Array
-    ends: jax.Array
-    rigid_members: jax.Array
-    rigid_ends: jax.Array
     rigid_incidence: jax.Array
     rigid_length_sq: jax.Array
+    ends: tuple
+    rigid_members: tuple
+    rigid_ends: tuple
 
 
 class Carry(NamedTuple):
@@ -77,20 +98,21 @@ class Carry(NamedTuple):
     dirs: jax.Array
 
 
-class Inputs(NamedTuple):
+@_pytree("rest_cables")
+class Inputs:
     """The inputs of a run, per copy (batch first). rest (B, nc) m and ext (B, N, 3) N: held, and the base of a
-    schedule. A schedule (:func:`schedule_inputs`; ``S = 0`` and ``F = 0`` without one): rest_cables (S,) int,
-    the scheduled cables; rest_times, rest_values (B, S, P) s, m: each one's points, linear between them and held
+    schedule. A schedule (:func:`schedule_inputs`; ``S = 0`` and ``F = 0`` without one): rest_cables (static:
+    S cable indices), the scheduled cables; rest_times, rest_values (B, S, P) s, m: each one's points, linear between them and held
     outside (padded past the last point with its value); force_times (B, F) s (padded with +inf) and
     force_values (B, F, N, 3) N: the external forces from each point on."""
 
     rest: jax.Array
     ext: jax.Array
-    rest_cables: jax.Array
     rest_times: jax.Array
     rest_values: jax.Array
     force_times: jax.Array
     force_values: jax.Array
+    rest_cables: tuple
 
 
 def model_arrays(system, rigid, dtype=jnp.float64) -> ElasticModel:
@@ -100,12 +122,12 @@ def model_arrays(system, rigid, dtype=jnp.float64) -> ElasticModel:
         raise ValueError("the JAX backend steps independent rigid struts only (at most one rigid strut per node); "
                          "this scene's share a node (class-k): use the numba backend")
     f = partial(jnp.asarray, dtype=dtype)
+    rigid_ends = rigid.ends.reshape(-1, 2)
     return ElasticModel(
         f(system.stiffness), f(system.floor), f(system.strut_rest), f(system.cable_damping), f(system.masses),
         f(system.free.astype(float)), f(np.asarray(system.scene.gravity, dtype=float)),
-        f(_incidence(system.ends, len(system.masses))), jnp.asarray(system.ends, dtype=jnp.int32),
-        jnp.asarray(rigid.members, dtype=jnp.int32), jnp.asarray(rigid.ends.reshape(-1, 2), dtype=jnp.int32),
-        f(_incidence(rigid.ends.reshape(-1, 2), len(system.masses))), f(rigid.length_sq))
+        f(_incidence(system.ends, len(system.masses))), f(_incidence(rigid_ends, len(system.masses))),
+        f(rigid.length_sq), _index(system.ends), _index(rigid.members), _index(rigid_ends))
 
 
 def _incidence(ends: np.ndarray, n_nodes: int) -> np.ndarray:
@@ -121,8 +143,8 @@ def held_inputs(rest, ext, dtype=jnp.float64) -> Inputs:
     """Inputs held for the whole run: rest (B, nc) m, ext (B, N, 3) N."""
     rest, ext = jnp.asarray(rest, dtype=dtype), jnp.asarray(ext, dtype=dtype)
     b = rest.shape[0]
-    return Inputs(rest, ext, jnp.zeros(0, dtype=jnp.int32), jnp.zeros((b, 0, 1), dtype), jnp.zeros((b, 0, 1), dtype),
-                  jnp.zeros((b, 0), dtype), jnp.zeros((b, 0) + ext.shape[1:], dtype))
+    return Inputs(rest, ext, jnp.zeros((b, 0, 1), dtype), jnp.zeros((b, 0, 1), dtype), jnp.zeros((b, 0), dtype),
+                  jnp.zeros((b, 0) + ext.shape[1:], dtype), ())
 
 
 def schedule_inputs(schedules, rest, ext, dtype=jnp.float64) -> Inputs:
@@ -151,8 +173,7 @@ def schedule_inputs(schedules, rest, ext, dtype=jnp.float64) -> Inputs:
         force_times[k, :len(s.force_times)] = s.force_times
         force_values[k, :len(s.force_times)] = s.force_values
     f = partial(jnp.asarray, dtype=dtype)
-    return Inputs(f(rest), f(ext), jnp.asarray(cables, dtype=jnp.int32), f(rest_times), f(rest_values),
-                  f(force_times), f(force_values))
+    return Inputs(f(rest), f(ext), f(rest_times), f(rest_values), f(force_times), f(force_values), tuple(cables))
 
 
 def _derived(model: ElasticModel):
@@ -161,7 +182,8 @@ def _derived(model: ElasticModel):
     free = model.free > 0
     inv_mass = jnp.where(free, 1.0 / jnp.where(free, model.masses, 1.0), 0.0)
     gravity_force = (model.masses * model.free)[:, None] * model.gravity[None, :]
-    w = inv_mass[model.rigid_ends[:, 0]] + inv_mass[model.rigid_ends[:, 1]]
+    rigid_ends = np.asarray(model.rigid_ends, dtype=int).reshape(-1, 2)
+    w = inv_mass[rigid_ends[:, 0]] + inv_mass[rigid_ends[:, 1]]
     return inv_mass, gravity_force, w
 
 
@@ -174,7 +196,8 @@ def _forces(model: ElasticModel, x, v, rest, ext):
     """One copy: accelerations (N, 3), cable tensions (nc,), member unit vectors (m, 3) and slack cables (nc,)
     at ``x`` (damping from ``v``) with rest lengths ``rest`` (nc,) and external forces ``ext`` (N, 3)."""
     inv_mass, gravity_force, _ = _derived(model)
-    a, c = model.ends[:, 0], model.ends[:, 1]
+    ends = np.asarray(model.ends, dtype=int).reshape(-1, 2)
+    a, c = ends[:, 0], ends[:, 1]
     d = x[c] - x[a]
     length = jnp.sqrt(_dot3(d, d))
     n = d / length[:, None]
@@ -194,7 +217,7 @@ def elastic_forces(model: ElasticModel, x, v, rest, ext):
     """Every copy: accelerations (B, N, 3) m/s^2, cable tensions (B, nc) N, the rigid struts' unit vectors
     (B, nr, 3) and the slack cables (B, nc) bool at ``x`` (B, N, 3) (damping from ``v``)."""
     acc, tension, n, slack = jax.vmap(_forces, in_axes=(None, 0, 0, 0, 0))(model, x, v, rest, ext)
-    return acc, tension, n[:, model.rigid_members], slack
+    return acc, tension, n[:, np.asarray(model.rigid_members, dtype=int)], slack
 
 
 def _push(model, inv_mass, strengths, dirs):
@@ -210,9 +233,10 @@ def _verlet(model: ElasticModel, h, x, v, acc, tension, dirs, rest, ext):
     half = 0.5 * h
     v_half = v + half * acc
     x_new = x + h * v_half
-    nr = model.rigid_members.shape[0]
+    nr = len(model.rigid_members)
     if nr:
-        ra, rc = model.rigid_ends[:, 0], model.rigid_ends[:, 1]
+        rigid_ends = np.asarray(model.rigid_ends, dtype=int)
+        ra, rc = rigid_ends[:, 0], rigid_ends[:, 1]
         r = x_new[rc] - x_new[ra]
         p = _dot3(r, dirs)
         q = _dot3(r, r) - model.rigid_length_sq
@@ -225,7 +249,7 @@ def _verlet(model: ElasticModel, h, x, v, acc, tension, dirs, rest, ext):
     impulses = half * (tension + tension_end)
     v_new = v_half + half * acc_end
     if nr:
-        dirs = n[model.rigid_members]
+        dirs = n[np.asarray(model.rigid_members, dtype=int)]
         # RATTLE: zero every rigid strut's length rate along its end-of-step direction
         rate = _dot3(v_new[rc] - v_new[ra], dirs)
         v_new = v_new + _push(model, inv_mass, rate / w, dirs)
@@ -249,9 +273,9 @@ def start_carry(model: ElasticModel, x, v, rest, ext) -> Carry:
 def _inputs_at(inputs: Inputs, t):
     """Every copy's rest lengths (B, nc) and external forces (B, N, 3) in effect at time ``t`` (s)."""
     rest, ext = inputs.rest, inputs.ext
-    if inputs.rest_cables.shape[0]:
+    if inputs.rest_cables:
         ramp = jax.vmap(jax.vmap(jnp.interp, in_axes=(None, 0, 0)), in_axes=(None, 0, 0))
-        rest = rest.at[:, inputs.rest_cables].set(ramp(t, inputs.rest_times, inputs.rest_values))
+        rest = rest.at[:, np.asarray(inputs.rest_cables)].set(ramp(t, inputs.rest_times, inputs.rest_values))
     if inputs.force_times.shape[1]:
         k = jax.vmap(partial(jnp.searchsorted, side="right"), in_axes=(0, None))(inputs.force_times, t) - 1
         step_force = jnp.take_along_axis(inputs.force_values, jnp.maximum(k, 0)[:, None, None, None], axis=1)[:, 0]
