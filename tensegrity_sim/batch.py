@@ -179,17 +179,17 @@ class BatchSimulator:
         else:
             method, self.method_reason = choose_method(self.system, dt)
         check_backend(backend, method, dtype)
-        if backend == "jax" and (scene.ground is not None or scene.contact_response.response):
-            raise ValueError("backend 'jax' steps the elastic method without contacts: this scene has a ground or a "
-                             "contact response; use backend 'numba'")
+        if backend == "jax" and scene.contact_response.response:
+            raise ValueError("backend 'jax' has no member contact response (contact: response: true); use backend "
+                             "'numba'")
         self.backend = backend
         self.failures: dict[int, str] = {}
         n, nc = len(scene.nodes), len(scene.cables)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
-        # the batched elastic engine knows no contact response (ground or members): a scene with one steps a
-        # Simulator per copy
-        if method == "elastic" and scene.ground is None and not scene.contact_response.response:
+        # the numba batched engine knows no contact response (ground or members; the JAX one has the ground): a
+        # scene with one steps a Simulator per copy
+        if method == "elastic" and (scene.ground is None or backend == "jax") and not scene.contact_response.response:
             if solver is not None and requested:
                 raise ValueError(f"solver={solver!r} is an option of a method with a QP; method 'elastic' has none")
             if backend == "jax":

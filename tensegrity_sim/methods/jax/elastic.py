@@ -70,7 +70,7 @@ class ElasticModel:
     damping (nc,) N*s/m, masses (N,) kg, free (N,) 1.0 for a free node and 0.0 for a fixed one, gravity (3,)
     m/s^2, incidence (N, m) (+1 at a member's first node, -1 at its second), rigid_incidence (N, nr),
     rigid_length_sq (nr,) m^2; static: ends (m pairs of node indices), rigid_members (nr rows in the member
-    arrays), rigid_ends (nr pairs)."""
+    arrays), rigid_ends (nr pairs); ground: the scene's ground (``ground.GroundModel``) or None."""
 
     stiffness: jax.Array
     floor: jax.Array
@@ -85,6 +85,7 @@ class ElasticModel:
     ends: tuple
     rigid_members: tuple
     rigid_ends: tuple
+    ground: object = None   # a ground.GroundModel, or None without a ground
 
 
 class Carry(NamedTuple):
@@ -122,12 +123,15 @@ def model_arrays(system, rigid, dtype=jnp.float64) -> ElasticModel:
         raise ValueError("the JAX backend steps independent rigid struts only (at most one rigid strut per node); "
                          "this scene's share a node (class-k): use the numba backend")
     f = partial(jnp.asarray, dtype=dtype)
+    from .ground import ground_model
+
     rigid_ends = rigid.ends.reshape(-1, 2)
     return ElasticModel(
         f(system.stiffness), f(system.floor), f(system.strut_rest), f(system.cable_damping), f(system.masses),
         f(system.free.astype(float)), f(np.asarray(system.scene.gravity, dtype=float)),
         f(_incidence(system.ends, len(system.masses))), f(_incidence(rigid_ends, len(system.masses))),
-        f(rigid.length_sq), _index(system.ends), _index(rigid.members), _index(rigid_ends))
+        f(rigid.length_sq), _index(system.ends), _index(rigid.members), _index(rigid_ends),
+        ground_model(system, rigid, dtype))
 
 
 def _incidence(ends: np.ndarray, n_nodes: int) -> np.ndarray:
@@ -227,11 +231,22 @@ def _push(model, inv_mass, strengths, dirs):
 
 
 def _verlet(model: ElasticModel, h, x, v, acc, tension, dirs, rest, ext):
-    """One copy, one step of ``h``: velocity Verlet + SHAKE/RATTLE (``_elastic_kernels._step``). Returns the
-    new (x, v, acc, tension, dirs), the cable impulses (nc,) N*s and the slack cables (nc,) at the end."""
+    """One copy, one step of ``h``: velocity Verlet + SHAKE/RATTLE (``_elastic_kernels._step``), with a ground
+    the contact impulses of ``ElasticMethod.verlet`` (after the first half-kick: the drift's, landing every node
+    that would pass the ground exactly on it; after the closing half-kick: the touching nodes', Newton's
+    restitution for those that landed in this step). Returns the new (x, v, acc, tension, dirs), the cable
+    impulses (nc,) N*s and the slack cables (nc,) at the end."""
+    from .ground import TOUCH_TOL, contact_step, drift_contacts, gaps
+
     inv_mass, _, w = _derived(model)
     half = 0.5 * h
     v_half = v + half * acc
+    ground = model.ground
+    if ground is not None:
+        landing_speed = jnp.maximum(-v_half[:, 2], 0.0)
+        armed, target = drift_contacts(model, ground, x, v, v_half, h)
+        v_half = contact_step(model, ground, x, v_half, armed, target)[0]
+        landing_speed = jnp.where(gaps(ground, x) > TOUCH_TOL, landing_speed, 0.0)
     x_new = x + h * v_half
     nr = len(model.rigid_members)
     if nr:
@@ -253,6 +268,9 @@ def _verlet(model: ElasticModel, h, x, v, acc, tension, dirs, rest, ext):
         # RATTLE: zero every rigid strut's length rate along its end-of-step direction
         rate = _dot3(v_new[rc] - v_new[ra], dirs)
         v_new = v_new + _push(model, inv_mass, rate / w, dirs)
+    if ground is not None:
+        touching = (model.free > 0) & (gaps(ground, x_new) <= TOUCH_TOL)
+        v_new = contact_step(model, ground, x_new, v_new, touching, ground.restitution * landing_speed)[0]
     return (x_new, v_new, acc_end, tension_end, dirs), impulses, slack
 
 

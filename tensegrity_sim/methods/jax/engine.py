@@ -74,9 +74,9 @@ class ElasticMethodJax(ElasticMethod):
     def __init__(self, system: System, dt: float, *, dtype: str = "float64"):
         self.dtype = _dtype(dtype)
         super().__init__(system, dt, compiled=False)
-        if self.ground is not None:
-            raise ValueError("backend 'jax' steps the elastic method without contacts: this scene has a ground or "
-                             "a contact response; use backend 'numba'")
+        if system.scene.contact_response.response:
+            raise ValueError("backend 'jax' has no member contact response (contact: response: true); use backend "
+                             "'numba'")
         self.model = model_arrays(system, self.rigid, self.dtype)
         self._jax_carry: Carry | None = None
 
