@@ -3,13 +3,15 @@ SHAKE/RATTLE of independent rigid struts in closed form, tension-only cables ``k
 damping only while taut and the total clipped at zero, impulses ``h/2 (t_start + t_end)``), with the same
 function names. Tests require the two to agree to 1e-12 in float64 (``test/test_jax.py``).
 
-Layout: the functions of one copy take arrays without a batch axis and are ``vmap``-ed over copies, so
-every batched array has the batch FIRST (JAX's and brax's order; the numba kernels put it last):
+Layout: the numba kernels' (style rule 8): every array carries the batch of ``B`` copies LAST, so that a
+member gather ``x[ends]`` moves whole rows of ``3 B`` contiguous numbers and the force assembly is one matrix
+product ``incidence @ (m, 3 B)``; XLA then vectorises every operation over the copies (on a CPU the
+batch-first ``vmap`` of one copy's step ran 9x slower at 64 copies, measured by ``bench/bench_jax.py``):
 
-    x, v (B, N, 3) m, m/s           positions, velocities
-    rest (B, nc) m                  cable rest lengths held (the base of a schedule)
-    ext (B, N, 3) N                 external forces held
-    acc (B, N, 3) m/s^2, tension (B, nc) N, dirs (B, nr, 3)   the forces at the step's start (the carry)
+    x, v (N, 3, B) m, m/s           positions, velocities
+    rest (nc, B) m                  cable rest lengths held (the base of a schedule)
+    ext (N, 3, B) N                 external forces held
+    acc (N, 3, B) m/s^2, tension (nc, B) N, dirs (nr, 3, B)   the forces at the step's start (the carry)
 
 A run (:func:`elastic_steps`) is one ``lax.scan`` over the steps; a command schedule (:class:`Inputs`:
 rest-length ramps, force steps, per copy) is evaluated inside it at each step's start time, and where an
@@ -89,8 +91,8 @@ class ElasticModel:
 
 
 class Carry(NamedTuple):
-    """What one step hands the next, batch first: x, v (B, N, 3), acc (B, N, 3) m/s^2, tension (B, nc) N and the
-    rigid struts' unit vectors dirs (B, nr, 3) at the step's end."""
+    """What one step hands the next, batch last: x, v (N, 3, B), acc (N, 3, B) m/s^2, tension (nc, B) N and the
+    rigid struts' unit vectors dirs (nr, 3, B) at the step's end."""
 
     x: jax.Array
     v: jax.Array
@@ -101,7 +103,7 @@ class Carry(NamedTuple):
 
 @_pytree("rest_cables")
 class Inputs:
-    """The inputs of a run, per copy (batch first). rest (B, nc) m and ext (B, N, 3) N: held, and the base of a
+    """The inputs of a run, per copy. rest (nc, B) m and ext (N, 3, B) N: held, and the base of a
     schedule. A schedule (:func:`schedule_inputs`; ``S = 0`` and ``F = 0`` without one): rest_cables (static:
     S cable indices), the scheduled cables; rest_times, rest_values (B, S, P) s, m: each one's points, linear between them and held
     outside (padded past the last point with its value); force_times (B, F) s (padded with +inf) and
@@ -144,18 +146,18 @@ def _incidence(ends: np.ndarray, n_nodes: int) -> np.ndarray:
 
 
 def held_inputs(rest, ext, dtype=jnp.float64) -> Inputs:
-    """Inputs held for the whole run: rest (B, nc) m, ext (B, N, 3) N."""
+    """Inputs held for the whole run: rest (nc, B) m, ext (N, 3, B) N."""
     rest, ext = jnp.asarray(rest, dtype=dtype), jnp.asarray(ext, dtype=dtype)
-    b = rest.shape[0]
+    b = rest.shape[1]
     return Inputs(rest, ext, jnp.zeros((b, 0, 1), dtype), jnp.zeros((b, 0, 1), dtype), jnp.zeros((b, 0), dtype),
-                  jnp.zeros((b, 0) + ext.shape[1:], dtype), ())
+                  jnp.zeros((b, 0, ext.shape[0], 3), dtype), ())
 
 
 def schedule_inputs(schedules, rest, ext, dtype=jnp.float64) -> Inputs:
     """Inputs from ``commands.CommandSchedule``s: one for every copy or a sequence of B (one per copy), on top of
-    rest (B, nc) m and ext (B, N, 3) N (what a cable or a node the schedule does not name keeps)."""
+    rest (nc, B) m and ext (N, 3, B) N (what a cable or a node the schedule does not name keeps)."""
     rest, ext = np.asarray(rest, dtype=float), np.asarray(ext, dtype=float)
-    b = rest.shape[0]
+    b = rest.shape[1]
     schedules = [schedules] * b if not isinstance(schedules, (list, tuple)) else list(schedules)
     if len(schedules) != b:
         raise ValueError(f"commands: expected one schedule or {b} (one per copy), got {len(schedules)}")
@@ -165,12 +167,12 @@ def schedule_inputs(schedules, rest, ext, dtype=jnp.float64) -> Inputs:
     rest_times = np.zeros((b, len(cables), points))
     rest_values = np.zeros((b, len(cables), points))
     force_times = np.full((b, forces), np.inf)
-    force_values = np.zeros((b, forces) + ext.shape[1:])
+    force_values = np.zeros((b, forces, ext.shape[0], 3))
     for k, s in enumerate(schedules):
         named = {int(c): (t, v) for c, t, v in zip(s.rest_cables, s.rest_times, s.rest_values)}
         for j, c in enumerate(cables):
             # a cable this copy does not schedule keeps its rest length: one point, held
-            t, v = named.get(c, (np.zeros(1), rest[k, c:c + 1]))
+            t, v = named.get(c, (np.zeros(1), rest[c, k:k + 1]))
             # past the last point: the last value at later times (interpolating between equal values holds it)
             rest_times[k, j] = np.concatenate([t, t[-1] + np.arange(1, points - len(t) + 1)])
             rest_values[k, j] = np.concatenate([v, np.full(points - len(v), v[-1])])
@@ -192,13 +194,13 @@ def _derived(model: ElasticModel):
 
 
 def _dot3(a, b):
-    """Row-wise dot products of (k, 3) arrays, summed in the kernels' order."""
+    """Row-wise dot products (k, B) of (k, 3, B) arrays, summed in the kernels' order."""
     return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
 
 
 def _forces(model: ElasticModel, x, v, rest, ext):
-    """One copy: accelerations (N, 3), cable tensions (nc,), member unit vectors (m, 3) and slack cables (nc,)
-    at ``x`` (damping from ``v``) with rest lengths ``rest`` (nc,) and external forces ``ext`` (N, 3)."""
+    """Accelerations (N, 3, B), cable tensions (nc, B), member unit vectors (m, 3, B) and slack cables (nc, B) at
+    ``x`` (damping from ``v``) with rest lengths ``rest`` (nc, B) and external forces ``ext`` (N, 3, B)."""
     inv_mass, gravity_force, _ = _derived(model)
     ends = np.asarray(model.ends, dtype=int).reshape(-1, 2)
     a, c = ends[:, 0], ends[:, 1]
@@ -206,38 +208,41 @@ def _forces(model: ElasticModel, x, v, rest, ext):
     length = jnp.sqrt(_dot3(d, d))
     n = d / length[:, None]
     ns = model.strut_rest.shape[0]
-    r = jnp.concatenate([model.strut_rest, rest])
-    t = model.stiffness * jnp.maximum(length - r, model.floor)
+    r = jnp.concatenate([jnp.broadcast_to(model.strut_rest[:, None], (ns, rest.shape[1])), rest])
+    t = model.stiffness[:, None] * jnp.maximum(length - r, model.floor[:, None])
     cables = t[ns:]
     rate = _dot3(v[c[ns:]] - v[a[ns:]], n[ns:])
-    cables = jnp.where(cables > 0.0, cables + model.damping * rate, cables)
+    cables = jnp.where(cables > 0.0, cables + model.damping[:, None] * rate, cables)
     cables = jnp.maximum(cables, 0.0)   # a damped cable never pushes
     t = jnp.concatenate([t[:ns], cables])
-    acc = (gravity_force + ext + model.incidence @ (t[:, None] * n)) * inv_mass[:, None]
+    assembled = jnp.einsum("nm,mjb->njb", model.incidence, t[:, None] * n)
+    acc = (gravity_force[:, :, None] + ext + assembled) * inv_mass[:, None, None]
     return acc, cables, n, length[ns:] < rest
 
 
 def elastic_forces(model: ElasticModel, x, v, rest, ext):
-    """Every copy: accelerations (B, N, 3) m/s^2, cable tensions (B, nc) N, the rigid struts' unit vectors
-    (B, nr, 3) and the slack cables (B, nc) bool at ``x`` (B, N, 3) (damping from ``v``)."""
-    acc, tension, n, slack = jax.vmap(_forces, in_axes=(None, 0, 0, 0, 0))(model, x, v, rest, ext)
-    return acc, tension, n[:, np.asarray(model.rigid_members, dtype=int)], slack
+    """Accelerations (N, 3, B) m/s^2, cable tensions (nc, B) N, the rigid struts' unit vectors (nr, 3, B) and the
+    slack cables (nc, B) bool at ``x`` (N, 3, B) (damping from ``v``)."""
+    acc, tension, n, slack = _forces(model, x, v, rest, ext)
+    return acc, tension, n[np.asarray(model.rigid_members, dtype=int)], slack
 
 
 def _push(model, inv_mass, strengths, dirs):
-    """Node displacements (or velocity changes) (N, 3) of equal-and-opposite pushes ``strengths`` (nr,) along
-    the rigid struts' ``dirs`` (nr, 3), scaled by the inverse masses."""
-    return inv_mass[:, None] * (model.rigid_incidence @ (strengths[:, None] * dirs))
+    """Node displacements (or velocity changes) (N, 3, B) of equal-and-opposite pushes ``strengths`` (nr, B)
+    along the rigid struts' ``dirs`` (nr, 3, B), scaled by the inverse masses."""
+    return inv_mass[:, None, None] * jnp.einsum("nk,kjb->njb", model.rigid_incidence, strengths[:, None] * dirs)
 
 
-def _verlet(model: ElasticModel, h, x, v, acc, tension, dirs, rest, ext):
-    """One copy, one step of ``h``: velocity Verlet + SHAKE/RATTLE (``_elastic_kernels._step``), with a ground
-    the contact impulses of ``ElasticMethod.verlet`` (after the first half-kick: the drift's, landing every node
-    that would pass the ground exactly on it; after the closing half-kick: the touching nodes', Newton's
-    restitution for those that landed in this step). Returns the new (x, v, acc, tension, dirs), the cable
-    impulses (nc,) N*s and the slack cables (nc,) at the end."""
+def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
+    """One velocity Verlet + SHAKE/RATTLE step of ``h`` (s) of every copy (``_elastic_kernels._step``) from
+    ``carry``, rest lengths ``rest`` (nc, B) and forces ``ext`` (N, 3, B); with a ground, the contact impulses of
+    ``ElasticMethod.verlet`` (after the first half-kick: the drift's, landing every node that would pass the
+    ground exactly on it; after the closing half-kick: the touching nodes', Newton's restitution for those that
+    landed in this step). Returns the new :class:`Carry`, the cable impulses (nc, B) N*s and the slack cables
+    (nc, B) at the step's end."""
     from .ground import TOUCH_TOL, contact_step, drift_contacts, gaps
 
+    x, v, acc, tension, dirs = carry
     inv_mass, _, w = _derived(model)
     half = 0.5 * h
     v_half = v + half * acc
@@ -254,9 +259,9 @@ def _verlet(model: ElasticModel, h, x, v, acc, tension, dirs, rest, ext):
         ra, rc = rigid_ends[:, 0], rigid_ends[:, 1]
         r = x_new[rc] - x_new[ra]
         p = _dot3(r, dirs)
-        q = _dot3(r, r) - model.rigid_length_sq
+        q = _dot3(r, r) - model.rigid_length_sq[:, None]
         # SHAKE: the small root of w^2 g^2 - 2 w p g + q = 0, written to avoid cancellation
-        gamma = q / (w * (p + jnp.sqrt(jnp.maximum(p * p - q, 0.0))))
+        gamma = q / (w[:, None] * (p + jnp.sqrt(jnp.maximum(p * p - q, 0.0))))
         dx = _push(model, inv_mass, gamma, dirs)
         x_new = x_new + dx
         v_half = v_half + dx / h
@@ -267,45 +272,38 @@ def _verlet(model: ElasticModel, h, x, v, acc, tension, dirs, rest, ext):
         dirs = n[np.asarray(model.rigid_members, dtype=int)]
         # RATTLE: zero every rigid strut's length rate along its end-of-step direction
         rate = _dot3(v_new[rc] - v_new[ra], dirs)
-        v_new = v_new + _push(model, inv_mass, rate / w, dirs)
+        v_new = v_new + _push(model, inv_mass, rate / w[:, None], dirs)
     if ground is not None:
-        touching = (model.free > 0) & (gaps(ground, x_new) <= TOUCH_TOL)
+        touching = (model.free > 0)[:, None] & (gaps(ground, x_new) <= TOUCH_TOL)
         v_new = contact_step(model, ground, x_new, v_new, touching, ground.restitution * landing_speed)[0]
-    return (x_new, v_new, acc_end, tension_end, dirs), impulses, slack
-
-
-def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
-    """One step of ``h`` (s) of every copy from ``carry`` (rest (B, nc), ext (B, N, 3)). Returns the new
-    :class:`Carry`, the cable impulses (B, nc) N*s and the slack cables (B, nc) at the step's end."""
-    out, impulses, slack = jax.vmap(_verlet, in_axes=(None, None, 0, 0, 0, 0, 0, 0, 0))(model, h, *carry, rest, ext)
-    return Carry(*out), impulses, slack
+    return Carry(x_new, v_new, acc_end, tension_end, dirs), impulses, slack
 
 
 @jax.jit
 def start_carry(model: ElasticModel, x, v, rest, ext) -> Carry:
-    """The carry at the start of a run from positions ``x`` and velocities ``v`` (B, N, 3)."""
+    """The carry at the start of a run from positions ``x`` and velocities ``v`` (N, 3, B)."""
     acc, tension, dirs, _ = elastic_forces(model, x, v, rest, ext)
     return Carry(x, v, acc, tension, dirs)
 
 
 def _inputs_at(inputs: Inputs, t):
-    """Every copy's rest lengths (B, nc) and external forces (B, N, 3) in effect at time ``t`` (s)."""
+    """Every copy's rest lengths (nc, B) and external forces (N, 3, B) in effect at time ``t`` (s)."""
     rest, ext = inputs.rest, inputs.ext
     if inputs.rest_cables:
         ramp = jax.vmap(jax.vmap(jnp.interp, in_axes=(None, 0, 0)), in_axes=(None, 0, 0))
-        rest = rest.at[:, np.asarray(inputs.rest_cables)].set(ramp(t, inputs.rest_times, inputs.rest_values))
+        rest = rest.at[np.asarray(inputs.rest_cables)].set(ramp(t, inputs.rest_times, inputs.rest_values).T)
     if inputs.force_times.shape[1]:
         k = jax.vmap(partial(jnp.searchsorted, side="right"), in_axes=(0, None))(inputs.force_times, t) - 1
         step_force = jnp.take_along_axis(inputs.force_values, jnp.maximum(k, 0)[:, None, None, None], axis=1)[:, 0]
-        ext = jnp.where((k >= 0)[:, None, None], step_force, ext)
+        ext = jnp.where(k >= 0, jnp.moveaxis(step_force, 0, -1), ext)
     return rest, ext
 
 
 class Outputs(NamedTuple):
-    """A run's kept steps and its totals, batch first after the kept-step axis:
-    x, v (K, B, N, 3); impulses (K, B, nc) N*s summed since the previous kept step; slack (K, B, nc) bool;
-    peak_impulses (B, nc) N*s, each cable's largest step impulse; snaps (B, nc) int, slack-to-taut switches
-    between consecutive step ends (the run's start counts as the first); rest (B, nc), ext (B, N, 3): the
+    """A run's kept steps and its totals, batch last (the numba kernels' outputs):
+    x, v (K, N, 3, B); impulses (K, nc, B) N*s summed since the previous kept step; slack (K, nc, B) bool;
+    peak_impulses (nc, B) N*s, each cable's largest step impulse; snaps (nc, B) int, slack-to-taut switches
+    between consecutive step ends (the run's start counts as the first); rest (nc, B), ext (N, 3, B): the
     inputs in effect at the last step."""
 
     x: jax.Array
@@ -349,7 +347,7 @@ def elastic_steps(model: ElasticModel, carry: Carry, inputs: Inputs, h, n_steps:
                   first_step=0, was_slack=None, scheduled: bool = False):
     """``n_steps`` steps of ``h`` (s) of every copy from ``carry`` (:func:`start_carry`), keeping steps
     ``every``, ``2 every``, ... and the last (``K = ceil(n_steps / every)``). ``inputs`` are held, or, with
-    ``scheduled``, a schedule evaluated at each step's start time ``(first_step + k) h``. ``was_slack`` (B, nc):
+    ``scheduled``, a schedule evaluated at each step's start time ``(first_step + k) h``. ``was_slack`` (nc, B):
     the cables slack before the run (for the snaps; default: none). Returns the final :class:`Carry` and the
     :class:`Outputs`.
 
@@ -371,7 +369,7 @@ def elastic_steps(model: ElasticModel, carry: Carry, inputs: Inputs, h, n_steps:
 
 
 def rollout(model: ElasticModel, x0, v0, inputs: Inputs, h, n_steps: int, every: int = 1, scheduled: bool = False):
-    """The differentiable run: :func:`elastic_steps` from positions ``x0`` and velocities ``v0`` (B, N, 3)
+    """The differentiable run: :func:`elastic_steps` from positions ``x0`` and velocities ``v0`` (N, 3, B)
     (their start forces computed here). Returns the :class:`Outputs`; ``jax.grad`` of any function of them with
     respect to the model's fields (stiffness, damping, masses, ...), ``x0``, ``v0`` or the inputs (rest lengths,
     external forces, a schedule's values) is the derivative of the discrete run (module docstring)."""

@@ -52,17 +52,14 @@ class ElasticBatchJax(ElasticBatch):
         inputs of the last step). Returns every step's positions and velocities (steps, N, 3, B), impulses
         (steps, n_cables, B) N*s and slack cables (steps, n_cables, B), as numpy arrays."""
         f = self.dtype
-        rest, ext = np.moveaxis(rest_lengths, -1, 0), np.moveaxis(f_ext, -1, 0)
-        inputs = held_inputs(rest, ext, f) if commands is None else schedule_inputs(commands, rest, ext, f)
+        inputs = (held_inputs(rest_lengths, f_ext, f) if commands is None
+                  else schedule_inputs(commands, rest_lengths, f_ext, f))
         if self._carry is None:
-            self._carry = start_carry(self.model, jnp.asarray(np.moveaxis(x, -1, 0), f),
-                                      jnp.asarray(np.moveaxis(v, -1, 0), f), inputs.rest, inputs.ext)
+            self._carry = start_carry(self.model, jnp.asarray(x, f), jnp.asarray(v, f), inputs.rest, inputs.ext)
         self._carry, out = elastic_steps(self.model, self._carry, inputs, self.dt, steps, 1, first_step,
                                          scheduled=commands is not None)
-        self.inputs_in_effect = (np.moveaxis(np.asarray(out.rest, dtype=float), 0, -1),
-                                 np.moveaxis(np.asarray(out.ext, dtype=float), 0, -1))
-        return (*(np.moveaxis(np.asarray(a, dtype=float), 1, -1) for a in (out.x, out.v, out.impulses)),
-                np.moveaxis(np.asarray(out.slack), 1, -1))
+        self.inputs_in_effect = (np.asarray(out.rest, dtype=float), np.asarray(out.ext, dtype=float))
+        return (*(np.asarray(a, dtype=float) for a in (out.x, out.v, out.impulses)), np.asarray(out.slack))
 
 
 class ElasticMethodJax(ElasticMethod):
@@ -98,14 +95,14 @@ class ElasticMethodJax(ElasticMethod):
 
     def advance(self, state: State, steps: int, every: int, positions, velocities, impulses, slack):
         f = self.dtype
-        inputs = held_inputs(state.rest_lengths[None], state.external_forces[None], f)
+        inputs = held_inputs(state.rest_lengths[:, None], state.external_forces[..., None], f)
         if self._jax_carry is None:
-            self._jax_carry = start_carry(self.model, jnp.asarray(state.positions[None], f),
-                                          jnp.asarray(state.velocities[None], f), inputs.rest, inputs.ext)
+            self._jax_carry = start_carry(self.model, jnp.asarray(state.positions[..., None], f),
+                                          jnp.asarray(state.velocities[..., None], f), inputs.rest, inputs.ext)
         self._jax_carry, out = elastic_steps(self.model, self._jax_carry, inputs, self.dt, steps, every)
-        positions[...], velocities[...] = np.asarray(out.x[:, 0]), np.asarray(out.v[:, 0])
-        impulses[...], slack[...] = np.asarray(out.impulses[:, 0]), np.asarray(out.slack[:, 0])
-        return np.asarray(self._jax_carry.x[0], dtype=float), np.asarray(self._jax_carry.v[0], dtype=float)
+        positions[...], velocities[...] = np.asarray(out.x[..., 0]), np.asarray(out.v[..., 0])
+        impulses[...], slack[...] = np.asarray(out.impulses[..., 0]), np.asarray(out.slack[..., 0])
+        return np.asarray(self._jax_carry.x[..., 0], dtype=float), np.asarray(self._jax_carry.v[..., 0], dtype=float)
 
     def _step_impl(self, state: State) -> MethodStep:
         n, nc = state.positions.shape[0], state.rest_lengths.shape[0]

@@ -105,7 +105,7 @@ def fit_positions(scene: Scene, dt: float, steps: np.ndarray, positions: np.ndar
         v0 = v0 + rigid.project_velocities(x0, v0)
     every = int(np.gcd.reduce(steps))
     kept = steps // every - 1
-    inputs = held_inputs(scene.cable_rest_lengths[None], np.zeros((1, len(scene.nodes), 3)))
+    inputs = held_inputs(scene.cable_rest_lengths[:, None], np.zeros((len(scene.nodes), 3, 1)))
     ns = system.n_struts
     bases = [_base_values(scene, u) for u in unknowns]
     # each unknown is a factor on its start values, or (a damping starting at 0) a value in N*s/m
@@ -127,8 +127,9 @@ def fit_positions(scene: Scene, dt: float, steps: np.ndarray, positions: np.ndar
 
     @jax.jit
     def residual(p):
-        out = rollout(model_of(p), jnp.asarray(x0[None]), jnp.asarray(v0[None]), inputs, dt, int(steps[-1]), every)
-        return (out.x[kept, 0] - observed).ravel()
+        out = rollout(model_of(p), jnp.asarray(x0[..., None]), jnp.asarray(v0[..., None]), inputs, dt,
+                      int(steps[-1]), every)
+        return (out.x[kept, ..., 0] - observed).ravel()
 
     jacobian = jax.jit(jax.jacfwd(residual))
     r0 = np.asarray(residual(jnp.asarray(start)))

@@ -63,34 +63,35 @@ def ground_model(system, rigid, dtype=jnp.float64) -> GroundModel | None:
 
 
 def gaps(ground: GroundModel, x):
-    """(N,) m: each node's height above the ground minus its radius (negative: below)."""
-    return x[:, 2] - ground.radii - ground.height
+    """(N, B) m: each node's height above the ground minus its radius (negative: below), at ``x`` (N, 3, B)."""
+    return x[:, 2] - ground.radii[:, None] - ground.height
 
 
 def _disc(f, radius):
-    """``f`` (k, 2) projected on the discs of ``radius`` (k,)."""
+    """``f`` (k, 2, B) projected on the discs of ``radius`` (k, B)."""
     norm = jnp.sqrt(f[:, 0] * f[:, 0] + f[:, 1] * f[:, 1])
     scale = jnp.where(norm > radius, radius / jnp.where(norm > 0.0, norm, 1.0), 1.0)
     return f * scale[:, None]
 
 
 def _contact(ground, mass, armed, w, v, y, f):
-    """One normal row and its friction for nodes with velocities ``v`` (k, 3), masses (k,), targets ``w`` (k,),
-    current normal impulses ``y`` (k,) and friction (k, 2); unarmed rows keep no impulse. Returns the velocity
-    change (k, 3) and the new ``y``, ``f``."""
-    y_new = jnp.where(armed, jnp.maximum(0.0, y + mass * (w - v[:, 2])), 0.0)
-    dvz = (y_new - y) / mass
-    f_new = jnp.where(armed[:, None], _disc(f - mass[:, None] * v[:, :2], ground.friction * y_new), 0.0)
-    dv = jnp.concatenate([(f_new - f) / mass[:, None], dvz[:, None]], axis=1)
+    """One normal row and its friction for nodes with velocities ``v`` (k, 3, B), masses (k,), targets ``w``
+    (k, B), current normal impulses ``y`` (k, B) and friction (k, 2, B); unarmed rows keep no impulse. Returns the
+    velocity change (k, 3, B) and the new ``y``, ``f``."""
+    m = mass[:, None]
+    y_new = jnp.where(armed, jnp.maximum(0.0, y + m * (w - v[:, 2])), 0.0)
+    f_new = jnp.where(armed[:, None], _disc(f - m[:, None] * v[:, :2], ground.friction * y_new), 0.0)
+    dv = jnp.concatenate([(f_new - f) / m[:, None], ((y_new - y) / m)[:, None]], axis=1)
     return dv, y_new, f_new
 
 
 def velocity_step(model, ground: GroundModel, x, v, armed, w):
-    """One copy: the velocities (N, 3) m/s after the contact impulses of the ``armed`` (N,) bool nodes (targets
-    ``v_z >= w`` (N,) m/s, exact Coulomb friction) and the rigid struts' length rows at ``x`` (rate 0), from
-    ``v`` (N, 3); and the ground's impulses (N, 3) N*s (friction x, y, normal z)."""
-    inv_mass = jnp.where(model.free > 0, 1.0 / jnp.where(model.free > 0, model.masses, 1.0), 0.0)
-    mass = jnp.where(model.free > 0, model.masses, jnp.inf)
+    """The velocities (N, 3, B) m/s after the contact impulses of the ``armed`` (N, B) nodes (targets
+    ``v_z >= w`` (N, B) m/s, exact Coulomb friction) and the rigid struts' length rows at ``x`` (N, 3, B) (rate 0),
+    from ``v`` (N, 3, B); and the ground's impulses (N, 3, B) N*s (friction x, y; normal z)."""
+    free = model.free > 0
+    inv_mass = jnp.where(free, 1.0 / jnp.where(free, model.masses, 1.0), 0.0)
+    mass = jnp.where(free, model.masses, jnp.inf)
     impulses = jnp.zeros_like(v)
     out = v
     if model.rigid_members:
@@ -98,30 +99,31 @@ def velocity_step(model, ground: GroundModel, x, v, armed, w):
         a, b = ends[:, 0], ends[:, 1]
         d = x[b] - x[a]
         n = d / jnp.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])[:, None]
-        ia, ib = inv_mass[a], inv_mass[b]
-        w_rigid = ia + ib
+        ia, ib = inv_mass[a][:, None, None], inv_mass[b][:, None, None]
+        w_rigid = (inv_mass[a] + inv_mass[b])[:, None]
 
         def sweep(state, _):
             va, vb, ya, fa, yb, fb = state
             # the length row exactly, the contacts held
-            rate = jnp.sum((vb - va) * n, axis=1) / w_rigid
-            va, vb = va + (ia * rate)[:, None] * n, vb - (ib * rate)[:, None] * n
+            rate = (jnp.sum((vb - va) * n, axis=1) / w_rigid)[:, None]
+            va, vb = va + ia * rate * n, vb - ib * rate * n
             dv, ya, fa = _contact(ground, mass[a], armed[a], w[a], va, ya, fa)
             va = va + dv
             dv, yb, fb = _contact(ground, mass[b], armed[b], w[b], vb, yb, fb)
             return (va, vb + dv, ya, fa, yb, fb), None
 
-        k = len(a)
-        zero = jnp.zeros(k, v.dtype)
-        state = (v[a], v[b], zero, jnp.zeros((k, 2), v.dtype), zero, jnp.zeros((k, 2), v.dtype))
+        zero = jnp.zeros((len(a),) + v.shape[2:], v.dtype)
+        zero2 = jnp.zeros((len(a), 2) + v.shape[2:], v.dtype)
+        state = (v[a], v[b], zero, zero2, zero, zero2)
         (va, vb, ya, fa, yb, fb), _ = jax.lax.scan(sweep, state, None, length=SWEEPS)
         out = out.at[a].set(va).at[b].set(vb)
         impulses = impulses.at[a].set(jnp.concatenate([fa, ya[:, None]], axis=1))
         impulses = impulses.at[b].set(jnp.concatenate([fb, yb[:, None]], axis=1))
     if ground.lone:
         p = np.asarray(ground.lone, dtype=int)
-        zero = jnp.zeros(len(p), v.dtype)
-        dv, y, f = _contact(ground, mass[p], armed[p], w[p], v[p], zero, jnp.zeros((len(p), 2), v.dtype))
+        zero = jnp.zeros((len(p),) + v.shape[2:], v.dtype)
+        zero2 = jnp.zeros((len(p), 2) + v.shape[2:], v.dtype)
+        dv, y, f = _contact(ground, mass[p], armed[p], w[p], v[p], zero, zero2)
         out = out.at[p].add(dv)
         impulses = impulses.at[p].set(jnp.concatenate([f, y[:, None]], axis=1))
     return out, impulses
@@ -130,15 +132,15 @@ def velocity_step(model, ground: GroundModel, x, v, armed, w):
 def drift_contacts(model, ground: GroundModel, x, v, v_half, h):
     """The drift's contacts (``ContactSet.arm_step`` with the elastic drift's ``half = h``): the free nodes that
     may reach the ground by the step's end, each with the target that lands it exactly on it, capped at the
-    reversal of its normal velocity at the step's start ``v``. Returns armed (N,) bool and the targets (N,)."""
+    reversal of its normal velocity at the step's start ``v``. Returns armed (N, B) bool and the targets (N, B)."""
     g = gaps(ground, x)
-    armed = (model.free > 0) & (g - h * jnp.abs(v_half[:, 2]) <= TOUCH_TOL)
+    armed = (model.free > 0)[:, None] & (g - h * jnp.abs(v_half[:, 2]) <= TOUCH_TOL)
     return armed, jnp.minimum(-g / h, -v[:, 2])
 
 
 def contact_step(model, ground, x, v, armed, w):
-    """:func:`velocity_step` where any node is armed (as the reference, which then also holds every rigid strut
-    at rate 0), else ``v`` unchanged; and the ground's impulses."""
+    """:func:`velocity_step` in the copies where any node is armed (as the reference, which then also holds
+    every rigid strut at rate 0), ``v`` unchanged in the others; and the ground's impulses."""
     out, impulses = velocity_step(model, ground, x, v, armed, w)
-    any_armed = jnp.any(armed)
+    any_armed = jnp.any(armed, axis=0)
     return jnp.where(any_armed, out, v), jnp.where(any_armed, impulses, 0.0)
