@@ -49,9 +49,13 @@ def _problem(scenes, schedule=None):
     rng = np.random.default_rng(7)
     weights = jnp.asarray(rng.normal(size=(2,) + x0.shape))
 
-    def loss(model=model, x0=x0, v0=v0, inputs=inputs):
+    @jax.jit
+    def run(model, x0, v0, inputs):
         out = jel.rollout(model, x0, v0, inputs, DT, STEPS, EVERY, scheduled=schedule is not None)
         return jnp.sum(weights[0] * out.x[-1]) + jnp.sum(weights[1] * out.v[-1]) + jnp.sum(out.x[1] ** 2), out
+
+    def loss(model=model, x0=x0, v0=v0, inputs=inputs):
+        return run(model, x0, v0, inputs)
 
     return model, x0, v0, inputs, loss
 
@@ -85,8 +89,8 @@ def test_gradients_equal_central_differences(regime):
     else:   # cables that are taut at one kept step and slack at another
         assert np.sum(slack.any(axis=0) & (~slack).any(axis=0)) >= 2   # (cable, copy) pairs
     value = lambda **kw: float(loss(**kw)[0])   # noqa: E731
-    grad_model, grad_x0, grad_v0, grad_inputs = jax.grad(lambda m, x, v, i: loss(m, x, v, i)[0],
-                                                         argnums=(0, 1, 2, 3))(model, x0, v0, inputs)
+    grad_model, grad_x0, grad_v0, grad_inputs = jax.jit(jax.grad(lambda m, x, v, i: loss(m, x, v, i)[0],
+                                                                 argnums=(0, 1, 2, 3)))(model, x0, v0, inputs)
     ns = len(scenes[0].struts)
     k_cables = model.stiffness[ns:]
     _check(grad_model.stiffness[ns:], lambda k: value(model=model._replace(stiffness=model.stiffness.at[ns:].set(k))),

@@ -333,6 +333,8 @@ def _scan_steps(model, h, inputs, scheduled, n_steps, first, loop, every):
             rest, ext = rest_prev, ext_prev
         carry, impulses, slack = verlet_step(model, carry, rest, ext, h)
         new = (carry, k + 1, rest, ext, slack, jnp.maximum(peak, impulses), snaps + (was_slack & ~slack))
+        if n_steps % every == 0:   # no padding: nothing to mask (a select of the whole state costs a copy of it)
+            return (new, total + impulses), None
         active = k < n_steps
         loop = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new, loop)
         return (loop, total + jnp.where(active, impulses, 0.0)), None
