@@ -305,7 +305,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from .sweep import load_spec, run_sweep
 
     spec = load_spec(args.spec)
-    summary = run_sweep(spec, args.out, address=args.address, workers=args.workers, progress=not args.quiet)
+    summary = run_sweep(spec, args.out, address=args.address, workers=args.workers, progress=not args.quiet,
+                        backend=args.backend)
     print("\n".join(summary.lines()))
     return 0
 
@@ -389,6 +390,9 @@ def _add_sweep(verbs) -> None:
                        help="a Ray cluster's address (ray start --head prints it); default: run here")
     sweep.add_argument("--workers", type=int, default=1, help="local processes without --address (default: 1)")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    sweep.add_argument("--backend", choices=("numba", "jax"), default="numba",
+                       help="where the elastic runs step: numba (default) or jax (pip install \"tensegrity_sim[jax]\"; "
+                            "on whatever device JAX finds)")
     sweep.set_defaults(func=_cmd_sweep)
 
 

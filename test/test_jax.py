@@ -181,3 +181,25 @@ def test_core_imports_no_jax_and_a_missing_jax_names_the_extra():
                       "ts.Simulator(ts.load_scene('icosahedron'), method='elastic', backend='jax')")
     assert missing.returncode != 0
     assert 'needs JAX, which is not installed: pip install "tensegrity_sim[jax]"' in missing.stderr
+
+
+def test_sweep_backend_jax_gives_the_numba_table(tmp_path):
+    import pyarrow.parquet as pq
+    import yaml
+
+    from tensegrity_sim.cli import main
+
+    spec = {"scene": "icosahedron", "method": "elastic", "dt": 0.001, "duration": 0.1, "contacts": "none",
+            "vary": {"gravity": [[0, 0, 0], [0, 0, -9.81]], "velocity.n0": [[0, 0, 0], [12.0, -9.0, 6.0]]}}
+    path = tmp_path / "spec.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    tables = {}
+    for backend in ("numba", "jax"):
+        out = tmp_path / f"{backend}.parquet"
+        assert main(["sweep", str(path), "--out", str(out), "--quiet", "--backend", backend]) == 0
+        tables[backend] = pq.read_table(out).to_pylist()
+    assert sum(r["snaps"] for r in tables["numba"]) > 0
+    for a, b in zip(tables["numba"], tables["jax"]):
+        _close(b["final_positions"], a["final_positions"], "final positions")
+        _close(b["max_tension"] * 1e-3, a["max_tension"] * 1e-3, "peak impulse")
+        assert (b["snaps"], b["steps"], b["failed"]) == (a["snaps"], a["steps"], None)
