@@ -12,9 +12,9 @@ Cases (dt = 1 ms, ``--steps`` steps per timed call, kept: the last step only):
 
 * ``free``: the thrown icosahedron (``bench/cases.icosahedron_thrown``: rigid struts, 613 N/m cables, no
   gravity, cables going slack and snapping taut), one copy per seed-perturbed velocity field;
-* ``ground``: the same robot lifted 0.3 m above ``icosahedron_ground``'s ground (mu 0.8) and thrown: it lands,
-  rolls and tumbles (the per-strut Coulomb blocks of ``methods/jax/ground.py``); "finite" says whether every
-  copy's state stayed finite;
+* ``ground``: ``icosahedron_ground`` (mu 0.8) rolling under ``examples/roll.yaml`` (rest-length ramps evaluated
+  inside the run; the per-strut Coulomb blocks of ``methods/jax/ground.py``), the copies' velocities at rest;
+  "finite" says whether every copy's state stayed finite;
 * ``gradient``: ``jax.value_and_grad`` of the sum of squared node coordinates after the run with respect to
   every copy's rest lengths (forward and backward; float64), the free case.
 
@@ -44,7 +44,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tensegrity_sim as ts  # noqa: E402
-from bench.cases import icosahedron_thrown, rigid_consistent  # noqa: E402
+from bench.cases import icosahedron_thrown  # noqa: E402
 from bench.tables import write_csv  # noqa: E402
 from tensegrity_sim.methods import _elastic_kernels as kernels  # noqa: E402
 from tensegrity_sim.methods.rigid import RigidStruts  # noqa: E402
@@ -56,14 +56,7 @@ CPU_COPIES = (256, 1024)
 DT = 1e-3
 
 
-def thrown_onto_the_ground(seed: int = 0) -> ts.Scene:
-    """icosahedron_ground lifted 0.3 m and thrown (1 m/s per node, made rigid-consistent)."""
-    d = ts.load_scene("icosahedron_ground").to_dict()
-    rng = np.random.default_rng(seed)
-    for node in d["nodes"]:
-        node["velocity"] = [float(c) for c in rng.normal(scale=1.0, size=3)]
-        node["position"][2] += 0.3
-    return rigid_consistent(d)
+ROLL = Path(__file__).resolve().parents[1] / "examples" / "roll.yaml"
 
 
 def _states(scene: ts.Scene, copies: int):
@@ -92,8 +85,18 @@ def _best(contenders: dict, repeats: int) -> dict:
     return best
 
 
-def _jax_case(scene, copies, steps, dtype):
-    """(run, final positions): a jitted run of ``steps`` steps of ``copies`` copies in ``dtype``."""
+def _inputs(scene, copies, dtype, x):
+    """Held inputs, or examples/roll.yaml's schedule on a scene with a ground; and whether scheduled."""
+    from tensegrity_sim.commands import load_commands
+    from tensegrity_sim.methods.jax import elastic as jel
+
+    if scene.ground is None:
+        return jel.held_inputs(_rest(scene, copies), np.zeros_like(x), dtype), False
+    return jel.schedule_inputs(load_commands(ROLL, scene), _rest(scene, copies), np.zeros_like(x), dtype), True
+
+
+def _run(scene, copies, steps, dtype):
+    """A callable running ``steps`` steps of ``copies`` copies in ``dtype`` on the device; returns positions."""
     import jax
     import jax.numpy as jnp
 
@@ -102,11 +105,12 @@ def _jax_case(scene, copies, steps, dtype):
     system = System(scene)
     model = jel.model_arrays(system, RigidStruts(system), dtype)
     x, v = _states(scene, copies)
-    inputs = jel.held_inputs(_rest(scene, copies), np.zeros_like(x), dtype)
+    inputs, scheduled = _inputs(scene, copies, dtype, x)
     carry = jel.start_carry(model, jnp.asarray(x, dtype), jnp.asarray(v, dtype), inputs.rest, inputs.ext)
 
     def run():
-        return jax.block_until_ready(jel.elastic_steps(model, carry, inputs, DT, steps, steps)[0].x)
+        out = jel.elastic_steps(model, carry, inputs, DT, steps, steps, scheduled=scheduled)
+        return jax.block_until_ready(out[0].x)
 
     return run
 
@@ -180,14 +184,7 @@ def _float32_error(scene, copies, steps) -> float:
 
     from tensegrity_sim.methods.jax import elastic as jel
 
-    out = []
-    for dtype in (jnp.float64, jnp.float32):
-        system = System(scene)
-        model = jel.model_arrays(system, RigidStruts(system), dtype)
-        x, v = _states(scene, copies)
-        inputs = jel.held_inputs(_rest(scene, copies), np.zeros_like(x), dtype)
-        carry = jel.start_carry(model, jnp.asarray(x, dtype), jnp.asarray(v, dtype), inputs.rest, inputs.ext)
-        out.append(np.asarray(jel.elastic_steps(model, carry, inputs, DT, steps, steps)[0].x, dtype=float))
+    out = [np.asarray(_run(scene, copies, steps, dtype)(), dtype=float) for dtype in (jnp.float64, jnp.float32)]
     return float(np.max(np.abs(out[1] - out[0])))
 
 
@@ -198,18 +195,17 @@ def measure(copies_list, steps: int, repeats: int, numba_max: int) -> list[dict]
     device = jax.devices()[0]
     where = f"{device.platform}: {getattr(device, 'device_kind', device)}"
     rows = []
-    scenes = {"free": icosahedron_thrown(), "ground": thrown_onto_the_ground()}
+    scenes = {"free": icosahedron_thrown(), "ground": ts.load_scene("icosahedron_ground")}
     for case, scene in scenes.items():
         for copies in copies_list:
-            contenders = {f"jax {name}": _jax_case(scene, copies, steps, dtype)
+            contenders = {f"jax {name}": _run(scene, copies, steps, dtype)
                           for name, dtype in (("float64", jnp.float64), ("float32", jnp.float32))}
             if case == "free":
                 contenders["jax gradient float64"] = _gradient_case(scene, copies, steps)
                 if copies <= numba_max:
                     contenders["numba batch float64"] = _numba_case(scene, copies, steps)
-            mjx_scene = scene
             try:
-                mjx_run = _mjx_case(mjx_scene, copies, steps)
+                mjx_run = _mjx_case(scene, copies, steps)
             except Exception as exc:   # an MJX that does not take the model: say why, measure the rest
                 mjx_run = None
                 print(f"MJX skipped ({case}, {copies}): {type(exc).__name__}: {exc}", file=sys.stderr)

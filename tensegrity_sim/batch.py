@@ -470,7 +470,7 @@ class BatchSimulator:
         snaps = np.zeros((b, nc), dtype=np.int64)
         was_slack = self.slack()
         chunk = max(1, min(steps, _CHUNK_NUMBERS // max(1, b * n * 3)))
-        inside = commands is not None and getattr(self._engine, "backend", "") == "jax" and self._copies is None
+        inside = commands is not None and self._copies is None and getattr(self._engine, "backend", "") == "jax"
         if commands is not None and not inside:
             chunk, base_rest = 1, self.rest_lengths   # the commands are applied here, step by step
         done = 0

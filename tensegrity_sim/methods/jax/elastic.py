@@ -164,11 +164,13 @@ def schedule_inputs(schedules, rest, ext, dtype=jnp.float64) -> Inputs:
     cables = sorted({int(c) for s in schedules for c in s.rest_cables})
     points = max([len(t) for s in schedules for t in s.rest_times] + [1])
     forces = max(len(s.force_times) for s in schedules)
-    rest_times = np.zeros((b, len(cables), points))
-    rest_values = np.zeros((b, len(cables), points))
-    force_times = np.full((b, forces), np.inf)
-    force_values = np.zeros((b, forces, ext.shape[0], 3))
-    for k, s in enumerate(schedules):
+    shared = all(s is schedules[0] for s in schedules)   # one schedule for all: its arrays once, broadcast
+    copies = 1 if shared else b
+    rest_times = np.zeros((copies, len(cables), points))
+    rest_values = np.zeros((copies, len(cables), points))
+    force_times = np.full((copies, forces), np.inf)
+    force_values = np.zeros((copies, forces, ext.shape[0], 3))
+    for k, s in enumerate(schedules[:copies]):
         named = {int(c): (t, v) for c, t, v in zip(s.rest_cables, s.rest_times, s.rest_values)}
         for j, c in enumerate(cables):
             # a cable this copy does not schedule keeps its rest length: one point, held
@@ -179,7 +181,9 @@ def schedule_inputs(schedules, rest, ext, dtype=jnp.float64) -> Inputs:
         force_times[k, :len(s.force_times)] = s.force_times
         force_values[k, :len(s.force_times)] = s.force_values
     f = partial(jnp.asarray, dtype=dtype)
-    return Inputs(f(rest), f(ext), f(rest_times), f(rest_values), f(force_times), f(force_values), tuple(cables))
+    rest_times, rest_values, force_times, force_values = (
+        jnp.broadcast_to(f(a), (b,) + a.shape[1:]) for a in (rest_times, rest_values, force_times, force_values))
+    return Inputs(f(rest), f(ext), rest_times, rest_values, force_times, force_values, tuple(cables))
 
 
 def _derived(model: ElasticModel):
