@@ -79,7 +79,8 @@ def _schedules(scene: ts.Scene, b: int):
         r1, r2 = scene.cables[1].rest_length, scene.cables[2].rest_length
         points = [{"time": 0.0, "rest_lengths": {c[1]: r1, c[2]: r2}},
                   {"time": 0.03, "rest_lengths": {c[1]: r1 * (1 - 0.02 * (k + 1))}},
-                  {"time": 0.05, "rest_lengths": {c[2]: r2 * (1 - 0.01 * (k + 1))}, "forces": {n[1]: [3.0 * k, -2.0, 1.0]}},
+                  {"time": 0.05, "rest_lengths": {c[2]: r2 * (1 - 0.01 * (k + 1))},
+                   "forces": {n[1]: [3.0 * k, -2.0, 1.0]}},
                   {"time": 0.12, "forces": {n[1]: [0.0, 0.0, 0.0]}}]
         out.append(parse_commands(points, scene))
     return out

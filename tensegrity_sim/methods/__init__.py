@@ -10,7 +10,8 @@ from .elastic import ElasticMethod
 from .inextensible import InextensibleMethod
 from .qp import SOLVERS
 
-__all__ = ["METHODS", "SOLVERS", "BACKENDS", "choose_method", "make_method", "check_backend", "State", "MethodStep", "StepMethod", "StepError"]
+__all__ = ["METHODS", "SOLVERS", "BACKENDS", "choose_method", "make_method", "check_backend", "State", "MethodStep",
+           "StepMethod", "StepError"]
 
 METHODS: dict[str, type[StepMethod]] = {
     ElasticMethod.name: ElasticMethod,

@@ -23,6 +23,8 @@ except ImportError as exc:   # the core runs without JAX; only this backend need
 
 jax.config.update("jax_enable_x64", True)
 
-from .elastic import ElasticModel, Inputs, model_arrays, elastic_forces, verlet_step, elastic_steps, rollout  # noqa: E402
+from .elastic import (ElasticModel, Inputs, elastic_forces, elastic_steps, held_inputs, model_arrays,  # noqa: E402
+                      rollout, schedule_inputs, start_carry, verlet_step)
 
-__all__ = ["ElasticModel", "Inputs", "model_arrays", "elastic_forces", "verlet_step", "elastic_steps", "rollout"]
+__all__ = ["ElasticModel", "Inputs", "model_arrays", "held_inputs", "schedule_inputs", "start_carry", "elastic_forces",
+           "verlet_step", "elastic_steps", "rollout"]

@@ -103,11 +103,11 @@ class Carry(NamedTuple):
 
 @_pytree("rest_cables")
 class Inputs:
-    """The inputs of a run, per copy. rest (nc, B) m and ext (N, 3, B) N: held, and the base of a
-    schedule. A schedule (:func:`schedule_inputs`; ``S = 0`` and ``F = 0`` without one): rest_cables (static:
-    S cable indices), the scheduled cables; rest_times, rest_values (B, S, P) s, m: each one's points, linear between them and held
-    outside (padded past the last point with its value); force_times (B, F) s (padded with +inf) and
-    force_values (B, F, N, 3) N: the external forces from each point on."""
+    """The inputs of a run, per copy. rest (nc, B) m and ext (N, 3, B) N: held, and the base of a schedule.
+    A schedule (:func:`schedule_inputs`; ``S = 0`` and ``F = 0`` without one): rest_cables (static: S cable
+    indices), the scheduled cables; rest_times, rest_values (B, S, P) s, m: each one's points, linear between
+    them and held outside (padded past the last point with its value); force_times (B, F) s (padded with +inf)
+    and force_values (B, F, N, 3) N: the external forces from each point on."""
 
     rest: jax.Array
     ext: jax.Array
