@@ -193,7 +193,12 @@ def measure(copies_list, steps: int, repeats: int, numba_max: int) -> list[dict]
     import jax.numpy as jnp
 
     device = jax.devices()[0]
-    where = f"{device.platform}: {getattr(device, 'device_kind', device)}"
+    kind = getattr(device, "device_kind", str(device))
+    if device.platform == "cpu":   # JAX calls every CPU "cpu": name the processor and its cores
+        model = [line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                 if line.startswith("model name")] if Path("/proc/cpuinfo").exists() else []
+        kind = f"{model[0] if model else 'cpu'}, {os.cpu_count()} cores"
+    where = f"{device.platform}: {kind}"
     rows = []
     scenes = {"free": icosahedron_thrown(), "ground": ts.load_scene("icosahedron_ground")}
     for case, scene in scenes.items():
