@@ -321,6 +321,12 @@ class Outputs(NamedTuple):
     ext: jax.Array
 
 
+# A reverse-mode gradient of a run keeps, of each step, only what enters it (the carry and the inputs) and
+# recomputes the step's inside on the way back: memory per copy-step of the carry (~2 kB in float64 for the
+# icosahedron), not of every intermediate; a run that is not differentiated is unchanged.
+_remat_step = jax.checkpoint(verlet_step)
+
+
 def _scan_steps(model, h, inputs, scheduled, n_steps, first, loop, every):
     """``every`` steps of every copy from ``loop`` = (carry, step index k in the run, rest and ext in effect,
     was_slack, peak, snaps); a step at ``k >= n_steps`` (the last kept step's padding) changes nothing. Returns
@@ -336,7 +342,7 @@ def _scan_steps(model, h, inputs, scheduled, n_steps, first, loop, every):
             carry = lax.cond(changed, lambda: start_carry(model, carry.x, carry.v, rest, ext), lambda: carry)
         else:
             rest, ext = rest_prev, ext_prev
-        carry, impulses, slack = verlet_step(model, carry, rest, ext, h)
+        carry, impulses, slack = _remat_step(model, carry, rest, ext, h)
         new = (carry, k + 1, rest, ext, slack, jnp.maximum(peak, impulses), snaps + (was_slack & ~slack))
         if n_steps % every == 0:   # no padding: nothing to mask (a select of the whole state costs a copy of it)
             return (new, total + impulses), None
