@@ -3,11 +3,12 @@ SHAKE/RATTLE of independent rigid struts in closed form, tension-only cables ``k
 damping only while taut and the total clipped at zero, impulses ``h/2 (t_start + t_end)``), with the same
 function names. Tests require the two to agree to 1e-12 in float64 (``test/test_jax.py``).
 
-Layout: the numba kernels' (style rule 8): every array carries the batch of ``B`` copies LAST, so that a
-member gather ``x[ends]`` moves whole rows of ``3 B`` contiguous numbers and the force assembly is one matrix
-product ``incidence @ (m, 3 B)``; XLA then vectorises every operation over the copies (``bench/bench_jax.py`` on
-this project's 2-core machine, 1,024 thrown icosahedra, load ~6: a batch-first ``vmap`` of one copy's step ran
-128,000 scene-steps/s, this layout 217,000 to 486,000 over runs):
+Layout: the numba kernels' (style rule 8): every array carries the batch of ``B`` copies LAST, so that the
+member vectors and the force assembly are each one matrix product with the incidence over ``(N, 3 B)`` and every
+other operation runs over contiguous rows of copies (``bench/bench_jax.py``'s free case on this project's 2-core
+machine, 1,024 thrown icosahedra, load ~5-6: a batch-first ``vmap`` of one copy's step ran 128,000
+scene-steps/s; batch last with gathers ``x[ends]`` for the member vectors 185,000-218,000, 0.40-0.55 of the numba
+batch; with the incidence products 325,000-419,000, 0.74-0.79 of it, taking turns in one session):
 
     x, v (N, 3, B) m, m/s           positions, velocities
     rest (nc, B) m                  cable rest lengths held (the base of a schedule)
@@ -63,7 +64,7 @@ def _index(values) -> tuple:
     return tuple(tuple(int(i) for i in row) if np.ndim(row) else int(row) for row in np.asarray(values))
 
 
-@_pytree("ends", "rigid_members", "rigid_ends")
+@_pytree("rigid_members", "rigid_ends")
 class ElasticModel:
     """What does not change during a run (a pytree: a gradient may be taken with respect to any array, the
     topology's index tuples being static). ``m`` members (struts first), ``N`` nodes, ``nr`` moving rigid
@@ -72,8 +73,8 @@ class ElasticModel:
     stiffness (m,) N/m (0 for rigid struts), floor (m,) (-inf for struts, 0 for cables), strut_rest (n_struts,) m,
     damping (nc,) N*s/m, masses (N,) kg, free (N,) 1.0 for a free node and 0.0 for a fixed one, gravity (3,)
     m/s^2, incidence (N, m) (+1 at a member's first node, -1 at its second), rigid_incidence (N, nr),
-    rigid_length_sq (nr,) m^2; static: ends (m pairs of node indices), rigid_members (nr rows in the member
-    arrays), rigid_ends (nr pairs); ground: the scene's ground (``ground.GroundModel``) or None."""
+    rigid_length_sq (nr,) m^2; static: rigid_members (nr rows in the member arrays), rigid_ends (nr pairs of node
+    indices); ground: the scene's ground (``ground.GroundModel``) or None."""
 
     stiffness: jax.Array
     floor: jax.Array
@@ -85,7 +86,6 @@ class ElasticModel:
     incidence: jax.Array
     rigid_incidence: jax.Array
     rigid_length_sq: jax.Array
-    ends: tuple
     rigid_members: tuple
     rigid_ends: tuple
     ground: object = None   # a ground.GroundModel, or None without a ground
@@ -133,7 +133,7 @@ def model_arrays(system, rigid, dtype=jnp.float64) -> ElasticModel:
         f(system.stiffness), f(system.floor), f(system.strut_rest), f(system.cable_damping), f(system.masses),
         f(system.free.astype(float)), f(np.asarray(system.scene.gravity, dtype=float)),
         f(_incidence(system.ends, len(system.masses))), f(_incidence(rigid_ends, len(system.masses))),
-        f(rigid.length_sq), _index(system.ends), _index(rigid.members), _index(rigid_ends),
+        f(rigid.length_sq), _index(rigid.members), _index(rigid_ends),
         ground_model(system, rigid, dtype))
 
 
@@ -203,20 +203,24 @@ def _dot3(a, b):
     return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
 
 
+def _differences(incidence, x):
+    """Each member's second node minus its first, (m, 3, B), from nodes ``x`` (N, 3, B): a product with the
+    incidence (exact: one +1 and one -1 per member), which XLA runs faster than two gathers."""
+    return -jnp.einsum("nm,njb->mjb", incidence, x)
+
+
 def _forces(model: ElasticModel, x, v, rest, ext):
     """Accelerations (N, 3, B), cable tensions (nc, B), member unit vectors (m, 3, B) and slack cables (nc, B) at
     ``x`` (damping from ``v``) with rest lengths ``rest`` (nc, B) and external forces ``ext`` (N, 3, B)."""
     inv_mass, gravity_force, _ = _derived(model)
-    ends = np.asarray(model.ends, dtype=int).reshape(-1, 2)
-    a, c = ends[:, 0], ends[:, 1]
-    d = x[c] - x[a]
+    d = _differences(model.incidence, x)
     length = jnp.sqrt(_dot3(d, d))
     n = d / length[:, None]
     ns = model.strut_rest.shape[0]
     r = jnp.concatenate([jnp.broadcast_to(model.strut_rest[:, None], (ns, rest.shape[1])), rest])
     t = model.stiffness[:, None] * jnp.maximum(length - r, model.floor[:, None])
     cables = t[ns:]
-    rate = _dot3(v[c[ns:]] - v[a[ns:]], n[ns:])
+    rate = _dot3(_differences(model.incidence[:, ns:], v), n[ns:])
     cables = jnp.where(cables > 0.0, cables + model.damping[:, None] * rate, cables)
     cables = jnp.maximum(cables, 0.0)   # a damped cable never pushes
     t = jnp.concatenate([t[:ns], cables])
@@ -260,9 +264,7 @@ def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
     x_new = x + h * v_half
     nr = len(model.rigid_members)
     if nr:
-        rigid_ends = np.asarray(model.rigid_ends, dtype=int)
-        ra, rc = rigid_ends[:, 0], rigid_ends[:, 1]
-        r = x_new[rc] - x_new[ra]
+        r = _differences(model.rigid_incidence, x_new)
         p = _dot3(r, dirs)
         q = _dot3(r, r) - model.rigid_length_sq[:, None]
         # SHAKE: the small root of w^2 g^2 - 2 w p g + q = 0, written to avoid cancellation
@@ -276,7 +278,7 @@ def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
     if nr:
         dirs = n[np.asarray(model.rigid_members, dtype=int)]
         # RATTLE: zero every rigid strut's length rate along its end-of-step direction
-        rate = _dot3(v_new[rc] - v_new[ra], dirs)
+        rate = _dot3(_differences(model.rigid_incidence, v_new), dirs)
         v_new = v_new + _push(model, inv_mass, rate / w[:, None], dirs)
     if ground is not None:
         touching = (model.free > 0)[:, None] & (gaps(ground, x_new) <= TOUCH_TOL)
