@@ -95,6 +95,13 @@ EXTRAS_REQUIRE = {
         "mkdocstrings-python>=2.0.11,<3",   # the API reference from the docstrings (griffe reads the source)
         "pymdown-extensions>=13.1.2,<14",   # maths (arithmatex) and includes of msg_docs/ and CHANGELOG.md (snippets)
     ],
+    # The elastic method in JAX (backend="jax", gradients, tensegrity-sim fit), on CPU. On an NVIDIA GPU install
+    # JAX's CUDA wheels instead (docs/jax.md): pip install "jax[cuda13]==0.10.2" ("jax[cuda12]" for a CUDA 12
+    # driver). 0.x: the next minor may break the API.
+    "jax": [
+        "jax>=0.10.2,<0.11",
+        "jaxlib>=0.10.2,<0.11",
+    ],
 }
 
 setup(

@@ -26,8 +26,9 @@ import numpy as np
 
 from .checks import float_array, time_step
 from .contact import ContactDetector, make_detector
+from .commands import CommandSchedule
 from .ground_contact import GroundDetector, walk_copies
-from .methods import StepError, choose_method
+from .methods import StepError, check_backend, choose_method
 from .methods.elastic import ElasticMethod
 from .methods.elastic_batch import ElasticBatch
 from .results import ContactEvent
@@ -98,10 +99,14 @@ class BatchSimulator:
     ``dt``: s. ``positions``, ``velocities``: initial states (batch, N, 3) m, m/s, or (N, 3) for all
     copies (default: the scene's); a rigid strut must keep its length. ``solver``: QP backend of the
     inextensible method. ``contacts``: member kinds checked for contact, as for ``Simulator``.
+    ``backend``: where the elastic method's steps run: "numba" (default) or "jax" (``methods/jax/``, the ``jax``
+    extra: on whatever device JAX finds, a command schedule evaluated inside the compiled run) in ``dtype``
+    "float64" (default) or "float32".
     """
 
     def __init__(self, scene: Scene, batch: int, *, method: str = "auto", dt: float = 1e-3,
-                 positions=None, velocities=None, solver: str | None = None, contacts=None):
+                 positions=None, velocities=None, solver: str | None = None, contacts=None,
+                 backend: str = "numba", dtype: str | None = None):
         if not isinstance(scene, Scene):
             raise ValueError(f"scene must be a Scene (see load_scene), got {type(scene).__name__}")
         if isinstance(batch, bool) or not isinstance(batch, (int, np.integer)) or batch < 1:
@@ -116,11 +121,11 @@ class BatchSimulator:
             scenes = [scene] * batch
         else:
             scenes = [self._with_state(scene, x[b], v[b], b) for b in range(batch)]
-        self._build(scene, scenes, method, dt, solver, contacts)
+        self._build(scene, scenes, method, dt, solver, contacts, backend, dtype)
 
     @classmethod
     def from_scenes(cls, scenes, *, method: str = "auto", dt: float = 1e-3, solver: str | None = None,
-                    contacts=None) -> "BatchSimulator":
+                    contacts=None, backend: str = "numba", dtype: str | None = None) -> "BatchSimulator":
         """One copy per scene; the scenes must share their structure (:func:`structure_of`) and may
         differ in initial positions, velocities and cable rest lengths. ``method="auto"`` is decided on
         the first scene."""
@@ -133,7 +138,7 @@ class BatchSimulator:
                 raise ValueError(f"scenes[{b}] ({s.name!r}) differs from scenes[0] in more than its initial "
                                  f"state (positions, velocities, rest lengths): it cannot share a batch")
         self = cls.__new__(cls)
-        self._build(scenes[0], scenes, method, dt, solver, contacts)
+        self._build(scenes[0], scenes, method, dt, solver, contacts, backend, dtype)
         return self
 
     @staticmethod
@@ -162,7 +167,7 @@ class BatchSimulator:
                                      f"it must keep {s.rest_length!r}")
         return replace(scene, nodes=tuple(nodes))
 
-    def _build(self, scene, scenes, method, dt, solver, contacts) -> None:
+    def _build(self, scene, scenes, method, dt, solver, contacts, backend, dtype) -> None:
         dt = time_step(dt)
         if contacts is not None:
             kinds = contact_kinds(contacts, "contacts")
@@ -176,16 +181,26 @@ class BatchSimulator:
             self.method_reason = f"{method}: requested"
         else:
             method, self.method_reason = choose_method(self.system, dt)
+        check_backend(backend, method, dtype)
+        if backend == "jax" and scene.contact_response.response:
+            raise ValueError("backend 'jax' has no member contact response (contact: response: true); use backend "
+                             "'numba'")
+        self.backend = backend
         self.failures: dict[int, str] = {}
         n, nc = len(scene.nodes), len(scene.cables)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
-        # the batched elastic engine steps a ground but no member contact response: a scene with one steps a
-        # Simulator per copy
+        # the batched elastic engines (numba, JAX) step a ground but no member contact response: a scene with one
+        # steps a Simulator per copy
         if method == "elastic" and not scene.contact_response.response:
             if solver is not None and requested:
                 raise ValueError(f"solver={solver!r} is an option of a method with a QP; method 'elastic' has none")
-            self._engine = ElasticBatch(self.system, dt)
+            if backend == "jax":
+                from .methods.jax.engine import ElasticBatchJax   # imports JAX: only here
+
+                self._engine = ElasticBatchJax(self.system, dt, dtype=dtype or "float64")
+            else:
+                self._engine = ElasticBatch(self.system, dt)
             self.dt = self._engine.dt
             self._copies = None
             self._step_count = 0
@@ -195,7 +210,9 @@ class BatchSimulator:
             self._rest = np.stack([s.cable_rest_lengths for s in scenes], axis=-1)
             self._f_ext = np.zeros((n, 3, self.batch))
             self._detectors = self._make_detectors(scene)
-            self._grounds = None if scene.ground is None else [GroundDetector(self.system) for _ in range(self.batch)]
+            # the ground's contact events come from the numba engine's impulses (the JAX engine reports none)
+            self._grounds = (None if scene.ground is None or backend == "jax"
+                             else [GroundDetector(self.system) for _ in range(self.batch)])
             for b, d in enumerate(self._grounds or ()):
                 d.reset(self._x[..., b])
             # copies stopped by a non-finite step: {copy: (steps done, positions, velocities)}
@@ -340,14 +357,20 @@ class BatchSimulator:
                 c.set_external_forces(row)
 
     # ------------------------------------------------------------------ stepping
-    def _advance(self, steps: int):
-        """``steps`` steps of every running copy, inputs held: positions, velocities (steps, B, N, 3),
-        impulses (steps, B, n_cables), slack (steps, B, n_cables) (views, valid until the next call) and
-        the contacts of each step (steps tuples of B tuples)."""
+    def _advance(self, steps: int, commands=None):
+        """``steps`` steps of every running copy, inputs held (or ``commands`` evaluated inside the JAX
+        backend's run): positions, velocities (steps, B, N, 3), impulses (steps, B, n_cables), slack
+        (steps, B, n_cables) (views, valid until the next call) and the contacts of each step (steps tuples
+        of B tuples)."""
         if self._copies is not None:
             out = [self._step_copies() for _ in range(steps)]
             return (*(np.stack([o[i] for o in out]) for i in range(4)), [o[4] for o in out])
-        x_seq, v_seq, imp, slack = self._engine.advance(self._x, self._v, self._rest, self._f_ext, steps)
+        if commands is None:
+            x_seq, v_seq, imp, slack = self._engine.advance(self._x, self._v, self._rest, self._f_ext, steps)
+        else:
+            x_seq, v_seq, imp, slack = self._engine.advance(self._x, self._v, self._rest, self._f_ext, steps,
+                                                            commands, self._step_count)
+            self._rest, self._f_ext = self._engine.inputs_in_effect
         previous, previous_v, start = self._x, self._v, self._step_count
         self._x, self._v = x_seq[-1].copy(), v_seq[-1].copy()
         self._step_count += steps
@@ -440,11 +463,18 @@ class BatchSimulator:
             return np.stack([c.slack() for c in self._copies])
         return self._engine.slack(self._x, self._rest).T.copy()
 
-    def run(self, duration: float | None = None, *, steps: int | None = None, every: int = 1) -> BatchTrajectory:
+    def run(self, duration: float | None = None, *, steps: int | None = None, every: int = 1,
+            commands=None) -> BatchTrajectory:
         """Run ``steps`` steps, or ``round(duration / dt)``, inputs held, as ``Simulator.run``: keeps steps
         ``every``, ``2 every``, ... and the last (K of them) as (B, K, ...) arrays, a kept step's impulses
         summed over the steps since the previous kept one and its tensions their mean; over all steps
-        each cable's peak tension and snaps (see :class:`BatchTrajectory`)."""
+        each cable's peak tension and snaps (see :class:`BatchTrajectory`).
+
+        ``commands``: a :class:`~tensegrity_sim.commands.CommandSchedule` for every copy, or a sequence of B
+        (one per copy), applied before each step at its start time as ``tensegrity-sim run --commands`` does
+        (a cable it does not name keeps its rest length at the run's start; an input is set only where it
+        changed). The JAX backend evaluates them inside its compiled run; the others step one at a time."""
+        self._check_commands(commands)
         b, n, nc = self.batch, len(self.scene.nodes), self._nc
         steps, every, kept, span = run_plan(duration, steps, every, self.dt, b * (48 * n + 17 * nc) + 8)
         time = (self.step_count + kept) * self.dt
@@ -455,10 +485,15 @@ class BatchSimulator:
         snaps = np.zeros((b, nc), dtype=np.int64)
         was_slack = self.slack()
         chunk = max(1, min(steps, _CHUNK_NUMBERS // max(1, b * n * 3)))
+        inside = commands is not None and self._copies is None and getattr(self._engine, "backend", "") == "jax"
+        if commands is not None and not inside:
+            chunk, base_rest = 1, self.rest_lengths   # the commands are applied here, step by step
         done = 0
         while done < steps:
             m = min(chunk, steps - done)
-            x, v, i, sl, events = self._advance(m)
+            if commands is not None and not inside:
+                self._apply_commands(commands, base_rest)
+            x, v, i, sl, events = self._advance(m, commands if inside else None)
             np.fmax(peak, np.fmax.reduce(i, axis=0), out=peak)   # fmax: a failed copy's NaN is no peak
             snaps += (np.concatenate([was_slack[None], sl[:-1]]) & ~sl).sum(axis=0)
             was_slack = sl[-1].copy()
@@ -478,6 +513,31 @@ class BatchSimulator:
             done += m
         return BatchTrajectory(time, pos, vel, imp, imp / (span[None, :, None] * self.dt), slack, contacts,
                                dict(self.failures), peak / self.dt, snaps)
+
+    def _check_commands(self, commands) -> None:
+        if commands is None or isinstance(commands, CommandSchedule):
+            return
+        if not (isinstance(commands, (list, tuple)) and len(commands) == self.batch
+                and all(isinstance(c, CommandSchedule) for c in commands)):
+            raise ValueError(f"commands must be a CommandSchedule (see load_commands) or a sequence of {self.batch} "
+                             f"(one per copy), got {type(commands).__name__}")
+        for c in commands:
+            if c.force_values.shape[1:] != (len(self.scene.nodes), 3):
+                raise ValueError(f"commands: a schedule for {c.force_values.shape[1]} nodes, the scene has "
+                                 f"{len(self.scene.nodes)}")
+
+    def _apply_commands(self, commands, base_rest: np.ndarray) -> None:
+        """Set the rest lengths and forces ``commands`` give at the next step's start time (base_rest (B, n_cables)
+        for the cables they do not name), each only where it differs from what is in effect."""
+        t = self.time
+        per_copy = commands if isinstance(commands, (list, tuple)) else [commands] * self.batch
+        rest = np.stack([c.rest_lengths_at(t, base) for c, base in zip(per_copy, base_rest)])
+        if not np.array_equal(rest, self.rest_lengths):
+            self.set_rest_lengths(rest)
+        current = self.external_forces
+        forces = np.stack([f if (f := c.forces_at(t)) is not None else now for c, now in zip(per_copy, current)])
+        if not np.array_equal(forces, current):
+            self.set_external_forces(forces)
 
     # ------------------------------------------------------------------ invariants
     def energy(self) -> dict[str, np.ndarray]:

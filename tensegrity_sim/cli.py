@@ -18,7 +18,7 @@ from tqdm import tqdm
 from .commands import CommandError, CommandSchedule, load_commands
 from .methods import StepError
 from .methods.qp import SOLVERS, SPARSE_NODES
-from .scene import SceneError, load_scene
+from .scene import Scene, SceneError, load_scene
 from .simulator import Simulator
 
 __all__ = ["main", "RunSummary", "simulate"]
@@ -344,9 +344,74 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from .sweep import load_spec, run_sweep
 
     spec = load_spec(args.spec)
-    summary = run_sweep(spec, args.out, address=args.address, workers=args.workers, progress=not args.quiet)
+    summary = run_sweep(spec, args.out, address=args.address, workers=args.workers, progress=not args.quiet,
+                        backend=args.backend)
     print("\n".join(summary.lines()))
     return 0
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    try:
+        from .methods.jax.fit import KINDS, fit_positions, parse_parameters   # imports JAX (the jax extra)
+    except ImportError as exc:   # a missing JAX: the message names the extra
+        raise ValueError(str(exc)) from None
+    from .ros.log_reader import LogReader
+    from .ros.record import read_log
+    from .ros.replay import _run_info
+
+    record = read_log(args.log)
+    with LogReader(args.log) as reader:   # the fit replays the logged run with its inputs held
+        topics = json.loads(_run_info(reader, Path(args.log))["topics"])
+        inputs = {topics["cable_rest_lengths"], topics["external_wrench"]}
+        commanded = sum(m.topic in inputs for m in reader.messages())
+    if commanded:
+        raise ValueError(f"{args.log}: the run was commanded ({commanded} rest-length or wrench messages); fit "
+                         f"replays runs with their inputs held")
+    scene = record.scene
+    if args.scene is not None:   # the start values of the fitted parameters from another scene of the structure
+        guess = load_scene(args.scene)
+        if guess.node_names != scene.node_names or guess.cable_names != scene.cable_names:
+            raise ValueError(f"--scene {args.scene}: its nodes and cables are not the logged scene's")
+        d = scene.to_dict()
+        for item, other in zip(d["cables"], guess.to_dict()["cables"]):
+            item["stiffness"], item["damping"] = other.get("stiffness"), other.get("damping", 0.0)
+        for key in ("nodes", "struts"):
+            for item, other in zip(d[key], guess.to_dict()[key]):
+                if "mass" in other:
+                    item["mass"] = other["mass"]
+        scene = Scene.from_dict(d, source=scene.source)
+    unknowns = parse_parameters(args.params, scene)
+    steps = np.rint(record.times / record.dt).astype(np.int64)
+    result = fit_positions(scene, record.dt, steps, record.positions, unknowns)
+    out = Path(args.out) if args.out else Path(args.log).with_name(Path(args.log).stem + "_fit.yaml")
+    out.write_text(result.scene.to_yaml())
+    print(f"log              {args.log} ({len(steps)} node_poses, {steps[-1]} steps of {record.dt:g} s)")
+    for u, a, b in zip(result.unknowns, result.start, result.fitted):
+        print(f"{u.name:<16} {a:.10g} -> {b:.10g} {KINDS[u.kind]}" + (" (mean)" if u.kind == "mass" else ""))
+    print(f"residual (rms)   {result.rms_start:.6g} m -> {result.rms_fitted:.6g} m "
+          f"({result.evaluations} runs; {result.message})")
+    print(f"fitted scene     {out}")
+    return 0
+
+
+def _add_fit(verbs) -> None:
+    """``fit``: scene parameters from a logged run (the JAX backend's gradients)."""
+    fit = verbs.add_parser(
+        "fit", help="fit scene parameters to a logged run (needs the jax extra)",
+        description="Fit scene parameters to a log's node_poses (a run of this project, or a real robot's motion "
+                    "capture written in the same topic) by least squares with the JAX run's exact Jacobian: "
+                    "prints the fitted values and the residual before and after, writes the fitted scene YAML. "
+                    "The run starts from the log's embedded scene with its inputs held. Needs JAX: "
+                    "pip install \"tensegrity_sim[jax]\".")
+    fit.add_argument("log", help="an MCAP log with node_poses and the embedded scene")
+    fit.add_argument("--params", required=True,
+                     help="comma-separated: stiffness (every cable's, one factor), damping (every cable's, one "
+                          "value), mass (every mass, one factor), stiffness:CABLE, damping:CABLE")
+    fit.add_argument("--scene", metavar="SCENE.yaml",
+                     help="start values of the parameters from this scene (same nodes and cables); default: the "
+                          "log's")
+    fit.add_argument("--out", metavar="FILE.yaml", help="the fitted scene (default: <log>_fit.yaml beside the log)")
+    fit.set_defaults(func=_cmd_fit)
 
 
 def _add_sweep(verbs) -> None:
@@ -364,6 +429,9 @@ def _add_sweep(verbs) -> None:
                        help="a Ray cluster's address (ray start --head prints it); default: run here")
     sweep.add_argument("--workers", type=int, default=1, help="local processes without --address (default: 1)")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    sweep.add_argument("--backend", choices=("numba", "jax"), default="numba",
+                       help="where the elastic runs step: numba (default) or jax (pip install \"tensegrity_sim[jax]\"; "
+                            "on whatever device JAX finds)")
     sweep.set_defaults(func=_cmd_sweep)
 
 
@@ -496,6 +564,7 @@ def build_parser() -> argparse.ArgumentParser:
     rec.set_defaults(func=_cmd_recover)
     _add_serve(verbs)
     _add_sweep(verbs)
+    _add_fit(verbs)
     return parser
 
 

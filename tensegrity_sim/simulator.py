@@ -131,11 +131,14 @@ class Simulator:
     only; ``method_settings`` says which).
     ``reel_speed``: the inextensible method's motor top speed, m/s (default 1 m/s; ``math.inf``: none):
     a faster rest-length command is followed at that speed (``applied_rest_lengths``).
+    ``backend``: where the elastic method's step runs: "numba" (default: the compiled kernels) or "jax" (the
+    JAX backend, ``methods/jax/``, a batch of one; needs the ``jax`` extra) in ``dtype`` "float64" (default)
+    or "float32".
     """
 
     def __init__(self, scene: Scene, method: str = "auto", dt: float = 1e-3, *, contacts=None,
                  solver: str | None = None, order: int | None = None, locate_switches: bool | None = None,
-                 reel_speed: float | None = None):
+                 reel_speed: float | None = None, backend: str = "numba", dtype: str | None = None):
         if not isinstance(scene, Scene):
             raise ValueError(f"scene must be a Scene (see load_scene), got {type(scene).__name__}")
         if contacts is not None:
@@ -147,8 +150,9 @@ class Simulator:
         self.scene = scene
         self.dt = time_step(dt)
         self.system = System(scene)
-        self._method, self.method_reason = make_method(self.system, method, self.dt, solver=solver, order=order,
-                                                           locate_switches=locate_switches, reel_speed=reel_speed)
+        self._method, self.method_reason = make_method(self.system, method, self.dt, backend=backend, dtype=dtype,
+                                                       solver=solver, order=order, locate_switches=locate_switches,
+                                                       reel_speed=reel_speed)
         # None when nothing can be in contact: then detection costs nothing at all
         # with a contact response, members rest in contact at a gap of ~0: a contact ends beyond TOUCH_TOL
         self._contacts = make_detector(self.system, scene.contact_kinds,

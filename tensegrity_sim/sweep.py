@@ -57,7 +57,7 @@ import numpy as np
 import yaml
 
 from .batch import BatchSimulator, structure_of
-from .methods import METHODS, choose_method
+from .methods import BACKENDS, METHODS, choose_method
 from .scene import Scene, SceneError, builtin_scenes, contact_kinds, load_scene
 from .system import System
 
@@ -271,8 +271,8 @@ def load_spec(path: str | Path) -> SweepSpec:
 # --------------------------------------------------------------------------- groups
 @dataclass
 class Group:
-    """Runs stepped together: their indices, scenes (one structure), method, dt, duration, solver and
-    contact kinds (None: the scene's)."""
+    """Runs stepped together: their indices, scenes (one structure), method, dt, duration, solver, contact
+    kinds (None: the scene's) and the backend of an elastic group ("numba" or "jax")."""
 
     runs: list[int]
     scenes: list[Scene]
@@ -281,11 +281,13 @@ class Group:
     duration: float
     solver: str | None
     contacts: tuple[str, ...] | None
+    backend: str = "numba"
 
 
-def make_groups(spec: SweepSpec, parts: int = 1) -> list[Group]:
+def make_groups(spec: SweepSpec, parts: int = 1, backend: str = "numba") -> list[Group]:
     """The runs grouped by structure, method and dt, split to at most ``spec.batch`` runs and into at
-    least ``parts`` pieces where there are enough runs (so every worker gets some)."""
+    least ``parts`` pieces where there are enough runs (so every worker gets some); the elastic groups on
+    ``backend`` (the others on numba: the JAX backend has the elastic method only)."""
     by_key: dict[tuple, list[tuple[int, Scene]]] = {}
     for i, params in enumerate(spec.runs):
         scene, method, dt = spec.run_setup(params)
@@ -298,7 +300,7 @@ def make_groups(spec: SweepSpec, parts: int = 1) -> list[Group]:
         for k in range(0, len(members), size):
             chunk = members[k:k + size]
             groups.append(Group([i for i, _ in chunk], [s for _, s in chunk], method, dt, spec.duration, spec.solver,
-                                spec.contacts))
+                                spec.contacts, backend if method == "elastic" else "numba"))
     return groups
 
 
@@ -309,7 +311,7 @@ def run_group(group: Group) -> tuple[list[dict[str, Any]], list[str]]:
         warnings.simplefilter("always")
         try:
             sim = BatchSimulator.from_scenes(group.scenes, method=group.method, dt=group.dt, solver=group.solver,
-                                             contacts=group.contacts)
+                                             contacts=group.contacts, backend=group.backend)
         except ValueError as exc:
             rows = [_row(i, np.full(3 * len(s.nodes), np.nan), 0.0, math.nan, 0, 0, 0, str(exc))
                     for i, s in zip(group.runs, group.scenes)]
@@ -429,11 +431,12 @@ def results_table(spec: SweepSpec, rows: list[dict[str, Any]]):
 
 
 def run_sweep(spec: SweepSpec, out: str | Path, *, address: str | None = None, workers: int = 1,
-              progress: bool = False) -> SweepSummary:
+              progress: bool = False, backend: str = "numba") -> SweepSummary:
     """Run every run of ``spec`` and write the Parquet table ``out``; returns the summary.
 
     ``address``: a Ray cluster (``HOST:PORT``) to run the groups on as tasks; else this process
-    (``workers`` = 1) or ``workers`` local processes."""
+    (``workers`` = 1) or ``workers`` local processes. ``backend``: where the elastic groups step, "numba" or
+    "jax" (``BatchSimulator``'s; the jax extra)."""
     try:
         import pyarrow.parquet as pq
     except ImportError:
@@ -442,6 +445,8 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, address: str | None = None, w
 
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise SweepError(f"workers must be a whole number >= 1, got {workers!r}")
+    if backend not in BACKENDS:
+        raise SweepError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
     out = Path(out)
     if not out.parent.is_dir():
         raise SweepError(f"--out {out}: no such folder {str(out.parent)!r}")
@@ -462,7 +467,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, address: str | None = None, w
     bar = tqdm(total=len(spec.runs), unit="run", disable=not progress, mininterval=0.5)
     groups: list[Group] = []
     try:
-        groups = make_groups(spec, parts)
+        groups = make_groups(spec, parts, backend)
         if address is None:
             _embedded(groups, workers, done)
         else:

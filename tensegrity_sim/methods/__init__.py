@@ -10,12 +10,29 @@ from .elastic import ElasticMethod
 from .inextensible import InextensibleMethod
 from .qp import SOLVERS
 
-__all__ = ["METHODS", "SOLVERS", "choose_method", "make_method", "State", "MethodStep", "StepMethod", "StepError"]
+__all__ = ["METHODS", "SOLVERS", "BACKENDS", "choose_method", "make_method", "check_backend", "State", "MethodStep",
+           "StepMethod", "StepError"]
 
 METHODS: dict[str, type[StepMethod]] = {
     ElasticMethod.name: ElasticMethod,
     InextensibleMethod.name: InextensibleMethod,
 }
+
+
+# Where the elastic method's step runs: the numba kernels (with their numpy reference) or JAX (methods/jax/, the
+# optional ``jax`` extra: imported only when asked for)
+BACKENDS = ("numba", "jax")
+
+
+def check_backend(backend, method: str, dtype) -> None:
+    """A ``backend`` (and ``dtype``, the JAX backend's precision) that can step ``method``, or a ValueError."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {list(BACKENDS)}, got {describe(backend)}")
+    if backend == "jax" and method != "elastic":
+        raise ValueError(f"backend 'jax' steps the elastic method only; method {method!r} runs on backend 'numba'")
+    if dtype is not None and backend != "jax":
+        raise ValueError(f"dtype={describe(dtype)} is an option of backend 'jax' (its precision); backend "
+                         f"{backend!r} runs in float64")
 
 
 # The auto rule's two thresholds (docs/methods.md, "auto"):
@@ -83,13 +100,15 @@ _OPTION_OF = {"solver": "a method with a QP", "order": "the elastic method", "lo
               "reel_speed": "the inextensible method"}
 
 
-def make_method(system: System, method: str, dt: float, **options) -> tuple[StepMethod, str]:
+def make_method(system: System, method: str, dt: float, *, backend: str = "numba", dtype: str | None = None,
+                **options) -> tuple[StepMethod, str]:
     """Instantiate ``method`` (a name of :data:`METHODS` or ``"auto"``); returns it and the reason.
 
     ``options`` are the methods' keyword options (``solver`` of a method that solves QPs, ``order`` and
     ``locate_switches`` of the elastic method, ``reel_speed`` of the inextensible one); None means the
     method's default. An option the chosen method does not have is an error when the method was named,
-    and ignored when ``"auto"`` chose it."""
+    and ignored when ``"auto"`` chose it. ``backend="jax"`` steps the elastic method in JAX
+    (:class:`~tensegrity_sim.methods.jax.engine.ElasticMethodJax`, in ``dtype`` "float64" or "float32")."""
     solver = options.get("solver")
     if solver is not None and (not isinstance(solver, str) or solver not in SOLVERS):
         raise ValueError(f"solver must be one of {sorted(SOLVERS)}, got {describe(solver)}")
@@ -101,10 +120,20 @@ def make_method(system: System, method: str, dt: float, **options) -> tuple[Step
         reason = f"{method}: requested"
     else:
         raise ValueError(f"method must be one of {sorted(METHODS) + ['auto']}, got {describe(method)}")
+    check_backend(backend, method, dtype)
     cls = METHODS[method]
+    if backend == "jax":
+        from .jax.engine import ElasticMethodJax   # imports JAX: only here
+
+        cls = ElasticMethodJax
     given = {name: value for name, value in options.items() if value is not None}
+    if backend == "jax" and given:
+        name = next(iter(given))
+        raise ValueError(f"{name}={describe(given[name])}: backend 'jax' steps plain velocity Verlet (order 2, "
+                         f"switches not located) and has no options")
     for name in given:
         if name not in cls.options and reason.endswith("requested"):
             raise ValueError(f"{name}={describe(given[name])} is an option of {_OPTION_OF[name]}; "
                              f"method {method!r} has none")
-    return cls(system, dt, **{name: value for name, value in given.items() if name in cls.options}), reason
+    extra = {} if backend == "numba" else {"dtype": dtype or "float64"}
+    return cls(system, dt, **{name: value for name, value in given.items() if name in cls.options}, **extra), reason

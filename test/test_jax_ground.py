@@ -1,0 +1,115 @@
+"""The ground in JAX (methods/jax/ground.py) against the numpy reference (``Simulator(scene, method="elastic")``
+with a ground: friction.py's mode fixed point, tolerance 1e-10 relative) and on test_ground.py's closed forms:
+a strut sliding to a stop at ``v0^2 / (2 mu g)``, held on a slope below the friction angle, sliding down a steeper
+one at ``g (sin - mu cos)``, a point mass bouncing to ``e^2 h``, the icosahedron resting on the ground."""
+import os
+import warnings
+
+import numpy as np
+import pytest
+
+import tensegrity_sim as ts
+from bench.cases import rigid_consistent
+from tensegrity_sim.batch import BatchSimulator
+from test_ground import G, MU, strut
+
+if os.environ.get("TENSEGRITY_SIM_REQUIRE_JAX") == "1":
+    import jax  # noqa: F401
+else:
+    pytest.importorskip("jax")
+
+
+def _jax_run(scene, steps, dt=1e-3, batch=1, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ts.LengthOffsetWarning)
+        sim = BatchSimulator(scene, batch, method="elastic", dt=dt, backend="jax", **kw)
+    return sim.run(steps=steps)
+
+
+def _thrown_onto_the_ground(seed: int) -> ts.Scene:
+    """icosahedron_ground lifted 0.3 m and thrown (1 m/s per node): it lands, rolls and its cables go slack."""
+    d = ts.load_scene("icosahedron_ground").to_dict()
+    rng = np.random.default_rng(seed)
+    for node in d["nodes"]:
+        node["velocity"] = [float(c) for c in rng.normal(scale=1.0, size=3)]
+        node["position"][2] += 0.3
+    return rigid_consistent(d)
+
+
+def test_landing_and_rolling_equal_the_numpy_reference():
+    scenes = [_thrown_onto_the_ground(s) for s in range(2)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ts.LengthOffsetWarning)
+        batch = BatchSimulator.from_scenes(scenes, method="elastic", dt=1e-3, backend="jax")
+    traj = batch.run(steps=600)
+    assert np.all(traj.positions[:, :, :, 2].min(axis=(1, 2)) < 0.03)   # both landed (node radius 0.025 m)
+    for b, scene in enumerate(scenes):
+        ref = ts.Simulator(scene, method="elastic", dt=1e-3).run(steps=600)
+        assert len(ref.contacts) > 0 and ref.slack.any()
+        np.testing.assert_allclose(traj.positions[b], ref.positions, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(traj.velocities[b], ref.velocities, rtol=0, atol=1e-8)
+        np.testing.assert_allclose(traj.impulses[b], ref.impulses, rtol=0, atol=1e-10)
+
+
+def test_icosahedron_rests_in_static_equilibrium():
+    scene = ts.load_scene("icosahedron_ground")
+    traj = _jax_run(scene, 300)
+    assert np.abs(traj.positions[0] - scene.positions).max() < 1e-12
+
+
+def test_sliding_strut_stops_at_the_closed_form():
+    v0 = 2.0
+    traj = _jax_run(strut(v0), 600)
+    t_stop, d_stop = v0 / (MU * G), v0 ** 2 / (2 * MU * G)
+    vx = traj.velocities[0, :, 0, 0]
+    stopped = np.flatnonzero(vx == 0.0)
+    assert stopped.size and abs(traj.time[stopped[0]] - t_stop) <= 0.01 * t_stop
+    assert np.abs(traj.velocities[0, stopped[0]:]).max() <= 1e-15   # at rest from then on, to round-off
+    assert abs(traj.positions[0, -1, 0, 0] - d_stop) <= 0.01 * d_stop
+    assert np.abs(traj.positions[0, :, :, 2] - 0.01).max() <= 1e-4
+
+
+def test_no_creep_below_the_friction_angle_and_the_closed_form_above():
+    held = _jax_run(strut(theta=np.arctan(0.9 * MU)), 1000)
+    assert np.abs(held.positions[0] - held.positions[0, 0]).max() < 1e-6
+    theta = np.arctan(1.2 * MU)
+    slide = _jax_run(strut(theta=theta), 500)
+    v = slide.velocities[0, :, 0, 0]
+    accel = (v[-1] - v[99]) / (slide.time[-1] - slide.time[99])
+    expected = G * (np.sin(theta) - MU * np.cos(theta))
+    assert abs(accel - expected) <= 0.01 * expected
+    assert np.abs(slide.positions[0, :, :, 2] - 0.01).max() <= 1e-4
+
+
+@pytest.mark.parametrize("e", [0.0, 0.5])
+def test_point_mass_bounces_to_e_squared_h(e):
+    scene = ts.Scene.from_dict({"gravity": [0, 0, -G], "ground": {"friction": 0.5, "restitution": e},
+                                "nodes": [{"name": "p", "position": [0, 0, 1.0], "mass": 1.0}]})
+    traj = _jax_run(scene, 1000)
+    z = traj.positions[0, :, 0, 2]
+    after = traj.time > np.sqrt(2.0 / G) + 2e-3
+    assert z.min() >= -1e-12
+    assert abs(z[after].max() - e * e) <= 1e-3
+
+
+def test_rolling_under_a_schedule_equals_the_numpy_reference():
+    """examples/roll.yaml's rest-length ramps on icosahedron_ground, evaluated inside the JAX run, against the
+    numpy reference stepped with the same commands (BatchSimulator with a ground on numba: a Simulator per copy)."""
+    from pathlib import Path
+
+    from tensegrity_sim.commands import load_commands
+
+    scene = ts.load_scene("icosahedron_ground")
+    schedule = load_commands(Path(__file__).resolve().parents[1] / "examples" / "roll.yaml", scene)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ts.LengthOffsetWarning)
+        ref = BatchSimulator(scene, 1, method="elastic", dt=1e-3).run(steps=800, every=10, commands=schedule)
+        sim = BatchSimulator(scene, 1, method="elastic", dt=1e-3, backend="jax")
+    traj = sim.run(steps=800, every=10, commands=schedule)
+    assert np.abs(ref.positions[0, -1] - scene.positions).max() > 0.05   # it moved: reeled in, tipping
+    np.testing.assert_allclose(traj.positions, ref.positions, rtol=0, atol=1e-9)
+    # the reference's contact solve holds to 1e-10 relative per step: cable impulses of ~1 N*s over 10 steps
+    np.testing.assert_allclose(traj.impulses, ref.impulses, rtol=0, atol=1e-9)
+    # the rest lengths in effect: the schedule's at the last step's start
+    np.testing.assert_allclose(sim.rest_lengths[0], schedule.rest_lengths_at(0.799, scene.cable_rest_lengths),
+                               rtol=0, atol=1e-14)
