@@ -30,7 +30,7 @@ from .methods.elastic_batch import ElasticBatch
 from .results import ContactEvent
 from .scene import Scene, contact_kinds
 from .methods.base import State
-from .simulator import Simulator, non_finite_report, run_plan
+from .simulator import Simulator, absurd_speed, non_finite_report, run_plan
 from .system import System
 
 __all__ = ["BatchSimulator", "BatchStepResult", "BatchTrajectory", "structure_of"]
@@ -194,6 +194,14 @@ class BatchSimulator:
             self._detectors = self._make_detectors(scene)
             # copies stopped by a non-finite step: {copy: (steps done, positions, velocities)}
             self._frozen: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
+            # a copy starting at speeds no step resolves fails at its first step, as Simulator.step does
+            _, length, _ = self.system.geometry(scene.positions)
+            shortest = float(length[length > 0].min(initial=np.inf))
+            for b in range(self.batch):
+                reason = absurd_speed(scene, self._v[..., b], self.dt, shortest)
+                if reason is not None:
+                    self.failures[b] = f"step 1 (t = {self.dt:.6g} s): {reason}"
+                    self._frozen[b] = (0, self._x[..., b].copy(), self._v[..., b].copy())
         else:
             # one QP (or one ground) per copy: a Simulator per copy, whose warnings are given once for the batch
             with warnings.catch_warnings(record=True) as caught:

@@ -23,7 +23,7 @@ from .results import StepResult, Trajectory, step_result
 from .scene import Scene, contact_kinds
 from .system import System
 
-__all__ = ["Simulator", "NonFiniteError"]
+__all__ = ["Simulator", "NonFiniteError", "SpeedError", "absurd_speed"]
 
 _CHUNK = 1024   # steps per compiled chunk when contact detection walks through a run's steps
 _AHEAD = 64     # most steps Simulator.step computes ahead in a compiled loop (they double up to it)
@@ -31,6 +31,36 @@ _AHEAD = 64     # most steps Simulator.step computes ahead in a compiled loop (t
 
 class NonFiniteError(StepError):
     """A step whose result is not finite; the message names the node or cable and the inputs in effect."""
+
+
+class SpeedError(StepError):
+    """A step from a state whose speeds no step can resolve (:func:`absurd_speed`); the message names the
+    node and its speed."""
+
+
+# A node may move in one step at most this many times the shortest member's length. Beyond it the
+# positions after the step are so large that their round-off (machine epsilon times the coordinate)
+# exceeds 1e-9 of that member's length, the relative tolerance to which the methods hold rigid struts and
+# compare lengths: the step would return a structure whose shape is lost in rounding (a scene at 1e100 m/s
+# ran for 20 s of meaningless steps). At dt = 1 ms and a 0.1 m member the limit is 4.5e8 m/s, above the
+# speed of light: no physical scene is refused.
+SPEED_LIMIT_LENGTHS = 1e-9 / float(np.finfo(float).eps)
+
+
+def absurd_speed(scene: Scene, velocities: np.ndarray, dt: float, shortest: float) -> str | None:
+    """Why no step of ``dt`` s can resolve ``velocities`` (N, 3) m/s of ``scene``'s free nodes, whose
+    shortest member is ``shortest`` m long (:data:`SPEED_LIMIT_LENGTHS`), or None when it can. A speed
+    that is not finite is left to the non-finite check."""
+    speed = np.sqrt(np.einsum("ij,ij->i", velocities, velocities)) * ~scene.fixed
+    limit = SPEED_LIMIT_LENGTHS * shortest / dt
+    over = np.flatnonzero(speed > limit)
+    if not over.size:
+        return None
+    i = int(over[np.argmax(speed[over])])
+    return (f"node {scene.node_names[i]!r} moves at {speed[i]:.6g} m/s: in one step of {dt:g} s it would "
+            f"move {speed[i] * dt:.3g} m, over {SPEED_LIMIT_LENGTHS:.3g} times the shortest member "
+            f"({shortest:.6g} m), where the positions' round-off exceeds 1e-9 of a member's length "
+            f"(at most {limit:.6g} m/s at this dt)")
 
 
 def finite_step(out) -> bool:
@@ -159,6 +189,8 @@ class Simulator:
         self._rows = _NO_ROWS     # the steps computed ahead still to hand out
         self._ahead_size = 1
         self._quiet = 0           # contact detection has nothing to do for the steps ahead before this one
+        _, length, _ = self.system.geometry(scene.positions)
+        self._shortest = float(length[length > 0].min(initial=math.inf))   # m, what absurd_speed compares with
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -169,6 +201,7 @@ class Simulator:
         self._state = State(s.positions, s.velocities, s.cable_rest_lengths, np.zeros((len(s.nodes), 3)))
         self._method.prepare(self._state)
         self._inputs_changed()
+        self._speeds_unchecked = True   # the scene's velocities: checked at the first step (absurd_speed)
         if self._contacts is not None:
             self._contacts.reset(self._state.positions)
         if self._ground is not None:
@@ -272,6 +305,8 @@ class Simulator:
         ``_AHEAD`` at a time while no input changes): one compiled call for many steps, each handed out
         here as the very result of stepping it alone (rule 10 of ``methods/base.py``). A new input drops
         them; ``run`` rewinds the loop to the state."""
+        if self._speeds_unchecked:
+            self._check_speeds()
         row = next(self._rows, None)
         if row is None:
             if not self._look_ahead():
@@ -287,6 +322,13 @@ class Simulator:
         st.positions, st.velocities = x, v
         st.step_count += 1
         return step_result(st.step_count * self.dt, result_x, result_v, impulses, tensions, slack, contacts, ground)
+
+    def _check_speeds(self) -> None:
+        """Refuse (:class:`SpeedError`) a start from speeds no step can resolve: the scene's, once."""
+        reason = absurd_speed(self.scene, self._state.velocities, self.dt, self._shortest)
+        if reason is not None:
+            raise SpeedError(f"the step from t = {self.time:.6f} s is refused: {reason}")
+        self._speeds_unchecked = False
 
     def _look_ahead(self) -> bool:
         """Compute the next steps in the method's compiled loop; False where :meth:`step` takes one at a
@@ -409,6 +451,8 @@ class Simulator:
             raise ValueError(f"callback must be callable, got {describe(callback)}")
         n, nc = len(self.scene.nodes), len(self.scene.cables)
         steps, every, kept, span = run_plan(duration, steps, every, self.dt, 8 + 48 * n + 17 * nc)
+        if self._speeds_unchecked and steps:
+            self._check_speeds()
         time = (self._state.step_count + kept) * self.dt
         pos = np.empty((len(kept), n, 3))
         vel = np.empty((len(kept), n, 3))

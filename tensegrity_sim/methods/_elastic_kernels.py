@@ -76,7 +76,7 @@ def model_arrays(system, rigid) -> ElasticModel:
         np.ascontiguousarray(rigid.w_matrix, dtype=float), bool(rigid.coupled))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
             rigid_members, acc, tension, rigid_dirs, slack, b):
     """Copy ``b``: accelerations, cable tensions, rigid strut directions and slack cables at ``x``
@@ -130,7 +130,7 @@ def _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_ma
             acc[i, j, b] *= inv_mass[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def elastic_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                    rigid_members, acc, tension, rigid_dirs):
     """Fill ``acc`` (N, 3, B), ``tension`` (nc, B) and ``rigid_dirs`` (nr, 3, B) at ``x`` for every copy;
@@ -145,7 +145,7 @@ def elastic_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping,
     return slack
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _push(node_a, node_b, inv_mass, s, n0, n1, n2, out):
     """Equal-and-opposite push ``s`` along ``n`` on a strut's ends, scaled by their inverse masses,
     added to ``out`` (N, 3)."""
@@ -157,7 +157,7 @@ def _push(node_a, node_b, inv_mass, s, n0, n1, n2, out):
     out[node_b, 2] -= inv_mass[node_b] * (s * n2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pushes(ends, inv_mass, rigid_members, strengths, dirs, out, b):
     """``out`` (N, 3) = the node displacements (or velocity changes) of equal-and-opposite pushes of
     ``strengths`` (nr,) along the rigid struts' ``dirs`` of copy ``b``."""
@@ -169,7 +169,7 @@ def _pushes(ends, inv_mass, rigid_members, strengths, dirs, out, b):
         _push(ends[i, 0], ends[i, 1], inv_mass, strengths[k], dirs[k, 0, b], dirs[k, 1, b], dirs[k, 2, b], out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _shake(x_pred, dirs, ends, inv_mass, rigid_members, length_sq, w, dx, b):
     """SHAKE for copy ``b`` (rigid.RigidStruts.project_positions): the displacement, written into
     ``dx`` (N, 3) (zeroed here), that puts ``x_pred`` back on every rigid strut length along ``dirs``."""
@@ -188,7 +188,7 @@ def _shake(x_pred, dirs, ends, inv_mass, rigid_members, length_sq, w, dx, b):
     _pushes(ends, inv_mass, rigid_members, gamma, dirs, dx, b)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rattle(v, dirs, ends, inv_mass, rigid_members, w, dv, b):
     """RATTLE for copy ``b`` (rigid.RigidStruts.project_velocities): zero every rigid strut's length
     rate along ``dirs``, in place on ``v``; ``dv`` (N, 3) is scratch."""
@@ -210,7 +210,7 @@ def _rattle(v, dirs, ends, inv_mass, rigid_members, w, dv, b):
             v[i, j, b] += dv[i, j]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
           rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, impulses, slack, b):
     """One velocity Verlet (+ SHAKE/RATTLE) step of ``h`` of copy ``b``, in place on ``x``, ``v`` and the
@@ -242,7 +242,7 @@ def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_m
         _rattle(v, rigid_dirs, ends, inv_mass, rigid_members, rigid_w, dx, b)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def verlet_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                 rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs):
     """One step of any size ``h`` (s) of every copy, in place on ``x``, ``v``, ``acc``, ``tension`` and
@@ -263,7 +263,7 @@ def verlet_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping,
     return impulses, slack
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def keep(x, v, c, total, slack, k, b, out_x, out_v, out_impulses, out_slack):
     """Write copy ``c`` of ``x``, ``v`` (N, 3, .) and the step's ``total`` impulses (nc,) N*s and ``slack``
     (nc,) as kept step ``k`` of copy ``b`` of the outputs (see :func:`elastic_steps`); ``total`` restarts
@@ -278,7 +278,7 @@ def keep(x, v, c, total, slack, k, b, out_x, out_v, out_impulses, out_slack):
         total[ci] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
                   gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
                   out_x, out_v, out_impulses, out_slack):
@@ -315,7 +315,7 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
 # ``_step``, in the same order, so its numbers are the same bit for bit (test_batch.py checks it).
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _forces_copies(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                    rigid_members, acc, tension, rigid_dirs, slack):
     """:func:`_forces` of every copy: ``slack`` (nc, B)."""
@@ -375,7 +375,7 @@ def _forces_copies(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping,
                 acc[i, j, b] *= inv_mass[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pushes_copies(ends, inv_mass, rigid_members, strengths, dirs, out):
     """:func:`_pushes` of every copy: ``strengths`` (nr, B), ``out`` (N, 3, B)."""
     n_copies = out.shape[2]
@@ -396,7 +396,7 @@ def _pushes_copies(ends, inv_mass, rigid_members, strengths, dirs, out):
                 out[node_b, j, b] -= wb * push
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _step_copies(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                  rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength, impulses, slack):
     """:func:`_step` of every copy; ``dx`` (N, 3, B) and ``strength`` (nr, B) are scratch, ``impulses``
@@ -458,7 +458,7 @@ def _step_copies(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
                     v[i, j, b] += dx[i, j, b]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def elastic_steps_copies(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
                          gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
                          out_x, out_v, out_impulses, out_slack):
