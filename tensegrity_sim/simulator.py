@@ -188,7 +188,6 @@ class Simulator:
         self._ahead: _Ahead | None = None
         self._rows = _NO_ROWS     # the steps computed ahead still to hand out
         self._ahead_size = 1
-        self._quiet = 0           # contact detection has nothing to do for the steps ahead before this one
         _, length, _ = self.system.geometry(scene.positions)
         self._shortest = float(length[length > 0].min(initial=math.inf))   # m, what absurd_speed compares with
         self.reset()
@@ -314,11 +313,8 @@ class Simulator:
             row = next(self._rows)
         i, x, v, result_x, result_v, impulses, tensions, slack, ground = row
         st = self._state
-        if i < self._quiet:
-            contacts = ()
-        else:
-            contacts = self._contacts.step(st.positions, x, st.step_count * self.dt, self.dt)
-            self._quiet = i + 1 + self._quiet_steps(self._ahead.positions[i + 1:])
+        contacts = () if self._contacts is None else self._contacts.step(st.positions, x, st.step_count * self.dt,
+                                                                          self.dt)
         st.positions, st.velocities = x, v
         st.step_count += 1
         return step_result(st.step_count * self.dt, result_x, result_v, impulses, tensions, slack, contacts, ground)
@@ -357,17 +353,7 @@ class Simulator:
         self._ahead = a = _Ahead((st.positions, st.velocities), st.step_count, carry, pos, vel, imp, slack, stop,
                                  self.dt)
         self._rows = a.rows
-        self._quiet = k if self._contacts is None else self._quiet_steps(pos)
         return self._look_ahead() if stop == 0 else True
-
-    def _quiet_steps(self, positions: np.ndarray) -> int:
-        """How many of the next steps, to ``positions`` (k, N, 3) in turn, contact detection has nothing
-        to do for: the detector's own test (no watched node as far as its quiet distance from its
-        reference positions), for all of them at once; it would return no event and change nothing."""
-        x_ref, distance = self._contacts.quiet_zone()
-        w = self._contacts.watched
-        busy = ~(np.abs(positions[:, w] - x_ref[w]).max(axis=(1, 2), initial=0.0) < distance)
-        return int(np.argmax(busy)) if busy.any() else len(positions)
 
     def _rewind(self) -> None:
         """Drop the steps computed ahead and not handed out, putting the method's loop back at the state:
@@ -484,20 +470,35 @@ class Simulator:
         step by step does."""
         st, method = self._state, self._method
         add = np.add.reduce
-        if self._contacts is None:
+        detector = self._contacts
+        if detector is None or method.loop_detects():   # straight into the trajectory's arrays
             carry = method.carry()
-            x, v = method.advance(st, steps, every, pos, vel, imp, slack)
+            saved = None if detector is None else detector.snapshot()
+            if detector is not None:
+                method.detection = detector
+            try:
+                x, v = method.advance(st, steps, every, pos, vel, imp, slack)
+            finally:
+                if detector is not None:
+                    method.detection = None
             if not math.isfinite(add(x, None) + add(v, None) + add(imp, None)):
                 method.restore(carry)
                 method.invalidate()
+                if detector is not None:
+                    detector.restore(saved)
                 imp[...] = 0.0
                 return 0
+            if detector is not None:
+                count = st.step_count
+                found = detector.record(*method.found, lambda k: (count + k) * self.dt, self.dt)
+                contacts.extend(e for key in sorted(found) for e in found[key])
             st.positions, st.velocities = x, v
             st.step_count += steps
             return steps
         chunk = min(steps, _CHUNK)
         n, nc = pos.shape[1], imp.shape[1]
-        c_pos, c_vel = np.empty((chunk, n, 3)), np.empty((chunk, n, 3))
+        xs = np.empty((chunk + 1, n, 3))   # the positions before the chunk's steps, then after each
+        c_pos, c_vel = xs[1:], np.empty((chunk, n, 3))
         c_imp, c_slack = np.empty((chunk, nc)), np.empty((chunk, nc), dtype=bool)
         done = 0
         while done < steps:
@@ -508,14 +509,18 @@ class Simulator:
                 method.restore(carry)
                 method.invalidate()
                 return done
-            i = self._quiet_steps(c_pos[:m])   # the detector is called for the other steps only
-            while i < m:
-                previous = c_pos[i - 1] if i else st.positions
-                contacts.extend(self._contacts.step(previous, c_pos[i], (st.step_count + i) * self.dt, self.dt))
-                i += 1 + self._quiet_steps(c_pos[i + 1:m])
+            xs[0] = st.positions
+            count = st.step_count
+            found = detector.walk(xs[:m + 1, ..., None], lambda k: (count + k) * self.dt, self.dt)
+            contacts.extend(e for key in sorted(found) for e in found[key])
             g = done + np.arange(m)              # the chunk's steps in the run, from 0
             j = g // every
-            np.add.at(imp, j, c_imp[:m])
+            # each kept step's impulses summed step after step, as a run step by step adds them: the sum
+            # so far of the first (it may have begun in the last chunk), then the chunk's rows, in order
+            # (a reduction along the first axis adds row after row)
+            first = np.flatnonzero(np.r_[True, j[1:] != j[:-1]])
+            rows = np.concatenate([imp[j[0]][None], c_imp[:m]])
+            imp[j[first]] = np.add.reduceat(rows, np.r_[0, first[1:] + 1], axis=0)
             last = (g + 1) % every == 0
             last[-1] |= done + m == steps
             pos[j[last]], vel[j[last]], slack[j[last]] = c_pos[:m][last], c_vel[:m][last], c_slack[:m][last]

@@ -46,6 +46,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ._detection_kernels import examine, moved_on, new_events, new_work
+
 __all__ = ["ElasticModel", "model_arrays", "elastic_forces", "elastic_steps", "elastic_steps_copies", "keep", "verlet_step"]
 
 
@@ -281,7 +283,7 @@ def keep(x, v, c, total, slack, k, b, out_x, out_v, out_impulses, out_slack):
 @njit(cache=True, error_model="numpy")
 def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
                   gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
-                  out_x, out_v, out_impulses, out_slack):
+                  out_x, out_v, out_impulses, out_slack, detection):
     """``n_steps`` steps of ``h`` (s) of every copy, in place on ``x``, ``v``, ``acc``, ``tension``,
     ``rigid_dirs``; keeps steps ``every``, ``2 every``, ... and the last one in the outputs:
 
@@ -289,23 +291,36 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
         out_impulses (K, nc, B) N*s     each cable's impulse summed over the steps since the last kept one
         out_slack (K, nc, B) bool       slack cables after each kept step
 
-    with ``K = ceil(n_steps / every)``."""
+    with ``K = ceil(n_steps / every)``. ``detection``: member-contact detection over every step
+    (``_detection_kernels.detection_state``, or ``no_detection()``); returns its events
+    (``_detection_kernels.new_events``)."""
     n_nodes = x.shape[0]
     nc, n_copies = rest.shape
     dx = np.empty((n_nodes, 3))
     imp = np.empty(nc)
     total = np.empty(nc)
     sl = np.empty(nc, dtype=np.bool_)
+    detecting = detection[0].shape[0] > 0
+    events, points = new_events()
+    work = new_work()
+    before = np.empty((n_nodes, 3, 1))   # the positions at the step's start, for detection
     for b in range(n_copies):
         for ci in range(nc):
             total[ci] = 0.0
         for s in range(n_steps):
+            if detecting:
+                for i in range(n_nodes):
+                    for j in range(3):
+                        before[i, j, 0] = x[i, j, b]
             _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                   rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, imp, sl, b)
+            if detecting and moved_on(before, 0, x, b, b, detection):
+                examine(before, 0, x, b, b, s, detection, work, events, points)
             for ci in range(nc):
                 total[ci] += imp[ci]
             if (s + 1) % every == 0 or s == n_steps - 1:
                 keep(x, v, b, total, sl, s // every, b, out_x, out_v, out_impulses, out_slack)
+    return events, points
 
 
 # ---------------------------------------------------------------------------------------------------------

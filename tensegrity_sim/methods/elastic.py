@@ -69,6 +69,7 @@ import numpy as np
 
 from ..system import System
 from . import _composition_kernels as composed
+from . import _detection_kernels as detection_kernels
 from . import _elastic_kernels as kernels
 from .base import MethodStep, State, StepMethod
 from .composition import MIN_SPLIT, STABILITY, WEIGHTS, Stepper
@@ -149,6 +150,12 @@ class ElasticMethod(StepMethod):
         # cable tensions (n_cables, 1), rigid strut directions (nr, 3, 1), slack cables (n_cables, 1) at
         # the last step's end
         self._carry = None
+        # member-contact detection inside the compiled loop (loop_detects): the detector whose state
+        # advance moves on (a contact.CompiledDetector, set by the simulator for a run), and the events
+        # of the last advance (_detection_kernels.new_events)
+        self.detection = None
+        self.found = None
+        self._no_detection = detection_kernels.no_detection()
         if self.compiled:
             self._load_kernels()
 
@@ -205,8 +212,9 @@ class ElasticMethod(StepMethod):
             forces = (np.empty_like(x), np.empty((self.system.n_cables, 1)), np.empty((self.rigid.count, 3, 1)))
             self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *forces),)
         if self._plain:
-            kernels.elastic_steps(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
-                                  positions, velocities, impulses, slack)
+            self.found = kernels.elastic_steps(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
+                                               positions, velocities, impulses, slack,
+                                               self._no_detection if self.detection is None else self.detection.state)
         else:
             composed.composed_steps(x, v, rest, ext, self.dt, steps, every, self._weights, self.locate_switches,
                                     MIN_SPLIT * self.dt, *self._model, *self._carry, positions, velocities,
@@ -224,6 +232,9 @@ class ElasticMethod(StepMethod):
 
     def has_loop(self) -> bool:
         return self.compiled
+
+    def loop_detects(self) -> bool:
+        return self.compiled and self._plain
 
     def carry(self):
         return None if self._carry is None else tuple(a.copy() for a in self._carry)
