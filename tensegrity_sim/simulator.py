@@ -515,12 +515,7 @@ class Simulator:
             contacts.extend(e for key in sorted(found) for e in found[key])
             g = done + np.arange(m)              # the chunk's steps in the run, from 0
             j = g // every
-            # each kept step's impulses summed step after step, as a run step by step adds them: the sum
-            # so far of the first (it may have begun in the last chunk), then the chunk's rows, in order
-            # (a reduction along the first axis adds row after row)
-            first = np.flatnonzero(np.r_[True, j[1:] != j[:-1]])
-            rows = np.concatenate([imp[j[0]][None], c_imp[:m]])
-            imp[j[first]] = np.add.reduceat(rows, np.r_[0, first[1:] + 1], axis=0)
+            np.add.at(imp, j, c_imp[:m])
             last = (g + 1) % every == 0
             last[-1] |= done + m == steps
             pos[j[last]], vel[j[last]], slack[j[last]] = c_pos[:m][last], c_vel[:m][last], c_slack[:m][last]
