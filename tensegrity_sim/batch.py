@@ -23,7 +23,7 @@ from typing import Mapping
 import numpy as np
 
 from .checks import float_array, time_step
-from .contact import ContactDetector, make_detector
+from .contact import make_detector
 from .methods import StepError, choose_method
 from .methods.elastic import ElasticMethod
 from .methods.elastic_batch import ElasticBatch
@@ -174,6 +174,7 @@ class BatchSimulator:
         else:
             method, self.method_reason = choose_method(self.system, dt)
         self.failures: dict[int, str] = {}
+        self._no_events = ((),) * self.batch   # a step without contact events (one shared row)
         n, nc = len(scene.nodes), len(scene.cables)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
@@ -191,7 +192,7 @@ class BatchSimulator:
             self._v = self._engine.prepare(self._x, v)
             self._rest = np.stack([s.cable_rest_lengths for s in scenes], axis=-1)
             self._f_ext = np.zeros((n, 3, self.batch))
-            self._detectors = self._make_detectors(scene)
+            self._detectors = make_detector(self.system, scene.contact_kinds, copies=self.batch)
             # copies stopped by a non-finite step: {copy: (steps done, positions, velocities)}
             self._frozen: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
             # a copy starting at speeds no step resolves fails at its first step, as Simulator.step does
@@ -211,23 +212,6 @@ class BatchSimulator:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
             self.dt = self._copies[0].dt
         self._nc = nc
-
-    def _make_detectors(self, scene):
-        """One contact detector per copy (None when nothing can touch), started at its positions, and
-        the batch's quiet-zone arrays: the step asks only the copies whose nodes left theirs."""
-        if make_detector(self.system, scene.contact_kinds) is None:
-            return None
-        detectors = []
-        for b in range(self.batch):
-            d = ContactDetector(self.system, scene.contact_kinds)
-            d.reset(np.ascontiguousarray(self._x[..., b]))
-            detectors.append(d)
-        self._quiet_ref = np.empty_like(self._x)
-        self._quiet = np.empty(self.batch)
-        for b, d in enumerate(detectors):
-            self._quiet_ref[..., b], self._quiet[b] = d.quiet_zone()
-        self._watch = detectors[0].watched
-        return detectors
 
     # ------------------------------------------------------------------ state
     @property
@@ -354,13 +338,19 @@ class BatchSimulator:
         self._x, self._v = x_seq[-1].copy(), v_seq[-1].copy()
         self._step_count += steps
         self._guard(previous, previous_v, start, x_seq, v_seq, imp, slack)
-        if self._detectors is None:
-            contacts = [((),) * self.batch] * steps
-        else:
-            contacts = []
-            for k in range(steps):
-                contacts.append(self._detect(previous, x_seq[k], (start + k) * self.dt))
-                previous = x_seq[k]
+        contacts = [self._no_events] * steps
+        if self._detectors is not None:
+            # a failed copy is walked up to its failure only
+            stop = np.full(self.batch, steps, dtype=np.int64)
+            for b, (done, _, _) in self._frozen.items():
+                stop[b] = min(steps, max(0, done - start))
+            found = self._detectors.walk(np.concatenate([previous[None], x_seq]), lambda k: (start + k) * self.dt,
+                                         self.dt, stop)
+            rows: dict[int, list] = {}
+            for (k, b), events in found.items():
+                rows.setdefault(k, [()] * self.batch)[b] = events
+            for k, row in rows.items():
+                contacts[k] = tuple(row)
         return (np.moveaxis(x_seq, -1, 1), np.moveaxis(v_seq, -1, 1), np.moveaxis(imp, -1, 1),
                 np.moveaxis(slack, -1, 1), contacts)
 
@@ -395,18 +385,6 @@ class BatchSimulator:
         imp = imp[0].copy()
         return BatchStepResult(self.time, x[0].copy(), v[0].copy(), imp, imp / self.dt, slack[0].copy(),
                                contacts[0], self.failed)
-
-    def _detect(self, x0, x1, t0):
-        """Contact events per copy of a step from ``x0`` to ``x1`` (N, 3, B) starting at ``t0`` s; a copy
-        whose watched nodes all stayed in its detector's quiet zone is not asked."""
-        w = self._watch
-        moved = np.abs(x1[w] - self._quiet_ref[w]).max(axis=(0, 1), initial=0.0)
-        out = [()] * self.batch
-        for b in np.flatnonzero(moved >= self._quiet):
-            d = self._detectors[b]
-            out[b] = d.step(np.ascontiguousarray(x0[..., b]), np.ascontiguousarray(x1[..., b]), t0, self.dt)
-            self._quiet_ref[..., b], self._quiet[b] = d.quiet_zone()
-        return tuple(out)
 
     def _step_copies(self):
         b, n, nc = self.batch, len(self.scene.nodes), self._nc
@@ -458,8 +436,8 @@ class BatchSimulator:
             snaps += (np.concatenate([was_slack[None], sl[:-1]]) & ~sl).sum(axis=0)
             was_slack = sl[-1].copy()
             for per_step in events:
-                for c, e in enumerate(per_step):
-                    if e:
+                if per_step is not self._no_events:
+                    for c, e in enumerate(per_step):
                         contacts[c].extend(e)
             g = done + np.arange(m)              # the chunk's steps in the run, from 0
             j = g // every
