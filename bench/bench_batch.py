@@ -8,8 +8,10 @@ Cases (icosahedron thrown: rigid struts, 613 N/m cables, random node velocities;
   band ``springlength="0 L"``, bench/mujoco_peer.py) in ``mujoco.rollout`` with as many threads as cores;
 * inextensible, batch 256: ``BatchSimulator(method="inextensible")`` against MuJoCo's limited tendons.
 
-MuJoCo runs its Euler integrator (its cheapest step), contacts off and sensors off; we run without contact
-detection (the peer has none) and, for information, with it. Each contender does ``STEPS`` steps of the
+MuJoCo runs its Euler integrator (its cheapest step), sensors off, contacts off, and again with the struts'
+capsules colliding with each other (``MujocoPeer(strut_contacts=True)``); we run without contact detection
+and with the scene's default strut-strut detection, each against MuJoCo likewise (``ratio_to_mujoco``: to
+the MuJoCo row without contacts, or with them for a row with contacts). Each contender does ``STEPS`` steps of the
 whole batch per timed call (MuJoCo's rollout also writes every step's state: with the batch that is what
 it is for); the rate is the best of ``REPEATS`` turns (a shared machine only ever adds time), scene-steps
 per second = batch x steps / wall time.
@@ -39,12 +41,13 @@ CASES = [  # (cable model, batch, steps per timed call)
 ]
 
 
-def _mujoco(scene, model: str, batch: int, steps: int, threads: int):
-    """A callable doing ``steps`` steps of ``batch`` copies in ``mujoco.rollout`` with ``threads`` threads."""
+def _mujoco(scene, model: str, batch: int, steps: int, threads: int, strut_contacts: bool = False):
+    """A callable doing ``steps`` steps of ``batch`` copies in ``mujoco.rollout`` with ``threads`` threads
+    (``strut_contacts``: the struts' capsules collide, see ``MujocoPeer``)."""
     import mujoco
     from mujoco import rollout
 
-    peer = MujocoPeer(scene, model=model, dt=1e-3, integrator="Euler")
+    peer = MujocoPeer(scene, model=model, dt=1e-3, integrator="Euler", strut_contacts=strut_contacts)
     m = peer.model
     m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -70,7 +73,9 @@ def measure() -> list[dict]:
     rows = []
     for model, batch, steps in CASES:
         mujoco_run, pool = _mujoco(scene, model, batch, steps, threads)
+        mujoco_contacts, contacts_pool = _mujoco(scene, model, batch, steps, threads, strut_contacts=True)
         contenders = {"mujoco rollout": mujoco_run,
+                      "mujoco rollout + strut capsule contacts": mujoco_contacts,
                       "BatchSimulator": _ours(scene, model, batch, steps, ()),
                       "BatchSimulator + contacts": _ours(scene, model, batch, steps, None)}
         best = {name: float("inf") for name in contenders}
@@ -80,12 +85,15 @@ def measure() -> list[dict]:
             for name, run in contenders.items():
                 best[name] = min(best[name], time_runs(run, warmup=lambda: None, repeats=1).best)
         pool.close()
-        ref = batch * steps / best["mujoco rollout"]
+        contacts_pool.close()
         for name, t in best.items():
+            # like for like: detection on against MuJoCo's contacts on, off against off
+            peer = "mujoco rollout + strut capsule contacts" if "contacts" in name else "mujoco rollout"
             rate = batch * steps / t
             rows.append({"case": f"icosahedron_thrown {model}", "batch": batch, "steps": steps,
                          "contender": name, "threads": threads if name.startswith("mujoco") else 1,
-                         "scene_steps_per_s": round(rate), "ratio_to_mujoco": round(rate / ref, 3)})
+                         "scene_steps_per_s": round(rate),
+                         "ratio_to_mujoco": round(best[peer] / t, 3), "load": os.getloadavg()[0]})
     return rows
 
 

@@ -7,17 +7,22 @@ for a whole run's chunk of steps in one call and ``B`` copies (batch axis last, 
 operation in the same order (the same samples of the step, the same certified intervals, the same
 interpolation), so that a pair examined over a step gives the numpy detector's events.
 
-**Broad phase: what a far pair costs.** A pair's gap does not change under a translation of the whole
-structure, and moves by at most the largest displacement of an end of one member plus that of the
-other (a segment's points move by a mix of its ends' displacements). So the kernel follows the watched
-nodes in the frame of their centroid (``y = x - mean x``, which a thrown robot's flight leaves alone) and
-keeps, per copy, an *odometer*: the sum over steps of the largest step displacement of any watched
-node in that frame. A pair examined at odometer ``o`` with gap (or, in contact, penetration) ``g`` keeps its
-state at least until the odometer reaches ``o + g / 2``, its *due* value; a step whose odometer is below
-every pair's due value costs one pass over the watched nodes (the odometer's increment) and a comparison.
-A due pair is first measured exactly (its ends' displacements since it was examined, in that frame) and
-examined over the step only when those reach its gap; otherwise its due value moves on by half what is
-left. Examining a pair at a step where the numpy detector would not (or the reverse) changes no event:
+**Broad phase: what a far pair costs.** A pair's gap does not change under a rigid motion of its four
+ends, and changes by at most the largest displacement of an end of one member plus that of the other
+(a segment's points move by a mix of its ends' displacements). Two bounds follow:
+
+- an *odometer* per copy, the sum over steps of the largest step displacement of a watched node
+  relative to their mean displacement (a common translation, a thrown robot's flight, moves no gap):
+  a pair whose gap (in contact: penetration) is at least ``g`` keeps its state until the odometer has
+  grown by ``g / 2`` (its *due* value), steps' insides included (the motion within a step is linear);
+  a step below every pair's due value costs one pass over the watched nodes and a comparison;
+- at its due value a pair is *measured*: its ends a1, b0, b1 in its own frame (origin a0, axes along a
+  and towards b's midpoint), which a tumbling robot's rotation leaves alone, against those when it was
+  last measured. If they moved less than what is left of its gap (less twice the step's displacement,
+  for the step's inside), the gap at the step's end is at least what is left and the pair waits for its
+  next due value; otherwise the step is examined by the narrow phase.
+
+Examining a pair at a step where the numpy detector would not (or the reverse) changes no event:
 either knows the pair cannot change state there.
 
 Shapes: ``P`` listed pairs (``pair_nodes`` (P, 4): a's ends then b's), ``W`` watched nodes, ``B`` copies.
@@ -285,13 +290,14 @@ def detection_state(pair_nodes, radii_sum, watch, touch, fractions, around, copi
     """The kernels' detection tuple for ``copies`` copies, started over (no contact known, every pair
     examined at the next step): (pair_nodes (P, 4), radii_sum (P,) m, watch (W,), touch m, the search's
     sample fractions and offsets (``contact._FRACTIONS``, ``_AROUND``), then the state: inside (P, B),
-    snap (P, 4, 3, B) m, budget (P, B) m, due (P, B) m, min_due (B,) m, odometer (B,) m)."""
+    snap (P, 4, 3, B) m (rows 1-3: the pair's a1, b0, b1 in its own frame when last measured), budget
+    (P, B) m, due (P, B) m, min_due (B,) m, odometer (B,) m, the last step's odometer increment (B,) m)."""
     k = pair_nodes.shape[0]
     return (np.ascontiguousarray(pair_nodes, dtype=np.int64), np.ascontiguousarray(radii_sum, dtype=float),
             np.ascontiguousarray(watch, dtype=np.int64), float(touch), np.ascontiguousarray(fractions, dtype=float),
             np.ascontiguousarray(around, dtype=float), np.zeros((k, copies), dtype=np.bool_),
             np.zeros((k, 4, 3, copies)), np.full((k, copies), -np.inf), np.full((k, copies), -np.inf),
-            np.full(copies, -np.inf), np.zeros(copies))
+            np.full(copies, -np.inf), np.zeros(copies), np.zeros(copies))
 
 
 def no_detection():
@@ -309,18 +315,20 @@ def new_events():
 
 @njit(cache=True, error_model="numpy")
 def new_work():
-    """Scratch of :func:`detect_step`: a pair's end points at the step's start and end and their
-    displacements (4, 3), the narrow phase's numbers (22,), a pair's transitions (step fractions, begins)."""
-    return (np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3)), np.empty(22), np.empty(_MAX_ROUNDS + 2),
+    """Scratch of :func:`examine`: a pair's end points at the step's start and end and their
+    displacements (4, 3), its shape (9,) and the narrow phase's numbers (22,), a pair's transitions
+    (step fractions, begins)."""
+    return (np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3)), np.empty(31), np.empty(_MAX_ROUNDS + 2),
             np.empty(_MAX_ROUNDS + 2, dtype=np.bool_))
 
 
 @njit(cache=True, error_model="numpy")
 def moved_on(x0, b0, x1, b1, b, det):
     """The broad phase's test of a step of copy ``b`` from ``x0[:, :, b0]`` to ``x1[:, :, b1]`` (N, 3, .) m:
-    adds to its odometer the largest step displacement of a watched node relative to their centroid's,
+    adds to its odometer the largest step displacement of a watched node relative to their mean's,
     and says whether some pair is due (then :func:`examine` the step). Small, so that a loop inlines it."""
-    watch, min_due, odometer = det[2], det[10], det[11]
+    watch, min_due, odometer, step_moved = det[2], det[10], det[11], det[12]
+    # relative to the watched nodes' mean displacement: a common translation moves no gap
     n_watch = watch.shape[0]
     m0 = m1 = m2 = 0.0
     for w in range(n_watch):
@@ -338,7 +346,8 @@ def moved_on(x0, b0, x1, b1, b, det):
         d1 = (x1[i, 1, b1] - x0[i, 1, b0]) - m1
         d2 = (x1[i, 2, b1] - x0[i, 2, b0]) - m2
         step2 = max(step2, d0 * d0 + d1 * d1 + d2 * d2)
-    odometer[b] += np.sqrt(step2)
+    step_moved[b] = np.sqrt(step2)
+    odometer[b] += step_moved[b]
     return odometer[b] >= min_due[b]   # (False for a NaN odometer: the step failed, and its copy with it)
 
 
@@ -348,36 +357,26 @@ def examine(x0, b0, x1, b1, b, s, det, work, events, points):
     whose positions move from ``x0[:, :, b0]`` to ``x1[:, :, b1]`` (N, 3, .) m, after :func:`moved_on`
     said so: each measured, and examined over the step if it may have changed state; transitions are
     appended to ``events`` and ``points`` (:func:`new_events`); ``work``: :func:`new_work`."""
-    pair_nodes, radii_sum, watch, touch, fractions, around, inside, snap, budget, due, min_due, odometer = det
+    pair_nodes, radii_sum, watch, touch, fractions, around, inside, snap, budget, due, min_due, odometer, moved = det
     n_pairs = pair_nodes.shape[0]
-    n_watch = watch.shape[0]
     odo = odometer[b]
-    c0 = c1 = c2 = 0.0
-    for w in range(n_watch):
-        i = watch[w]
-        c0 += x1[i, 0, b1]
-        c1 += x1[i, 1, b1]
-        c2 += x1[i, 2, b1]
-    c0 /= n_watch
-    c1 /= n_watch
-    c2 /= n_watch
+    moved_now = moved[b]
     p0, p1, disp, scratch, pair_tau, pair_begin = work
+    local = scratch[:9]
     lowest = np.inf
     for p in range(n_pairs):
         if due[p, b] <= odo:
-            reach_a = 0.0
-            reach_b = 0.0
-            for k in range(4):
-                i = pair_nodes[p, k]
-                e0 = x1[i, 0, b1] - c0 - snap[p, k, 0, b]
-                e1 = x1[i, 1, b1] - c1 - snap[p, k, 1, b]
-                e2 = x1[i, 2, b1] - c2 - snap[p, k, 2, b]
-                shift = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
-                if k < 2:
-                    reach_a = max(reach_a, shift)
-                else:
-                    reach_b = max(reach_b, shift)
-            left = budget[p, b] - (reach_a + reach_b)
+            # how far the pair's shape moved since it was last measured: its ends in its own frame
+            reach = np.inf
+            if _pair_frame(x1, b1, pair_nodes[p], local):
+                shift_a = _distance(local, 0, snap[p, 1, 0, b], snap[p, 1, 1, b], snap[p, 1, 2, b])
+                shift_b = max(_distance(local, 3, snap[p, 2, 0, b], snap[p, 2, 1, b], snap[p, 2, 2, b]),
+                              _distance(local, 6, snap[p, 3, 0, b], snap[p, 3, 1, b], snap[p, 3, 2, b]))
+                if shift_a + shift_b >= 0:   # (NaN: no shape measured yet)
+                    reach = shift_a + shift_b
+            # within the step the shape is at most this step's largest displacement (both members: twice)
+            # from the end's, where it is at most `reach` from the measured one
+            left = budget[p, b] - reach - 2.0 * moved_now
             if left <= 0:
                 for k in range(4):
                     i = pair_nodes[p, k]
@@ -385,7 +384,7 @@ def examine(x0, b0, x1, b1, b, s, det, work, events, points):
                         p0[k, j] = x0[i, j, b0]
                         p1[k, j] = x1[i, j, b1]
                 found, ins, gap = _transitions(p0, p1, disp, radii_sum[p], inside[p, b], touch, fractions, around,
-                                               pair_tau, pair_begin, scratch)
+                                               pair_tau, pair_begin, scratch[9:])
                 for e in range(found):
                     events.append((s, b, p, pair_tau[e], pair_begin[e]))
                     for k in range(4):
@@ -395,17 +394,69 @@ def examine(x0, b0, x1, b1, b, s, det, work, events, points):
                         for j in range(3):
                             points.append(p1[k, j])
                 inside[p, b] = ins
-                snapped = snap[p]
-                for k in range(4):
-                    i = pair_nodes[p, k]
-                    snapped[k, 0, b] = x1[i, 0, b1] - c0
-                    snapped[k, 1, b] = x1[i, 1, b1] - c1
-                    snapped[k, 2, b] = x1[i, 2, b1] - c2
                 left = -gap if ins else gap
-                budget[p, b] = left
+                if not _pair_frame(x1, b1, pair_nodes[p], local):
+                    local[0] = np.nan   # no frame: the next look examines the pair again
+            else:
+                left = budget[p, b] - reach   # the gap at the step's end is at least this
+            budget[p, b] = left
+            for k in range(3):
+                for j in range(3):
+                    snap[p, k + 1, j, b] = local[3 * k + j]
             due[p, b] = odo + 0.5 * left if left > 0 else odo
         lowest = min(lowest, due[p, b])
     min_due[b] = lowest
+
+
+@njit(cache=True, error_model="numpy")
+def _distance(local, k, u0, u1, u2):
+    """|local[k:k + 3] - u| (m)."""
+    e0 = local[k] - u0
+    e1 = local[k + 1] - u1
+    e2 = local[k + 2] - u2
+    return np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+
+
+@njit(cache=True, error_model="numpy")
+def _pair_frame(x, b, nodes, local):
+    """The pair's ends a1, b0, b1 in its own frame (origin a0, first axis along a, second towards b's
+    midpoint), written into ``local`` (9,) m: a rigid motion of the pair leaves them unchanged, and its
+    gap is theirs. False (``local`` undefined) where the frame is degenerate."""
+    a0, a1, c0, c1 = nodes[0], nodes[1], nodes[2], nodes[3]
+    u0 = x[a1, 0, b] - x[a0, 0, b]
+    u1 = x[a1, 1, b] - x[a0, 1, b]
+    u2 = x[a1, 2, b] - x[a0, 2, b]
+    nu = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    w0 = 0.5 * (x[c0, 0, b] + x[c1, 0, b]) - x[a0, 0, b]
+    w1 = 0.5 * (x[c0, 1, b] + x[c1, 1, b]) - x[a0, 1, b]
+    w2 = 0.5 * (x[c0, 2, b] + x[c1, 2, b]) - x[a0, 2, b]
+    if not nu > 0:
+        return False
+    u0 /= nu
+    u1 /= nu
+    u2 /= nu
+    along = w0 * u0 + w1 * u1 + w2 * u2
+    w0 -= along * u0
+    w1 -= along * u1
+    w2 -= along * u2
+    nw = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    if not nw > 1e-6 * nu:
+        return False
+    w0 /= nw
+    w1 /= nw
+    w2 /= nw
+    z0 = u1 * w2 - u2 * w1
+    z1 = u2 * w0 - u0 * w2
+    z2 = u0 * w1 - u1 * w0
+    for k in range(3):
+        i = nodes[k + 1]
+        d0 = x[i, 0, b] - x[a0, 0, b]
+        d1 = x[i, 1, b] - x[a0, 1, b]
+        d2 = x[i, 2, b] - x[a0, 2, b]
+        local[3 * k] = d0 * u0 + d1 * u1 + d2 * u2
+        local[3 * k + 1] = d0 * w0 + d1 * w1 + d2 * w2
+        local[3 * k + 2] = d0 * z0 + d1 * z1 + d2 * z2
+    return True
 
 
 @njit(cache=True, error_model="numpy")
