@@ -106,7 +106,9 @@ def write(rows: list[dict]) -> str:
     lines = ["## Batches (issue 12)\n",
              "`python3 bench/bench_batch.py`: scene-steps per second of a whole batch (dt = 1 ms, best of "
              f"{REPEATS} turns in one process), against `mujoco.rollout` with as many threads as cores "
-             "(Euler, contacts and sensors off; limited tendons for the inextensible case).\n",
+             "(Euler, sensors off; limited tendons for the inextensible case), the rows with contacts against "
+             "MuJoCo with the struts' capsules colliding, the others against MuJoCo with contacts off. "
+             f"Load average {os.getloadavg()[0]:.2f} at the end.\n",
              "| case | batch | contender | threads | scene-steps/s | ratio to MuJoCo |",
              "| --- | --- | --- | --- | --- | --- |"]
     lines += [f"| {r['case']} | {r['batch']} | {r['contender']} | {r['threads']} | {r['scene_steps_per_s']:,} | "

@@ -57,6 +57,11 @@ last examined (its gap, or while in contact its penetration) and is examined aga
 may have moved by that much since (then together with the pairs past half of theirs: one batch costs
 about what one pair does); while no node has moved more than half the smallest such margin since the
 last check, a step costs one array comparison over the nodes. When a scene checks nothing, the simulator builds no detector at all.
+
+The simulators step :class:`CompiledDetector`: the same events from compiled code
+(``methods/_detection_kernels.py``, with a broad phase of its own), inside the elastic method's compiled
+``run()`` loop or over a chunk of steps; :class:`ContactDetector` is the plain reference that tests hold
+it to.
 """
 from __future__ import annotations
 
@@ -435,11 +440,6 @@ class ContactDetector:
         return (self._kind_ok[self._kind[i], self._kind[j]] & ~share
                 & ~(self._member_fixed[i] & self._member_fixed[j]) & (i != j))
 
-    def has_pairs(self) -> bool:
-        """Whether any pair of checked members is eligible at all (else detection is pointless)."""
-        m = self.members
-        return any(self.eligible(np.full(len(m) - k - 1, m[k]), m[k + 1:]).any() for k in range(len(m) - 1))
-
     def _rebuild(self, x0: np.ndarray, x1: np.ndarray, keep_state: bool) -> None:
         """New pair list from boxes holding the members' sweep from ``x0`` to ``x1`` and any later
         position within the skin of ``x1``; pairs already listed keep their state."""
@@ -475,17 +475,6 @@ class ContactDetector:
         self._rebuild(positions, positions, keep_state=False)
         self._x_ref = positions.copy()
         self._quiet = -np.inf      # max |x - x_ref|_inf (m) under which a step needs no work at all
-
-    @property
-    def watched(self):
-        """The nodes whose motion matters (an index for ``positions[watched]``: a slice or an array)."""
-        return self._watch
-
-    def quiet_zone(self) -> tuple[np.ndarray, float]:
-        """Positions (N, 3) m and a distance (m, per coordinate): while no watched node is that far from
-        those positions, :meth:`step` has nothing to do and returns no event (a batch checks this for
-        all its copies at once and calls only the others)."""
-        return self._x_ref, self._quiet
 
     @property
     def pair_count(self) -> int:

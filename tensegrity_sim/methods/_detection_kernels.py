@@ -467,8 +467,10 @@ def detect_steps(xs, stop, det):
     (:func:`new_events`)."""
     events, points = new_events()
     work = new_work()
-    for b in range(xs.shape[3]):
-        for s in range(stop[b]):
-            if moved_on(xs[s], b, xs[s + 1], b, b, det):
-                examine(xs[s], b, xs[s + 1], b, b, s, det, work, events, points)
+    for s in range(xs.shape[0] - 1):   # the copies innermost: they lie side by side in memory
+        x0 = xs[s]
+        x1 = xs[s + 1]
+        for b in range(xs.shape[3]):
+            if s < stop[b] and moved_on(x0, b, x1, b, b, det):
+                examine(x0, b, x1, b, b, s, det, work, events, points)
     return events, points
