@@ -193,6 +193,9 @@ class BatchSimulator:
             self._rest = np.stack([s.cable_rest_lengths for s in scenes], axis=-1)
             self._f_ext = np.zeros((n, 3, self.batch))
             self._detectors = make_detector(self.system, scene.contact_kinds, copies=self.batch)
+            if isinstance(self._detectors, list):
+                for b, d in enumerate(self._detectors):
+                    d.reset(np.ascontiguousarray(self._x[..., b]))
             # copies stopped by a non-finite step: {copy: (steps done, positions, velocities)}
             self._frozen: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
             # a copy starting at speeds no step resolves fails at its first step, as Simulator.step does
@@ -344,8 +347,15 @@ class BatchSimulator:
             stop = np.full(self.batch, steps, dtype=np.int64)
             for b, (done, _, _) in self._frozen.items():
                 stop[b] = min(steps, max(0, done - start))
-            found = self._detectors.walk(np.concatenate([previous[None], x_seq]), lambda k: (start + k) * self.dt,
-                                         self.dt, stop)
+            xs = np.concatenate([previous[None], x_seq])
+
+            def at(k):   # the times steps k of the chunk start, s
+                return (start + k) * self.dt
+            if isinstance(self._detectors, list):   # a numpy detector per copy (a scene with very many pairs)
+                found = {(k, b): events for b, d in enumerate(self._detectors)
+                         for (k, _), events in d.walk(xs[..., b:b + 1], at, self.dt, stop[b:b + 1]).items()}
+            else:
+                found = self._detectors.walk(xs, at, self.dt, stop)
             rows: dict[int, list] = {}
             for (k, b), events in found.items():
                 rows.setdefault(k, [()] * self.batch)[b] = events

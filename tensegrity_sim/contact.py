@@ -493,6 +493,17 @@ class ContactDetector:
             return ()
         return self._careful_step(x0, x1, t0, dt)
 
+    def walk(self, xs: np.ndarray, step_start, dt: float, stop=None, impulses: dict | None = None) -> dict:
+        """:meth:`CompiledDetector.walk` of one copy (``xs`` (K + 1, N, 3, 1)), step after step."""
+        steps = len(xs) - 1 if stop is None else int(stop[0])
+        start = step_start(np.arange(steps))
+        found = {}
+        for k in range(steps):
+            events = self.step(xs[k, ..., 0], xs[k + 1, ..., 0], float(start[k]), dt, impulses)
+            if events:
+                found[(k, 0)] = events
+        return found
+
     def _careful_step(self, x0, x1, t0, dt):
         w = self._watch
         moved = x1[w] - self._x_list[w]
@@ -660,11 +671,27 @@ class CompiledDetector(ContactDetector):
                      for k, p in enumerate(idx))
 
 
-def make_detector(system: System, kinds, touch: float = 0.0, copies: int = 1) -> CompiledDetector | None:
-    """The compiled detector for ``kinds`` (``touch`` as :class:`ContactDetector`'s) of ``copies`` copies,
-    or None when no pair of members could ever be reported (no kind asked for, no member with a radius,
-    or every candidate pair shares a node or is fixed)."""
+# Most eligible member pairs the compiled detector lists (all of them, each with a dozen numbers per copy and
+# a look when due); beyond, the numpy detector, whose pair list holds only the pairs within its skin, is
+# cheaper (the 50-stage tower with every member kind has 880,000 pairs: 6 ms a step compiled)
+COMPILED_PAIRS = 20_000
+
+
+def make_detector(system: System, kinds, touch: float = 0.0, copies: int = 1):
+    """The contact detector for ``kinds`` (``touch`` as :class:`ContactDetector`'s) of ``copies`` copies:
+    a :class:`CompiledDetector`, or, beyond :data:`COMPILED_PAIRS` eligible pairs, the numpy
+    :class:`ContactDetector` (a list of ``copies`` of them for several copies); None when no pair of
+    members could ever be reported (no kind asked for, no member with a radius, or every candidate pair
+    shares a node or is fixed)."""
     if not kinds:
         return None
-    detector = CompiledDetector(system, kinds, touch=touch, copies=copies)
-    return detector if detector.pair_count else None
+    reference = ContactDetector(system, kinds, touch=touch)
+    m = reference.members
+    a, b = np.triu_indices(len(m), 1)
+    count = int(reference.eligible(m[a], m[b]).sum())
+    if not count:
+        return None
+    if count > COMPILED_PAIRS:
+        return reference if copies == 1 else [reference] + [ContactDetector(system, kinds, touch=touch)
+                                                            for _ in range(copies - 1)]
+    return CompiledDetector(system, kinds, touch=touch, copies=copies)

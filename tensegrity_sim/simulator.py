@@ -15,7 +15,7 @@ from typing import Mapping
 import numpy as np
 
 from .checks import check_memory, describe, float_array, real, time_step, whole
-from .contact import ActiveContact, make_detector
+from .contact import ActiveContact, CompiledDetector, make_detector
 from .ground_contact import GroundDetector
 from .methods import State, StepError, make_method
 from .methods.friction import TOUCH_TOL
@@ -471,7 +471,8 @@ class Simulator:
         st, method = self._state, self._method
         add = np.add.reduce
         detector = self._contacts
-        if detector is None or method.loop_detects():   # straight into the trajectory's arrays
+        if detector is None or (method.loop_detects() and isinstance(detector, CompiledDetector)):
+            # straight into the trajectory's arrays
             carry = method.carry()
             saved = None if detector is None else detector.snapshot()
             if detector is not None:

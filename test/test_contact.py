@@ -521,6 +521,29 @@ def test_detection_in_the_compiled_run_matches_the_numpy_detector(every):
     np.testing.assert_allclose([a.since for a in active], [a.since for a in ref_active], rtol=0, atol=1e-12)
 
 
+def test_scenes_with_very_many_pairs_detect_with_the_numpy_detector(monkeypatch):
+    """Beyond COMPILED_PAIRS eligible pairs the simulators detect with the numpy ContactDetector (its
+    pair list holds only the near pairs): Simulator.run() and a batch give the compiled detector's events."""
+    import tensegrity_sim.contact as contact
+    d = ts.load_scene("icosahedron").to_dict()
+    for s in d["struts"]:
+        s["radius"] = 0.25
+    rng = np.random.default_rng(5)
+    velocities = rng.normal(scale=1.0, size=(2, len(d["nodes"]), 3))
+    scene = ts.Scene.from_dict(d)
+    runs = []
+    for limit in (contact.COMPILED_PAIRS, 0):
+        monkeypatch.setattr(contact, "COMPILED_PAIRS", limit)
+        sim = ts.Simulator(scene, method="elastic", dt=1e-3)
+        batch = ts.BatchSimulator(scene, 2, method="elastic", velocities=velocities)
+        assert isinstance(sim._contacts, contact.CompiledDetector) == (limit > 0)
+        runs.append((sim.run(steps=400).contacts, batch.run(steps=400).contacts))
+    (single, copies), (single_ref, copies_ref) = runs
+    for got, want in [(single, single_ref)] + list(zip(copies, copies_ref)):
+        assert len(want) > 4 and event_rows(got)[0] == event_rows(want)[0]
+        np.testing.assert_allclose(event_rows(got)[1], event_rows(want)[1], rtol=0, atol=1e-12)
+
+
 # --------------------------------------------------------------------------- scene key, override, CLI
 BASE = crossing_dict()
 
