@@ -671,16 +671,20 @@ class CompiledDetector(ContactDetector):
                      for k, p in enumerate(idx))
 
 
-# Most eligible member pairs the compiled detector lists (all of them, each with a dozen numbers per copy and
-# a look when due); beyond, the numpy detector, whose pair list holds only the pairs within its skin, is
-# cheaper (the 50-stage tower with every member kind has 880,000 pairs: 6 ms a step compiled)
-COMPILED_PAIRS = 20_000
+# Most eligible member pairs the compiled detector lists (all of them, 16 numbers each per copy, each
+# looked at when its due value comes), per scene and over a batch's copies (about 500 MB); beyond, the
+# numpy detector, whose pair list holds only the pairs within its skin, is cheaper and smaller (bench_contact:
+# compiled 10x faster than numpy with the 30,000 pairs of the 10-stage tower with every member kind, 2x
+# slower with the 880,000 of the 50-stage one)
+COMPILED_PAIRS = 100_000
+COMPILED_PAIR_COPIES = 4_000_000
 
 
 def make_detector(system: System, kinds, touch: float = 0.0, copies: int = 1):
     """The contact detector for ``kinds`` (``touch`` as :class:`ContactDetector`'s) of ``copies`` copies:
-    a :class:`CompiledDetector`, or, beyond :data:`COMPILED_PAIRS` eligible pairs, the numpy
-    :class:`ContactDetector` (a list of ``copies`` of them for several copies); None when no pair of
+    a :class:`CompiledDetector`, or, beyond :data:`COMPILED_PAIRS` eligible pairs (or
+    :data:`COMPILED_PAIR_COPIES` pairs times copies), the numpy :class:`ContactDetector` (a list of
+    ``copies`` of them for several copies); None when no pair of
     members could ever be reported (no kind asked for, no member with a radius, or every candidate pair
     shares a node or is fixed)."""
     if not kinds:
@@ -691,7 +695,7 @@ def make_detector(system: System, kinds, touch: float = 0.0, copies: int = 1):
     count = int(reference.eligible(m[a], m[b]).sum())
     if not count:
         return None
-    if count > COMPILED_PAIRS:
+    if count > COMPILED_PAIRS or count * copies > COMPILED_PAIR_COPIES:
         return reference if copies == 1 else [reference] + [ContactDetector(system, kinds, touch=touch)
                                                             for _ in range(copies - 1)]
     return CompiledDetector(system, kinds, touch=touch, copies=copies)
