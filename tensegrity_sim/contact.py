@@ -73,8 +73,8 @@ from .results import ContactEvent
 from .scene import CONTACT_KINDS
 from .system import System
 
-__all__ = ["ActiveContact", "ContactDetector", "CompiledDetector", "box_pairs", "closest_points", "contact_geometry", "transitions",
-           "make_detector", "TAU_TOLERANCE", "SKIN_FRACTION"]
+__all__ = ["ActiveContact", "ContactDetector", "CompiledDetector", "box_pairs", "closest_points", "contact_geometry",
+           "transitions", "make_detector", "TAU_TOLERANCE", "SKIN_FRACTION", "COMPILED_PAIRS"]
 
 TAU_TOLERANCE = 1e-9    # width (fraction of the step) to which a crossing is bracketed before interpolation
 RESOLUTION = 1e-7       # after a crossing, the search for the next one starts this much later (step fraction)
