@@ -9,8 +9,10 @@ Cases (icosahedron thrown: rigid struts, 613 N/m cables, random node velocities;
   band ``springlength="0 L"``, bench/mujoco_peer.py) in ``mujoco.rollout`` with as many threads as cores;
 * inextensible, batch 256: ``BatchSimulator(method="inextensible")`` against MuJoCo's limited tendons.
 
-MuJoCo runs its Euler integrator (its cheapest step), contacts off and sensors off; we run without contact
-detection (the peer has none) and, for information, with it.
+MuJoCo runs its Euler integrator (its cheapest step), sensors off, contacts off, and again with the struts'
+capsules colliding with each other (``MujocoPeer(strut_contacts=True)``); we run without contact detection
+and with the scene's default strut-strut detection, each against MuJoCo likewise (``ratio_to_mujoco``: to
+the MuJoCo row without contacts, or with them for a row with contacts).
 
 * elastic on the ground, batch 1024 (issue 28): ``icosahedron_ground`` rolling (the roll's reel-in of c4,
   c5 and c6 to 60 % held from the start: the robot tips over its base edge and rolls), every copy starting
@@ -48,13 +50,15 @@ CASES = [  # (cable model, batch, steps per timed call)
 ]
 
 
-def _mujoco(scene, model: str, batch: int, steps: int, threads: int, integrator: str = "Euler", rest=None):
+def _mujoco(scene, model: str, batch: int, steps: int, threads: int, integrator: str = "Euler", rest=None,
+            strut_contacts: bool = False):
     """A callable doing ``steps`` steps of ``batch`` copies in ``mujoco.rollout`` with ``threads`` threads;
-    ``rest``: the cables' rest lengths (n_cables,) m if not the scene's."""
+    ``rest``: the cables' rest lengths (n_cables,) m if not the scene's; ``strut_contacts``: the struts'
+    capsules collide (see ``MujocoPeer``)."""
     import mujoco
     from mujoco import rollout
 
-    peer = MujocoPeer(scene, model=model, dt=1e-3, integrator=integrator)
+    peer = MujocoPeer(scene, model=model, dt=1e-3, integrator=integrator, strut_contacts=strut_contacts)
     m = peer.model
     if rest is not None:
         m.tendon_lengthspring[peer._tendons, 1] = rest
@@ -125,7 +129,9 @@ def measure() -> list[dict]:
     rows = []
     for model, batch, steps in CASES:
         mujoco_run, pool = _mujoco(scene, model, batch, steps, threads)
+        mujoco_contacts, contacts_pool = _mujoco(scene, model, batch, steps, threads, strut_contacts=True)
         contenders = {"mujoco rollout": mujoco_run,
+                      "mujoco rollout + strut capsule contacts": mujoco_contacts,
                       "BatchSimulator": _ours(scene, model, batch, steps, ()),
                       "BatchSimulator + contacts": _ours(scene, model, batch, steps, None)}
         best = {name: float("inf") for name in contenders}
@@ -135,12 +141,15 @@ def measure() -> list[dict]:
             for name, run in contenders.items():
                 best[name] = min(best[name], time_runs(run, warmup=lambda: None, repeats=1).best)
         pool.close()
-        ref = batch * steps / best["mujoco rollout"]
+        contacts_pool.close()
         for name, t in best.items():
+            # like for like: detection on against MuJoCo's contacts on, off against off
+            peer = "mujoco rollout + strut capsule contacts" if "contacts" in name else "mujoco rollout"
             rate = batch * steps / t
             rows.append({"case": f"icosahedron_thrown {model}", "batch": batch, "steps": steps,
                          "contender": name, "threads": threads if name.startswith("mujoco") else 1,
-                         "scene_steps_per_s": round(rate), "ratio_to_mujoco": round(rate / ref, 3), "note": ""})
+                         "scene_steps_per_s": round(rate),
+                         "ratio_to_mujoco": round(best[peer] / t, 3), "load": os.getloadavg()[0], "note": ""})
     return rows + measure_ground()
 
 
@@ -150,7 +159,10 @@ def write(rows: list[dict]) -> str:
     lines = ["## Batches (issues 12, 28)\n",
              "`python3 bench/bench_batch.py`: scene-steps per second of a whole batch (dt = 1 ms, best of "
              f"{REPEATS} turns in one process), against `mujoco.rollout` with as many threads as cores "
-             "(Euler, contacts and sensors off; limited tendons for the inextensible case).\n",
+             "(Euler, sensors off; limited tendons for the inextensible case), the rows with contacts against "
+             "MuJoCo with the struts' capsules colliding, the others against MuJoCo with contacts off; the ground "
+             "rows against MuJoCo's plane contacts (implicitfast). "
+             f"Load average {os.getloadavg()[0]:.2f} at the end.\n",
              "| case | batch | contender | threads | scene-steps/s | ratio to MuJoCo | note |",
              "| --- | --- | --- | --- | --- | --- | --- |"]
     lines += [f"| {r['case']} | {r['batch']} | {r['contender']} | {r['threads']} | {r['scene_steps_per_s']:,} | "

@@ -11,7 +11,10 @@ were; ``--methods ""``: none); ``--stages ""`` skips the towers (and keeps their
   inextensible one against MuJoCo's Euler with *limited* tendons (its model of an inextensible cable).
   The inextensible rows add the step with the self-stress rule in its numpy reference (what compiling
   it gained) and the step with its kernels called one by one through the solver's and the rule's API
-  (``one_kernel = False``: what running a step in one kernel call gained). Every timed run starts
+  (``one_kernel = False``: what running a step in one kernel call gained). Both methods add ``run()``
+  with the scene's default strut-strut contact detection against MuJoCo's ``mj_step(nstep)`` with the
+  struts' capsules colliding (``MujocoPeer(strut_contacts=True)``: like for like, detection on in both)
+  and against this simulator's own ``run()`` without detection (what detection costs). Every timed run starts
   ``SETTLE`` steps after a reset, each contender stepped there untimed: steady stepping after warm-up.
 * **Towers** of ``--stages`` stages (no gravity), inextensible, at rest and moving (random node
   velocities of 0.05 m/s): the steady cost per step after a warm-up, and separately the cost of the first
@@ -78,6 +81,14 @@ def icosahedron_rows(repeats: int, methods=("elastic", "inextensible")) -> list[
             "MuJoCo mj_step(nstep)": (peer.advance, peer.reset),
         }
         pairs = [(0, 1), (2, 3)]
+        # like for like with contact detection on: this simulator's default strut-strut detection (events
+        # only) against MuJoCo's strut capsules colliding with each other; and the same run() without it
+        detected = ts.Simulator(scene, method=method, dt=1e-3)
+        capsules = MujocoPeer(scene, model=method, dt=1e-3, integrator="Euler", strut_contacts=True)
+        contenders["tensegrity_sim run(), strut-strut detection"] = (lambda n: detected.run(steps=n, every=n),
+                                                                     detected.reset)
+        contenders["MuJoCo mj_step(nstep), strut capsule contacts"] = (capsules.advance, capsules.reset)
+        pairs += [(len(contenders) - 2, len(contenders) - 1), (len(contenders) - 2, 2)]
         if method == "inextensible":   # what compiling the self-stress rule and the one-call step gained (issue 10)
             plain = ts.Simulator(scene, method=method, dt=1e-3, contacts=())
             plain._method.self_stress.compiled = False
@@ -85,14 +96,16 @@ def icosahedron_rows(repeats: int, methods=("elastic", "inextensible")) -> list[
             api = ts.Simulator(scene, method=method, dt=1e-3, contacts=())
             api._method.one_kernel = False
             contenders["tensegrity_sim step(), kernels called through the API"] = (_python_loop(api.step), api.reset)
-            pairs += [(4, 1), (5, 1)]
+            pairs += [(len(contenders) - 2, 1), (len(contenders) - 1, 1)]
         timings = time_alternating(contenders, repeats=repeats, target=0.2, clock=time.process_time,
                                    settle=SETTLE)
         best = {name: t.best for name, t in timings.items()}
         names = list(contenders)
         for ours, theirs in ((names[i], names[j]) for i, j in pairs):
             rows.append({"case": "icosahedron_thrown", "method": method, "ours": ours, "peer": theirs,
-                         "peer_model": "spring tendons" if method == "elastic" else "limited tendons",
+                         "peer_model": ("this simulator" if theirs.startswith("tensegrity_sim")
+                                        else "spring tendons" if method == "elastic" else "limited tendons")
+                         + (", strut capsule contacts" if "capsule" in theirs else ""),
                          "ours_us": 1e6 * best[ours], "peer_us": 1e6 * best[theirs],
                          "ratio": best[theirs] / best[ours]})
     return rows

@@ -28,6 +28,10 @@ Modelling (one MJCF body per rigid strut or per free point mass; nothing else):
   radius (massless: the body's inertia stays the point masses') and each point mass a sphere of its
   node's radius; only these touch the plane (not each other), with elliptic friction cones and
   ``impratio`` (default 100, MuJoCo's advice for little slip).
+  With ``strut_contacts=True`` (and no ground) each rigid strut carries its capsule and the capsules
+  collide with each other (frictionless): what this simulator's default strut-strut detection checks,
+  for a like-for-like cost of contact detection (MuJoCo also responds to a contact; this simulator,
+  by default, only reports it).
 
 Cable damping is refused (MuJoCo's tendon damping acts also while slack). A node carrying two rigid
 struts, or a rigid strut with a fixed end, is refused (the bench scenes need neither).
@@ -60,7 +64,8 @@ class MujocoPeer:
     """
 
     def __init__(self, scene: ts.Scene, *, model: str = "elastic", dt: float = 1e-3, integrator: str = "RK4",
-                 axial_inertia: float = 1e-6, limit_dampratio: float = 1.0, impratio: float = 100.0):
+                 axial_inertia: float = 1e-6, limit_dampratio: float = 1.0, impratio: float = 100.0,
+                 strut_contacts: bool = False):
         import mujoco
 
         if model not in ("elastic", "inextensible"):
@@ -71,6 +76,7 @@ class MujocoPeer:
         self.scene, self.system, self.cable_model, self.dt = scene, System(scene), model, float(dt)
         self.integrator = integrator
         self.impratio = float(impratio)
+        self.strut_contacts = bool(strut_contacts)
         self.xml = self._mjcf(integrator, axial_inertia, limit_dampratio)
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
@@ -101,6 +107,13 @@ class MujocoPeer:
         # (MuJoCo combines two geoms' friction by the larger: the moving geoms carry the ground's too)
         touch = (f' contype="1" conaffinity="0" condim="3" friction="{ground.friction!r} 0 0"'
                  if ground is not None else "")
+        # strut_contacts: the rigid struts' capsules also collide with each other (bit 2, frictionless), as
+        # this simulator's default strut-strut detection checks them
+        capsule = touch
+        if self.strut_contacts:
+            friction = ground.friction if ground is not None else 0.0
+            capsule = (f' contype="{3 if ground is not None else 2}" conaffinity="2" condim="{3 if ground else 1}"'
+                       f' friction="{friction!r} 0 0"')
         if ground is not None:
             world.append(f'<geom type="plane" size="0 0 1" pos="0 0 {ground.height!r}" contype="0" conaffinity="1" '
                          f'friction="{ground.friction!r} 0 0" condim="3"/>')
@@ -130,7 +143,7 @@ class MujocoPeer:
                 f'<inertial pos="0 0 0" mass="{float(m2.sum())!r}" fullinertia="{_fmt(full)}"/>'
                 f'<site name="node_{names[a]}" pos="{_fmt(r[0])}"/><site name="node_{names[b]}" pos="{_fmt(r[1])}"/>'
                 + (f'<geom type="capsule" fromto="{_fmt(np.concatenate([r[0], r[1]]))}" '
-                   f'size="{max(float(scene.struts[i].radius), 1e-6)!r}" mass="0"{touch}/>' if touch else "")
+                   f'size="{max(float(scene.struts[i].radius), 1e-6)!r}" mass="0"{capsule}/>' if capsule else "")
                 + "</body>")
         tendons, sensors = [], []
         moving = sys.free[sys.ends].any(axis=1)
@@ -156,7 +169,7 @@ class MujocoPeer:
             f'<mujoco model="{scene.name}"><compiler angle="radian"/>'
             f'<option timestep="{self.dt!r}" integrator="{integrator}" gravity="{_fmt(scene.gravity)}"'
             + (f' cone="elliptic" impratio="{self.impratio!r}"></option>' if ground is not None
-               else '><flag contact="disable"/></option>')
+               else '></option>' if self.strut_contacts else '><flag contact="disable"/></option>')
             + f'<worldbody>{"".join(world)}{"".join(bodies)}</worldbody>'
             f'<tendon>{"".join(tendons)}</tendon><sensor>{"".join(sensors)}</sensor></mujoco>')
 

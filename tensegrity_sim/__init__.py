@@ -15,14 +15,14 @@ from .methods.inextensible import LengthOffsetWarning
 from .methods.qp import SOLVERS, QPError
 from .results import ContactEvent, StepResult, Trajectory
 from .scene import Cable, ClassKWarning, Node, Scene, SceneError, Strut, builtin_scenes, load_scene
-from .simulator import NonFiniteError, Simulator
+from .simulator import NonFiniteError, Simulator, SpeedError
 
 __version__ = "0.1.0"
 
 __all__ = [
     "METHODS", "Cable", "ClassKWarning", "ContactEvent", "Node", "Scene", "SceneError", "Simulator",
     "LengthOffsetWarning", "NonFiniteError", "QPError", "StepError", "SOLVERS", "StepResult", "Strut", "Trajectory",
-    "builtin_scenes",
+    "SpeedError", "builtin_scenes",
     "load_scene", "__version__",
     "ActiveContact", "BatchSimulator", "AccuracyChoice", "choose_accuracy",
 ]

@@ -25,8 +25,8 @@ from typing import Mapping
 import numpy as np
 
 from .checks import float_array, time_step
-from .contact import ContactDetector, make_detector
 from .commands import CommandSchedule
+from .contact import make_detector
 from .ground_contact import GroundDetector, walk_copies
 from .methods import StepError, check_backend, choose_method
 from .methods.elastic import ElasticMethod
@@ -34,7 +34,7 @@ from .methods.elastic_batch import ElasticBatch
 from .results import ContactEvent
 from .scene import Scene, contact_kinds
 from .methods.base import State
-from .simulator import Simulator, non_finite_report, run_plan
+from .simulator import Simulator, absurd_speed, non_finite_report, run_plan
 from .system import System
 
 __all__ = ["BatchSimulator", "BatchStepResult", "BatchTrajectory", "structure_of"]
@@ -187,6 +187,7 @@ class BatchSimulator:
                              "'numba'")
         self.backend = backend
         self.failures: dict[int, str] = {}
+        self._no_events = ((),) * self.batch   # a step without contact events (one shared row)
         n, nc = len(scene.nodes), len(scene.cables)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
@@ -209,7 +210,10 @@ class BatchSimulator:
             self._v = self._engine.prepare(self._x, v)
             self._rest = np.stack([s.cable_rest_lengths for s in scenes], axis=-1)
             self._f_ext = np.zeros((n, 3, self.batch))
-            self._detectors = self._make_detectors(scene)
+            self._detectors = make_detector(self.system, scene.contact_kinds, copies=self.batch)
+            if isinstance(self._detectors, list):
+                for b, d in enumerate(self._detectors):
+                    d.reset(np.ascontiguousarray(self._x[..., b]))
             # the ground's contact events come from the numba engine's impulses (the JAX engine reports none)
             self._grounds = (None if scene.ground is None or backend == "jax"
                              else [GroundDetector(self.system) for _ in range(self.batch)])
@@ -217,6 +221,14 @@ class BatchSimulator:
                 d.reset(self._x[..., b])
             # copies stopped by a non-finite step: {copy: (steps done, positions, velocities)}
             self._frozen: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
+            # a copy starting at speeds no step resolves fails at its first step, as Simulator.step does
+            _, length, _ = self.system.geometry(scene.positions)
+            shortest = float(length[length > 0].min(initial=np.inf))
+            for b in range(self.batch):
+                reason = absurd_speed(scene, self._v[..., b], self.dt, shortest)
+                if reason is not None:
+                    self.failures[b] = f"step 1 (t = {self.dt:.6g} s): {reason}"
+                    self._frozen[b] = (0, self._x[..., b].copy(), self._v[..., b].copy())
         else:
             # one QP (or one ground) per copy: a Simulator per copy, whose warnings are given once for the batch
             with warnings.catch_warnings(record=True) as caught:
@@ -226,23 +238,6 @@ class BatchSimulator:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
             self.dt = self._copies[0].dt
         self._nc = nc
-
-    def _make_detectors(self, scene):
-        """One contact detector per copy (None when nothing can touch), started at its positions, and
-        the batch's quiet-zone arrays: the step asks only the copies whose nodes left theirs."""
-        if make_detector(self.system, scene.contact_kinds) is None:
-            return None
-        detectors = []
-        for b in range(self.batch):
-            d = ContactDetector(self.system, scene.contact_kinds)
-            d.reset(np.ascontiguousarray(self._x[..., b]))
-            detectors.append(d)
-        self._quiet_ref = np.empty_like(self._x)
-        self._quiet = np.empty(self.batch)
-        for b, d in enumerate(detectors):
-            self._quiet_ref[..., b], self._quiet[b] = d.quiet_zone()
-        self._watch = detectors[0].watched
-        return detectors
 
     # ------------------------------------------------------------------ state
     @property
@@ -375,15 +370,26 @@ class BatchSimulator:
         self._x, self._v = x_seq[-1].copy(), v_seq[-1].copy()
         self._step_count += steps
         self._guard(previous, previous_v, start, x_seq, v_seq, imp, slack)
-        if self._detectors is None:
-            contacts = [((),) * self.batch] * steps
-        else:
-            contacts = []
-            first = previous
-            for k in range(steps):
-                contacts.append(self._detect(previous, x_seq[k], (start + k) * self.dt))
-                previous = x_seq[k]
-            previous = first
+        contacts = [self._no_events] * steps
+        if self._detectors is not None:
+            # a failed copy is walked up to its failure only
+            stop = np.full(self.batch, steps, dtype=np.int64)
+            for b, (done, _, _) in self._frozen.items():
+                stop[b] = min(steps, max(0, done - start))
+            xs = np.concatenate([previous[None], x_seq])
+
+            def at(k):   # the times steps k of the chunk start, s
+                return (start + k) * self.dt
+            if isinstance(self._detectors, list):   # a numpy detector per copy (a scene with very many pairs)
+                found = {(k, b): events for b, d in enumerate(self._detectors)
+                         for (k, _), events in d.walk(xs[..., b:b + 1], at, self.dt, stop[b:b + 1]).items()}
+            else:
+                found = self._detectors.walk(xs, at, self.dt, stop)
+            rows: dict[int, list] = {}
+            for (k, b), events in found.items():
+                rows.setdefault(k, [()] * self.batch)[b] = events
+            for k, row in rows.items():
+                contacts[k] = tuple(row)
         if self._grounds is not None:
             landed = walk_copies(self._grounds, previous, previous_v, x_seq, v_seq, self._engine.contact,
                                  start * self.dt, self.dt)
@@ -423,18 +429,6 @@ class BatchSimulator:
         imp = imp[0].copy()
         return BatchStepResult(self.time, x[0].copy(), v[0].copy(), imp, imp / self.dt, slack[0].copy(),
                                contacts[0], self.failed)
-
-    def _detect(self, x0, x1, t0):
-        """Contact events per copy of a step from ``x0`` to ``x1`` (N, 3, B) starting at ``t0`` s; a copy
-        whose watched nodes all stayed in its detector's quiet zone is not asked."""
-        w = self._watch
-        moved = np.abs(x1[w] - self._quiet_ref[w]).max(axis=(0, 1), initial=0.0)
-        out = [()] * self.batch
-        for b in np.flatnonzero(moved >= self._quiet):
-            d = self._detectors[b]
-            out[b] = d.step(np.ascontiguousarray(x0[..., b]), np.ascontiguousarray(x1[..., b]), t0, self.dt)
-            self._quiet_ref[..., b], self._quiet[b] = d.quiet_zone()
-        return tuple(out)
 
     def _step_copies(self):
         b, n, nc = self.batch, len(self.scene.nodes), self._nc
@@ -498,8 +492,8 @@ class BatchSimulator:
             snaps += (np.concatenate([was_slack[None], sl[:-1]]) & ~sl).sum(axis=0)
             was_slack = sl[-1].copy()
             for per_step in events:
-                for c, e in enumerate(per_step):
-                    if e:
+                if per_step is not self._no_events:
+                    for c, e in enumerate(per_step):
                         contacts[c].extend(e)
             g = done + np.arange(m)              # the chunk's steps in the run, from 0
             j = g // every

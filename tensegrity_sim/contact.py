@@ -57,6 +57,11 @@ last examined (its gap, or while in contact its penetration) and is examined aga
 may have moved by that much since (then together with the pairs past half of theirs: one batch costs
 about what one pair does); while no node has moved more than half the smallest such margin since the
 last check, a step costs one array comparison over the nodes. When a scene checks nothing, the simulator builds no detector at all.
+
+The simulators step :class:`CompiledDetector`: the same events from compiled code
+(``methods/_detection_kernels.py``, with a broad phase of its own), inside the elastic method's compiled
+``run()`` loop or over a chunk of steps; :class:`ContactDetector` is the plain reference that tests hold
+it to.
 """
 from __future__ import annotations
 
@@ -68,8 +73,8 @@ from .results import ContactEvent
 from .scene import CONTACT_KINDS
 from .system import System
 
-__all__ = ["ActiveContact", "ContactDetector", "box_pairs", "closest_points", "contact_geometry", "transitions",
-           "make_detector", "TAU_TOLERANCE", "SKIN_FRACTION"]
+__all__ = ["ActiveContact", "ContactDetector", "CompiledDetector", "box_pairs", "closest_points", "contact_geometry",
+           "transitions", "make_detector", "TAU_TOLERANCE", "SKIN_FRACTION", "COMPILED_PAIRS"]
 
 TAU_TOLERANCE = 1e-9    # width (fraction of the step) to which a crossing is bracketed before interpolation
 RESOLUTION = 1e-7       # after a crossing, the search for the next one starts this much later (step fraction)
@@ -435,11 +440,6 @@ class ContactDetector:
         return (self._kind_ok[self._kind[i], self._kind[j]] & ~share
                 & ~(self._member_fixed[i] & self._member_fixed[j]) & (i != j))
 
-    def has_pairs(self) -> bool:
-        """Whether any pair of checked members is eligible at all (else detection is pointless)."""
-        m = self.members
-        return any(self.eligible(np.full(len(m) - k - 1, m[k]), m[k + 1:]).any() for k in range(len(m) - 1))
-
     def _rebuild(self, x0: np.ndarray, x1: np.ndarray, keep_state: bool) -> None:
         """New pair list from boxes holding the members' sweep from ``x0`` to ``x1`` and any later
         position within the skin of ``x1``; pairs already listed keep their state."""
@@ -477,17 +477,6 @@ class ContactDetector:
         self._quiet = -np.inf      # max |x - x_ref|_inf (m) under which a step needs no work at all
 
     @property
-    def watched(self):
-        """The nodes whose motion matters (an index for ``positions[watched]``: a slice or an array)."""
-        return self._watch
-
-    def quiet_zone(self) -> tuple[np.ndarray, float]:
-        """Positions (N, 3) m and a distance (m, per coordinate): while no watched node is that far from
-        those positions, :meth:`step` has nothing to do and returns no event (a batch checks this for
-        all its copies at once and calls only the others)."""
-        return self._x_ref, self._quiet
-
-    @property
     def pair_count(self) -> int:
         """Number of listed (nearby, eligible) pairs."""
         return len(self._key)
@@ -503,6 +492,17 @@ class ContactDetector:
         if np.abs(x1[w] - self._x_ref[w]).max(initial=0.0) < self._quiet:
             return ()
         return self._careful_step(x0, x1, t0, dt)
+
+    def walk(self, xs: np.ndarray, step_start, dt: float, stop=None, impulses: dict | None = None) -> dict:
+        """:meth:`CompiledDetector.walk` of one copy (``xs`` (K + 1, N, 3, 1)), step after step."""
+        steps = len(xs) - 1 if stop is None else int(stop[0])
+        start = step_start(np.arange(steps))
+        found = {}
+        for k in range(steps):
+            events = self.step(xs[k, ..., 0], xs[k + 1, ..., 0], float(start[k]), dt, impulses)
+            if events:
+                found[(k, 0)] = events
+        return found
 
     def _careful_step(self, x0, x1, t0, dt):
         w = self._watch
@@ -575,11 +575,127 @@ class ContactDetector:
         return float(normal), np.array(friction, dtype=float)
 
 
-def make_detector(system: System, kinds, touch: float = 0.0) -> ContactDetector | None:
-    """A detector for ``kinds`` (``touch`` as :class:`ContactDetector`'s), or None when no pair of members
-    could ever be reported (no kind asked for, no member with a radius, or every candidate pair shares a
-    node or is fixed)."""
+class CompiledDetector(ContactDetector):
+    """:class:`ContactDetector`'s events from the compiled kernel (``methods/_detection_kernels.py``, whose
+    docstring gives its broad phase), for ``copies`` copies of the system stepped together (a batch; 1
+    for a Simulator). It lists every eligible pair once (no skin: a far pair costs nothing until its due
+    value comes) and walks a chunk of steps in one call (:meth:`walk`), or runs inside the elastic
+    method's compiled loop (:attr:`state`, :meth:`record`). :meth:`active` is copy 0's unless told."""
+
+    def __init__(self, system: System, kinds, *, touch: float = 0.0, copies: int = 1):
+        self.copies = int(copies)
+        super().__init__(system, kinds, touch=touch)
+
+    def reset(self, positions: np.ndarray) -> None:
+        """Start over with no contact known (every pair is examined at the next step; ``positions`` are
+        not needed)."""
+        from .methods._detection_kernels import detection_state   # (methods imports this module)
+        if not hasattr(self, "_pair_nodes"):
+            m, n_members = self.members, self.system.n_members
+            a, b = np.triu_indices(len(m), 1)
+            i, j = m[a], m[b]
+            ok = self.eligible(i, j)
+            self._i, self._j = i[ok], j[ok]
+            self._key = self._i * n_members + self._j
+            self._ends = np.concatenate([self.system.ends[self._i], self.system.ends[self._j]], axis=1)
+            self._pair_nodes = self._ends
+            self._radii_sum = self.radius[self._i] + self.radius[self._j]
+        #: the kernels' detection tuple (``_detection_kernels.detection_state``), updated in place
+        self.state = detection_state(self._pair_nodes, self._radii_sum, np.unique(self.system.ends[self.members]),
+                                     self.touch, _FRACTIONS, _AROUND, self.copies)
+        self._inside = self.state[6]
+        self._since = np.full((len(self._key), self.copies), np.nan)
+
+    @property
+    def pair_count(self) -> int:
+        return len(self._key)
+
+    def snapshot(self):
+        """A copy of the state, for :meth:`restore` (a run whose steps are taken back)."""
+        return tuple(a.copy() for a in self.state[6:]) + (self._since.copy(),)
+
+    def restore(self, saved) -> None:
+        for a, b in zip(self.state[6:] + (self._since,), saved):
+            a[...] = b
+
+    def step(self, x0: np.ndarray, x1: np.ndarray, t0: float, dt: float,
+             impulses: dict | None = None) -> tuple[ContactEvent, ...]:
+        """:meth:`ContactDetector.step` (copy 0 of a single-copy detector)."""
+        return self.walk(np.stack([x0, x1])[..., None], lambda step: t0 + 0.0 * step, dt,
+                         impulses=impulses).get((0, 0), ())
+
+    def walk(self, xs: np.ndarray, step_start, dt: float, stop: np.ndarray | None = None,
+             impulses: dict | None = None) -> dict:
+        """The events of a chunk of ``K`` steps of every copy: ``xs`` (K + 1, N, 3, B) m, the positions
+        before the first step and after each; ``step_start(k)``: the times (s) steps ``k`` (array) start; ``stop``
+        (B,): steps to walk per copy (default all); ``impulses`` as :meth:`step`'s. Returns
+        {(step, copy): events in time order} of the steps that have any."""
+        from .methods._detection_kernels import detect_steps
+
+        xs = np.ascontiguousarray(xs, dtype=float)
+        stop = np.full(self.copies, len(xs) - 1, dtype=np.int64) if stop is None else np.asarray(stop, dtype=np.int64)
+        return self.record(*detect_steps(xs, stop, self.state), step_start, dt, impulses)
+
+    def record(self, events, points, step_start, dt: float, impulses: dict | None = None) -> dict:
+        """ContactEvents of the kernel's transitions (``_detection_kernels.new_events``; steps counted
+        from the call's first, step ``k`` starting at ``step_start(k)`` s), as
+        :meth:`ContactDetector._evaluate` makes them: {(step, copy): events in time order}."""
+        self._impulses = impulses or {}
+        if not len(events):
+            return {}
+        step, copy, pair, tau, begin = (np.array(column) for column in zip(*events))
+        ends = np.array(points).reshape(-1, 2, 4, 3)
+        time = step_start(step) + tau * dt
+        order = np.lexsort((self._key[pair], time, copy, step))   # per step and copy: time, then pair order
+        step, copy, pair, tau, begin, time, ends = (a[order] for a in (step, copy, pair, tau, begin, time, ends))
+        pa, pb, normal, gap = contact_geometry(_interpolate(ends[:, 0], ends[:, 1], tau), self._radii_sum[pair])[:4]
+        out: dict = {}
+        for k in range(len(pair)):
+            p, b = pair[k], copy[k]
+            if begin[k]:
+                self._since[p, b] = time[k]
+            event = ContactEvent("begin" if begin[k] else "end", (self.names[self._i[p]], self.names[self._j[p]]),
+                                 float(time[k]), pa[k], pb[k], normal[k], float(gap[k]), *self._impulse(p))
+            key = (int(step[k]), int(b))
+            out[key] = out.get(key, ()) + (event,)
+        return out
+
+    def active(self, positions: np.ndarray, copy: int = 0) -> tuple[ActiveContact, ...]:
+        """:meth:`ContactDetector.active` of copy ``copy`` at its ``positions`` (N, 3) m."""
+        idx = np.flatnonzero(self._inside[:, copy])
+        if not idx.size:
+            return ()
+        pa, pb, normal, gap = contact_geometry(positions[self._ends[idx]], self._radii_sum[idx])[:4]
+        return tuple(ActiveContact((self.names[self._i[p]], self.names[self._j[p]]), float(self._since[p, copy]),
+                                   pa[k], pb[k], normal[k], float(gap[k]), *self._impulse(p))
+                     for k, p in enumerate(idx))
+
+
+# Most eligible member pairs the compiled detector lists (all of them, 16 numbers each per copy, each
+# looked at when its due value comes), per scene and over a batch's copies (about 500 MB); beyond, the
+# numpy detector, whose pair list holds only the pairs within its skin, is cheaper and smaller (bench_contact:
+# compiled 10x faster than numpy with the 30,000 pairs of the 10-stage tower with every member kind, 2x
+# slower with the 880,000 of the 50-stage one)
+COMPILED_PAIRS = 100_000
+COMPILED_PAIR_COPIES = 4_000_000
+
+
+def make_detector(system: System, kinds, touch: float = 0.0, copies: int = 1):
+    """The contact detector for ``kinds`` (``touch`` as :class:`ContactDetector`'s) of ``copies`` copies:
+    a :class:`CompiledDetector`, or, beyond :data:`COMPILED_PAIRS` eligible pairs (or
+    :data:`COMPILED_PAIR_COPIES` pairs times copies), the numpy :class:`ContactDetector` (a list of
+    ``copies`` of them for several copies); None when no pair of
+    members could ever be reported (no kind asked for, no member with a radius, or every candidate pair
+    shares a node or is fixed)."""
     if not kinds:
         return None
-    detector = ContactDetector(system, kinds, touch=touch)
-    return detector if detector.has_pairs() else None
+    reference = ContactDetector(system, kinds, touch=touch)
+    m = reference.members
+    a, b = np.triu_indices(len(m), 1)
+    count = int(reference.eligible(m[a], m[b]).sum())
+    if not count:
+        return None
+    if count > COMPILED_PAIRS or count * copies > COMPILED_PAIR_COPIES:
+        return reference if copies == 1 else [reference] + [ContactDetector(system, kinds, touch=touch)
+                                                            for _ in range(copies - 1)]
+    return CompiledDetector(system, kinds, touch=touch, copies=copies)

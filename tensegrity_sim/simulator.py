@@ -15,7 +15,7 @@ from typing import Mapping
 import numpy as np
 
 from .checks import check_memory, describe, float_array, real, time_step, whole
-from .contact import ActiveContact, make_detector
+from .contact import ActiveContact, CompiledDetector, make_detector
 from .ground_contact import GroundDetector
 from .methods import State, StepError, make_method
 from .methods.friction import TOUCH_TOL
@@ -23,7 +23,7 @@ from .results import StepResult, Trajectory, step_result
 from .scene import Scene, contact_kinds
 from .system import System
 
-__all__ = ["Simulator", "NonFiniteError"]
+__all__ = ["Simulator", "NonFiniteError", "SpeedError", "absurd_speed"]
 
 _CHUNK = 1024   # steps per compiled chunk when contact detection walks through a run's steps
 _AHEAD = 64     # most steps Simulator.step computes ahead in a compiled loop (they double up to it)
@@ -31,6 +31,36 @@ _AHEAD = 64     # most steps Simulator.step computes ahead in a compiled loop (t
 
 class NonFiniteError(StepError):
     """A step whose result is not finite; the message names the node or cable and the inputs in effect."""
+
+
+class SpeedError(StepError):
+    """A step from a state whose speeds no step can resolve (:func:`absurd_speed`); the message names the
+    node and its speed."""
+
+
+# A node may move in one step at most this many times the shortest member's length. Beyond it the
+# positions after the step are so large that their round-off (machine epsilon times the coordinate)
+# exceeds 1e-9 of that member's length, the relative tolerance to which the methods hold rigid struts and
+# compare lengths: the step would return a structure whose shape is lost in rounding (a scene at 1e100 m/s
+# ran for 20 s of meaningless steps). At dt = 1 ms and a 0.1 m member the limit is 4.5e8 m/s, above the
+# speed of light: no physical scene is refused.
+SPEED_LIMIT_LENGTHS = 1e-9 / float(np.finfo(float).eps)
+
+
+def absurd_speed(scene: Scene, velocities: np.ndarray, dt: float, shortest: float) -> str | None:
+    """Why no step of ``dt`` s can resolve ``velocities`` (N, 3) m/s of ``scene``'s free nodes, whose
+    shortest member is ``shortest`` m long (:data:`SPEED_LIMIT_LENGTHS`), or None when it can. A speed
+    that is not finite is left to the non-finite check."""
+    speed = np.sqrt(np.einsum("ij,ij->i", velocities, velocities)) * ~scene.fixed
+    limit = SPEED_LIMIT_LENGTHS * shortest / dt
+    over = np.flatnonzero(speed > limit)
+    if not over.size:
+        return None
+    i = int(over[np.argmax(speed[over])])
+    return (f"node {scene.node_names[i]!r} moves at {speed[i]:.6g} m/s: in one step of {dt:g} s it would "
+            f"move {speed[i] * dt:.3g} m, over {SPEED_LIMIT_LENGTHS:.3g} times the shortest member "
+            f"({shortest:.6g} m), where the positions' round-off exceeds 1e-9 of a member's length "
+            f"(at most {limit:.6g} m/s at this dt)")
 
 
 def finite_step(out) -> bool:
@@ -163,8 +193,9 @@ class Simulator:
         self._ahead: _Ahead | None = None
         self._rows = _NO_ROWS     # the steps computed ahead still to hand out
         self._ahead_size = 1
-        self._quiet = 0           # contact detection has nothing to do for the steps ahead before this one
         self._ground_busy = None  # (k,) bool: the steps ahead at which a ground contact begins or ends
+        _, length, _ = self.system.geometry(scene.positions)
+        self._shortest = float(length[length > 0].min(initial=math.inf))   # m, what absurd_speed compares with
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -175,6 +206,7 @@ class Simulator:
         self._state = State(s.positions, s.velocities, s.cable_rest_lengths, np.zeros((len(s.nodes), 3)))
         self._method.prepare(self._state)
         self._inputs_changed()
+        self._speeds_unchecked = True   # the scene's velocities: checked at the first step (absurd_speed)
         if self._contacts is not None:
             self._contacts.reset(self._state.positions)
         if self._ground is not None:
@@ -278,6 +310,8 @@ class Simulator:
         ``_AHEAD`` at a time while no input changes): one compiled call for many steps, each handed out
         here as the very result of stepping it alone (rule 10 of ``methods/base.py``). A new input drops
         them; ``run`` rewinds the loop to the state."""
+        if self._speeds_unchecked:
+            self._check_speeds()
         row = next(self._rows, None)
         if row is None:
             if not self._look_ahead():
@@ -285,11 +319,8 @@ class Simulator:
             row = next(self._rows)
         i, x, v, result_x, result_v, impulses, tensions, slack, ground = row
         st = self._state
-        if i < self._quiet:
-            contacts = ()
-        else:
-            contacts = self._contacts.step(st.positions, x, st.step_count * self.dt, self.dt)
-            self._quiet = i + 1 + self._quiet_steps(self._ahead.positions[i + 1:])
+        contacts = () if self._contacts is None else self._contacts.step(st.positions, x, st.step_count * self.dt,
+                                                                          self.dt)
         if self._ground is not None:
             if self._ground_busy[i]:
                 landed = self._ground.step(st.positions, x, st.velocities, st.step_count * self.dt, self.dt, ground)
@@ -300,6 +331,13 @@ class Simulator:
         st.positions, st.velocities = x, v
         st.step_count += 1
         return step_result(st.step_count * self.dt, result_x, result_v, impulses, tensions, slack, contacts, ground)
+
+    def _check_speeds(self) -> None:
+        """Refuse (:class:`SpeedError`) a start from speeds no step can resolve: the scene's, once."""
+        reason = absurd_speed(self.scene, self._state.velocities, self.dt, self._shortest)
+        if reason is not None:
+            raise SpeedError(f"the step from t = {self.time:.6f} s is refused: {reason}")
+        self._speeds_unchecked = False
 
     def _look_ahead(self) -> bool:
         """Compute the next steps in the method's compiled loop; False where :meth:`step` takes one at a
@@ -334,17 +372,7 @@ class Simulator:
         self._ahead = a = _Ahead((st.positions, st.velocities), st.step_count, carry, pos, vel, imp, slack, stop,
                                  self.dt, ground)
         self._rows = a.rows
-        self._quiet = k if self._contacts is None else self._quiet_steps(pos)
         return self._look_ahead() if stop == 0 else True
-
-    def _quiet_steps(self, positions: np.ndarray) -> int:
-        """How many of the next steps, to ``positions`` (k, N, 3) in turn, contact detection has nothing
-        to do for: the detector's own test (no watched node as far as its quiet distance from its
-        reference positions), for all of them at once; it would return no event and change nothing."""
-        x_ref, distance = self._contacts.quiet_zone()
-        w = self._contacts.watched
-        busy = ~(np.abs(positions[:, w] - x_ref[w]).max(axis=(1, 2), initial=0.0) < distance)
-        return int(np.argmax(busy)) if busy.any() else len(positions)
 
     def _rewind(self) -> None:
         """Drop the steps computed ahead and not handed out, putting the method's loop back at the state:
@@ -428,6 +456,8 @@ class Simulator:
             raise ValueError(f"callback must be callable, got {describe(callback)}")
         n, nc = len(self.scene.nodes), len(self.scene.cables)
         steps, every, kept, span = run_plan(duration, steps, every, self.dt, 8 + 48 * n + 17 * nc)
+        if self._speeds_unchecked and steps:
+            self._check_speeds()
         time = (self._state.step_count + kept) * self.dt
         pos = np.empty((len(kept), n, 3))
         vel = np.empty((len(kept), n, 3))
@@ -459,20 +489,37 @@ class Simulator:
         step by step does."""
         st, method = self._state, self._method
         add = np.add.reduce
-        if self._contacts is None and self._ground is None:
+        detector = self._contacts
+        if self._ground is None and (detector is None
+                                     or (method.loop_detects() and isinstance(detector, CompiledDetector))):
+            # straight into the trajectory's arrays
             carry = method.carry()
-            x, v = method.advance(st, steps, every, pos, vel, imp, slack)
+            saved = None if detector is None else detector.snapshot()
+            if detector is not None:
+                method.detection = detector
+            try:
+                x, v = method.advance(st, steps, every, pos, vel, imp, slack)
+            finally:
+                if detector is not None:
+                    method.detection = None
             if not math.isfinite(add(x, None) + add(v, None) + add(imp, None)):
                 method.restore(carry)
                 method.invalidate()
+                if detector is not None:
+                    detector.restore(saved)
                 imp[...] = 0.0
                 return 0
+            if detector is not None:
+                count = st.step_count
+                found = detector.record(*method.found, lambda k: (count + k) * self.dt, self.dt)
+                contacts.extend(e for key in sorted(found) for e in found[key])
             st.positions, st.velocities = x, v
             st.step_count += steps
             return steps
         chunk = min(steps, _CHUNK)
         n, nc = pos.shape[1], imp.shape[1]
-        c_pos, c_vel = np.empty((chunk, n, 3)), np.empty((chunk, n, 3))
+        xs = np.empty((chunk + 1, n, 3))   # the positions before the chunk's steps, then after each
+        c_pos, c_vel = xs[1:], np.empty((chunk, n, 3))
         c_imp, c_slack = np.empty((chunk, nc)), np.empty((chunk, nc), dtype=bool)
         c_ground = None if self._ground is None else np.empty((chunk, n, 3))
         done = 0
@@ -487,11 +534,11 @@ class Simulator:
                 method.restore(carry)
                 method.invalidate()
                 return done
-            i = m if self._contacts is None else self._quiet_steps(c_pos[:m])   # the detector: the other steps
-            while i < m:
-                previous = c_pos[i - 1] if i else st.positions
-                contacts.extend(self._contacts.step(previous, c_pos[i], (st.step_count + i) * self.dt, self.dt))
-                i += 1 + self._quiet_steps(c_pos[i + 1:m])
+            if detector is not None:
+                xs[0] = st.positions
+                count = st.step_count
+                found = detector.walk(xs[:m + 1, ..., None], lambda k: (count + k) * self.dt, self.dt)
+                contacts.extend(e for key in sorted(found) for e in found[key])
             g = done + np.arange(m)              # the chunk's steps in the run, from 0
             j = g // every
             if self._ground is not None:

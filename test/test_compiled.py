@@ -256,14 +256,15 @@ def test_copies_innermost_kernel_is_the_same_step(name):
     ext = 0.1 * rng.normal(size=x.shape)
     n, nc, nr, steps = x.shape[0], rest.shape[0], len(model.rigid_members), 50
     results = []
-    for kernel in (ek.elastic_steps, ek.elastic_steps_copies):
+    from tensegrity_sim.methods._detection_kernels import no_detection
+    for kernel, extra in ((ek.elastic_steps, (no_detection(),)), (ek.elastic_steps_copies, ())):
         xk, vk = x.copy(), v.copy()
         carry = (np.empty_like(x), np.empty((nc, copies)), np.empty((nr, 3, copies)))
         ek.elastic_forces(xk, vk, rest, ext, *model[:8], *carry)
         k = -(-steps // 3)
         out = (np.empty((k, n, 3, copies)), np.empty((k, n, 3, copies)), np.empty((k, nc, copies)),
                np.empty((k, nc, copies), dtype=bool))
-        kernel(xk, vk, rest, ext, dt, steps, 3, *model, *carry, *out)
+        kernel(xk, vk, rest, ext, dt, steps, 3, *model, *carry, *out, *extra)
         results.append((xk, vk) + carry + out)
     for a, b in zip(*results):
         np.testing.assert_array_equal(a, b)

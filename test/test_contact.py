@@ -443,6 +443,107 @@ def test_broad_phase_matches_all_pairs_reference(crowded, seed):
     np.testing.assert_allclose([e.distance for e in got], [r[4] for r in ref], rtol=0, atol=1e-12)
 
 
+def event_rows(events):
+    """(kind, members) and the numbers (time, points, normal, distance) of contact events."""
+    return ([(e.kind, e.members) for e in events],
+            np.array([[e.time, *e.point_a, *e.point_b, *e.normal, e.distance] for e in events]).reshape(-1, 11))
+
+
+@pytest.mark.parametrize("crowded, seed", [(True, 1), (True, 2), (False, 1), (False, 3)])
+def test_compiled_detection_matches_the_numpy_detector(crowded, seed):
+    """The compiled kernel (CompiledDetector, which the simulators use) against the numpy ContactDetector,
+    on the random scenes and paths above (all three kinds, pass-throughs, jumps far beyond the skin): the
+    same events in the same order, times, closest points, normals and distances to 1e-12, the same
+    ongoing contacts at the end, whether the path is walked in chunks or two copies together (a batch)."""
+    from tensegrity_sim.contact import CompiledDetector
+    rng = np.random.default_rng(seed)
+    scene = gas_scene(rng, 30, 2.0, 0.05) if crowded else gas_scene(rng, 30, 3.0, 0.03)
+    paths = [np.array(gas_path(rng, scene, 200, 0.002 if crowded else 0.001)) for _ in range(2)]
+    kinds = ("strut_strut", "strut_cable", "cable_cable")
+    dt, system = 1e-3, System(scene)
+    batch = CompiledDetector(system, kinds, copies=2)
+    found = batch.walk(np.stack(paths, axis=-1), lambda k: k * dt, dt)
+    for copy, path in enumerate(paths):
+        reference = ContactDetector(system, kinds)
+        reference.reset(path[0])
+        ref = []
+        for step in range(len(path) - 1):
+            ref += reference.step(path[step], path[step + 1], step * dt, dt)
+        single = CompiledDetector(system, kinds)
+        got = []
+        for step in range(0, 200, 64):   # a run's chunks
+            part = single.walk(path[step:step + 65, ..., None], lambda k, first=step: (first + k) * dt, dt)
+            got += [e for key in sorted(part) for e in part[key]]
+        walked = [e for key in sorted(k for k in found if k[1] == copy) for e in found[key]]
+        ref_kinds, ref_numbers = event_rows(ref)
+        assert len(ref) > 10
+        for events in (got, walked):
+            kinds_got, numbers = event_rows(events)
+            assert kinds_got == ref_kinds
+            np.testing.assert_allclose(numbers, ref_numbers, rtol=0, atol=1e-12)
+        ref_active = reference.active(path[-1])
+        for active in (single.active(path[-1]), batch.active(path[-1], copy)):
+            assert [a.members for a in active] == [a.members for a in ref_active]
+            np.testing.assert_allclose([a.since for a in active], [a.since for a in ref_active], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("every", [1, 7])
+def test_detection_in_the_compiled_run_matches_the_numpy_detector(every):
+    """The built-in icosahedron with struts thick enough to overlap now and then, thrown: run() detects in
+    the elastic method's compiled loop, step() one step at a time; both give the numpy detector's events
+    over the same positions (to 1e-12), and the same ongoing contacts."""
+    d = ts.load_scene("icosahedron").to_dict()
+    rng = np.random.default_rng(4)
+    for s in d["struts"]:
+        s["radius"] = 0.25
+    for node in d["nodes"]:
+        node["velocity"] = list(rng.normal(scale=1.0, size=3))
+    scene = ts.Scene.from_dict(d)
+    run = ts.Simulator(scene, method="elastic", dt=1e-3)
+    assert run._method.loop_detects()
+    trajectory = run.run(steps=700, every=every)
+    stepped = ts.Simulator(scene, method="elastic", dt=1e-3)
+    results = [stepped.step() for _ in range(700)]
+    path = [scene.positions] + [r.positions for r in results]
+    reference = ContactDetector(stepped.system, scene.contact_kinds)
+    events = []
+    for k in range(700):
+        events += reference.step(path[k], path[k + 1], k * 1e-3, 1e-3)
+    assert len(events) > 10
+    np.testing.assert_array_equal(trajectory.positions[-1], path[-1])
+    ref_kinds, ref_numbers = event_rows(events)
+    for got in (trajectory.contacts, [e for r in results for e in r.contacts]):
+        kinds, numbers = event_rows(got)
+        assert kinds == ref_kinds
+        np.testing.assert_allclose(numbers, ref_numbers, rtol=0, atol=1e-12)
+    active, ref_active = run.active_contacts(), reference.active(path[-1])
+    assert [a.members for a in active] == [a.members for a in ref_active]
+    np.testing.assert_allclose([a.since for a in active], [a.since for a in ref_active], rtol=0, atol=1e-12)
+
+
+def test_scenes_with_very_many_pairs_detect_with_the_numpy_detector(monkeypatch):
+    """Beyond COMPILED_PAIRS eligible pairs the simulators detect with the numpy ContactDetector (its
+    pair list holds only the near pairs): Simulator.run() and a batch give the compiled detector's events."""
+    import tensegrity_sim.contact as contact
+    d = ts.load_scene("icosahedron").to_dict()
+    for s in d["struts"]:
+        s["radius"] = 0.25
+    rng = np.random.default_rng(5)
+    velocities = rng.normal(scale=1.0, size=(2, len(d["nodes"]), 3))
+    scene = ts.Scene.from_dict(d)
+    runs = []
+    for limit in (contact.COMPILED_PAIRS, 0):
+        monkeypatch.setattr(contact, "COMPILED_PAIRS", limit)
+        sim = ts.Simulator(scene, method="elastic", dt=1e-3)
+        batch = ts.BatchSimulator(scene, 2, method="elastic", velocities=velocities)
+        assert isinstance(sim._contacts, contact.CompiledDetector) == (limit > 0)
+        runs.append((sim.run(steps=400).contacts, batch.run(steps=400).contacts))
+    (single, copies), (single_ref, copies_ref) = runs
+    for got, want in [(single, single_ref)] + list(zip(copies, copies_ref)):
+        assert len(want) > 4 and event_rows(got)[0] == event_rows(want)[0]
+        np.testing.assert_allclose(event_rows(got)[1], event_rows(want)[1], rtol=0, atol=1e-12)
+
+
 # --------------------------------------------------------------------------- scene key, override, CLI
 BASE = crossing_dict()
 

@@ -17,7 +17,9 @@ import pytest
 from mcap.reader import make_reader
 from rosbags.rosbag2 import Reader as RosbagsReader
 
-from tensegrity_sim.cli import main
+from tensegrity_sim import load_scene
+from tensegrity_sim import scene as scene_module
+from tensegrity_sim.cli import DEFAULT_SCENE, main
 from tensegrity_sim.ros.log import CHUNK_SIZE
 from tensegrity_sim.ros.log_reader import LogCorruptError, LogError, LogReader, recover
 from tensegrity_sim.ros.replay import log_info, replay
@@ -183,11 +185,23 @@ def test_file_system_errors_are_one_line_exit_2(finished_log, tmp_path, capsys, 
     assert capsys.readouterr().err == message.format(**fill) + "\n"
 
 
-def test_unwritable_log_file_is_one_line_exit_2(tmp_path, capsys):
+def test_unwritable_log_file_is_one_line_exit_2(tmp_path, capsys, monkeypatch):
     """A log file without write permission. Root may write anything, so a root test process takes an
-    unprivileged effective user id for the call (the modules are loaded: only the log is opened)."""
+    unprivileged effective user id for the call. That user may not read the checkout, numba's install or
+    the package's cached kernels (a clone in a `mktemp -d` folder, a Python under /root): the run's scene
+    is a file beside the log (the built-in names listed as this user), and the same run is made first with
+    a log it may write, as this user, so that every kernel the run calls is compiled and every module it
+    imports loaded; the unprivileged call then opens nothing but the scene and the log."""
+    names = scene_module.builtin_scenes()
+    monkeypatch.setattr(scene_module, "builtin_scenes", lambda: names)
     folder = tmp_path / "open"
     folder.mkdir()
+    scene = folder / "scene.yaml"
+    scene.write_text(load_scene(DEFAULT_SCENE).to_yaml())
+    scene.chmod(0o444)
+    command = ["run", str(scene), "--duration", "0.01", "--quiet", "--log"]
+    assert main(command + [str(tmp_path / "warm.mcap")]) == 0
+    capsys.readouterr()
     target = folder / "readonly.mcap"
     target.write_bytes(b"")
     target.chmod(0o444)
@@ -198,7 +212,7 @@ def test_unwritable_log_file_is_one_line_exit_2(tmp_path, capsys):
         os.setegid(65534)
         os.seteuid(65534)
     try:
-        status = main(["run", "--duration", "0.01", "--quiet", "--log", str(target)])
+        status = main(command + [str(target)])
     finally:
         if root:
             os.seteuid(0)

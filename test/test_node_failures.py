@@ -230,6 +230,25 @@ def test_an_offline_run_stops_at_a_failed_step_with_a_finished_log(tmp_path, cap
 
 
 @pytest.mark.filterwarnings("ignore:overflow encountered", "ignore:invalid value encountered")
+def test_wrench_that_divided_by_zero_in_the_kernel_is_a_clean_step_error():
+    """Issue 28: a 1e20 N wrench on an icosahedron node made the compiled elastic kernel raise
+    ZeroDivisionError four steps later (the strut's two ends rounded to the same far-away point: a
+    length of 0 divided by; numba's Python error model raises there) and the node died with it. The
+    kernels now divide as numpy does and the step's non-finite result is a NonFiniteError: the node
+    pauses with the reason, naming the node and the wrench."""
+    scene = ts.load_scene("icosahedron")
+    logic = SimNodeLogic(ts.Simulator(scene, method="elastic", dt=DT), NodeSettings(dt=DT, log_path=""),
+                         transport=lambda key, msg: None, clock=FakeClock(t=0.0), logger=ListLogger())
+    assert logic.receive("external_wrench", wrench_msg("n0", [1e20, 0.0, 0.0])) is None   # accepted
+    results = [logic.step() for _ in range(10)]
+    failed = results.index(None)
+    assert failed >= 1 and all(r is not None for r in results[:failed])   # finite, absurd steps first
+    assert isinstance(logic.step_error, ts.NonFiniteError) and logic.paused
+    assert re.search(r"gave non-finite values at node 'n\d+'.*largest external force 1e\+20 N at node 'n0'",
+                     logic.failure)
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered", "ignore:invalid value encountered")
 def test_absurd_force_is_refused_after_the_fact_and_nothing_non_finite_is_published(tmp_path):
     """Issue 13: a finite but absurd wrench used to make the node publish and log NaN positions. The
     step's NonFiniteError is a failed step: the wrench is refused after the fact, the node steps on as if

@@ -206,6 +206,48 @@ def test_non_finite_step_in_a_compiled_run_fails_like_step(sim):
     assert_unchanged(before, sim)
 
 
+@pytest.mark.filterwarnings("ignore::tensegrity_sim.LengthOffsetWarning")   # the icosahedron is prestressed
+@pytest.mark.parametrize("method", ["elastic", "inextensible"])
+@pytest.mark.parametrize("how", ["step", "run"])
+def test_absurd_speed_refused_at_the_first_step(method, how):
+    """Issue 28: nodes starting at 1e100 m/s ran the elastic method for over 20 s of steps whose structure
+    was lost in round-off. The first step (or run) refuses them with a StepError naming the fastest node
+    and its speed, and nothing changes; a speed just under the limit (SPEED_LIMIT_LENGTHS shortest
+    members per step) is stepped."""
+    from tensegrity_sim.simulator import SPEED_LIMIT_LENGTHS
+    d = ts.load_scene("icosahedron").to_dict()
+    for node in d["nodes"]:
+        node["velocity"] = [0.0, -1e100, 0.0]   # a translation: the same for the rigid struts' projection
+    sim = ts.Simulator(ts.Scene.from_dict(d), method=method, dt=1e-3)
+    with pytest.raises(ts.SpeedError) as err:
+        sim.step() if how == "step" else sim.run(steps=1000)
+    assert isinstance(err.value, ts.StepError)
+    assert str(err.value).startswith("the step from t = 0.000000 s is refused: node 'n0' moves at 1e+100 m/s: "
+                                     "in one step of 0.001 s it would move 1e+97 m")
+    assert sim.step_count == 0 and np.array_equal(sim.velocities, ts.Scene.from_dict(d).velocities)
+    shortest = float(sim.system.geometry(sim.scene.positions)[1].min())
+    for node in d["nodes"]:
+        node["velocity"] = [0.99 * SPEED_LIMIT_LENGTHS * shortest / 1e-3, 0.0, 0.0]   # a uniform translation
+    fast = ts.Simulator(ts.Scene.from_dict(d), method=method, dt=1e-3)
+    fast.step()
+    assert fast.step_count == 1
+
+
+def test_absurd_speed_fails_its_copy_only_at_the_first_step():
+    """The batch's elastic engine refuses a copy starting at 1e100 m/s at step 1, as Simulator does; the
+    other copies run as a Simulator would."""
+    scene = ts.load_scene("icosahedron")
+    v = np.zeros((3, len(scene.nodes), 3))
+    v[1] = [0.0, 1e100, 0.0]
+    batch = ts.BatchSimulator(scene, 3, method="elastic", velocities=v, contacts=())
+    out = batch.run(steps=5)
+    assert list(batch.failures) == [1] and batch.failures[1].startswith("step 1 (t = 0.001 s): node 'n0' moves at "
+                                                                        "1e+100 m/s")
+    assert np.isnan(out.positions[1]).all()
+    single = ts.Simulator(scene, method="elastic", dt=1e-3, contacts=()).run(steps=5)
+    np.testing.assert_allclose(out.positions[0], single.positions, rtol=0, atol=1e-12)
+
+
 BAD_RUNS = [
     ({"steps": 10 ** 400}, "run: the trajectory of an integer of 401 digits steps would need over 1e300 bytes, "
                            "more than this machine's memory"),

@@ -46,6 +46,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ._detection_kernels import examine, moved_on, new_events, new_work
+
 __all__ = ["ElasticModel", "model_arrays", "elastic_forces", "elastic_steps", "elastic_steps_copies", "keep", "verlet_step"]
 
 
@@ -76,7 +78,7 @@ def model_arrays(system, rigid) -> ElasticModel:
         np.ascontiguousarray(rigid.w_matrix, dtype=float), bool(rigid.coupled))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
             rigid_members, acc, tension, rigid_dirs, slack, b):
     """Copy ``b``: accelerations, cable tensions, rigid strut directions and slack cables at ``x``
@@ -130,7 +132,7 @@ def _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_ma
             acc[i, j, b] *= inv_mass[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def elastic_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                    rigid_members, acc, tension, rigid_dirs):
     """Fill ``acc`` (N, 3, B), ``tension`` (nc, B) and ``rigid_dirs`` (nr, 3, B) at ``x`` for every copy;
@@ -145,7 +147,7 @@ def elastic_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping,
     return slack
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _push(node_a, node_b, inv_mass, s, n0, n1, n2, out):
     """Equal-and-opposite push ``s`` along ``n`` on a strut's ends, scaled by their inverse masses,
     added to ``out`` (N, 3)."""
@@ -157,7 +159,7 @@ def _push(node_a, node_b, inv_mass, s, n0, n1, n2, out):
     out[node_b, 2] -= inv_mass[node_b] * (s * n2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pushes(ends, inv_mass, rigid_members, strengths, dirs, out, b):
     """``out`` (N, 3) = the node displacements (or velocity changes) of equal-and-opposite pushes of
     ``strengths`` (nr,) along the rigid struts' ``dirs`` of copy ``b``."""
@@ -169,7 +171,7 @@ def _pushes(ends, inv_mass, rigid_members, strengths, dirs, out, b):
         _push(ends[i, 0], ends[i, 1], inv_mass, strengths[k], dirs[k, 0, b], dirs[k, 1, b], dirs[k, 2, b], out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _shake(x_pred, dirs, ends, inv_mass, rigid_members, length_sq, w, dx, b):
     """SHAKE for copy ``b`` (rigid.RigidStruts.project_positions): the displacement, written into
     ``dx`` (N, 3) (zeroed here), that puts ``x_pred`` back on every rigid strut length along ``dirs``."""
@@ -188,7 +190,7 @@ def _shake(x_pred, dirs, ends, inv_mass, rigid_members, length_sq, w, dx, b):
     _pushes(ends, inv_mass, rigid_members, gamma, dirs, dx, b)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rattle(v, dirs, ends, inv_mass, rigid_members, w, dv, b):
     """RATTLE for copy ``b`` (rigid.RigidStruts.project_velocities): zero every rigid strut's length
     rate along ``dirs``, in place on ``v``; ``dv`` (N, 3) is scratch."""
@@ -210,7 +212,7 @@ def _rattle(v, dirs, ends, inv_mass, rigid_members, w, dv, b):
             v[i, j, b] += dv[i, j]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b):
     """Copy ``b``'s drift ``x += h v`` and SHAKE's correction (added to ``v`` as ``dx / h``)."""
     n_nodes = x.shape[0]
@@ -225,7 +227,7 @@ def _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rig
                 v[i, j, b] += dx[i, j] / h
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
            rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b):
     """Copy ``b``'s end of a step: the forces at the drifted ``x``, the cables' impulses, the closing
@@ -246,7 +248,7 @@ def _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_
         _rattle(v, rigid_dirs, ends, inv_mass, rigid_members, rigid_w, dx, b)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
           rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, impulses, slack, b):
     """One velocity Verlet (+ SHAKE/RATTLE) step of ``h`` of copy ``b``, in place on ``x``, ``v`` and the
@@ -261,7 +263,7 @@ def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_m
            rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def verlet_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                 rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs):
     """One step of any size ``h`` (s) of every copy, in place on ``x``, ``v``, ``acc``, ``tension`` and
@@ -282,7 +284,7 @@ def verlet_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping,
     return impulses, slack
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs):
     """Copy ``b`` of the batch-last state and carry into the batch-of-one ``w*`` arrays (a copy stepped in
     contiguous arrays of its own: the very arithmetic of a ``Simulator``, no stride of B)."""
@@ -300,7 +302,7 @@ def gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext
             wdirs[k, j, 0] = rigid_dirs[k, j, b]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def scatter_copy(wx, wv, wacc, wten, wdirs, b, x, v, acc, tension, rigid_dirs):
     """The batch-of-one state and carry written back as copy ``b`` (:func:`gather_copy`'s inverse)."""
     for i in range(x.shape[0]):
@@ -315,7 +317,7 @@ def scatter_copy(wx, wv, wacc, wten, wdirs, b, x, v, acc, tension, rigid_dirs):
             rigid_dirs[k, j, b] = wdirs[k, j, 0]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def keep(x, v, c, total, slack, k, b, out_x, out_v, out_impulses, out_slack):
     """Write copy ``c`` of ``x``, ``v`` (N, 3, .) and the step's ``total`` impulses (nc,) N*s and ``slack``
     (nc,) as kept step ``k`` of copy ``b`` of the outputs (see :func:`elastic_steps`); ``total`` restarts
@@ -330,10 +332,10 @@ def keep(x, v, c, total, slack, k, b, out_x, out_v, out_impulses, out_slack):
         total[ci] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
                   gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
-                  out_x, out_v, out_impulses, out_slack):
+                  out_x, out_v, out_impulses, out_slack, detection):
     """``n_steps`` steps of ``h`` (s) of every copy, in place on ``x``, ``v``, ``acc``, ``tension``,
     ``rigid_dirs``; keeps steps ``every``, ``2 every``, ... and the last one in the outputs:
 
@@ -341,23 +343,36 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
         out_impulses (K, nc, B) N*s     each cable's impulse summed over the steps since the last kept one
         out_slack (K, nc, B) bool       slack cables after each kept step
 
-    with ``K = ceil(n_steps / every)``."""
+    with ``K = ceil(n_steps / every)``. ``detection``: member-contact detection over every step
+    (``_detection_kernels.detection_state``, or ``no_detection()``); returns its events
+    (``_detection_kernels.new_events``)."""
     n_nodes = x.shape[0]
     nc, n_copies = rest.shape
     dx = np.empty((n_nodes, 3))
     imp = np.empty(nc)
     total = np.empty(nc)
     sl = np.empty(nc, dtype=np.bool_)
+    detecting = detection[0].shape[0] > 0
+    events, points = new_events()
+    work = new_work()
+    before = np.empty((n_nodes, 3, 1))   # the positions at the step's start, for detection
     for b in range(n_copies):
         for ci in range(nc):
             total[ci] = 0.0
         for s in range(n_steps):
+            if detecting:
+                for i in range(n_nodes):
+                    for j in range(3):
+                        before[i, j, 0] = x[i, j, b]
             _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                   rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, imp, sl, b)
+            if detecting and moved_on(before, 0, x, b, b, detection):
+                examine(before, 0, x, b, b, s, detection, work, events, points)
             for ci in range(nc):
                 total[ci] += imp[ci]
             if (s + 1) % every == 0 or s == n_steps - 1:
                 keep(x, v, b, total, sl, s // every, b, out_x, out_v, out_impulses, out_slack)
+    return events, points
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -367,7 +382,7 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
 # ``_step``, in the same order, so its numbers are the same bit for bit (test_batch.py checks it).
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _forces_copies(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                    rigid_members, acc, tension, rigid_dirs, slack):
     """:func:`_forces` of every copy: ``slack`` (nc, B)."""
@@ -427,7 +442,7 @@ def _forces_copies(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping,
                 acc[i, j, b] *= inv_mass[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pushes_copies(ends, inv_mass, rigid_members, strengths, dirs, out):
     """:func:`_pushes` of every copy: ``strengths`` (nr, B), ``out`` (N, 3, B)."""
     n_copies = out.shape[2]
@@ -448,7 +463,7 @@ def _pushes_copies(ends, inv_mass, rigid_members, strengths, dirs, out):
                 out[node_b, j, b] -= wb * push
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _step_copies(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                  rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength, impulses, slack):
     """:func:`_step` of every copy; ``dx`` (N, 3, B) and ``strength`` (nr, B) are scratch, ``impulses``
@@ -510,7 +525,7 @@ def _step_copies(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
                     v[i, j, b] += dx[i, j, b]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def elastic_steps_copies(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
                          gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
                          out_x, out_v, out_impulses, out_slack):

@@ -116,6 +116,11 @@ class StepMethod:
         for the ground's impulses); without it a scene with a ground is stepped one :meth:`step` at a time."""
         return False
 
+    def loop_detects(self) -> bool:
+        """Whether :meth:`advance` runs member-contact detection in its loop: with ``detection`` set to a
+        ``contact.CompiledDetector`` it moves that detector's state on and leaves the events in ``found``."""
+        return False
+
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
                 impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``steps`` steps from ``state`` (not modified), keeping steps ``every``, ``2 every``, ... and

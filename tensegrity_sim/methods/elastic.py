@@ -79,6 +79,7 @@ import numpy as np
 from ..system import System
 from . import _composition_kernels as composed
 from . import _elastic_ground_kernels as ground_kernels
+from . import _detection_kernels as detection_kernels
 from . import _elastic_kernels as kernels
 from .base import MethodStep, State, StepMethod
 from .composition import MIN_SPLIT, STABILITY, WEIGHTS, Stepper
@@ -166,6 +167,12 @@ class ElasticMethod(StepMethod):
         # the last step's end; with a ground, each node's last contact impulses (2, N, 3, 1) too
         self._carry = None
         self._warm = None   # the contact solver's warm starts (2, N, 3, 1) kept when an input drops the carry
+        # member-contact detection inside the compiled loop (loop_detects): the detector whose state
+        # advance moves on (a contact.CompiledDetector, set by the simulator for a run), and the events
+        # of the last advance (_detection_kernels.new_events)
+        self.detection = None
+        self.found = None
+        self._no_detection = detection_kernels.no_detection()
         if self.compiled:
             self._load_kernels()
 
@@ -237,8 +244,9 @@ class ElasticMethod(StepMethod):
                 self._carry = None
             return int(failed[0])
         if self._plain:
-            kernels.elastic_steps(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
-                                  positions, velocities, impulses, slack)
+            self.found = kernels.elastic_steps(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
+                                               positions, velocities, impulses, slack,
+                                               self._no_detection if self.detection is None else self.detection.state)
         else:
             composed.composed_steps(x, v, rest, ext, self.dt, steps, every, self._weights, self.locate_switches,
                                     MIN_SPLIT * self.dt, *self._model, *self._carry[:4], positions, velocities,
@@ -269,6 +277,9 @@ class ElasticMethod(StepMethod):
 
     def has_ground_loop(self) -> bool:
         return self.compiled and self._ground_model is not None
+
+    def loop_detects(self) -> bool:
+        return self.compiled and self._plain and self._ground_model is None
 
     def carry(self):
         return None if self._carry is None else tuple(a.copy() for a in self._carry)
