@@ -1,0 +1,101 @@
+"""Random throws of the built-in robots onto a plane (issue 28; ``throw_cases``): a seeded sample of them
+must run soundly in both methods, and the friction fallback that lets them (the semismooth Newton method
+of ``methods/friction.py``, taken where the friction modes cycle) is held to the Coulomb law, the normal
+rows' complementarity and the impulses' balance, recomputed here. ``scripts/throws.py`` runs many more."""
+import warnings
+
+import numpy as np
+import pytest
+import throw_cases as T
+
+import tensegrity_sim as ts
+from tensegrity_sim.methods import friction as F
+
+N_THROWS = 16   # about 25 s of CI on the project's 2-core machine
+
+
+def throw(index: int, steps: int = 400) -> dict:
+    return T.random_throw(np.random.default_rng([28, index]), steps=steps)
+
+
+def test_the_sample_covers_both_methods_and_the_energy_law():
+    cases = [throw(i) for i in range(N_THROWS)]
+    assert {c["method"] for c in cases} == set(T.METHODS)
+    assert {c["robot"] for c in cases} == set(T.ROBOTS)
+    assert any(c["method"] == "inextensible" and c["e"] == 0.0 and c["robot"] != "prism3" for c in cases)
+    assert max(c["mu"] for c in cases) > 1.5 and max(np.abs(c["spin"]).max() for c in cases) > 5.0
+
+
+@pytest.mark.parametrize("index", range(N_THROWS))
+def test_random_throw_runs_soundly(index):
+    """No error, a finite state, no node more than 0.1 mm into the ground, and (inextensible, rigid
+    struts, plastic ground) no energy created in any step beyond 1e-7 of the throw's energy scale (``throw_cases.problems``)."""
+    case = throw(index)
+    out = T.run_throw(case)
+    assert T.problems(case, out) == [], case
+    assert out["steps"] == case["steps"]
+
+
+def _sim(case):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return ts.Simulator(T.throw_scene(case), method=case["method"], dt=1e-3)
+
+
+def test_newton_answers_the_coulomb_law_where_the_modes_cycle(monkeypatch):
+    """Throw 33 (prism3, inextensible) reaches a problem on which the mode fixed point cycles, at the
+    pure velocity level too (that is the only way to the Newton method); its answer meets the Coulomb law
+    in its projection form, the normal rows' complementarity, the cables' rows and the balance
+    ``M (v - v0) = -A^T y + P`` of the impulses, each to 1e-9 of the impulse scale."""
+    seen = []
+    newton = F.FrictionalSolver._newton
+
+    def recorded(self, v0, rows, warm):
+        v, y = newton(self, v0, rows, warm)
+        seen.append((self, v0.copy(), rows, v, y, self.last.copy()))
+        return v, y
+
+    monkeypatch.setattr(F.FrictionalSolver, "_newton", recorded)
+    sim = _sim(throw(33))
+    for _ in range(100):
+        sim.step()
+        if seen:
+            break
+    solver, v0, rows, v, y, impulses = seen[0]
+    mass = solver.inner.mass.reshape(-1, 3)[:, 0]
+    fi, mu, w = solver._fi, solver._mu, solver._targets
+    f, yn = impulses[:, :2], impulses[:, 2]
+    scale = max(np.abs(mass[:, None] * v0).max(), np.abs(y).max(), np.abs(impulses).max())
+    tol = 1e-9 * scale
+    # Coulomb: f = proj_disc(mu y_n)(f - m v_t), the friction inside the disc
+    trial = f - mass[fi, None] * v[fi, :2]
+    size = np.linalg.norm(trial, axis=1)
+    projected = trial * np.minimum(1.0, mu * yn / np.maximum(size, 1e-300))[:, None]
+    assert np.abs(f - projected).max() <= tol
+    assert (np.linalg.norm(f, axis=1) <= mu * yn + tol).all()
+    assert (np.linalg.norm(f, axis=1) > 0).any()   # friction acts
+    # the normal rows: v_z >= w, y_n >= 0, and one of the two at its bound
+    assert (v[fi, 2] >= w - 1e-9 * np.abs(v0).max()).all() and (yn >= 0).all()
+    assert np.abs(yn * (v[fi, 2] - w)).max() <= tol * np.abs(v0).max()
+    # the method's rows, and the balance of all impulses
+    rates = rows.rates(v) - rows.targets
+    assert np.abs(rates[:rows.n_eq]).max(initial=0.0) <= 1e-9 * np.abs(v0).max()
+    assert rates[rows.n_eq:].max(initial=0.0) <= 1e-9 * np.abs(v0).max()
+    assert y[rows.n_eq:].min(initial=0.0) >= 0.0
+    contact = np.zeros_like(v)
+    np.add.at(contact, fi, impulses)
+    balance = mass[:, None] * (v - v0) + (rows.dense(len(v)).T @ y).reshape(-1, 3) - contact
+    assert np.abs(balance).max() <= tol
+
+
+def test_a_friction_problem_left_unsolved_names_its_contacts_and_residual(monkeypatch):
+    """With no Newton iteration allowed, the problem where the modes cycle is left unsolved: the
+    FrictionError names the contacts on the ground and the residual, in N*s."""
+    monkeypatch.setattr(F, "MAX_NEWTON_ITER", 0)
+    monkeypatch.setattr(F, "_RESTARTS", 0)
+    sim = _sim(throw(33))
+    with pytest.raises(F.FrictionError, match=r"\(no solution\): contacts 'n\d' on the ground miss the Coulomb "
+                                              r"law by up to [0-9.e+-]+ N\*s \(tolerance [0-9.e+-]+ N\*s\) after 30 "
+                                              r"mode QPs and 0 semismooth Newton iterations"):
+        for _ in range(100):
+            sim.step()
