@@ -36,8 +36,8 @@ def main() -> int:
         if problems:
             failed += 1
             print(f"throw {i}: {'; '.join(problems)}\n  case: {case}", flush=True)
-    print(f"{args.count} throws of {args.steps} steps (seed {args.seed}): {args.count - failed} passed, {failed} failed, "
-          f"{time.perf_counter() - start:.0f} s")
+    print(f"{args.count} throws of {args.steps} steps (seed {args.seed}): {args.count - failed} passed, "
+          f"{failed} failed, {time.perf_counter() - start:.0f} s")
     return 1 if failed else 0
 
 

@@ -29,7 +29,8 @@ def test_the_sample_covers_both_methods_and_the_energy_law():
 @pytest.mark.parametrize("index", range(N_THROWS))
 def test_random_throw_runs_soundly(index):
     """No error, a finite state, no node more than 0.1 mm into the ground, and (inextensible, rigid
-    struts, plastic ground) no energy created in any step beyond 1e-7 of the throw's energy scale (``throw_cases.problems``)."""
+    struts, plastic ground) no energy created in any step beyond 1e-7 of the throw's energy scale
+    (``throw_cases.problems``)."""
     case = throw(index)
     out = T.run_throw(case)
     assert T.problems(case, out) == [], case

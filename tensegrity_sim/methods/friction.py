@@ -29,12 +29,15 @@ contact whose velocity turned against ``d`` sticks (one mode change per solve, t
 first: changing all at once can cycle); a sliding contact takes the new ``y_n`` and, if it
 moves, ``d = v_t/|v_t|`` (one that stopped is at rest on the disc's edge, a valid Coulomb state: that
 is how the friction of a statically indeterminate body, such as a rigid strut on both its ends, is
-shared when the backend's split of the sticking impulses would overload one end). The iteration stops when no mode changes and ``ŷ_n`` and ``d`` agree with the
-solution to ``FIXED_POINT_TOL`` (relative to the impulse scale). Every answer is then checked against
-the Coulomb law in its projection form, ``f = proj_disc(mu y_n)(f - m v_t)`` to twice that tolerance
+shared when the backend's split of the sticking impulses would overload one end). The iteration stops
+when no mode changes and ``ŷ_n`` and ``d`` agree with the solution to ``FIXED_POINT_TOL`` (relative to
+the impulse scale). Every answer is then checked against the Coulomb law in its projection form, ``f = proj_disc(mu y_n)(f - m v_t)`` to twice that tolerance
 (:class:`FrictionError` otherwise); the normal rows are checked by the backend like the cables'. If the
-modes cycle (three contacts of a locked body that slide a little each way), the projection form itself
-is iterated (:meth:`FrictionalSolver._projected`), Anderson-accelerated like the modes. The disc is exact: no pyramid, no polygonal cone.
+modes cycle (three contacts of a locked body that slide a little each way; a robot whose cable pulls a
+node harder into the ground the harder it slides), the whole problem is solved at once by a semismooth
+Newton method on its Alart–Curnier equation with a line search (:meth:`FrictionalSolver._newton`, as
+Siconos and Rible.jl do; physics.md §6), its answer checked the same way. The disc is exact: no pyramid,
+no polygonal cone.
 
 Why this and not the alternatives. What was measured is this method (``test/test_ground.py``: the closed
 forms to 1e-6 relative and better, no creep, no lift) and, for the last point, a plain projected fixed
@@ -52,10 +55,13 @@ point; the first three follow from the alternatives' definitions and were not im
   struts), and would replace the backends' verified active-set solves.
 * *The projection form iterated on the QP* (``f <- proj(f - m v_t)``, one QP per iterate): measured on a
   slack icosahedron landing on three nodes, it crawls at a rate near ``1 - m_node/m_body`` (0.92) and
-  Anderson acceleration does not stabilise it; its Newton-like version on the QP's affine model
-  (:meth:`FrictionalSolver._projected`) converges in a few rounds and is the fallback when the modes
-  cycle. Measured cost of the modes: 2 QPs per solve for the sliding strut, 1 for the resting
-  icosahedron (``bench/bench_ground.py`` times them).
+  Anderson acceleration does not stabilise it. Its Newton-like version on the QP's affine model (the
+  derivatives by one nudged QP per friction component, the law solved on the model by projected
+  Gauss–Seidel), the fallback before the semismooth Newton method, left 3 of 30 random throws of the
+  built-in robots unsolved (issue 28): its model is only as good as the QP's piecewise-constant
+  derivatives, with no line search. The semismooth Newton method on the whole problem is what is
+  measured now (``scripts/throws.py``: 360 throws, none stopped). Measured cost of the modes: 2 QPs per
+  solve for the sliding strut, 1 for the resting icosahedron (``bench/bench_ground.py`` times them).
 
 **Targets.** A contact is armed when its node can reach the ground by the sub-step's end
 (``g_m - tau/2 |v0_z| <= 0``). Its target lands it exactly on the ground at the end,
@@ -288,7 +294,7 @@ class FrictionalSolver:
         self._slip = np.zeros((n, 2))                          # each node's slip direction in the last solve
         self._pair_memory: dict[int, tuple[bool, float, np.ndarray]] = {}   # a pair's mode, y_n, slip (3,)
         self.last = None                                       # impulses (k, 3) (tangents, normal) of the last solve
-        self.iterations = 0                                    # QPs (Newton iterations after the modes) of the last solve
+        self.iterations = 0                                    # QPs of the last solve (+ Newton iterations)
         self._guess = None                                     # the modes' last iterate: multipliers, friction (k, 2)
         self.disarm()
 
@@ -303,7 +309,7 @@ class FrictionalSolver:
         self.inner.compiled = bool(value)
 
     def describe(self) -> dict:
-        return {**self.inner.describe(), "friction": "Coulomb disc, mode fixed point",
+        return {**self.inner.describe(), "friction": "Coulomb disc, mode fixed point, semismooth Newton fallback",
                 "fixed_point_tol": FIXED_POINT_TOL}
 
     def arm(self, nodes: np.ndarray, targets: np.ndarray, touching: np.ndarray, pairs: Armed | None = None) -> None:
@@ -484,8 +490,8 @@ class FrictionalSolver:
                 changed = True
                 stick[sl[stops]] = True
             moving = sl[~stops]
-            new_slip = np.where((speed[moving] > slip_tol)[:, None], vt[moving] / np.maximum(speed[moving], 1e-300)[:, None],
-                                slip[moving])
+            new_slip = np.where((speed[moving] > slip_tol)[:, None],
+                                vt[moving] / np.maximum(speed[moving], 1e-300)[:, None], slip[moving])
             target = (mu[moving] * yn[moving])[:, None] * new_slip      # G(phi) on the moving contacts
             drift = float(np.max(np.abs(target - phi[moving]), initial=0.0))
             if not changed and drift <= tol:
@@ -505,7 +511,8 @@ class FrictionalSolver:
                 phi[moving] = target
                 continue
             key = (moving.tobytes(), sl.tobytes())
-            history = [h for h in history if h[2] == key][-_ANDERSON_DEPTH:] + [(phi[moving].ravel(), target.ravel(), key)]
+            history = ([h for h in history if h[2] == key][-_ANDERSON_DEPTH:]
+                       + [(phi[moving].ravel(), target.ravel(), key)])
             phi[moving] = target
             if len(history) > 1:
                 x = np.array([h[0] for h in history])
