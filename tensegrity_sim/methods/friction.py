@@ -33,7 +33,8 @@ shared when the backend's split of the sticking impulses would overload one end)
 when no mode changes and ``ŷ_n`` and ``d`` agree with the solution to ``FIXED_POINT_TOL`` (relative to
 the impulse scale). Every answer is then checked against the Coulomb law in its projection form,
 ``f = proj_disc(mu y_n)(f - m v_t)`` to twice that tolerance (:class:`FrictionError` otherwise); the
-normal rows are checked by the backend like the cables'. If the modes cycle (three contacts of a locked body that slide a little each way; a robot whose cable pulls a
+normal rows are checked by the backend like the cables'. If the modes cycle (three contacts of a locked body
+that slide a little each way; a robot whose cable pulls a
 node harder into the ground the harder it slides), the whole problem is solved at once by a semismooth
 Newton method on its Alart–Curnier equation with a line search (:meth:`FrictionalSolver._newton`, as
 Siconos and Rible.jl do; physics.md §6), its answer checked the same way. The disc is exact: no pyramid,
