@@ -193,7 +193,7 @@ class ContactSet:
         not armed below the ground by the sub-step's end ``x_m + half * v_f``."""
         p = self._grounded
         below = self._gaps_of(x_m, p) + half * v_f[p, 2] < -TOUCH_TOL
-        return bool(np.any(below & ~np.isin(p, self.solver._nodes)))
+        return bool(below.any()) and bool(np.any(below & ~np.isin(p, self.solver._nodes)))
 
     def arm_impact(self, x: np.ndarray, v: np.ndarray, dt: float) -> bool:
         """Arm the impacts at ``x``: nodes touching the ground and moving into it by more than
