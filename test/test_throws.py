@@ -100,3 +100,36 @@ def test_a_friction_problem_left_unsolved_names_its_contacts_and_residual(monkey
                                               r"mode QPs and 0 semismooth Newton iterations"):
         for _ in range(100):
             sim.step()
+
+
+@pytest.mark.parametrize("index", [1, 12, 33])
+def test_compiled_modes_match_the_reference(index, monkeypatch):
+    """The compiled mode fixed point (``_friction_kernels.ground_modes``) against ``FrictionalSolver._modes``
+    on an inextensible throw, everything else the same: the same QPs through the same C function, so the
+    trajectories and contact impulses agree to 1e-12 (relative to their scales) over all its steps; the
+    kernel answers most of the solves itself."""
+    case = throw(index)
+    assert case["method"] == "inextensible"
+    answered = []
+    compiled_modes = F.FrictionalSolver._modes_compiled
+
+    def counted(self, v0, rows, warm):
+        found = compiled_modes(self, v0, rows, warm)
+        answered.append(found is not None)
+        return found
+
+    def run():
+        sim = _sim(case)
+        out = []
+        for _ in range(case["steps"]):
+            r = sim.step()
+            out.append((r.positions, r.velocities, r.contact_impulses))
+        return [np.array(a) for a in zip(*out)]
+
+    monkeypatch.setattr(F.FrictionalSolver, "_modes_compiled", counted)
+    compiled = run()
+    monkeypatch.setattr(F.FrictionalSolver, "_modes_compiled", lambda self, v0, rows, warm: None)
+    reference = run()
+    assert sum(answered) >= 0.9 * len(answered) > 50
+    for a, b in zip(compiled, reference):
+        assert np.abs(a - b).max() <= 1e-12 * max(np.abs(b).max(), 1.0)

@@ -86,7 +86,8 @@ import numpy as np
 
 from ..system import System
 from .member_contact import Armed, MemberContacts, tangents
-from .qp import DaqpSolver, QPError, QPSolver, Rows
+from . import _friction_kernels as kernels
+from .qp import _FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, QPError, QPSolver, Rows
 
 __all__ = ["ContactSet", "FrictionalSolver", "FrictionError", "FIXED_POINT_TOL", "TOUCH_TOL"]
 
@@ -410,7 +411,11 @@ class FrictionalSolver:
         self.last = None
         if not self.armed:
             return self.inner.solve(v0, rows, warm)
-        found = self._modes(v0, rows, warm)
+        found = None
+        if self.compiled and self._frames is None and isinstance(self.inner, DaqpSolver) and self.inner.verify:
+            found = self._modes_compiled(v0, rows, warm)
+        if found is None:   # the reference: what the kernel answers, and what it leaves to it
+            found = self._modes(v0, rows, warm)
         if found is None:
             # the modes cycled: once more with the method's targets at the pure velocity level (a drift
             # correction that only sliding could meet is what makes them cycle on a locked structure),
@@ -418,6 +423,24 @@ class FrictionalSolver:
             rows = _velocity_level(rows)
             found = self._modes(v0, rows, warm)
         return found if found is not None else self._newton(v0, rows, warm)
+
+    def _modes_compiled(self, v0, rows, warm):
+        """:meth:`_modes` for ground contacts in one kernel call (``_friction_kernels.ground_modes``: the
+        same QPs through DAQP's C function, the same mode changes and acceleration); None where the kernel
+        leaves the solve to :meth:`_modes` (a QP refused, modes that do not settle)."""
+        old_stick, old_normal, old_slip = self._recall()
+        given = warm is not None
+        ok, v, y, impulses, remember, slip, its = kernels.ground_modes(
+            *self.inner.c_call, v0, rows.nodes, rows.directions, rows.targets, rows.n_eq,
+            warm if given else np.zeros(len(rows), dtype=bool), given, self._fi, self._targets,
+            np.asarray(self._touching, dtype=bool), self._mu, old_stick, old_normal, old_slip, FIXED_POINT_TOL,
+            _SLIP_FLOOR, MAX_MODE_ITER, _ANDERSON_DEPTH, _FEASIBILITY_TOL, _VELOCITY_FLOOR)
+        if not ok:
+            return None
+        self.iterations = its
+        self._remember(remember, impulses[:, 2], slip)
+        self.last = impulses
+        return v, y
 
     def _modes(self, v0, rows, warm):
         """The mode fixed point (module docstring): ``(v, y)`` as :meth:`solve` returns them, or None if
