@@ -67,12 +67,7 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
     n_rows, k = row_targets.shape[0], fi.shape[0]
     node_mass = mass.reshape((n_free, 3))[:, 0]
     meff = node_mass[fi]
-    scale_v = 0.0
-    for i in range(n_free):
-        for j in range(3):
-            scale_v = max(scale_v, abs(v0[i, j]))
-    for c in range(k):
-        scale_v = max(scale_v, abs(w[c]))
+    scale_v = max(np.abs(v0).max(), np.abs(w).max())   # k >= 1: the kernel runs for armed contacts
     slip_tol = slip_floor + fixed_point_tol * scale_v
     stick = np.zeros(k, dtype=np.bool_)
     slip = np.zeros((k, 2))
@@ -147,10 +142,7 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
         for j in range(s.shape[0]):
             friction[s[j], 0] = stick_f[j, 0]
             friction[s[j], 1] = stick_f[j, 1]
-        vmax = 0.0
-        for i in range(n_free):
-            for j in range(3):
-                vmax = max(vmax, abs(v[i, j]))
+        vmax = np.abs(v).max()
         speed = np.empty(k)
         vt = np.empty((k, 2))
         for c in range(k):
