@@ -17,17 +17,19 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-import tensegrity_sim as ts
-from tensegrity_sim.commands import load_commands
-from tensegrity_sim.methods.inextensible import LengthOffsetWarning
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run as a script: this checkout first
 
-from .tables import write_csv
+import tensegrity_sim as ts  # noqa: E402
+from bench.tables import write_csv  # noqa: E402
+from tensegrity_sim.commands import load_commands  # noqa: E402
+from tensegrity_sim.methods.inextensible import LengthOffsetWarning  # noqa: E402
 
 ROLL = Path(__file__).resolve().parents[1] / "examples" / "roll.yaml"
 RESULTS = Path(__file__).resolve().parent / "results" / "ground.csv"
@@ -49,7 +51,7 @@ def _ours(scene, method, steps, schedule):
 def _mujoco(scene, model, integrator, steps, schedule):
     """MuJoCo's rate, final positions and whether it stayed stable (``model``: its cable model,
     "elastic" or "inextensible")."""
-    from .mujoco_peer import MujocoPeer
+    from bench.mujoco_peer import MujocoPeer
     peer = MujocoPeer(scene, model=model, dt=1e-3, integrator=integrator)
     mj, mj_model, data, tendons = peer._mj, peer.model, peer.data, peer._tendons
     base = scene.cable_rest_lengths
@@ -120,7 +122,7 @@ def main(argv=None) -> int:
                   f"{'stable' if stable[who] else 'UNSTABLE':8s} centre moved {row['centre_moved_m']:.3f} m, "
                   f"rose {row['centre_rose_m']:+.3f} m{ratio}  (load {load:.1f})")
     write_csv(RESULTS, rows)
-    print(f"written {RESULTS.relative_to(Path.cwd()) if RESULTS.is_relative_to(Path.cwd()) else RESULTS}")
+    print(f"written {RESULTS}")
     return 0
 
 
