@@ -133,3 +133,28 @@ def test_compiled_modes_match_the_reference(index, monkeypatch):
     assert sum(answered) >= 0.9 * len(answered) > 50
     for a, b in zip(compiled, reference):
         assert np.abs(a - b).max() <= 1e-12 * max(np.abs(b).max(), 1.0)
+
+
+def test_the_closed_forms_run_on_the_compiled_modes(monkeypatch):
+    """``test_ground.py``'s inextensible closed forms are answered by the compiled kernel, not its
+    reference: the sliding strut (mu = 0.5, 2 m/s) stops at ``v0 / (mu g)`` to 1 % with every friction
+    solve answered in the kernel, and the resting icosahedron's solves are too (all but its first)."""
+    from test_ground import G, MU, strut
+    answered = []
+    compiled_modes = F.FrictionalSolver._modes_compiled
+
+    def counted(self, v0, rows, warm):
+        found = compiled_modes(self, v0, rows, warm)
+        answered.append(found is not None)
+        return found
+
+    monkeypatch.setattr(F.FrictionalSolver, "_modes_compiled", counted)
+    tr = ts.Simulator(strut(2.0), method="inextensible", dt=1e-3).run(duration=0.6)
+    stopped = np.flatnonzero(tr.velocities[:, 0, 0] == 0.0)
+    assert abs(tr.time[stopped[0]] - 2.0 / (MU * G)) <= 0.01 * 2.0 / (MU * G)
+    assert len(answered) == 600 and all(answered)
+    answered.clear()
+    tr = _sim({"robot": "icosahedron_ground", "method": "inextensible", "mu": 0.8, "e": 0.0, "height": 0.0,
+               "velocity": [0.0] * 3, "spin": [0.0] * 3}).run(duration=0.3)
+    assert np.abs(tr.positions - tr.positions[0]).max() < 1e-9
+    assert len(answered) == 300 and sum(answered) >= 299
