@@ -9,7 +9,9 @@ Euler and implicitfast integrators; a MuJoCo run is *stable* when MuJoCo raised 
 warning and the centre of mass stayed within 0.5 m of the ground, and the ratio is taken to the faster
 stable integrator (named in the output). The rolling inextensible icosahedron is locked: its motors reel
 the cables in with unlimited force, which the rigid structure can only follow by leaving the ground, so
-its rate is reported with how high the centre of mass went.
+its rate is reported with how high the centre of mass went. The ``variant`` column names MuJoCo's
+integrator, or ``numpy modes`` for the inextensible method with its friction modes solved by their numpy
+reference instead of the compiled kernel (issue 28: what compiling them gained, in the same process).
 
 Run: ``python bench/bench_ground.py [--duration S] [--repeats N]``; writes ``bench/results/ground.csv``.
 """
@@ -36,10 +38,14 @@ RESULTS = Path(__file__).resolve().parent / "results" / "ground.csv"
 INTEGRATORS = ("Euler", "implicitfast")
 
 
-def _ours(scene, method, steps, schedule):
+def _ours(scene, method, steps, schedule, reference_modes=False):
+    """Our rate and final positions; ``reference_modes``: the friction modes by their numpy reference
+    (``FrictionalSolver._modes``) instead of the compiled kernel, everything else the same."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LengthOffsetWarning)
         sim = ts.Simulator(scene, method=method, dt=1e-3)
+    if reference_modes:
+        sim._method.solver._modes_compiled = lambda v0, rows, warm: None
     start = time.perf_counter()
     for k in range(steps):
         if schedule is not None:
@@ -89,14 +95,18 @@ def main(argv=None) -> int:
     rows = []
     for case, sched in (("resting", None), ("rolling", schedule)):
         contenders = [("ours", m, "") for m in ("inextensible", "elastic")]
+        contenders += [("ours", "inextensible", "numpy modes")]
         contenders += [("mujoco", m, i) for m in ("inextensible", "elastic") for i in INTEGRATORS]
         best, finals, stable = {}, {}, {}
         for who in contenders:   # warm-up: numba's compilation and MuJoCo's first allocations, untimed
-            _ours(scene, who[1], 50, sched) if who[0] == "ours" else _mujoco(scene, who[1], who[2], 50, sched)
+            if who[0] == "ours":
+                _ours(scene, who[1], 50, sched, who[2] == "numpy modes")
+            else:
+                _mujoco(scene, who[1], who[2], 50, sched)
         for _ in range(args.repeats):
             for who in contenders:
                 if who[0] == "ours":
-                    rate, x = _ours(scene, who[1], steps, sched)
+                    rate, x = _ours(scene, who[1], steps, sched, who[2] == "numpy modes")
                     ok = bool(np.isfinite(x).all())
                 else:
                     rate, x, ok = _mujoco(scene, who[1], who[2], steps, sched)
@@ -106,7 +116,7 @@ def main(argv=None) -> int:
         load = os.getloadavg()[0]
         for who in contenders:
             centre = _centre(scene, finals[who]) - start
-            row = {"case": case, "simulator": who[0], "cables": who[1], "integrator": who[2] or "-",
+            row = {"case": case, "simulator": who[0], "cables": who[1], "variant": who[2] or "-",
                    "steps_per_s": best[who], "stable": stable[who],
                    "centre_moved_m": float(np.linalg.norm(centre[:2])), "centre_rose_m": float(centre[2]),
                    "ratio_to_mujoco": float("nan"), "mujoco_integrator": "-", "load": load}
@@ -118,7 +128,7 @@ def main(argv=None) -> int:
             rows.append(row)
             ratio = (f"  {row['ratio_to_mujoco']:.3f}x MuJoCo ({row['mujoco_integrator']})"
                      if who[0] == "ours" else "")
-            print(f"{case:8s} {who[0]:7s} {who[1]:13s} {row['integrator']:13s} {best[who]:10.0f} steps/s  "
+            print(f"{case:8s} {who[0]:7s} {who[1]:13s} {row['variant']:13s} {best[who]:10.0f} steps/s  "
                   f"{'stable' if stable[who] else 'UNSTABLE':8s} centre moved {row['centre_moved_m']:.3f} m, "
                   f"rose {row['centre_rose_m']:+.3f} m{ratio}  (load {load:.1f})")
     write_csv(RESULTS, rows)

@@ -53,12 +53,12 @@ def _rows(row_nodes, row_dirs, row_targets, warm, warm_given, fi, w, stick, load
 
 @njit(cache=True)
 def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_dirs, row_targets, n_eq, warm,
-                 warm_given, fi, w, touching, mu, old_stick, old_normal, old_slip, fixed_point_tol, slip_floor, max_iter, depth,
-                 feasibility_tol, velocity_floor):
+                 warm_given, fi, w, touching, mu, old_stick, old_normal, old_slip, fixed_point_tol, slip_floor,
+                 max_iter, depth, feasibility_tol, velocity_floor):
     """The mode fixed point for ground contacts (``FrictionalSolver._modes``): free velocities ``v0``
     (n_free, 3) m/s, the method's member rows (``row_nodes`` (r, 2), ``row_dirs`` (r, 3), ``row_targets``
-    (r,) m/s, ``n_eq`` equalities, ``warm`` (r,) bool if ``warm_given``), the armed contacts' free nodes ``fi`` (k,), normal
-    targets ``w`` (k,) m/s, ``touching`` (k,) bool, Coulomb coefficients ``mu`` (k,) and their last
+    (r,) m/s, ``n_eq`` equalities, ``warm`` (r,) bool if ``warm_given``), the armed contacts' free nodes
+    ``fi`` (k,), normal targets ``w`` (k,) m/s, ``touching`` (k,) bool, Coulomb coefficients ``mu`` (k,) and their last
     solve's modes, ``y_n`` (N*s) and slip directions ((k,), (k,), (k, 2)); DAQP's C call and settings as
     ``DaqpSolver.c_call``. Returns ``ok``, ``v`` (n_free, 3), the rows' multipliers (r,), the contacts'
     impulses (k, 3) N*s (friction x, y; normal), the modes to remember (k,) bool, the slip directions
