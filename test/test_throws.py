@@ -103,14 +103,8 @@ def test_a_friction_problem_left_unsolved_names_its_contacts_and_residual(monkey
             sim.step()
 
 
-@pytest.mark.parametrize("index", [1, 12, 33])
-def test_compiled_modes_match_the_reference(index, monkeypatch):
-    """The compiled mode fixed point (``_friction_kernels.ground_modes``) against ``FrictionalSolver._modes``
-    on an inextensible throw, everything else the same: the same QPs through the same C function, so the
-    trajectories and contact impulses agree to 1e-12 (relative to their scales) over all its steps; the
-    kernel answers most of the solves itself."""
-    case = throw(index)
-    assert case["method"] == "inextensible"
+def _kernel_answers(monkeypatch) -> list[bool]:
+    """From now on, whether each friction solve was answered by the compiled kernel (in order)."""
     answered = []
     compiled_modes = F.FrictionalSolver._modes_compiled
 
@@ -119,6 +113,18 @@ def test_compiled_modes_match_the_reference(index, monkeypatch):
         answered.append(found is not None)
         return found
 
+    monkeypatch.setattr(F.FrictionalSolver, "_modes_compiled", counted)
+    return answered
+
+
+@pytest.mark.parametrize("index", [1, 12, 33])
+def test_compiled_modes_match_the_reference(index, monkeypatch):
+    """The compiled mode fixed point (``_friction_kernels.ground_modes``) against ``FrictionalSolver._modes``
+    on an inextensible throw, everything else the same: the same QPs through the same C function, so the
+    trajectories and contact impulses agree to 1e-12 (relative to their scales) over all its steps; the
+    kernel answers most of the solves itself."""
+    case = throw(index)
+    assert case["method"] == "inextensible"
     def run():
         sim = _sim(case)
         out = []
@@ -127,7 +133,7 @@ def test_compiled_modes_match_the_reference(index, monkeypatch):
             out.append((r.positions, r.velocities, r.contact_impulses))
         return [np.array(a) for a in zip(*out)]
 
-    monkeypatch.setattr(F.FrictionalSolver, "_modes_compiled", counted)
+    answered = _kernel_answers(monkeypatch)
     compiled = run()
     monkeypatch.setattr(F.FrictionalSolver, "_modes_compiled", lambda self, v0, rows, warm: None)
     reference = run()
@@ -141,15 +147,7 @@ def test_the_closed_forms_run_on_the_compiled_modes(monkeypatch):
     reference: the sliding strut (mu = 0.5, 2 m/s) stops at ``v0 / (mu g)`` to 1 % with every friction
     solve answered in the kernel, and the resting icosahedron's solves are too (all but its first)."""
     from test_ground import G, MU, strut
-    answered = []
-    compiled_modes = F.FrictionalSolver._modes_compiled
-
-    def counted(self, v0, rows, warm):
-        found = compiled_modes(self, v0, rows, warm)
-        answered.append(found is not None)
-        return found
-
-    monkeypatch.setattr(F.FrictionalSolver, "_modes_compiled", counted)
+    answered = _kernel_answers(monkeypatch)
     tr = ts.Simulator(strut(2.0), method="inextensible", dt=1e-3).run(duration=0.6)
     stopped = np.flatnonzero(tr.velocities[:, 0, 0] == 0.0)
     assert abs(tr.time[stopped[0]] - 2.0 / (MU * G)) <= 0.01 * 2.0 / (MU * G)
