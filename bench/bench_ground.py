@@ -6,14 +6,21 @@ icosahedron_ground --commands examples/roll.yaml --duration 10 --method elastic`
 ``test/test_ground.py`` measured on the elastic method's compiled path and on its reference (friction.py's
 QP fixed point), exactness beside speed. Never asserts a time.
 
-Contenders, like for like (our strut-strut detection off: the peer has none; on, for information):
+Contenders, like for like (our strut-strut detection off: the peer has none; on, for information), each
+of our methods beside MuJoCo with the same cable model (the elastic method beside its spring tendons, the
+inextensible one beside its limited tendons), each MuJoCo model with Euler and implicitfast; a MuJoCo run
+is *stable* when MuJoCo raised no bad-acceleration warning and the centre of mass stayed within 0.5 m of
+its start in height, and a ratio is taken to the faster stable integrator (``mujoco_integrator``):
 
 * resting, 2 s: ours through ``Simulator.run`` (the compiled loop) and through ``Simulator.step`` one step
-  at a time (steps computed ahead); MuJoCo ``mj_step(nstep)`` in C, Euler and implicitfast;
+  at a time (steps computed ahead); the inextensible method also with its friction modes solved by their
+  numpy reference instead of the compiled kernel (``numpy modes``: what compiling them gained); MuJoCo
+  ``mj_step(nstep)`` in C;
 * rolling, 2 s under the roll's commands applied before each step where they change (as ``run --commands``
-  does): ours ``set_rest_lengths`` + ``step``; MuJoCo ``tendon_lengthspring`` + ``mj_step`` from Python,
-  implicitfast (its Euler goes unstable 0.5 s into the roll: reported, not ranked); the inextensible
-  method cannot roll the locked icosahedron, it is timed resting only.
+  does): ours ``set_rest_lengths`` + ``step``; MuJoCo's commanded tendon length (a spring tendon's length,
+  a limited tendon's limit at its offset above the rest length) + ``mj_step`` from Python. The locked
+  inextensible icosahedron's motors reel its cables in with unlimited force, which the rigid structure
+  can only follow by leaving the ground: its rate is reported with how high its centre rose.
 
 Run: ``python bench/bench_ground.py [--duration S] [--repeats N]``; writes bench/results/ground.csv and
 ground_exactness.csv.
@@ -57,9 +64,13 @@ def _simulator(scene, method, contacts=(), compiled=True):
     return sim
 
 
-def _ours(scene, method, steps, schedule, how, contacts=()):
-    """Steps per second and the final positions: ``how`` "run" (one Simulator.run) or "step"."""
+def _ours(scene, method, steps, schedule, how, contacts=(), reference_modes=False):
+    """Steps per second and the final positions: ``how`` "run" (one Simulator.run) or "step";
+    ``reference_modes``: the inextensible method's friction modes by their numpy reference
+    (``FrictionalSolver._modes``) instead of the compiled kernel, everything else the same."""
     sim = _simulator(scene, method, contacts)
+    if reference_modes:
+        sim._method.solver._modes_compiled = lambda v0, rows, warm: None
     sim.run(steps=2)   # the kernels loaded, the first contact solved
     start = time.perf_counter()
     if how == "run":
@@ -75,20 +86,24 @@ def _ours(scene, method, steps, schedule, how, contacts=()):
     return steps / (time.perf_counter() - start), sim.positions
 
 
-def _mujoco(scene, steps, schedule, integrator):
-    """MuJoCo's rate, final positions and whether it flagged itself unstable."""
+def _mujoco(scene, steps, schedule, integrator, model="elastic"):
+    """MuJoCo's rate, final positions and whether it flagged itself unstable (``model``: its cable model,
+    "elastic" or "inextensible")."""
     from bench.mujoco_peer import MujocoPeer
-    peer = MujocoPeer(scene, dt=1e-3, integrator=integrator)
-    model, data = peer.model, peer.data
-    tendons = peer._tendons
+    peer = MujocoPeer(scene, model=model, dt=1e-3, integrator=integrator)
+    mj_model, data, tendons = peer.model, peer.data, peer._tendons
+    base = scene.cable_rest_lengths
+    # the commanded rest length moves a spring tendon's length, or a limited tendon's limit (kept at its
+    # offset above the rest length: the prestressed cables start longer than their rest lengths)
+    law = mj_model.tendon_lengthspring[:, 1] if model == "elastic" else mj_model.tendon_range[:, 1]
+    offset = law[tendons] - base
     start = time.perf_counter()
     if schedule is None:
         peer.advance(steps)
     else:
-        base = scene.cable_rest_lengths
         for k in range(steps):
-            model.tendon_lengthspring[tendons, 1] = schedule.rest_lengths_at(k * 1e-3, base)
-            peer._mj.mj_step(model, data)
+            law[tendons] = schedule.rest_lengths_at(k * 1e-3, base) + offset
+            peer._mj.mj_step(mj_model, data)
     return steps / (time.perf_counter() - start), peer.positions(), peer.unstable
 
 
@@ -98,35 +113,50 @@ def speed(duration: float, repeats: int) -> list[dict]:
     steps = int(round(duration / 1e-3))
     mass = scene.masses
     start = mass @ scene.positions / mass.sum()
-    cases = {
-        "resting": [("elastic run", lambda: _ours(scene, "elastic", steps, None, "run")),
-                    ("elastic step", lambda: _ours(scene, "elastic", steps, None, "step")),
-                    ("elastic run, detection on", lambda: _ours(scene, "elastic", steps, None, "run", None)),
-                    ("inextensible step", lambda: _ours(scene, "inextensible", min(steps, 500), None, "step")),
-                    ("mujoco Euler", lambda: _mujoco(scene, steps, None, "Euler")[:2]),
-                    ("mujoco implicitfast", lambda: _mujoco(scene, steps, None, "implicitfast")[:2])],
-        "rolling": [("elastic step", lambda: _ours(scene, "elastic", steps, schedule, "step")),
-                    ("elastic step, detection on", lambda: _ours(scene, "elastic", steps, schedule, "step", None)),
-                    ("mujoco implicitfast", lambda: _mujoco(scene, steps, schedule, "implicitfast")[:2]),
-                    ("mujoco Euler", lambda: _mujoco(scene, steps, schedule, "Euler"))],
+    peers = [(f"mujoco {model} {integrator}", model, integrator)
+             for model in ("elastic", "inextensible") for integrator in ("Euler", "implicitfast")]
+    ours = {
+        "resting": [("elastic run", "elastic", lambda: _ours(scene, "elastic", steps, None, "run")),
+                    ("elastic step", "elastic", lambda: _ours(scene, "elastic", steps, None, "step")),
+                    ("elastic run, detection on", "elastic",
+                     lambda: _ours(scene, "elastic", steps, None, "run", None)),
+                    ("inextensible step", "inextensible",
+                     lambda: _ours(scene, "inextensible", min(steps, 500), None, "step")),
+                    ("inextensible step, numpy modes", "inextensible",
+                     lambda: _ours(scene, "inextensible", min(steps, 500), None, "step", reference_modes=True))],
+        "rolling": [("elastic step", "elastic", lambda: _ours(scene, "elastic", steps, schedule, "step")),
+                    ("elastic step, detection on", "elastic",
+                     lambda: _ours(scene, "elastic", steps, schedule, "step", None)),
+                    ("inextensible step", "inextensible",
+                     lambda: _ours(scene, "inextensible", min(steps, 500), schedule, "step"))],
     }
     rows = []
-    for case, contenders in cases.items():
-        best, moved, unstable = {}, {}, {}
-        for name, go in contenders:   # warm-up: compile, caches
+    for case, contenders in ours.items():
+        sched = schedule if case == "rolling" else None
+        contenders = contenders + [(name, model, lambda m=model, i=integrator: _mujoco(scene, steps, sched, i, m))
+                                   for name, model, integrator in peers]
+        best, finals, unstable = {}, {}, {}
+        for name, _, go in contenders:   # warm-up: compile, caches
             go()
         for _ in range(repeats):
-            for name, go in contenders:
+            for name, _, go in contenders:
                 out = go()
                 best[name] = max(best.get(name, 0.0), out[0])
-                moved[name] = float(np.linalg.norm((mass @ out[1] / mass.sum() - start)[:2]))
-                unstable[name] = bool(out[2]) if len(out) > 2 else False
-        reference = best["mujoco implicitfast"] if case == "rolling" else max(best["mujoco Euler"],
-                                                                                best["mujoco implicitfast"])
-        for name, rate in best.items():
-            rows.append({"case": case, "contender": name, "steps_per_s": round(rate),
-                         "ratio_to_mujoco": rate / reference, "com_moved_m": moved[name],
-                         "unstable": unstable[name], "load": _load()})
+                finals[name] = out[1]
+                unstable[name] = unstable.get(name, False) or (bool(out[2]) if len(out) > 2 else False)
+        centre = {name: mass @ x / mass.sum() - start for name, x in finals.items()}
+        stable = {name: not unstable[name] and bool(np.isfinite(finals[name]).all()) and abs(centre[name][2]) < 0.5
+                  for name in best}
+        for name, model, _ in contenders:
+            row = {"case": case, "contender": name, "cables": model, "steps_per_s": round(best[name]),
+                   "ratio_to_mujoco": float("nan"), "mujoco_integrator": "-",
+                   "com_moved_m": float(np.linalg.norm(centre[name][:2])), "com_rose_m": float(centre[name][2]),
+                   "stable": stable[name], "load": _load()}
+            stable_peers = [] if name.startswith("mujoco") else [p for p, m, _ in peers if m == model and stable[p]]
+            if stable_peers:
+                peer = max(stable_peers, key=best.get)
+                row["ratio_to_mujoco"], row["mujoco_integrator"] = best[name] / best[peer], peer.rsplit(" ", 1)[1]
+            rows.append(row)
     return rows
 
 
@@ -188,8 +218,8 @@ def main(argv=None) -> int:
     RESULTS.mkdir(exist_ok=True)
     rows = speed(args.duration, args.repeats)
     rows.append(realtime())
-    fields = ["case", "contender", "steps_per_s", "ratio_to_mujoco", "real_time_factor", "com_moved_m", "unstable",
-              "load"]
+    fields = ["case", "contender", "cables", "steps_per_s", "ratio_to_mujoco", "mujoco_integrator", "real_time_factor",
+              "com_moved_m", "com_rose_m", "stable", "load"]
     write_csv(RESULTS / "ground.csv", rows, fields)
     for r in rows:
         print(", ".join(f"{k} {r[k]:.4g}" if isinstance(r[k], float) else f"{k} {r[k]}" for k in fields if k in r))

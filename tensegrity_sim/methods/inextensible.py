@@ -530,6 +530,11 @@ class InextensibleMethod(StepMethod):
         rows = Rows(self._row_nodes[sel], m_n, targets, n_eq)
         v_f, y = self._land(v, v0, rows, warm, self._ends[sel], m_length, m_limits, tau, floor_rate, reel)
         if self.ground is not None:
+            if self.ground.missed(x_m, v_f, 0.5 * tau):
+                # a cable's impulse carried a node that its free motion kept clear of the ground into it:
+                # the sub-step again with that node armed too (judged on this answer)
+                self.ground.arm_step(x_m, v, v0, tau, 0.5 * tau, v_f)
+                v_f, y = self._land(v, v0, rows, warm, self._ends[sel], m_length, m_limits, tau, floor_rate, reel)
             self.solver.commit()
         impulses = np.zeros(len(limits))
         impulses[cables] = y[n_eq:]

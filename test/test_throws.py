@@ -1,0 +1,159 @@
+"""Random throws of the built-in robots onto a plane (issue 28; ``throw_cases``): a seeded sample of them
+must run soundly in both methods, and the friction fallback that lets them (the semismooth Newton method
+of ``methods/friction.py``, taken where the friction modes cycle) is held to the Coulomb law, the normal
+rows' complementarity and the impulses' balance, recomputed here. ``scripts/throws.py`` runs many more."""
+import warnings
+
+import numpy as np
+import pytest
+import throw_cases as T
+
+import tensegrity_sim as ts
+from tensegrity_sim.methods import friction as F
+
+N_THROWS = 16   # about 25 s of CI on the project's 2-core machine
+
+
+def throw(index: int, steps: int = 400) -> dict:
+    return T.random_throw(np.random.default_rng([28, index]), steps=steps)
+
+
+def test_the_sample_covers_both_methods_and_the_energy_law():
+    cases = [throw(i) for i in range(N_THROWS)]
+    assert {c["method"] for c in cases} == set(T.METHODS)
+    assert {c["robot"] for c in cases} == set(T.ROBOTS)
+    assert any(c["method"] == "inextensible" and c["e"] == 0.0 and c["robot"] != "prism3" for c in cases)
+    assert max(c["mu"] for c in cases) > 1.5 and max(np.abs(c["spin"]).max() for c in cases) > 5.0
+
+
+@pytest.mark.parametrize("index", range(N_THROWS))
+def test_random_throw_runs_soundly(index):
+    """No error, a finite state, no node more than 0.1 mm into the ground, and (inextensible, rigid
+    struts, plastic ground) no energy created in any step beyond 1e-7 of the throw's energy scale
+    (``throw_cases.problems``)."""
+    case = throw(index)
+    out = T.run_throw(case)
+    assert T.problems(case, out) == [], case
+    assert out["steps"] == case["steps"]
+
+
+def _sim(case):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return ts.Simulator(T.throw_scene(case), method=case["method"], dt=1e-3)
+
+
+def test_newton_answers_the_coulomb_law_where_the_modes_cycle(monkeypatch):
+    """Throw 33 (prism3, inextensible) reaches a problem on which the mode fixed point cycles, at the
+    pure velocity level too (that is the only way to the Newton method); its answer meets the Coulomb law
+    in its projection form, the normal rows' complementarity, the cables' rows and the balance
+    ``M (v - v0) = -A^T y + P`` of the impulses, each to 1e-9 of the impulse scale."""
+    seen = []
+    newton = F.FrictionalSolver._newton
+
+    def recorded(self, v0, rows, warm):
+        v, y = newton(self, v0, rows, warm)
+        seen.append((self, v0.copy(), rows, v, y, self.last.copy()))
+        return v, y
+
+    monkeypatch.setattr(F.FrictionalSolver, "_newton", recorded)
+    sim = _sim(throw(33))
+    for _ in range(100):
+        sim.step()
+        if seen:
+            break
+    solver, v0, rows, v, y, impulses = seen[0]
+    mass = solver.inner.mass.reshape(-1, 3)[:, 0]
+    fi, mu, w = solver._fi, solver._mu, solver._targets
+    f, yn = impulses[:, :2], impulses[:, 2]
+    scale = max(np.abs(mass[:, None] * v0).max(), np.abs(y).max(), np.abs(impulses).max())
+    tol = 1e-9 * scale
+    # Coulomb: f = proj_disc(mu y_n)(f - m v_t), the friction inside the disc
+    trial = f - mass[fi, None] * v[fi, :2]
+    size = np.linalg.norm(trial, axis=1)
+    projected = trial * np.minimum(1.0, mu * yn / np.maximum(size, 1e-300))[:, None]
+    assert np.abs(f - projected).max() <= tol
+    assert (np.linalg.norm(f, axis=1) <= mu * yn + tol).all()
+    assert (np.linalg.norm(f, axis=1) > 0).any()   # friction acts
+    # the normal rows: v_z >= w, y_n >= 0, and one of the two at its bound
+    assert (v[fi, 2] >= w - 1e-9 * np.abs(v0).max()).all() and (yn >= 0).all()
+    assert np.abs(yn * (v[fi, 2] - w)).max() <= tol * np.abs(v0).max()
+    # the method's rows, and the balance of all impulses
+    rates = rows.rates(v) - rows.targets
+    assert np.abs(rates[:rows.n_eq]).max(initial=0.0) <= 1e-9 * np.abs(v0).max()
+    assert rates[rows.n_eq:].max(initial=0.0) <= 1e-9 * np.abs(v0).max()
+    assert y[rows.n_eq:].min(initial=0.0) >= 0.0
+    contact = np.zeros_like(v)
+    np.add.at(contact, fi, impulses)
+    balance = mass[:, None] * (v - v0) + (rows.dense(len(v)).T @ y).reshape(-1, 3) - contact
+    assert np.abs(balance).max() <= tol
+
+
+def test_a_friction_problem_left_unsolved_names_its_contacts_and_residual(monkeypatch):
+    """With no Newton iteration, NSGS sweep or restart allowed, the problem where the modes cycle is left
+    unsolved: the FrictionError names the contacts on the ground and the residual, in N*s."""
+    monkeypatch.setattr(F, "MAX_NEWTON_ITER", 0)
+    monkeypatch.setattr(F, "_NSGS_SWEEPS", ())
+    monkeypatch.setattr(F, "_RESTARTS", 0)
+    sim = _sim(throw(33))
+    with pytest.raises(F.FrictionError, match=r"\(no solution\): contacts 'n\d' on the ground miss the Coulomb "
+                                              r"law by up to [0-9.e+-]+ N\*s \(tolerance [0-9.e+-]+ N\*s\) after 30 "
+                                              r"mode QPs and 0 semismooth Newton iterations"):
+        for _ in range(100):
+            sim.step()
+
+
+def _kernel_answers(monkeypatch) -> list[bool]:
+    """From now on, whether each friction solve was answered by the compiled kernel (in order)."""
+    answered = []
+    compiled_modes = F.FrictionalSolver._modes_compiled
+
+    def counted(self, v0, rows, warm):
+        found = compiled_modes(self, v0, rows, warm)
+        answered.append(found is not None)
+        return found
+
+    monkeypatch.setattr(F.FrictionalSolver, "_modes_compiled", counted)
+    return answered
+
+
+@pytest.mark.parametrize("index", [1, 12, 33])
+def test_compiled_modes_match_the_reference(index, monkeypatch):
+    """The compiled mode fixed point (``_friction_kernels.ground_modes``) against ``FrictionalSolver._modes``
+    on an inextensible throw, everything else the same: the same QPs through the same C function, so the
+    trajectories and contact impulses agree to 1e-12 (relative to their scales) over all its steps; the
+    kernel answers most of the solves itself."""
+    case = throw(index)
+    assert case["method"] == "inextensible"
+    def run():
+        sim = _sim(case)
+        out = []
+        for _ in range(case["steps"]):
+            r = sim.step()
+            out.append((r.positions, r.velocities, r.contact_impulses))
+        return [np.array(a) for a in zip(*out)]
+
+    answered = _kernel_answers(monkeypatch)
+    compiled = run()
+    monkeypatch.setattr(F.FrictionalSolver, "_modes_compiled", lambda self, v0, rows, warm: None)
+    reference = run()
+    assert sum(answered) >= 0.9 * len(answered) > 50
+    for a, b in zip(compiled, reference):
+        assert np.abs(a - b).max() <= 1e-12 * max(np.abs(b).max(), 1.0)
+
+
+def test_the_closed_forms_run_on_the_compiled_modes(monkeypatch):
+    """``test_ground.py``'s inextensible closed forms are answered by the compiled kernel, not its
+    reference: the sliding strut (mu = 0.5, 2 m/s) stops at ``v0 / (mu g)`` to 1 % with every friction
+    solve answered in the kernel, and the resting icosahedron's solves are too (all but its first)."""
+    from test_ground import G, MU, strut
+    answered = _kernel_answers(monkeypatch)
+    tr = ts.Simulator(strut(2.0), method="inextensible", dt=1e-3).run(duration=0.6)
+    stopped = np.flatnonzero(tr.velocities[:, 0, 0] == 0.0)
+    assert abs(tr.time[stopped[0]] - 2.0 / (MU * G)) <= 0.01 * 2.0 / (MU * G)
+    assert len(answered) == 600 and all(answered)
+    answered.clear()
+    tr = _sim({"robot": "icosahedron_ground", "method": "inextensible", "mu": 0.8, "e": 0.0, "height": 0.0,
+               "velocity": [0.0] * 3, "spin": [0.0] * 3}).run(duration=0.3)
+    assert np.abs(tr.positions - tr.positions[0]).max() < 1e-9
+    assert len(answered) == 300 and sum(answered) >= 299
