@@ -54,7 +54,7 @@ def ground_arrays(system, rigid, touch_tol: float) -> GroundModel:
                        np.ascontiguousarray(system.scene.node_radii, dtype=float), node_strut, float(touch_tol))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, node_strut, mu, warm, contact,
            work, inv2, vel, z, ends_k, target_k, vel3, z3):
     """The armed contacts' velocity problem of copy ``b``, block by block, in place on ``v``; adds the
@@ -126,7 +126,7 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                  rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu, restitution, radii,
                  node_strut, touch_tol, warm, dx, impulses, slack, contact, armed, target, landing, work, inv2, vel,
@@ -250,5 +250,5 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
 
 # one loop, two compilations: a batch spreads its copies over the cores; one copy (Simulator) runs without
 # the thread pool's start-up
-ground_steps = njit(cache=True, parallel=True)(_ground_steps)
-ground_steps_serial = njit(cache=True)(_ground_steps)
+ground_steps = njit(cache=True, parallel=True, error_model="numpy")(_ground_steps)
+ground_steps_serial = njit(cache=True, error_model="numpy")(_ground_steps)
