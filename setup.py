@@ -30,9 +30,9 @@ INSTALL_REQUIRES = [
     # numba's code generator, used directly for calls to C functions by address (methods/_c_calls.py);
     # the range numba 0.68 requires
     "llvmlite>=0.50.0,<0.51",
-    # QP backends of the inextensible method (tensegrity_sim.methods.qp): DAQP is the default. Exactly
+    # QP backends of the inextensible method (tensegrity_sim.methods.qp.solvers): DAQP is the default. Exactly
     # 0.11.0: the compiled path calls its C function daqp_quadprog with the struct layouts of that
-    # release's headers (methods/_daqp_kernels.py); another release may lay them out differently
+    # release's headers (methods/qp/_daqp_kernels.py); another release may lay them out differently
     "daqp>=0.11.0,<0.11.1",
     "osqp>=1.1.3,<2",
     # MCAP logs and ROS 2 Jazzy message types without ROS (tensegrity_sim.ros)

@@ -34,7 +34,7 @@ from bench.cases import icosahedron_thrown  # noqa: E402
 from bench.tables import write_csv  # noqa: E402
 from bench.timing import time_alternating  # noqa: E402
 from tensegrity_sim import formfinding  # noqa: E402
-from tensegrity_sim.contact import closest_points  # noqa: E402
+from tensegrity_sim.methods.contact.detection import closest_points  # noqa: E402
 
 
 def scenes():

@@ -43,7 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import tensegrity_sim as ts  # noqa: E402
 from bench.tables import write_csv  # noqa: E402
 from tensegrity_sim.commands import load_commands  # noqa: E402
-from tensegrity_sim.methods.inextensible import LengthOffsetWarning  # noqa: E402
+from tensegrity_sim.methods.inextensible.method import LengthOffsetWarning  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 ROLL = ROOT / "examples" / "roll.yaml"

@@ -46,7 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import tensegrity_sim as ts  # noqa: E402
 from bench.cases import icosahedron_thrown  # noqa: E402
 from bench.tables import write_csv  # noqa: E402
-from tensegrity_sim.methods import _elastic_kernels as kernels  # noqa: E402
+from tensegrity_sim.methods.elastic import _kernels as kernels  # noqa: E402
 from tensegrity_sim.methods.rigid import RigidStruts  # noqa: E402
 from tensegrity_sim.system import System  # noqa: E402
 

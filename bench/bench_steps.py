@@ -29,8 +29,8 @@ import numpy as np
 
 import tensegrity_sim as ts
 from tensegrity_sim import formfinding
-from tensegrity_sim.methods import qp
-from tensegrity_sim.methods.inextensible import LengthOffsetWarning
+from tensegrity_sim.methods.qp import solvers as qp
+from tensegrity_sim.methods.inextensible.method import LengthOffsetWarning
 
 
 def scenes(stages=(10, 50)):

@@ -148,7 +148,7 @@ def tower_rows(stages, repeats: int, budget: float, velocities=(0.0, 0.05), conf
                warmup: int = 10) -> list[dict]:
     """Steady and after-a-command cost per step of the inextensible method on towers, at rest and moving,
     and the shares of the steady cost spent in the QP backend (``qp_share``) and in publishing the
-    impulses of rows that carry a self-stress (``publish_share``, ``methods/self_stress.py``), for each
+    impulses of rows that carry a self-stress (``publish_share``, ``methods/inextensible/self_stress.py``), for each
     of ``configs`` (:func:`_configured`), their twin simulators taking turns block by block;
     ``guessed_share``: the QPs the sparse backend's guess answered, ``dual_share`` those its dual
     active-set method answered; ``sparse_share``: the rule's calls its sparse path answered; ``mujoco_ms``:

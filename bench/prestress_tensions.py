@@ -8,7 +8,7 @@ step with the rule and without it, taking turns in one process); ``bench/report.
 Scenes: the thrown icosahedron of the work-precision study at 0.3 m/s (``bench.cases.icosahedron_thrown``),
 and the 3-strut prism with rigid struts at 0.5 m/s; 0.3 s each. "QP multipliers" is the inextensible
 method with the rule switched off (what it published before issue 20); "residual" is the largest node
-impulse the published impulses leave out (:attr:`~tensegrity_sim.methods.self_stress.SelfStress.residual`).
+impulse the published impulses leave out (:attr:`~tensegrity_sim.methods.inextensible.self_stress.SelfStress.residual`).
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ import tensegrity_sim as ts  # noqa: E402
 from bench.cases import icosahedron_thrown, rigid_consistent  # noqa: E402
 from bench.tables import write_csv  # noqa: E402
 from bench.timing import time_runs  # noqa: E402
-from tensegrity_sim.methods.inextensible import LIMIT_TOL  # noqa: E402
+from tensegrity_sim.methods.inextensible.method import LIMIT_TOL  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 DTS = (1e-3, 5e-4, 2.5e-4)

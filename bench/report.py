@@ -328,7 +328,7 @@ def _separate_runs(results: Path) -> list[str]:
         w.append("`python3 bench/prestress_tensions.py` (run on its own, not by `run_all.py`): 0.3 s of a thrown "
                  "locked structure (rigid struts; random node velocities, which hit the cables at t = 0). The "
                  "inextensible method publishes the reference prestress projected onto the step's self-stress plus "
-                 "the minimum-norm dynamic impulses (`methods/self_stress.py`); 'QP multipliers' is the same run "
+                 "the minimum-norm dynamic impulses (`methods/inextensible/self_stress.py`); 'QP multipliers' is the same run "
                  "publishing the solver's multipliers (before issue 20); the elastic twin is the same scene with "
                  "613 N/m (icosahedron) or 2000 N/m (prism) cables. Tensions are impulse / dt over every cable and "
                  "step: 'max' includes the first step's impact (an impulse, so its tension grows like 1/dt), 'max "

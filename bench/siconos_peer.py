@@ -32,8 +32,8 @@ import tensegrity_sim as ts  # noqa: E402
 from bench import analytic  # noqa: E402
 from bench.prestress_tensions import prism3_thrown  # noqa: E402
 from bench.tables import write_csv  # noqa: E402
-from tensegrity_sim.methods.qp import Rows  # noqa: E402
-from tensegrity_sim.methods.self_stress import self_stress_space  # noqa: E402
+from tensegrity_sim.methods.qp.solvers import Rows  # noqa: E402
+from tensegrity_sim.methods.inextensible.self_stress import self_stress_space  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 DRIVER = Path(__file__).resolve().parent / "siconos_driver.py"

@@ -9,10 +9,10 @@ _drop_stale_kernels()   # before any compiled kernel is loaded from numba's cach
 
 from .accuracy import AccuracyChoice, choose_accuracy
 from .batch import BatchSimulator
-from .contact import ActiveContact
+from .methods.contact.detection import ActiveContact
 from .methods import METHODS, StepError
-from .methods.inextensible import LengthOffsetWarning
-from .methods.qp import SOLVERS, QPError
+from .methods.inextensible.method import LengthOffsetWarning
+from .methods.qp.solvers import SOLVERS, QPError
 from .results import ContactEvent, StepResult, Trajectory
 from .scene import Cable, ClassKWarning, Node, Scene, SceneError, Strut, builtin_scenes, load_scene
 from .simulator import NonFiniteError, Simulator, SpeedError

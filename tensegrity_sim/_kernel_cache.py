@@ -3,7 +3,7 @@
 
 numba checks a cached kernel against its own source file only: a change to a function it calls from
 another file goes unnoticed (numba's documented cache limitation), and the cached caller keeps the old
-callee compiled into it. Editing ``methods/_qp_kernels.py`` left ``_daqp_kernels.solve_rows`` running the
+callee compiled into it. Editing ``methods/qp/_qp_kernels.py`` left ``_daqp_kernels.solve_rows`` running the
 previous ``working_set_answer``, 6e-9 m/s off in velocity, until its cache was deleted by hand; a
 ``git pull`` into an editable install does the same to a user. So the package stamps its cache with a
 digest of every file that compiled code comes from, and drops all its cached kernels when the digest

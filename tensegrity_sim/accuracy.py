@@ -1,6 +1,6 @@
 """The cheapest elastic configuration for a requested error: :func:`choose_accuracy`.
 
-The located options (``methods/composition.py``) make the error of the elastic method predictable:
+The located options (``methods/elastic/composition.py``) make the error of the elastic method predictable:
 every halving of ``dt`` divides it by 4 (order 2, switches located; 3.3 to 4.8 measured on the closed
 forms) or by 16 (order 4; 12 or more measured), where plain Verlet's ratios scatter (1.5 to 44 on the
 bungee) because a switch's error depends on where in the step it falls. So two runs, at ``h`` and
@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .checks import real, time_step
-from .methods.composition import STABILITY
+from .methods.elastic.composition import STABILITY
 from .scene import Scene
 from .simulator import Simulator
 from .system import System

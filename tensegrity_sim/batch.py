@@ -26,11 +26,11 @@ import numpy as np
 
 from .checks import float_array, time_step
 from .commands import CommandSchedule
-from .contact import make_detector
-from .ground_contact import GroundDetector, walk_copies
+from .methods.contact.detection import make_detector
+from .methods.contact.ground import GroundDetector, walk_copies
 from .methods import StepError, check_backend, choose_method
-from .methods.elastic import ElasticMethod
-from .methods.elastic_batch import ElasticBatch
+from .methods.elastic.method import ElasticMethod
+from .methods.elastic.batch import ElasticBatch
 from .results import ContactEvent
 from .scene import Scene, contact_kinds
 from .methods.base import State

@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from .commands import CommandError, CommandSchedule, load_commands
 from .methods import StepError
-from .methods.qp import SOLVERS, SPARSE_NODES
+from .methods.qp.solvers import SOLVERS, SPARSE_NODES
 from .scene import Scene, SceneError, load_scene
 from .simulator import Simulator
 

@@ -34,7 +34,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.optimize import linprog
 
-from .contact import closest_points
+from .methods.contact.detection import closest_points
 
 __all__ = [
     "prism",

@@ -15,10 +15,10 @@ from typing import Mapping
 import numpy as np
 
 from .checks import check_memory, describe, float_array, real, time_step, whole
-from .contact import ActiveContact, CompiledDetector, make_detector
-from .ground_contact import GroundDetector
+from .methods.contact.detection import ActiveContact, CompiledDetector, make_detector
+from .methods.contact.ground import GroundDetector
 from .methods import State, StepError, make_method
-from .methods.friction import TOUCH_TOL
+from .methods.contact.friction import TOUCH_TOL
 from .results import StepResult, Trajectory, step_result
 from .scene import Scene, contact_kinds
 from .system import System

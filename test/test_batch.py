@@ -8,7 +8,7 @@ import pytest
 import tensegrity_sim as ts
 from bench.cases import icosahedron_thrown, tower_kicked
 from tensegrity_sim.batch import BatchSimulator
-from tensegrity_sim.methods.elastic_batch import ElasticBatch
+from tensegrity_sim.methods.elastic.batch import ElasticBatch
 from tensegrity_sim.system import System
 
 TOL = 1e-10

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import tensegrity_sim as ts
-from tensegrity_sim.methods.inextensible import LengthOffsetWarning
+from tensegrity_sim.methods.inextensible.method import LengthOffsetWarning
 
 
 @pytest.mark.parametrize("name", ts.builtin_scenes())

@@ -9,11 +9,11 @@ import tensegrity_sim as ts
 from bench.cases import icosahedron_thrown, tower_kicked
 from conftest import bungee_dict, class_k_dict, deadband_dict, random_velocities
 from test_contact import crossing_dict
-from tensegrity_sim.methods import _qp_kernels as kernels
-from tensegrity_sim.methods import _self_stress_kernels as self_stress_kernels
-from tensegrity_sim.methods import qp
-from tensegrity_sim.methods.inextensible import LengthOffsetWarning
-from tensegrity_sim.methods.self_stress import _EXACT, _NO_FACTOR, RANK_TOL
+from tensegrity_sim.methods.qp import _qp_kernels as kernels
+from tensegrity_sim.methods.inextensible import _self_stress_kernels as self_stress_kernels
+from tensegrity_sim.methods.qp import solvers as qp
+from tensegrity_sim.methods.inextensible.method import LengthOffsetWarning
+from tensegrity_sim.methods.inextensible.self_stress import _EXACT, _NO_FACTOR, RANK_TOL
 
 TOL = 1e-12
 
@@ -85,7 +85,7 @@ def test_elastic_step_matches_reference(name):
         assert np.array_equal(a.slack, b.slack), f"slack, step {k}"
 
 
-# the accuracy options (methods/_composition_kernels.py): scenes with switches, damping and rigid struts
+# the accuracy options (methods/elastic/_composition_kernels.py): scenes with switches, damping and rigid struts
 OPTION_SCENES = {"bungee": (lambda: ts.Scene.from_dict(bungee_dict()), 1e-3, 1200),
                  "deadband": (ELASTIC_SCENES["deadband"][0], 1e-3, 600),
                  "damped": (_damped, 1e-3, 1000),
@@ -132,9 +132,9 @@ def test_composed_steps_match_reference(name, order, locate):
 def test_composed_kernel_steps_a_batch():
     """The kernel's batch axis: two copies with different rest lengths stepped together equal each
     stepped alone (a located switch splits one copy's step only)."""
-    from tensegrity_sim.methods import _composition_kernels as composed
-    from tensegrity_sim.methods import _elastic_kernels as kernels
-    from tensegrity_sim.methods.composition import MIN_SPLIT, WEIGHTS
+    from tensegrity_sim.methods.elastic import _composition_kernels as composed
+    from tensegrity_sim.methods.elastic import _kernels as kernels
+    from tensegrity_sim.methods.elastic.composition import MIN_SPLIT, WEIGHTS
     sim = ts.Simulator(ts.Scene.from_dict(bungee_dict()), method="elastic", dt=1e-3, order=4)
     model = sim._method._model
     x0, v0 = sim.positions[..., None], sim.velocities[..., None]
@@ -244,7 +244,7 @@ def test_non_finite_step_ahead_fails_at_that_step():
 def test_copies_innermost_kernel_is_the_same_step(name):
     """elastic_steps_copies (a batch's kernel: copies innermost) gives elastic_steps' numbers bit for bit:
     five copies of a scene (damped cables; rigid struts; elastic struts), moved apart, kept every 3rd step."""
-    from tensegrity_sim.methods import _elastic_kernels as ek
+    from tensegrity_sim.methods.elastic import _kernels as ek
     make, dt, _ = ELASTIC_SCENES[name]
     scene = make()
     model = ts.Simulator(scene, method="elastic", dt=dt)._method._model
@@ -256,7 +256,7 @@ def test_copies_innermost_kernel_is_the_same_step(name):
     ext = 0.1 * rng.normal(size=x.shape)
     n, nc, nr, steps = x.shape[0], rest.shape[0], len(model.rigid_members), 50
     results = []
-    from tensegrity_sim.methods._detection_kernels import no_detection
+    from tensegrity_sim.methods.contact._detection_kernels import no_detection
     for kernel, extra in ((ek.elastic_steps, (no_detection(),)), (ek.elastic_steps_copies, ())):
         xk, vk = x.copy(), v.copy()
         carry = (np.empty_like(x), np.empty((nc, copies)), np.empty((nr, 3, copies)))

@@ -1,4 +1,4 @@
-"""The elastic method's accuracy options (methods/composition.py): located slack/taut switches and the
+"""The elastic method's accuracy options (methods/elastic/composition.py): located slack/taut switches and the
 fourth-order composition, against closed forms, conservation laws, DOP853 and MuJoCo."""
 import numpy as np
 import pytest
@@ -7,7 +7,7 @@ import tensegrity_sim as ts
 from bench.analytic import bungee_dict, bungee_exact, deadband_dict, deadband_exact
 from bench.cases import icosahedron_thrown
 from bench.reference import ElasticReference
-from tensegrity_sim.methods.composition import STABILITY, WEIGHTS
+from tensegrity_sim.methods.elastic.composition import STABILITY, WEIGHTS
 
 DURATION = 2.0   # s: the bungee falls, snaps taut, swings, releases and falls again; the dead band's mass
 #                  crosses the gap four times
@@ -138,7 +138,7 @@ def test_options_are_checked_and_reported():
         ts.Simulator(scene, method="inextensible", order=4)
     sim = ts.Simulator(scene, method="elastic", dt=1e-3, order=4, locate_switches=False)
     assert sim.method_settings == {"method": "elastic", "dt": 1e-3, "order": 4, "locate_switches": False}
-    # by default only order 4 locates; every option runs compiled (methods/_composition_kernels.py)
+    # by default only order 4 locates; every option runs compiled (methods/elastic/_composition_kernels.py)
     plain = ts.Simulator(scene, method="elastic", dt=1e-3)
     assert not plain.method_settings["locate_switches"] and plain._method.compiled
     located = ts.Simulator(scene, method="elastic", dt=1e-3, locate_switches=True)

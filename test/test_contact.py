@@ -11,7 +11,7 @@ import yaml
 
 import tensegrity_sim as ts
 from tensegrity_sim.cli import main
-from tensegrity_sim.contact import ContactDetector, closest_points, make_detector, transitions
+from tensegrity_sim.methods.contact.detection import ContactDetector, closest_points, make_detector, transitions
 from tensegrity_sim.system import System
 
 
@@ -455,7 +455,7 @@ def test_compiled_detection_matches_the_numpy_detector(crowded, seed):
     on the random scenes and paths above (all three kinds, pass-throughs, jumps far beyond the skin): the
     same events in the same order, times, closest points, normals and distances to 1e-12, the same
     ongoing contacts at the end, whether the path is walked in chunks or two copies together (a batch)."""
-    from tensegrity_sim.contact import CompiledDetector
+    from tensegrity_sim.methods.contact.detection import CompiledDetector
     rng = np.random.default_rng(seed)
     scene = gas_scene(rng, 30, 2.0, 0.05) if crowded else gas_scene(rng, 30, 3.0, 0.03)
     paths = [np.array(gas_path(rng, scene, 200, 0.002 if crowded else 0.001)) for _ in range(2)]
@@ -524,7 +524,7 @@ def test_detection_in_the_compiled_run_matches_the_numpy_detector(every):
 def test_scenes_with_very_many_pairs_detect_with_the_numpy_detector(monkeypatch):
     """Beyond COMPILED_PAIRS eligible pairs the simulators detect with the numpy ContactDetector (its
     pair list holds only the near pairs): Simulator.run() and a batch give the compiled detector's events."""
-    import tensegrity_sim.contact as contact
+    import tensegrity_sim.methods.contact.detection as contact
     d = ts.load_scene("icosahedron").to_dict()
     for s in d["struts"]:
         s["radius"] = 0.25

@@ -1,12 +1,12 @@
-"""DAQP's C entry point called from a kernel (``methods/_daqp_kernels.py``) against ``daqp.solve``: the
+"""DAQP's C entry point called from a kernel (``methods/qp/_daqp_kernels.py``) against ``daqp.solve``: the
 same answer to the last bit, on random problems and on the degenerate ones a locked structure gives."""
 import daqp
 import numpy as np
 import pytest
 
 import tensegrity_sim as ts
-from tensegrity_sim.methods import _daqp_kernels as kernels
-from tensegrity_sim.methods.qp import DaqpSolver, Rows
+from tensegrity_sim.methods.qp import _daqp_kernels as kernels
+from tensegrity_sim.methods.qp.solvers import DaqpSolver, Rows
 
 
 def _same(reference, compiled):

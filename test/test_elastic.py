@@ -26,7 +26,7 @@ def test_bungee_lowest_point_period_and_energy():
 
 
 def test_bungee_converges_second_order():
-    """The kink at the slack/taut switch does not cost Verlet its order (see methods/elastic.py).
+    """The kink at the slack/taut switch does not cost Verlet its order (see methods/elastic/method.py).
 
     Error: the largest height error over a whole bounce (free fall, snap, taut swing, release),
     sampled every 20 ms over two bounces. Each halving's ratio scatters (the snap falls at a different

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import tensegrity_sim as ts
-from tensegrity_sim.methods._friction_block_kernels import MAX_ROWS, block_work, lone_contact, solve_block
+from tensegrity_sim.methods.contact._friction_block_kernels import MAX_ROWS, block_work, lone_contact, solve_block
 from tensegrity_sim.methods.base import State
-from tensegrity_sim.methods.friction_blocks import lone_contact_reference, solve_block_reference
+from tensegrity_sim.methods.contact.friction_blocks import lone_contact_reference, solve_block_reference
 
 from test_ground import G, MU, dropped, strut
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import tensegrity_sim as ts
-from tensegrity_sim.methods.friction import FrictionalSolver
+from tensegrity_sim.methods.contact.friction import FrictionalSolver
 
 METHODS = ["inextensible", "elastic", "elastic-reference"]
 G, MU = 9.81, 0.5

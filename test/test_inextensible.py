@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 import tensegrity_sim as ts
-from tensegrity_sim.methods import choose_method, qp
-from tensegrity_sim.methods.inextensible import LengthOffsetWarning
+from tensegrity_sim.methods import choose_method
+from tensegrity_sim.methods.qp import solvers as qp
+from tensegrity_sim.methods.inextensible.method import LengthOffsetWarning
 from tensegrity_sim.system import System
 from conftest import random_velocities
 
@@ -350,7 +351,7 @@ def test_the_last_sub_step_warmed_by_the_previous_steps_moves_the_same(monkeypat
     previous such step's last sub-step (``QPSolver.last_hint``): on a rattling 20-stage tower the same
     QP answers to the bit over 10 steps (every one verified), with fewer changes of the dual active-set
     method's working set (measured 2,526 against 4,077)."""
-    from tensegrity_sim.methods import _dual_kernels
+    from tensegrity_sim.methods.qp import _dual_kernels
     scene = rattling_tower(20, 0.05)
     steps = _dual_kernels.dual_steps
     runs, changes = [], []

@@ -38,6 +38,8 @@ def test_the_package_is_stamped_with_its_kernel_sources():
     """Importing the package stamped its cache with the digest of its own kernel sources."""
     stamp = _kernel_cache.PACKAGE / "__pycache__" / _kernel_cache.STAMP
     assert stamp.read_text() == _kernel_cache.sources_digest()
-    names = {path.name for path in _kernel_cache._sources(_kernel_cache.PACKAGE)}
-    assert {"_qp_kernels.py", "_daqp_kernels.py", "_inextensible_kernels.py", "_c_calls.py",
-            "_system_kernels.py", "_publication_kernels.py"} <= names
+    package = _kernel_cache.PACKAGE
+    names = {path.relative_to(package).as_posix() for path in _kernel_cache._sources(package)}
+    assert {"methods/qp/_qp_kernels.py", "methods/qp/_daqp_kernels.py", "methods/inextensible/_kernels.py",
+            "methods/elastic/_kernels.py", "methods/contact/_detection_kernels.py", "methods/_c_calls.py",
+            "_system_kernels.py", "ros/_publication_kernels.py"} <= names

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import tensegrity_sim as ts
-from tensegrity_sim.contact import contact_geometry
+from tensegrity_sim.methods.contact.detection import contact_geometry
 
 METHODS = ["inextensible", "elastic"]
 G = 9.81
@@ -79,7 +79,7 @@ def test_plastic_impact_of_crossing_struts(method, xc, cable):
     assert np.abs(active[0].tangential_impulse).max() <= 1e-12
     assert len(begins) == 1 and begins[0].members == members
     assert begins[0].time == pytest.approx(0.03, abs=1e-12)
-    assert lowest >= -3e-9   # TOUCH_TOL and the turning pair's drift (methods/member_contact.py)
+    assert lowest >= -3e-9   # TOUCH_TOL and the turning pair's drift (methods/contact/member.py)
     # the struts go on together: B's middle stays on A
     assert abs(gap(r.positions)) <= 3e-9
 

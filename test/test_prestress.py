@@ -2,7 +2,7 @@
 
 The built-in icosahedron (rigid struts) and the 3-strut prism with rigid struts are *locked* with
 inextensible cables: their rows carry a self-stress, and the QP's multipliers alone are not unique.
-The inextensible method publishes the impulses of ``methods/self_stress.py`` (the reference prestress
+The inextensible method publishes the impulses of ``methods/inextensible/self_stress.py`` (the reference prestress
 projected onto the step's self-stress, plus the minimum-norm dynamic part); the elastic method's are
 its cable forces. Both are checked against the scene's form-finding prestress ``k (l0 - L)``."""
 import warnings
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 import tensegrity_sim as ts
-from tensegrity_sim.methods.inextensible import LengthOffsetWarning
-from tensegrity_sim.methods.qp import Rows
+from tensegrity_sim.methods.inextensible.method import LengthOffsetWarning
+from tensegrity_sim.methods.qp.solvers import Rows
 from tensegrity_sim import formfinding
-from tensegrity_sim.methods.self_stress import SPARSE_NODES, self_stress_space
+from tensegrity_sim.methods.inextensible.self_stress import SPARSE_NODES, self_stress_space
 from conftest import random_velocities
 
 METHODS = ["inextensible", "elastic"]
@@ -200,7 +200,7 @@ def test_a_block_started_from_the_steps_previous_call_finds_the_random_starts_sp
     ``SelfStress._basis``) ends on the space the random start does: projectors 1e-12 apart (measured
     ~1e-14), as many self-stresses, at every call of a moving 15-stage tower that took that start; most
     calls after a step's first take it, and every step's first starts at random."""
-    from tensegrity_sim.methods import self_stress
+    from tensegrity_sim.methods.inextensible import self_stress
     sim = simulator(_moving_tower(15), "inextensible", 1e-3)
     rule = sim._method.self_stress
     assert rule.moving
@@ -271,7 +271,7 @@ def test_the_inertia_count_is_the_self_stress_spaces_size():
     """The sparse path sizes its block by the eigenvalues of ``A_B A_B^T`` below the threshold, counted by
     Sylvester's law of inertia (``_space_size``): the count of the dense eigenvalues, and the number of
     vectors the block inverse iteration keeps, at every call of a moving 5-stage tower."""
-    from tensegrity_sim.methods.self_stress import RANK_TOL, _space_size, sparse_self_stress_space
+    from tensegrity_sim.methods.inextensible.self_stress import RANK_TOL, _space_size, sparse_self_stress_space
     scene = random_velocities(ts.Scene.from_dict(formfinding.tower(5, gravity=(0.0, 0.0, 0.0))), seed=1, scale=0.05)
     sim, steps = simulator(scene, "inextensible", 1e-3), 10
     rule = sim._method.self_stress
@@ -299,7 +299,7 @@ def test_the_moving_basis_matches_the_svd():
     nodes) it publishes what the SVD's basis does, to 1e-10 of the largest multiplier (measured 4.9e-13
     over 5 steps; these calls' shares are nonnegative fits, DAQP's answers at its default tolerances,
     which the basis steers: 1.9e-11 at one call of another run)."""
-    from tensegrity_sim.methods.self_stress import MOVING_NODES
+    from tensegrity_sim.methods.inextensible.self_stress import MOVING_NODES
     scene = random_velocities(ts.Scene.from_dict(formfinding.tower(15, gravity=(0.0, 0.0, 0.0))), seed=1, scale=0.05)
     sim = simulator(scene, "inextensible", 1e-3)
     rule = sim._method.self_stress
@@ -329,7 +329,7 @@ def test_the_implicit_space_is_tried_at_rest_only(speed, monkeypatch):
     pull) straight to the explicit basis. ``_IMPLICIT`` lowered to 16, so that this small tower's
     sub-steps have many self-stresses (measured moving: 0 attempts at 3 eligible sub-steps, against 3
     failed attempts before)."""
-    from tensegrity_sim.methods import self_stress
+    from tensegrity_sim.methods.inextensible import self_stress
     monkeypatch.setattr(self_stress, "_IMPLICIT", 16)
     scene = ts.Scene.from_dict(formfinding.tower(20, gravity=(0.0, 0.0, 0.0)))
     if speed:
@@ -361,7 +361,7 @@ def test_a_kept_implicit_space_answers_for_rows_moved_by_round_off():
     structure at rest moves its rows' last bits, ``SparseSpace.moved``: the kept vectors and factors, the
     moved rows' KKT matrices), fits what the space built for the moved rows does, to 1e-12 of the
     target (measured 6e-15); and the rule keeps the space for such rows, not for rows moved more."""
-    from tensegrity_sim.methods.self_stress import _MOVED, SparseSpace
+    from tensegrity_sim.methods.inextensible.self_stress import _MOVED, SparseSpace
     sim = simulator(ts.Scene.from_dict(formfinding.tower(30, gravity=(0.0, 0.0, 0.0))), "inextensible", 1e-3)
     rule = sim._method.self_stress
     a = rule._rows_at_load.sparse(rule.n_free)

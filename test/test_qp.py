@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import quadprog
 
-from tensegrity_sim.methods import qp
+from tensegrity_sim.methods.qp import solvers as qp
 
 SOLVERS = sorted(qp.SOLVERS)
 # Relative accuracy in velocity each backend reaches on these problems (measured; see qp.py): OSQP, an
@@ -359,7 +359,7 @@ def test_daqp_survives_degenerate_rest_problems():
     import tensegrity_sim as ts
     from tensegrity_sim import formfinding
     import warnings
-    from tensegrity_sim.methods.inextensible import LengthOffsetWarning
+    from tensegrity_sim.methods.inextensible.method import LengthOffsetWarning
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LengthOffsetWarning)
         sim = ts.Simulator(ts.Scene.from_dict(formfinding.tower(10, gravity=(0.0, 0.0, 0.0))),
@@ -404,7 +404,7 @@ def test_daqp_working_set_answer_matches_its_reference_and_quadprog(case):
     and to 1e-12 the numpy reference's (``DaqpSolver._working_set_reference``); a dependent set
     (duplicated members, four members on three degrees of freedom) is refused by both, and so is a set
     with a row too many (it would pull) or too few (a row outside is violated)."""
-    from tensegrity_sim.methods import _qp_kernels
+    from tensegrity_sim.methods.qp import _qp_kernels
     answered = 0
     for seed in range(4):
         v0, mass, rows = random_problem(seed, **CASES[case])

@@ -1,4 +1,4 @@
-"""The compiled solves with a SuperLU factor (``methods/_superlu_kernels.py``) against SuperLU's own
+"""The compiled solves with a SuperLU factor (``methods/qp/_superlu_kernels.py``) against SuperLU's own
 solve, and the Rayleigh-Ritz step of the self-stress rule's block inverse iteration in its two forms."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from tensegrity_sim.methods._superlu_kernels import factor_arrays, lu_solve
+from tensegrity_sim.methods.qp._superlu_kernels import factor_arrays, lu_solve
 
 
 def _matrix(n: int, symmetric: bool, seed: int):
@@ -52,7 +52,7 @@ def test_cholesky_qr_ritz_pairs_are_householders():
     largest and the same span of the kept vectors (projectors 1e-12 apart), orthonormal to 1e-13; a block
     Cholesky's QR cannot take (the solves of a random block: its columns all lean to the near-null
     space) gets Householder's."""
-    from tensegrity_sim.methods.self_stress import _rayleigh_ritz
+    from tensegrity_sim.methods.inextensible.self_stress import _rayleigh_ritz
     rng = np.random.default_rng(5)
     a = sp.random(120, 90, density=0.05, random_state=rng, format="csr") + sp.eye(120, 90)
     a = sp.vstack([a, sp.random(20, 90, density=0.05, random_state=rng)]).tocsr()   # 50 self-stresses at least

@@ -1,6 +1,6 @@
 """Random throws of the built-in robots onto a plane (issue 28; ``throw_cases``): a seeded sample of them
 must run soundly in both methods, and the friction fallback that lets them (the semismooth Newton method
-of ``methods/friction.py``, taken where the friction modes cycle) is held to the Coulomb law, the normal
+of ``methods/contact/friction.py``, taken where the friction modes cycle) is held to the Coulomb law, the normal
 rows' complementarity and the impulses' balance, recomputed here. ``scripts/throws.py`` runs many more."""
 import warnings
 
@@ -9,7 +9,7 @@ import pytest
 import throw_cases as T
 
 import tensegrity_sim as ts
-from tensegrity_sim.methods import friction as F
+from tensegrity_sim.methods.contact import friction as F
 
 N_THROWS = 16   # about 25 s of CI on the project's 2-core machine
 

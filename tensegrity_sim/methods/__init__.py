@@ -6,9 +6,9 @@ import numpy as np
 from ..checks import describe
 from ..system import System
 from .base import MethodStep, State, StepError, StepMethod
-from .elastic import ElasticMethod
-from .inextensible import InextensibleMethod
-from .qp import SOLVERS
+from .elastic.method import ElasticMethod
+from .inextensible.method import InextensibleMethod
+from .qp.solvers import SOLVERS
 
 __all__ = ["METHODS", "SOLVERS", "BACKENDS", "choose_method", "make_method", "check_backend", "State", "MethodStep",
            "StepMethod", "StepError"]

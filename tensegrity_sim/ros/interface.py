@@ -8,7 +8,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 
 from ..checks import MIN_DT, describe, real
-from ..methods.qp import SOLVERS
+from ..methods.qp.solvers import SOLVERS
 
 __all__ = ["Qos", "TopicSpec", "TOPICS", "SERVICES", "resolve_topic", "stamp_ns", "MIN_RATE", "MAX_REAL_TIME_FACTOR",
            "NodeSettings", "RUNTIME_PARAMETERS", "FAILURE_STATUS"]

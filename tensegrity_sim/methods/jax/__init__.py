@@ -1,7 +1,7 @@
 """The elastic method in JAX: B copies stepped by one jit-compiled ``lax.scan`` of a ``vmap``-ed step, on
 whatever device JAX finds (CPU, GPU), and differentiable (``jax.grad``/``jax.jacfwd`` of a run).
 
-The numba kernels (``methods/_elastic_kernels.py``) stay the default; this backend mirrors them function by
+The numba kernels (``methods/elastic/_kernels.py``) stay the default; this backend mirrors them function by
 function (brax keeps a backend a subpackage with the same functions): :mod:`.elastic` has
 ``model_arrays``, ``elastic_forces``, ``verlet_step`` and ``elastic_steps`` (and ``rollout``, the
 differentiable run); :mod:`.ground` the ground contact; :mod:`.engine` the drivers

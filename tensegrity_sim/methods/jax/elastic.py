@@ -1,4 +1,4 @@
-"""The elastic method's step in JAX: the arithmetic of ``methods/_elastic_kernels.py`` (velocity Verlet,
+"""The elastic method's step in JAX: the arithmetic of ``methods/elastic/_kernels.py`` (velocity Verlet,
 SHAKE/RATTLE of independent rigid struts in closed form, tension-only cables ``k max(floor, l - rest)``,
 damping only while taut and the total clipped at zero, impulses ``h/2 (t_start + t_end)``), with the same
 function names. Tests require the two to agree to 1e-12 in float64 (``test/test_jax.py``).

@@ -13,8 +13,8 @@ import numpy as np
 
 from ...system import System
 from ..base import MethodStep, State
-from ..elastic import ElasticMethod
-from ..elastic_batch import ElasticBatch
+from ..elastic.method import ElasticMethod
+from ..elastic.batch import ElasticBatch
 from .elastic import Carry, elastic_steps, held_inputs, model_arrays, schedule_inputs, start_carry
 
 __all__ = ["DTYPES", "ElasticBatchJax", "ElasticMethodJax"]
@@ -29,7 +29,7 @@ def _dtype(dtype: str):
 
 
 class ElasticBatchJax(ElasticBatch):
-    """:class:`~tensegrity_sim.methods.elastic_batch.ElasticBatch` (same checks, same ``advance``), stepped by the
+    """:class:`~tensegrity_sim.methods.elastic.batch.ElasticBatch` (same checks, same ``advance``), stepped by the
     JAX step in ``dtype`` ("float64" or "float32"). The numpy helpers (``prepare``, ``slack``,
     ``strain_energy``) are the numba batch's."""
 

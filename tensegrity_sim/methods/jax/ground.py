@@ -1,4 +1,4 @@
-"""The ground contact of the elastic method in JAX: the velocity problem of ``methods/friction.py``
+"""The ground contact of the elastic method in JAX: the velocity problem of ``methods/contact/friction.py``
 (``ContactSet.velocity_step``: contact rows ``v_z >= w`` with exact Coulomb friction on the disc
 ``|f| <= mu y_n``, every rigid strut keeping its length) solved branch-free, so that it vectorises over
 copies.
@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..friction import TOUCH_TOL
+from ..contact.friction import TOUCH_TOL
 from .elastic import _index, _pytree
 
 __all__ = ["GroundModel", "ground_model", "gaps", "velocity_step", "drift_contacts", "contact_step", "SWEEPS",

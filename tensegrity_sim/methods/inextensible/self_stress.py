@@ -109,7 +109,7 @@ import numpy as np
 from scipy.linalg import LinAlgError, cho_factor as _cho_factor, cho_solve as _cho_solve
 
 from . import _self_stress_kernels as kernels
-from .qp import Rows
+from ..qp.solvers import Rows
 
 __all__ = ["MOVING_NODES", "RANK_TOL", "SPARSE_NODES", "TAUT_TOL", "SelfStress", "reference_tensions",
            "self_stress_space", "sparse_self_stress_space", "SparseSpace"]
@@ -509,7 +509,7 @@ def _block_space(a, rank_tol: float, start: np.ndarray | None = None):
     from scipy.sparse import identity
     from scipy.sparse.linalg import ArpackNoConvergence, eigsh, splu
 
-    from ._superlu_kernels import factor_arrays
+    from ..qp._superlu_kernels import factor_arrays
     k, n3 = a.shape
     if k < 3:   # too small for ARPACK (its k < n - 1): the dense SVD of a tiny matrix
         return self_stress_space(a.T.toarray(), rank_tol)[0], None
@@ -549,7 +549,7 @@ def _block_iteration(x, ritz, iterations, a_t, w, factor, thr, largest, most):
     them twice), so that the iterations a vector near the threshold needs are paid on the few columns
     still moving (a moving 100-stage tower's sub-step: 4 iterations on 396 columns, ~290 of them
     converged after the second)."""
-    from ._superlu_kernels import lu_solve
+    from ..qp._superlu_kernels import lu_solve
     k = x.shape[0]
     locked = np.zeros((k, 0))
     for _ in range(iterations):
@@ -608,7 +608,7 @@ def _space_size(w, thr: float):
     ordering and no pivoting, ``U = D L^T``); None if that factorisation meets an exact zero pivot."""
     from scipy.sparse import identity
 
-    from ._superlu_kernels import symmetric_lu
+    from ..qp._superlu_kernels import symmetric_lu
     lu = symmetric_lu(w - thr * identity(w.shape[0]))
     return None if lu is None else int(np.count_nonzero(lu.U.diagonal() < 0.0))
 

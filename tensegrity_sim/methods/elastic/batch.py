@@ -19,11 +19,11 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..system import System
-from . import _elastic_ground_kernels as ground_kernels
-from . import _elastic_kernels as kernels
-from .base import State
-from .elastic import ElasticMethod
+from ...system import System
+from . import _ground_kernels as ground_kernels
+from . import _kernels as kernels
+from ..base import State
+from .method import ElasticMethod
 
 __all__ = ["ElasticBatch"]
 

@@ -58,7 +58,7 @@ import scipy.linalg as scipy_linalg
 from . import _daqp_kernels as daqp_kernels, _qp_kernels as kernels
 from ._qp_kernels import _SETTLED, _SWEEPS
 from ._superlu_kernels import factor_arrays, symmetric_lu
-from .base import StepError
+from ..base import StepError
 
 __all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SparseSolver", "SOLVERS",
            "SPARSE_NODES", "DUAL_NODES", "choose_solver", "make_solver"]

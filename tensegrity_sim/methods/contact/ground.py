@@ -1,5 +1,5 @@
 """Ground contacts as events (contract §5): a node begins touching the ground when its gap
-(``methods/friction.py``: height above the ground minus its radius) drops to ``TOUCH_TOL`` and ends when
+(``methods/contact/friction.py``: height above the ground minus its radius) drops to ``TOUCH_TOL`` and ends when
 it rises above it. Events and active contacts name the pair ``(node name, "ground")``: the node is what
 touches (its largest member's capsule end), and two ends of one strut are two contacts.
 """
@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .contact import ActiveContact
-from .methods.friction import TOUCH_TOL
-from .results import ContactEvent
-from .system import System
+from .detection import ActiveContact
+from .friction import TOUCH_TOL
+from ...results import ContactEvent
+from ...system import System
 
 __all__ = ["GroundDetector", "GROUND", "walk_copies"]
 

@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._daqp_kernels import solve_rows
-from ._qp_kernels import answer_residuals
+from ..qp._daqp_kernels import solve_rows
+from ..qp._qp_kernels import answer_residuals
 
 __all__ = ["ground_modes"]
 

@@ -11,7 +11,7 @@ plane with the Coulomb law
 on the node's tangential velocity ``v_t`` at the end of the step (Moreau–Jean).
 
 **The velocity problem.** The contact rows join the method's own rows (the inextensible method's cable
-and rigid-strut rows, the elastic method's rigid struts) in the QP of ``methods/qp.py``: the normal row
+and rigid-strut rows, the elastic method's rigid struts) in the QP of ``methods/qp/solvers.py``: the normal row
 of a node is ``v_z >= w`` with the target ``w`` below, an inequality with multiplier ``y_n``. Friction
 cannot be a QP row as it stands (its bound ``mu y_n`` is another multiplier: that coupling is what makes
 the frictional problem an LCP). :class:`FrictionalSolver` solves it as a fixed point over the *friction
@@ -85,10 +85,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..system import System
-from .member_contact import Armed, MemberContacts, tangents
+from ...system import System
+from .member import Armed, MemberContacts, tangents
 from . import _friction_kernels as kernels
-from .qp import _FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, QPError, QPSolver, Rows
+from ..qp.solvers import _FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, QPError, QPSolver, Rows
 
 __all__ = ["ContactSet", "FrictionalSolver", "FrictionError", "FIXED_POINT_TOL", "TOUCH_TOL"]
 
@@ -112,10 +112,10 @@ class FrictionError(QPError):
 
 class ContactSet:
     """The contacts of a :class:`System` for one method: the ground's (a scene with a ``ground``) and the
-    members' (``contact: response: true``, ``methods/member_contact.py``): which are armed, their targets,
+    members' (``contact: response: true``, ``methods/contact/member.py``): which are armed, their targets,
     the impulses of the current step.
 
-    ``inner``: the method's QP backend (``methods/qp.py``), used through :attr:`solver`.
+    ``inner``: the method's QP backend (``methods/qp/solvers.py``), used through :attr:`solver`.
     ``impulses``: (N, 3) N*s, the ground's impulses on each node summed over the current step (friction in
     x, y; normal along z); ``pair_impulses``: {(member i, member j): (normal N*s, friction (3,) N*s)} the
     member contacts' over the step, the impulse on member j (member i takes the opposite). Both are cleared
@@ -278,7 +278,7 @@ class FrictionalSolver:
     ``ground.pair_impulses`` when :meth:`commit` is called for the solve the method keeps.
 
     The armed contacts are the ground's (first, one node each: the member rows' 2-node fast path, with the
-    tangents x and y) and the member pairs' (``methods/member_contact.py``; general rows of four nodes,
+    tangents x and y) and the member pairs' (``methods/contact/member.py``; general rows of four nodes,
     tangents in the plane normal to each contact). Each has a normal ``n``, tangents ``T`` (2, 3), a
     Coulomb coefficient ``mu`` and an effective mass ``1 / sum_j w_j^2 / m_j`` (the node's mass on the
     ground), the scale of the Coulomb law's projection form.

@@ -1,6 +1,6 @@
 """The elastic method's frictional contact problem, one independent block at a time, compiled (numba).
 
-With elastic cables the velocity problem of a contact step (``methods/friction.py``'s ``ContactSet``)
+With elastic cables the velocity problem of a contact step (``methods/contact/friction.py``'s ``ContactSet``)
 couples only the nodes that a rigid strut joins: it falls apart into independent *blocks*, a moving
 rigid strut with the contacts of its two ends (its length row and a normal and two friction unknowns per
 contact: at most 7 unknowns), or a node on no rigid strut with its own contact (a closed form). This

@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._c_calls import ddot_at, dgemv_at
-from ._daqp_kernels import solve_rows
-from ._elastic_kernels import keep
-from ._qp_kernels import answer_residuals, dot3, row_rates
+from .._c_calls import ddot_at, dgemv_at
+from ..qp._daqp_kernels import solve_rows
+from ..elastic._kernels import keep
+from ..qp._qp_kernels import answer_residuals, dot3, row_rates
 from ._self_stress_kernels import locked_space
 
 __all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed", "midpoint", "cable_geometry",

@@ -46,7 +46,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ._detection_kernels import examine, moved_on, new_events, new_work
+from ..contact._detection_kernels import examine, moved_on, new_events, new_work
 
 __all__ = ["ElasticModel", "model_arrays", "elastic_forces", "elastic_steps", "elastic_steps_copies", "keep", "verlet_step"]
 

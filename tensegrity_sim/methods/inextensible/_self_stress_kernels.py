@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._qp_kernels import add_row, cho_solve, cholesky, delassus, dense_rows
+from ..qp._qp_kernels import add_row, cho_solve, cholesky, delassus, dense_rows
 
 __all__ = ["locked_space"]
 

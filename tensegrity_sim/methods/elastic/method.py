@@ -15,7 +15,7 @@ Integrator: velocity Verlet (with RATTLE for rigid struts), chosen by measuremen
 * The cable force ``k max(0, e)`` is continuous in the positions and only its derivative jumps at a
   slack/taut switch. A step containing the kink has an O(h^2) local error whose constant depends on
   where in the step the switch falls, so by default the step is split at the switch
-  (``locate_switches``, ``methods/composition.py``): each part sees a smooth force and every halving
+  (``locate_switches``, ``methods/elastic/composition.py``): each part sees a smooth force and every halving
   of dt divides the error by 4 (bungee and dead band, 4 ms to 0.25 ms: ratios 3.7 to 4.1, measured by
   ``test_composition.py``). Unlocated, the global error is still O(h^2) but the ratios scatter (1.5 to
   44 on the bungee).
@@ -42,15 +42,15 @@ cable's impulse over the step (summed over the parts and stages of a split or co
 Two implementations of the same arithmetic: the numba kernels (used unless ``compiled`` is False) of
 ``_elastic_kernels.py`` for plain Verlet (order 2, switches not located) and of
 ``_composition_kernels.py`` for the located and order-4 options, and the numpy code below (the primitive
-:meth:`ElasticMethod.verlet` composed by ``methods/composition.py``), the plain reference they must
+:meth:`ElasticMethod.verlet` composed by ``methods/elastic/composition.py``), the plain reference they must
 match to 1e-12 in tests. Rigid struts that share a node (class-k: coupled SHAKE/RATTLE, a Newton solve)
 and scenes with a member contact response are stepped by the reference only; a scene with a ground by
 ``_elastic_ground_kernels.py`` (below).
 
-**Ground contact** (a scene with a ``ground``; ``methods/friction.py``): an impulse step for the contact
+**Ground contact** (a scene with a ``ground``; ``methods/contact/friction.py``): an impulse step for the contact
 set at each half-kick while the cables stay explicit. After the first half-kick, the nodes that would
 pass the ground during the drift get the impulse that lands them exactly on it, with exact Coulomb
-friction, the rigid struts keeping their lengths (the QP of ``methods/qp.py`` with the contact rows);
+friction, the rigid struts keeping their lengths (the QP of ``methods/qp/solvers.py`` with the contact rows);
 after the closing half-kick, the nodes on the ground get the impulse that stops them moving into it
 (Newton's restitution for those that landed in this step) and applies friction again. What it costs:
 the impact is not located inside the step, so a step with an impact or a stick/slip switch is first
@@ -67,7 +67,7 @@ its tolerance (``test/test_friction_blocks.py``) and every closed form of ``test
 paths. A block the Newton leaves unsolved (measured: 1 % of random blocks with arbitrary strut directions,
 masses and mu up to 1; none on the test scenes) has its step taken by the reference (``fallbacks`` counts
 them), and the compiled loop goes on after it. A member contact
-response (``contact: response: true``, ``methods/member_contact.py``) is the same impulse step with the
+response (``contact: response: true``, ``methods/contact/member.py``) is the same impulse step with the
 member pairs' rows beside the ground's, at the same cost to the order and energy behaviour.
 """
 from __future__ import annotations
@@ -76,16 +76,16 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..system import System
+from ...system import System
 from . import _composition_kernels as composed
-from . import _elastic_ground_kernels as ground_kernels
-from . import _detection_kernels as detection_kernels
-from . import _elastic_kernels as kernels
-from .base import MethodStep, State, StepMethod
+from . import _ground_kernels as ground_kernels
+from ..contact import _detection_kernels as detection_kernels
+from . import _kernels as kernels
+from ..base import MethodStep, State, StepMethod
 from .composition import MIN_SPLIT, STABILITY, WEIGHTS, Stepper
-from .friction import TOUCH_TOL, ContactSet
-from .qp import make_solver
-from .rigid import RigidStruts
+from ..contact.friction import TOUCH_TOL, ContactSet
+from ..qp.solvers import make_solver
+from ..rigid import RigidStruts
 
 __all__ = ["ElasticMethod"]
 
@@ -107,7 +107,7 @@ class _Forces(NamedTuple):
 class ElasticMethod(StepMethod):
     """Options: ``order`` 2 (velocity Verlet, one force evaluation per step) or 4 (Suzuki's symmetric
     composition of five Verlet steps, five evaluations); ``locate_switches`` splits a step at each
-    slack/taut switch (``methods/composition.py``); default (None): at order 4 only (at order 2 it
+    slack/taut switch (``methods/elastic/composition.py``); default (None): at order 4 only (at order 2 it
     costs a located part per switching step and, with the fastest vibration under-resolved, lets the
     energy random-walk: see the module docstring). ``compiled``: step with the numba kernels (True; not
     for coupled rigid struts or a member contact response) or the numpy reference (False)."""
@@ -142,7 +142,7 @@ class ElasticMethod(StepMethod):
         self._rest = np.empty(system.n_members)
         self._rest[: system.n_struts] = system.strut_rest
         self._cache: _Forces | None = None
-        # a ground: the contact set's velocity problem solved by the QP backends (methods/friction.py),
+        # a ground: the contact set's velocity problem solved by the QP backends (methods/contact/friction.py),
         # in the reference step, which is then plain Verlet (one primitive step per step)
         self.ground = None
         if system.scene.ground is not None or system.scene.contact_response.response:
@@ -369,7 +369,7 @@ class ElasticMethod(StepMethod):
     def verlet(self, x: np.ndarray, v: np.ndarray, start: _Forces, h: float, state: State):
         """The primitive: one velocity-Verlet/RATTLE step of any size ``h`` (s, may be negative) from
         ``x``, ``v`` (N, 3) with the forces ``start`` at ``x``. Returns the end positions and velocities
-        (N, 3) and the forces there. ``methods/composition.py`` builds every option from it. With a ground
+        (N, 3) and the forces there. ``methods/elastic/composition.py`` builds every option from it. With a ground
         (then one primitive step per step) it applies the contact impulses and keeps them in ``_contact``."""
         v_half = v + (0.5 * h) * start.acc
         if self.ground is not None:

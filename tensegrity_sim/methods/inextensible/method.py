@@ -7,7 +7,7 @@ Moreau's midpoint form::
     x_m = x_i + tau/2 v_i;   v0 = v_i + tau M^-1 F(x_m);   v_f = QP(v0; rows at x_m);   x_f = x_m + tau/2 v_f
 
 ``F`` holds gravity, the external forces and the elastic struts' forces at the midpoint (explicit, so
-``h < 2 / omega_struts`` is required and checked at start-up). The QP (``methods/qp.py``) is
+``h < 2 / omega_struts`` is required and checked at start-up). The QP (``methods/qp/solvers.py``) is
 ``min 1/2 (v - v0)^T M (v - v0)`` with one row ``b_i(x_m)^T v`` per member that can be taut in the
 sub-step: ``<= r_i`` for a cable, ``= r_i`` for a rigid strut. Its multipliers are the cable impulses.
 
@@ -66,12 +66,12 @@ event instead, located inside the step and resolved where it happens:
    kinetic energy cannot grow.
 3. The rest of the step is another sub-step, in which the snapped cable is taut.
 
-**Ground** (a scene with a ``ground``; ``methods/friction.py``): the backend is wrapped so that every
+**Ground** (a scene with a ``ground``; ``methods/contact/friction.py``): the backend is wrapped so that every
 QP above also carries the ground's contact rows (normal rows with the same landing targets and caps as
 the cables', Coulomb friction by a mode fixed point); a node reaching the ground is an event located
 like a snap, and the impact at its start is one inelastic impact with the snapping cables. A member
 contact response (``contact: response: true``) adds the member pairs' rows the same way
-(``methods/member_contact.py``).
+(``methods/contact/member.py``).
 
 **Prestress.** A scene written for elastic cables has them longer than their rest lengths by
 ``tension / k``. The method takes each cable's length limit as its rest length plus that stretch at load
@@ -92,14 +92,14 @@ import warnings
 
 import numpy as np
 
-from ..system import System
-from . import _inextensible_kernels as kernels
-from ._elastic_kernels import keep
-from ._numpy_blas import numpy_blas
-from .base import MethodStep, State, StepMethod
-from .friction import ContactSet
-from .qp import _FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, QPError, Rows, choose_solver, make_solver
-from .rigid import RigidStruts
+from ...system import System
+from . import _kernels as kernels
+from ..elastic._kernels import keep
+from .._numpy_blas import numpy_blas
+from ..base import MethodStep, State, StepMethod
+from ..contact.friction import ContactSet
+from ..qp.solvers import _FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, QPError, Rows, choose_solver, make_solver
+from ..rigid import RigidStruts
 from .self_stress import TAUT_TOL, SelfStress, reference_tensions
 
 __all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_EVENTS", "REEL_SPEED"]
@@ -174,7 +174,7 @@ class InextensibleMethod(StepMethod):
         # the backend: named, or chosen by size (dense DAQP for small structures, sparse for large ones)
         self.solver_choice = f"{solver}: requested" if solver else choose_solver(int(free.sum()))[1]
         self.solver = make_solver(solver, system.masses[free])
-        # a ground or a member contact response adds its contact rows to every QP (methods/friction.py),
+        # a ground or a member contact response adds its contact rows to every QP (methods/contact/friction.py),
         # through the same interface
         self.ground = (None if scene.ground is None and not scene.contact_response.response
                        else ContactSet(system, self.solver))
@@ -199,7 +199,7 @@ class InextensibleMethod(StepMethod):
         self._last_hint = self._holding
         self._end_geometry = None   # (positions, cable vectors, lengths) last computed (a step's end)
         self._applied = scene.cable_rest_lengths   # the rest lengths in effect (the motors' positions), m
-        # what the impulses of a locked structure are published as (issue 20, methods/self_stress.py)
+        # what the impulses of a locked structure are published as (issue 20, methods/inextensible/self_stress.py)
         moving = np.concatenate([np.arange(self._n_eq), self._n_eq + np.flatnonzero(self._cables_move)])
         _, _, n_load = system.geometry(scene.positions, self._ends[moving])
         self.reference_tensions = reference_tensions(system.stiffness[system.n_struts:], self.length_offsets)

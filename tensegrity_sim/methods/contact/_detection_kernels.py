@@ -1,4 +1,4 @@
-"""Compiled continuous member-contact detection: the arithmetic of :mod:`tensegrity_sim.contact`'s numpy
+"""Compiled continuous member-contact detection: the arithmetic of :mod:`tensegrity_sim.methods.contact.detection`'s numpy
 detector (the reference, which tests require these to match: the same events, times to 1e-12), with numba,
 for a whole run's chunk of steps in one call and ``B`` copies (batch axis last, as the other kernels).
 

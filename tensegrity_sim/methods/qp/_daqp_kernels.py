@@ -24,7 +24,7 @@ import ctypes
 import numpy as np
 from numba import njit
 
-from ._c_calls import quadprog_at
+from .._c_calls import quadprog_at
 from ._qp_kernels import dense_rows, working_set_answer
 
 __all__ = ["Settings", "entry_point", "quadprog", "solve_rows"]

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._elastic_kernels import _step, gather_copy, keep, scatter_copy
+from ._kernels import _step, gather_copy, keep, scatter_copy
 from .composition import _FLOW_ITER, _POLY_ITER, LOCATE_TOL, MAX_SWITCHES
 
 __all__ = ["composed_steps"]

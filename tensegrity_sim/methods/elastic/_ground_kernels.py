@@ -1,5 +1,5 @@
 """The elastic method's step with a ground, compiled: ``_elastic_kernels.py``'s velocity Verlet with the
-contact impulse steps of :meth:`.elastic.ElasticMethod.verlet` (``methods/friction.py``'s model: after the
+contact impulse steps of :meth:`.elastic.ElasticMethod.verlet` (``methods/contact/friction.py``'s model: after the
 first half-kick the nodes that would pass the ground during the drift get the impulse that lands them on
 it; after the closing half-kick the touching nodes get the impulse that stops them moving into it, with
 Newton's restitution for those that landed), each velocity problem solved block by block
@@ -27,8 +27,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ._elastic_kernels import _close, _drift, gather_copy, keep, scatter_copy
-from ._friction_block_kernels import MAX_ROWS, lone_contact, solve_block
+from ._kernels import _close, _drift, gather_copy, keep, scatter_copy
+from ..contact._friction_block_kernels import MAX_ROWS, lone_contact, solve_block
 
 __all__ = ["GroundModel", "ground_arrays", "ground_steps", "ground_steps_serial"]
 

@@ -33,7 +33,7 @@ slack/taut state is split at the switch:
 
 What it gives up: the split step's size depends on the state, so the step map is symplectic in pieces
 but not as a whole; when the step does not resolve the fastest vibration the energy random-walks
-(measured in ``methods/elastic.py``: locate at order 2 only where ``omega_max dt <= 0.2``). A cable that goes taut and slack again inside one step (a graze) is not
+(measured in ``methods/elastic/method.py``: locate at order 2 only where ``omega_max dt <= 0.2``). A cable that goes taut and slack again inside one step (a graze) is not
 split: both its ends are on the same side.
 """
 from __future__ import annotations

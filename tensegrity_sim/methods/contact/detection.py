@@ -59,7 +59,7 @@ about what one pair does); while no node has moved more than half the smallest s
 last check, a step costs one array comparison over the nodes. When a scene checks nothing, the simulator builds no detector at all.
 
 The simulators step :class:`CompiledDetector`: the same events from compiled code
-(``methods/_detection_kernels.py``, with a broad phase of its own), inside the elastic method's compiled
+(``methods/contact/_detection_kernels.py``, with a broad phase of its own), inside the elastic method's compiled
 ``run()`` loop or over a chunk of steps; :class:`ContactDetector` is the plain reference that tests hold
 it to.
 """
@@ -69,9 +69,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .results import ContactEvent
-from .scene import CONTACT_KINDS
-from .system import System
+from ...results import ContactEvent
+from ...scene import CONTACT_KINDS
+from ...system import System
 
 __all__ = ["ActiveContact", "ContactDetector", "CompiledDetector", "box_pairs", "closest_points", "contact_geometry",
            "transitions", "make_detector", "TAU_TOLERANCE", "SKIN_FRACTION", "COMPILED_PAIRS"]
@@ -576,7 +576,7 @@ class ContactDetector:
 
 
 class CompiledDetector(ContactDetector):
-    """:class:`ContactDetector`'s events from the compiled kernel (``methods/_detection_kernels.py``, whose
+    """:class:`ContactDetector`'s events from the compiled kernel (``methods/contact/_detection_kernels.py``, whose
     docstring gives its broad phase), for ``copies`` copies of the system stepped together (a batch; 1
     for a Simulator). It lists every eligible pair once (no skin: a far pair costs nothing until its due
     value comes) and walks a chunk of steps in one call (:meth:`walk`), or runs inside the elastic
@@ -589,7 +589,7 @@ class CompiledDetector(ContactDetector):
     def reset(self, positions: np.ndarray) -> None:
         """Start over with no contact known (every pair is examined at the next step; ``positions`` are
         not needed)."""
-        from .methods._detection_kernels import detection_state   # (methods imports this module)
+        from ._detection_kernels import detection_state   # (methods imports this module)
         if not hasattr(self, "_pair_nodes"):
             m, n_members = self.members, self.system.n_members
             a, b = np.triu_indices(len(m), 1)
@@ -630,7 +630,7 @@ class CompiledDetector(ContactDetector):
         before the first step and after each; ``step_start(k)``: the times (s) steps ``k`` (array) start; ``stop``
         (B,): steps to walk per copy (default all); ``impulses`` as :meth:`step`'s. Returns
         {(step, copy): events in time order} of the steps that have any."""
-        from .methods._detection_kernels import detect_steps
+        from ._detection_kernels import detect_steps
 
         xs = np.ascontiguousarray(xs, dtype=float)
         stop = np.full(self.copies, len(xs) - 1, dtype=np.int64) if stop is None else np.asarray(stop, dtype=np.int64)
