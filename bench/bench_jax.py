@@ -20,8 +20,8 @@ Cases (dt = 1 ms, ``--steps`` steps per timed call, kept: the last step only):
 
 Contenders taking turns in one process, each timed after a warm-up (compile), best of ``--repeats``:
 the JAX run (``methods/jax/elastic.elastic_steps``, the state kept on the device); the numba batch
-(``_elastic_kernels.elastic_steps_copies``, one thread, free case, up to ``--numba-max`` copies: its rate
-per copy does not change beyond); MJX (``mujoco.mjx``, float32, ``bench/mujoco_peer.py``'s model: spring
+(``_elastic_kernels.elastic_steps_copies``, one thread, free case; ``BatchSimulator``'s compiled ground
+loop on every core, ground case; up to ``--numba-max`` copies: its rate per copy does not change beyond); MJX (``mujoco.mjx``, float32, ``bench/mujoco_peer.py``'s model: spring
 tendons with the dead band, contacts off for ``free``; capsules on a plane for ``ground``).
 scene-steps/s = copies x steps / wall time. float32's error: the largest node position difference (m) from
 float64 after the timed run's steps, from the same start.
@@ -153,6 +153,21 @@ def _numba_case(scene, copies, steps):
     return run
 
 
+def _numba_ground_case(scene, copies, steps):
+    """The numba batch on the ground: ``BatchSimulator`` (the compiled ground loop, copies on every core) under
+    the same schedule, applied before each step where it changes (``run(commands=...)``), no member detection
+    (the JAX backend has none); built in the timed call (a run cannot be undone), a few ms of the call."""
+    from tensegrity_sim.commands import load_commands
+
+    schedule = load_commands(ROLL, scene)
+
+    def run():
+        ts.BatchSimulator(scene, copies, method="elastic", dt=DT, contacts=[]).run(steps=steps, every=steps,
+                                                                                   commands=schedule)
+
+    return run
+
+
 def _mjx_case(scene, copies, steps):
     """MJX on bench/mujoco_peer.py's model (float32), or None where mujoco.mjx does not import."""
     if importlib.util.find_spec("mujoco") is None or importlib.util.find_spec("mujoco.mjx") is None:
@@ -209,6 +224,8 @@ def measure(copies_list, steps: int, repeats: int, numba_max: int, grad_max: int
                 contenders["jax gradient float64"] = _gradient_case(scene, copies, steps)
                 if copies <= numba_max:
                     contenders["numba batch float64"] = _numba_case(scene, copies, steps)
+            if case == "ground" and copies <= numba_max:
+                contenders["numba batch float64"] = _numba_ground_case(scene, copies, steps)
             try:
                 mjx_run = _mjx_case(scene, copies, steps)
                 if mjx_run is not None:

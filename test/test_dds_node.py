@@ -344,8 +344,9 @@ def test_contact_events_reach_the_controller(tmp_path):
     scene = tmp_path / "crossing.yaml"
     scene.write_text(ts.Scene.from_dict(CROSSING).to_yaml())
     domain = random_domain()
-    # By the mark the first run's contacts are over; the reset replays them from t = 0.
-    actions = [{"sleep": 0.5}, {"mark": "reset"}, {"command": "reset"}, {"sleep": 0.6}]
+    # By the mark the first run's contacts are over (they end at t = 0.28 s; the server's start, loading the
+    # compiled detector's kernels, can take half a second of it); the reset replays them from t = 0.
+    actions = [{"sleep": 1.5}, {"mark": "reset"}, {"command": "reset"}, {"sleep": 0.6}]
     with serving(domain, str(scene), "--log-path", "") as server:
         received, marks = control(domain, actions)
         finish(server)
