@@ -13,7 +13,7 @@ G, MU = 9.81, 0.5
 
 def simulator(scene, method, dt=1e-3):
     """A Simulator of ``scene`` with ``method``; "elastic" steps the ground in the compiled loop
-    (``_elastic_ground_kernels.py``), "elastic-reference" in its numpy reference (friction.py's QP fixed point)."""
+    (``elastic/_ground_kernels.py``), "elastic-reference" in its numpy reference (friction.py's QP fixed point)."""
     sim = ts.Simulator(scene, method=method.removesuffix("-reference"), dt=dt)
     if method == "elastic-reference":
         sim._method.compiled = False

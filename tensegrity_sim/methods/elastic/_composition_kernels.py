@@ -1,8 +1,8 @@
 """Compiled accuracy options of the elastic method: the same arithmetic as :class:`.composition.Stepper`
 (the plain numpy reference, which tests require these to match to 1e-12), built on the Verlet step of
-``_elastic_kernels.py``.
+``elastic/_kernels.py``.
 
-One kernel, two drivers (style.md rule 8): arrays carry a batch axis LAST, as in ``_elastic_kernels.py``
+One kernel, two drivers (style.md rule 8): arrays carry a batch axis LAST, as in ``elastic/_kernels.py``
 (whose module docstring lists the system arrays and the carried state). Each copy is stepped in a
 workspace of its own (a batch of one), since a located switch splits one copy's step and not another's.
 Beyond the plain kernel's carry, these kernels carry each cable's slack state at the step's start:

@@ -1,4 +1,4 @@
-"""The elastic method's step with a ground, compiled: ``_elastic_kernels.py``'s velocity Verlet with the
+"""The elastic method's step with a ground, compiled: ``elastic/_kernels.py``'s velocity Verlet with the
 contact impulse steps of :meth:`.elastic.ElasticMethod.verlet` (``methods/contact/friction.py``'s model: after the
 first half-kick the nodes that would pass the ground during the drift get the impulse that lands them on
 it; after the closing half-kick the touching nodes get the impulse that stops them moving into it, with

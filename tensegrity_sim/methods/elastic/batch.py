@@ -1,6 +1,6 @@
 """The elastic step of :mod:`.elastic` for B copies of one structure at once.
 
-Two implementations of the same arithmetic: the compiled kernels of ``_elastic_kernels.py`` (``Simulator``
+Two implementations of the same arithmetic: the compiled kernels of ``elastic/_kernels.py`` (``Simulator``
 drives them with B = 1; a batch runs ``elastic_steps_copies``, the same step with the copies innermost;
 used unless ``compiled`` is False) and the numpy code here, their plain
 batched reference (tests require the two to agree to 1e-12).

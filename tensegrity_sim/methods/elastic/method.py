@@ -40,12 +40,12 @@ cable's impulse over the step (summed over the parts and stages of a split or co
 ``impulses / h`` the step's mean tension.
 
 Two implementations of the same arithmetic: the numba kernels (used unless ``compiled`` is False) of
-``_elastic_kernels.py`` for plain Verlet (order 2, switches not located) and of
+``elastic/_kernels.py`` for plain Verlet (order 2, switches not located) and of
 ``_composition_kernels.py`` for the located and order-4 options, and the numpy code below (the primitive
 :meth:`ElasticMethod.verlet` composed by ``methods/elastic/composition.py``), the plain reference they must
 match to 1e-12 in tests. Rigid struts that share a node (class-k: coupled SHAKE/RATTLE, a Newton solve)
 and scenes with a member contact response are stepped by the reference only; a scene with a ground by
-``_elastic_ground_kernels.py`` (below).
+``elastic/_ground_kernels.py`` (below).
 
 **Ground contact** (a scene with a ``ground``; ``methods/contact/friction.py``): an impulse step for the contact
 set at each half-kick while the cables stay explicit. After the first half-kick, the nodes that would
@@ -152,8 +152,8 @@ class ElasticMethod(StepMethod):
             self.ground = ContactSet(system, make_solver(None, system.masses[system.free]))
         self._contact = None   # the ground's impulses of the last step (N, 3) N*s, or None
         self._pairs = None     # the member contacts' of the last step (ContactSet.pair_impulses), or None
-        # the compiled kernels: plain Verlet (_elastic_kernels.py), the options (_composition_kernels.py) and
-        # the ground (_elastic_ground_kernels.py); a member response and coupled rigid struts run the numpy
+        # the compiled kernels: plain Verlet (elastic/_kernels.py), the options (_composition_kernels.py) and
+        # the ground (elastic/_ground_kernels.py); a member response and coupled rigid struts run the numpy
         # primitive
         self.compiled = compiled and not self.rigid.coupled and not system.scene.contact_response.response
         self._ground_model = (ground_kernels.ground_arrays(system, self.rigid, TOUCH_TOL)
