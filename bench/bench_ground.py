@@ -107,6 +107,39 @@ def _mujoco(scene, steps, schedule, integrator, model="elastic"):
     return steps / (time.perf_counter() - start), peer.positions(), peer.unstable
 
 
+def _ours_commanded(scene, steps, schedule):
+    """Steps per second and the final positions of the elastic roll as ``tensegrity-sim run --commands`` steps
+    it (``cli.simulate``: the stretches where the commands hold the inputs in one ``Simulator.run``, the
+    ramps one ``set_rest_lengths`` + ``step`` at a time)."""
+    from tensegrity_sim.cli import simulate
+
+    sim = _simulator(scene, "elastic")
+    sim.run(steps=2)   # the kernels loaded, the first contact solved
+    start = time.perf_counter()
+    simulate(sim, steps, schedule)
+    return steps / (time.perf_counter() - start), sim.positions
+
+
+def _mujoco_commanded(scene, steps, schedule, integrator):
+    """MuJoCo's counterpart of :func:`_ours_commanded` (spring tendons): each stretch of steps whose commanded
+    rest lengths do not change in one ``mj_step(nstep)``, the lengths evaluated per step as ours are."""
+    from bench.mujoco_peer import MujocoPeer
+    peer = MujocoPeer(scene, model="elastic", dt=1e-3, integrator=integrator)
+    law, tendons, base = peer.model.tendon_lengthspring[:, 1], peer._tendons, scene.cable_rest_lengths
+    offset = law[tendons] - base
+    start = time.perf_counter()
+    rests = [schedule.rest_lengths_at(k * 1e-3, base) for k in range(steps)]
+    k = 0
+    while k < steps:
+        j = k + 1
+        while j < steps and np.array_equal(rests[j], rests[k]):
+            j += 1
+        law[tendons] = rests[k] + offset
+        peer.advance(j - k)
+        k = j
+    return steps / (time.perf_counter() - start), peer.positions(), peer.unstable
+
+
 def speed(duration: float, repeats: int) -> list[dict]:
     scene = ts.load_scene("icosahedron_ground")
     schedule = load_commands(ROLL, scene)
@@ -125,6 +158,7 @@ def speed(duration: float, repeats: int) -> list[dict]:
                     ("inextensible step, numpy modes", "inextensible",
                      lambda: _ours(scene, "inextensible", min(steps, 500), None, "step", reference_modes=True))],
         "rolling": [("elastic step", "elastic", lambda: _ours(scene, "elastic", steps, schedule, "step")),
+                    ("elastic, as run --commands", "elastic", lambda: _ours_commanded(scene, steps, schedule)),
                     ("elastic step, detection on", "elastic",
                      lambda: _ours(scene, "elastic", steps, schedule, "step", None)),
                     ("inextensible step", "inextensible",
@@ -135,6 +169,10 @@ def speed(duration: float, repeats: int) -> list[dict]:
         sched = schedule if case == "rolling" else None
         contenders = contenders + [(name, model, lambda m=model, i=integrator: _mujoco(scene, steps, sched, i, m))
                                    for name, model, integrator in peers]
+        if case == "rolling":   # the peer of "elastic, as run --commands", ranked apart from the others
+            contenders += [(f"mujoco elastic {integrator}, commands in stretches", "elastic",
+                            lambda i=integrator: _mujoco_commanded(scene, steps, schedule, i))
+                           for integrator in ("Euler", "implicitfast")]
         best, finals, unstable = {}, {}, {}
         for name, _, go in contenders:   # warm-up: compile, caches
             go()
@@ -152,10 +190,13 @@ def speed(duration: float, repeats: int) -> list[dict]:
                    "ratio_to_mujoco": float("nan"), "mujoco_integrator": "-",
                    "com_moved_m": float(np.linalg.norm(centre[name][:2])), "com_rose_m": float(centre[name][2]),
                    "stable": stable[name], "load": _load()}
-            stable_peers = [] if name.startswith("mujoco") else [p for p, m, _ in peers if m == model and stable[p]]
+            stretches = name == "elastic, as run --commands"
+            stable_peers = [] if name.startswith("mujoco") else [
+                f"{p}, commands in stretches" if stretches else p for p, m, _ in peers
+                if m == model and stable[f"{p}, commands in stretches" if stretches else p]]
             if stable_peers:
                 peer = max(stable_peers, key=best.get)
-                row["ratio_to_mujoco"], row["mujoco_integrator"] = best[name] / best[peer], peer.rsplit(" ", 1)[1]
+                row["ratio_to_mujoco"], row["mujoco_integrator"] = best[name] / best[peer], peer.split()[2].rstrip(",")
             rows.append(row)
     return rows
 

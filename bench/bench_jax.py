@@ -20,8 +20,9 @@ Cases (dt = 1 ms, ``--steps`` steps per timed call, kept: the last step only):
 
 Contenders taking turns in one process, each timed after a warm-up (compile), best of ``--repeats``:
 the JAX run (``methods/jax/elastic.elastic_steps``, the state kept on the device); the numba batch
-(``_elastic_kernels.elastic_steps_copies``, one thread, free case; ``BatchSimulator``'s compiled ground
-loop on every core, ground case; up to ``--numba-max`` copies: its rate per copy does not change beyond); MJX (``mujoco.mjx``, float32, ``bench/mujoco_peer.py``'s model: spring
+(``methods/elastic/_kernels.elastic_steps_copies``, one thread, free case; ``BatchSimulator``'s compiled ground
+loop on every core, ground case; up to ``--numba-max`` copies: its rate per copy does not change beyond);
+MJX (``mujoco.mjx``, float32, ``bench/mujoco_peer.py``'s model: spring
 tendons with the dead band, contacts off for ``free``; capsules on a plane for ``ground``).
 scene-steps/s = copies x steps / wall time. float32's error: the largest node position difference (m) from
 float64 after the timed run's steps, from the same start.
