@@ -4,10 +4,11 @@
     python3 scripts/readme_table.py --check   # exit 1 when README.md and the CSV files disagree (CI runs this)
 
 The table sits between the markers ``<!-- speed table -->`` and ``<!-- end speed table -->``. Its rows:
-the thrown icosahedron's CPU time per step beside MuJoCo's (``bench/results/head_to_head.csv``, written by
-``bench/head_to_head.py``) and a batch's scene-steps per second beside ``mujoco.rollout``
-(``bench/results/batch.csv``, ``bench/bench_batch.py``); each CSV's command, commit and machine are in its
-``.json`` sidecar and on the site's benchmarks page.
+the thrown icosahedron's CPU time per step beside MuJoCo's, without and with member contact detection
+(``bench/results/head_to_head.csv``, written by ``bench/head_to_head.py``); ``icosahedron_ground`` resting and
+rolling beside MuJoCo with its ground contact (``bench/results/ground.csv``, ``bench/bench_ground.py``); and a
+batch's scene-steps per second beside ``mujoco.rollout`` (``bench/results/batch.csv``, ``bench/bench_batch.py``);
+each CSV's command, commit and machine are in its ``.json`` sidecar and on the site's benchmarks page.
 """
 from __future__ import annotations
 
@@ -35,22 +36,39 @@ def _one(rows: list[dict], **where) -> dict:
 def table() -> str:
     """The Markdown table (with its source line) that README shows between the markers."""
     steps = read_csv(RESULTS / "head_to_head.csv")
+    ground = read_csv(RESULTS / "ground.csv")
     batches = read_csv(RESULTS / "batch.csv")
-    lines = ["| thrown icosahedron, dt = 1 ms | tensegrity_sim | MuJoCo | MuJoCo's time / ours |",
+    lines = ["| icosahedron, dt = 1 ms | tensegrity_sim | MuJoCo | MuJoCo's time / ours |",
              "| --- | --- | --- | --- |"]
     for method in ("elastic", "inextensible"):
         for call, peer in (("run()", "mj_step(nstep)"), ("step()", "mj_step() loop")):
             row = _one(steps, method=method, ours=f"tensegrity_sim {call}", peer=f"MuJoCo {peer}")
             lines.append(f"| {method}, `{call}` | {cell(row['ours_us'])} µs/step | {cell(row['peer_us'])} µs/step "
                          f"(`{peer.split()[0]}`, {row['peer_model']}) | **{cell(row['ratio'])}** |")
-    for case in ("icosahedron_thrown elastic", "icosahedron_thrown inextensible"):
+        row = _one(steps, method=method, ours="tensegrity_sim run(), strut-strut detection",
+                   peer="MuJoCo mj_step(nstep), strut capsule contacts")
+        lines.append(f"| {method}, `run()`, strut-strut detection | {cell(row['ours_us'])} µs/step | "
+                     f"{cell(row['peer_us'])} µs/step (capsule contacts) | **{cell(row['ratio'])}** |")
+    for case, contender, label, suffix in (
+            ("resting", "elastic run", "elastic, resting on the ground, `run()`", ""),
+            ("rolling", "elastic step", "elastic, rolling (`examples/roll.yaml`), `step()`", ""),
+            ("rolling", "elastic, as run --commands", "elastic, rolling, as `run --commands`",
+             ", commands in stretches"),
+            ("resting", "inextensible step", "inextensible, resting on the ground, `step()`", "")):
+        row = _one(ground, case=case, contender=contender)
+        peer = _one(ground, case=case, contender=f"mujoco {row['cables']} {row['mujoco_integrator']}{suffix}")
+        lines.append(f"| {label} | {cell(row['steps_per_s'])} steps/s | {cell(peer['steps_per_s'])} steps/s "
+                     f"(ground contact, {row['mujoco_integrator']}) | **{cell(row['ratio_to_mujoco'])}** |")
+    for case, label in (("icosahedron_thrown elastic", "elastic, batch of {:,}"),
+                        ("icosahedron_thrown inextensible", "inextensible, batch of {:,}"),
+                        ("icosahedron_ground rolling elastic", "elastic, batch of {:,} rolling on the ground")):
         ours = _one(batches, case=case, contender="BatchSimulator")
         peer = _one(batches, case=case, contender="mujoco rollout")
-        lines.append(f"| {case.split()[1]}, batch of {ours['batch']:,} | {cell(ours['scene_steps_per_s'])} "
+        lines.append(f"| {label.format(ours['batch'])} | {cell(ours['scene_steps_per_s'])} "
                      f"scene-steps/s | {cell(peer['scene_steps_per_s'])} scene-steps/s (`rollout`, "
                      f"{peer['threads']} threads) | **{cell(ours['ratio_to_mujoco'])}** |")
     commits = ", ".join(f"`{name}` at {provenance(RESULTS / name)['commit']}"
-                        for name in ("head_to_head.csv", "batch.csv"))
+                        for name in ("head_to_head.csv", "ground.csv", "batch.csv"))
     lines += ["", f"Generated from {commits} by `scripts/readme_table.py`;",
               "commands and machines: [benchmarks](docs/benchmarks.md)."]
     return "\n".join(lines)
