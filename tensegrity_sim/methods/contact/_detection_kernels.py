@@ -1,5 +1,5 @@
-"""Compiled continuous member-contact detection: the arithmetic of :mod:`tensegrity_sim.methods.contact.detection`'s numpy
-detector (the reference, which tests require these to match: the same events, times to 1e-12), with numba,
+"""Compiled continuous member-contact detection: the arithmetic of
+:mod:`tensegrity_sim.methods.contact.detection`'s numpy detector (the reference, which tests require these to match: the same events, times to 1e-12), with numba,
 for a whole run's chunk of steps in one call and ``B`` copies (batch axis last, as the other kernels).
 
 **Narrow phase.** :func:`_closest`, :func:`_reaches` and :func:`_transitions` are ``contact._closest``,

@@ -3,8 +3,8 @@
 
 **Rows.** Two capsules (members of the scene's ``contact: kinds`` with a radius > 0, no shared node) touch
 where their segments come within ``r_a + r_b``; at a configuration ``x`` their closest points are
-``p_a = (1 - s) x_a0 + s x_a1`` and ``p_b = (1 - t) x_b0 + t x_b1`` (:func:`~tensegrity_sim.methods.contact.detection.contact_geometry`),
-with the unit normal ``n`` from a to b and the gap ``g = |p_b - p_a| - r_a - r_b``. The contact's relative
+``p_a = (1 - s) x_a0 + s x_a1`` and ``p_b = (1 - t) x_b0 + t x_b1``
+(:func:`~tensegrity_sim.methods.contact.detection.contact_geometry`), with the unit normal ``n`` from a to b and the gap ``g = |p_b - p_a| - r_a - r_b``. The contact's relative
 velocity is that of the two material points, ``u = sum_j w_j v_j`` over the four nodes with the weights
 ``w = (-(1 - s), -s, 1 - t, t)``, so the contact is one general row of ``methods/qp/solvers.py`` (four node entries)
 and its impulse ``P`` acts as ``w_j P`` on node ``j``: the impulses on a and b are equal and opposite, and
@@ -26,7 +26,8 @@ Friction: the same Coulomb disc and mode fixed point as the ground, in the tange
 **Impacts** are located like the ground's landings: a pair out of contact at the sub-step's start whose
 capsules meet on the straight path from ``x`` to the free motion's end (exact without forces; the
 parabola of a node under gravity differs from it by ``O(tau^2)``) cuts the sub-step where they meet, found
-by the certified continuous search of ``methods/contact/detection.py`` (:func:`~tensegrity_sim.methods.contact.detection.transitions`).
+by the certified continuous search of ``methods/contact/detection.py``
+(:func:`~tensegrity_sim.methods.contact.detection.transitions`).
 
 **Pairs.** Only pairs whose boxes overlap are examined (sort and sweep, ``contact.box_pairs``), with boxes
 spanning the members' motion over the sub-step plus their radii; cost grows with the pairs near each other.
