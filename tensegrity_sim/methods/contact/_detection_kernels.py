@@ -1,6 +1,7 @@
 """Compiled continuous member-contact detection: the arithmetic of
-:mod:`tensegrity_sim.methods.contact.detection`'s numpy detector (the reference, which tests require these to match: the same events, times to 1e-12), with numba,
-for a whole run's chunk of steps in one call and ``B`` copies (batch axis last, as the other kernels).
+:mod:`tensegrity_sim.methods.contact.detection`'s numpy detector (the reference, which tests require these to
+match: the same events, times to 1e-12), with numba, for a whole run's chunk of steps in one call and ``B``
+copies (batch axis last, as the other kernels).
 
 **Narrow phase.** :func:`_closest`, :func:`_reaches` and :func:`_transitions` are ``contact._closest``,
 ``contact._reaches``, ``contact.transitions`` and ``contact._search`` for one capsule pair, operation for
