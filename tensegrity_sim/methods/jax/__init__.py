@@ -19,7 +19,7 @@ try:
 except ImportError as exc:   # the core runs without JAX; only this backend needs it
     raise ImportError(
         'the JAX backend (backend="jax", tensegrity-sim fit) needs JAX, which is not installed: '
-        'pip install "tensegrity_sim[jax]" (CPU), or see README for the JAX CUDA wheels on a GPU') from exc
+        'pip install "tensegrity_sim[jax]" (CPU), or docs/jax.md for the JAX CUDA wheels on a GPU') from exc
 
 jax.config.update("jax_enable_x64", True)
 
