@@ -203,10 +203,16 @@ def _dot3(a, b):
     return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
 
 
+def _through(spec: str, incidence, a):
+    """A product with an incidence matrix (``jnp.einsum(spec, ...)``) at full precision: a GPU multiplies
+    float32 matrices in TF32 (10-bit mantissas) by default, which would round every coordinate to 1e-3."""
+    return jnp.einsum(spec, incidence, a, precision=jax.lax.Precision.HIGHEST)
+
+
 def _differences(incidence, x):
     """Each member's second node minus its first, (m, 3, B), from nodes ``x`` (N, 3, B): a product with the
     incidence (exact: one +1 and one -1 per member), which XLA runs faster than two gathers."""
-    return -jnp.einsum("nm,njb->mjb", incidence, x)
+    return -_through("nm,njb->mjb", incidence, x)
 
 
 def _forces(model: ElasticModel, x, v, rest, ext):
@@ -224,7 +230,7 @@ def _forces(model: ElasticModel, x, v, rest, ext):
     cables = jnp.where(cables > 0.0, cables + model.damping[:, None] * rate, cables)
     cables = jnp.maximum(cables, 0.0)   # a damped cable never pushes
     t = jnp.concatenate([t[:ns], cables])
-    assembled = jnp.einsum("nm,mjb->njb", model.incidence, t[:, None] * n)
+    assembled = _through("nm,mjb->njb", model.incidence, t[:, None] * n)
     acc = (gravity_force[:, :, None] + ext + assembled) * inv_mass[:, None, None]
     return acc, cables, n, length[ns:] < rest
 
@@ -239,7 +245,7 @@ def elastic_forces(model: ElasticModel, x, v, rest, ext):
 def _push(model, inv_mass, strengths, dirs):
     """Node displacements (or velocity changes) (N, 3, B) of equal-and-opposite pushes ``strengths`` (nr, B)
     along the rigid struts' ``dirs`` (nr, 3, B), scaled by the inverse masses."""
-    return inv_mass[:, None, None] * jnp.einsum("nk,kjb->njb", model.rigid_incidence, strengths[:, None] * dirs)
+    return inv_mass[:, None, None] * _through("nk,kjb->njb", model.rigid_incidence, strengths[:, None] * dirs)
 
 
 def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
