@@ -22,8 +22,10 @@ Contenders taking turns in one process, each timed after a warm-up (compile), be
 the JAX run (``methods/jax/elastic.elastic_steps``, the state kept on the device); the numba batch
 (``methods/elastic/_kernels.elastic_steps_copies``, one thread, free case; ``BatchSimulator``'s compiled ground
 loop on every core, ground case; up to ``--numba-max`` copies: its rate per copy does not change beyond);
-MJX (``mujoco.mjx``, float32, ``bench/mujoco_peer.py``'s model: spring
-tendons with the dead band, contacts off for ``free``; capsules on a plane for ``ground``).
+MJX (``mujoco.mjx`` in its own float32, ``bench/mujoco_peer.py``'s model: spring tendons with the dead band,
+contacts off for ``free``; capsules on a plane for ``ground``), in a last pass of its own against the JAX runs, up
+to ``--mjx-max`` / ``--mjx-ground-max`` copies. The CSV is rewritten after each row (``--out``): a run cut short
+keeps what it measured.
 scene-steps/s = copies x steps / wall time. float32's error: the largest node position difference (m) from
 float64 after the timed run's steps, from the same start.
 
@@ -180,33 +182,26 @@ def _mjx_case(scene, copies, steps):
     from bench.mujoco_peer import MujocoPeer
 
     peer = MujocoPeer(scene, model="elastic", dt=DT, integrator="Euler")
-    to32 = lambda tree: jax.tree_util.tree_map(   # noqa: E731
-        lambda a: a.astype(jnp.float32) if hasattr(a, "dtype") and a.dtype == jnp.float64 else a, tree)
-    m = to32(mjx.put_model(peer.model))
-    d0 = to32(mjx.put_data(peer.model, peer.data))
-    scale = jnp.linspace(0.5, 1.5, copies, dtype=jnp.float32)
-    batch = jax.vmap(lambda s: d0.replace(qvel=d0.qvel * s))(scale)
+    with jax.enable_x64(False):   # MJX's own precision: float32 throughout (this process runs JAX in float64)
+        m = mjx.put_model(peer.model)
+        d0 = mjx.put_data(peer.model, peer.data)
+        scale = jnp.linspace(0.5, 1.5, copies, dtype=jnp.float32)
+        batch = jax.vmap(lambda s: d0.replace(qvel=d0.qvel * s))(scale)
 
     @jax.jit
     def run_steps(d):
         return jax.lax.scan(lambda d, _: (jax.vmap(mjx.step, in_axes=(None, 0))(m, d), None), d, None,
                             length=steps)[0]
 
-    return lambda: jax.block_until_ready(run_steps(batch).qpos)
+    def run():
+        with jax.enable_x64(False):
+            return jax.block_until_ready(run_steps(batch).qpos)
+
+    return run
 
 
-def _float32_error(scene, copies, steps) -> float:
-    import jax.numpy as jnp
-
-    from tensegrity_sim.methods.jax import elastic as jel
-
-    out = [np.asarray(_run(scene, copies, steps, dtype)(), dtype=float) for dtype in (jnp.float64, jnp.float32)]
-    return float(np.max(np.abs(out[1] - out[0])))
-
-
-def measure(copies_list, steps: int, repeats: int, numba_max: int, grad_max: int) -> list[dict]:
+def _device_name() -> str:
     import jax
-    import jax.numpy as jnp
 
     device = jax.devices()[0]
     kind = getattr(device, "device_kind", str(device))
@@ -214,46 +209,79 @@ def measure(copies_list, steps: int, repeats: int, numba_max: int, grad_max: int
         model = [line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
                  if line.startswith("model name")] if Path("/proc/cpuinfo").exists() else []
         kind = f"{model[0] if model else 'cpu'}, {os.cpu_count()} cores"
-    where = f"{device.platform}: {kind}"
-    rows = []
+    return f"{device.platform}: {kind}"
+
+
+def _report(rows, where, case, copies, steps, best, ratios, error32, finite) -> None:
+    """Append and print a row per contender of ``best`` (name: s); ``ratios`` names the baselines."""
+    import jax
+
+    load = os.getloadavg()[0]
+    for name, t in best.items():
+        rate = copies * steps / t
+        row = {"device": where, "jax": jax.__version__, "case": case, "copies": copies, "steps": steps,
+               "contender": name, "scene_steps_per_s": round(rate), "ratio_to_numba": "", "ratio_to_mjx": "",
+               "float32_error_m": error32 if name == "jax float32" else "",
+               "finite": finite if name.startswith("jax float") else "", "load_1min": round(load, 2)}
+        text = ""
+        for column, baseline in ratios.items():
+            if baseline in best:
+                row[column] = round(best[baseline] / t, 3)
+                text += f"  x{best[baseline] / t:.2f} {baseline.split()[0]}"
+        rows.append(row)
+        print(f"{case:6} {copies:>8,} {name:22} {rate:>14,.0f} scene-steps/s{text}"
+              + (f"  float32 error {error32:.2e} m" if name == "jax float32" else "")
+              + f"  ({where}, load {load:.1f})", flush=True)
+
+
+def measure(copies_list, steps: int, repeats: int, numba_max: int, grad_max: int, mjx_max: dict,
+            save=lambda rows: None) -> list[dict]:
+    """The rows of the table; ``save(rows)`` after each case and copy count (a run cut short keeps what it
+    measured). MJX is measured last, in a pass of its own against the JAX runs (its compilation is the slowest, and
+    an MJX that stalls then costs nothing else)."""
+    import jax.numpy as jnp
+
+    where = _device_name()
+    rows: list[dict] = []
     scenes = {"free": icosahedron_thrown(), "ground": ts.load_scene("icosahedron_ground")}
+    dtypes = (("float64", jnp.float64), ("float32", jnp.float32))
     for case, scene in scenes.items():
         for copies in copies_list:
-            contenders = {f"jax {name}": _run(scene, copies, steps, dtype)
-                          for name, dtype in (("float64", jnp.float64), ("float32", jnp.float32))}
+            contenders = {f"jax {name}": _run(scene, copies, steps, dtype) for name, dtype in dtypes}
             if case == "free" and copies <= grad_max:
                 contenders["jax gradient float64"] = _gradient_case(scene, copies, steps)
-                if copies <= numba_max:
-                    contenders["numba batch float64"] = _numba_case(scene, copies, steps)
-            if case == "ground" and copies <= numba_max:
-                contenders["numba batch float64"] = _numba_ground_case(scene, copies, steps)
-            try:
-                mjx_run = _mjx_case(scene, copies, steps)
-                if mjx_run is not None:
-                    mjx_run()   # compiles: an MJX that fails on the model fails here
-                    contenders["mjx float32"] = mjx_run
-            except Exception as exc:   # an MJX that does not take the model: say why, measure the rest
-                print(f"MJX skipped ({case}, {copies}): {type(exc).__name__}: {exc}", file=sys.stderr)
+            if copies <= numba_max:
+                contenders["numba batch float64"] = (_numba_case if case == "free" else _numba_ground_case)(
+                    scene, copies, steps)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 best = _best(contenders, repeats)
-            finite = bool(np.all(np.isfinite(np.asarray(contenders["jax float64"]()))))
-            error32 = _float32_error(scene, copies, steps)
-            numba = best.get("numba batch float64")
-            mjx = best.get("mjx float32")
-            load = os.getloadavg()[0]
-            for name, t in best.items():
-                rate = copies * steps / t
-                rows.append({"device": where, "jax": jax.__version__, "case": case, "copies": copies,
-                             "steps": steps, "contender": name, "scene_steps_per_s": round(rate),
-                             "ratio_to_numba": round(numba / t, 3) if numba else "",
-                             "ratio_to_mjx": round(mjx / t, 3) if mjx else "",
-                             "float32_error_m": error32 if name == "jax float32" else "",
-                             "finite": finite if name.startswith("jax float") else "", "load_1min": round(load, 2)})
-                print(f"{case:6} {copies:>8,} {name:22} {rate:>14,.0f} scene-steps/s"
-                      + (f"  x{numba / t:.2f} numba" if numba else "") + (f"  x{mjx / t:.2f} MJX" if mjx else "")
-                      + (f"  float32 error {error32:.2e} m" if name == "jax float32" else "")
-                      + f"  ({where}, load {load:.1f})", flush=True)
+            # each JAX run starts from the same state: its output is that of the timed calls
+            x64, x32 = (np.asarray(contenders[f"jax {name}"](), dtype=float) for name, _ in dtypes)
+            _report(rows, where, case, copies, steps, best, {"ratio_to_numba": "numba batch float64"},
+                    float(np.max(np.abs(x32 - x64))), bool(np.all(np.isfinite(x64)) and np.all(np.isfinite(x32))))
+            save(rows)
+    for case, scene in scenes.items():
+        for copies in (c for c in copies_list if c <= mjx_max[case]):
+            try:
+                mjx_run = _mjx_case(scene, copies, steps)
+                if mjx_run is None:
+                    break
+                mjx_run()   # compiles: an MJX that fails on the model fails here
+            except Exception as exc:   # an MJX that does not take the model: say why, keep the rest
+                print(f"MJX skipped ({case}, {copies}): {type(exc).__name__}: {exc}", file=sys.stderr)
+                continue
+            contenders = {f"jax {name}": _run(scene, copies, steps, dtype) for name, dtype in dtypes}
+            contenders["mjx float32"] = mjx_run
+            best = _best(contenders, repeats)
+            for row in rows:   # the JAX rows of the first pass get this pass's in-turn ratio
+                if (row["case"], row["copies"]) == (case, copies) and row["contender"] in best:
+                    row["ratio_to_mjx"] = round(best["mjx float32"] / best[row["contender"]], 3)
+                    print(f"{case:6} {copies:>8,} {row['contender']:22} x{row['ratio_to_mjx']:.2f} MJX (in turns)")
+            _report(rows, where, case, copies, steps, {"mjx float32": best["mjx float32"]},
+                    {"ratio_to_mjx": "mjx float32"}, "", "")
+            rows[-1]["finite"] = bool(np.all(np.isfinite(np.asarray(mjx_run()))))
+            save(rows)
     return rows
 
 
@@ -268,6 +296,12 @@ def main(argv=None) -> None:
     parser.add_argument("--grad-max", type=int, default=65536,
                         help="the gradient runs up to this many copies (default 65536: the backward pass keeps every "
                              "step's carry, ~2 kB a copy-step in float64)")
+    parser.add_argument("--mjx-max", type=int, default=65536,
+                        help="MJX runs the free case up to this many copies (default 65536)")
+    parser.add_argument("--mjx-ground-max", type=int, default=4096,
+                        help="MJX runs the ground case up to this many copies (default 4096: its contacts step "
+                             "~100x slower)")
+    parser.add_argument("--out", type=Path, default=RESULTS, help="folder of the CSV (default bench/results)")
     args = parser.parse_args(argv)
     import jax
 
@@ -275,11 +309,11 @@ def main(argv=None) -> None:
 
     copies = ([int(c) for c in args.copies.split(",")] if args.copies else
               list(GPU_COPIES if args.gpu else CPU_COPIES))
-    rows = measure(copies, args.steps, args.repeats, args.numba_max, args.grad_max)
-    RESULTS.mkdir(exist_ok=True)
-    name = f"jax_{jax.devices()[0].platform}.csv" if args.gpu else "jax.csv"
-    write_csv(RESULTS / name, rows)
-    print(f"wrote {RESULTS / name}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / (f"jax_{jax.devices()[0].platform}.csv" if args.gpu else "jax.csv")
+    measure(copies, args.steps, args.repeats, args.numba_max, args.grad_max,
+            {"free": args.mjx_max, "ground": args.mjx_ground_max}, lambda rows: write_csv(path, rows))
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":
