@@ -62,6 +62,27 @@ class CommandSchedule:
         k = np.searchsorted(self.force_times, t, side="right") - 1
         return None if k < 0 else self.force_values[k]
 
+    def inputs_at(self, times: np.ndarray, base: np.ndarray, forces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The rest lengths (T, n_cables, ...) m and external forces (T, N, 3, ...) N at each of ``times`` (T,) s,
+        the very numbers :meth:`rest_lengths_at` and :meth:`forces_at` give one time at a time: ``base``
+        (n_cables, ...) for the cables it does not name, ``forces`` (N, 3, ...) before its first force point
+        (trailing axes: copies of a batch, each with its own base and forces)."""
+        rest = np.repeat(base[None], len(times), axis=0)
+        trailing = (slice(None),) + (None,) * (base.ndim - 1)
+        for i, ts, vs in zip(self.rest_cables, self.rest_times, self.rest_values):
+            rest[:, i] = np.interp(times, ts, vs)[trailing]
+        k = np.searchsorted(self.force_times, times, side="right") - 1
+        ext = np.repeat(forces[None], len(times), axis=0)
+        after = k >= 0
+        if after.any():
+            ext[after] = self.force_values[k[after]][(...,) + (None,) * (forces.ndim - 2)]
+        return rest, ext
+
+    def fits(self, n_nodes: int) -> None:
+        """Refuse (ValueError) a schedule made for another scene's node count."""
+        if self.force_values.shape[1:] != (n_nodes, 3):
+            raise ValueError(f"commands: a schedule for {self.force_values.shape[1]} nodes, the scene has {n_nodes}")
+
 
 def _fail(source: str, where: str, msg: str) -> CommandError:
     return CommandError(f"{source}: {where}: {msg}")

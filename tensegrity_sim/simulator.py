@@ -14,6 +14,7 @@ from typing import Mapping
 
 import numpy as np
 
+from .commands import CommandSchedule
 from .checks import check_memory, describe, float_array, real, time_step, whole
 from .methods.contact.detection import ActiveContact, CompiledDetector, make_detector
 from .methods.contact.ground import GroundDetector
@@ -443,18 +444,29 @@ class Simulator:
         return self._method.slack(self._state.positions, self._state.rest_lengths)
 
     def run(self, duration: float | None = None, *, steps: int | None = None, every: int = 1,
-            callback=None) -> Trajectory:
-        """Run ``steps`` steps, or ``round(duration / dt)``; returns them stacked, the inputs held.
+            callback=None, commands: CommandSchedule | None = None) -> Trajectory:
+        """Run ``steps`` steps, or ``round(duration / dt)``; returns them stacked, the inputs held, or set by
+        ``commands``.
 
         ``every``: keep steps ``every``, ``2 every``, ... and the last one only (memory); a kept step's
         impulses are summed over the steps since the previous kept one and its tensions are their mean
         over that time, so no impulse is lost. Contact events are all kept.
         ``callback(k, result)`` is called after each step ``k`` (a progress bar, a command schedule).
         Without a callback a method with a compiled loop runs the steps in it.
+        ``commands``: a :class:`~tensegrity_sim.commands.CommandSchedule` applied before each step at its
+        start time, as ``tensegrity-sim run --commands`` does (a cable it does not name keeps its rest length
+        at the run's start; an input is set only where it changed). A method that evaluates a schedule in
+        its compiled loop (``runs_commands``: the elastic method on a ground) runs it there, each step the
+        very arithmetic of setting its inputs and stepping it; the others step one at a time.
         """
         if callback is not None and not callable(callback):
             raise ValueError(f"callback must be callable, got {describe(callback)}")
         n, nc = len(self.scene.nodes), len(self.scene.cables)
+        if commands is not None:
+            if not isinstance(commands, CommandSchedule):
+                raise ValueError(f"commands must be a CommandSchedule (see load_commands), got {describe(commands)}")
+            commands.fits(n)
+            held = (self._state.rest_lengths.copy(), self._state.external_forces.copy())
         steps, every, kept, span = run_plan(duration, steps, every, self.dt, 8 + 48 * n + 17 * nc)
         if self._speeds_unchecked and steps:
             self._check_speeds()
@@ -466,10 +478,15 @@ class Simulator:
         ground = np.zeros((len(kept), n, 3))   # the ground's impulses, summed like the cables'
         contacts = []
         done = 0
-        if callback is None and self._method.has_loop() and (self._ground is None or self._method.has_ground_loop()):
+        method = self._method
+        if (callback is None and method.has_loop() and (self._ground is None or method.has_ground_loop())
+                and (commands is None or (self._ground is not None and method.runs_commands()))):
             self._rewind()
-            done = self._run_compiled(steps, every, pos, vel, imp, slack, contacts, ground)
+            done = self._run_compiled(steps, every, pos, vel, imp, slack, contacts, ground,
+                                      None if commands is None else (commands,) + held)
         for k in range(done, steps):   # step by step (all of them, or from a compiled part that failed)
+            if commands is not None:
+                self._apply_commands(commands, *held)
             r = self.step()
             j = k // every
             imp[j] += r.impulses
@@ -481,12 +498,21 @@ class Simulator:
                 callback(k, r)
         return Trajectory(time, pos, vel, imp, imp / (span[:, None] * self.dt), slack, contacts, ground)
 
-    def _run_compiled(self, steps, every, pos, vel, imp, slack, contacts, ground) -> int:
+    def _apply_commands(self, commands: CommandSchedule, base_rest: np.ndarray, start_forces: np.ndarray) -> None:
+        """Set the inputs ``commands`` give at the next step's start time, each only where it changed."""
+        rest, forces = (a[0] for a in commands.inputs_at(np.array([self.time]), base_rest, start_forces))
+        if not np.array_equal(rest, self._state.rest_lengths):
+            self.set_rest_lengths(rest)
+        if not np.array_equal(forces, self._state.external_forces):
+            self.set_external_forces(forces)
+
+    def _run_compiled(self, steps, every, pos, vel, imp, slack, contacts, ground, commands=None) -> int:
         """:meth:`run` in the method's compiled loop: straight into the trajectory's arrays, or, with
         contact detection, in chunks of every step that the detector then walks through. Returns the
         steps done: a part whose result is not finite is not committed (the method's carry is put back,
         its cache dropped) and is left to :meth:`step`, which raises :class:`NonFiniteError` at the very step, as a run
-        step by step does."""
+        step by step does. ``commands``: (schedule, base rest lengths, forces at the run's start), evaluated
+        chunk by chunk into each step's inputs (a method that ``runs_commands``, a ground)."""
         st, method = self._state, self._method
         add = np.add.reduce
         detector = self._contacts
@@ -526,10 +552,14 @@ class Simulator:
         while done < steps:
             m = min(chunk, steps - done)
             carry = method.carry()
+            inputs = None
             if self._ground is None:
                 x, v = method.advance(st, m, 1, c_pos[:m], c_vel[:m], c_imp[:m], c_slack[:m])
             else:
-                x, v = method.advance(st, m, 1, c_pos[:m], c_vel[:m], c_imp[:m], c_slack[:m], c_ground[:m])
+                if commands is not None:
+                    inputs = commands[0].inputs_at((st.step_count + np.arange(m)) * self.dt, *commands[1:])
+                x, v = method.advance(st, m, 1, c_pos[:m], c_vel[:m], c_imp[:m], c_slack[:m], c_ground[:m],
+                                      **({} if inputs is None else {"inputs": inputs}))
             if not math.isfinite(add(x, None) + add(v, None) + add(c_imp[:m], None)):
                 method.restore(carry)
                 method.invalidate()
@@ -559,6 +589,8 @@ class Simulator:
             last[-1] |= done + m == steps
             pos[j[last]], vel[j[last]], slack[j[last]] = c_pos[:m][last], c_vel[:m][last], c_slack[:m][last]
             st.positions, st.velocities = x, v
+            if inputs is not None:   # the last step's inputs, those the method's carry was computed with
+                st.rest_lengths, st.external_forces = inputs[0][m - 1].copy(), inputs[1][m - 1].copy()
             st.step_count += m
             done += m
         return done

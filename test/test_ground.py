@@ -343,3 +343,103 @@ def test_a_reset_forgets_the_largest_ground_force_of_the_markers():
     longest = np.linalg.norm(pressed[1] - pressed[0])
     assert np.linalg.norm(pressed[3] - pressed[2]) < 0.5 * longest
     assert np.linalg.norm(after[1] - after[0]) == pytest.approx(longest, rel=1e-12)
+
+
+# ------------------------------------------------------------------------- command schedules in the loop
+def _roll_schedule(scene, force: bool):
+    """examples/roll.yaml's ramps (reel in, hold, let out), and with ``force`` a push on n3 stepped on
+    mid-ramp and off again: rest lengths and forces both changing inside one run."""
+    from pathlib import Path
+
+    import yaml
+
+    from tensegrity_sim.commands import parse_commands
+
+    points = yaml.safe_load((Path(__file__).resolve().parents[1] / "examples" / "roll.yaml").read_text())
+    if force:
+        points += [{"time": 0.15, "forces": {"n3": [8.0, -3.0, 2.0]}}, {"time": 0.45, "forces": {"n3": [0, 0, 0]}}]
+        points.sort(key=lambda p: p["time"])
+        merged = []   # one point per time, as the format requires
+        for p in points:
+            if merged and merged[-1]["time"] == p["time"]:
+                merged[-1].update({k: v for k, v in p.items() if k != "time"})
+            else:
+                merged.append(dict(p))
+        points = merged
+    return parse_commands(points, scene)
+
+
+def _commanded_by_hand(scene, schedule, steps, every=1, dt=1e-3):
+    """A Simulator stepped one step at a time, each input set before the step where it changed (what
+    ``tensegrity-sim run --commands`` did before schedules ran inside the loop)."""
+    sim = simulator(scene, "elastic", dt)
+    return sim, sim.run(steps=steps, every=every, commands=schedule, callback=lambda k, r: None)
+
+
+@pytest.mark.parametrize("force", [False, True])
+def test_a_schedule_inside_the_compiled_ground_loop_equals_commanding_each_step(force):
+    """Simulator.run(commands=...) on the ground evaluates the schedule inside the compiled loop
+    (``_ground_kernels``: each step's inputs, the start forces recomputed where they change); against the
+    same schedule set step by step: the same arithmetic, so the same numbers to round-off (the contact
+    solver's warm starts differ: a step-by-step Simulator's come from steps it computed ahead)."""
+    scene = ts.load_scene("icosahedron_ground")
+    schedule = _roll_schedule(scene, force)
+    inside = simulator(scene, "elastic")
+    traj = inside.run(steps=1500, every=7, commands=schedule)
+    by_hand, ref = _commanded_by_hand(scene, schedule, 1500, 7)
+    assert np.abs(traj.positions[-1] - scene.positions).max() > 0.3   # it rolled
+    np.testing.assert_allclose(traj.positions, ref.positions, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(traj.velocities, ref.velocities, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(traj.impulses, ref.impulses, rtol=0, atol=1e-12)
+    # ground impulses: the block Newton's tolerance (1e-10 relative) apart, from the different warm starts
+    np.testing.assert_allclose(traj.contact_impulses, ref.contact_impulses, rtol=0, atol=1e-9)
+    assert [(e.kind, e.members) for e in traj.contacts] == [(e.kind, e.members) for e in ref.contacts]
+    # the inputs in effect after the run: the schedule's at the last step's start
+    np.testing.assert_array_equal(inside.rest_lengths, by_hand.rest_lengths)
+    np.testing.assert_array_equal(inside.external_forces, by_hand.external_forces)
+    # and the run goes on from there as the hand-commanded one does
+    np.testing.assert_allclose(inside.run(steps=200, commands=schedule).positions,
+                               by_hand.run(steps=200, commands=schedule, callback=lambda k, r: None).positions,
+                               rtol=0, atol=1e-12)
+
+
+def test_a_schedule_inside_the_compiled_ground_loop_against_the_numpy_reference():
+    """The same run against the numpy reference (friction.py's QP fixed point per step, the schedule set
+    step by step): two solvers of the contact problem, each to its tolerance."""
+    scene = ts.load_scene("icosahedron_ground")
+    schedule = _roll_schedule(scene, True)
+    traj = simulator(scene, "elastic").run(steps=600, commands=schedule)
+    ref = simulator(scene, "elastic-reference").run(steps=600, commands=schedule)
+    np.testing.assert_allclose(traj.positions, ref.positions, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(traj.impulses, ref.impulses, rtol=0, atol=1e-8)
+
+
+def test_a_batch_with_a_ground_runs_schedules_inside_its_compiled_loop():
+    """BatchSimulator (numba, a ground): one schedule for every copy and one per copy, evaluated inside
+    the compiled batch loop, against a Simulator per copy commanded step by step."""
+    scene = ts.load_scene("icosahedron_ground")
+    shared = _roll_schedule(scene, True)
+    own = [shared, _roll_schedule(scene, False), shared]
+    for commands in (shared, own):
+        batch = ts.BatchSimulator(scene, 3, method="elastic", contacts=[])
+        assert batch._engine.runs_commands()
+        traj = batch.run(steps=900, every=3, commands=commands)
+        for b in range(3):
+            schedule = commands[b] if isinstance(commands, list) else commands
+            sim = ts.Simulator(scene, method="elastic", contacts=[])
+            ref = sim.run(steps=900, every=3, commands=schedule, callback=lambda k, r: None)
+            np.testing.assert_allclose(traj.positions[b], ref.positions, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(traj.impulses[b], ref.impulses, rtol=0, atol=1e-12)
+            np.testing.assert_array_equal(batch.rest_lengths[b], sim.rest_lengths)
+            np.testing.assert_array_equal(batch.external_forces[b], sim.external_forces)
+
+
+def test_run_refuses_a_schedule_for_another_scene():
+    scene = ts.load_scene("icosahedron_ground")
+    other = _roll_schedule(scene, False)
+    sim = simulator(ts.load_scene("prism3"), "elastic")
+    with pytest.raises(ValueError, match="commands: a schedule for 12 nodes, the scene has 6"):
+        sim.run(steps=2, commands=other)
+    with pytest.raises(ValueError, match="commands must be a CommandSchedule"):
+        sim.run(steps=2, commands="roll.yaml")
+    assert sim.step_count == 0

@@ -116,6 +116,12 @@ class StepMethod:
         for the ground's impulses); without it a scene with a ground is stepped one :meth:`step` at a time."""
         return False
 
+    def runs_commands(self) -> bool:
+        """Whether :meth:`advance` takes ``inputs``: each step's rest lengths (steps, nc) and external forces
+        (steps, N, 3), a command schedule evaluated ahead (``Simulator.run(commands=...)``), each step the very
+        arithmetic of setting its inputs and stepping it alone."""
+        return False
+
     def loop_detects(self) -> bool:
         """Whether :meth:`advance` runs member-contact detection in its loop: with ``detection`` set to a
         ``contact.CompiledDetector`` it moves that detector's state on and leaves the events in ``found``."""

@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ._kernels import _close, _drift, gather_copy, keep, scatter_copy
+from ._kernels import _close, _drift, elastic_forces, gather_copy, keep, scatter_copy
 from ..contact._friction_block_kernels import MAX_ROWS, lone_contact, solve_block
 
 __all__ = ["GroundModel", "ground_arrays", "ground_steps", "ground_steps_serial"]
@@ -166,17 +166,39 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
     return True
 
 
+@njit(cache=True, error_model="numpy")
+def _take_inputs(rest_seq, ext_seq, s, bs, rest, ext) -> bool:
+    """Step ``s``'s inputs of copy ``bs`` into ``rest`` (nc, 1) and ``ext`` (N, 3, 1); whether they changed."""
+    changed = False
+    for ci in range(rest.shape[0]):
+        if rest[ci, 0] != rest_seq[s, ci, bs]:
+            rest[ci, 0] = rest_seq[s, ci, bs]
+            changed = True
+    for i in range(ext.shape[0]):
+        for j in range(3):
+            if ext[i, j, 0] != ext_seq[s, i, j, bs]:
+                ext[i, j, 0] = ext_seq[s, i, j, bs]
+                changed = True
+    return changed
+
+
 def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
                   gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, height,
-                  mu, restitution, radii, node_strut, touch_tol, warm, out_x, out_v, out_impulses, out_slack,
-                  out_contact, failed):
+                  mu, restitution, radii, node_strut, touch_tol, warm, rest_seq, ext_seq, out_x, out_v, out_impulses,
+                  out_slack, out_contact, failed):
     """``n_steps`` steps of ``h`` (s) of every copy (the copies spread over the cores), in place on ``x``,
     ``v`` and the carry (``acc``, ``tension``, ``rigid_dirs``, ``warm``); the kept steps as
     ``_elastic_kernels.elastic_steps`` keeps them, and ``out_contact`` (K, N, 3, B) the ground's impulses
     summed like the cables'. ``failed`` (B,) int64: -1, or the step of the copy whose contact block was
     not solved (the copy stops there: its ``x``, ``v`` are those at that step's start, its carry is not).
     Each copy is stepped in contiguous arrays of its own (a batch of one: the very arithmetic of
-    ``Simulator``'s loop, and no stride of B between a copy's numbers)."""
+    ``Simulator``'s loop, and no stride of B between a copy's numbers).
+
+    ``rest_seq`` (T, nc, Bs), ``ext_seq`` (T, N, 3, Bs): with T = ``n_steps``, each step's rest lengths and external
+    forces (a command schedule evaluated at the steps' start times; Bs = B, or 1 for every copy), with T = 0
+    ``rest`` and ``ext`` held. A step whose inputs differ from the last step's starts from forces computed anew
+    at its start (as ``Simulator`` does after a new input: the carry dropped, ``elastic_forces`` at the state;
+    the contact warm starts kept): a run with a schedule here is the very arithmetic of commanding each step."""
     n_nodes = x.shape[0]
     nc, n_copies = rest.shape
     nr = rigid_members.shape[0]
@@ -214,11 +236,15 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
         vel3 = np.empty(3)
         z3 = np.empty(3)
         failed[b] = -1
+        bs = b if rest_seq.shape[2] > 1 else 0
         for s in range(n_steps):
             for i in range(n_nodes):
                 for j in range(3):
                     x0[i, j] = xb[i, j, 0]
                     v0[i, j] = vb[i, j, 0]
+            if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, restb, extb):
+                elastic_forces(xb, vb, restb, extb, ends, stiffness, floor, strut_rest, damping, inv_mass,
+                               gravity_force, rigid_members, accb, tensionb, dirsb)
             if not _ground_step(xb, vb, restb, extb, h, ends, stiffness, floor, strut_rest, damping, inv_mass,
                                 gravity_force, rigid_members, rigid_length_sq, rigid_w, accb, tensionb, dirsb, height,
                                 mu, restitution, radii, node_strut, touch_tol, warmb, dx, imp, sl, contact, armed,

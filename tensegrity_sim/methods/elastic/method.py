@@ -90,6 +90,7 @@ from ..rigid import RigidStruts
 __all__ = ["ElasticMethod"]
 
 _GROUND_CHUNK = 1024   # steps per compiled call of :meth:`ElasticMethod.advance` with a ground
+_HELD = (np.empty((0, 0, 1)), np.empty((0, 0, 3, 1)))   # no per-step inputs: the state's held
 
 
 class _Forces(NamedTuple):
@@ -222,11 +223,13 @@ class ElasticMethod(StepMethod):
         return _Forces(f * sys.inv_mass[:, None], t[sys.n_struts:], n, e < 0, e)
 
     def _advance(self, state: State, x: np.ndarray, v: np.ndarray, steps: int, every: int, positions, velocities,
-                 impulses, slack, contact=None) -> int:
+                 impulses, slack, contact=None, inputs=_HELD) -> int:
         """The compiled loop (batch of one) from ``state`` but at ``x``, ``v`` (N, 3, 1), which it
         advances in place; the outputs are those of :meth:`advance` with a trailing batch axis, and with a
-        ground ``contact`` (K, N, 3, 1) N*s its impulses. Returns -1, or (a ground) the step whose contact
-        block was not solved: ``x``, ``v`` are then at its start and the carry is dropped."""
+        ground ``contact`` (K, N, 3, 1) N*s its impulses. ``inputs`` (a ground): each step's rest lengths
+        (steps, nc, 1) and forces (steps, N, 3, 1), ``state``'s being those in effect before them. Returns -1,
+        or (a ground) the step whose contact block was not solved: ``x``, ``v`` are then at its start, the carry
+        is dropped, and (with ``inputs``) that step's inputs are in ``state``."""
         rest = state.rest_lengths.reshape(-1, 1)
         ext = state.external_forces.reshape(-1, 3, 1)
         if self._carry is None:   # the start forces: the last step's end, or computed here
@@ -238,10 +241,13 @@ class ElasticMethod(StepMethod):
         if self._ground_model is not None:
             failed = np.empty(1, dtype=np.int64)
             ground_kernels.ground_steps_serial(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
-                                               *self._ground_model, self._carry[4], positions, velocities, impulses,
-                                               slack, contact, failed)
+                                               *self._ground_model, self._carry[4], *inputs, positions, velocities,
+                                               impulses, slack, contact, failed)
             if failed[0] >= 0:
                 self._carry = None
+            if inputs[0].shape[0]:   # the inputs of the last step taken (or of the one not taken)
+                last = steps - 1 if failed[0] < 0 else int(failed[0])
+                state.rest_lengths, state.external_forces = inputs[0][last, :, 0].copy(), inputs[1][last, ..., 0].copy()
             return int(failed[0])
         if self._plain:
             self.found = kernels.elastic_steps(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
@@ -293,11 +299,16 @@ class ElasticMethod(StepMethod):
         self._cache = None
         return self._step_reference(state)
 
+    def runs_commands(self) -> bool:
+        return self.compiled and self._ground_model is not None
+
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
-                impulses: np.ndarray, slack: np.ndarray, contact: np.ndarray | None = None
+                impulses: np.ndarray, slack: np.ndarray, contact: np.ndarray | None = None, inputs=None
                 ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`StepMethod.advance`; with a ground, ``contact`` (K, N, 3) N*s gets its impulses, summed
-        like the cables' (None: not kept)."""
+        like the cables' (None: not kept), and ``inputs`` may give each step's rest lengths (steps, nc) and
+        external forces (steps, N, 3) (:meth:`runs_commands`; ``state``'s are those in effect before them, and
+        are not changed)."""
         x, v = state.positions.copy(), state.velocities.copy()
         x3, v3 = x.reshape(-1, 3, 1), v.reshape(-1, 3, 1)
         if self._ground_model is None:
@@ -306,17 +317,24 @@ class ElasticMethod(StepMethod):
             return x, v
         # a ground: chunks of single steps, summed into the kept ones here; a step whose contact block the
         # compiled solver leaves unsolved is taken by the reference, and the compiled loop goes on after it
+        now = State(x, v, state.rest_lengths, state.external_forces, state.step_count)
+        seq = None if inputs is None else (inputs[0][..., None], inputs[1][..., None])
+
+        def run(first, m, *outs):
+            """Steps ``first`` .. ``first + m - 1`` compiled; on a failed block, that step by the reference."""
+            got = self._advance(now, x3, v3, m, 1, *outs, _HELD if seq is None else
+                                (seq[0][first:first + m], seq[1][first:first + m]))
+            return got, (None if got < 0 else self._retake(now, x, v))
+
         n, nc = x.shape[0], self.system.n_cables
         if every == 1 and contact is not None:   # every step kept: straight into the outputs
             done = 0
             while done < steps:
-                got = self._advance(state, x3, v3, steps - done, 1, positions[done:, ..., None],
-                                    velocities[done:, ..., None], impulses[done:, :, None], slack[done:, :, None],
-                                    contact[done:, ..., None])
+                got, out = run(done, steps - done, positions[done:, ..., None], velocities[done:, ..., None],
+                               impulses[done:, :, None], slack[done:, :, None], contact[done:, ..., None])
                 if got < 0:
                     return x, v
                 done += got
-                out = self._retake(state, x, v)
                 positions[done], velocities[done], contact[done] = x, v, out.contact_impulses
                 impulses[done], slack[done] = out.impulses, out.slack
                 done += 1
@@ -330,11 +348,10 @@ class ElasticMethod(StepMethod):
         done = 0
         while done < steps:
             m = min(chunk, steps - done)
-            got = self._advance(state, x3, v3, m, 1, c_x[:m], c_v[:m], c_imp[:m], c_slack[:m], c_contact[:m])
+            got, out = run(done, m, c_x[:m], c_v[:m], c_imp[:m], c_slack[:m], c_contact[:m])
             if got < 0:
                 got = m
             else:
-                out = self._retake(state, x, v)
                 c_x[got, ..., 0], c_v[got, ..., 0], c_contact[got, ..., 0] = x, v, out.contact_impulses
                 c_imp[got, :, 0], c_slack[got, :, 0] = out.impulses, out.slack
                 got += 1
