@@ -353,8 +353,8 @@ class BatchSimulator:
 
     # ------------------------------------------------------------------ stepping
     def _advance(self, steps: int, commands=None):
-        """``steps`` steps of every running copy, inputs held (or ``commands`` evaluated inside the JAX
-        backend's run): positions, velocities (steps, B, N, 3), impulses (steps, B, n_cables), slack
+        """``steps`` steps of every running copy, inputs held (or ``commands`` evaluated inside the engine's
+        compiled run, where it ``runs_commands``): positions, velocities (steps, B, N, 3), impulses (steps, B, n_cables), slack
         (steps, B, n_cables) (views, valid until the next call) and the contacts of each step (steps tuples
         of B tuples)."""
         if self._copies is not None:
@@ -467,7 +467,8 @@ class BatchSimulator:
         ``commands``: a :class:`~tensegrity_sim.commands.CommandSchedule` for every copy, or a sequence of B
         (one per copy), applied before each step at its start time as ``tensegrity-sim run --commands`` does
         (a cable it does not name keeps its rest length at the run's start; an input is set only where it
-        changed). The JAX backend evaluates them inside its compiled run; the others step one at a time."""
+        changed). The JAX backend and the numba batch on a ground evaluate them inside their compiled runs;
+        the others step one at a time."""
         self._check_commands(commands)
         b, n, nc = self.batch, len(self.scene.nodes), self._nc
         steps, every, kept, span = run_plan(duration, steps, every, self.dt, b * (48 * n + 17 * nc) + 8)
@@ -479,7 +480,7 @@ class BatchSimulator:
         snaps = np.zeros((b, nc), dtype=np.int64)
         was_slack = self.slack()
         chunk = max(1, min(steps, _CHUNK_NUMBERS // max(1, b * n * 3)))
-        inside = commands is not None and self._copies is None and getattr(self._engine, "backend", "") == "jax"
+        inside = commands is not None and self._copies is None and self._engine.runs_commands()
         if commands is not None and not inside:
             chunk, base_rest = 1, self.rest_lengths   # the commands are applied here, step by step
         done = 0

@@ -94,7 +94,8 @@ def test_point_mass_bounces_to_e_squared_h(e):
 
 def test_rolling_under_a_schedule_equals_the_numpy_reference():
     """examples/roll.yaml's rest-length ramps on icosahedron_ground, evaluated inside the JAX run, against the
-    numpy reference stepped with the same commands (BatchSimulator with a ground on numba: a Simulator per copy)."""
+    numba batch with the same schedule evaluated inside its compiled ground loop (``test_ground.py`` holds that
+    loop to a Simulator commanded step by step, and to the numpy reference)."""
     from pathlib import Path
 
     from tensegrity_sim.commands import load_commands

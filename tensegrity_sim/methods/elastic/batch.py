@@ -23,7 +23,7 @@ from ...system import System
 from . import _ground_kernels as ground_kernels
 from . import _kernels as kernels
 from ..base import State
-from .method import ElasticMethod
+from .method import _HELD, ElasticMethod
 
 __all__ = ["ElasticBatch"]
 
@@ -157,13 +157,20 @@ class ElasticBatch:
         self._cache = end
         return x_new, v_new, (0.5 * h) * (start[1] + end[1]), end[3]
 
-    def advance(self, x, v, rest_lengths, f_ext, steps: int):
+    def runs_commands(self) -> bool:
+        """Whether :meth:`advance` evaluates a command schedule inside its compiled loop (a ground)."""
+        return self.compiled and self.ground is not None
+
+    def advance(self, x, v, rest_lengths, f_ext, steps: int, commands=None, first_step: int = 0):
         """``steps`` steps of every copy from ``x``, ``v`` (N, 3, B) with rest lengths (n_cables, B) and
-        external forces (N, 3, B) held. Returns every step's positions and velocities (steps, N, 3, B),
-        impulses (steps, n_cables, B) N*s and slack cables (steps, n_cables, B). Inputs are not modified."""
+        external forces (N, 3, B) held, or (:meth:`runs_commands`) with ``commands`` (a ``CommandSchedule``,
+        or one per copy) evaluated at each step's start time ``(first_step + k) dt`` on top of them
+        (``inputs_in_effect`` then has the inputs of the last step). Returns every step's positions and
+        velocities (steps, N, 3, B), impulses (steps, n_cables, B) N*s and slack cables (steps, n_cables, B).
+        Inputs are not modified."""
         n, nc, b = x.shape[0], rest_lengths.shape[0], x.shape[2]
         if self.ground is not None:
-            return self._advance_ground(x, v, rest_lengths, f_ext, steps)
+            return self._advance_ground(x, v, rest_lengths, f_ext, steps, commands, first_step)
         if not self.compiled:
             out_x, out_v = np.empty((steps, n, 3, b)), np.empty((steps, n, 3, b))
             out_imp, out_slack = np.empty((steps, nc, b)), np.empty((steps, nc, b), dtype=bool)
@@ -183,7 +190,18 @@ class ElasticBatch:
                                      out_x, out_v, out_imp, out_slack)
         return out_x, out_v, out_imp, out_slack
 
-    def _advance_ground(self, x, v, rest_lengths, f_ext, steps: int):
+    def _inputs(self, commands, rest, ext, steps: int, first_step: int):
+        """Each step's rest lengths (steps, nc, Bs) and forces (steps, N, 3, Bs) from ``commands`` on top of
+        ``rest`` (nc, B) and ``ext`` (N, 3, B): Bs = 1 where one schedule meets copies with the same inputs."""
+        times = (first_step + np.arange(steps)) * self.dt
+        if isinstance(commands, (list, tuple)):
+            per_copy = [c.inputs_at(times, rest[:, b], ext[..., b]) for b, c in enumerate(commands)]
+            return tuple(np.ascontiguousarray(np.stack([p[i] for p in per_copy], axis=-1)) for i in range(2))
+        if (rest == rest[:, :1]).all() and (ext == ext[..., :1]).all():
+            rest, ext = rest[:, :1], ext[..., :1]
+        return tuple(np.ascontiguousarray(a) for a in commands.inputs_at(times, rest, ext))
+
+    def _advance_ground(self, x, v, rest_lengths, f_ext, steps: int, commands=None, first_step: int = 0):
         """:meth:`advance` with a ground; its impulses go to :attr:`contact`."""
         n, nc, b = x.shape[0], rest_lengths.shape[0], x.shape[2]
         out_x, out_v = np.empty((steps, n, 3, b)), np.empty((steps, n, 3, b))
@@ -207,18 +225,25 @@ class ElasticBatch:
             kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._cache)
             self._cache += (np.zeros((2,) + x.shape),)   # each node's last contact impulses (drift, closing)
         failed = np.empty(b, dtype=np.int64)
+        seq = _HELD if commands is None else self._inputs(commands, rest, ext, steps, first_step)
         ground_kernels.ground_steps(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache[:3], *self.ground,
-                                    self._cache[3], out_x, out_v, out_imp, out_slack, out_contact, failed)
+                                    self._cache[3], *seq, out_x, out_v, out_imp, out_slack, out_contact, failed)
+        if commands is not None:
+            self.inputs_in_effect = (np.ascontiguousarray(np.broadcast_to(seq[0][-1], rest.shape)),
+                                     np.ascontiguousarray(np.broadcast_to(seq[1][-1], ext.shape)))
         for c in np.flatnonzero(failed >= 0):
             # a contact block the compiled solver left unsolved: this copy goes on from that step's start as
             # a Simulator's loop does (ElasticMethod.advance: that step by the reference, then compiled)
             done = int(failed[c])
             method = ElasticMethod(self.system, self.dt)
-            state = State(x[..., c].copy(), v[..., c].copy(), rest[:, c].copy(), ext[..., c].copy())
+            bs = c if seq[0].shape[2] > 1 else 0
+            inputs = None if commands is None else (seq[0][done:, :, bs], seq[1][done:, ..., bs])
+            state = (State(x[..., c].copy(), v[..., c].copy(), rest[:, c].copy(), ext[..., c].copy()) if inputs is None
+                     else State(x[..., c].copy(), v[..., c].copy(), inputs[0][0].copy(), inputs[1][0].copy()))
             rows = steps - done
             pos, vel, contact = np.empty((rows, n, 3)), np.empty((rows, n, 3)), np.empty((rows, n, 3))
             imp, slack = np.empty((rows, nc)), np.empty((rows, nc), dtype=bool)
-            x[..., c], v[..., c] = method.advance(state, rows, 1, pos, vel, imp, slack, contact)
+            x[..., c], v[..., c] = method.advance(state, rows, 1, pos, vel, imp, slack, contact, inputs)
             out_x[done:, ..., c], out_v[done:, ..., c], out_contact[done:, ..., c] = pos, vel, contact
             out_imp[done:, :, c], out_slack[done:, :, c] = imp, slack
             for mine, its in zip(self._cache, method.carry()[:3] + method.carry()[4:]):

@@ -45,6 +45,9 @@ class ElasticBatchJax(ElasticBatch):
     def invalidate(self) -> None:
         self._carry = None
 
+    def runs_commands(self) -> bool:
+        return True
+
     def advance(self, x, v, rest_lengths, f_ext, steps: int, commands=None, first_step: int = 0):
         """``steps`` steps of every copy from ``x``, ``v`` (N, 3, B) with rest lengths (n_cables, B) and external
         forces (N, 3, B), held, or with ``commands`` (a ``CommandSchedule``, or one per copy) evaluated inside the
@@ -83,6 +86,9 @@ class ElasticMethodJax(ElasticMethod):
 
     def has_loop(self) -> bool:
         return True
+
+    def runs_commands(self) -> bool:   # a Simulator's schedule is applied step by step here
+        return False
 
     def carry(self):
         return self._jax_carry
