@@ -25,7 +25,7 @@ __all__ = ["main", "RunSummary", "simulate"]
 
 DEFAULT_SCENE = "prism3"
 PROGRESS_MIN_STEPS = 20_000  # runs shorter than this finish too quickly to need a progress bar
-_CHUNK = 1000                # steps per Simulator.run call when nothing happens between steps
+_CHUNK = 1000                # steps per Simulator.run call when nothing but commands happens between steps
 DEFAULT_LOG_DIR = "bags"     # run --log without a value: bags/<scene>_<time>.mcap
 DEFAULT_PLOT_DIR = "plots"   # plot / view without --out: plots/<log name>/
 DEMO_SCHEDULE = "prism3_demo.yaml"  # the main job's (run without a scene): tensegrity_sim/schedules/
@@ -76,32 +76,6 @@ class RunSummary:
         return out
 
 
-def _held_steps(commands: CommandSchedule, sim: Simulator, base_rest: np.ndarray, last_forces, most: int) -> int:
-    """How many of the next steps (at most ``most``) ``commands`` leave the simulator's inputs as they are:
-    the rest lengths at each step's time equal the present ones (each scheduled cable on a flat stretch of
-    its ramps, or past its last point) and no force point falls among them. 0 if the next step changes one."""
-    t = sim.time
-    if not np.array_equal(commands.rest_lengths_at(t, base_rest), sim.rest_lengths):
-        return 0
-    forces = commands.forces_at(t)
-    if forces is not None and forces is not last_forces:
-        return 0
-    until = np.inf
-    later = commands.force_times[commands.force_times > t]
-    if later.size:
-        until = float(later[0])
-    for times, values in zip(commands.rest_times, commands.rest_values):
-        k = int(np.searchsorted(times, t, side="right"))   # the first point after t
-        while k < len(times) and values[k] == values[max(k - 1, 0)]:
-            k += 1                                         # flat: the stretch goes on
-        if k < len(times):
-            until = min(until, float(times[k - 1]) if k else float(times[0]))
-    if not np.isfinite(until):
-        return most
-    # the steps whose start time (step_count + j) dt lies before the stretch's end
-    return int(min(most, max(0, np.floor((until - t) / sim.dt))))
-
-
 def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None, *,
              progress: bool = False, on_step=None, driver=None) -> RunSummary:
     """Run ``steps`` steps applying ``commands`` before each step; return the summary.
@@ -137,16 +111,13 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
                 pairs.add(event.members)
             bar.update(len(traj.time))
 
-        # nothing to do between steps (no commands, or commands that hold for a while): run in chunks (the
-        # method's compiled loop, where it has one)
+        # nothing to do between steps but the commands: run in chunks (the method's compiled loop, where it
+        # has one; with commands, where it evaluates them inside: Simulator.run)
         chunked = driver is None and on_step is None
         done = 0
         while done < steps:
-            held = steps - done if commands is None else 0
-            if chunked and commands is not None:
-                held = _held_steps(commands, sim, base_rest, last_forces, steps - done)
-            if chunked and held:
-                traj = sim.run(steps=min(_CHUNK, held))
+            if chunked:
+                traj = sim.run(steps=min(_CHUNK, steps - done), commands=commands)
                 take(traj)
                 done += len(traj.time)
                 continue
