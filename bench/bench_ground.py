@@ -16,9 +16,12 @@ its start in height, and a ratio is taken to the faster stable integrator (``muj
   at a time (steps computed ahead); the inextensible method also with its friction modes solved by their
   numpy reference instead of the compiled kernel (``numpy modes``: what compiling them gained); MuJoCo
   ``mj_step(nstep)`` in C;
-* rolling, 2 s under the roll's commands applied before each step where they change (as ``run --commands``
-  does): ours ``set_rest_lengths`` + ``step``; MuJoCo's commanded tendon length (a spring tendon's length,
-  a limited tendon's limit at its offset above the rest length) + ``mj_step`` from Python. The locked
+* rolling, 2 s under the roll's commands applied before each step where they change: ours through
+  ``Simulator.run(commands=...)`` (the schedule evaluated inside the compiled ground loop), as
+  ``tensegrity-sim run --commands`` (the same, in chunks of 1,000 steps, with its summary) and by
+  ``set_rest_lengths`` + ``step``; MuJoCo's commanded tendon length (a spring tendon's length, a limited
+  tendon's limit at its offset above the rest length) + ``mj_step`` from Python, and (the peer of our runs)
+  each stretch of unchanged commands in one ``mj_step(nstep)``. The locked
   inextensible icosahedron's motors reel its cables in with unlimited force, which the rigid structure
   can only follow by leaving the ground: its rate is reported with how high its centre rose.
 
@@ -74,7 +77,7 @@ def _ours(scene, method, steps, schedule, how, contacts=(), reference_modes=Fals
     sim.run(steps=2)   # the kernels loaded, the first contact solved
     start = time.perf_counter()
     if how == "run":
-        sim.run(steps=steps)
+        sim.run(steps=steps, commands=schedule)
     else:
         base = sim.rest_lengths
         for k in range(steps):
@@ -109,8 +112,7 @@ def _mujoco(scene, steps, schedule, integrator, model="elastic"):
 
 def _ours_commanded(scene, steps, schedule):
     """Steps per second and the final positions of the elastic roll as ``tensegrity-sim run --commands`` steps
-    it (``cli.simulate``: the stretches where the commands hold the inputs in one ``Simulator.run``, the
-    ramps one ``set_rest_lengths`` + ``step`` at a time)."""
+    it (``cli.simulate``: ``Simulator.run(commands=...)`` in chunks, with the run's summary)."""
     from tensegrity_sim.cli import simulate
 
     sim = _simulator(scene, "elastic")
@@ -157,7 +159,8 @@ def speed(duration: float, repeats: int) -> list[dict]:
                      lambda: _ours(scene, "inextensible", min(steps, 500), None, "step")),
                     ("inextensible step, numpy modes", "inextensible",
                      lambda: _ours(scene, "inextensible", min(steps, 500), None, "step", reference_modes=True))],
-        "rolling": [("elastic step", "elastic", lambda: _ours(scene, "elastic", steps, schedule, "step")),
+        "rolling": [("elastic run", "elastic", lambda: _ours(scene, "elastic", steps, schedule, "run")),
+                    ("elastic step", "elastic", lambda: _ours(scene, "elastic", steps, schedule, "step")),
                     ("elastic, as run --commands", "elastic", lambda: _ours_commanded(scene, steps, schedule)),
                     ("elastic step, detection on", "elastic",
                      lambda: _ours(scene, "elastic", steps, schedule, "step", None)),
@@ -190,7 +193,7 @@ def speed(duration: float, repeats: int) -> list[dict]:
                    "ratio_to_mujoco": float("nan"), "mujoco_integrator": "-",
                    "com_moved_m": float(np.linalg.norm(centre[name][:2])), "com_rose_m": float(centre[name][2]),
                    "stable": stable[name], "load": _load()}
-            stretches = name == "elastic, as run --commands"
+            stretches = case == "rolling" and name in ("elastic, as run --commands", "elastic run")
             stable_peers = [] if name.startswith("mujoco") else [
                 f"{p}, commands in stretches" if stretches else p for p, m, _ in peers
                 if m == model and stable[f"{p}, commands in stretches" if stretches else p]]
