@@ -489,6 +489,9 @@ def test_as_fast_as_possible_steps_for_one_tick_period():
     clock = FakeClock(t=0.0, per_read=0.25e-3)  # every clock read costs 0.25 ms
     logic, _, _ = make_logic(prism(), clock=clock, real_time_factor=0.0)
     assert logic.tick() == 4 and logic.tick() == 4
+    # each tick took its four steps' clock reads, 1 ms; with no schedule there is no nominal share to exceed
+    stats = logic.statistics()
+    assert (stats["ticks"], stats["tick_max_ms"], stats["max_steps_per_tick"], stats["burst_ticks"]) == (2, 1.0, 4, 0)
 
 
 def test_no_tick_runs_longer_than_its_wall_clock_bound():

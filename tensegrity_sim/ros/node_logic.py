@@ -408,7 +408,6 @@ class SimNodeLogic:
         period = 1.0 / s.step_rate
         budget = min(period, TICK_WALL_LIMIT)
         done = 0
-        now = start
         if s.real_time_factor == 0.0:
             while not self.paused:   # a failed step may pause the node
                 done += self._advance()
@@ -423,8 +422,7 @@ class SimNodeLogic:
             done += self._advance()
             if self.paused:
                 return done, self._clock()
-            now = self._clock()
-            if now - start >= budget:
+            if self._clock() - start >= budget:
                 break
         # steps already due that this tick could not run: more than one tick's worth is an overrun
         now = self._clock()
