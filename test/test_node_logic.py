@@ -448,6 +448,32 @@ def test_late_tick_catches_up_at_twice_the_rate_and_counts_overruns():
     assert counts == [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 14, 16, 18, 19]
     assert logic.overruns == 2  # ends 3 and 2 steps behind; 1 step behind is within a tick
     assert logic.max_lag == pytest.approx(3e-3)
+    assert logic.burst_ticks == 4 and logic.max_steps_per_tick == 2  # the four ticks of 2 steps catch up
+
+
+def test_tick_durations_and_catch_up_bursts_in_the_statistics():
+    """1000 ticks on time at 1 kHz, the k-th taking k us of the clock (its step costs half, the schedule's
+    read at its end the other half): by nearest rank p50 = 500 us, p99 = 990 us, p99.9 = 999 us (each
+    reported to within one histogram bin, 1.2 %, never below), the longest 1 ms exactly; one step a tick,
+    no burst. Then the clock jumps 3 ms: the next two ticks run 2 steps each (the cap) to catch up, two
+    bursts that end within one tick of the schedule, so no overrun."""
+    clock = FakeClock(t=0.0)
+    logic, _, _ = make_logic(prism(), clock=clock)
+    for k in range(1, 1001):
+        clock.t, clock.per_read = 1e-3 * k + 1e-7, 0.5e-6 * k
+        assert logic.tick() == 1
+    stats = logic.statistics()
+    assert stats["ticks"] == 1000 and stats["max_steps_per_tick"] == 1 and stats["burst_ticks"] == 0
+    bin_ratio = 10.0 ** (1.0 / 200.0)
+    for key, true_ms in (("tick_p50_ms", 0.5), ("tick_p99_ms", 0.99), ("tick_p999_ms", 0.999)):
+        assert true_ms <= stats[key] <= true_ms * bin_ratio + 5e-4, key  # + 5e-4: rounded to 1 us
+    assert stats["tick_max_ms"] == 1.0
+    clock.per_read = 0.0
+    assert run_ticks(logic, clock, [1e-3 * k + 1e-7 for k in (1003, 1004, 1005)]) == [1002, 1004, 1005]
+    stats = logic.statistics()
+    assert (stats["ticks"], stats["max_steps_per_tick"], stats["burst_ticks"], stats["overruns"]) == (1003, 2, 2, 0)
+    # three ticks of 0 ms joined them: the 502nd shortest of 1003 is the 499th of the first 1000
+    assert 0.499 <= stats["tick_p50_ms"] <= 0.499 * bin_ratio + 5e-4 and stats["tick_max_ms"] == 1.0
 
 
 def test_real_time_factor_scales_the_schedule():
@@ -455,12 +481,17 @@ def test_real_time_factor_scales_the_schedule():
     logic, _, _ = make_logic(prism(), clock=clock, real_time_factor=2.5)
     counts = run_ticks(logic, clock, [1e-3 * k + 1e-7 for k in range(1, 9)])
     assert counts == [math.floor(2.5 * k) for k in range(1, 9)]
+    # 2 or 3 steps a tick is the nominal share, 2.5, rounded down or up: no burst
+    assert logic.max_steps_per_tick == 3 and logic.burst_ticks == 0
 
 
 def test_as_fast_as_possible_steps_for_one_tick_period():
     clock = FakeClock(t=0.0, per_read=0.25e-3)  # every clock read costs 0.25 ms
     logic, _, _ = make_logic(prism(), clock=clock, real_time_factor=0.0)
     assert logic.tick() == 4 and logic.tick() == 4
+    # each tick took its four steps' clock reads, 1 ms; with no schedule there is no nominal share to exceed
+    stats = logic.statistics()
+    assert (stats["ticks"], stats["tick_max_ms"], stats["max_steps_per_tick"], stats["burst_ticks"]) == (2, 1.0, 4, 0)
 
 
 def test_no_tick_runs_longer_than_its_wall_clock_bound():

@@ -62,6 +62,44 @@ __all__ = ["Qos", "TopicSpec", "TOPICS", "SERVICES", "NodeSettings", "SimNodeLog
 TICK_WALL_LIMIT = 0.1           # s
 
 
+class TickDurations:
+    """The wall-clock duration of every tick since start, in a fixed histogram (a node runs for hours: its
+    memory stays bounded, and a tick only adds one to a bin), for the percentiles of the summary.
+
+    Bins are logarithmic, :attr:`BINS_PER_DECADE` to a decade from :attr:`LOW` to :attr:`HIGH` s (the first
+    and the last take whatever falls below or above), so a percentile is known to within one bin, a relative
+    1.2 %; it is reported as the bin's upper edge (never below the duration it stands for) or the longest
+    tick, whichever is shorter. The longest tick is kept exactly.
+    """
+
+    LOW = 1e-6               # s
+    HIGH = 100.0             # s
+    BINS_PER_DECADE = 200
+
+    def __init__(self):
+        decades = round(math.log10(self.HIGH / self.LOW))
+        self.upper_edges = self.LOW * 10.0 ** (np.arange(1, decades * self.BINS_PER_DECADE + 1) / self.BINS_PER_DECADE)
+        self.counts = np.zeros(self.upper_edges.size, dtype=np.int64)
+        self.ticks = 0
+        self.longest = 0.0   # s
+
+    def add(self, duration: float) -> None:
+        """Count one tick of ``duration`` s."""
+        i = int(math.log10(duration / self.LOW) * self.BINS_PER_DECADE) if duration > self.LOW else 0
+        self.counts[min(i, self.counts.size - 1)] += 1
+        self.ticks += 1
+        self.longest = max(self.longest, duration)
+
+    def percentile(self, q: float) -> float:
+        """The duration (s) that ``q`` percent of the ``n`` ticks took at most (nearest rank: the duration of
+        the ``ceil(q n / 100)``-th shortest tick), to within one bin; 0 before the first tick."""
+        if self.ticks == 0:
+            return 0.0
+        rank = max(1, math.ceil(q / 100.0 * self.ticks))
+        i = int(np.searchsorted(np.cumsum(self.counts), rank))
+        return min(float(self.upper_edges[i]), self.longest)
+
+
 # --------------------------------------------------------------------------- the node logic
 Transport = Callable[[str, object], None]
 
@@ -115,6 +153,9 @@ class SimNodeLogic:
         self.received = {k: 0 for k in self._inputs}
         self.overruns = 0
         self.max_lag = 0.0          # wall-clock s behind the schedule, the worst seen
+        self._tick_durations = TickDurations()
+        self.max_steps_per_tick = 0
+        self.burst_ticks = 0        # ticks that ran more steps than their nominal share (catching up)
         self.publications = 0
         self.failed_steps = 0
         self._steps_run = 0
@@ -344,36 +385,52 @@ class SimNodeLogic:
         steps for one tick period, as fast as possible. No tick runs longer than one tick period or
         :data:`TICK_WALL_LIMIT`, whichever is shorter, on the wall clock. A failed step (:meth:`step`) is
         not counted; one that pauses the node ends the tick.
+
+        Every tick's wall-clock duration and steps go into the statistics (:meth:`statistics`: the
+        duration percentiles, the most steps a tick ran, and the ticks that ran more than their nominal
+        share, catching up).
         """
         if self.paused:
             return 0
+        start = self._clock()
+        done, end = self._run_due(start)
+        self._tick_durations.add(end - start)
+        self.max_steps_per_tick = max(self.max_steps_per_tick, done)
+        s = self.settings
+        if s.real_time_factor > 0.0 and done > math.ceil(s.real_time_factor / (s.dt * s.step_rate) - 1e-9):
+            self.burst_ticks += 1   # more than the nominal share (rounded up: 2.5 steps a tick run 2 or 3)
+        return done
+
+    def _run_due(self, start: float) -> tuple[int, float]:
+        """The steps of a tick that started at ``start`` s on the clock (:meth:`tick`): (steps run, the
+        clock at the tick's end, s)."""
         s = self.settings
         period = 1.0 / s.step_rate
         budget = min(period, TICK_WALL_LIMIT)
-        start = self._clock()
         done = 0
         if s.real_time_factor == 0.0:
             while not self.paused:   # a failed step may pause the node
                 done += self._advance()
-                if self._clock() - start >= budget:
+                now = self._clock()
+                if now - start >= budget:
                     break
-            return done
+            return done, now
         steps_per_second = s.real_time_factor / s.dt
         due = self._anchor_step + math.floor((start - self._anchor_time) * steps_per_second)
         cap = max(1, math.ceil(2.0 * steps_per_second * period))
         for _ in range(min(due - self.sim.step_count, cap)):
             done += self._advance()
             if self.paused:
-                return done
+                return done, self._clock()
             if self._clock() - start >= budget:
                 break
         # steps already due that this tick could not run: more than one tick's worth is an overrun
-        behind = (self._anchor_step + math.floor((self._clock() - self._anchor_time) * steps_per_second)
-                  - self.sim.step_count)
+        now = self._clock()
+        behind = self._anchor_step + math.floor((now - self._anchor_time) * steps_per_second) - self.sim.step_count
         if behind > steps_per_second * period:
             self.overruns += 1
             self.max_lag = max(self.max_lag, behind / steps_per_second)
-        return done
+        return done, now
 
     def _advance(self) -> bool:
         """One step, and a publication if due; False if the step failed."""
@@ -541,13 +598,18 @@ class SimNodeLogic:
                      hardware_id=self.sim.scene.name, values=M.key_values(values))
 
     def statistics(self) -> dict:
-        """Counters for diagnostics and the summary."""
+        """Counters for diagnostics and the summary (``msg_docs/diagnostics.md`` says what each is)."""
         wall = self._clock() - self._started
+        ticks = self._tick_durations
         return {
             "steps": self._steps_run, "sim_time_s": round(self.sim.time, 9),
             "real_time_factor_achieved": round(self._steps_run * self.sim.dt / wall, 4) if wall > 0 else 0.0,
             "real_time_factor_target": self.settings.real_time_factor,
             "overruns": self.overruns, "max_lag_ms": round(1e3 * self.max_lag, 3),
+            "ticks": ticks.ticks, "tick_p50_ms": round(1e3 * ticks.percentile(50.0), 3),
+            "tick_p99_ms": round(1e3 * ticks.percentile(99.0), 3),
+            "tick_p999_ms": round(1e3 * ticks.percentile(99.9), 3), "tick_max_ms": round(1e3 * ticks.longest, 3),
+            "max_steps_per_tick": self.max_steps_per_tick, "burst_ticks": self.burst_ticks,
             "publications": self.publications, "failed_steps": self.failed_steps,
             "refused_rest_lengths": self.refused["cable_rest_lengths"],
             "refused_wrenches": self.refused["external_wrench"], "paused": self.paused,

@@ -1,0 +1,170 @@
+"""The live node holding 1 kHz while a robot rolls: ``tensegrity-sim serve icosahedron_ground --transport dds``
+with its MCAP log on, driven by ``examples/roll_controller.py`` (issue 28: tick p99.9 <= 1 ms over 60 s, no
+catch-up burst).
+
+Run: ``python3 bench/bench_node.py [--duration 60] [--scene icosahedron_ground] [--step-rate 1000] [--csv FILE]``
+(default CSV: ``bench/results/node_tick.csv``).
+
+The server runs in its own process over loopback on a random domain, logging to a temporary folder; the
+roll controller runs in another, as a user runs it (``examples/roll_controller.py --domain-id D``), with
+more cycles than ``--duration`` allows, so it is still rolling when both are stopped with SIGINT (the server
+then finishes its log and prints its statistics). The figures are the server's own (``SimNodeLogic``'s
+statistics, over its whole run): steps, the achieved real-time factor, overruns and the worst lag, the
+wall-clock duration of its ticks (p50, p99, p99.9, max), the most steps a tick ran and the ticks that ran
+more than their nominal share (catch-up bursts). Whether the robot rolled: the command cycles the
+controller started and how far the centre of mass moved horizontally between the first and the last
+``node_poses`` of the log. The load average (1 min) before and after goes beside them (other work on the
+machine takes the node's CPU). Prints figures; never asserts a time.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run as a script: this checkout first
+
+from bench.tables import RESULTS, ROOT, write_csv  # noqa: E402
+from tensegrity_sim.ros import messages as M  # noqa: E402
+from tensegrity_sim.ros.log_reader import LogReader  # noqa: E402
+
+CONTROLLER = ROOT / "examples" / "roll_controller.py"
+STOP_TIMEOUT = 60.0  # s for a stopped process to finish (the server finishes its log)
+
+
+def start_server(args, domain: int, log_dir: str, env: dict) -> tuple[subprocess.Popen, list[str]]:
+    """The server, and the lines of its stderr (read by a thread, so that a chatty server never blocks on a
+    full pipe); returns once it says it is serving."""
+    command = [sys.executable, "-m", "tensegrity_sim.cli", "serve", args.scene, "--transport", "dds",
+               "--domain-id", str(domain), "--log-path", log_dir, "--dt", str(args.dt),
+               "--step-rate", str(args.step_rate), "--publish-rate", str(args.publish_rate)]
+    print("server:", " ".join(command[1:]), flush=True)
+    server = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    lines: list[str] = []
+    serving = threading.Event()
+
+    def drain():
+        for line in server.stderr:
+            lines.append(line)
+            if "serving" in line:
+                serving.set()
+        serving.set()   # it ended without serving: main() reports it
+
+    threading.Thread(target=drain, daemon=True).start()
+    serving.wait()
+    if server.poll() is not None:
+        sys.exit(f"the server stopped before serving:\n{''.join(lines)}")
+    return server, lines
+
+
+def stop(process: subprocess.Popen) -> str:
+    """SIGINT, then its stdout once it has ended."""
+    process.send_signal(signal.SIGINT)
+    out, _ = process.communicate(timeout=STOP_TIMEOUT)
+    return out
+
+
+def read_log(path: str) -> tuple[float, float, list[dict[str, str]]]:
+    """From the log at ``path``: the horizontal distance (m) between the mean node position of the first and
+    of the last ``node_poses`` (the centre of mass of the built-in robots, whose nodes have equal masses), the
+    simulated time (s) between them, and the values of every periodic ``/diagnostics`` report (1 Hz of
+    wall-clock time: the node's statistics so far), in order."""
+    first = last = None
+    reports = []
+    with LogReader(path) as reader:
+        for m in reader.messages():
+            if m.topic.endswith("/node_poses"):
+                last = m
+                first = first or m
+            elif m.topic == "/diagnostics":
+                status = M.deserialize(m.data, "diagnostic_msgs/msg/DiagnosticArray").status[0]
+                if status.values:   # a failed step's report has none
+                    reports.append({kv.key: kv.value for kv in status.values})
+
+    def position(message) -> np.ndarray:
+        poses = M.deserialize(message.data, "geometry_msgs/msg/PoseArray").poses
+        return np.array([[p.position.x, p.position.y] for p in poses]).mean(axis=0)
+
+    return (float(np.linalg.norm(position(last) - position(first))), 1e-9 * (last.log_time - first.log_time),
+            reports)
+
+
+def after_start(reports: list[dict[str, str]], stats: dict[str, str]) -> dict[str, int]:
+    """The ticks, overruns and catch-up bursts after the node's first diagnostics report (1 s into its
+    run): the final counts less that report's, so the start (kernels loaded from the cache, the first
+    messages serialised) is left out; -1 if there was no report."""
+    first = reports[0] if reports else None
+    return {f"{k}_after_1s": int(stats[k]) - int(first[k]) if first else -1
+            for k in ("ticks", "overruns", "burst_ticks")}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=60.0, help="s of wall-clock time the controller drives")
+    parser.add_argument("--scene", default="icosahedron_ground")
+    parser.add_argument("--dt", type=float, default=1e-3)
+    parser.add_argument("--step-rate", type=float, default=1000.0)
+    parser.add_argument("--publish-rate", type=float, default=100.0)
+    parser.add_argument("--csv", type=Path, default=RESULTS / "node_tick.csv")
+    args = parser.parse_args()
+
+    domain = random.SystemRandom().randint(1, 200)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    load_before = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory() as log_dir:
+        server, server_err = start_server(args, domain, log_dir, env)
+        controller = None
+        try:
+            cycles = int(args.duration / 2.0) + 10   # a cycle takes about 3 s: still rolling when stopped
+            controller = subprocess.Popen(
+                [sys.executable, str(CONTROLLER), "--domain-id", str(domain), "--scene", args.scene,
+                 "--cycles", str(cycles)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+            time.sleep(args.duration)
+            if controller.poll() is not None:
+                sys.exit(f"the controller stopped early:\n{controller.communicate()[0]}")
+        finally:
+            controller_out = stop(controller) if controller is not None else ""
+            server_out = stop(server)
+        load_after = os.getloadavg()[0]
+        stats = dict(line.split(None, 1) for line in server_out.splitlines() if len(line.split(None, 1)) == 2)
+        if "steps" not in stats or "log" not in stats:
+            sys.exit(f"no summary from the server:\n{server_out}{''.join(server_err)}")
+        travel, simulated, reports = read_log(stats["log"])
+    method = re.search(r"serving \S+ \((\w+),", "".join(server_err)).group(1)
+    started = [int(n) for n in re.findall(r"^cycle (\d+):", controller_out, flags=re.MULTILINE)]
+    ints = ("steps", "overruns", "ticks", "max_steps_per_tick", "burst_ticks", "failed_steps", "refused_rest_lengths")
+    floats = ("real_time_factor_achieved", "max_lag_ms", "tick_p50_ms", "tick_p99_ms", "tick_p999_ms", "tick_max_ms")
+    row = {"scene": args.scene, "method": method, "duration_s": args.duration, "step_rate_hz": args.step_rate,
+           "dt_s": args.dt, "publish_rate_hz": args.publish_rate, "log": "on",
+           **{k: int(stats[k]) for k in ints}, **{k: float(stats[k]) for k in floats}, **after_start(reports, stats),
+           "cycles_started": max(started, default=-1) + 1, "com_travel_m": travel, "logged_s": simulated,
+           "load_1min_before": load_before, "load_1min_after": load_after}
+    print(f"{args.scene} ({method}), serve --transport dds at {args.step_rate:g} ticks/s, dt = {args.dt * 1e3:g} ms, "
+          f"publishing {args.publish_rate:g} Hz, log on, driven by examples/roll_controller.py for "
+          f"{args.duration:g} s; load average (1 min) {load_before:.2f} before, {load_after:.2f} after")
+    print(f"server: {row['steps']} steps in {row['ticks']} ticks, real-time factor {row['real_time_factor_achieved']}, "
+          f"overruns {row['overruns']}, max lag {row['max_lag_ms']} ms, failed steps {row['failed_steps']}")
+    print(f"tick: p50 {row['tick_p50_ms']} ms, p99 {row['tick_p99_ms']} ms, p99.9 {row['tick_p999_ms']} ms "
+          f"(target <= 1 ms), max {row['tick_max_ms']} ms; most steps in a tick {row['max_steps_per_tick']}, "
+          f"ticks over their nominal share (catch-up bursts) {row['burst_ticks']} (target 0)")
+    print(f"after the first second (start-up left out): {row['ticks_after_1s']} ticks, {row['overruns_after_1s']} "
+          f"overruns, {row['burst_ticks_after_1s']} catch-up bursts")
+    print(f"robot: {row['cycles_started']} roll cycles started, centre of mass moved {travel:.3f} m over "
+          f"{simulated:.1f} s of logged simulated time; {row['refused_rest_lengths']} commands refused")
+    write_csv(args.csv, [row])
+    print(f"wrote {args.csv}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
