@@ -38,7 +38,9 @@ def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Log
          clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> None:
     """The node's single thread, as the rclpy node's executor: every ``1/step_rate`` s of wall-clock time
     take the inputs, run the steps due (:meth:`SimNodeLogic.tick`), and once a second publish
-    ``/diagnostics``; until SIGINT or SIGTERM, which ``latch`` raises here, between two ticks."""
+    ``/diagnostics``; until SIGINT or SIGTERM, which ``latch`` raises here, between two ticks. The node is
+    warmed up first (:meth:`SimNodeLogic.warm_up`), so its schedule starts with nothing left to compile."""
+    logic.warm_up()
     next_tick = clock()
     next_diagnostics = next_tick + DIAGNOSTICS_PERIOD
     while True:
