@@ -393,7 +393,8 @@ class BatchSimulator:
         if self._grounds is not None:
             landed = walk_copies(self._grounds, previous, previous_v, x_seq, v_seq, self._engine.contact,
                                  start * self.dt, self.dt)
-            contacts = [tuple(tuple(sorted(m + g, key=lambda e: e.time)) if g else m for m, g in zip(members, ground))
+            contacts = [members if not any(ground) else
+                        tuple(tuple(sorted(m + g, key=lambda e: e.time)) if g else m for m, g in zip(members, ground))
                         for members, ground in zip(contacts, landed)]
         return (np.moveaxis(x_seq, -1, 1), np.moveaxis(v_seq, -1, 1), np.moveaxis(imp, -1, 1),
                 np.moveaxis(slack, -1, 1), contacts)
