@@ -158,8 +158,8 @@ def _numba_case(scene, copies, steps):
 
 def _numba_ground_case(scene, copies, steps):
     """The numba batch on the ground: ``BatchSimulator`` (the compiled ground loop, copies on every core) under
-    the same schedule, applied before each step where it changes (``run(commands=...)``), no member detection
-    (the JAX backend has none); built in the timed call (a run cannot be undone), a few ms of the call."""
+    the same schedule, evaluated inside that loop (``run(commands=...)``), no member detection (the JAX backend
+    has none); built in the timed call (a run cannot be undone), a few ms of the call."""
     from tensegrity_sim.commands import load_commands
 
     schedule = load_commands(ROLL, scene)
