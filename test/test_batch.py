@@ -326,3 +326,26 @@ def test_a_scene_with_member_contact_response_equals_single_runs():
     for b in range(2):
         np.testing.assert_allclose(traj.positions[b], want.positions, rtol=0, atol=TOL)
     assert want.positions[-1, 2, 2] > 0.0   # B's ends stayed above A
+
+
+def test_blocks_of_copies_on_threads_give_the_numbers_of_one_block(monkeypatch):
+    """The free elastic batch's member-contact detection runs blocks of copies side by side on threads
+    (``methods/_copy_blocks.py``: each block the very operations of the whole batch on its copies): three
+    blocks give the positions, impulses, slack cables and contact events of one block, bit for bit."""
+    import numba
+
+    from tensegrity_sim.methods import _copy_blocks
+
+    scenes = [icosahedron_thrown(scale=4.0, seed=s) for s in range(12)]   # struts that meet: contact events
+    runs = {}
+    for threads in (1, 3):
+        monkeypatch.setattr(_copy_blocks, "MIN_BLOCK", 4)
+        monkeypatch.setattr(numba, "get_num_threads", lambda t=threads: t)
+        assert len(_copy_blocks.copy_blocks(12)) == threads
+        runs[threads] = BatchSimulator.from_scenes(scenes, method="elastic").run(steps=400, every=9)
+    one, three = runs[1], runs[3]
+    for field in ("positions", "velocities", "impulses", "slack", "peak_tensions", "snaps"):
+        np.testing.assert_array_equal(getattr(three, field), getattr(one, field))
+    events = [[(e.kind, e.members, e.time) for e in c] for c in one.contacts]
+    assert len({b // 4 for b, c in enumerate(events) if c}) >= 2   # events in more than one block
+    assert [[(e.kind, e.members, e.time) for e in c] for c in three.contacts] == events

@@ -460,7 +460,7 @@ def _pair_frame(x, b, nodes, local):
     return True
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)   # nogil: blocks of copies on threads (methods/_copy_blocks.py)
 def detect_steps(xs, stop, det):
     """Detection over the first ``stop[b]`` steps of a chunk, copy by copy: ``xs`` (K + 1, N, 3, B) m,
     the positions before the chunk's first step, then after each of its steps; ``stop`` (B,) int (a

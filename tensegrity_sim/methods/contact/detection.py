@@ -632,9 +632,26 @@ class CompiledDetector(ContactDetector):
         {(step, copy): events in time order} of the steps that have any."""
         from ._detection_kernels import detect_steps
 
+        from .._copy_blocks import copy_blocks, on_blocks
+
         xs = np.ascontiguousarray(xs, dtype=float)
         stop = np.full(self.copies, len(xs) - 1, dtype=np.int64) if stop is None else np.asarray(stop, dtype=np.int64)
-        return self.record(*detect_steps(xs, stop, self.state), step_start, dt, impulses)
+        blocks = copy_blocks(self.copies)
+        if len(blocks) == 1:
+            return self.record(*detect_steps(xs, stop, self.state), step_start, dt, impulses)
+
+        def run(block):   # a block of copies in arrays of its own (methods/_copy_blocks.py)
+            state = self.state[:6] + tuple(np.ascontiguousarray(a[..., block]) for a in self.state[6:])
+            return state[6:], detect_steps(np.ascontiguousarray(xs[..., block]), np.ascontiguousarray(stop[block]),
+                                           state)
+
+        events, points = [], []
+        for block, (state, (found, ends)) in zip(blocks, on_blocks(run, blocks)):
+            for mine, its in zip(self.state[6:], state):
+                mine[..., block] = its
+            events += [(step, copy + block.start, pair, tau, begin) for step, copy, pair, tau, begin in found]
+            points += list(ends)
+        return self.record(events, points, step_start, dt, impulses)
 
     def record(self, events, points, step_start, dt: float, impulses: dict | None = None) -> dict:
         """ContactEvents of the kernel's transitions (``_detection_kernels.new_events``; steps counted
