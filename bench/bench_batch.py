@@ -41,6 +41,7 @@ from bench.tables import write_csv  # noqa: E402
 from bench.timing import time_runs  # noqa: E402
 from tensegrity_sim import load_scene  # noqa: E402
 from tensegrity_sim.batch import BatchSimulator  # noqa: E402
+from tensegrity_sim.methods._copy_blocks import copy_blocks  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 REPEATS = 5
@@ -147,7 +148,8 @@ def measure() -> list[dict]:
             peer = "mujoco rollout + strut capsule contacts" if "contacts" in name else "mujoco rollout"
             rate = batch * steps / t
             rows.append({"case": f"icosahedron_thrown {model}", "batch": batch, "steps": steps,
-                         "contender": name, "threads": threads if name.startswith("mujoco") else 1,
+                         "contender": name, "threads": threads if name.startswith("mujoco") else
+                         len(copy_blocks(batch)) if "contacts" in name else 1,   # detection walks blocks on threads
                          "scene_steps_per_s": round(rate),
                          "ratio_to_mujoco": round(best[peer] / t, 3), "load": os.getloadavg()[0], "note": ""})
     return rows + measure_ground()
