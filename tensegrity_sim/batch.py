@@ -354,9 +354,9 @@ class BatchSimulator:
     # ------------------------------------------------------------------ stepping
     def _advance(self, steps: int, commands=None):
         """``steps`` steps of every running copy, inputs held (or ``commands`` evaluated inside the engine's
-        compiled run, where it ``runs_commands``): positions, velocities (steps, B, N, 3), impulses (steps, B, n_cables), slack
-        (steps, B, n_cables) (views, valid until the next call) and the contacts of each step (steps tuples
-        of B tuples)."""
+        compiled run, where it ``runs_commands``): positions, velocities (steps, B, N, 3), impulses
+        (steps, B, n_cables), slack (steps, B, n_cables) (views, valid until the next call) and the contacts of
+        each step (steps tuples of B tuples)."""
         if self._copies is not None:
             out = [self._step_copies() for _ in range(steps)]
             return (*(np.stack([o[i] for o in out]) for i in range(4)), [o[4] for o in out])

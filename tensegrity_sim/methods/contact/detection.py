@@ -72,6 +72,7 @@ import numpy as np
 from ...results import ContactEvent
 from ...scene import CONTACT_KINDS
 from ...system import System
+from .._copy_blocks import copy_blocks, on_blocks
 
 __all__ = ["ActiveContact", "ContactDetector", "CompiledDetector", "box_pairs", "closest_points", "contact_geometry",
            "transitions", "make_detector", "TAU_TOLERANCE", "SKIN_FRACTION", "COMPILED_PAIRS"]
@@ -631,8 +632,6 @@ class CompiledDetector(ContactDetector):
         (B,): steps to walk per copy (default all); ``impulses`` as :meth:`step`'s. Returns
         {(step, copy): events in time order} of the steps that have any."""
         from ._detection_kernels import detect_steps
-
-        from .._copy_blocks import copy_blocks, on_blocks
 
         xs = np.ascontiguousarray(xs, dtype=float)
         stop = np.full(self.copies, len(xs) - 1, dtype=np.int64) if stop is None else np.asarray(stop, dtype=np.int64)

@@ -1,16 +1,17 @@
 """Member-member contact response (``contact: response: true``): the geometry of the contact rows that
 ``methods/contact/friction.py`` adds to a method's velocity problem beside the ground's.
 
-**Rows.** Two capsules (members of the scene's ``contact: kinds`` with a radius > 0, no shared node) touch
-where their segments come within ``r_a + r_b``; at a configuration ``x`` their closest points are
-``p_a = (1 - s) x_a0 + s x_a1`` and ``p_b = (1 - t) x_b0 + t x_b1``
-(:func:`~tensegrity_sim.methods.contact.detection.contact_geometry`), with the unit normal ``n`` from a to b and the gap ``g = |p_b - p_a| - r_a - r_b``. The contact's relative
-velocity is that of the two material points, ``u = sum_j w_j v_j`` over the four nodes with the weights
-``w = (-(1 - s), -s, 1 - t, t)``, so the contact is one general row of ``methods/qp/solvers.py`` (four node entries)
-and its impulse ``P`` acts as ``w_j P`` on node ``j``: the impulses on a and b are equal and opposite, and
-they act at the contact's points, so linear momentum is exact and angular momentum is exact when the
-points coincide (in contact, up to the gap). ``(s, t, n)`` are frozen over a sub-step, taken at the
-configuration the method arms the contacts at, like a cable's direction at the midpoint.
+**Rows.** Two capsules (members of the scene's ``contact: kinds`` with a radius > 0, no shared node) touch where
+their segments come within ``r_a + r_b``; at a configuration ``x`` their closest points are ``p_a = (1 - s) x_a0
++ s x_a1`` and ``p_b = (1 - t) x_b0 + t x_b1``
+(:func:`~tensegrity_sim.methods.contact.detection.contact_geometry`), with the unit normal ``n`` from a to b and
+the gap ``g = |p_b - p_a| - r_a - r_b``. The contact's relative velocity is that of the two material points, ``u
+= sum_j w_j v_j`` over the four nodes with the weights ``w = (-(1 - s), -s, 1 - t, t)``, so the contact is one
+general row of ``methods/qp/solvers.py`` (four node entries) and its impulse ``P`` acts as ``w_j P`` on node
+``j``: the impulses on a and b are equal and opposite, and they act at the contact's points, so linear momentum
+is exact and angular momentum is exact when the points coincide (in contact, up to the gap). ``(s, t, n)`` are
+frozen over a sub-step, taken at the configuration the method arms the contacts at, like a cable's direction at
+the midpoint.
 
 **Targets** are the ground's with ``n . u`` for ``v_z``: the rate that closes the gap exactly by the
 sub-step's end, ``n . u >= -g / half``, capped at the reversal of the rate at the sub-step's start (no
