@@ -85,13 +85,12 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
     :class:`~tensegrity_sim.ros.offline.CommandDriver`, which logs them.
     """
     target = sim if driver is None else driver
-    base_rest = sim.rest_lengths
+    base_rest, start_forces = sim.rest_lengths, sim.external_forces
     energy_start = sim.energy()["total"]
     max_t, max_cable = 0.0, -1
     switches = 0
     contacts, begins, pairs = 0, 0, set()
     slack_prev = sim.slack()
-    last_forces = None
     bar = tqdm(total=steps, unit="step", disable=not progress, mininterval=0.5)
     start = time.perf_counter()
     try:
@@ -122,14 +121,7 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
                 done += len(traj.time)
                 continue
             if commands is not None:
-                t = sim.time
-                rest = commands.rest_lengths_at(t, base_rest)
-                if not np.array_equal(rest, sim.rest_lengths):
-                    target.set_rest_lengths(rest)
-                forces = commands.forces_at(t)
-                if forces is not None and forces is not last_forces:
-                    target.set_external_forces(forces)
-                    last_forces = forces
+                commands.apply(target, sim.time, base_rest, start_forces)
             r = target.step()
             done += 1
             if r.tensions.size:

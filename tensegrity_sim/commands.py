@@ -78,6 +78,16 @@ class CommandSchedule:
             ext[after] = self.force_values[k[after]][(...,) + (None,) * (forces.ndim - 2)]
         return rest, ext
 
+    def apply(self, target, t: float, base: np.ndarray, forces: np.ndarray) -> None:
+        """Set on ``target`` (a ``Simulator``, or what steps it for the node's offline driver) the inputs in
+        effect at ``t`` (:meth:`inputs_at`, ``base`` and ``forces`` as there), each only where it differs from
+        ``target``'s: how ``tensegrity-sim run --commands`` and ``Simulator.run(commands=...)`` step one at a time."""
+        rest, ext = (a[0] for a in self.inputs_at(np.array([t]), base, forces))
+        if not np.array_equal(rest, target.rest_lengths):
+            target.set_rest_lengths(rest)
+        if not np.array_equal(ext, target.external_forces):
+            target.set_external_forces(ext)
+
     def fits(self, n_nodes: int) -> None:
         """Refuse (ValueError) a schedule made for another scene's node count."""
         if self.force_values.shape[1:] != (n_nodes, 3):

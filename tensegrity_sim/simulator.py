@@ -486,7 +486,7 @@ class Simulator:
                                       None if commands is None else (commands,) + held)
         for k in range(done, steps):   # step by step (all of them, or from a compiled part that failed)
             if commands is not None:
-                self._apply_commands(commands, *held)
+                commands.apply(self, self.time, *held)
             r = self.step()
             j = k // every
             imp[j] += r.impulses
@@ -497,14 +497,6 @@ class Simulator:
             if callback is not None:
                 callback(k, r)
         return Trajectory(time, pos, vel, imp, imp / (span[:, None] * self.dt), slack, contacts, ground)
-
-    def _apply_commands(self, commands: CommandSchedule, base_rest: np.ndarray, start_forces: np.ndarray) -> None:
-        """Set the inputs ``commands`` give at the next step's start time, each only where it changed."""
-        rest, forces = (a[0] for a in commands.inputs_at(np.array([self.time]), base_rest, start_forces))
-        if not np.array_equal(rest, self._state.rest_lengths):
-            self.set_rest_lengths(rest)
-        if not np.array_equal(forces, self._state.external_forces):
-            self.set_external_forces(forces)
 
     def _run_compiled(self, steps, every, pos, vel, imp, slack, contacts, ground, commands=None) -> int:
         """:meth:`run` in the method's compiled loop: straight into the trajectory's arrays, or, with

@@ -40,6 +40,16 @@ class CommandDriver:
         """The log file being written."""
         return self.logic.recorder.path
 
+    @property
+    def rest_lengths(self) -> np.ndarray:
+        """The simulator's rest lengths (n_cables,) m, what :meth:`set_rest_lengths` compares with."""
+        return self.logic.sim.rest_lengths
+
+    @property
+    def external_forces(self) -> np.ndarray:
+        """The simulator's external forces (N, 3) N, what :meth:`set_external_forces` compares with."""
+        return self.logic.sim.external_forces
+
     def _take(self, key: str, message) -> None:
         reason = self.logic.receive(key, message)
         if reason is not None:
