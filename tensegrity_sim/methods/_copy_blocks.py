@@ -16,8 +16,8 @@ import numba
 
 # the fewest copies worth a thread of their own: below it the block's copies-innermost loops are too short
 MIN_BLOCK = 256
-# (The elastic batch's own step, split the same way, measured no faster on 2 cores: 1.55 M scene-steps/s
-# either way at 1,024 copies, bound by memory and the run's bookkeeping, so it stays one call.)
+# (The elastic batch's own step, split the same way, was no faster on 2 cores at 1,024 copies, timed in turns
+# in one process: it is bound by memory and the run's bookkeeping, so it stays one call.)
 
 
 def copy_blocks(copies: int) -> list[slice]:
