@@ -434,6 +434,26 @@ def test_a_batch_with_a_ground_runs_schedules_inside_its_compiled_loop():
             np.testing.assert_array_equal(batch.external_forces[b], sim.external_forces)
 
 
+def test_the_batch_ground_loop_compiles_parallel_from_a_cold_cache(monkeypatch):
+    """The batch's ground loop compiled afresh with ``parallel=True`` (no cache: numba names cache files after
+    the function, so before the loops had names of their own the parallel one was only ever the serial one's
+    cached code, and did not compile), per-copy schedules: each copy bit for bit the serial loop's numbers."""
+    from numba import njit
+
+    from tensegrity_sim.methods.elastic import _ground_kernels as gk
+
+    scene = ts.load_scene("icosahedron_ground")
+    own = [_roll_schedule(scene, True), _roll_schedule(scene, False)]
+    runs = {}
+    for name, kernel in (("serial", gk.ground_steps_serial),
+                         ("parallel", njit(parallel=True, error_model="numpy")(gk._named(gk._ground_steps, "cold")))):
+        monkeypatch.setattr(gk, "ground_steps", kernel)
+        runs[name] = ts.BatchSimulator(scene, 2, method="elastic", contacts=[]).run(steps=400, every=7, commands=own)
+    for field in ("positions", "velocities", "impulses", "slack"):
+        np.testing.assert_array_equal(getattr(runs["parallel"], field), getattr(runs["serial"], field))
+    assert np.ptp(runs["serial"].positions[:, -1, :, 0], axis=0).max() > 0.01   # the two copies' schedules differ
+
+
 def test_run_refuses_a_schedule_for_another_scene():
     scene = ts.load_scene("icosahedron_ground")
     other = _roll_schedule(scene, False)

@@ -22,6 +22,7 @@ the drift, the closing one cancels the closing half-kick).
 """
 from __future__ import annotations
 
+import types
 from typing import NamedTuple
 
 import numpy as np
@@ -203,6 +204,14 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
     nc, n_copies = rest.shape
     nr = rigid_members.shape[0]
     for b in prange(n_copies):
+        # the model's arrays copied for each copy: numba counts references to an array passed between its
+        # functions, atomically, and threads sharing one array's count take turns at it (bench_batch's rolling
+        # batch on 2 threads, best of 6: 178-204k scene-steps/s sharing them, 233-243k with copies)
+        ends_b, stiffness_b, strut_rest_b, damping_b = ends.copy(), stiffness.copy(), strut_rest.copy(), damping.copy()
+        inv_mass_b, gravity_b, rigid_members_b = inv_mass.copy(), gravity_force.copy(), rigid_members.copy()
+        rigid_length_sq_b, rigid_w_b, radii_b, node_strut_b = (rigid_length_sq.copy(), rigid_w.copy(), radii.copy(),
+                                                               node_strut.copy())
+        floor_b = floor.copy()
         xb = np.empty((n_nodes, 3, 1))
         vb = np.empty((n_nodes, 3, 1))
         accb = np.empty((n_nodes, 3, 1))
@@ -236,19 +245,21 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
         vel3 = np.empty(3)
         z3 = np.empty(3)
         failed[b] = -1
-        bs = b if rest_seq.shape[2] > 1 else 0
+        bs = 0   # the copy's column of the inputs (one column: every copy's)
+        if rest_seq.shape[2] > 1:
+            bs = np.int64(b)   # prange's index is unsigned: unified with 0 it would be a float
         for s in range(n_steps):
             for i in range(n_nodes):
                 for j in range(3):
                     x0[i, j] = xb[i, j, 0]
                     v0[i, j] = vb[i, j, 0]
             if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, restb, extb):
-                elastic_forces(xb, vb, restb, extb, ends, stiffness, floor, strut_rest, damping, inv_mass,
-                               gravity_force, rigid_members, accb, tensionb, dirsb)
-            if not _ground_step(xb, vb, restb, extb, h, ends, stiffness, floor, strut_rest, damping, inv_mass,
-                                gravity_force, rigid_members, rigid_length_sq, rigid_w, accb, tensionb, dirsb, height,
-                                mu, restitution, radii, node_strut, touch_tol, warmb, dx, imp, sl, contact, armed,
-                                target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, 0):
+                elastic_forces(xb, vb, restb, extb, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b, inv_mass_b,
+                               gravity_b, rigid_members_b, accb, tensionb, dirsb)
+            if not _ground_step(xb, vb, restb, extb, h, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
+                                inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb, tensionb,
+                                dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol, warmb, dx, imp, sl,
+                                contact, armed, target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, 0):
                 for i in range(n_nodes):
                     for j in range(3):
                         xb[i, j, 0] = x0[i, j]
@@ -274,7 +285,16 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
                 warm[1, i, j, b] = warmb[1, i, j, 0]
 
 
+def _named(function, name: str):
+    """``function`` under another name: numba names a kernel's cache files after the function (not its
+    options), so two compilations of one function would load each other's code from the cache."""
+    twin = types.FunctionType(function.__code__, function.__globals__, name, function.__defaults__,
+                              function.__closure__)
+    twin.__qualname__ = name
+    return twin
+
+
 # one loop, two compilations: a batch spreads its copies over the cores; one copy (Simulator) runs without
 # the thread pool's start-up
-ground_steps = njit(cache=True, parallel=True, error_model="numpy")(_ground_steps)
+ground_steps = njit(cache=True, parallel=True, error_model="numpy")(_named(_ground_steps, "_ground_steps_parallel"))
 ground_steps_serial = njit(cache=True, error_model="numpy")(_ground_steps)
