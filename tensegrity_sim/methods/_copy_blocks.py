@@ -1,5 +1,6 @@
-"""A batch's copies in contiguous blocks, one per core, walked by a compiled kernel on threads (member-contact
-detection of a batch: ``contact/detection.CompiledDetector.walk``).
+"""A batch's copies in contiguous blocks, one per core, walked by a compiled kernel on threads (the elastic
+batch's free step, ``elastic/batch.ElasticBatch.advance``, and its member-contact detection,
+``contact/detection.CompiledDetector.walk``).
 
 The copies of a batch are independent and the batch kernels do the same operations on each copy, so a kernel
 called on a block of copies gives each copy the very numbers it gives it in the whole batch. A kernel compiled
@@ -16,8 +17,6 @@ import numba
 
 # the fewest copies worth a thread of their own: below it the block's copies-innermost loops are too short
 MIN_BLOCK = 256
-# (The elastic batch's own step, split the same way, was no faster on 2 cores at 1,024 copies, timed in turns
-# in one process: it is bound by memory and the run's bookkeeping, so it stays one call.)
 
 
 def copy_blocks(copies: int) -> list[slice]:

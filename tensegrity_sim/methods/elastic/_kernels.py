@@ -525,7 +525,7 @@ def _step_copies(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
                     v[i, j, b] += dx[i, j, b]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)   # nogil: blocks of copies on threads (methods/_copy_blocks.py)
 def elastic_steps_copies(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
                          gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
                          out_x, out_v, out_impulses, out_slack):

@@ -22,6 +22,7 @@ import scipy.sparse as sp
 from ...system import System
 from . import _ground_kernels as ground_kernels
 from . import _kernels as kernels
+from .._copy_blocks import copy_blocks, on_blocks
 from ..base import State
 from .method import _HELD, ElasticMethod
 
@@ -186,8 +187,23 @@ class ElasticBatch:
         if self._cache is None:
             self._cache = (np.empty_like(x), np.empty((nc, b)), np.empty((self.rigid.count, 3, b)))
             kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._cache)
-        kernels.elastic_steps_copies(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache,
-                                     out_x, out_v, out_imp, out_slack)
+        blocks = copy_blocks(b)
+        if len(blocks) == 1:
+            kernels.elastic_steps_copies(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache,
+                                         out_x, out_v, out_imp, out_slack)
+            return out_x, out_v, out_imp, out_slack
+
+        def run(block):   # a block of copies in arrays of its own (methods/_copy_blocks.py), written back
+            state = [np.ascontiguousarray(a[..., block]) for a in (x, v, *self._cache)]
+            outs = [np.empty(a.shape[:-1] + (block.stop - block.start,), dtype=a.dtype)
+                    for a in (out_x, out_v, out_imp, out_slack)]
+            kernels.elastic_steps_copies(state[0], state[1], np.ascontiguousarray(rest[..., block]),
+                                         np.ascontiguousarray(ext[..., block]), self.dt, steps, 1, *self._model,
+                                         *state[2:], *outs)
+            for whole, part in zip((x, v, *self._cache, out_x, out_v, out_imp, out_slack), state + outs):
+                whole[..., block] = part
+
+        on_blocks(run, blocks)
         return out_x, out_v, out_imp, out_slack
 
     def _inputs(self, commands, rest, ext, steps: int, first_step: int):
