@@ -220,9 +220,15 @@ class ElasticBatch:
     def _advance_ground(self, x, v, rest_lengths, f_ext, steps: int, commands=None, first_step: int = 0):
         """:meth:`advance` with a ground; its impulses go to :attr:`contact`."""
         n, nc, b = x.shape[0], rest_lengths.shape[0], x.shape[2]
-        out_x, out_v = np.empty((steps, n, 3, b)), np.empty((steps, n, 3, b))
-        out_imp, out_slack = np.empty((steps, nc, b)), np.empty((steps, nc, b), dtype=bool)
-        self.contact = out_contact = np.empty((steps, n, 3, b))
+
+        def copy_major(*shape, dtype=float):
+            # (steps, ..., B) over memory laid out copy by copy: the loop steps one copy at a time, and its
+            # writes then fall on consecutive numbers, not numbers B apart (1,024 rolling copies on 2 threads:
+            # 3.9 us a copy-step against 5.5)
+            return np.moveaxis(np.empty((b, steps) + shape, dtype=dtype), 0, -1)
+
+        out_x, out_v, out_imp, out_slack = copy_major(n, 3), copy_major(n, 3), copy_major(nc), copy_major(nc, dtype=bool)
+        self.contact = out_contact = copy_major(n, 3)
         if not self.compiled:
             if self._copies is None:
                 self._copies = [ElasticMethod(self.system, self.dt, compiled=False) for _ in range(b)]
