@@ -188,34 +188,36 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
     m/s its normal target, ``mu`` its Coulomb coefficient. Returns the iterations taken, or -1 if
     ``phi`` did not reach ``BLOCK_TOL`` (``v`` then unchanged).
 
-    ``work`` (6, 7, 7): [0] G (q, 6), [1] W, [2] the Jacobian, [3] the damped normal matrix; rows of [4]:
-    u0, u, phi, -J^T phi, the step, the trial z, rho; rows of [5]: the trial's u and phi, the ends'
-    inverse masses per coordinate (6,)."""
+    ``work`` (6, 7, 7): [1] W, [2] the Jacobian, [3] the damped normal matrix; rows of [4]: u0, u, phi,
+    -J^T phi, the step, the trial z, rho; rows of [5]: the trial's u and phi."""
     s = 1 if strut else 0
     q = s + 3 * k
-    for e in range(2):
-        for j in range(3):
-            work[5, 2, 3 * e + j] = inv[e]
+    # u0 = G v and W = G M^-1 G^T written out (G's strut row is (-n, n), a contact's rows the unit vectors at
+    # its end): the sums of the general product in its order, less its terms that are exactly zero, so the
+    # very same numbers at a fraction of the cost (most blocks are answered by their warm start)
     for i in range(q):
-        for j in range(6):
-            work[0, i, j] = 0.0
-    if s:
-        for j in range(3):
-            work[0, 0, j] = -direction[j]
-            work[0, 0, 3 + j] = direction[j]
-    for c in range(k):
-        for j in range(3):
-            work[0, s + 3 * c + j, 3 * ends[c] + j] = 1.0
-    for i in range(q):
-        acc = 0.0
-        for j in range(6):
-            acc += work[0, i, j] * v[j // 3, j % 3]
-        work[4, 0, i] = acc
         for j in range(q):
-            acc = 0.0
-            for p in range(6):
-                acc += work[0, i, p] * work[5, 2, p] * work[0, j, p]
-            work[1, i, j] = acc
+            work[1, i, j] = 0.0
+    if s:
+        acc = 0.0
+        for j in range(3):
+            acc += -direction[j] * v[0, j]
+        for j in range(3):
+            acc += direction[j] * v[1, j]
+        work[4, 0, 0] = acc
+        acc = 0.0
+        for e in range(2):
+            for j in range(3):
+                acc += direction[j] * inv[e] * direction[j]
+        work[1, 0, 0] = acc
+    for c in range(k):
+        e = ends[c]
+        for j in range(3):
+            row = s + 3 * c + j
+            work[4, 0, row] = v[e, j]
+            work[1, row, row] = inv[e]
+            if s:
+                work[1, 0, row] = work[1, row, 0] = (direction[j] if e else -direction[j]) * inv[e]
     # the impulse scale: each end's momentum, each contact's target momentum and warm start
     scale = 1e-300
     for e in range(2):
@@ -278,9 +280,13 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
         merit = _residual(q, s, k, target, mu, work, z, 4, 1, 4, 2, 2)
     if done < 0:
         return -1
-    for j in range(6):
-        acc = 0.0
-        for i in range(q):
-            acc += work[0, i, j] * z[i]
-        v[j // 3, j % 3] += work[5, 2, j] * acc
+    for e in range(2):   # v += M^-1 G^T z, G^T z's sums as the product's
+        for j in range(3):
+            acc = 0.0
+            if s:
+                acc += (direction[j] if e else -direction[j]) * z[0]
+            for c in range(k):
+                if ends[c] == e:
+                    acc += z[s + 3 * c + j]
+            v[e, j] += inv[e] * acc
     return done
