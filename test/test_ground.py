@@ -204,6 +204,31 @@ def test_friction_fixed_point_reports_iterations():
     assert isinstance(solver, FrictionalSolver) and solver.iterations <= 2
 
 
+def test_a_frictional_problem_answered_only_near_the_tolerance_is_answered_and_counted(monkeypatch):
+    """Where no Newton start meets the Coulomb law to its tolerance (here made 1e-18 relative, below the
+    round-off of the resting icosahedron's statically indeterminate contacts, with the modes and the further
+    starts skipped), the best answer is taken if it meets the law to RELAXED times the tolerance, and
+    counted: the robot stays at rest, its weight on the ground; with RELAXED = 1 the same step is a
+    FrictionError naming the three contacts."""
+    from tensegrity_sim.methods.contact import friction
+
+    for name, value in (("MAX_MODE_ITER", 0), ("_NSGS_SWEEPS", ()), ("_RESTARTS", 0), ("FIXED_POINT_TOL", 1e-18)):
+        monkeypatch.setattr(friction, name, value)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ts.LengthOffsetWarning)
+        sim = simulator(ts.load_scene("icosahedron_ground"), "inextensible")
+    x0 = sim.positions
+    tr = sim.run(steps=20)
+    assert sim._method.solver.relaxed >= 20
+    assert np.abs(tr.positions - x0).max() < 1e-12
+    weight = float(sim.system.masses.sum()) * G
+    np.testing.assert_allclose(tr.contact_impulses[:, :, 2].sum(axis=1), weight * 1e-3, rtol=1e-9)
+    monkeypatch.setattr(friction, "RELAXED", 1.0)
+    with pytest.raises(friction.FrictionError, match=r"\(no solution\): contacts 'n0' on the ground, 'n4' on the "
+                                                     r"ground, 'n8' on the ground miss the Coulomb law"):
+        sim.step()
+
+
 def test_drop_and_slide_against_mujoco_and_the_closed_form():
     """A strut dropped 4 cm while moving at 2 m/s: the landing's plastic impact takes mu times its normal
     impulse off the sliding speed (Coulomb's law for impulses), then friction stops it, at
