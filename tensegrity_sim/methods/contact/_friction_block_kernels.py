@@ -275,9 +275,13 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
             if new <= merit + _ARMIJO * step * slope or step <= _MIN_STEP:
                 break
             step *= 0.5
-        for i in range(q):
+        for i in range(q):   # the accepted trial's z, u, phi and Jacobian (those of _residual at z)
             z[i] = work[4, 5, i]
-        merit = _residual(q, s, k, target, mu, work, z, 4, 1, 4, 2, 2)
+            work[4, 1, i] = work[5, 0, i]
+            work[4, 2, i] = work[5, 1, i]
+            for j in range(q):
+                work[2, i, j] = work[3, i, j]
+        merit = new
     if done < 0:
         return -1
     for e in range(2):   # v += M^-1 G^T z, G^T z's sums as the product's
