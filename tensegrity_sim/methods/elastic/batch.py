@@ -51,6 +51,7 @@ class ElasticBatch:
         self.ground = self.single._ground_model   # None without a ground
         self.contact = None
         self._copies = None   # with a ground, the reference's ElasticMethod per copy
+        self._kept = None     # the compiled path's output arrays of the last advance, and their key
         # coupled rigid struts (class-k) only have the reference, as in ElasticMethod
         self.compiled = compiled and not self.single.rigid.coupled
         self.system = system
@@ -158,6 +159,15 @@ class ElasticBatch:
         self._cache = end
         return x_new, v_new, (0.5 * h) * (start[1] + end[1]), end[3]
 
+    def _outputs(self, key, make) -> tuple:
+        """The output arrays of an advance: those of the last one where its ``key`` (path, steps, copies) was the
+        same, else ``make()``'s. Memory new to the process costs its first touch (page faults): a third of
+        the time of 1,024 rolling copies' compiled steps on 2 cores, against arrays used again (3.5 against
+        2.6 us a copy-step, timed in turns in one process). The caller reads them before its next advance."""
+        if self._kept is None or self._kept[0] != key:
+            self._kept = (key, make())
+        return self._kept[1]
+
     def runs_commands(self) -> bool:
         """Whether :meth:`advance` evaluates a command schedule inside its compiled loop (a ground)."""
         return self.compiled and self.ground is not None
@@ -167,8 +177,9 @@ class ElasticBatch:
         external forces (N, 3, B) held, or (:meth:`runs_commands`) with ``commands`` (a ``CommandSchedule``,
         or one per copy) evaluated at each step's start time ``(first_step + k) dt`` on top of them
         (``inputs_in_effect`` then has the inputs of the last step). Returns every step's positions and
-        velocities (steps, N, 3, B), impulses (steps, n_cables, B) N*s and slack cables (steps, n_cables, B).
-        Inputs are not modified."""
+        velocities (steps, N, 3, B), impulses (steps, n_cables, B) N*s and slack cables (steps, n_cables, B),
+        compiled in arrays the next advance of as many steps writes again (:meth:`_outputs`). Inputs are not
+        modified."""
         n, nc, b = x.shape[0], rest_lengths.shape[0], x.shape[2]
         if self.ground is not None:
             return self._advance_ground(x, v, rest_lengths, f_ext, steps, commands, first_step)
@@ -182,8 +193,9 @@ class ElasticBatch:
         # the kernel with the copies innermost: each loop walks contiguous numbers (stepping one copy at a
         # time walks numbers B apart: 5.6x slower at B = 1024, measured by bench/bench_batch.py's case)
         x, v, rest, ext = (np.array(a, dtype=float, order="C") for a in (x, v, rest_lengths, f_ext))
-        out_x, out_v = np.empty((steps, n, 3, b)), np.empty((steps, n, 3, b))
-        out_imp, out_slack = np.empty((steps, nc, b)), np.empty((steps, nc, b), dtype=bool)
+        out_x, out_v, out_imp, out_slack = self._outputs(
+            ("free", steps, b), lambda: (np.empty((steps, n, 3, b)), np.empty((steps, n, 3, b)), np.empty((steps, nc, b)),
+                                         np.empty((steps, nc, b), dtype=bool)))
         if self._cache is None:
             self._cache = (np.empty_like(x), np.empty((nc, b)), np.empty((self.rigid.count, 3, b)))
             kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._cache)
@@ -227,9 +239,9 @@ class ElasticBatch:
             # 3.9 us a copy-step against 5.5)
             return np.moveaxis(np.empty((b, steps) + shape, dtype=dtype), 0, -1)
 
-        out_x, out_v, out_imp, out_slack = copy_major(n, 3), copy_major(n, 3), copy_major(nc), copy_major(nc, dtype=bool)
-        self.contact = out_contact = copy_major(n, 3)
         if not self.compiled:
+            out_x, out_v, out_imp, out_slack = copy_major(n, 3), copy_major(n, 3), copy_major(nc), copy_major(nc, dtype=bool)
+            self.contact = out_contact = copy_major(n, 3)
             if self._copies is None:
                 self._copies = [ElasticMethod(self.system, self.dt, compiled=False) for _ in range(b)]
             for c, method in enumerate(self._copies):
@@ -241,6 +253,10 @@ class ElasticBatch:
                         out.contact_impulses
                     out_imp[k, :, c], out_slack[k, :, c] = out.impulses, out.slack
             return out_x, out_v, out_imp, out_slack
+        out_x, out_v, out_imp, out_slack, out_contact = self._outputs(
+            ("ground", steps, b), lambda: (copy_major(n, 3), copy_major(n, 3), copy_major(nc), copy_major(nc, dtype=bool),
+                                           copy_major(n, 3)))
+        self.contact = out_contact
         x, v, rest, ext = (np.array(a, dtype=float, order="C") for a in (x, v, rest_lengths, f_ext))
         if self._cache is None:
             self._cache = (np.empty_like(x), np.empty((nc, b)), np.empty((self.rigid.count, 3, b)))
