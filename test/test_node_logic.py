@@ -476,6 +476,32 @@ def test_tick_durations_and_catch_up_bursts_in_the_statistics():
     assert 0.499 <= stats["tick_p50_ms"] <= 0.499 * bin_ratio + 5e-4 and stats["tick_max_ms"] == 1.0
 
 
+def test_the_spinning_node_keeps_what_it_started_with_out_of_the_collector():
+    """live.spin freezes the objects that exist when its ticks start (gc.freeze: a full collection over them
+    was a tick of tens of ms) and unfreezes them however it ends, here at a SIGINT after three ticks."""
+    import gc
+    import logging
+    import signal
+
+    from tensegrity_sim.ros.live import spin
+    from tensegrity_sim.ros.log import SignalLatch
+
+    logic, _, _ = make_logic(prism())
+    latch, frozen = SignalLatch(), []
+
+    class Transport:
+        def poll(self, logic, log):
+            frozen.append(gc.get_freeze_count())
+            if len(frozen) == 3:
+                latch.signum = signal.SIGINT
+
+    assert gc.get_freeze_count() == 0
+    with pytest.raises(KeyboardInterrupt):
+        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"), sleep=lambda s: None)
+    assert len(frozen) == 3 and min(frozen) > 10_000   # the package, numpy, numba, pytest: all frozen
+    assert gc.get_freeze_count() == 0
+
+
 def test_real_time_factor_scales_the_schedule():
     clock = FakeClock(t=0.0)
     logic, _, _ = make_logic(prism(), clock=clock, real_time_factor=2.5)
