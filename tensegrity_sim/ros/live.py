@@ -43,8 +43,8 @@ def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Log
     warmed up first (:meth:`SimNodeLogic.warm_up`), so its schedule starts with nothing left to compile."""
     logic.warm_up()
     # what exists now (the package, numba's kernels, the transport: ~150,000 objects) is kept out of the
-    # collector's full passes, which took ~55 ms over them: the worst tick of a 60 s bench_node run was 11.6 ms
-    # with this, 77-90 ms in two runs without
+    # collector's full passes, which took ~55 ms over them (a tick). The node's worst ticks have another cause
+    # too: in 60 s bench_node runs 11.6 ms and 536 ms with this, 77 ms and 90 ms without
     gc.collect()
     gc.freeze()
     try:
