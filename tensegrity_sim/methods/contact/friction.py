@@ -781,7 +781,7 @@ class FrictionalSolver:
             start[n_qp:] = rng.normal(0.0, scale, 2 * k)
             r, its = descend(start)
             it += its
-        if not solved(r):
+        if not solved(r) and best[1] is not None:   # (None: every miss NaN; the check below names it)
             r = best[1]
         y = r[:n_qp].copy()
         y[n_eq:] = np.maximum(y[n_eq:], 0.0)                 # the clipped round-off of released rows
