@@ -205,8 +205,9 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
     nr = rigid_members.shape[0]
     for b in prange(n_copies):
         # the model's arrays copied for each copy: numba counts references to an array passed between its
-        # functions, atomically, and threads sharing one array's count take turns at it (bench_batch's rolling
-        # batch on 2 threads, best of 6: 178-204k scene-steps/s sharing them, 233-243k with copies)
+        # functions, atomically, and threads sharing one array's count take turns at it (1,024 rolling copies
+        # through BatchSimulator.run on 2 threads, best of 6: 178-204k scene-steps/s sharing them, 233-243k
+        # with copies)
         ends_b, stiffness_b, strut_rest_b, damping_b = ends.copy(), stiffness.copy(), strut_rest.copy(), damping.copy()
         inv_mass_b, gravity_b, rigid_members_b = inv_mass.copy(), gravity_force.copy(), rigid_members.copy()
         rigid_length_sq_b, rigid_w_b, radii_b, node_strut_b = (rigid_length_sq.copy(), rigid_w.copy(), radii.copy(),
