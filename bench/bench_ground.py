@@ -13,9 +13,10 @@ is *stable* when MuJoCo raised no bad-acceleration warning and the centre of mas
 its start in height, and a ratio is taken to the faster stable integrator (``mujoco_integrator``):
 
 * resting, 2 s: ours through ``Simulator.run`` (the compiled loop) and through ``Simulator.step`` one step
-  at a time (steps computed ahead); the inextensible method also with its friction modes solved by their
-  numpy reference instead of the compiled kernel (``numpy modes``: what compiling them gained); MuJoCo
-  ``mj_step(nstep)`` in C;
+  at a time (steps computed ahead); the inextensible method also with each step through its Python path
+  (``Python path``: ``one_kernel = False``, the friction modes still compiled: what the step kernel
+  gained) and with its friction modes solved by their numpy reference (``numpy modes``: what compiling
+  them gained); MuJoCo ``mj_step(nstep)`` in C;
 * rolling, 2 s under the roll's commands applied before each step where they change: ours through
   ``Simulator.run(commands=...)`` (the schedule evaluated inside the compiled ground loop), as
   ``tensegrity-sim run --commands`` (the same, in chunks of 1,000 steps, with its summary) and by
@@ -67,11 +68,14 @@ def _simulator(scene, method, contacts=(), compiled=True):
     return sim
 
 
-def _ours(scene, method, steps, schedule, how, contacts=(), reference_modes=False):
+def _ours(scene, method, steps, schedule, how, contacts=(), reference_modes=False, one_kernel=True):
     """Steps per second and the final positions: ``how`` "run" (one Simulator.run) or "step";
     ``reference_modes``: the inextensible method's friction modes by their numpy reference
-    (``FrictionalSolver._modes``) instead of the compiled kernel, everything else the same."""
+    (``FrictionalSolver._modes``) instead of the compiled kernel, everything else the same (each step through
+    the method's Python path); ``one_kernel = False``: each inextensible step through that Python path, its
+    friction modes compiled (what the step kernel gained)."""
     sim = _simulator(scene, method, contacts)
+    sim._method.one_kernel = one_kernel
     if reference_modes:
         sim._method.solver._modes_compiled = lambda v0, rows, warm: None
     sim.run(steps=2)   # the kernels loaded, the first contact solved
@@ -155,8 +159,10 @@ def speed(duration: float, repeats: int) -> list[dict]:
                     ("elastic step", "elastic", lambda: _ours(scene, "elastic", steps, None, "step")),
                     ("elastic run, detection on", "elastic",
                      lambda: _ours(scene, "elastic", steps, None, "run", None)),
-                    ("inextensible step", "inextensible",
-                     lambda: _ours(scene, "inextensible", min(steps, 500), None, "step")),
+                    ("inextensible run", "inextensible", lambda: _ours(scene, "inextensible", steps, None, "run")),
+                    ("inextensible step", "inextensible", lambda: _ours(scene, "inextensible", steps, None, "step")),
+                    ("inextensible step, Python path", "inextensible",
+                     lambda: _ours(scene, "inextensible", min(steps, 500), None, "step", one_kernel=False)),
                     ("inextensible step, numpy modes", "inextensible",
                      lambda: _ours(scene, "inextensible", min(steps, 500), None, "step", reference_modes=True))],
         "rolling": [("elastic run", "elastic", lambda: _ours(scene, "elastic", steps, schedule, "run")),

@@ -56,6 +56,7 @@ def table() -> str:
             ("rolling", "elastic step", "elastic, rolling, `step()`", ""),
             ("rolling", "elastic, as run --commands", "elastic, rolling, as `run --commands`",
              ", commands in stretches"),
+            ("resting", "inextensible run", "inextensible, resting on the ground, `run()`", ""),
             ("resting", "inextensible step", "inextensible, resting on the ground, `step()`", "")):
         row = _one(ground, case=case, contender=contender)
         peer = _one(ground, case=case, contender=f"mujoco {row['cables']} {row['mujoco_integrator']}{suffix}")

@@ -537,3 +537,63 @@ def test_member_kinematics_matches_reference(name):
         # a rate is a sum of terms of either sign: agreement relative to the speeds
         np.testing.assert_allclose(rate, ref_rate, rtol=0.0, atol=TOL * np.abs(v).max())
         assert np.all(length > 0) and np.abs(rate).max() > 0.1 * scale
+
+
+def _ground_case(name):
+    """(scene, steps, (command step, cables, factor) or None) of the inextensible method on a ground: the
+    icosahedron resting, dropped spinning onto a face, and three random throws (``throw_cases``: the
+    icosahedra with pay-out commands, one on a frictionless bouncing ground)."""
+    import throw_cases as T
+    from test_ground import dropped
+    if name == "resting":
+        return ts.load_scene("icosahedron_ground"), 300, None
+    if name == "dropped":
+        return dropped(lift=0.05, spin=2.0), 400, None
+    case = T.random_throw(np.random.default_rng([28, int(name.split()[1])]), steps=400)
+    assert case["method"] == "inextensible"
+    return T.throw_scene(case), case["steps"], (case["command_step"], case["command_cables"], case["command_factor"])
+
+
+@pytest.mark.parametrize("name", ["resting", "dropped", "throw 1", "throw 9", "throw 12", "throw 13"])
+def test_ground_step_kernel_and_loop_are_the_api_path_bitwise(name):
+    """The inextensible method on a ground: each step without an event in the step kernel (the ground's
+    contacts armed and solved by the compiled friction modes inside it), and steps computed ahead in the
+    compiled loop, against every step through the API (``one_kernel = False``: the friction solver's own
+    calls): the same positions, velocities, cable and contact impulses and slack flags to the last bit,
+    landings, snaps and a command mid-run included, and the kernel taking most steps."""
+    scene, steps, command = _ground_case(name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LengthOffsetWarning)
+        one, loop, api = (ts.Simulator(scene, method="inextensible", dt=1e-3) for _ in range(3))
+    api._method.one_kernel = False
+    assert loop._method.has_loop() and loop._method.has_ground_loop() and not api._method.has_loop()
+    one._method.has_loop = lambda: False   # each step through the method's step kernel
+    taken = [0]
+    kernel = one._method._step_kernel
+
+    def counted(state):
+        done = kernel(state)
+        taken[0] += done is not None
+        return done
+
+    one._method._step_kernel = counted
+    fields = ("positions", "velocities", "impulses", "slack", "contact_impulses")
+    for k in range(steps):
+        if command is not None and k == command[0]:
+            for sim in (one, loop, api):
+                rest = sim.rest_lengths.copy()
+                rest[command[1]] *= command[2]
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    sim.set_rest_lengths(rest)
+        a, b, c = one.step(), loop.step(), api.step()
+        for field in fields:
+            assert np.array_equal(getattr(a, field), getattr(c, field)), f"kernel: {field}, step {k}"
+            assert np.array_equal(getattr(b, field), getattr(c, field)), f"loop: {field}, step {k}"
+    assert taken[0] >= 0.5 * steps, taken
+    for sim in (loop, api):
+        sim.reset()
+    a, b = (sim.run(steps=steps // 2, every=7) for sim in (loop, api))
+    for field in ("positions", "velocities", "impulses", "slack", "contact_impulses"):
+        assert np.array_equal(getattr(a, field), getattr(b, field)), f"run: {field}"
+    assert [(e.time, e.members) for e in a.contacts] == [(e.time, e.members) for e in b.contacts]

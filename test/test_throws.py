@@ -127,6 +127,7 @@ def test_compiled_modes_match_the_reference(index, monkeypatch):
     assert case["method"] == "inextensible"
     def run():
         sim = _sim(case)
+        sim._method.one_kernel = False   # each solve through the friction solver (the step kernel: test_compiled.py)
         out = []
         for _ in range(case["steps"]):
             r = sim.step()
@@ -142,18 +143,45 @@ def test_compiled_modes_match_the_reference(index, monkeypatch):
         assert np.abs(a - b).max() <= 1e-12 * max(np.abs(b).max(), 1.0)
 
 
+def _python_steps(sim) -> list[int]:
+    """From now on, how many steps ``sim``'s inextensible method takes in Python (not its step kernel)."""
+    calls = [0]
+    impl = sim._method._step_impl
+
+    def counted(state):
+        calls[0] += 1
+        return impl(state)
+
+    sim._method._step_impl = counted
+    return calls
+
+
 def test_the_closed_forms_run_on_the_compiled_modes(monkeypatch):
-    """``test_ground.py``'s inextensible closed forms are answered by the compiled kernel, not its
-    reference: the sliding strut (mu = 0.5, 2 m/s) stops at ``v0 / (mu g)`` to 1 % with every friction
-    solve answered in the kernel, and the resting icosahedron's solves are too (all but its first)."""
+    """``test_ground.py``'s inextensible closed forms are answered by the compiled kernels, not their
+    reference: the sliding strut (mu = 0.5, 2 m/s) stops at ``v0 / (mu g)`` to 1 %, and the resting
+    icosahedron stays put, both with every friction solve answered by the compiled modes through the
+    friction solver and with every step (the icosahedron's: all but its first) taken in the step
+    kernel's loop, where the modes are solved inside the step."""
     from test_ground import G, MU, strut
+    icosahedron = {"robot": "icosahedron_ground", "method": "inextensible", "mu": 0.8, "e": 0.0, "height": 0.0,
+                   "velocity": [0.0] * 3, "spin": [0.0] * 3}
     answered = _kernel_answers(monkeypatch)
-    tr = ts.Simulator(strut(2.0), method="inextensible", dt=1e-3).run(duration=0.6)
-    stopped = np.flatnonzero(tr.velocities[:, 0, 0] == 0.0)
-    assert abs(tr.time[stopped[0]] - 2.0 / (MU * G)) <= 0.01 * 2.0 / (MU * G)
-    assert len(answered) == 600 and all(answered)
-    answered.clear()
-    tr = _sim({"robot": "icosahedron_ground", "method": "inextensible", "mu": 0.8, "e": 0.0, "height": 0.0,
-               "velocity": [0.0] * 3, "spin": [0.0] * 3}).run(duration=0.3)
-    assert np.abs(tr.positions - tr.positions[0]).max() < 1e-9
-    assert len(answered) == 300 and sum(answered) >= 299
+    for one_kernel in (False, True):
+        sim = ts.Simulator(strut(2.0), method="inextensible", dt=1e-3)
+        sim._method.one_kernel = one_kernel
+        python = _python_steps(sim)
+        tr = sim.run(duration=0.6)
+        stopped = np.flatnonzero(tr.velocities[:, 0, 0] == 0.0)
+        assert abs(tr.time[stopped[0]] - 2.0 / (MU * G)) <= 0.01 * 2.0 / (MU * G)
+        assert (len(answered), all(answered), python[0]) == ((600, True, 600) if not one_kernel else (0, True, 0))
+        answered.clear()
+        sim = _sim(icosahedron)
+        sim._method.one_kernel = one_kernel
+        python = _python_steps(sim)
+        tr = sim.run(duration=0.3)
+        assert np.abs(tr.positions - tr.positions[0]).max() < 1e-9
+        if one_kernel:
+            assert python[0] == 1 and len(answered) <= 1
+        else:
+            assert len(answered) == 300 and sum(answered) >= 299
+        answered.clear()

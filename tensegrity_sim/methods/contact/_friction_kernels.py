@@ -9,6 +9,12 @@ The kernel answers only what it can answer exactly as the reference does: a QP t
 (infeasible, an inaccurate answer that the backend would solve again at unit scale), modes that do not
 settle in ``MAX_MODE_ITER`` QPs, or an answer that misses the Coulomb check return ``ok = False``, and
 the reference then takes the whole solve from its start (its own QPs, its fallbacks, its errors).
+
+The ground's geometry of ``friction.ContactSet`` (:func:`first_impact`, :func:`landing`, :func:`arm_step`,
+:func:`missed`) and the solve of a sub-step with its armed contacts (:func:`contact_solve`) are here too, for
+the inextensible method's step kernel on a ground (``_inextensible_kernels.step``), in the same arithmetic.
+The ground's nodes are ``nodes`` (system indices of the free nodes), each with its radius in ``radii`` (N,)
+m, the plane at ``height`` m.
 """
 from __future__ import annotations
 
@@ -18,7 +24,7 @@ from numba import njit
 from ..qp._daqp_kernels import solve_rows
 from ..qp._qp_kernels import answer_residuals
 
-__all__ = ["ground_modes"]
+__all__ = ["ground_modes", "first_impact", "landing", "arm_step", "missed", "contact_solve"]
 
 
 @njit(cache=True)
@@ -255,3 +261,96 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
                 phi[moving[j], 1] = accelerated[2 * j + 1]
     return False, v, y, impulses, remember, slip, max_iter
 
+
+
+@njit(cache=True)
+def first_impact(x, v, v0, tau, nodes, radii, height, touch_tol):
+    """``ContactSet.first_impact`` for the ground alone: the fraction of the sub-step (0, 1] at which the first
+    node above the ground reaches it on its free path (1.0 if none does)."""
+    first = np.inf
+    for p in nodes:
+        g = x[p, 2] - radii[p] - height
+        vz = v[p, 2]
+        az = (v0[p, 2] - v[p, 2]) / tau
+        end = g + tau * vz + 0.5 * tau * tau * az
+        if g > touch_tol and end < 0.0:
+            disc = np.sqrt(max(vz * vz - 2.0 * az * g, 0.0))
+            first = min(first, 2.0 * g / (-vz + disc))
+    if first == np.inf:
+        return 1.0
+    return min(1.0, min(max(first / tau, 0.0), 1.0))
+
+
+@njit(cache=True)
+def landing(x, v, dt, nodes, radii, height, touch_tol):
+    """Whether ``ContactSet.arm_impact`` finds an impact at ``x``: a node touching the ground and moving into
+    it by more than ``touch_tol`` per step."""
+    for p in nodes:
+        if x[p, 2] - radii[p] - height <= touch_tol and v[p, 2] * dt < -touch_tol:
+            return True
+    return False
+
+
+@njit(cache=True)
+def arm_step(x_m, v, v0, half, nodes, radii, height, touch_tol):
+    """``ContactSet.arm_step`` without an answer (the ground alone): the armed nodes (k,) (system indices),
+    their normal targets (k,) m/s and whether each touches the ground (k,) bool."""
+    armed = np.zeros(nodes.shape[0], dtype=np.bool_)
+    for i in range(nodes.shape[0]):
+        p = nodes[i]
+        g = x_m[p, 2] - radii[p] - height
+        armed[i] = g - half * abs(v0[p, 2]) <= touch_tol
+    which = nodes[armed]
+    k = which.shape[0]
+    w = np.empty(k)
+    touching = np.empty(k, dtype=np.bool_)
+    for c in range(k):
+        p = which[c]
+        g = x_m[p, 2] - radii[p] - height
+        w[c] = min(-g / half, -v[p, 2])
+        touching[c] = g <= touch_tol
+    return which, w, touching
+
+
+@njit(cache=True)
+def missed(x_m, v_f, half, nodes, armed, radii, height, touch_tol):
+    """``ContactSet.missed``: whether the answer ``v_f`` (N, 3) carries a node that is not among the ``armed``
+    ones (system indices) below the ground by the sub-step's end."""
+    for p in nodes:
+        if x_m[p, 2] - radii[p] - height + half * v_f[p, 2] < -touch_tol and not (armed == p).any():
+            return True
+    return False
+
+
+@njit(cache=True)
+def contact_solve(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_dirs, row_targets, n_eq, warm,
+                  armed, free_index, w, touching, mu, stick, normal, slip, fixed_point_tol, slip_floor, max_iter,
+                  depth, feasibility_tol, velocity_floor):
+    """``FrictionalSolver.solve`` through its compiled modes (:func:`ground_modes`) for the ``armed`` ground
+    nodes (k >= 1, system indices; ``free_index`` (N,) their free-node index) with targets ``w`` and
+    ``touching`` (k,): recalls each node's mode, ``y_n`` and slip direction from ``stick``, ``normal``,
+    ``slip`` ((N,), (N,), (N, 2)) and, answered, remembers the new ones there (``FrictionalSolver._remember``).
+    Returns ``ok`` (False: the reference must take the solve; the memory is then unchanged), ``v``
+    (n_free, 3), the rows' multipliers and the contacts' impulses (k, 3) N*s."""
+    k = armed.shape[0]
+    fi = np.empty(k, dtype=np.int64)
+    old_stick = np.empty(k, dtype=np.bool_)
+    old_normal = np.empty(k)
+    old_slip = np.empty((k, 2))
+    for c in range(k):
+        p = armed[c]
+        fi[c] = free_index[p]
+        old_stick[c] = stick[p]
+        old_normal[c] = normal[p]
+        old_slip[c] = slip[p]
+    ok, v, y, impulses, remember, new_slip, _ = ground_modes(
+        entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_dirs, row_targets, n_eq, warm, True, fi, w,
+        touching, np.full(k, mu), old_stick, old_normal, old_slip, fixed_point_tol, slip_floor, max_iter, depth,
+        feasibility_tol, velocity_floor)
+    if ok:
+        for c in range(k):
+            p = armed[c]
+            stick[p] = remember[c]
+            normal[p] = impulses[c, 2]
+            slip[p] = new_slip[c]
+    return ok, v, y, impulses

@@ -15,6 +15,7 @@ from ..qp._daqp_kernels import solve_rows
 from ..elastic._kernels import keep
 from ..qp._qp_kernels import answer_residuals, dot3, row_rates
 from ._self_stress_kernels import locked_space
+from ..contact._friction_kernels import arm_step, contact_solve, first_impact, landing, missed
 
 __all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed", "midpoint", "cable_geometry",
            "fit_one", "step", "steps"]
@@ -210,15 +211,15 @@ def landed(v_f, v, v_free, y, ends, nodes, directions, length, limits, tau, floo
 
 @njit(cache=True)
 def _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, directions, v0_free, targets, n_eq, warm,
-                   feasibility_tol, velocity_floor):
+                   feasibility_tol, velocity_floor, guess):
     """``DaqpSolver.solve`` at unit scale with ``QPSolver._check``: ``v`` (n_free, 3) m/s, the multipliers
     (k,) N*s and whether the answer passed (DAQP succeeded, finite, the optimality conditions met to
     ``feasibility_tol`` relative plus ``velocity_floor`` m/s). A failed one goes back to the Python path,
     which raises its error or solves again at another scale. Also the working set's Cholesky factor and
-    rows (``solve_rows``)."""
+    rows (``solve_rows``, trying the working set ``warm`` first with ``guess``: ``DaqpSolver.working_set``)."""
     n_free = v0_free.shape[0]
     v_flat, y, flag, _, factor, rows = solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, directions,
-                                                  n_free, v0_free.reshape(-1), targets, n_eq, warm, 1.0, True)
+                                                  n_free, v0_free.reshape(-1), targets, n_eq, warm, 1.0, guess)
     v = v_flat.reshape((n_free, 3))
     if flag < 1 or not (np.isfinite(v_flat).all() and np.isfinite(y).all()):
         return v, y, False, factor, rows
@@ -234,20 +235,28 @@ def _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, directions,
 def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding, row_nodes, free_nodes,
              cable_ends, taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor,
              landing_tol, landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact,
-             weight, shared):
-    """``InextensibleMethod._midpoint`` without contact rows, its QP solved by DAQP (``_solve_checked``),
-    in one call: the rows (:func:`select_rows`, member table ``ends``, ``limits`` with the landing
+             weight, shared, ground, memory):
+    """``InextensibleMethod._midpoint`` with no contact rows or the ground's alone, its QP solved by DAQP
+    (``_solve_checked``, or with armed ground contacts the compiled friction modes,
+    ``_friction_kernels.contact_solve``), in one call: the rows (:func:`select_rows`, member table ``ends``, ``limits`` with the landing
     targets' reel already applied), the landing iterations (``_land``: up to ``landing_iter`` solves,
     :func:`landed` to ``landing_tol``), the end of the sub-step and, when the structure can lock
     (``locked``), the self-stress rule's binding rows and basis (``_self_stress_kernels.locked_space``,
     its fit stays numpy). ``row_nodes`` (n_eq + nc, 2): the free-node index of each member end;
     ``free_nodes`` (n_free,) int: the free nodes; ``taut`` (nc,) m: a cable's at-limit length.
 
+    ``ground``: ``(on, nodes, radii, height, mu, touch_tol, free_index, fixed_point_tol, slip_floor,
+    max_iter, depth)`` (``on`` False: no ground, the rest unused; see ``InextensibleMethod._ground_tables``)
+    and ``memory`` each node's friction mode, ``y_n`` and slip direction (``FrictionalSolver``'s), which
+    the contacts' solves read and update in place. The ground's contacts are armed as
+    ``ContactSet.arm_step`` arms them; a sub-step with no member row but armed contacts, or whose answer
+    carries an unarmed node into the ground (``ContactSet.missed``), is the Python path's.
+
     Returns ``ok`` (False: a QP answer the Python path must handle, nothing else is meaningful), ``x_f``,
     ``v_f`` (N, 3), the multipliers (k,) N*s, ``cables`` (nc,) bool (the cable rows), the rows' nodes
     (k, 2) and directions (k, 3), the cable vectors (nc, 3) and lengths (nc,) m at ``x_f`` (as
-    ``System.geometry``), and ``locked_space``'s binding rows, members, ``A_B^T`` and basis (or None:
-    the caller's SVD; empty when not ``locked``)."""
+    ``System.geometry``), ``locked_space``'s binding rows, members, ``A_B^T`` and basis (or None:
+    the caller's SVD; empty when not ``locked``) and the ground's impulses (N, 3) N*s."""
     cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = select_rows(
         x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding)
     k = sel.shape[0]
@@ -262,8 +271,19 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
     ok = True
     factor = np.zeros((0, 0))   # the last QP's working set and its factor, which the rule may refine with
     work = np.zeros(0, dtype=np.int64)
-    if k == 0:   # nothing can be taut: free motion, no QP
+    (on, g_nodes, radii, height, mu, touch_tol, free_index, fixed_point_tol, slip_floor, max_iter,
+     depth) = ground
+    stick, normal, slip = memory
+    contact = np.zeros((x_m.shape[0], 3))
+    armed = g_nodes[:0]
+    w = np.zeros(0)
+    touching = np.zeros(0, dtype=np.bool_)
+    impulses = np.zeros((0, 3))
+    if on:
+        armed, w, touching = arm_step(x_m, v, v0, 0.5 * tau, g_nodes, radii, height, touch_tol)
+    if k == 0:   # nothing can be taut: free motion, no QP (a contact's QP alone is the Python path's)
         v_f = v0.copy()
+        ok = armed.shape[0] == 0
     else:
         v0_free = np.empty((n_free, 3))
         for i in range(n_free):
@@ -273,9 +293,15 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
         shortest = m_limits.min()
         v_start = v
         for _ in range(landing_iter):
-            v_free, y, ok, factor, work = _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, m_n,
-                                                         v0_free, targets, n_eq, warm, feasibility_tol,
-                                                         velocity_floor)
+            if armed.shape[0]:
+                ok, v_free, y, impulses = contact_solve(
+                    entry, settings, hessian, sqrt_mass, mass, v0_free, nodes, m_n, targets, n_eq, warm, armed,
+                    free_index, w, touching, mu, stick, normal, slip, fixed_point_tol, slip_floor, max_iter, depth,
+                    feasibility_tol, velocity_floor)
+            else:   # a ground's backend answers by DAQP alone (DaqpSolver.working_set)
+                v_free, y, ok, factor, work = _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, m_n,
+                                                             v0_free, targets, n_eq, warm, feasibility_tol,
+                                                             velocity_floor, not on)
             if not ok:
                 break
             for i in range(n_free):
@@ -288,6 +314,11 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
             targets = new_targets
             warm = new_warm
             v_start = v_f.copy()
+        if ok and on and missed(x_m, v_f, 0.5 * tau, g_nodes, armed, radii, height, touch_tol):
+            ok = False
+        for c in range(impulses.shape[0]):   # the last solve's, committed (FrictionalSolver.commit)
+            for j in range(3):
+                contact[armed[c], j] += impulses[c, j]
     x_f = x_m + (0.5 * tau) * v_f
     d, length = cable_geometry(x_f, cable_ends)
     binding = np.zeros(0, dtype=np.bool_)
@@ -302,7 +333,7 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
         binding, members, a_t, basis = locked_space(nodes, m_n, n_free, n_eq, rows_cables, at_limit, y, load_basis,
                                                     load_cables, load_largest, refine, rank_tol, exact, weight, shared,
                                                     work, factor)
-    return ok, x_f, v_f, y, cables, nodes, m_n, d, length, binding, members, a_t, basis
+    return ok, x_f, v_f, y, cables, nodes, m_n, d, length, binding, members, a_t, basis, contact
 
 
 @njit(cache=True)
@@ -372,12 +403,14 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
          n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
          settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked,
          load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide,
-         reference):
-    """``InextensibleMethod._step_impl`` of a step that is one sub-step (no snap located inside it, no
-    impact at its start), without elastic struts or contact rows, in one call: the motors' limits
+         reference, ground, memory):
+    """``InextensibleMethod._step_impl`` of a step that is one sub-step (no snap or landing located inside
+    it, no impact at its start), without elastic struts or member contact rows, in one call: the motors' limits
     (:func:`motor_limits`), the impact test, the free motion from ``x``, ``v`` (N, 3) under ``f_ext``
     (N, 3) N (``inv_mass`` (N, 1) 1/kg), the snap search (:func:`first_snap`) and :func:`midpoint`.
-    ``holding``, ``hint`` (nc,) bool: the cables known to hold and the QP's warm start.
+    ``holding``, ``hint`` (nc,) bool: the cables known to hold and the QP's warm start; ``ground`` and
+    ``memory`` as :func:`midpoint` takes them (``memory`` itself is not changed: the friction modes after
+    the step are returned, for the caller to keep when it takes the step).
 
     When the structure can lock (``locked``), the self-stress rule's fit runs here too (:func:`fit_one`
     with numpy's ``ddot``/``dgemv``, ``wide`` as there, the cables' ``reference`` tensions) if its self-stress is one
@@ -387,8 +420,8 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     is meaningful), ``x``, ``v`` (N, 3) at the end, the cables that hold (nc,) bool, the rest lengths in
     effect (nc,) m, the taut thresholds (nc,) m, ``fitted`` (the step's impulses (nc,) N*s and slack
     flags (nc,) bool that follow are final, and the fit's dropped node impulse, N*s; else the caller
-    fits), then :func:`midpoint`'s cable rows (nc,) bool, multipliers (k,) N*s, end geometry and
-    self-stress space."""
+    fits), then :func:`midpoint`'s cable rows (nc,) bool, multipliers (k,) N*s, end geometry,
+    self-stress space, ground impulses (N, 3) N*s and friction modes (as ``memory``)."""
     new_applied, reel, limits, floor, taut, reeling = motor_limits(commanded, applied, most, dt, offsets,
                                                                     limit_tol, taut_tol)
     nc = cable_ends.shape[0]
@@ -410,18 +443,24 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
                             d[c, 1] / length[c], d[c, 2] / length[c])
                 if rate * dt > limit_tol * limits[c]:
                     ok = False
+    on, g_nodes, radii, height, _, touch_tol = ground[:6]
+    if on and landing(x, v, dt, g_nodes, radii, height, touch_tol) and (v != 0.0).any():
+        ok = False   # a node landing at the step's start: an impact
     x_m = x + (0.5 * dt) * v
     v0 = np.empty_like(v)
     for i in range(v.shape[0]):
         scale = dt * inv_mass[i, 0]
         for j in range(3):
             v0[i, j] = v[i, j] + scale * f_ext[i, j]
+    theta = 1.0
     if ok and not all_at:
         slack = np.empty(nc, dtype=np.bool_)
         for c in range(nc):
             slack[c] = not at_limit[c] and cables_move[c]
         theta = first_snap(d, limits, v, v0, dt, cable_ends, slack, newton_iter)
-        ok = not (min_event * dt < theta * dt < dt - min_event * dt)
+    if ok and on:
+        theta = min(theta, first_impact(x, v, v0, dt, g_nodes, radii, height, touch_tol))
+    ok = ok and not (min_event * dt < theta * dt < dt - min_event * dt)
     all_limits = np.empty(n_eq + nc)
     all_limits[:n_eq] = rigid_lengths
     for c in range(nc):
@@ -430,11 +469,12 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     if not ok:   # the caller's Python path
         return (False, x, v, holding, new_applied, taut, False, impulses, holding, 0.0, holding,
                 np.zeros(0), d, length, np.zeros(0, dtype=np.bool_), load_cables[:0],
-                np.zeros((3 * free_nodes.shape[0], 0)), None)
-    done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis = midpoint(
+                np.zeros((3 * free_nodes.shape[0], 0)), None, np.zeros_like(x), memory)
+    modes = (memory[0].copy(), memory[1].copy(), memory[2].copy())   # the step's own until it is taken
+    done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis, contact = midpoint(
         x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
         taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter,
-        locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared)
+        locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ground, modes)
     new_holding = np.zeros(nc, dtype=np.bool_)
     r = n_eq
     for c in range(nc):
@@ -469,7 +509,7 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
         summed[c] += published[c]
         slack[c] = length_f[c] < taut[c] and not summed[c] > 0
     return (ok and done, x_f, v_f, new_holding, new_applied, taut, fitted, summed, slack, node, cables, y, d_f,
-            length_f, binding, members, a_t, basis)
+            length_f, binding, members, a_t, basis, contact, modes)
 
 
 @njit(cache=True)
@@ -477,30 +517,46 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
           f_ext, commanded, most, dt, offsets, limit_tol, taut_tol, inv_mass, ends, n_eq, rigid_lengths,
           cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian,
           sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
-          load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference):
+          load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference, ground,
+          memory, contact_total, out_contact):
     """Steps ``first``, ``first + 1``, ... of ``n_steps`` from ``x``, ``v`` (N, 3), the inputs held, each
     :func:`step` from the cables known to hold ``holding`` and the warm start ``hint`` (nc,) bool (after a
-    step both are the cables that held, as in ``InextensibleMethod._step_impl``), until one needs the Python path (an event, a QP answer it must
-    handle, the rule's numpy fit). Sums the impulses into ``total`` (nc,) and keeps steps ``every``,
-    ``2 every``, ... and the last in the outputs (``_elastic_kernels.keep``: (K, N, 3, 1), (K, nc, 1)).
+    step both are the cables that held, as in ``InextensibleMethod._step_impl``), until one needs the
+    Python path (an event, a QP answer it must handle, the rule's numpy fit). Sums the impulses into
+    ``total`` (nc,) and keeps steps ``every``, ``2 every``, ... and the last in the outputs
+    (``_elastic_kernels.keep``: (K, N, 3, 1), (K, nc, 1)); on a ground (``ground[0]``) its impulses are
+    summed into ``contact_total`` (N, 3) and kept likewise in ``out_contact`` (K, N, 3), and the friction
+    ``memory`` moves on in place with the steps taken.
     Returns the first step not taken (``n_steps``: all), the positions and velocities before it, the
     rest lengths in effect, ``holding`` and ``hint`` then and the rule's largest dropped node impulse, N*s."""
     n = x.shape[0]
     nc = cable_ends.shape[0]
     for i in range(first, n_steps):
         (ok, x_f, v_f, new_holding, new_applied, _, fitted, impulses, slack, node, _, _, _, _, _, _, _,
-         _) = step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint,
-                   inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends,
-                   min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass, feasibility_tol,
-                   velocity_floor, landing_tol, landing_iter, locked, load_basis, load_cables, load_largest,
-                   refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference)
+         _, contact, modes) = step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding,
+                                   hint, inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes,
+                                   cable_ends, min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass,
+                                   feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
+                                   load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv,
+                                   wide, reference, ground, memory)
         if not (ok and fitted):
             return i, x, v, applied, holding, hint, residual
         x, v, applied, holding, hint = x_f, v_f, new_applied, new_holding, new_holding
         residual = max(residual, node)
         for c in range(nc):
             total[c] += impulses[c]
-        if (i + 1) % every == 0 or i + 1 == n_steps:
+        kept = (i + 1) % every == 0 or i + 1 == n_steps
+        if ground[0]:
+            memory[0][:] = modes[0]
+            memory[1][:] = modes[1]
+            memory[2][:] = modes[2]
+            for p in range(n):
+                for j in range(3):
+                    contact_total[p, j] += contact[p, j]
+                    if kept:
+                        out_contact[i // every, p, j] = contact_total[p, j]
+                        contact_total[p, j] = 0.0
+        if kept:
             keep(x.reshape((n, 3, 1)), v.reshape((n, 3, 1)), 0, total, slack, i // every, 0, out_x, out_v,
                  out_impulses, out_slack)
     return n_steps, x, v, applied, holding, hint, residual

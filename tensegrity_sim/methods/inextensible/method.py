@@ -97,6 +97,7 @@ from . import _kernels as kernels
 from ..elastic._kernels import keep
 from .._numpy_blas import numpy_blas
 from ..base import MethodStep, State, StepMethod
+from ..contact import friction
 from ..contact.friction import ContactSet
 from ..qp.solvers import _FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, QPError, Rows, choose_solver, make_solver
 from ..rigid import RigidStruts
@@ -118,6 +119,11 @@ _LANDING_TOL = 1e-11  # relative: a binding row must end within this of its memb
 _LANDING_ITER = 4     # ... after at most this many solves per sub-step
 
 
+# the step kernels' ground and friction memory where the scene has no ground (``InextensibleMethod._ground_table``)
+_NO_GROUND = (False, np.zeros(0, dtype=np.int64), np.zeros(0), 0.0, 0.0, 0.0, np.zeros(0, dtype=np.int64), 0.0, 0.0, 0, 0)
+_NO_MEMORY = (np.zeros(0, dtype=bool), np.zeros(0), np.zeros((0, 2)))
+
+
 class LengthOffsetWarning(UserWarning):
     """The inextensible method lengthened cable limits by their prestress stretch at load time."""
 
@@ -134,7 +140,10 @@ class InextensibleMethod(StepMethod):
     of any other step in one call too (``midpoint``), but for the rule's fit. Anything those kernels do
     not cover (an event, a refused QP answer, an SVD of the rule, a pulling cable in its fit) takes the
     Python path with the same kernels, to the same bits (``test_compiled.py``); ``one_kernel = False``
-    takes it always."""
+    takes it always. On a ground (no member contact response) the step kernel also arms the ground's
+    contacts and solves them by the compiled friction modes (``_friction_kernels.contact_solve``); a step
+    with a landing inside it or at its start, or whose modes the kernel leaves to the reference, is
+    Python's."""
 
     name = "inextensible"
     options = ("solver", "reel_speed")
@@ -290,7 +299,7 @@ class InextensibleMethod(StepMethod):
 
     def _step_impl(self, state: State) -> MethodStep:
         self.self_stress.begin_step()
-        if self._one_kernel() and not len(self._elastic_ends) and self._blas is not None:
+        if self._kernel_steps():
             done = self._step_kernel(state)
             if done is not None:
                 return done
@@ -356,10 +365,13 @@ class InextensibleMethod(StepMethod):
         handle)."""
         rule = self.self_stress
         (ok, x, v, holding, applied, taut, fitted, impulses, slack, node, cables, y, d, length, binding, members,
-         a_t, basis) = kernels.step(state.positions, state.velocities, *self._step_inputs(state), self._applied,
-                                    *self._motors(), self._holding, self._hint, *self._step_constants())
+         a_t, basis, contact, modes) = kernels.step(state.positions, state.velocities, *self._step_inputs(state),
+                                                    self._applied, *self._motors(), self._holding, self._hint,
+                                                    *self._step_constants(), self._memory())
         if not ok:
             return None
+        for kept, new in zip(self._memory(), modes):
+            kept[:] = new
         self._end_geometry = (x, d, length)
         if fitted:
             rule.residual = max(rule.residual, node)
@@ -372,7 +384,9 @@ class InextensibleMethod(StepMethod):
             slack = (length < taut) & ~(impulses > 0)
         self._holding = self._hint = holding
         self._applied = applied
-        return MethodStep(x, v, impulses, slack, None, None)
+        if self.ground is None:
+            return MethodStep(x, v, impulses, slack, None, None)
+        return MethodStep(x, v, impulses, slack, contact, {})
 
     def _step_inputs(self, state: State) -> tuple:
         """The step kernels' arguments that the inputs set: the force (N, 3) N and the commanded rest
@@ -388,45 +402,88 @@ class InextensibleMethod(StepMethod):
         """The step kernel's arguments after the cables that hold: the system's tables, DAQP's C call,
         the tolerances, the self-stress rule's load-time space and numpy's BLAS."""
         rule = self.self_stress
+        backend = self.solver if self.ground is None else self.solver.inner   # DAQP (a ground's: under its friction)
         return (self._inv_mass, self._ends, self._n_eq, self._rigid_lengths, self._cables_move, self._row_nodes,
-                self._free_nodes, self.system.cable_ends, _MIN_EVENT, _NEWTON_ITER, *self.solver.c_call,
+                self._free_nodes, self.system.cable_ends, _MIN_EVENT, _NEWTON_ITER, *backend.c_call,
                 _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, rule.possible, *rule.load_space,
-                *self._blas, rule.reference)
+                *self._blas, rule.reference, self._ground_table())
+
+    def _ground_table(self) -> tuple:
+        """What the step kernels take of the ground (``_inextensible_kernels.midpoint``'s ``ground``): its
+        nodes, radii, height and friction, ``ContactSet``'s tolerance and free-node index and the friction
+        modes' settings as ``friction.py`` has them now; ``_NO_GROUND`` without one (or with a member contact
+        response, which is Python's)."""
+        ground = self.ground
+        if ground is None or ground.members is not None:
+            return _NO_GROUND
+        return (True, ground._grounded, np.asarray(ground.radii, dtype=float), float(ground.height), float(ground.mu),
+                friction.TOUCH_TOL, ground._free_index, friction.FIXED_POINT_TOL, friction._SLIP_FLOOR,
+                friction.MAX_MODE_ITER, friction._ANDERSON_DEPTH)
+
+    def _memory(self) -> tuple:
+        """Each node's friction mode, ``y_n`` and slip direction as the friction solver keeps them (the step
+        kernels read and update them), or empty arrays without a ground."""
+        if self.ground is None:
+            return _NO_MEMORY
+        solver = self.solver
+        return solver._stick, solver._normal, solver._slip
 
     # ------------------------------------------------------------------ the compiled loop
     def has_loop(self) -> bool:
-        """A compiled loop where every step can run in the step kernel: dense DAQP, no contact rows, no
-        elastic struts (``_one_kernel``); a step the kernel leaves to Python is taken there, in the loop."""
-        return self._one_kernel() and not len(self._elastic_ends) and self._blas is not None
+        """A compiled loop where every step can run in the step kernel (:meth:`_kernel_steps`); a step the
+        kernel leaves to Python is taken there, in the loop."""
+        return self._kernel_steps()
+
+    def _kernel_steps(self) -> bool:
+        """Whether a step without events runs in the step kernel: dense DAQP, no member contact rows (a
+        ground's are the kernel's, with the friction solver's compiled modes not replaced on the instance),
+        no elastic struts (:meth:`_compiled_dense`)."""
+        if len(self._elastic_ends) or self._blas is None:
+            return False
+        if self.ground is None:
+            return self._one_kernel()
+        solver = self.solver
+        return (self.ground.members is None and self._compiled_dense(solver.inner)
+                and not {"solve", "_modes_compiled", "_modes"} & vars(solver).keys())
+
+    def has_ground_loop(self) -> bool:
+        return self.ground is not None and self.has_loop()
 
     def carry(self):
         """What a step leaves to the next (a motor's position, the cables that hold, the warm start, the
         rule's largest dropped impulse): a command or a reset does not recompute it from the state, so the
         simulator rewinds the steps computed ahead before either (``carry_outlives_inputs``)."""
         return (self._applied.copy(), self._holding.copy(), self._hint.copy(), self._last_hint.copy(),
-                self.self_stress.residual)
+                self.self_stress.residual, tuple(a.copy() for a in self._memory()))
 
     def restore(self, carry) -> None:
-        applied, holding, hint, last, self.self_stress.residual = carry
+        applied, holding, hint, last, self.self_stress.residual, memory = carry
         self._applied, self._holding, self._hint = applied.copy(), holding.copy(), hint.copy()
         self._last_hint = last.copy()
+        for kept, saved in zip(self._memory(), memory):
+            kept[:] = saved
         self._end_geometry = None
 
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
-                impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                impulses: np.ndarray, slack: np.ndarray, contact: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`StepMethod.advance` in ``_inextensible_kernels.steps``, with each step the kernel leaves
         to Python taken by :meth:`step`'s own path (the same bits as stepping one at a time). A step that
         fails (:class:`QPError`, an answer that is not finite) ends the loop: it and what would follow are
-        NaN, which the simulator takes for a step it must retake alone (and raise at)."""
+        NaN, which the simulator takes for a step it must retake alone (and raise at). On a ground,
+        ``contact`` (K, N, 3) N*s gets its impulses, summed like the cables' (None: not kept)."""
         x, v = state.positions, state.velocities
         inputs, motors, constants = self._step_inputs(state), self._motors(), self._step_constants()
         out = positions[..., None], velocities[..., None], impulses[..., None], slack[..., None]
         total = np.zeros(self.system.n_cables)
+        n = x.shape[0]
+        if contact is None:
+            contact = np.empty((0 if self.ground is None else len(positions), n, 3))
+        on_ground = np.zeros((n, 3))   # the ground's impulses since the last kept step
         rule, i = self.self_stress, 0
         while True:
             i, x, v, self._applied, self._holding, self._hint, rule.residual = kernels.steps(
                 i, steps, every, x, v, self._applied, self._holding, self._hint, rule.residual, total, *out,
-                *inputs, *motors, *constants)
+                *inputs, *motors, *constants, self._memory(), on_ground, contact)
             if i == steps:
                 break
             try:
@@ -438,8 +495,13 @@ class InextensibleMethod(StepMethod):
                 break
             x, v = r.positions, r.velocities
             total += r.impulses
+            if r.contact_impulses is not None:
+                on_ground += r.contact_impulses
             i += 1
             if i % every == 0 or i == steps:
+                if len(contact):
+                    contact[(i - 1) // every] = on_ground
+                    on_ground[:] = 0.0
                 keep(x.reshape(-1, 3, 1), v.reshape(-1, 3, 1), 0, total, r.slack, (i - 1) // every, 0, *out)
             if i == steps:
                 break
@@ -547,8 +609,13 @@ class InextensibleMethod(StepMethod):
         sparse path, for large structures, is Python's), and neither the solver's ``solve`` nor the rule's
         ``impulses`` replaced on the instance (a benchmark's clock, a test's recorder: they see every
         call, through the API)."""
-        solver, rule = self.solver, self.self_stress
-        return (self.one_kernel and self.ground is None and self.compiled and rule.compiled and not rule.sparse
+        return self.ground is None and self._compiled_dense(self.solver)
+
+    def _compiled_dense(self, solver) -> bool:
+        """Whether the kernels can stand for the QP backend ``solver`` and the self-stress rule: the method
+        and the rule compiled, the rule dense, ``solver`` dense DAQP, and neither replaced on the instance."""
+        rule = self.self_stress
+        return (self.one_kernel and self.compiled and rule.compiled and not rule.sparse
                 and type(solver) is DaqpSolver and not {"solve", "_solve", "_check"} & vars(solver).keys()
                 and "impulses" not in vars(rule))
 
@@ -556,10 +623,10 @@ class InextensibleMethod(StepMethod):
         """:meth:`_midpoint` in one kernel call (plus the self-stress rule's numpy fit); None when a QP
         answer needs the Python path (a failed or refused solve: it raises or solves again)."""
         locked = self.self_stress.possible
-        ok, x_f, v_f, y, cables, nodes, directions, d, length, binding, members, a_t, basis = kernels.midpoint(
+        ok, x_f, v_f, y, cables, nodes, directions, d, length, binding, members, a_t, basis, _ = kernels.midpoint(
             x_m, v, v0, tau, self._ends, self._n_eq, all_limits, floor, self._cables_move, reel, holding,
             self._row_nodes, self._free_nodes, self.system.cable_ends, taut, *self.solver.c_call, _FEASIBILITY_TOL,
-            _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, locked, *self.self_stress.load_space)
+            _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, locked, *self.self_stress.load_space, _NO_GROUND, _NO_MEMORY)
         if not ok:
             return None
         self._end_geometry = (x_f, d, length)
