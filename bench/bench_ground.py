@@ -3,8 +3,8 @@
 struts, elliptic cones, impratio 100, no strut-strut contacts), in one process taking turns (the machine
 is shared: read the ratios, not the rates); the real-time factor of ``tensegrity-sim run
 icosahedron_ground --commands examples/roll.yaml --duration 10 --method elastic``; and the closed forms of
-``test/test_ground.py`` measured on the elastic method's compiled path and on its reference (friction.py's
-QP fixed point), exactness beside speed. Never asserts a time.
+``test/test_ground.py`` measured on each method's compiled path and on its reference, exactness beside speed.
+Never asserts a time.
 
 Contenders, like for like (our strut-strut detection off: the peer has none; on, for information), each
 of our methods beside MuJoCo with the same cable model (the elastic method beside its spring tendons, the
@@ -222,8 +222,9 @@ def realtime() -> dict:
 
 
 def exactness() -> list[dict]:
-    """test_ground.py's closed forms, elastic method, compiled path and reference: the measured error
-    beside the tolerance the test holds it to."""
+    """test_ground.py's closed forms, each method on its compiled path (the elastic blocks; the inextensible
+    step kernel and its compiled loop) and its reference: the measured error beside the tolerance the test
+    holds it to."""
     def strut(v0=0.0, theta=0.0):
         return ts.Scene.from_dict({
             "gravity": [G * np.sin(theta), 0.0, -G * np.cos(theta)], "ground": {"friction": MU},
@@ -232,30 +233,31 @@ def exactness() -> list[dict]:
             "struts": [{"name": "s", "nodes": ["a", "b"], "stiffness": "rigid", "radius": 0.01}]})
 
     rows = []
-    for path, compiled in (("compiled", True), ("reference", False)):
-        tr = _simulator(strut(2.0), "elastic", compiled=compiled).run(duration=0.6)
+    for method, path, compiled in [(m, p, c) for m in ("elastic", "inextensible")
+                                   for p, c in (("compiled", True), ("reference", False))]:
+        tr = _simulator(strut(2.0), method, compiled=compiled).run(duration=0.6)
         d_stop = 2.0 ** 2 / (2 * MU * G)
-        rows.append({"closed form": "sliding strut stops at v0^2/(2 mu g)", "path": path,
+        rows.append({"closed form": "sliding strut stops at v0^2/(2 mu g)", "method": method, "path": path,
                      "relative error": abs(tr.positions[-1, 0, 0] - d_stop) / d_stop, "tolerance": 0.01})
-        tr = _simulator(strut(theta=np.arctan(0.9 * MU)), "elastic", compiled=compiled).run(duration=1.0)
-        rows.append({"closed form": "no creep below the friction angle (m in 1 s)", "path": path,
+        tr = _simulator(strut(theta=np.arctan(0.9 * MU)), method, compiled=compiled).run(duration=1.0)
+        rows.append({"closed form": "no creep below the friction angle (m in 1 s)", "method": method, "path": path,
                      "relative error": float(np.abs(tr.positions - tr.positions[0]).max()), "tolerance": 1e-6})
         theta = np.arctan(1.2 * MU)
-        tr = _simulator(strut(theta=theta), "elastic", compiled=compiled).run(duration=0.5)
+        tr = _simulator(strut(theta=theta), method, compiled=compiled).run(duration=0.5)
         accel = (tr.velocities[-1, 0, 0] - tr.velocities[99, 0, 0]) / (tr.time[-1] - tr.time[99])
         expected = G * (np.sin(theta) - MU * np.cos(theta))
-        rows.append({"closed form": "sliding down a slope at g (sin - mu cos)", "path": path,
+        rows.append({"closed form": "sliding down a slope at g (sin - mu cos)", "method": method, "path": path,
                      "relative error": abs(accel - expected) / expected, "tolerance": 0.01})
         ball = ts.Scene.from_dict({"gravity": [0, 0, -G], "ground": {"friction": 0.5, "restitution": 0.5},
                                    "nodes": [{"name": "p", "position": [0, 0, 1.0], "mass": 1.0}]})
-        tr = _simulator(ball, "elastic", compiled=compiled).run(duration=1.0)
+        tr = _simulator(ball, method, compiled=compiled).run(duration=1.0)
         after = tr.time > np.sqrt(2.0 / G) + 2e-3
-        rows.append({"closed form": "bounce to e^2 h (m, e = 0.5, h = 1 m)", "path": path,
+        rows.append({"closed form": "bounce to e^2 h (m, e = 0.5, h = 1 m)", "method": method, "path": path,
                      "relative error": abs(tr.positions[after, 0, 2].max() - 0.25), "tolerance": 1e-3})
-        sim = _simulator(ts.load_scene("icosahedron_ground"), "elastic", compiled=compiled)
+        sim = _simulator(ts.load_scene("icosahedron_ground"), method, compiled=compiled)
         x0 = sim.positions
         tr = sim.run(duration=0.3)
-        rows.append({"closed form": "icosahedron at rest: drift (m in 0.3 s)", "path": path,
+        rows.append({"closed form": "icosahedron at rest: drift (m in 0.3 s)", "method": method, "path": path,
                      "relative error": float(np.abs(tr.positions - x0).max()), "tolerance": 1e-12})
     return rows
 
@@ -276,7 +278,7 @@ def main(argv=None) -> int:
     exact = exactness()
     write_csv(RESULTS / "ground_exactness.csv", exact)
     for r in exact:
-        print(f"{r['closed form']:48s} {r['path']:9s} error {r['relative error']:.3g} (tolerance {r['tolerance']:g})")
+        print(f"{r['closed form']:48s} {r['method']:12s} {r['path']:9s} error {r['relative error']:.3g} (tolerance {r['tolerance']:g})")
     return 0
 
 
