@@ -16,6 +16,7 @@ __all__ = ["GroundDetector", "GROUND", "walk_copies"]
 
 GROUND = "ground"
 _DOWN = np.array([0.0, 0.0, -1.0])
+_PLANE = np.array([1.0, 1.0, 0.0])   # an impulse's friction part: its x and y
 
 
 class GroundDetector:
@@ -41,13 +42,15 @@ class GroundDetector:
         self._since = np.full(len(self.names), np.nan)
         self.impulses = np.zeros((len(self.names), 3))
 
-    def _event(self, kind: str, p: int, x: np.ndarray, time: float, gap: float) -> ContactEvent:
-        point = x[p].copy()
+    def _event(self, kind: str, p: int, position: np.ndarray, time: float, gap: float,
+               impulse: np.ndarray) -> ContactEvent:
+        """Node ``p``'s event at its ``position`` (3,) m, with the ground's ``impulse`` (3,) N*s on it."""
+        point = position.copy()
         ground = point.copy()
         ground[2] = self.height
         point[2] -= self.radii[p]
         return ContactEvent(kind, (self.names[p], GROUND), time, point, ground, _DOWN.copy(), gap,
-                            float(self.impulses[p, 2]), self.impulses[p].copy() * [1.0, 1.0, 0.0])
+                            float(impulse[2]), impulse * _PLANE)
 
     def step(self, x0: np.ndarray, x1: np.ndarray, v0: np.ndarray, t0: float, dt: float,
              impulses: np.ndarray | None) -> tuple[ContactEvent, ...]:
@@ -59,25 +62,22 @@ class GroundDetector:
         changed = np.flatnonzero(now != self._inside)
         if not changed.size:
             return ()
-        # the crossing of TOUCH_TOL on the straight path between the step's ends (0 if already there)
-        frac = np.clip(np.divide(g0[changed] - TOUCH_TOL, g0[changed] - g1[changed],
-                                 out=np.zeros(changed.size), where=g0[changed] != g1[changed]), 0.0, 1.0)
-        # a landing: the small root of g0 + vz t + a t^2 / 2 = TOUCH_TOL on the free path
-        g, vz, a = g0[changed] - TOUCH_TOL, v0[changed, 2], self.gravity
-        disc = np.sqrt(np.maximum(vz * vz - 2.0 * a * g, 0.0))
-        path = np.divide(2.0 * g, (-vz + disc) * dt, out=np.full(changed.size, np.nan), where=(-vz + disc) > 0)
-        landing = now[changed] & (g > 0) & np.isfinite(path)
-        frac[landing] = np.clip(path[landing], 0.0, 1.0)
+        frac = _fractions(g0[changed], g1[changed], v0[changed, 2], now[changed], self.gravity, dt)
         events = []
         for p, f in sorted(zip(changed, frac), key=lambda pf: (pf[1], pf[0])):
-            time = float(t0 + f * dt)
-            xp = (1.0 - f) * x0 + f * x1   # the points: on the straight path (the gap is ~0 at a landing)
-            kind = "begin" if now[p] else "end"
-            if now[p]:
-                self._since[p] = time
-            events.append(self._event(kind, int(p), xp, time, float((1.0 - f) * g0[p] + f * g1[p])))
+            events.append(self._crossing(int(p), bool(now[p]), f, x0[p], x1[p], g0[p], g1[p], t0, dt))
         self._inside = now
         return tuple(events)
+
+    def _crossing(self, p: int, begins: bool, f, x0, x1, g0, g1, t0: float, dt: float) -> ContactEvent:
+        """Node ``p``'s event at fraction ``f`` of the step from ``t0`` (its positions ``x0``, ``x1`` (3,) and
+        gaps ``g0``, ``g1`` at the step's ends), with the step's impulses (``impulses``)."""
+        time = float(t0 + f * dt)
+        xp = (1.0 - f) * x0 + f * x1   # the point: on the straight path (the gap is ~0 at a landing)
+        if begins:
+            self._since[p] = time
+        return self._event("begin" if begins else "end", p, xp, time, float((1.0 - f) * g0 + f * g1),
+                           self.impulses[p])
 
     def walk(self, x0: np.ndarray, v0: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
              impulses: np.ndarray, t0: float, dt: float) -> list[ContactEvent]:
@@ -105,36 +105,62 @@ class GroundDetector:
         """Every node touching the ground now, with its gap and the last step's impulses."""
         out = []
         for p in np.flatnonzero(self._inside):
-            e = self._event("begin", int(p), positions, float(self._since[p]), float(self.gaps(positions)[p]))
+            e = self._event("begin", int(p), positions[p], float(self._since[p]), float(self.gaps(positions)[p]),
+                            self.impulses[p])
             out.append(ActiveContact(e.members, e.time, e.point_a, e.point_b, e.normal, e.distance,
                                      e.normal_impulse, e.tangential_impulse))
         return tuple(out)
 
 
-def _changes(detectors: list[GroundDetector], positions: np.ndarray, impulses: np.ndarray) -> np.ndarray:
-    """(K, B) bool: the steps to ``positions`` (K, N, 3, B) with the ground's ``impulses`` (K, N, 3, B) at
-    which a node of copy b begins or ends a contact, each step compared with the one before (the first
-    with what each detector knows now): where :meth:`GroundDetector.step` has something to do."""
-    first = detectors[0]
-    inside = np.stack([d._inside for d in detectors], axis=-1)                                   # (N, B)
-    now = (positions[:, :, 2] - first.radii[:, None] - first.height <= TOUCH_TOL) | (impulses[:, :, 2] > 0)
-    now &= first.free[:, None]                                                                     # (K, N, B)
-    return (now != np.concatenate([inside[None], now[:-1]])).any(axis=1)
+def _fractions(g0: np.ndarray, g1: np.ndarray, vz: np.ndarray, begins: np.ndarray, gravity: float,
+               dt: float) -> np.ndarray:
+    """Where in a step (fraction 0..1) each contact that begins or ends crosses ``TOUCH_TOL``: for gaps
+    ``g0``, ``g1`` (k,) m at the step's ends, the crossing on the straight path between them (0 if
+    already there); for a landing (``begins`` (k,) bool, from above), the small root of
+    ``g0 + vz t + a t^2 / 2 = TOUCH_TOL`` on the free path (``vz`` (k,) m/s at the start, ``a`` the
+    scene's gravity along z)."""
+    frac = np.clip(np.divide(g0 - TOUCH_TOL, g0 - g1, out=np.zeros(g0.size), where=g0 != g1), 0.0, 1.0)
+    g = g0 - TOUCH_TOL
+    disc = np.sqrt(np.maximum(vz * vz - 2.0 * gravity * g, 0.0))
+    path = np.divide(2.0 * g, (-vz + disc) * dt, out=np.full(g0.size, np.nan), where=(-vz + disc) > 0)
+    landing = begins & (g > 0) & np.isfinite(path)
+    frac[landing] = np.clip(path[landing], 0.0, 1.0)
+    return frac
 
 
 def walk_copies(detectors: list[GroundDetector], x0: np.ndarray, v0: np.ndarray, positions: np.ndarray,
                 velocities: np.ndarray, impulses: np.ndarray, t0: float, dt: float) -> list[tuple[tuple, ...]]:
-    """:meth:`GroundDetector.walk` of B copies (one detector each) at once: ``x0``, ``v0`` (N, 3, B),
-    ``positions``, ``velocities``, ``impulses`` (K, N, 3, B). Returns each step's events per copy (K tuples
-    of B tuples); a detector is called only at the steps where one of its nodes' contacts begins or ends."""
+    """:meth:`GroundDetector.step` of B copies (one detector each) over K consecutive steps at once: ``x0``,
+    ``v0`` (N, 3, B), ``positions``, ``velocities``, ``impulses`` (K, N, 3, B). Returns each step's events
+    per copy (K tuples of B tuples): the contacts that begin or end are found, and their crossings
+    computed (:func:`_fractions`), for every step and copy together; each event is then made in the order
+    and arithmetic of :meth:`GroundDetector.step`."""
     k, n_copies = len(positions), len(detectors)
     out = [[()] * n_copies for _ in range(k)]
     if not k:
         return [tuple(row) for row in out]
-    changed = _changes(detectors, positions, impulses)
-    for i, b in zip(*np.nonzero(changed)):
-        start_x, start_v = (x0[..., b], v0[..., b]) if i == 0 else (positions[i - 1, ..., b], velocities[i - 1, ..., b])
-        out[i][b] = detectors[b].step(start_x, positions[i, ..., b], start_v, t0 + i * dt, dt, impulses[i, ..., b])
+    first = detectors[0]
+    inside = np.stack([d._inside for d in detectors], axis=-1)                                     # (N, B)
+    gaps = positions[:, :, 2] - first.radii[:, None] - first.height                                 # (K, N, B)
+    now = ((gaps <= TOUCH_TOL) | (impulses[:, :, 2] > 0)) & first.free[:, None]
+    steps, nodes, copies = np.nonzero(now != np.concatenate([inside[None], now[:-1]]))
+    if len(steps):
+        start = steps > 0
+        before = np.maximum(steps - 1, 0)
+        g0 = np.where(start, gaps[before, nodes, copies], x0[nodes, 2, copies] - first.radii[nodes] - first.height)
+        vz = np.where(start, velocities[before, nodes, 2, copies], v0[nodes, 2, copies])
+        begins = now[steps, nodes, copies]
+        g1 = gaps[steps, nodes, copies]
+        frac = _fractions(g0, g1, vz, begins, first.gravity, dt)
+        for e in np.lexsort((nodes, frac, copies, steps)):   # by step and copy, then as GroundDetector.step
+            i, p, b = steps[e], int(nodes[e]), copies[e]
+            d = detectors[b]
+            d.impulses = impulses[i, ..., b]
+            start_x = positions[i - 1, p, :, b] if i else x0[p, :, b]
+            event = d._crossing(p, bool(begins[e]), frac[e], start_x, positions[i, p, :, b], g0[e], g1[e],
+                                t0 + i * dt, dt)
+            out[i][b] = out[i][b] + (event,)
     for b, d in enumerate(detectors):
+        d._inside = now[-1, :, b].copy()
         d.impulses = impulses[-1, ..., b].copy()
     return [tuple(row) for row in out]
