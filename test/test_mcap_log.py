@@ -314,3 +314,68 @@ def test_messages_wait_up_to_the_pending_size_and_the_flush_period(tmp_path):
     writer.finish()
     with LogReader(path) as reader:
         assert [m.sequence for m in reader.messages()] == list(range(12)) and not reader.unfinished
+
+
+def test_the_disk_sync_runs_beside_the_writer_and_a_failed_one_fails_the_log(tmp_path, monkeypatch):
+    """The flush period's sync to the disk (``os.fsync``) runs on a thread of its own: the write that starts
+    it returns while it is still running (the node's tick does not wait for the disk), the next flush does
+    not start another beside it, and finishing waits for it before the file is closed. A sync that fails
+    fails the log at the next flush, naming the error, as a failed write does. A log to /dev/null, which
+    has no disk to sync to, is not synced."""
+    import errno
+    import threading
+    from tensegrity_sim.ros import log as log_module
+    from tensegrity_sim.ros.log import LogWriteError
+
+    spec = TOPICS["clock"]
+    data = M.serialize(M.new(spec.typename, clock=M.time(0)), spec.typename)
+    started, release, calls = threading.Event(), threading.Event(), []
+    error = []
+
+    def fsync(fd):
+        calls.append(threading.current_thread().name)
+        started.set()
+        assert release.wait(10.0)
+        if error:
+            raise OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr(log_module.os, "fsync", fsync)
+    now = [0.0]
+    path = tmp_path / "log.mcap"
+    writer = LogWriter(path, [("/clock", spec.typename, spec.qos)], {"a": "b"}, pending_size=0, flush_period=1.0,
+                       clock=lambda: now[0])
+    writer.write("/clock", data, 0)
+    now[0] = 1.0
+    writer.write("/clock", data, 1)   # a flush: its sync starts, and the write returns while it waits
+    assert started.wait(10.0) and not release.is_set()
+    assert calls == ["log-sync_0"] and threading.current_thread().name != calls[0]
+    now[0] = 2.0
+    writer.write("/clock", data, 2)   # the next flush: the sync still runs, no second one beside it
+    assert len(calls) == 1
+    release.set()
+    writer.finish()
+    with LogReader(path) as reader:
+        assert [m.log_time for m in reader.messages()] == [0, 1, 2] and not reader.unfinished
+    # a sync that fails
+    started.clear()
+    error.append(True)
+    now[0] = 0.0
+    writer = LogWriter(tmp_path / "failing.mcap", [("/clock", spec.typename, spec.qos)], {"a": "b"}, pending_size=0,
+                       flush_period=1.0, clock=lambda: now[0])
+    now[0] = 1.0
+    writer.write("/clock", data, 0)
+    assert started.wait(10.0)
+    with pytest.raises(LogWriteError, match=r"failing\.mcap: writing the log failed at t = 0\.000000 s after \d+ "
+                                            r"messages: Input/output error"):
+        for _ in range(10_000):   # flushes, until one finds the failed sync over
+            now[0] += 1.0
+            writer.write("/clock", data, 0)
+            time.sleep(1e-3)
+    # /dev/null: never synced
+    calls.clear()
+    writer = LogWriter("/dev/null", [("/clock", spec.typename, spec.qos)], {"a": "b"}, pending_size=0,
+                       flush_period=1.0, clock=lambda: now[0])
+    now[0] = 3.0
+    writer.write("/clock", data, 0)
+    writer.finish()
+    assert calls == []
