@@ -34,7 +34,8 @@ import numpy as np
 from numba import njit, types
 from numba.typed import List
 
-__all__ = ["detection_state", "no_detection", "new_events", "new_work", "moved_on", "examine", "detect_steps"]
+__all__ = ["detection_state", "no_detection", "new_events", "event_arrays", "new_work", "moved_on", "examine",
+           "detect_steps"]
 
 _MAX_ROUNDS = 100   # contact.MAX_ROUNDS (checked equal by the tests)
 _EVENT = types.Tuple((types.int64, types.int64, types.int64, types.float64, types.boolean))
@@ -315,6 +316,26 @@ def new_events():
 
 
 @njit(cache=True, error_model="numpy")
+def event_arrays(events, points):
+    """The events of :func:`new_events`' lists as arrays, what the kernels return (Python then never
+    touches a typed list, whose methods numba compiles at their first use in a process: ~1 s, once a
+    node's first contact came): step, copy, pair (n,) int64, step fraction (n,), begin (n,) bool, and the
+    pair's end points at the step's start and end (n, 2, 4, 3) m."""
+    n = len(events)
+    step = np.empty(n, dtype=np.int64)
+    copy = np.empty(n, dtype=np.int64)
+    pair = np.empty(n, dtype=np.int64)
+    tau = np.empty(n)
+    begin = np.empty(n, dtype=np.bool_)
+    for e in range(n):
+        step[e], copy[e], pair[e], tau[e], begin[e] = events[e]
+    ends = np.empty(len(points))
+    for i in range(ends.shape[0]):
+        ends[i] = points[i]
+    return step, copy, pair, tau, begin, ends.reshape((n, 2, 4, 3))
+
+
+@njit(cache=True, error_model="numpy")
 def new_work():
     """Scratch of :func:`examine`: a pair's end points at the step's start and end and their
     displacements (4, 3), its shape (9,) and the narrow phase's numbers (22,), a pair's transitions
@@ -465,7 +486,7 @@ def detect_steps(xs, stop, det):
     """Detection over the first ``stop[b]`` steps of a chunk, copy by copy: ``xs`` (K + 1, N, 3, B) m,
     the positions before the chunk's first step, then after each of its steps; ``stop`` (B,) int (a
     failed copy walks fewer, or none). Updates ``det`` (:func:`detection_state`); returns the events
-    (:func:`new_events`)."""
+    (:func:`event_arrays`)."""
     events, points = new_events()
     work = new_work()
     for s in range(xs.shape[0] - 1):   # the copies innermost: they lie side by side in memory
@@ -474,4 +495,4 @@ def detect_steps(xs, stop, det):
         for b in range(xs.shape[3]):
             if s < stop[b] and moved_on(x0, b, x1, b, b, det):
                 examine(x0, b, x1, b, b, s, det, work, events, points)
-    return events, points
+    return event_arrays(events, points)

@@ -635,7 +635,7 @@ class CompiledDetector(ContactDetector):
 
         xs = np.ascontiguousarray(xs, dtype=float)
         stop = np.full(self.copies, len(xs) - 1, dtype=np.int64) if stop is None else np.asarray(stop, dtype=np.int64)
-        blocks = copy_blocks(self.copies)
+        blocks = [slice(0, 1)] if self.copies == 1 else copy_blocks(self.copies)
         if len(blocks) == 1:
             return self.record(*detect_steps(xs, stop, self.state), step_start, dt, impulses)
 
@@ -644,23 +644,20 @@ class CompiledDetector(ContactDetector):
             return state[6:], detect_steps(np.ascontiguousarray(xs[..., block]), np.ascontiguousarray(stop[block]),
                                            state)
 
-        events, points = [], []
-        for block, (state, (found, ends)) in zip(blocks, on_blocks(run, blocks)):
+        found = []
+        for block, (state, events) in zip(blocks, on_blocks(run, blocks)):
             for mine, its in zip(self.state[6:], state):
                 mine[..., block] = its
-            events += [(step, copy + block.start, pair, tau, begin) for step, copy, pair, tau, begin in found]
-            points += list(ends)
-        return self.record(events, points, step_start, dt, impulses)
+            found.append((events[0], events[1] + block.start) + events[2:])
+        return self.record(*(np.concatenate(column) for column in zip(*found)), step_start, dt, impulses)
 
-    def record(self, events, points, step_start, dt: float, impulses: dict | None = None) -> dict:
-        """ContactEvents of the kernel's transitions (``_detection_kernels.new_events``; steps counted
+    def record(self, step, copy, pair, tau, begin, ends, step_start, dt: float, impulses: dict | None = None) -> dict:
+        """ContactEvents of the kernel's transitions (``_detection_kernels.event_arrays``; steps counted
         from the call's first, step ``k`` starting at ``step_start(k)`` s), as
         :meth:`ContactDetector._evaluate` makes them: {(step, copy): events in time order}."""
         self._impulses = impulses or {}
-        if not len(events):
+        if not len(step):
             return {}
-        step, copy, pair, tau, begin = (np.array(column) for column in zip(*events))
-        ends = np.array(points).reshape(-1, 2, 4, 3)
         time = step_start(step) + tau * dt
         order = np.lexsort((self._key[pair], time, copy, step))   # per step and copy: time, then pair order
         step, copy, pair, tau, begin, time, ends = (a[order] for a in (step, copy, pair, tau, begin, time, ends))

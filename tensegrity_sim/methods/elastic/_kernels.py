@@ -46,7 +46,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..contact._detection_kernels import examine, moved_on, new_events, new_work
+from ..contact._detection_kernels import event_arrays, examine, moved_on, new_events, new_work
 
 __all__ = ["ElasticModel", "model_arrays", "elastic_forces", "elastic_steps", "elastic_steps_copies", "keep", "verlet_step"]
 
@@ -345,7 +345,7 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
 
     with ``K = ceil(n_steps / every)``. ``detection``: member-contact detection over every step
     (``_detection_kernels.detection_state``, or ``no_detection()``); returns its events
-    (``_detection_kernels.new_events``)."""
+    (``_detection_kernels.event_arrays``)."""
     n_nodes = x.shape[0]
     nc, n_copies = rest.shape
     dx = np.empty((n_nodes, 3))
@@ -372,7 +372,7 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
                 total[ci] += imp[ci]
             if (s + 1) % every == 0 or s == n_steps - 1:
                 keep(x, v, b, total, sl, s // every, b, out_x, out_v, out_impulses, out_slack)
-    return events, points
+    return event_arrays(events, points)
 
 
 # ---------------------------------------------------------------------------------------------------------
