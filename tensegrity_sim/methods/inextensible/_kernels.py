@@ -274,12 +274,14 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
     (on, g_nodes, radii, height, mu, touch_tol, free_index, fixed_point_tol, slip_floor, max_iter,
      depth) = ground
     stick, normal, slip = memory
-    contact = np.zeros((x_m.shape[0], 3))
+    # without a ground: empty views, no allocation (this runs every step)
+    contact = v0[:0]
     armed = g_nodes[:0]
-    w = np.zeros(0)
-    touching = np.zeros(0, dtype=np.bool_)
-    impulses = np.zeros((0, 3))
+    w = radii[:0]
+    touching = stick[:0]
+    impulses = v0[:0]
     if on:
+        contact = np.zeros((x_m.shape[0], 3))
         armed, w, touching = arm_step(x_m, v, v0, 0.5 * tau, g_nodes, radii, height, touch_tol)
     if k == 0:   # nothing can be taut: free motion, no QP (a contact's QP alone is the Python path's)
         v_f = v0.copy()
@@ -470,7 +472,7 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
         return (False, x, v, holding, new_applied, taut, False, impulses, holding, 0.0, holding,
                 np.zeros(0), d, length, np.zeros(0, dtype=np.bool_), load_cables[:0],
                 np.zeros((3 * free_nodes.shape[0], 0)), None, np.zeros_like(x), memory)
-    modes = (memory[0].copy(), memory[1].copy(), memory[2].copy())   # the step's own until it is taken
+    modes = (memory[0].copy(), memory[1].copy(), memory[2].copy()) if on else memory   # the step's own until taken
     done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis, contact = midpoint(
         x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
         taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter,
