@@ -278,7 +278,8 @@ def main(argv=None) -> int:
     exact = exactness()
     write_csv(RESULTS / "ground_exactness.csv", exact)
     for r in exact:
-        print(f"{r['closed form']:48s} {r['method']:12s} {r['path']:9s} error {r['relative error']:.3g} (tolerance {r['tolerance']:g})")
+        print(f"{r['closed form']:48s} {r['method']:12s} {r['path']:9s} error {r['relative error']:.3g} "
+              f"(tolerance {r['tolerance']:g})")
     return 0
 
 

@@ -24,9 +24,9 @@ a chunk is written out when it holds :data:`CHUNK_SIZE` bytes; and when :data:`F
 wall-clock time have passed since the last write-out, the waiting messages and the chunk, however small,
 are written out and synced to the disk. Everything before the chunk in progress is complete on disk, so a
 crash loses at most PENDING_SIZE + CHUNK_SIZE = 80 KiB of messages and FLUSH_PERIOD s of wall-clock time.
-The sync (``os.fsync``, ~0.7 ms on the project's machine) runs on a thread of its own, so the node's tick
-that writes the chunk out does not wait for the disk (issue 28: those once-a-second ticks were the node's
-slowest 0.1 %); the next flush, and finishing, take its failure as the write's. Chunk CRCs and the data-section CRC are written, so a
+The sync (``os.fsync``, ~0.7 ms on the project's machine, against a node's median tick of ~0.2 ms) runs on a
+thread of its own, so the tick that writes the chunk out does not wait for the disk (issue 28); the next
+flush, and finishing, take its failure as the write's. Chunk CRCs and the data-section CRC are written, so a
 reader can tell a damaged record from a cut-off one. ``tensegrity-sim info`` and ``replay`` read such an
 unfinished log up to its last complete record, and ``tensegrity-sim recover`` writes a finished copy
 (:mod:`.log_reader`). A write that fails (a full disk, a file-size limit) raises :class:`LogWriteError`

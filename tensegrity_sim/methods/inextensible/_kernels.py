@@ -238,15 +238,16 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
              weight, shared, ground, memory):
     """``InextensibleMethod._midpoint`` with no contact rows or the ground's alone, its QP solved by DAQP
     (``_solve_checked``, or with armed ground contacts the compiled friction modes,
-    ``_friction_kernels.contact_solve``), in one call: the rows (:func:`select_rows`, member table ``ends``, ``limits`` with the landing
-    targets' reel already applied), the landing iterations (``_land``: up to ``landing_iter`` solves,
-    :func:`landed` to ``landing_tol``), the end of the sub-step and, when the structure can lock
-    (``locked``), the self-stress rule's binding rows and basis (``_self_stress_kernels.locked_space``,
-    its fit stays numpy). ``row_nodes`` (n_eq + nc, 2): the free-node index of each member end;
-    ``free_nodes`` (n_free,) int: the free nodes; ``taut`` (nc,) m: a cable's at-limit length.
+    ``_friction_kernels.contact_solve``), in one call: the rows (:func:`select_rows`, member table
+    ``ends``, ``limits`` with the landing targets' reel already applied), the landing iterations
+    (``_land``: up to ``landing_iter`` solves, :func:`landed` to ``landing_tol``), the end of the sub-step
+    and, when the structure can lock (``locked``), the self-stress rule's binding rows and basis
+    (``_self_stress_kernels.locked_space``, its fit stays numpy). ``row_nodes`` (n_eq + nc, 2): the
+    free-node index of each member end; ``free_nodes`` (n_free,) int: the free nodes; ``taut`` (nc,) m: a
+    cable's at-limit length.
 
     ``ground``: ``(on, nodes, radii, height, mu, touch_tol, free_index, fixed_point_tol, slip_floor,
-    max_iter, depth)`` (``on`` False: no ground, the rest unused; see ``InextensibleMethod._ground_tables``)
+    max_iter, depth)`` (``on`` False: no ground, the rest unused; see ``InextensibleMethod._ground_table``)
     and ``memory`` each node's friction mode, ``y_n`` and slip direction (``FrictionalSolver``'s), which
     the contacts' solves read and update in place. The ground's contacts are armed as
     ``ContactSet.arm_step`` arms them; a sub-step with no member row but armed contacts, or whose answer

@@ -120,7 +120,8 @@ _LANDING_ITER = 4     # ... after at most this many solves per sub-step
 
 
 # the step kernels' ground and friction memory where the scene has no ground (``InextensibleMethod._ground_table``)
-_NO_GROUND = (False, np.zeros(0, dtype=np.int64), np.zeros(0), 0.0, 0.0, 0.0, np.zeros(0, dtype=np.int64), 0.0, 0.0, 0, 0)
+_NO_GROUND = (False, np.zeros(0, dtype=np.int64), np.zeros(0), 0.0, 0.0, 0.0, np.zeros(0, dtype=np.int64), 0.0, 0.0,
+              0, 0)
 _NO_MEMORY = (np.zeros(0, dtype=bool), np.zeros(0), np.zeros((0, 2)))
 
 
@@ -451,8 +452,9 @@ class InextensibleMethod(StepMethod):
 
     def carry(self):
         """What a step leaves to the next (a motor's position, the cables that hold, the warm start, the
-        rule's largest dropped impulse): a command or a reset does not recompute it from the state, so the
-        simulator rewinds the steps computed ahead before either (``carry_outlives_inputs``)."""
+        rule's largest dropped impulse, on a ground each node's friction mode): a command or a reset does not
+        recompute it from the state, so the simulator rewinds the steps computed ahead before either
+        (``carry_outlives_inputs``)."""
         return (self._applied.copy(), self._holding.copy(), self._hint.copy(), self._last_hint.copy(),
                 self.self_stress.residual, tuple(a.copy() for a in self._memory()))
 
@@ -465,7 +467,8 @@ class InextensibleMethod(StepMethod):
         self._end_geometry = None
 
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
-                impulses: np.ndarray, slack: np.ndarray, contact: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                impulses: np.ndarray, slack: np.ndarray, contact: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`StepMethod.advance` in ``_inextensible_kernels.steps``, with each step the kernel leaves
         to Python taken by :meth:`step`'s own path (the same bits as stepping one at a time). A step that
         fails (:class:`QPError`, an answer that is not finite) ends the loop: it and what would follow are
