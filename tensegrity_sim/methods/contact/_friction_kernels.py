@@ -262,7 +262,6 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
     return False, v, y, impulses, remember, slip, max_iter
 
 
-
 @njit(cache=True)
 def first_impact(x, v, v0, tau, nodes, radii, height, touch_tol):
     """``ContactSet.first_impact`` for the ground alone: the fraction of the sub-step (0, 1] at which the first
@@ -278,7 +277,7 @@ def first_impact(x, v, v0, tau, nodes, radii, height, touch_tol):
             first = min(first, 2.0 * g / (-vz + disc))
     if first == np.inf:
         return 1.0
-    return min(1.0, min(max(first / tau, 0.0), 1.0))
+    return min(max(first / tau, 0.0), 1.0)
 
 
 @njit(cache=True)

@@ -319,9 +319,10 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
             v_start = v_f.copy()
         if ok and on and missed(x_m, v_f, 0.5 * tau, g_nodes, armed, radii, height, touch_tol):
             ok = False
-        for c in range(impulses.shape[0]):   # the last solve's, committed (FrictionalSolver.commit)
-            for j in range(3):
-                contact[armed[c], j] += impulses[c, j]
+        if ok:
+            for c in range(impulses.shape[0]):   # the last solve's, committed (FrictionalSolver.commit)
+                for j in range(3):
+                    contact[armed[c], j] += impulses[c, j]
     x_f = x_m + (0.5 * tau) * v_f
     d, length = cable_geometry(x_f, cable_ends)
     binding = np.zeros(0, dtype=np.bool_)
