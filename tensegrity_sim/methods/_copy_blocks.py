@@ -21,6 +21,8 @@ MIN_BLOCK = 256
 
 def copy_blocks(copies: int) -> list[slice]:
     """Contiguous blocks of ``copies``, at most one per core (numba's thread count), none under ``MIN_BLOCK``."""
+    if copies < 2 * MIN_BLOCK:   # one block (a Simulator's single copy asks every step: no thread-count query)
+        return [slice(0, copies)]
     count = max(1, min(numba.get_num_threads(), copies // MIN_BLOCK))
     edges = [copies * i // count for i in range(count + 1)]
     return [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]

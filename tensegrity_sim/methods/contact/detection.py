@@ -635,7 +635,7 @@ class CompiledDetector(ContactDetector):
 
         xs = np.ascontiguousarray(xs, dtype=float)
         stop = np.full(self.copies, len(xs) - 1, dtype=np.int64) if stop is None else np.asarray(stop, dtype=np.int64)
-        blocks = [slice(0, 1)] if self.copies == 1 else copy_blocks(self.copies)
+        blocks = copy_blocks(self.copies)
         if len(blocks) == 1:
             return self.record(*detect_steps(xs, stop, self.state), step_start, dt, impulses)
 
