@@ -43,8 +43,9 @@ def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Log
     warmed up first (:meth:`SimNodeLogic.warm_up`), so its schedule starts with nothing left to compile."""
     logic.warm_up()
     # what exists now (the package, numba's kernels, the transport: ~150,000 objects) is kept out of the
-    # collector's full passes, which took ~55 ms over them (a tick). The node's worst ticks have another cause
-    # too: in 60 s bench_node runs 11.6 ms and 536 ms with this, 77 ms and 90 ms without
+    # collector's full passes, which took ~55 ms over them (a tick): in 60 s bench_node runs the worst tick was
+    # 11.6 ms and 536 ms with this, 77 ms and 90 ms without; the 536 ms was numba compiling its typed lists'
+    # methods at the first member contact (now the detection kernels return arrays)
     gc.collect()
     gc.freeze()
     try:
