@@ -502,6 +502,47 @@ def test_the_spinning_node_keeps_what_it_started_with_out_of_the_collector():
     assert gc.get_freeze_count() == 0
 
 
+def test_the_spinning_node_wakes_on_the_schedule_so_a_late_wake_up_owes_no_step():
+    """live.spin wakes each tick on the logic's grid (SimNodeLogic.next_tick), not on a cadence of its own.
+    Every wake-up here is late by 0.05 or 0.7 ms in turn, and one tick runs 3.6 ms long: the node catches up
+    the 4 steps it then owes in 4 ticks of 2 steps, and every other tick runs exactly one step. (A cadence
+    of its own, restarted at the long tick's end, sits 0.6 ms into the schedule's period: each 0.7 ms late
+    wake-up then owes two steps and the next none.)"""
+    import logging
+    import signal
+
+    from tensegrity_sim.ros.live import spin
+    from tensegrity_sim.ros.log import SignalLatch
+
+    clock = FakeClock(t=10.0)
+    logic, _, _ = make_logic(prism(), clock=clock)
+    latch, polls, steps, late = SignalLatch(), [], [], [0.05e-3, 0.7e-3]
+
+    class Transport:
+        def poll(self, logic, log):
+            polls.append(clock.t)
+            steps.append(logic.sim.step_count)
+            if len(polls) == 50:
+                clock.t += 3.6e-3   # a long tick
+            if len(polls) == 400:
+                latch.signum = signal.SIGINT
+
+    def sleep(seconds):
+        clock.t += seconds + late[len(polls) % 2]
+
+    with pytest.raises(KeyboardInterrupt):
+        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"), sleep=sleep)
+    per_tick = np.diff(steps)   # the steps of each tick but the last
+    catch_up = np.flatnonzero(per_tick == 2)
+    assert list(catch_up) == [49, 50, 51, 52] and logic.burst_ticks == 4 and logic.max_steps_per_tick == 2
+    assert set(per_tick[2:49]) == set(per_tick[53:]) == {1}
+    assert logic.sim.step_count == math.floor((polls[-1] - polls[0]) * 1e3)   # on time at the end
+    # the wake-ups: a whole number of periods after the schedule's start, and a microsecond, plus their lateness
+    start = polls[1] - 1e-3 - 1e-6 - late[1]
+    phase = (np.array(polls[1:]) - start - 1e-6 - np.resize(late[::-1], len(polls) - 1)) * 1e3
+    assert np.allclose(phase, np.round(phase), atol=1e-9)
+
+
 def test_real_time_factor_scales_the_schedule():
     clock = FakeClock(t=0.0)
     logic, _, _ = make_logic(prism(), clock=clock, real_time_factor=2.5)

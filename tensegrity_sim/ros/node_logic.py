@@ -58,6 +58,7 @@ __all__ = ["Qos", "TopicSpec", "TOPICS", "SERVICES", "NodeSettings", "SimNodeLog
            "decode_contacts", "RUNTIME_PARAMETERS", "FAILURE_STATUS", "resolve_topic"]
 
 
+_WAKE_AFTER_DUE = 1e-6  # s after a tick of the schedule's grid that next_tick wakes it
 # No tick holds the executor longer than this, wall-clock (services and subscriptions wait for a tick).
 TICK_WALL_LIMIT = 0.1           # s
 
@@ -165,7 +166,7 @@ class SimNodeLogic:
         self.failure: str | None = None          # why a failed step paused the node (None: none did)
         self.step_error: StepError | None = None  # the last step failure
         self._clear()
-        self._anchor()
+        self.restart_schedule()
 
     # ------------------------------------------------------------------ state kept between publications
     def _clear(self) -> None:
@@ -183,24 +184,40 @@ class SimNodeLogic:
         self._since_publish = 0
         self._until_markers = 0                      # publications to go until the next marker array
 
-    def _anchor(self) -> None:
+    def restart_schedule(self) -> None:
         """Restart the real-time schedule here: step ``k`` is due at ``t0 + (k - k0) dt / rtf``."""
         self._anchor_time = self._clock()
         self._anchor_step = self.sim.step_count
 
+    def next_tick(self, now: float) -> float | None:
+        """The first time (s, on :attr:`clock`) after ``now`` on the schedule's grid of ticks (its start plus
+        whole tick periods, and a microsecond, so that the schedule's floor sees the steps of that tick due);
+        None while paused or stepping as fast as possible (no schedule). A loop that wakes its ticks there, not
+        on a cadence of its own, has a whole tick period of slack before a late wake-up owes extra steps."""
+        s = self.settings
+        if self.paused or s.real_time_factor == 0.0:
+            return None
+        period = 1.0 / s.step_rate
+        return self._anchor_time + (math.floor((now - self._anchor_time - _WAKE_AFTER_DUE) / period) + 1) * period \
+            + _WAKE_AFTER_DUE
+
+    @property
+    def clock(self) -> Callable[[], float]:
+        """The monotonic clock (s) the schedule runs on."""
+        return self._clock
+
     def warm_up(self) -> None:
         """Take a publication's worth of steps and one publication with markers on a throwaway node of the
-        same scene and method (no transport, no log), then restart the real-time schedule: what compiles on
-        first use in a process (numba's typed lists of contact detection, the publication encoders) is done
-        before the first tick rather than in it (measured: 110 ms for the first step, 28 ms for the first
-        publication, each then owed to the schedule as a catch-up burst)."""
+        same scene and method (no transport, no log): what compiles on first use in a process (numba's
+        kernels, the publication encoders) is done before the first tick rather than in it (measured: 110 ms
+        for the first step, 28 ms for the first publication, each then owed to the schedule as a catch-up
+        burst). The caller restarts the schedule (:meth:`restart_schedule`) when its ticks begin."""
         sim = self.sim
         spare = Simulator(sim.scene, method=sim.method, dt=sim.dt)
         twin = SimNodeLogic(spare, self.settings, transport=lambda key, message: None, raw_transport=self._raw,
                             clock=self._clock, logger=self._log)
         for _ in range(self.settings.publish_every):
             twin._advance()
-        self._anchor()
 
     # ------------------------------------------------------------------ info
     def stamp_ns(self) -> int:
@@ -546,7 +563,7 @@ class SimNodeLogic:
             return False, "not paused"
         self.paused = False
         self.failure = None  # the next step tries again
-        self._anchor()  # the paused time is not owed: the schedule restarts now
+        self.restart_schedule()  # the paused time is not owed: the schedule restarts now
         return True, f"resumed at t = {self.sim.time:.6f} s"
 
     def single_step(self) -> tuple[bool, str]:
@@ -564,7 +581,7 @@ class SimNodeLogic:
         holds one run from the initial state, so the recorder starts a new file."""
         self.sim.reset()
         self._clear()
-        self._anchor()
+        self.restart_schedule()
         self.failure = None
         text = "reset to the scene's initial state"
         if self.recorder is not None:  # the new file embeds the settings in force now
@@ -579,7 +596,7 @@ class SimNodeLogic:
         if fixed:
             raise ValueError(f"parameter {fixed[0]!r} is read-only while running (restart the node)")
         self.settings = replace(self.settings, **changes)
-        self._anchor()
+        self.restart_schedule()
         if changes:
             ns = self.stamp_ns()
             self._send(ns, [self._output("parameter_events", M.parameter_event(
