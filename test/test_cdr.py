@@ -150,6 +150,68 @@ def test_indexed_slots_in_markers_of_different_sizes(counts):
     assert template.encode(5, 6, a, 7, 8, b, colors) == expected
 
 
+MARKER_SLOTS = ("markers[0].header.stamp.sec", "markers[0].header.stamp.nanosec", "markers[0].points[]",
+                "markers[1].header.stamp.sec", "markers[1].header.stamp.nanosec", "markers[1].points[]",
+                "markers[1].colors[]", "markers[2].id")
+
+
+def two_markers_and_a_deleted(frame: str, counts=(1, 1)) -> CdrTemplate:
+    return CdrTemplate("visualization_msgs/msg/MarkerArray", {"markers": [
+        {"header": {"frame_id": frame}, "ns": "a", "points": [{}] * counts[0]},
+        {"header": {"frame_id": frame}, "ns": "cables", "points": [{}] * counts[1], "colors": [{}] * counts[1]},
+        {"header": {"frame_id": frame}, "ns": "gone", "action": 2}]}, MARKER_SLOTS)
+
+
+@pytest.mark.parametrize("frame", ["", "w", "wor", "world"])
+@pytest.mark.parametrize("first, then", [((1, 1), (2, 5)), ((3, 4), (1, 1)), ((1, 1), (40, 17)), ((5, 2), (2, 9))])
+def test_resized_markers_are_rosbags_bytes(frame, first, then):
+    """A MarkerArray template resized (its points and colours), then resized again, against rosbags' bytes of
+    the messages of those lengths: the padding after each sequence and the slots behind it follow."""
+    rng = np.random.default_rng(sum(first) + 10 * sum(then) + len(frame))
+
+    def expected(a, b, colors) -> bytes:
+        markers = [marker((5, 6), "a", a), marker((7, 8), "cables", b, colors), marker((0, 0), "gone", a[:0])]
+        for m in markers:
+            m.header.frame_id = frame
+        markers[2].action, markers[2].id = 2, 77
+        return reference(new("visualization_msgs/msg/MarkerArray", markers=markers),
+                         "visualization_msgs/msg/MarkerArray")
+
+    base = template = two_markers_and_a_deleted(frame)
+    for counts in (first, then):
+        template = template.resized({"markers[0].points": counts[0], "markers[1].points": counts[1],
+                                     "markers[1].colors": counts[1]})
+        a, b = (awkward_floats(rng, (k, 3)) for k in counts)
+        colors = rng.uniform(size=(counts[1], 4)).astype(np.float32)
+        assert template.encode(5, 6, a, 7, 8, b, colors, 77) == expected(a, b, colors)
+        assert template.place("markers[1].colors[]")[1] == (counts[1], 4)
+    # resizing makes a new template: the one it came from still encodes its lengths
+    a, b, colors = np.ones((1, 3)), np.full((1, 3), 2.0), np.full((1, 4), 0.5)
+    assert base.encode(5, 6, a, 7, 8, b, colors, 77) == expected(a, b, colors)
+
+
+@pytest.mark.parametrize("lengths, message", [
+    ({"markers[0].points": 0}, "visualization_msgs/msg/MarkerArray: 'markers[0].points' (1 elements) cannot be "
+                               "resized to 0"),
+    ({"markers[2].points": 3}, "visualization_msgs/msg/MarkerArray: 'markers[2].points' (0 elements) cannot be "
+                               "resized to 3"),
+    ({"markers[0].text": 3}, "visualization_msgs/msg/MarkerArray: no sequence 'markers[0].text'"),
+    ({"markers": 2}, "visualization_msgs/msg/MarkerArray: 'markers' (3 elements) cannot be resized to 2"),
+])
+def test_resizing_what_cannot_keep_its_padding_is_refused(lengths, message):
+    """Only sequences of one or more fixed-size elements of a multiple of 8 bytes, to one or more: an empty
+    sequence has no padding before its (absent) elements, and a Marker's size depends on its strings."""
+    with pytest.raises(ValueError) as err:
+        two_markers_and_a_deleted("world").resized(lengths)
+    assert str(err.value).startswith(message)
+
+
+def test_an_indexed_slot_inside_a_resized_sequence_is_refused():
+    template = CdrTemplate("visualization_msgs/msg/Marker", {"points": [{}] * 2}, ("points[1].x",))
+    with pytest.raises(ValueError, match=r"slot 'points\[1\]\.x' is inside 'points', which is resized"):
+        template.resized({"points": 5})
+
+
 def test_fixed_size_arrays_and_small_integers():
     """NavSatFix: an int8 and a uint16 before the float64s, a float64[9] array, a uint8 after it."""
     rng = np.random.default_rng(5)

@@ -18,7 +18,7 @@ __all__ = ["Markers", "MARKERS_TYPE"]
 MARKERS_TYPE = "visualization_msgs/msg/MarkerArray"
 _LINE_LIST, _CUBE_LIST, _SPHERE_LIST = 5, 6, 7
 _ADD, _DELETE = 0, 2
-_SHAPES_KEPT = 64  # MarkerArray templates kept (a shape: the markers and their point counts)
+_SHAPES_KEPT = 64  # MarkerArray templates kept of each kind (shapes: markers and point counts; markers alone)
 _NO_POINTS = np.zeros((0, 3))
 
 # (namespace, points (k, 3) m or None to delete it, per-point colours (k, 4) RGBA or None)
@@ -57,6 +57,15 @@ class _MarkerStyle:
         many colours if ``colored``; the stamp, points and colours are left to slots."""
         return {**self.spec, "header": {"frame_id": frame_id}, "action": _DELETE if points is None else _ADD,
                 "points": [{}] * (points or 0), "colors": [{}] * (points or 0) if colored else []}
+
+
+def _keep(kept: dict, key, template: CdrTemplate) -> None:
+    """(Re)insert ``template`` last in ``kept`` (the most recently used), forgetting the oldest beyond
+    :data:`_SHAPES_KEPT`."""
+    kept.pop(key, None)
+    kept[key] = template
+    if len(kept) > _SHAPES_KEPT:
+        kept.pop(next(iter(kept)))
 
 
 def _ground_grid(scene, size: float) -> np.ndarray:
@@ -106,6 +115,7 @@ class Markers:
         self._ground_grid = _ground_grid(scene, size)
         self._scene_size = size
         self._templates: dict[tuple, CdrTemplate] = {}  # marker shape -> template, oldest use first
+        self._bases: dict[tuple, CdrTemplate] = {}      # markers -> their template with a point each, the same
         self.clear()
 
     def clear(self) -> None:
@@ -189,26 +199,33 @@ class Markers:
     def cdr(self, time_ns: int, markers: Content) -> bytes:
         """The CDR bytes of :meth:`message` stamped ``time_ns``. Which markers there are and how
         many points each has (its shape) changes with the slack cables and the contacts, so there is one
-        template per shape, made when the shape is first seen (a few rosbags serialisations' worth) and
-        kept (:data:`_SHAPES_KEPT` of them, the oldest forgotten first)."""
+        template per shape (:data:`_SHAPES_KEPT` of them, the oldest forgotten first), resized from the one of
+        its markers with a point each (:meth:`~.cdr.CdrTemplate.resized`: ~0.1 ms), which is made when those
+        markers are first seen (a few rosbags serialisations and a walk of ~400 fields: ~3 ms)."""
         shape = tuple((ns, None if points is None else len(points)) for ns, points, _ in markers)
-        template = self._templates.pop(shape, None)
+        template = self._templates.get(shape)
         if template is None:
-            fields, slots = [], []
-            for i, (ns, points, colors) in enumerate(markers):
-                fields.append(self._styles[ns].prototype(
-                    self._frame_id, None if points is None else len(points), colors is not None))
-                slots += [f"markers[{i}].header.stamp.sec", f"markers[{i}].header.stamp.nanosec"]
-                if points is not None:
-                    slots.append(f"markers[{i}].points[]")
-                if colors is not None:
-                    slots.append(f"markers[{i}].colors[]")
-            template = CdrTemplate(MARKERS_TYPE, {"markers": fields}, slots)
-            if len(self._templates) >= _SHAPES_KEPT:
-                self._templates.pop(next(iter(self._templates)))
-        self._templates[shape] = template  # (re)inserted last: the most recently used
+            kinds = tuple((ns, points is None, colors is not None) for ns, points, colors in markers)
+            base = self._bases.get(kinds) or self._base(kinds)
+            _keep(self._bases, kinds, base)
+            template = base.resized({f"markers[{i}].{field}": len(points) for i, (_, points, colors) in
+                                     enumerate(markers) if points is not None
+                                     for field in (("points", "colors") if colors is not None else ("points",))})
+        _keep(self._templates, shape, template)
         values = []
         sec, nanosec = divmod(time_ns, 1_000_000_000)
         for _, points, colors in markers:
             values += [sec, nanosec] + [a for a in (points, colors) if a is not None]
         return template.encode(*values)
+
+    def _base(self, kinds: tuple[tuple[str, bool, bool], ...]) -> CdrTemplate:
+        """The template of the markers ``kinds`` (namespace, deleted, coloured), one point each."""
+        fields, slots = [], []
+        for i, (ns, deleted, colored) in enumerate(kinds):
+            fields.append(self._styles[ns].prototype(self._frame_id, None if deleted else 1, colored))
+            slots += [f"markers[{i}].header.stamp.sec", f"markers[{i}].header.stamp.nanosec"]
+            if not deleted:
+                slots.append(f"markers[{i}].points[]")
+            if colored:
+                slots.append(f"markers[{i}].colors[]")
+        return CdrTemplate(MARKERS_TYPE, {"markers": fields}, slots)
