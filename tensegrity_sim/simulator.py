@@ -131,12 +131,14 @@ class _Ahead:
     from step ``start_count`` (positions and velocities ``start``, the method's ``carry`` then: what a
     rewind starts from). ``rows`` hands them out in order up to ``stop``, the first that is not finite
     (or their ``count``): (index, the state's positions and velocities, then the result's fields but
-    time and contacts)."""
+    time and contacts). ``pairs``: the member contacts' impulses of the steps that have any (the method's
+    ``advanced_pairs``)."""
 
-    __slots__ = ("stop", "count", "start", "start_count", "carry", "positions", "rows")
+    __slots__ = ("stop", "count", "start", "start_count", "carry", "positions", "rows", "pairs")
 
-    def __init__(self, start, start_count: int, carry, pos, vel, imp, slack, stop: int, dt: float, ground=None):
-        self.stop, self.count = stop, len(pos)
+    def __init__(self, start, start_count: int, carry, pos, vel, imp, slack, stop: int, dt: float, ground=None,
+                 pairs=None):
+        self.stop, self.count, self.pairs = stop, len(pos), pairs or {}
         self.start, self.start_count, self.carry, self.positions = start, start_count, carry, pos
         # the state takes one copy of the positions and velocities, the results another (a user may
         # write into theirs); every other field belongs to one result only
@@ -145,6 +147,21 @@ class _Ahead:
 
 
 _NO_ROWS = iter(())
+
+
+def _walk(detector, xs: np.ndarray, step_start, dt: float, pairs: dict) -> dict:
+    """``detector.walk`` through the steps of ``xs`` (K + 1, N, 3, 1), each step's events carrying its member
+    contacts' impulses ``pairs`` ({step: impulses}, a method's ``advanced_pairs``): the steps between two that
+    have impulses walked at once."""
+    steps = len(xs) - 1
+    found, first = {}, 0
+    for k in sorted(pairs) + [steps]:
+        for a, b, impulses in ((first, k, None), (k, min(k + 1, steps), pairs.get(k))):
+            if b > a:
+                part = detector.walk(xs[a:b + 1], lambda j, a=a: step_start(a + j), dt, impulses=impulses)
+                found.update({(step + a, copy): events for (step, copy), events in part.items()})
+        first = k + 1
+    return found
 
 
 class Simulator:
@@ -321,7 +338,7 @@ class Simulator:
         i, x, v, result_x, result_v, impulses, tensions, slack, ground = row
         st = self._state
         contacts = () if self._contacts is None else self._contacts.step(st.positions, x, st.step_count * self.dt,
-                                                                          self.dt)
+                                                                          self.dt, self._ahead.pairs.get(i))
         if self._ground is not None:
             if self._ground_busy[i]:
                 landed = self._ground.step(st.positions, x, st.velocities, st.step_count * self.dt, self.dt, ground)
@@ -371,7 +388,7 @@ class Simulator:
         finite = np.isfinite(add(pos.reshape(k, -1), 1) + add(vel.reshape(k, -1), 1) + add(imp, 1))
         stop = k if finite.all() else int(np.argmin(finite))
         self._ahead = a = _Ahead((st.positions, st.velocities), st.step_count, carry, pos, vel, imp, slack, stop,
-                                 self.dt, ground)
+                                 self.dt, ground, method.advanced_pairs)
         self._rows = a.rows
         return self._look_ahead() if stop == 0 else True
 
@@ -559,7 +576,8 @@ class Simulator:
             if detector is not None:
                 xs[0] = st.positions
                 count = st.step_count
-                found = detector.walk(xs[:m + 1, ..., None], lambda k: (count + k) * self.dt, self.dt)
+                found = _walk(detector, xs[:m + 1, ..., None], lambda k: (count + k) * self.dt, self.dt,
+                              method.advanced_pairs)
                 contacts.extend(e for key in sorted(found) for e in found[key])
             g = done + np.arange(m)              # the chunk's steps in the run, from 0
             j = g // every

@@ -150,3 +150,21 @@ def test_compiled_ground_step_agrees_with_the_qp_fixed_point(name):
                                    atol=1e-8 * weight * scale)
         contacted += bool(np.abs(theirs.contact_impulses).max() > 0)
     assert contacted >= 50 and method.fallbacks == 0
+
+
+def test_a_block_whose_damped_matrix_is_not_definite_is_left_unsolved_not_nan():
+    """Regression: strut A of ``test_member_contact.across`` coming to rest on the ground at both ends
+    (the friction along it statically indeterminate: ``J`` singular) with ``|phi|`` already small, so that
+    ``J^T J + nu I`` (``nu`` 1e-20) is not definite in floating point: the kernel's Cholesky met a negative
+    pivot, its NaN passed the convergence test (``max`` ignores NaN) and the step's velocities were NaN. Now
+    the kernel and its twin leave the block unsolved (the step goes to the reference) with ``v`` unchanged."""
+    direction = np.array([0.976349877261514, 0.21619647816610393, 0.0])
+    v = np.array([[0.0, 0.0, -0.0049050000000000005], [0.0, 0.0, -0.0049050000000000005]])
+    z = np.array([0.0, -8.414808548100362e-05, 0.00018160221569561182, 0.0049050000000000005,
+                  -0.0001631096628726393, 6.828086776367975e-05, 0.0049050000000000005])
+    inv, ends, target = np.ones(2), np.array([0, 1]), np.zeros(2)
+    v_k, z_k = v.copy(), z.copy()
+    assert solve_block(inv, True, direction, ends, target, 2, 0.2, v_k, z_k, block_work()) == -1
+    assert np.array_equal(v_k, v)
+    v_ref, _, it_ref = solve_block_reference(inv, True, direction, ends, target, 0.2, v, z)
+    assert it_ref == -1 and np.array_equal(v_ref, v)

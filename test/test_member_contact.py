@@ -1,13 +1,15 @@
-"""Member-member contact response (issue 11, ``contact: response: true``), both methods: closed forms of
-plastic and elastic impacts between rigid struts, conservation of momentum, Coulomb friction between
-members, and no energy from a contact and a cable snap in the same step."""
+"""Member-member contact response (issue 11, ``contact: response: true``), both methods (the elastic one
+compiled and its numpy reference): closed forms of plastic and elastic impacts between rigid struts,
+conservation of momentum, Coulomb friction between members, no energy from a contact and a cable snap in
+the same step, and the elastic method's compiled step against its reference and against itself stepped
+alone."""
 import numpy as np
 import pytest
 
 import tensegrity_sim as ts
 from tensegrity_sim.methods.contact.detection import contact_geometry
 
-METHODS = ["inextensible", "elastic"]
+METHODS = ["inextensible", "elastic", "elastic reference"]
 G = 9.81
 R = 0.01   # m, both struts' radius
 
@@ -33,6 +35,16 @@ def crossing(xc=0.25, v=1.0, e=0.0, mu=0.0, z=0.05, gravity=0.0, fixed_a=False, 
         **members})
 
 
+def simulator(scene, method, dt=1e-3):
+    """A Simulator of ``method`` (``METHODS``): "elastic" steps compiled (a step with a member pair armed by
+    the reference), "elastic reference" by the numpy reference alone."""
+    sim = ts.Simulator(scene, method=method.split()[0], dt=dt)
+    if method == "elastic reference":
+        sim._method.compiled = False
+    assert sim._method.name != "elastic" or sim._method.has_loop() == (method == "elastic")
+    return sim
+
+
 def gap(x):
     return float(contact_geometry(x[None, :4], np.array([2 * R]))[3][0])
 
@@ -56,7 +68,7 @@ def test_plastic_impact_of_crossing_struts(method, xc, cable):
     no strut passes through the other, and linear momentum is conserved to 1e-9 throughout. A taut cable
     in A's place (strut_cable) takes the same impulse: across it, its two end masses respond to a blow at
     s as a rigid strut's do, 1/m = (1 - s)^2 / m_0 + s^2 / m_1 = 1/2 + xc^2 / I."""
-    sim = ts.Simulator(crossing(xc, cable=cable), method=method, dt=1e-3)
+    sim = simulator(crossing(xc, cable=cable), method)
     # the pair is (strut, cable) in the cable's case: the normal from B to A, the impulse on A
     members, up = (("B", "A"), -1.0) if cable else (("A", "B"), 1.0)
     expected, impulse = plastic(xc)
@@ -89,7 +101,7 @@ def test_impact_with_restitution_reverses_the_closing_speed(method):
     """Newton's law at B striking A's middle with e = 0.5: P = (1 + e) v / (1/2 + 1/2) = 1.5 N*s, so B
     leaves at -0.25 m/s and A at -0.75 m/s (separating at e v = 0.5 m/s); kinetic energy lost
     (1 - e^2) v^2 m_red / 2 = 0.375 J of 1 J."""
-    sim = ts.Simulator(crossing(0.0, e=0.5, z=0.0505), method=method, dt=1e-3)
+    sim = simulator(crossing(0.0, e=0.5, z=0.0505), method)
     for _ in range(60):
         r = sim.step()
     np.testing.assert_allclose(r.velocities[:, 2], [-0.75, -0.75, -0.25, -0.25], rtol=0, atol=1e-12)
@@ -103,8 +115,7 @@ def test_strut_sliding_across_a_fixed_strut_stops_at_the_closed_form(method):
     at v0 = 1 m/s with member friction mu = 0.4: the Coulomb disc in the contact's tangent plane
     decelerates it at mu g, so it stops after v0^2 / (2 mu g) at t = v0 / (mu g), then stays (1 %)."""
     mu, v0 = 0.4, 1.0
-    sim = ts.Simulator(crossing(0.0, v=0.0, mu=mu, z=2 * R, gravity=G, fixed_a=True, vx=v0), method=method,
-                       dt=1e-3)
+    sim = simulator(crossing(0.0, v=0.0, mu=mu, z=2 * R, gravity=G, fixed_a=True, vx=v0), method)
     x0 = sim.positions[2, 0]
     stopped = None
     for i in range(400):
@@ -179,3 +190,92 @@ def test_compiled_rows_match_the_reference_with_member_contacts():
             np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=0, atol=1e-12, err_msg=f"{name} {k}")
         touched += bool(compiled.active_contacts())
     assert touched > 50
+
+
+def across(mu_ground=0.5, mu=0.3, e=0.3):
+    """Strut A (``crossing``'s) lying on a ground (friction ``mu_ground``) and strut B thrown across it from
+    0.3 m, tumbling (its ends' velocities differ); member friction ``mu``, restitution ``e``; an elastic cable
+    from a1 to b1, slack at first (rest length 1.2 m)."""
+    raw = crossing(0.2, v=0.5, mu=mu, e=e, z=0.3, gravity=G, vx=0.3).to_dict()
+    for node in raw["nodes"][:2]:
+        node["position"][2] = R
+    raw["nodes"][3]["velocity"] = [0.3, 0.2, -0.8]
+    raw["ground"] = {"height": 0.0, "friction": mu_ground, "restitution": 0.0}
+    raw["cables"] = [{"name": "c", "nodes": ["a1", "b1"], "rest_length": 1.2, "stiffness": 200.0, "radius": 0.0}]
+    return ts.Scene.from_dict(raw)
+
+
+@pytest.mark.parametrize("mu_ground, mu", [(0.2, 1.0), (1.0, 0.3)])
+def test_elastic_compiled_response_matches_the_reference(mu_ground, mu):
+    """The elastic method compiled (the ground's blocks by the block Newton of ``_friction_block_kernels``,
+    a step with an armed member pair by the reference) against its numpy reference (the QP fixed point of
+    ``friction.py`` for every step): B lands on A, rocks on it, its ends landing on the ground in turn, and
+    slides over the ground and along A once its cable is reeled in mid-run. Each step of the compiled run
+    taken again by the reference from the same state: the two algorithms meet the Coulomb law to their
+    tolerances (1e-13 and 1e-10 of the impulse scale), so the velocities agree to 1e-9. The two runs apart
+    drift further (1e-8 m/s after 900 steps, a sliding strut's impacts amplifying the per-step difference)
+    but have the same member contact events, at the same times, with the same impulses."""
+    scene = across(mu_ground, mu)
+    compiled, reference = simulator(scene, "elastic"), simulator(scene, "elastic reference")
+    probe = simulator(scene, "elastic reference")._method
+    steps, touching, sliding = 900, 0, 0
+    for k in range(steps):
+        if k == 450:
+            for sim in (compiled, reference):
+                sim.set_rest_lengths([0.4])
+        probe.invalidate()
+        p = probe.step(compiled._state.copy())
+        a, b = compiled.step(), reference.step()
+        np.testing.assert_allclose(a.velocities, p.velocities, rtol=0, atol=1e-9, err_msg=f"step {k}")
+        np.testing.assert_allclose(a.positions, p.positions, rtol=0, atol=1e-12, err_msg=f"step {k}")
+        np.testing.assert_allclose(a.impulses, p.impulses, rtol=0, atol=1e-9, err_msg=f"step {k}")
+        # the ground's impulses: a strut's friction along itself can pass from one end to the other through its
+        # own impulse (statically indeterminate), so the two algorithms' splits differ; their sum and the
+        # normal impulses (the struts lie flat) do not
+        np.testing.assert_allclose(a.contact_impulses.sum(axis=0), p.contact_impulses.sum(axis=0), rtol=0,
+                                   atol=1e-9, err_msg=f"step {k}")
+        np.testing.assert_allclose(a.contact_impulses[:, 2], p.contact_impulses[:, 2], rtol=0, atol=1e-9,
+                                   err_msg=f"step {k}")
+        np.testing.assert_allclose(a.velocities, b.velocities, rtol=0, atol=1e-7, err_msg=f"step {k}")
+        # the member contacts' events (the ground's detector counts a node in contact while its impulse is above
+        # 0, and the QP fixed point leaves 1e-25 N*s where the block Newton has 0)
+        mine, its = ([e for e in r.contacts if "ground" not in e.members] for r in (a, b))
+        assert [(e.kind, e.members) for e in mine] == [(e.kind, e.members) for e in its], f"step {k}"
+        for e, f in zip(mine, its):
+            assert e.time == pytest.approx(f.time, abs=1e-9)
+            assert e.normal_impulse == pytest.approx(f.normal_impulse, abs=1e-7)
+        touching += any(c.members == ("A", "B") for c in compiled.active_contacts())
+        sliding += any(np.hypot(*a.velocities[n, :2]) > 0.1 and a.contact_impulses[n, 2] > 0 for n in (2, 3))
+    method = compiled._method
+    # the pair touched for a good part of the run, B slid on the ground, and the kernel took most steps
+    assert touching >= 60 and sliding >= 30 and method.member_steps >= touching
+    assert method.member_steps <= steps - 300
+
+
+def test_elastic_loop_with_a_response_is_its_step_bitwise():
+    """The elastic method's compiled loop on a response scene (steps computed ahead, ``run`` in chunks)
+    against each step through the method's compiled step alone: the same positions, velocities, cable and
+    ground impulses, slack flags and member contact events (with their impulses, from the steps the
+    reference took) to the last bit."""
+    scene = across()
+    loop, one = simulator(scene, "elastic"), simulator(scene, "elastic")
+    one._method.has_loop = lambda: False   # each step through ElasticMethod._step_impl
+    fields = ("positions", "velocities", "impulses", "slack", "contact_impulses")
+
+    def events(contacts):
+        return [(e.kind, e.members, e.time, e.normal_impulse, tuple(e.tangential_impulse)) for e in contacts]
+
+    impacts = 0
+    for k in range(700):
+        a, b = loop.step(), one.step()
+        for field in fields:
+            assert np.array_equal(getattr(a, field), getattr(b, field)), f"{field}, step {k}"
+        assert events(a.contacts) == events(b.contacts), f"step {k}"
+        impacts += any(e.members == ("A", "B") and e.kind == "begin" and e.normal_impulse > 0 for e in a.contacts)
+    assert impacts >= 2
+    for sim in (loop, one):
+        sim.reset()
+    a, b = (sim.run(steps=700, every=7) for sim in (loop, one))
+    for field in fields:
+        assert np.array_equal(getattr(a, field), getattr(b, field)), f"run: {field}"
+    assert events(a.contacts) == events(b.contacts)

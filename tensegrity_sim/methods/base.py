@@ -22,7 +22,9 @@ Rules for whoever writes a new method (compare ``scipy.integrate.OdeSolver``):
 10. A method with a compiled multi-step loop says so in ``has_loop()`` and implements ``advance()``
     (``Simulator.run`` then runs in it, inputs held); its results must equal those of ``step()``.
     ``carry()``/``restore(carry)`` save and put back what the loop carries from one step to the next
-    (``Simulator.step`` runs steps ahead in the loop and rewinds to a saved carry when it must). A
+    (``Simulator.step`` runs steps ahead in the loop and rewinds to a saved carry when it must). With a
+    member contact response, ``advanced_pairs`` holds the steps of the last ``advance()`` that had member
+    contact impulses, ``{step (from 0): MethodStep.pair_impulses}``, for the contact events. A
     carry that ``invalidate()`` does not rebuild from the state (``carry_outlives_inputs``: a motor's
     position, a warm start) makes the simulator rewind the steps ahead before an input changes or the
     method is asked about the present (``slack``, ``applied_rest_lengths``).
@@ -82,6 +84,7 @@ class StepMethod:
 
     name: str = ""
     carry_outlives_inputs = False   # rule 10: True: rewind the steps ahead before an input changes
+    advanced_pairs: dict = {}       # rule 10: the member contacts' impulses of the last advance(), by step
     options: tuple[str, ...] = ()
 
     def __init__(self, system: System, dt: float):

@@ -29,7 +29,9 @@ damped step ``(J^T J + nu I) d = -J^T phi`` with ``nu = (|phi| / S)^2`` (``S`` t
 is always defined, is a descent direction of the merit, and becomes Newton's step as ``phi -> 0``
 (Yamashita–Fukushima: superlinear under a local error bound, which holds for the indeterminate
 case); ``nu`` is kept within ``[1e-20, 1e-2]`` so that a poor warm start still takes near-Newton steps
-and ``J^T J + nu I`` stays definite where ``J`` is singular. Enumerating the 3^2 contact modes instead would need an inner iteration anyway (a sliding end's
+and ``J^T J + nu I`` stays definite where ``J`` is singular (in exact arithmetic: where round-off leaves a
+pivot of its Cholesky factor non-positive, the block is left unsolved, not answered with NaN).
+Enumerating the 3^2 contact modes instead would need an inner iteration anyway (a sliding end's
 direction is coupled to the other end's through the strut), and the QP fixed point of ``friction.py``
 costs QPs per iterate. Measured: 1-3 iterations a block for the resting and sliding scenes, warm-started
 from the node's last impulse. The answer is accepted when ``max |phi| <= BLOCK_TOL S``, which is the
@@ -155,11 +157,15 @@ def _residual(q, s, k, target, mu, work, z, up, ur, pp, pr, jp):
 @njit(cache=True, error_model="numpy", inline="always")
 def _cholesky_solve(q, work):
     """``work[4, 4] = work[3]^-1 work[4, 3]`` for the symmetric positive definite ``work[3]`` (q, q), factored
-    in place."""
+    in place. Returns False, solving nothing, where a pivot is not positive: ``J^T J + nu I`` with ``J``
+    singular and ``nu`` below its round-off (a strut resting on the ground, sticking at both ends, when
+    ``|phi|`` is already small) is not definite in floating point."""
     for j in range(q):
         d = work[3, j, j]
         for p in range(j):
             d -= work[3, j, p] * work[3, j, p]
+        if not d > 0.0:
+            return False
         d = np.sqrt(d)
         work[3, j, j] = d
         for i in range(j + 1, q):
@@ -177,6 +183,7 @@ def _cholesky_solve(q, work):
         for p in range(i + 1, q):
             e -= work[3, p, i] * work[4, 4, p]
         work[4, 4, i] = e / work[3, i, i]
+    return True
 
 
 @njit(cache=True, error_model="numpy")
@@ -186,7 +193,8 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
     strut's is recomputed), ``inv`` (2,) 1/kg, ``strut`` whether the block has the strut row along the
     unit ``direction`` (3,) (end 0 to end 1), ``ends`` (k,) which end each contact is at, ``target`` (k,)
     m/s its normal target, ``mu`` its Coulomb coefficient. Returns the iterations taken, or -1 if
-    ``phi`` did not reach ``BLOCK_TOL`` (``v`` then unchanged).
+    ``phi`` did not reach ``BLOCK_TOL`` or the damped normal matrix is not definite in floating point (``v``
+    then unchanged).
 
     ``work`` (6, 7, 7): [1] W, [2] the Jacobian, [3] the damped normal matrix; rows of [4]: u0, u, phi,
     -J^T phi, the step, the trial z, rho; rows of [5]: the trial's u and phi."""
@@ -263,7 +271,8 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
                     acc += work[2, p, i] * work[2, p, j]
                 work[3, i, j] = acc
             work[3, i, i] += nu
-        _cholesky_solve(q, work)
+        if not _cholesky_solve(q, work):
+            break
         slope = 0.0
         for i in range(q):
             slope -= work[4, 3, i] * work[4, 4, i]    # row 3 holds -J^T phi

@@ -441,6 +441,13 @@ class ContactDetector:
         return (self._kind_ok[self._kind[i], self._kind[j]] & ~share
                 & ~(self._member_fixed[i] & self._member_fixed[j]) & (i != j))
 
+    def eligible_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every eligible pair of checked members ``(i, j)`` (k,), ``i < j`` (system indices), in key order."""
+        a, b = np.triu_indices(len(self.members), 1)
+        i, j = self.members[a], self.members[b]
+        ok = self.eligible(i, j)
+        return i[ok], j[ok]
+
     def _rebuild(self, x0: np.ndarray, x1: np.ndarray, keep_state: bool) -> None:
         """New pair list from boxes holding the members' sweep from ``x0`` to ``x1`` and any later
         position within the skin of ``x1``; pairs already listed keep their state."""
@@ -592,11 +599,8 @@ class CompiledDetector(ContactDetector):
         not needed)."""
         from ._detection_kernels import detection_state   # (methods imports this module)
         if not hasattr(self, "_pair_nodes"):
-            m, n_members = self.members, self.system.n_members
-            a, b = np.triu_indices(len(m), 1)
-            i, j = m[a], m[b]
-            ok = self.eligible(i, j)
-            self._i, self._j = i[ok], j[ok]
+            n_members = self.system.n_members
+            self._i, self._j = self.eligible_pairs()
             self._key = self._i * n_members + self._j
             self._ends = np.concatenate([self.system.ends[self._i], self.system.ends[self._j]], axis=1)
             self._pair_nodes = self._ends

@@ -56,6 +56,27 @@ def _residual(s, k, rho, target, mu, w, u0, z):
     return phi, jac, 0.5 * float(phi @ phi)
 
 
+def _definite(a: np.ndarray) -> bool:
+    """Whether the kernel's Cholesky factorisation (``_cholesky_solve``, the same operations in the same
+    order) of the symmetric ``a`` (q, q) finds every pivot positive. (The two matrices agree to round-off,
+    so where a pivot is at round-off's level the twin and the kernel may decide differently.)"""
+    q = len(a)
+    low = np.zeros((q, q))
+    for j in range(q):
+        d = a[j, j]
+        for p in range(j):
+            d -= low[j, p] * low[j, p]
+        if not d > 0.0:
+            return False
+        low[j, j] = d = np.sqrt(d)
+        for i in range(j + 1, q):
+            e = a[i, j]
+            for p in range(j):
+                e -= low[i, p] * low[j, p]
+            low[i, j] = e / d
+    return True
+
+
 def solve_block_reference(inv: np.ndarray, strut: bool, direction: np.ndarray, ends: np.ndarray, 
                           target: np.ndarray, mu: float, v: np.ndarray, z: np.ndarray):
     """``solve_block``'s answer, returned instead of written in place: ``(v, z, iterations)`` (``-1``:
@@ -89,7 +110,10 @@ def solve_block_reference(inv: np.ndarray, strut: bool, direction: np.ndarray, e
         if it == MAX_NEWTON:
             break
         nu = min(2.0 * merit / (scale * scale), _MAX_DAMPING) + _MIN_DAMPING
-        d = np.linalg.solve(jac.T @ jac + nu * np.eye(q), -(jac.T @ phi))
+        normal = jac.T @ jac + nu * np.eye(q)
+        if not _definite(normal):
+            break
+        d = np.linalg.solve(normal, -(jac.T @ phi))
         slope = float((jac.T @ phi) @ d)
         step = 1.0
         while True:

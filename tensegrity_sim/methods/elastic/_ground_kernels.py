@@ -1,4 +1,4 @@
-"""The elastic method's step with a ground, compiled: ``elastic/_kernels.py``'s velocity Verlet with the
+"""The elastic method's step with contacts, compiled: ``elastic/_kernels.py``'s velocity Verlet with the
 contact impulse steps of :meth:`.elastic.ElasticMethod.verlet` (``methods/contact/friction.py``'s model: after the
 first half-kick the nodes that would pass the ground during the drift get the impulse that lands them on
 it; after the closing half-kick the touching nodes get the impulse that stops them moving into it, with
@@ -7,13 +7,27 @@ Newton's restitution for those that landed), each velocity problem solved block 
 with elastic cables nothing else couples the nodes). As in the reference, a solve also zeroes every
 other rigid strut's length rate (RATTLE's projection, the QP's rows of the struts without contacts).
 
+**Member pairs** (``contact: response: true``; a scene without a ground has its plane at ``-inf``). A step
+in which ``MemberContacts`` would arm a member pair is not taken here: the kernel stops at it as at a block
+it leaves unsolved (``failed``, with the reason ``MEMBERS``) and the caller takes it by the reference, whose
+QP fixed point holds the pair rows beside the ground's. The test is ``MemberContacts.arm_step``'s before the
+drift (gap minus ``h`` times the pair's closing rate on the free velocities within ``touch_tol``) and
+``arm_settle``'s at the step's end (gap within ``touch_tol``), on every eligible pair
+(``_detection_kernels._closest``'s closest points) less those whose boxes are farther apart than any rate
+could close (``|n . u| <= 2 max_j |v_j|``, the weights' magnitudes summing to 2): a superset of the pairs the
+reference arms (it also leaves out pairs its own boxes keep apart), so a step taken here is one where the
+reference arms no pair, the same velocity problems.
+
 Batch axis last, as the other kernels; :func:`ground_steps` steps the copies on every core (``prange``).
 The ground's model (:func:`ground_arrays`):
 
     height, mu, restitution      the plane z = height, its Coulomb coefficient and restitution
     radii (N,) m                 each node's contact radius
     node_strut (N,) int64        the moving rigid strut a node ends (its row in rigid_members), or -1
-    touch_tol m                  a node within this of the ground touches it (friction.TOUCH_TOL)
+    touch_tol m                  a node within this of the ground touches it (friction.TOUCH_TOL), and a
+                                 member pair within this of contact
+    pair_nodes (P, 4) int64      the eligible member pairs' nodes (a0, a1, b0, b1) (none without a response)
+    pair_radii (P,) m            their radii's sums
 
 What a step carries beside ``_elastic_kernels``' carry: ``warm`` (2, N, 3, B) N*s, each node's contact
 impulse (friction x, y, normal) in the last drift (0) and closing (1) solve, the block solver's warm start
@@ -29,13 +43,17 @@ import numpy as np
 from numba import njit, prange
 
 from ._kernels import _close, _drift, elastic_forces, gather_copy, keep, scatter_copy
+from ..contact._detection_kernels import _closest
 from ..contact._friction_block_kernels import MAX_ROWS, lone_contact, solve_block
 
-__all__ = ["GroundModel", "ground_arrays", "ground_steps", "ground_steps_serial"]
+__all__ = ["GroundModel", "ground_arrays", "ground_steps", "ground_steps_serial", "UNSOLVED", "MEMBERS"]
+
+UNSOLVED = 1   # the reasons a step is left to the reference (``failed``): a contact block the Newton left unsolved,
+MEMBERS = 2    # or a member pair armed
 
 
 class GroundModel(NamedTuple):
-    """The ground's arrays of the kernels (module docstring), in their argument order."""
+    """The contacts' arrays of the kernels (module docstring), in their argument order."""
 
     height: float
     mu: float
@@ -43,16 +61,66 @@ class GroundModel(NamedTuple):
     radii: np.ndarray
     node_strut: np.ndarray
     touch_tol: float
+    pair_nodes: np.ndarray
+    pair_radii: np.ndarray
 
 
-def ground_arrays(system, rigid, touch_tol: float) -> GroundModel:
-    """The kernels' ground arrays for a ``System`` with a ground and its ``RigidStruts``."""
+def ground_arrays(system, rigid, touch_tol: float, members=None) -> GroundModel:
+    """The kernels' contact arrays for a ``System`` with a ground or a member contact response, its
+    ``RigidStruts`` and its ``MemberContacts`` (None without a response)."""
     ground = system.scene.ground
     node_strut = np.full(system.n_nodes, -1, dtype=np.int64)
     for k, (a, c) in enumerate(rigid.ends):
         node_strut[a] = node_strut[c] = k
-    return GroundModel(float(ground.height), float(ground.friction), float(ground.restitution),
-                       np.ascontiguousarray(system.scene.node_radii, dtype=float), node_strut, float(touch_tol))
+    if members is None:
+        pair_nodes, pair_radii = np.zeros((0, 4), dtype=np.int64), np.zeros(0)
+    else:
+        i, j = members.detector.eligible_pairs()
+        pair_nodes = np.ascontiguousarray(np.concatenate([system.ends[i], system.ends[j]], axis=1), dtype=np.int64)
+        pair_radii = members.detector.radius[i] + members.detector.radius[j]
+    height, mu, restitution = ((-np.inf, 0.0, 0.0) if ground is None
+                               else (float(ground.height), float(ground.friction), float(ground.restitution)))
+    return GroundModel(height, mu, restitution, np.ascontiguousarray(system.scene.node_radii, dtype=float),
+                       node_strut, float(touch_tol), pair_nodes, pair_radii)
+
+
+@njit(cache=True, error_model="numpy")
+def _pair_armed(x, v, h, speed, pair_nodes, pair_radii, touch_tol, ends4, out, s5, t5, b):
+    """Whether copy ``b`` has a member pair that ``MemberContacts`` would arm (module docstring): with
+    ``h`` > 0 before the drift of ``h`` s from ``x`` at the free velocities ``v`` (N, 3, B), whose largest
+    node speed is ``speed`` m/s; with ``h`` = 0 touching at ``x``. The rest is scratch."""
+    reach = touch_tol + 2.0 * h * speed
+    for k in range(pair_nodes.shape[0]):
+        a0 = pair_nodes[k, 0]
+        a1 = pair_nodes[k, 1]
+        b0 = pair_nodes[k, 2]
+        b1 = pair_nodes[k, 3]
+        far = reach + pair_radii[k]
+        apart = False
+        for j in range(3):   # the segments' boxes: their distance along an axis is at most the capsules'
+            if (min(x[b0, j, b], x[b1, j, b]) - max(x[a0, j, b], x[a1, j, b]) > far
+                    or min(x[a0, j, b], x[a1, j, b]) - max(x[b0, j, b], x[b1, j, b]) > far):
+                apart = True
+                break
+        if apart:
+            continue
+        for i in range(4):
+            for j in range(3):
+                ends4[i, j] = x[pair_nodes[k, i], j, b]
+        _closest(ends4, out, s5, t5)
+        gap = out[0] - pair_radii[k]
+        if gap <= touch_tol:
+            return True
+        if h > 0.0:   # apart: the normal is along the closest points' vector, out[3:6]
+            s = out[1]
+            t = out[2]
+            rate = 0.0
+            for j in range(3):
+                u = (s - 1.0) * v[a0, j, b] - s * v[a1, j, b] + (1.0 - t) * v[b0, j, b] + t * v[b1, j, b]
+                rate += u * out[3 + j]
+            if gap - h * abs(rate / out[0]) <= touch_tol:
+                return True
+    return False
 
 
 @njit(cache=True, error_model="numpy")
@@ -130,41 +198,49 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
 @njit(cache=True, error_model="numpy")
 def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                  rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu, restitution, radii,
-                 node_strut, touch_tol, warm, dx, impulses, slack, contact, armed, target, landing, work, inv2, vel,
-                 z, ends_k, target_k, vel3, z3, b):
-    """One step of copy ``b`` with the ground (module docstring), in place as ``_elastic_kernels._step``;
-    ``contact`` (N, 3) gets the ground's impulses of the step. Returns False if a contact block was not
-    solved (the copy's ``x``, ``v`` and carry are then not those of a step: the caller restarts it)."""
+                 node_strut, touch_tol, pair_nodes, pair_radii, warm, dx, impulses, slack, contact, armed, target,
+                 landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, b):
+    """One step of copy ``b`` with the contacts (module docstring), in place as ``_elastic_kernels._step``;
+    ``contact`` (N, 3) gets the ground's impulses of the step. Returns 0, or the reason the step is left to
+    the reference (``UNSOLVED``, ``MEMBERS``: the copy's ``x``, ``v`` and carry are then not those of a step,
+    the caller restarts it)."""
     n_nodes = x.shape[0]
     half = 0.5 * h
     found = False
+    speed = 0.0
     for p in range(n_nodes):
         for j in range(3):
             contact[p, j] = 0.0
         vz0 = v[p, 2, b]
         for j in range(3):
             v[p, j, b] += half * acc[p, j, b]
+        speed = max(speed, np.sqrt(v[p, 0, b] * v[p, 0, b] + v[p, 1, b] * v[p, 1, b] + v[p, 2, b] * v[p, 2, b]))
         gap = x[p, 2, b] - radii[p] - height
         armed[p] = inv_mass[p] > 0.0 and gap - h * abs(v[p, 2, b]) <= touch_tol
         # the drift's target lands the node on the ground, capped at the reversal of its start velocity
         target[p] = min(-gap / h, -vz0)
         landing[p] = max(-v[p, 2, b], 0.0) if gap > touch_tol else 0.0
         found = found or armed[p]
+    if pair_nodes.shape[0] and _pair_armed(x, v, h, speed, pair_nodes, pair_radii, touch_tol, ends4, out6, s5, t5, b):
+        return MEMBERS
     if found and not _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut,
                             mu, warm[0], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3):
-        return False
+        return UNSOLVED
     _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
     _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
            rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b)
+    if pair_nodes.shape[0] and _pair_armed(x, v, 0.0, 0.0, pair_nodes, pair_radii, touch_tol, ends4, out6, s5, t5,
+                                           b):
+        return MEMBERS
     found = False
     for p in range(n_nodes):
         armed[p] = inv_mass[p] > 0.0 and x[p, 2, b] - radii[p] - height <= touch_tol
         target[p] = restitution * landing[p]
         found = found or armed[p]
-    if found:
-        return _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
-                      warm[1], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3)
-    return True
+    if found and not _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
+                            warm[1], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3):
+        return UNSOLVED
+    return 0
 
 
 @njit(cache=True, error_model="numpy")
@@ -185,13 +261,14 @@ def _take_inputs(rest_seq, ext_seq, s, bs, rest, ext) -> bool:
 
 def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
                   gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, height,
-                  mu, restitution, radii, node_strut, touch_tol, warm, rest_seq, ext_seq, out_x, out_v, out_impulses,
-                  out_slack, out_contact, failed):
+                  mu, restitution, radii, node_strut, touch_tol, pair_nodes, pair_radii, warm, rest_seq, ext_seq, out_x,
+                  out_v, out_impulses, out_slack, out_contact, failed, reason):
     """``n_steps`` steps of ``h`` (s) of every copy (the copies spread over the cores), in place on ``x``,
     ``v`` and the carry (``acc``, ``tension``, ``rigid_dirs``, ``warm``); the kept steps as
     ``_elastic_kernels.elastic_steps`` keeps them, and ``out_contact`` (K, N, 3, B) the ground's impulses
-    summed like the cables'. ``failed`` (B,) int64: -1, or the step of the copy whose contact block was
-    not solved (the copy stops there: its ``x``, ``v`` are those at that step's start, its carry is not).
+    summed like the cables'. ``failed`` (B,) int64: -1, or the step of the copy left to the reference (the copy
+    stops there: its ``x``, ``v`` are those at that step's start, its carry is not), and ``reason`` (B,) int64
+    why (``UNSOLVED``, ``MEMBERS``).
     Each copy is stepped in contiguous arrays of its own (a batch of one: the very arithmetic of
     ``Simulator``'s loop, and no stride of B between a copy's numbers).
 
@@ -212,7 +289,7 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
         inv_mass_b, gravity_b, rigid_members_b = inv_mass.copy(), gravity_force.copy(), rigid_members.copy()
         rigid_length_sq_b, rigid_w_b, radii_b, node_strut_b = (rigid_length_sq.copy(), rigid_w.copy(), radii.copy(),
                                                                node_strut.copy())
-        floor_b = floor.copy()
+        floor_b, pair_nodes_b, pair_radii_b = floor.copy(), pair_nodes.copy(), pair_radii.copy()
         xb = np.empty((n_nodes, 3, 1))
         vb = np.empty((n_nodes, 3, 1))
         accb = np.empty((n_nodes, 3, 1))
@@ -245,7 +322,12 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
         target_k = np.empty(2)
         vel3 = np.empty(3)
         z3 = np.empty(3)
+        ends4 = np.empty((4, 3))
+        out6 = np.empty(6)
+        s5 = np.empty(5)
+        t5 = np.empty(5)
         failed[b] = -1
+        reason[b] = 0
         bs = 0   # the copy's column of the inputs (one column: every copy's)
         if rest_seq.shape[2] > 1:
             bs = np.int64(b)   # prange's index is unsigned: unified with 0 it would be a float
@@ -257,15 +339,18 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
             if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, restb, extb):
                 elastic_forces(xb, vb, restb, extb, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b, inv_mass_b,
                                gravity_b, rigid_members_b, accb, tensionb, dirsb)
-            if not _ground_step(xb, vb, restb, extb, h, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
-                                inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb, tensionb,
-                                dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol, warmb, dx, imp, sl,
-                                contact, armed, target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, 0):
+            why = _ground_step(xb, vb, restb, extb, h, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
+                               inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb, tensionb,
+                               dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol, pair_nodes_b,
+                               pair_radii_b, warmb, dx, imp, sl, contact, armed, target, landing, work, inv2, vel, z,
+                               ends_k, target_k, vel3, z3, ends4, out6, s5, t5, 0)
+            if why:
                 for i in range(n_nodes):
                     for j in range(3):
                         xb[i, j, 0] = x0[i, j]
                         vb[i, j, 0] = v0[i, j]
                 failed[b] = s
+                reason[b] = why
                 break
             for ci in range(nc):
                 total[ci] += imp[ci]

@@ -263,10 +263,11 @@ class ElasticBatch:
             self._cache = (np.empty_like(x), np.empty((nc, b)), np.empty((self.rigid.count, 3, b)))
             kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._cache)
             self._cache += (np.zeros((2,) + x.shape),)   # each node's last contact impulses (drift, closing)
-        failed = np.empty(b, dtype=np.int64)
+        failed, reason = np.empty(b, dtype=np.int64), np.empty(b, dtype=np.int64)
         seq = _HELD if commands is None else self._inputs(commands, rest, ext, steps, first_step)
         ground_kernels.ground_steps(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache[:3], *self.ground,
-                                    self._cache[3], *seq, out_x, out_v, out_imp, out_slack, out_contact, failed)
+                                    self._cache[3], *seq, out_x, out_v, out_imp, out_slack, out_contact, failed,
+                                    reason)
         if commands is not None:
             self.inputs_in_effect = (np.ascontiguousarray(np.broadcast_to(seq[0][-1], rest.shape)),
                                      np.ascontiguousarray(np.broadcast_to(seq[1][-1], ext.shape)))

@@ -44,7 +44,7 @@ Two implementations of the same arithmetic: the numba kernels (used unless ``com
 ``_composition_kernels.py`` for the located and order-4 options, and the numpy code below (the primitive
 :meth:`ElasticMethod.verlet` composed by ``methods/elastic/composition.py``), the plain reference they must
 match to 1e-12 in tests. Rigid struts that share a node (class-k: coupled SHAKE/RATTLE, a Newton solve)
-and scenes with a member contact response are stepped by the reference only; a scene with a ground by
+are stepped by the reference only; a scene with a ground or a member contact response by
 ``elastic/_ground_kernels.py`` (below).
 
 **Ground contact** (a scene with a ``ground``; ``methods/contact/friction.py``): an impulse step for the contact
@@ -68,7 +68,12 @@ paths. A block the Newton leaves unsolved (measured: 1 % of random blocks with a
 masses and mu up to 1; none on the test scenes) has its step taken by the reference (``fallbacks`` counts
 them), and the compiled loop goes on after it. A member contact
 response (``contact: response: true``, ``methods/contact/member.py``) is the same impulse step with the
-member pairs' rows beside the ground's, at the same cost to the order and energy behaviour.
+member pairs' rows beside the ground's, at the same cost to the order and energy behaviour. Compiled, a
+step in which a member pair is armed (one that may touch by the drift's end, or touches at the step's end)
+is taken by the reference in the same way (``member_steps`` counts them; the pairs' impulses of those steps
+in :meth:`ElasticMethod.advance` are kept in ``advanced_pairs``), and every other step, the ground's blocks
+and all, by the kernel: the blocks that member contacts join (struts touching struts) are not solved
+compiled.
 """
 from __future__ import annotations
 
@@ -111,7 +116,8 @@ class ElasticMethod(StepMethod):
     slack/taut switch (``methods/elastic/composition.py``); default (None): at order 4 only (at order 2 it
     costs a located part per switching step and, with the fastest vibration under-resolved, lets the
     energy random-walk: see the module docstring). ``compiled``: step with the numba kernels (True; not
-    for coupled rigid struts or a member contact response) or the numpy reference (False)."""
+    for coupled rigid struts; with a member contact response a step with an armed pair by the reference) or
+    the numpy reference (False)."""
 
     name = "elastic"
     options = ("order", "locate_switches")
@@ -154,12 +160,12 @@ class ElasticMethod(StepMethod):
         self._contact = None   # the ground's impulses of the last step (N, 3) N*s, or None
         self._pairs = None     # the member contacts' of the last step (ContactSet.pair_impulses), or None
         # the compiled kernels: plain Verlet (elastic/_kernels.py), the options (_composition_kernels.py) and
-        # the ground (elastic/_ground_kernels.py); a member response and coupled rigid struts run the numpy
-        # primitive
-        self.compiled = compiled and not self.rigid.coupled and not system.scene.contact_response.response
-        self._ground_model = (ground_kernels.ground_arrays(system, self.rigid, TOUCH_TOL)
-                              if system.scene.ground is not None else None)
-        self.fallbacks = 0     # compiled steps with a ground retaken by the reference (a block unsolved)
+        # the contacts (elastic/_ground_kernels.py); coupled rigid struts run the numpy primitive
+        self.compiled = compiled and not self.rigid.coupled
+        self._ground_model = (None if self.ground is None
+                              else ground_kernels.ground_arrays(system, self.rigid, TOUCH_TOL, self.ground.members))
+        self.fallbacks = 0     # compiled steps with contacts retaken by the reference (a block unsolved) ...
+        self.member_steps = 0  # ... and taken by it (a member pair armed)
         self._plain = self.order == 2 and not self.locate_switches
         self._weights = np.array(WEIGHTS[self.order])
         self._model = kernels.model_arrays(system, self.rigid)
@@ -228,8 +234,9 @@ class ElasticMethod(StepMethod):
         advances in place; the outputs are those of :meth:`advance` with a trailing batch axis, and with a
         ground ``contact`` (K, N, 3, 1) N*s its impulses. ``inputs`` (a ground): each step's rest lengths
         (steps, nc, 1) and forces (steps, N, 3, 1), ``state``'s being those in effect before them. Returns -1,
-        or (a ground) the step whose contact block was not solved: ``x``, ``v`` are then at its start, the carry
-        is dropped, and (with ``inputs``) that step's inputs are in ``state``."""
+        or (contacts) the step left to the reference (a contact block not solved, a member pair armed): ``x``,
+        ``v`` are then at its start, the carry is dropped, and (with ``inputs``) that step's inputs are in
+        ``state``; ``fallbacks`` or ``member_steps`` counts it."""
         rest = state.rest_lengths.reshape(-1, 1)
         ext = state.external_forces.reshape(-1, 3, 1)
         if self._carry is None:   # the start forces: the last step's end, or computed here
@@ -239,12 +246,16 @@ class ElasticMethod(StepMethod):
             self._warm = None
             self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *forces), warm)
         if self._ground_model is not None:
-            failed = np.empty(1, dtype=np.int64)
+            failed, reason = np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64)
             ground_kernels.ground_steps_serial(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
                                                *self._ground_model, self._carry[4], *inputs, positions, velocities,
-                                               impulses, slack, contact, failed)
+                                               impulses, slack, contact, failed, reason)
             if failed[0] >= 0:
                 self._carry = None
+                if reason[0] == ground_kernels.MEMBERS:
+                    self.member_steps += 1
+                else:
+                    self.fallbacks += 1
             if inputs[0].shape[0]:   # the inputs of the last step taken (or of the one not taken)
                 last = steps - 1 if failed[0] < 0 else int(failed[0])
                 state.rest_lengths, state.external_forces = inputs[0][last, :, 0].copy(), inputs[1][last, ..., 0].copy()
@@ -270,9 +281,8 @@ class ElasticMethod(StepMethod):
         x3, v3 = x.reshape(-1, 3, 1), v.reshape(-1, 3, 1)
         # the step writes in place
         if self._advance(state, x3, v3, 1, 1, x3[None], v3[None], impulses, slack, contact) >= 0:
-            # a contact block the compiled solver left unsolved: the step in the reference (friction.py's QP
-            # fixed point and its projected fallback)
-            self.fallbacks += 1
+            # a contact block the compiled solver left unsolved or an armed member pair: the step in the
+            # reference (friction.py's QP fixed point and its fallbacks)
             self._cache = None
             return self._step_reference(state)
         return MethodStep(x, v, impulses.reshape(-1), slack.reshape(-1),
@@ -308,23 +318,31 @@ class ElasticMethod(StepMethod):
         """:meth:`StepMethod.advance`; with a ground, ``contact`` (K, N, 3) N*s gets its impulses, summed
         like the cables' (None: not kept), and ``inputs`` may give each step's rest lengths (steps, nc) and
         external forces (steps, N, 3) (:meth:`runs_commands`; ``state``'s are those in effect before them, and
-        are not changed)."""
+        are not changed). The member contacts' impulses of the steps the reference took with armed pairs go
+        to ``advanced_pairs``."""
         x, v = state.positions.copy(), state.velocities.copy()
         x3, v3 = x.reshape(-1, 3, 1), v.reshape(-1, 3, 1)
+        self.advanced_pairs = {}
         if self._ground_model is None:
             self._advance(state, x3, v3, steps, every, positions[..., None], velocities[..., None],
                           impulses[..., None], slack[..., None])
             return x, v
-        # a ground: chunks of single steps, summed into the kept ones here; a step whose contact block the
-        # compiled solver leaves unsolved is taken by the reference, and the compiled loop goes on after it
+        # contacts: chunks of single steps, summed into the kept ones here; a step whose contact block the
+        # compiled solver leaves unsolved, or with an armed member pair, is taken by the reference, and the
+        # compiled loop goes on after it
         now = State(x, v, state.rest_lengths, state.external_forces, state.step_count)
         seq = None if inputs is None else (inputs[0][..., None], inputs[1][..., None])
 
         def run(first, m, *outs):
-            """Steps ``first`` .. ``first + m - 1`` compiled; on a failed block, that step by the reference."""
+            """Steps ``first`` .. ``first + m - 1`` compiled; on a failed one, that step by the reference."""
             got = self._advance(now, x3, v3, m, 1, *outs, _HELD if seq is None else
                                 (seq[0][first:first + m], seq[1][first:first + m]))
-            return got, (None if got < 0 else self._retake(now, x, v))
+            if got < 0:
+                return got, None
+            out = self._retake(now, x, v)
+            if out.pair_impulses:
+                self.advanced_pairs[first + got] = out.pair_impulses
+            return got, out
 
         n, nc = x.shape[0], self.system.n_cables
         if every == 1 and contact is not None:   # every step kept: straight into the outputs
@@ -367,9 +385,8 @@ class ElasticMethod(StepMethod):
         return x, v
 
     def _retake(self, state: State, x: np.ndarray, v: np.ndarray) -> MethodStep:
-        """The step from ``x``, ``v`` (N, 3; updated in place) whose contact block the compiled solver left
-        unsolved, taken by the reference (friction.py's QP fixed point and its projected fallback)."""
-        self.fallbacks += 1
+        """The step from ``x``, ``v`` (N, 3; updated in place) that the compiled loop left to the reference
+        (friction.py's QP fixed point and its fallbacks)."""
         self._cache = None
         out = self._step_reference(State(x.copy(), v.copy(), state.rest_lengths, state.external_forces))
         x[...], v[...] = out.positions, out.velocities
