@@ -23,7 +23,7 @@ wait in memory until :data:`PENDING_SIZE` bytes of them wait, then go into the c
 a chunk is written out when it holds :data:`CHUNK_SIZE` bytes; and when :data:`FLUSH_PERIOD` seconds of
 wall-clock time have passed since the last write-out, the waiting messages and the chunk, however small,
 are written out and synced to the disk. Everything before the chunk in progress is complete on disk, so a
-crash loses at most PENDING_SIZE + CHUNK_SIZE = 80 KiB of messages and FLUSH_PERIOD s of wall-clock time.
+crash loses at most PENDING_SIZE + CHUNK_SIZE = 20 KiB of messages and FLUSH_PERIOD s of wall-clock time.
 The sync (``os.fsync``, ~0.7 ms on the project's machine, against a node's median tick of ~0.2 ms) runs on a
 thread of its own, so the tick that writes the chunk out does not wait for the disk (issue 28); the next
 flush, and finishing, take its failure as the write's. Chunk CRCs and the data-section CRC are written, so a
@@ -60,14 +60,15 @@ RUN_INFO = "tensegrity_sim"   # name of the metadata record that makes a log re-
 ROSBAG2_METADATA_VERSION = 9  # Jazzy
 _INFINITE = {"sec": 9223372036, "nsec": 854775807}  # RMW_DURATION_INFINITE, as rosbag2 records it
 # Crash safety (module docstring): the most a crash can lose is the messages waiting (at most PENDING_SIZE
-# bytes) and one chunk in progress (at most CHUNK_SIZE bytes): 80 KiB, a few hundred publications of a
-# small scene, and at most FLUSH_PERIOD s of wall-clock time. Their cost, measured by
-# bench/bench_log.py --crash-safety, is in the CHANGELOG (issue 13). Messages wait because mcap's writer takes several
-# in one run faster than one at a time (its Python code stays in the CPU's caches): ~0.5 us a step of the
-# node path's ~10 us (icosahedron, 100 Hz publications, pending_size 0 and 16 KiB taking turns in one
-# process). PENDING_SIZE = 0 hands every message on at once: the bound of issue 13, 64 KiB.
-CHUNK_SIZE = 64 * 1024   # bytes (mcap's default: 1 MiB)
-PENDING_SIZE = 16 * 1024  # bytes
+# bytes) and one chunk in progress (at most CHUNK_SIZE bytes): 20 KiB, tens of publications of a small scene,
+# and at most FLUSH_PERIOD s of wall-clock time. Messages wait because mcap's writer takes several in one run
+# faster than one at a time (its Python code stays in the CPU's caches: ~0.5 us a step of the node path's ~10 us
+# with 16 KiB waiting, issue 13). But a node pays for them in the tick that hands them on: with 16 KiB waiting
+# and 64 KiB chunks that tick took 0.35-0.75 ms more (a chunk written out: 0.38 ms): 40 of the 48 ticks over
+# 1 ms in 30,000 steps of bench_node's roll, logged at 100 Hz, in one process. With 4 KiB and 16 KiB, the same
+# steps: 9-12 ticks over 1 ms, p99.9 0.80 ms against 1.08 (issue 28).
+CHUNK_SIZE = 16 * 1024   # bytes (mcap's default: 1 MiB)
+PENDING_SIZE = 4 * 1024  # bytes
 FLUSH_PERIOD = 1.0       # s
 
 
