@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._ground_event_kernels import ground_changes
 from .detection import ActiveContact
 from .friction import TOUCH_TOL
 from ...results import ContactEvent
@@ -85,11 +86,9 @@ class GroundDetector:
         (K, N, 3) in turn, with the ground's ``impulses`` (K, N, 3) N*s of each, the first starting at
         ``t0`` s: :meth:`step` called for the steps where a node's contact begins or ends only (the others
         would return no event and change nothing but the last impulses), found for all steps at once."""
-        events: list[ContactEvent] = []
-        for per_step in walk_copies([self], x0[..., None], v0[..., None], positions[..., None],
-                                    velocities[..., None], impulses[..., None], t0, dt):
-            events.extend(per_step[0])
-        return events
+        found = walk_copies([self], x0[..., None], v0[..., None], positions[..., None], velocities[..., None],
+                            impulses[..., None], t0, dt)
+        return [e for k in sorted(found) for e in found[k][0]]
 
     def changes(self, positions: np.ndarray, impulses: np.ndarray) -> np.ndarray:
         """(K,) bool: the consecutive steps to ``positions`` (K, N, 3) with ``impulses`` (K, N, 3) at which
@@ -129,38 +128,39 @@ def _fractions(g0: np.ndarray, g1: np.ndarray, vz: np.ndarray, begins: np.ndarra
 
 
 def walk_copies(detectors: list[GroundDetector], x0: np.ndarray, v0: np.ndarray, positions: np.ndarray,
-                velocities: np.ndarray, impulses: np.ndarray, t0: float, dt: float) -> list[tuple[tuple, ...]]:
+                velocities: np.ndarray, impulses: np.ndarray, t0: float, dt: float) -> dict[int, list[tuple]]:
     """:meth:`GroundDetector.step` of B copies (one detector each) over K consecutive steps at once: ``x0``,
-    ``v0`` (N, 3, B), ``positions``, ``velocities``, ``impulses`` (K, N, 3, B). Returns each step's events
-    per copy (K tuples of B tuples): the contacts that begin or end are found, and their crossings
-    computed (:func:`_fractions`), for every step and copy together; each event is then made in the order
-    and arithmetic of :meth:`GroundDetector.step`."""
-    k, n_copies = len(positions), len(detectors)
-    out = [[()] * n_copies for _ in range(k)]
-    if not k:
-        return [tuple(row) for row in out]
+    ``v0`` (N, 3, B), ``positions``, ``velocities``, ``impulses`` (K, N, 3, B). Returns the events of the
+    steps that have any, by step (from 0): a list of B tuples, each copy's. The contacts that begin or end are
+    found in one compiled pass (:func:`ground_changes`), their crossings computed (:func:`_fractions`) for
+    every step and copy together; each event is then made in the order and arithmetic of
+    :meth:`GroundDetector.step`."""
+    found: dict[int, list[tuple]] = {}
+    if not len(positions):
+        return found
     first = detectors[0]
     inside = np.stack([d._inside for d in detectors], axis=-1)                                     # (N, B)
-    gaps = positions[:, :, 2] - first.radii[:, None] - first.height                                 # (K, N, B)
-    now = ((gaps <= TOUCH_TOL) | (impulses[:, :, 2] > 0)) & first.free[:, None]
-    steps, nodes, copies = np.nonzero(now != np.concatenate([inside[None], now[:-1]]))
+    last = np.empty_like(inside)
+    steps, nodes, copies, begins = ground_changes(positions, impulses, inside, first.radii, first.height,
+                                                  first.free, TOUCH_TOL, last)
     if len(steps):
         start = steps > 0
         before = np.maximum(steps - 1, 0)
-        g0 = np.where(start, gaps[before, nodes, copies], x0[nodes, 2, copies] - first.radii[nodes] - first.height)
+        g0 = np.where(start, positions[before, nodes, 2, copies], x0[nodes, 2, copies]) - first.radii[nodes] \
+            - first.height
         vz = np.where(start, velocities[before, nodes, 2, copies], v0[nodes, 2, copies])
-        begins = now[steps, nodes, copies]
-        g1 = gaps[steps, nodes, copies]
+        g1 = positions[steps, nodes, 2, copies] - first.radii[nodes] - first.height
         frac = _fractions(g0, g1, vz, begins, first.gravity, dt)
         for e in np.lexsort((nodes, frac, copies, steps)):   # by step and copy, then as GroundDetector.step
-            i, p, b = steps[e], int(nodes[e]), copies[e]
+            i, p, b = int(steps[e]), int(nodes[e]), int(copies[e])
             d = detectors[b]
             d.impulses = impulses[i, ..., b]
             start_x = positions[i - 1, p, :, b] if i else x0[p, :, b]
             event = d._crossing(p, bool(begins[e]), frac[e], start_x, positions[i, p, :, b], g0[e], g1[e],
                                 t0 + i * dt, dt)
-            out[i][b] = out[i][b] + (event,)
+            row = found.setdefault(i, [()] * len(detectors))
+            row[b] = row[b] + (event,)
     for b, d in enumerate(detectors):
-        d._inside = now[-1, :, b].copy()
+        d._inside = last[:, b].copy()
         d.impulses = impulses[-1, ..., b].copy()
-    return [tuple(row) for row in out]
+    return found

@@ -262,9 +262,9 @@ def _take_inputs(rest_seq, ext_seq, s, bs, rest, ext) -> bool:
 def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
                   gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, height,
                   mu, restitution, radii, node_strut, touch_tol, pair_nodes, pair_radii, warm, rest_seq, ext_seq, out_x,
-                  out_v, out_impulses, out_slack, out_contact, failed, reason):
-    """``n_steps`` steps of ``h`` (s) of every copy (the copies spread over the cores), in place on ``x``,
-    ``v`` and the carry (``acc``, ``tension``, ``rigid_dirs``, ``warm``); the kept steps as
+                  out_v, out_impulses, out_slack, out_contact, failed, reason, blocks):
+    """``n_steps`` steps of ``h`` (s) of every copy (in ``blocks`` contiguous blocks of copies spread over the
+    cores), in place on ``x``, ``v`` and the carry (``acc``, ``tension``, ``rigid_dirs``, ``warm``); the kept steps as
     ``_elastic_kernels.elastic_steps`` keeps them, and ``out_contact`` (K, N, 3, B) the ground's impulses
     summed like the cables'. ``failed`` (B,) int64: -1, or the step of the copy left to the reference (the copy
     stops there: its ``x``, ``v`` are those at that step's start, its carry is not), and ``reason`` (B,) int64
@@ -280,11 +280,12 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
     n_nodes = x.shape[0]
     nc, n_copies = rest.shape
     nr = rigid_members.shape[0]
-    for b in prange(n_copies):
-        # the model's arrays copied for each copy: numba counts references to an array passed between its
-        # functions, atomically, and threads sharing one array's count take turns at it (1,024 rolling copies
-        # through BatchSimulator.run on 2 threads, best of 6: 178-204k scene-steps/s sharing them, 233-243k
-        # with copies)
+    for blk in prange(blocks):
+        # a block of copies a thread (the scratch allocated once for its copies: allocated for each copy, it
+        # cost 7 ms a call of 1,024 copies); the model's arrays copied for each block: numba counts references
+        # to an array passed between its functions, atomically, and threads sharing one array's count take turns
+        # at it (1,024 rolling copies through BatchSimulator.run on 2 threads, best of 6: 178-204k scene-steps/s
+        # sharing them, 233-243k with copies)
         ends_b, stiffness_b, strut_rest_b, damping_b = ends.copy(), stiffness.copy(), strut_rest.copy(), damping.copy()
         inv_mass_b, gravity_b, rigid_members_b = inv_mass.copy(), gravity_force.copy(), rigid_members.copy()
         rigid_length_sq_b, rigid_w_b, radii_b, node_strut_b = (rigid_length_sq.copy(), rigid_w.copy(), radii.copy(),
@@ -298,26 +299,21 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
         restb = np.empty((nc, 1))
         tensionb = np.empty((nc, 1))
         dirsb = np.empty((nr, 3, 1))
-        gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, xb, vb, accb, extb, restb, tensionb, dirsb)
-        for i in range(n_nodes):
-            for j in range(3):
-                warmb[0, i, j, 0] = warm[0, i, j, b]
-                warmb[1, i, j, 0] = warm[1, i, j, b]
         dx = np.empty((n_nodes, 3))
         imp = np.empty(nc)
-        total = np.zeros(nc)
+        total = np.empty(nc)
         sl = np.empty(nc, dtype=np.bool_)
         contact = np.empty((n_nodes, 3))
-        total_contact = np.zeros((n_nodes, 3))
+        total_contact = np.empty((n_nodes, 3))
         armed = np.empty(n_nodes, dtype=np.bool_)
         target = np.empty(n_nodes)
         landing = np.empty(n_nodes)
         x0 = np.empty((n_nodes, 3))
         v0 = np.empty((n_nodes, 3))
-        work = np.zeros((6, MAX_ROWS, MAX_ROWS))
+        work = np.empty((6, MAX_ROWS, MAX_ROWS))
         inv2 = np.empty(2)
         vel = np.empty((2, 3))
-        z = np.zeros(MAX_ROWS)
+        z = np.empty(MAX_ROWS)
         ends_k = np.empty(2, dtype=np.int64)
         target_k = np.empty(2)
         vel3 = np.empty(3)
@@ -326,49 +322,58 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
         out6 = np.empty(6)
         s5 = np.empty(5)
         t5 = np.empty(5)
-        failed[b] = -1
-        reason[b] = 0
-        bs = 0   # the copy's column of the inputs (one column: every copy's)
-        if rest_seq.shape[2] > 1:
-            bs = np.int64(b)   # prange's index is unsigned: unified with 0 it would be a float
-        for s in range(n_steps):
+        first = np.int64(blk)   # prange's index is unsigned: with a signed number it would make a float
+        for b in range(n_copies * first // blocks, n_copies * (first + 1) // blocks):
+            gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, xb, vb, accb, extb, restb, tensionb, dirsb)
             for i in range(n_nodes):
                 for j in range(3):
-                    x0[i, j] = xb[i, j, 0]
-                    v0[i, j] = vb[i, j, 0]
-            if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, restb, extb):
-                elastic_forces(xb, vb, restb, extb, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b, inv_mass_b,
-                               gravity_b, rigid_members_b, accb, tensionb, dirsb)
-            why = _ground_step(xb, vb, restb, extb, h, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
-                               inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb, tensionb,
-                               dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol, pair_nodes_b,
-                               pair_radii_b, warmb, dx, imp, sl, contact, armed, target, landing, work, inv2, vel, z,
-                               ends_k, target_k, vel3, z3, ends4, out6, s5, t5, 0)
-            if why:
+                    warmb[0, i, j, 0] = warm[0, i, j, b]
+                    warmb[1, i, j, 0] = warm[1, i, j, b]
+            total[:] = 0.0   # each copy starts from the scratch a call of its own would have
+            total_contact[:] = 0.0
+            work[:] = 0.0
+            z[:] = 0.0
+            failed[b] = -1
+            reason[b] = 0
+            bs = b if rest_seq.shape[2] > 1 else 0   # the copy's column of the inputs (or the one of every copy's)
+            for s in range(n_steps):
                 for i in range(n_nodes):
                     for j in range(3):
-                        xb[i, j, 0] = x0[i, j]
-                        vb[i, j, 0] = v0[i, j]
-                failed[b] = s
-                reason[b] = why
-                break
-            for ci in range(nc):
-                total[ci] += imp[ci]
+                        x0[i, j] = xb[i, j, 0]
+                        v0[i, j] = vb[i, j, 0]
+                if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, restb, extb):
+                    elastic_forces(xb, vb, restb, extb, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b, inv_mass_b,
+                                   gravity_b, rigid_members_b, accb, tensionb, dirsb)
+                why = _ground_step(xb, vb, restb, extb, h, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
+                                   inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb, tensionb,
+                                   dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol, pair_nodes_b,
+                                   pair_radii_b, warmb, dx, imp, sl, contact, armed, target, landing, work, inv2, vel, z,
+                                   ends_k, target_k, vel3, z3, ends4, out6, s5, t5, 0)
+                if why:
+                    for i in range(n_nodes):
+                        for j in range(3):
+                            xb[i, j, 0] = x0[i, j]
+                            vb[i, j, 0] = v0[i, j]
+                    failed[b] = s
+                    reason[b] = why
+                    break
+                for ci in range(nc):
+                    total[ci] += imp[ci]
+                for i in range(n_nodes):
+                    for j in range(3):
+                        total_contact[i, j] += contact[i, j]
+                if (s + 1) % every == 0 or s == n_steps - 1:
+                    k = s // every
+                    keep(xb, vb, 0, total, sl, k, b, out_x, out_v, out_impulses, out_slack)
+                    for i in range(n_nodes):
+                        for j in range(3):
+                            out_contact[k, i, j, b] = total_contact[i, j]
+                            total_contact[i, j] = 0.0
+            scatter_copy(xb, vb, accb, tensionb, dirsb, b, x, v, acc, tension, rigid_dirs)
             for i in range(n_nodes):
                 for j in range(3):
-                    total_contact[i, j] += contact[i, j]
-            if (s + 1) % every == 0 or s == n_steps - 1:
-                k = s // every
-                keep(xb, vb, 0, total, sl, k, b, out_x, out_v, out_impulses, out_slack)
-                for i in range(n_nodes):
-                    for j in range(3):
-                        out_contact[k, i, j, b] = total_contact[i, j]
-                        total_contact[i, j] = 0.0
-        scatter_copy(xb, vb, accb, tensionb, dirsb, b, x, v, acc, tension, rigid_dirs)
-        for i in range(n_nodes):
-            for j in range(3):
-                warm[0, i, j, b] = warmb[0, i, j, 0]
-                warm[1, i, j, b] = warmb[1, i, j, 0]
+                    warm[0, i, j, b] = warmb[0, i, j, 0]
+                    warm[1, i, j, b] = warmb[1, i, j, 0]
 
 
 def _named(function, name: str):

@@ -249,7 +249,7 @@ class ElasticMethod(StepMethod):
             failed, reason = np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64)
             ground_kernels.ground_steps_serial(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
                                                *self._ground_model, self._carry[4], *inputs, positions, velocities,
-                                               impulses, slack, contact, failed, reason)
+                                               impulses, slack, contact, failed, reason, 1)
             if failed[0] >= 0:
                 self._carry = None
                 if reason[0] == ground_kernels.MEMBERS:
