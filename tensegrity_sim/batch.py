@@ -6,9 +6,9 @@ Every array a user sees has the batch as its **leading** axis, ``(B, N, 3)``, ``
 run returns ``(B, K, ...)`` (mujoco rollout's "nbatch x nstep" order). Inside, the elastic method keeps
 the batch as the *last* axis (:mod:`.methods.elastic_batch`) so that one step of all copies is a few
 array operations, and with a ground steps every copy in the compiled ground loop, the copies spread over
-all cores; the inextensible method solves one QP per copy and so steps a
-:class:`~tensegrity_sim.simulator.Simulator` per copy (style rule 8: a ``Simulator`` is a batch of one), as
-does the elastic method with a member contact response.
+all cores (with a member contact response too: a copy's steps with an armed member pair are taken by the
+reference, as in a ``Simulator``); the inextensible method solves one QP per copy and so steps a
+:class:`~tensegrity_sim.simulator.Simulator` per copy (style rule 8: a ``Simulator`` is a batch of one).
 
 Each copy equals a single ``Simulator`` run from the same state with the same inputs (to round-off;
 ``test/test_batch.py`` requires 1e-10). A step that fails in one copy (a QP without a solution, a
@@ -27,6 +27,7 @@ import numpy as np
 from .checks import float_array, time_step
 from .commands import CommandSchedule
 from .methods.contact.detection import make_detector
+from .methods.contact.friction import TOUCH_TOL
 from .methods.contact.ground import GroundDetector, walk_copies
 from .methods import StepError, check_backend, choose_method
 from .methods.elastic.method import ElasticMethod
@@ -191,9 +192,8 @@ class BatchSimulator:
         n, nc = len(scene.nodes), len(scene.cables)
         self._cable_index = {name: i for i, name in enumerate(scene.cable_names)}
         self._node_index = {name: i for i, name in enumerate(scene.node_names)}
-        # the batched elastic engines (numba, JAX) step a ground but no member contact response: a scene with one
-        # steps a Simulator per copy
-        if method == "elastic" and not scene.contact_response.response:
+        # the batched elastic engines step a ground (numba, JAX) and a member contact response (numba)
+        if method == "elastic":
             if solver is not None and requested:
                 raise ValueError(f"solver={solver!r} is an option of a method with a QP; method 'elastic' has none")
             if backend == "jax":
@@ -210,7 +210,9 @@ class BatchSimulator:
             self._v = self._engine.prepare(self._x, v)
             self._rest = np.stack([s.cable_rest_lengths for s in scenes], axis=-1)
             self._f_ext = np.zeros((n, 3, self.batch))
-            self._detectors = make_detector(self.system, scene.contact_kinds, copies=self.batch)
+            # with a contact response, members rest in contact at a gap of ~0: a contact ends beyond TOUCH_TOL
+            self._detectors = make_detector(self.system, scene.contact_kinds,
+                                            TOUCH_TOL if scene.contact_response.response else 0.0, copies=self.batch)
             if isinstance(self._detectors, list):
                 for b, d in enumerate(self._detectors):
                     d.reset(np.ascontiguousarray(self._x[..., b]))
@@ -380,11 +382,14 @@ class BatchSimulator:
 
             def at(k):   # the times steps k of the chunk start, s
                 return (start + k) * self.dt
+            pairs = getattr(self._engine, "pairs", {})   # a response's member impulses, {(step, copy): impulses}
             if isinstance(self._detectors, list):   # a numpy detector per copy (a scene with very many pairs)
                 found = {(k, b): events for b, d in enumerate(self._detectors)
-                         for (k, _), events in d.walk(xs[..., b:b + 1], at, self.dt, stop[b:b + 1]).items()}
+                         for (k, _), events in d.walk(xs[..., b:b + 1], at, self.dt, stop[b:b + 1],
+                                                      per_step={(k, 0): i for (k, c), i in pairs.items() if c == b}
+                                                      ).items()}
             else:
-                found = self._detectors.walk(xs, at, self.dt, stop)
+                found = self._detectors.walk(xs, at, self.dt, stop, per_step=pairs)
             rows: dict[int, list] = {}
             for (k, b), events in found.items():
                 rows.setdefault(k, [()] * self.batch)[b] = events
@@ -393,9 +398,10 @@ class BatchSimulator:
         if self._grounds is not None:
             landed = walk_copies(self._grounds, previous, previous_v, x_seq, v_seq, self._engine.contact,
                                  start * self.dt, self.dt)
-            contacts = [members if not any(ground) else
-                        tuple(tuple(sorted(m + g, key=lambda e: e.time)) if g else m for m, g in zip(members, ground))
-                        for members, ground in zip(contacts, landed)]
+            for k, ground in landed.items():   # the steps with ground events only: a batch's step is B rows
+                contacts[k] = tuple(ground if contacts[k] is self._no_events else
+                                    (tuple(sorted(m + g, key=lambda e: e.time)) if g else m
+                                     for m, g in zip(contacts[k], ground)))
         return (np.moveaxis(x_seq, -1, 1), np.moveaxis(v_seq, -1, 1), np.moveaxis(imp, -1, 1),
                 np.moveaxis(slack, -1, 1), contacts)
 

@@ -316,15 +316,52 @@ def test_the_batch_ground_kernel_equals_its_reference():
 
 
 def test_a_scene_with_member_contact_response_equals_single_runs():
-    """The batched engine has no member contact response: a scene with ``contact: response: true`` is stepped
-    copy by copy (struts that would pass through each other stop on each other here)."""
-    from test_member_contact import crossing
+    """A scene with ``contact: response: true`` steps in the compiled batch (a copy's steps with an armed member
+    pair by the reference, as in a Simulator's loop): B lands on A on the ground, rocks on it and slides once its
+    cable is reeled in, each copy thrown a little differently. Every copy equals its Simulator run to round-off
+    (the reference's QP warm-starts from the copy's previous reference step in a Simulator, afresh in the batch:
+    1e-20 m apart after it): positions, velocities, impulses, slack cables, and the member and ground contact
+    events with their times and impulses; and without a ground (struts that would pass through each other stop
+    on each other)."""
+    from test_member_contact import across, crossing
+
+    def same_events(got, want):
+        assert [(e.kind, e.members) for e in got] == [(e.kind, e.members) for e in want]
+        for field in ("time", "normal_impulse", "tangential_impulse"):
+            np.testing.assert_allclose([getattr(e, field) for e in got], [getattr(e, field) for e in want], rtol=0,
+                                       atol=TOL, err_msg=field)
+
+    scene = across(0.2, 1.0)
+    v = np.repeat(scene.velocities[None], 3, axis=0)
+    v[:, 3] += [[0.0, 0.0, 0.0], [0.1, -0.05, 0.0], [-0.1, 0.0, -0.1]]
+    batch = BatchSimulator(scene, 3, method="elastic", dt=1e-3, velocities=v)
+    assert isinstance(batch._engine, ElasticBatch) and batch._copies is None
+    runs = [batch.run(steps=450, every=7)]
+    batch.set_rest_lengths([0.4])
+    runs.append(batch.run(steps=450, every=7))
+    impacts = 0
+    for b in range(3):
+        sim = ts.Simulator(batch._with_state(scene, scene.positions, v[b], b), method="elastic", dt=1e-3)
+        want = [sim.run(steps=450, every=7)]
+        sim.set_rest_lengths([0.4])
+        want.append(sim.run(steps=450, every=7))
+        assert sim._method.member_steps >= 60   # the reference took the steps with the pair armed
+        for got, w in zip(runs, want):
+            for field in ("positions", "velocities", "impulses"):
+                np.testing.assert_allclose(getattr(got, field)[b], getattr(w, field), rtol=0, atol=TOL,
+                                           err_msg=f"copy {b}: {field}")
+            assert np.array_equal(got.slack[b], w.slack)
+            same_events(got.contacts[b], w.contacts)
+            impacts += any(e.members == ("A", "B") and e.kind == "begin" and e.normal_impulse > 0
+                           for e in w.contacts)
+    assert impacts >= 3
     scene = crossing(0.25)
-    batch = _quiet(lambda: BatchSimulator(scene, 2, method="elastic", dt=1e-3))
-    single = _quiet(lambda: ts.Simulator(scene, method="elastic", dt=1e-3))
+    batch = BatchSimulator(scene, 2, method="elastic", dt=1e-3)
+    single = ts.Simulator(scene, method="elastic", dt=1e-3)
     traj, want = batch.run(steps=60, every=30), single.run(steps=60, every=30)
     for b in range(2):
         np.testing.assert_allclose(traj.positions[b], want.positions, rtol=0, atol=TOL)
+        same_events(traj.contacts[b], want.contacts)
     assert want.positions[-1, 2, 2] > 0.0   # B's ends stayed above A
 
 

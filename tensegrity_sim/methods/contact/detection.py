@@ -501,13 +501,16 @@ class ContactDetector:
             return ()
         return self._careful_step(x0, x1, t0, dt)
 
-    def walk(self, xs: np.ndarray, step_start, dt: float, stop=None, impulses: dict | None = None) -> dict:
+    def walk(self, xs: np.ndarray, step_start, dt: float, stop=None, impulses: dict | None = None,
+             per_step: dict | None = None) -> dict:
         """:meth:`CompiledDetector.walk` of one copy (``xs`` (K + 1, N, 3, 1)), step after step."""
         steps = len(xs) - 1 if stop is None else int(stop[0])
         start = step_start(np.arange(steps))
+        per_step = per_step or {}
         found = {}
         for k in range(steps):
-            events = self.step(xs[k, ..., 0], xs[k + 1, ..., 0], float(start[k]), dt, impulses)
+            events = self.step(xs[k, ..., 0], xs[k + 1, ..., 0], float(start[k]), dt,
+                               per_step.get((k, 0), impulses))
             if events:
                 found[(k, 0)] = events
         return found
@@ -630,18 +633,19 @@ class CompiledDetector(ContactDetector):
                          impulses=impulses).get((0, 0), ())
 
     def walk(self, xs: np.ndarray, step_start, dt: float, stop: np.ndarray | None = None,
-             impulses: dict | None = None) -> dict:
+             impulses: dict | None = None, per_step: dict | None = None) -> dict:
         """The events of a chunk of ``K`` steps of every copy: ``xs`` (K + 1, N, 3, B) m, the positions
         before the first step and after each; ``step_start(k)``: the times (s) steps ``k`` (array) start; ``stop``
-        (B,): steps to walk per copy (default all); ``impulses`` as :meth:`step`'s. Returns
-        {(step, copy): events in time order} of the steps that have any."""
+        (B,): steps to walk per copy (default all); ``impulses`` as :meth:`step`'s, or ``per_step``'s for the
+        steps it has ({(step, copy): impulses}). Returns {(step, copy): events in time order} of the steps that
+        have any."""
         from ._detection_kernels import detect_steps
 
         xs = np.ascontiguousarray(xs, dtype=float)
         stop = np.full(self.copies, len(xs) - 1, dtype=np.int64) if stop is None else np.asarray(stop, dtype=np.int64)
         blocks = copy_blocks(self.copies)
         if len(blocks) == 1:
-            return self.record(*detect_steps(xs, stop, self.state), step_start, dt, impulses)
+            return self.record(*detect_steps(xs, stop, self.state), step_start, dt, impulses, per_step)
 
         def run(block):   # a block of copies in arrays of its own (methods/_copy_blocks.py)
             state = self.state[:6] + tuple(np.ascontiguousarray(a[..., block]) for a in self.state[6:])
@@ -653,13 +657,16 @@ class CompiledDetector(ContactDetector):
             for mine, its in zip(self.state[6:], state):
                 mine[..., block] = its
             found.append((events[0], events[1] + block.start) + events[2:])
-        return self.record(*(np.concatenate(column) for column in zip(*found)), step_start, dt, impulses)
+        return self.record(*(np.concatenate(column) for column in zip(*found)), step_start, dt, impulses, per_step)
 
-    def record(self, step, copy, pair, tau, begin, ends, step_start, dt: float, impulses: dict | None = None) -> dict:
+    def record(self, step, copy, pair, tau, begin, ends, step_start, dt: float, impulses: dict | None = None,
+               per_step: dict | None = None) -> dict:
         """ContactEvents of the kernel's transitions (``_detection_kernels.event_arrays``; steps counted
         from the call's first, step ``k`` starting at ``step_start(k)`` s), as
-        :meth:`ContactDetector._evaluate` makes them: {(step, copy): events in time order}."""
+        :meth:`ContactDetector._evaluate` makes them: {(step, copy): events in time order}; their impulses
+        ``per_step``'s ({(step, copy): impulses}) where it has the step, else ``impulses``."""
         self._impulses = impulses or {}
+        per_step = per_step or {}
         if not len(step):
             return {}
         time = step_start(step) + tau * dt
@@ -671,10 +678,12 @@ class CompiledDetector(ContactDetector):
             p, b = pair[k], copy[k]
             if begin[k]:
                 self._since[p, b] = time[k]
+            key = (int(step[k]), int(b))
+            self._impulses = per_step.get(key, impulses) or {}
             event = ContactEvent("begin" if begin[k] else "end", (self.names[self._i[p]], self.names[self._j[p]]),
                                  float(time[k]), pa[k], pb[k], normal[k], float(gap[k]), *self._impulse(p))
-            key = (int(step[k]), int(b))
             out[key] = out.get(key, ()) + (event,)
+        self._impulses = impulses or {}
         return out
 
     def active(self, positions: np.ndarray, copy: int = 0) -> tuple[ActiveContact, ...]:

@@ -16,6 +16,7 @@ round-off (``test/test_batch.py``).
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 
@@ -36,20 +37,22 @@ class ElasticBatch:
     step's end (the next step's start), which :meth:`invalidate` drops (contract rule 4).
     ``compiled``: step with the numba kernels (True; not for coupled rigid struts) or the numpy reference.
 
-    A scene with a ground (no member response) is stepped by ``_elastic_ground_kernels.ground_steps``, the
-    copies spread over every core, each copy the very arithmetic of a ``Simulator``'s loop (the
-    reference: an :class:`ElasticMethod` reference per copy); :attr:`contact` then holds the ground's
-    impulses of the last :meth:`advance`, (steps, N, 3, B) N*s.
+    A scene with a ground or a member contact response is stepped by ``_elastic_ground_kernels.ground_steps``,
+    the copies spread over every core, each copy the very arithmetic of a ``Simulator``'s loop (the
+    reference: an :class:`ElasticMethod` reference per copy); a copy at a step the kernel leaves to the
+    reference (an armed member pair, an unsolved block) goes on as ``ElasticMethod.advance`` does, to the end
+    of the call. :attr:`contact` then holds the ground's impulses of the last :meth:`advance`, (steps, N, 3, B)
+    N*s, and :attr:`pairs` the member contacts' impulses of its steps that had any, {(step, copy): impulses}
+    (``ElasticMethod.advanced_pairs``).
     """
 
     name = "elastic"
 
     def __init__(self, system: System, dt: float, *, compiled: bool = True):
         self.single = ElasticMethod(system, dt)   # checks the scene and dt, and does the rigid algebra
-        if system.scene.contact_response.response:
-            raise ValueError("the batched elastic method steps no member contact response")
-        self.ground = self.single._ground_model   # None without a ground
+        self.ground = self.single._ground_model   # None without a ground or a member response
         self.contact = None
+        self.pairs: dict = {}
         self._copies = None   # with a ground, the reference's ElasticMethod per copy
         self._kept = None     # the compiled path's output arrays of the last advance, and their key
         # coupled rigid struts (class-k) only have the reference, as in ElasticMethod
@@ -69,8 +72,11 @@ class ElasticBatch:
         # the forces at the last step's end: the numpy path's (acc, tensions, directions, slack), or the
         # compiled path's carry (acc (N, 3, B), tensions (nc, B), rigid strut directions (nr, 3, B))
         self._cache = None
+        self._warm = None   # the warm starts of the contact solves, kept over an input (invalidate)
 
     def invalidate(self) -> None:
+        if self._cache is not None and len(self._cache) > 3:   # the contact warm starts outlive an input, as
+            self._warm = self._cache[3]                         # ElasticMethod's
         self._cache = None
         if self._copies is not None:
             for method in self._copies:
@@ -232,6 +238,7 @@ class ElasticBatch:
     def _advance_ground(self, x, v, rest_lengths, f_ext, steps: int, commands=None, first_step: int = 0):
         """:meth:`advance` with a ground; its impulses go to :attr:`contact`."""
         n, nc, b = x.shape[0], rest_lengths.shape[0], x.shape[2]
+        self.pairs = {}
 
         def copy_major(*shape, dtype=float):
             # (steps, ..., B) over memory laid out copy by copy: the loop steps one copy at a time, and its
@@ -253,6 +260,8 @@ class ElasticBatch:
                     out_x[k, ..., c], out_v[k, ..., c], out_contact[k, ..., c] = out.positions, out.velocities, \
                         out.contact_impulses
                     out_imp[k, :, c], out_slack[k, :, c] = out.impulses, out.slack
+                    if out.pair_impulses:
+                        self.pairs[(k, c)] = out.pair_impulses
             return out_x, out_v, out_imp, out_slack
         out_x, out_v, out_imp, out_slack, out_contact = self._outputs(
             ("ground", steps, b), lambda: (copy_major(n, 3), copy_major(n, 3), copy_major(nc),
@@ -262,18 +271,21 @@ class ElasticBatch:
         if self._cache is None:
             self._cache = (np.empty_like(x), np.empty((nc, b)), np.empty((self.rigid.count, 3, b)))
             kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._cache)
-            self._cache += (np.zeros((2,) + x.shape),)   # each node's last contact impulses (drift, closing)
+            # each node's last contact impulses (drift, closing)
+            self._cache += (np.zeros((2,) + x.shape) if self._warm is None else self._warm,)
+            self._warm = None
         failed, reason = np.empty(b, dtype=np.int64), np.empty(b, dtype=np.int64)
         seq = _HELD if commands is None else self._inputs(commands, rest, ext, steps, first_step)
         ground_kernels.ground_steps(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache[:3], *self.ground,
                                     self._cache[3], *seq, out_x, out_v, out_imp, out_slack, out_contact, failed,
-                                    reason)
+                                    reason, min(b, numba.get_num_threads()))
         if commands is not None:
             self.inputs_in_effect = (np.ascontiguousarray(np.broadcast_to(seq[0][-1], rest.shape)),
                                      np.ascontiguousarray(np.broadcast_to(seq[1][-1], ext.shape)))
         for c in np.flatnonzero(failed >= 0):
-            # a contact block the compiled solver left unsolved: this copy goes on from that step's start as
-            # a Simulator's loop does (ElasticMethod.advance: that step by the reference, then compiled)
+            # a contact block the compiled solver left unsolved, or an armed member pair: this copy goes on from
+            # that step's start as a Simulator's loop does (ElasticMethod.advance: that step by the reference, then
+            # compiled)
             done = int(failed[c])
             method = ElasticMethod(self.system, self.dt)
             bs = c if seq[0].shape[2] > 1 else 0
@@ -284,9 +296,18 @@ class ElasticBatch:
             pos, vel, contact = np.empty((rows, n, 3)), np.empty((rows, n, 3)), np.empty((rows, n, 3))
             imp, slack = np.empty((rows, nc)), np.empty((rows, nc), dtype=bool)
             x[..., c], v[..., c] = method.advance(state, rows, 1, pos, vel, imp, slack, contact, inputs)
+            self.pairs.update({(done + k, c): impulses for k, impulses in method.advanced_pairs.items()})
             out_x[done:, ..., c], out_v[done:, ..., c], out_contact[done:, ..., c] = pos, vel, contact
             out_imp[done:, :, c], out_slack[done:, :, c] = imp, slack
-            for mine, its in zip(self._cache, method.carry()[:3] + method.carry()[4:]):
+            carry = method.carry()
+            if carry is None:   # its last step was the reference's: the next starts from forces computed anew there
+                xc, vc = np.ascontiguousarray(x[..., c:c + 1]), np.ascontiguousarray(v[..., c:c + 1])
+                last = (rest[:, c:c + 1], ext[..., c:c + 1]) if inputs is None else (inputs[0][-1][:, None],
+                                                                                     inputs[1][-1][..., None])
+                forces = (np.empty_like(xc), np.empty((nc, 1)), np.empty((self.rigid.count, 3, 1)))
+                kernels.elastic_forces(xc, vc, *(np.ascontiguousarray(a) for a in last), *self._model[:8], *forces)
+                carry = forces + (None, np.zeros((2,) + xc.shape))   # and no warm start, as ElasticMethod's
+            for mine, its in zip(self._cache, carry[:3] + carry[4:]):
                 mine[..., c] = its[..., 0]
         return out_x, out_v, out_imp, out_slack
 
