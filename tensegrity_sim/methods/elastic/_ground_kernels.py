@@ -342,13 +342,13 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
                         x0[i, j] = xb[i, j, 0]
                         v0[i, j] = vb[i, j, 0]
                 if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, restb, extb):
-                    elastic_forces(xb, vb, restb, extb, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b, inv_mass_b,
-                                   gravity_b, rigid_members_b, accb, tensionb, dirsb)
+                    elastic_forces(xb, vb, restb, extb, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
+                                   inv_mass_b, gravity_b, rigid_members_b, accb, tensionb, dirsb)
                 why = _ground_step(xb, vb, restb, extb, h, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
-                                   inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb, tensionb,
-                                   dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol, pair_nodes_b,
-                                   pair_radii_b, warmb, dx, imp, sl, contact, armed, target, landing, work, inv2, vel, z,
-                                   ends_k, target_k, vel3, z3, ends4, out6, s5, t5, 0)
+                                   inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb,
+                                   tensionb, dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol,
+                                   pair_nodes_b, pair_radii_b, warmb, dx, imp, sl, contact, armed, target, landing,
+                                   work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, 0)
                 if why:
                     for i in range(n_nodes):
                         for j in range(3):
