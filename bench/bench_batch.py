@@ -2,6 +2,7 @@
 
     python3 bench/bench_batch.py            # writes bench/results/batch.csv and batch.md, prints both
     python3 bench/bench_batch.py --ground   # the ground case only: bench/results/batch_ground.csv
+    python3 bench/bench_batch.py --response # a member contact response: bench/results/batch_response.csv
 
 Cases (icosahedron thrown: rigid struts, 613 N/m cables, random node velocities; dt = 1 ms):
 
@@ -23,6 +24,11 @@ the MuJoCo row without contacts, or with them for a row with contacts).
 whole batch per timed call (MuJoCo's rollout also writes every step's state: with the batch that is what
 it is for); the rate is the best of ``REPEATS`` turns (a shared machine only ever adds time), scene-steps
 per second = batch x steps / wall time.
+
+* ``--response`` (issue 28): ``icosahedron_ground`` rolled as above with a strut-strut contact response
+  (``contact: response: true``), 64 copies, against what such a batch did before it stepped in the compiled
+  loop, a ``Simulator`` per copy (no peer: MuJoCo has no unilateral member response of this kind); the final
+  positions of both must agree, and ``member_steps`` counts the steps either took by the numpy reference.
 """
 from __future__ import annotations
 
@@ -124,6 +130,45 @@ def measure_ground(batch: int = 1024, steps: int = 500) -> list[dict]:
              "note": f"ours rolled {moved:.3f} m in {steps} ms; load {load}"} for name, t in best.items()]
 
 
+def measure_response(batch: int = 64, steps: int = 1000) -> list[dict]:
+    """The compiled batch against a ``Simulator`` per copy on a scene with a member contact response."""
+    from tensegrity_sim import Scene, Simulator
+
+    mapping = load_scene("icosahedron_ground").to_dict()
+    mapping["contact"] = dict(mapping.get("contact") or {}, response=True, kinds=["strut_strut"])
+    scene = Scene.from_dict(mapping)
+    rest = _rolled(scene)
+    made = {}
+
+    def setup_batch():
+        made["batch"] = BatchSimulator(scene, batch, method="elastic", dt=1e-3)
+        made["batch"].set_rest_lengths(rest)
+
+    def setup_copies():
+        made["copies"] = [Simulator(scene, method="elastic", dt=1e-3) for _ in range(batch)]
+        for sim in made["copies"]:
+            sim.set_rest_lengths(rest)
+
+    contenders = {"BatchSimulator": (lambda: made["batch"].run(steps=steps, every=steps), setup_batch),
+                  "a Simulator per copy": (lambda: [c.run(steps=steps, every=steps) for c in made["copies"]],
+                                           setup_copies)}
+    best = {name: float("inf") for name in contenders}
+    for run, prepare in contenders.values():   # warm-up: compile, allocate
+        prepare()
+        run()
+    for _ in range(REPEATS):
+        for name, (run, prepare) in contenders.items():
+            best[name] = min(best[name], time_runs(run, setup=prepare, warmup=lambda: None, repeats=1).best)
+    apart = max(float(np.abs(made["batch"].positions[b] - c.positions).max()) for b, c in enumerate(made["copies"]))
+    member_steps = sum(c._method.member_steps for c in made["copies"])
+    load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    return [{"case": "icosahedron_ground rolling elastic, strut-strut response", "batch": batch, "steps": steps,
+             "contender": name, "scene_steps_per_s": round(batch * steps / t),
+             "ratio_to_copies": round(best["a Simulator per copy"] / t, 3),
+             "note": f"final positions {apart:.1e} m apart; member steps {member_steps}; load {load}"}
+            for name, t in best.items()]
+
+
 def measure() -> list[dict]:
     scene = icosahedron_thrown()
     threads = os.cpu_count() or 1
@@ -180,6 +225,12 @@ if __name__ == "__main__":
         RESULTS.mkdir(exist_ok=True)
         write_csv(RESULTS / "batch_ground.csv", ground_rows)
         for row in ground_rows:
+            print(row)
+    elif "--response" in sys.argv[1:]:
+        response_rows = measure_response()
+        RESULTS.mkdir(exist_ok=True)
+        write_csv(RESULTS / "batch_response.csv", response_rows)
+        for row in response_rows:
             print(row)
     else:
         print(write(measure()))
