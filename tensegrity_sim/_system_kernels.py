@@ -16,7 +16,7 @@ from numba import njit
 __all__ = ["member_kinematics"]
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def member_kinematics(x, v, ends, length, rate):
     """Lengths (k,) m and elongation rates (k,) m/s of the members ``ends`` (k, 2) (node indices a, b) at
     positions ``x`` (N, 3) m and velocities ``v`` (N, 3) m/s, written into ``length`` and ``rate``:

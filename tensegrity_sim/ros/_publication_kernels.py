@@ -14,7 +14,7 @@ LAYOUT = ("stamp_clock", "stamp_node_poses", "stamp_cable_states", "stamp_cable_
           "n_nodes")
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def write_publication(f64, u32, layout, x, v, ends, tensions, impulses, sec, nanosec):
     """Write one publication into the buffer seen as ``f64`` (float64) and ``u32`` (uint32) at the places
     ``layout`` gives (:data:`LAYOUT`, int64): each message's stamp (``sec`` at ``u32[stamp]``, ``nanosec``

@@ -34,14 +34,14 @@ import numpy as np
 from numba import njit, types
 from numba.typed import List
 
-__all__ = ["detection_state", "no_detection", "new_events", "event_arrays", "new_work", "moved_on", "examine",
-           "detect_steps"]
+__all__ = ["detection_state", "no_detection", "new_events", "event_arrays", "new_work", "moved_on", "measure",
+           "examine", "detect_steps"]
 
 _MAX_ROUNDS = 100   # contact.MAX_ROUNDS (checked equal by the tests)
 _EVENT = types.Tuple((types.int64, types.int64, types.int64, types.float64, types.boolean))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _closest(e, out, s, t):
     """``contact._closest`` of segments ``e[0]-e[1]`` and ``e[2]-e[3]`` (e (4, 3) m): writes the distance,
     ``s``, ``t`` and the vector from the first closest point to the second into ``out`` (6,); ``s``, ``t``
@@ -105,13 +105,13 @@ def _closest(e, out, s, t):
     out[5] = -w2
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _over(num, den):
     """``num / den`` where ``den > 0``, inf elsewhere (``contact._over``)."""
     return num / den if den > 0 else np.inf
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _reaches(e, disp, radii_sum, inside, scratch, out):
     """``contact._reaches`` of one configuration ``e`` (4, 3) m moving by ``disp`` (4, 3) per step
     fraction; ``inside``: 1 in contact, 0 not, -1 as the gap says. Writes gap, forward, backward into
@@ -158,13 +158,13 @@ def _reaches(e, disp, radii_sum, inside, scratch, out):
     return ins
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _crossed(h, inside, margin):
     """``contact._crossed``: has a sample ``h = ±gap`` crossed over?"""
     return h <= -margin if inside else h < 0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _event(tau, begin, ev_tau, ev_begin, n):
     """Record transition ``n`` (step fraction ``tau``, a begin?) of this pair; returns ``n + 1``."""
     if n < ev_tau.shape[0]:
@@ -337,18 +337,18 @@ def event_arrays(events, points):
 
 @njit(cache=True, error_model="numpy")
 def new_work():
-    """Scratch of :func:`examine`: a pair's end points at the step's start and end and their
-    displacements (4, 3), its shape (9,) and the narrow phase's numbers (22,), a pair's transitions
+    """Scratch of :func:`measure` and :func:`examine`: a pair's end points at the step's start and end and
+    their displacements (4, 3), its shape (9,), the narrow phase's numbers (22,) and a pair's transitions
     (step fractions, begins)."""
-    return (np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3)), np.empty(31), np.empty(_MAX_ROUNDS + 2),
-            np.empty(_MAX_ROUNDS + 2, dtype=np.bool_))
+    return (np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3)), np.empty(9), np.empty(22),
+            np.empty(_MAX_ROUNDS + 2), np.empty(_MAX_ROUNDS + 2, dtype=np.bool_))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def moved_on(x0, b0, x1, b1, b, det):
     """The broad phase's test of a step of copy ``b`` from ``x0[:, :, b0]`` to ``x1[:, :, b1]`` (N, 3, .) m:
     adds to its odometer the largest step displacement of a watched node relative to their mean's,
-    and says whether some pair is due (then :func:`examine` the step). Small, so that a loop inlines it."""
+    and says whether some pair is due (then :func:`measure` the step). Small, so that a loop inlines it."""
     watch, min_due, odometer, step_moved = det[2], det[10], det[11], det[12]
     # relative to the watched nodes' mean displacement: a common translation moves no gap
     n_watch = watch.shape[0]
@@ -373,20 +373,19 @@ def moved_on(x0, b0, x1, b1, b, det):
     return odometer[b] >= min_due[b]   # (False for a NaN odometer: the step failed, and its copy with it)
 
 
-@njit(cache=True, error_model="numpy")
-def examine(x0, b0, x1, b1, b, s, det, work, events, points):
-    """The due pairs of step ``s`` of copy ``b`` (state column ``b`` of ``det``, :func:`detection_state`),
-    whose positions move from ``x0[:, :, b0]`` to ``x1[:, :, b1]`` (N, 3, .) m, after :func:`moved_on`
-    said so: each measured, and examined over the step if it may have changed state; transitions are
-    appended to ``events`` and ``points`` (:func:`new_events`); ``work``: :func:`new_work`."""
-    pair_nodes, radii_sum, watch, touch, fractions, around, inside, snap, budget, due, min_due, odometer, moved = det
+@njit(cache=True, error_model="numpy", _nrt=False)
+def measure(x1, b1, b, det, work, first):
+    """The due pairs ``first``, ``first + 1``, ... of copy ``b`` (state column ``b`` of ``det``,
+    :func:`detection_state`) at the step's end ``x1[:, :, b1]`` (N, 3, .) m, after :func:`moved_on` said some
+    pair is due: each measured, and its state moved on if it cannot have changed state over the step.
+    Returns the first pair that may have (then :func:`examine` it, and measure on from the next), or -1
+    once every pair is done (``min_due`` then updated). Allocates nothing and counts no references
+    (``_nrt=False``): it runs at most steps of a moving structure, the narrow phase rarely."""
+    pair_nodes, snap, budget, due, min_due, odometer, moved = det[0], det[7], det[8], det[9], det[10], det[11], det[12]
     n_pairs = pair_nodes.shape[0]
     odo = odometer[b]
-    moved_now = moved[b]
-    p0, p1, disp, scratch, pair_tau, pair_begin = work
-    local = scratch[:9]
-    lowest = np.inf
-    for p in range(n_pairs):
+    local = work[3]
+    for p in range(first, n_pairs):
         if due[p, b] <= odo:
             # how far the pair's shape moved since it was last measured: its ends in its own frame
             reach = np.inf
@@ -398,39 +397,60 @@ def examine(x0, b0, x1, b1, b, s, det, work, events, points):
                     reach = shift_a + shift_b
             # within the step the shape is at most this step's largest displacement (both members: twice)
             # from the end's, where it is at most `reach` from the measured one
-            left = budget[p, b] - reach - 2.0 * moved_now
-            if left <= 0:
-                for k in range(4):
-                    i = pair_nodes[p, k]
-                    for j in range(3):
-                        p0[k, j] = x0[i, j, b0]
-                        p1[k, j] = x1[i, j, b1]
-                found, ins, gap = _transitions(p0, p1, disp, radii_sum[p], inside[p, b], touch, fractions, around,
-                                               pair_tau, pair_begin, scratch[9:])
-                for e in range(found):
-                    events.append((s, b, p, pair_tau[e], pair_begin[e]))
-                    for k in range(4):
-                        for j in range(3):
-                            points.append(p0[k, j])
-                    for k in range(4):
-                        for j in range(3):
-                            points.append(p1[k, j])
-                inside[p, b] = ins
-                left = -gap if ins else gap
-                if not _pair_frame(x1, b1, pair_nodes[p], local):
-                    local[0] = np.nan   # no frame: the next look examines the pair again
-            else:
-                left = budget[p, b] - reach   # the gap at the step's end is at least this
-            budget[p, b] = left
-            for k in range(3):
-                for j in range(3):
-                    snap[p, k + 1, j, b] = local[3 * k + j]
-            due[p, b] = odo + 0.5 * left if left > 0 else odo
+            if budget[p, b] - reach - 2.0 * moved[b] <= 0:
+                return p
+            _moved_on_pair(p, b, budget[p, b] - reach, det, local)   # the gap at the step's end is at least this
+    lowest = np.inf
+    for p in range(n_pairs):
         lowest = min(lowest, due[p, b])
     min_due[b] = lowest
+    return -1
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _moved_on_pair(p, b, left, det, local):
+    """Pair ``p`` of copy ``b`` measured: ``left`` (m) is what is left of its gap (in contact: of its
+    penetration) at the step's end, ``local`` (9,) its shape there (:func:`_pair_frame`)."""
+    snap, budget, due, odometer = det[7], det[8], det[9], det[11]
+    budget[p, b] = left
+    for k in range(3):
+        for j in range(3):
+            snap[p, k + 1, j, b] = local[3 * k + j]
+    due[p, b] = odometer[b] + 0.5 * left if left > 0 else odometer[b]
 
 
 @njit(cache=True, error_model="numpy")
+def examine(x0, b0, x1, b1, b, s, det, work, events, points, p):
+    """Pair ``p``, which :func:`measure` found may have changed state over step ``s`` of copy ``b`` (positions
+    from ``x0[:, :, b0]`` to ``x1[:, :, b1]`` (N, 3, .) m), examined over the step by the narrow phase,
+    then the due pairs after it measured, and examined where they need it: transitions are appended to
+    ``events`` and ``points`` (:func:`new_events`); ``work``: :func:`new_work`."""
+    pair_nodes, radii_sum, touch, fractions, around, inside = det[0], det[1], det[3], det[4], det[5], det[6]
+    p0, p1, disp, local, scratch, pair_tau, pair_begin = work
+    while p >= 0:
+        for k in range(4):
+            i = pair_nodes[p, k]
+            for j in range(3):
+                p0[k, j] = x0[i, j, b0]
+                p1[k, j] = x1[i, j, b1]
+        found, ins, gap = _transitions(p0, p1, disp, radii_sum[p], inside[p, b], touch, fractions, around,
+                                       pair_tau, pair_begin, scratch)
+        for e in range(found):
+            events.append((s, b, p, pair_tau[e], pair_begin[e]))
+            for k in range(4):
+                for j in range(3):
+                    points.append(p0[k, j])
+            for k in range(4):
+                for j in range(3):
+                    points.append(p1[k, j])
+        inside[p, b] = ins
+        if not _pair_frame(x1, b1, pair_nodes[p], local):
+            local[0] = np.nan   # no frame: the next look examines the pair again
+        _moved_on_pair(p, b, -gap if ins else gap, det, local)
+        p = measure(x1, b1, b, det, work, p + 1)
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _distance(local, k, u0, u1, u2):
     """|local[k:k + 3] - u| (m)."""
     e0 = local[k] - u0
@@ -439,7 +459,7 @@ def _distance(local, k, u0, u1, u2):
     return np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _pair_frame(x, b, nodes, local):
     """The pair's ends a1, b0, b1 in its own frame (origin a0, first axis along a, second towards b's
     midpoint), written into ``local`` (9,) m: a rigid motion of the pair leaves them unchanged, and its
@@ -494,5 +514,7 @@ def detect_steps(xs, stop, det):
         x1 = xs[s + 1]
         for b in range(xs.shape[3]):
             if s < stop[b] and moved_on(x0, b, x1, b, b, det):
-                examine(x0, b, x1, b, b, s, det, work, events, points)
+                p = measure(x1, b, b, det, work, 0)
+                if p >= 0:
+                    examine(x0, b, x1, b, b, s, det, work, events, points, p)
     return event_arrays(events, points)

@@ -60,7 +60,7 @@ def block_work() -> np.ndarray:
     return np.zeros((6, MAX_ROWS, MAX_ROWS))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def lone_contact(inv, v, target, mu, z):
     """The closed form of a node on no rigid strut with a contact: ``W = I / m`` decouples the rows, so
     ``y_n = max(0, m (w - v_z))`` and ``f = proj_disc(mu y_n)(-m v_t)``. ``v`` (3,) m/s changes in place;
@@ -83,7 +83,7 @@ def lone_contact(inv, v, target, mu, z):
     v[2] += inv * y
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
 def _residual(q, s, k, target, mu, work, z, up, ur, pp, pr, jp):
     """``u = u0 + W z`` into ``work[up, ur]``, ``phi`` (q,) into ``work[pp, pr]`` and its generalised
     Jacobian (q, q) into ``work[jp]`` (module docstring; ``work``'s layout in :func:`solve_block`); ``s`` 1
@@ -154,7 +154,7 @@ def _residual(q, s, k, target, mu, work, z, up, ur, pp, pr, jp):
     return 0.5 * total
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
 def _cholesky_solve(q, work):
     """``work[4, 4] = work[3]^-1 work[4, 3]`` for the symmetric positive definite ``work[3]`` (q, q), factored
     in place. Returns False, solving nothing, where a pivot is not positive: ``J^T J + nu I`` with ``J``
@@ -186,7 +186,7 @@ def _cholesky_solve(q, work):
     return True
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
     """One block (module docstring), in place: ``v`` (2, 3) m/s the two ends' velocities (the second
     unused without a strut), ``z`` (MAX_ROWS,) N*s the unknowns (in: a warm start for the contacts'; the

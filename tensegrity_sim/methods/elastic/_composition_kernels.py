@@ -23,7 +23,7 @@ from .composition import _FLOW_ITER, _POLY_ITER, LOCATE_TOL, MAX_SWITCHES
 __all__ = ["composed_steps"]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _states(x, v, acc, tension, dirs, slack, to_x, to_v, to_acc, to_tension, to_dirs, to_slack):
     """Copy a workspace's state (positions, velocities, accelerations (N, 3, 1), tensions (nc, 1), rigid
     strut directions (nr, 3, 1), slack cables (nc,)) into another's (element loops: no views to make)."""
@@ -40,7 +40,7 @@ def _states(x, v, acc, tension, dirs, slack, to_x, to_v, to_acc, to_tension, to_
             to_dirs[k, j, 0] = dirs[k, j, 0]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _elongation(x, ends, n_struts, rest, ci):
     """Cable ``ci``'s ``length - rest`` (m) at ``x`` (N, 3, 1)."""
     a = ends[n_struts + ci, 0]
@@ -51,7 +51,7 @@ def _elongation(x, ends, n_struts, rest, ci):
     return np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - rest[ci, 0]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _flow(x, v, acc, tension, dirs, slack, h, weights, rest, ext, ends, stiffness, floor, strut_rest, damping,
           inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage, impulses):
     """The composed step of ``h`` (s) in place on the workspace ``x``, ``v`` (N, 3, 1), ``acc``,

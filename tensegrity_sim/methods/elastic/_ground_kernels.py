@@ -84,7 +84,7 @@ def ground_arrays(system, rigid, touch_tol: float, members=None) -> GroundModel:
                        node_strut, float(touch_tol), pair_nodes, pair_radii)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _pair_armed(x, v, h, speed, pair_nodes, pair_radii, touch_tol, ends4, out, s5, t5, b):
     """Whether copy ``b`` has a member pair that ``MemberContacts`` would arm (module docstring): with
     ``h`` > 0 before the drift of ``h`` s from ``x`` at the free velocities ``v`` (N, 3, B), whose largest
@@ -123,7 +123,7 @@ def _pair_armed(x, v, h, speed, pair_nodes, pair_radii, touch_tol, ends4, out, s
     return False
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, node_strut, mu, warm, contact,
            work, inv2, vel, z, ends_k, target_k, vel3, z3):
     """The armed contacts' velocity problem of copy ``b``, block by block, in place on ``v``; adds the
@@ -195,7 +195,7 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
     return True
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                  rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu, restitution, radii,
                  node_strut, touch_tol, pair_nodes, pair_radii, warm, dx, impulses, slack, contact, armed, target,
@@ -243,7 +243,7 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
     return 0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _take_inputs(rest_seq, ext_seq, s, bs, rest, ext) -> bool:
     """Step ``s``'s inputs of copy ``bs`` into ``rest`` (nc, 1) and ``ext`` (N, 3, 1); whether they changed."""
     changed = False

@@ -46,7 +46,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..contact._detection_kernels import event_arrays, examine, moved_on, new_events, new_work
+from ..contact._detection_kernels import event_arrays, examine, measure, moved_on, new_events, new_work
 
 __all__ = ["ElasticModel", "model_arrays", "elastic_forces", "elastic_steps", "elastic_steps_copies", "keep", "verlet_step"]
 
@@ -78,7 +78,7 @@ def model_arrays(system, rigid) -> ElasticModel:
         np.ascontiguousarray(rigid.w_matrix, dtype=float), bool(rigid.coupled))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
             rigid_members, acc, tension, rigid_dirs, slack, b):
     """Copy ``b``: accelerations, cable tensions, rigid strut directions and slack cables at ``x``
@@ -147,7 +147,7 @@ def elastic_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping,
     return slack
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _push(node_a, node_b, inv_mass, s, n0, n1, n2, out):
     """Equal-and-opposite push ``s`` along ``n`` on a strut's ends, scaled by their inverse masses,
     added to ``out`` (N, 3)."""
@@ -159,60 +159,48 @@ def _push(node_a, node_b, inv_mass, s, n0, n1, n2, out):
     out[node_b, 2] -= inv_mass[node_b] * (s * n2)
 
 
-@njit(cache=True, error_model="numpy")
-def _pushes(ends, inv_mass, rigid_members, strengths, dirs, out, b):
-    """``out`` (N, 3) = the node displacements (or velocity changes) of equal-and-opposite pushes of
-    ``strengths`` (nr,) along the rigid struts' ``dirs`` of copy ``b``."""
-    for i in range(out.shape[0]):
-        for j in range(3):
-            out[i, j] = 0.0
-    for k in range(rigid_members.shape[0]):
-        i = rigid_members[k]
-        _push(ends[i, 0], ends[i, 1], inv_mass, strengths[k], dirs[k, 0, b], dirs[k, 1, b], dirs[k, 2, b], out)
-
-
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _shake(x_pred, dirs, ends, inv_mass, rigid_members, length_sq, w, dx, b):
     """SHAKE for copy ``b`` (rigid.RigidStruts.project_positions): the displacement, written into
     ``dx`` (N, 3) (zeroed here), that puts ``x_pred`` back on every rigid strut length along ``dirs``."""
-    nr = rigid_members.shape[0]
-    r = np.empty((nr, 3))
-    for k in range(nr):
-        i = rigid_members[k]
+    for i in range(dx.shape[0]):
         for j in range(3):
-            r[k, j] = x_pred[ends[i, 1], j, b] - x_pred[ends[i, 0], j, b]
-    gamma = np.empty(nr)
-    for k in range(nr):
-        p = r[k, 0] * dirs[k, 0, b] + r[k, 1] * dirs[k, 1, b] + r[k, 2] * dirs[k, 2, b]
-        c = r[k, 0] * r[k, 0] + r[k, 1] * r[k, 1] + r[k, 2] * r[k, 2] - length_sq[k]
-        # small root of w^2 g^2 - 2 w p g + c = 0, written to avoid cancellation
-        gamma[k] = c / (w[k, k] * (p + np.sqrt(max(p * p - c, 0.0))))
-    _pushes(ends, inv_mass, rigid_members, gamma, dirs, dx, b)
-
-
-@njit(cache=True, error_model="numpy")
-def _rattle(v, dirs, ends, inv_mass, rigid_members, w, dv, b):
-    """RATTLE for copy ``b`` (rigid.RigidStruts.project_velocities): zero every rigid strut's length
-    rate along ``dirs``, in place on ``v``; ``dv`` (N, 3) is scratch."""
-    nr = rigid_members.shape[0]
-    rate = np.empty(nr)
-    for k in range(nr):
+            dx[i, j] = 0.0
+    for k in range(rigid_members.shape[0]):
         i = rigid_members[k]
         a = ends[i, 0]
         c = ends[i, 1]
-        rate[k] = ((v[c, 0, b] - v[a, 0, b]) * dirs[k, 0, b] + (v[c, 1, b] - v[a, 1, b]) * dirs[k, 1, b]
-                   + (v[c, 2, b] - v[a, 2, b]) * dirs[k, 2, b])
-    mu = np.empty(nr)
-    for k in range(nr):
-        mu[k] = rate[k] / w[k, k]
+        r0 = x_pred[c, 0, b] - x_pred[a, 0, b]
+        r1 = x_pred[c, 1, b] - x_pred[a, 1, b]
+        r2 = x_pred[c, 2, b] - x_pred[a, 2, b]
+        p = r0 * dirs[k, 0, b] + r1 * dirs[k, 1, b] + r2 * dirs[k, 2, b]
+        q = r0 * r0 + r1 * r1 + r2 * r2 - length_sq[k]
+        # small root of w^2 g^2 - 2 w p g + q = 0, written to avoid cancellation
+        gamma = q / (w[k, k] * (p + np.sqrt(max(p * p - q, 0.0))))
+        _push(a, c, inv_mass, gamma, dirs[k, 0, b], dirs[k, 1, b], dirs[k, 2, b], dx)
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _rattle(v, dirs, ends, inv_mass, rigid_members, w, dv, b):
+    """RATTLE for copy ``b`` (rigid.RigidStruts.project_velocities): zero every rigid strut's length
+    rate along ``dirs``, in place on ``v``; ``dv`` (N, 3) is scratch."""
+    for i in range(dv.shape[0]):
+        for j in range(3):
+            dv[i, j] = 0.0
+    for k in range(rigid_members.shape[0]):
+        i = rigid_members[k]
+        a = ends[i, 0]
+        c = ends[i, 1]
+        rate = ((v[c, 0, b] - v[a, 0, b]) * dirs[k, 0, b] + (v[c, 1, b] - v[a, 1, b]) * dirs[k, 1, b]
+                + (v[c, 2, b] - v[a, 2, b]) * dirs[k, 2, b])
+        _push(a, c, inv_mass, rate / w[k, k], dirs[k, 0, b], dirs[k, 1, b], dirs[k, 2, b], dv)
     # the pushes are summed before being added, as in the reference (v + project_velocities(...))
-    _pushes(ends, inv_mass, rigid_members, mu, dirs, dv, b)
     for i in range(v.shape[0]):
         for j in range(3):
             v[i, j, b] += dv[i, j]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b):
     """Copy ``b``'s drift ``x += h v`` and SHAKE's correction (added to ``v`` as ``dx / h``)."""
     n_nodes = x.shape[0]
@@ -227,7 +215,7 @@ def _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rig
                 v[i, j, b] += dx[i, j] / h
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
            rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b):
     """Copy ``b``'s end of a step: the forces at the drifted ``x``, the cables' impulses, the closing
@@ -248,7 +236,7 @@ def _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_
         _rattle(v, rigid_dirs, ends, inv_mass, rigid_members, rigid_w, dx, b)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
           rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, impulses, slack, b):
     """One velocity Verlet (+ SHAKE/RATTLE) step of ``h`` of copy ``b``, in place on ``x``, ``v`` and the
@@ -284,7 +272,7 @@ def verlet_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping,
     return impulses, slack
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs):
     """Copy ``b`` of the batch-last state and carry into the batch-of-one ``w*`` arrays (a copy stepped in
     contiguous arrays of its own: the very arithmetic of a ``Simulator``, no stride of B)."""
@@ -302,7 +290,7 @@ def gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext
             wdirs[k, j, 0] = rigid_dirs[k, j, b]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def scatter_copy(wx, wv, wacc, wten, wdirs, b, x, v, acc, tension, rigid_dirs):
     """The batch-of-one state and carry written back as copy ``b`` (:func:`gather_copy`'s inverse)."""
     for i in range(x.shape[0]):
@@ -317,7 +305,7 @@ def scatter_copy(wx, wv, wacc, wten, wdirs, b, x, v, acc, tension, rigid_dirs):
             rigid_dirs[k, j, b] = wdirs[k, j, 0]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def keep(x, v, c, total, slack, k, b, out_x, out_v, out_impulses, out_slack):
     """Write copy ``c`` of ``x``, ``v`` (N, 3, .) and the step's ``total`` impulses (nc,) N*s and ``slack``
     (nc,) as kept step ``k`` of copy ``b`` of the outputs (see :func:`elastic_steps`); ``total`` restarts
@@ -367,7 +355,9 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
             _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                   rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, imp, sl, b)
             if detecting and moved_on(before, 0, x, b, b, detection):
-                examine(before, 0, x, b, b, s, detection, work, events, points)
+                p = measure(x, b, b, detection, work, 0)
+                if p >= 0:
+                    examine(before, 0, x, b, b, s, detection, work, events, points, p)
             for ci in range(nc):
                 total[ci] += imp[ci]
             if (s + 1) % every == 0 or s == n_steps - 1:
@@ -382,7 +372,7 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
 # ``_step``, in the same order, so its numbers are the same bit for bit (test_batch.py checks it).
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _forces_copies(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                    rigid_members, acc, tension, rigid_dirs, slack):
     """:func:`_forces` of every copy: ``slack`` (nc, B)."""
@@ -442,7 +432,7 @@ def _forces_copies(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping,
                 acc[i, j, b] *= inv_mass[i]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _pushes_copies(ends, inv_mass, rigid_members, strengths, dirs, out):
     """:func:`_pushes` of every copy: ``strengths`` (nr, B), ``out`` (N, 3, B)."""
     n_copies = out.shape[2]
@@ -463,7 +453,7 @@ def _pushes_copies(ends, inv_mass, rigid_members, strengths, dirs, out):
                 out[node_b, j, b] -= wb * push
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _step_copies(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                  rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength, impulses, slack):
     """:func:`_step` of every copy; ``dx`` (N, 3, B) and ``strength`` (nr, B) are scratch, ``impulses``
