@@ -18,10 +18,12 @@ ends, and changes by at most the largest displacement of an end of one member pl
   grown by ``g / 2`` (its *due* value), steps' insides included (the motion within a step is linear);
   a step below every pair's due value costs one pass over the watched nodes and a comparison;
 - at its due value a pair is *measured*: its ends a1, b0, b1 in its own frame (origin a0, axes along a
-  and towards b's midpoint), which a tumbling robot's rotation leaves alone, against those when it was
-  last measured. If they moved less than what is left of its gap (less twice the step's displacement,
-  for the step's inside), the gap at the step's end is at least what is left and the pair waits for its
-  next due value; otherwise the step is examined by the narrow phase.
+  and towards b's midpoint), which a tumbling robot's rotation leaves alone, against those when the narrow
+  phase last examined it and found its gap. If they moved less than that gap (less twice the step's
+  displacement, for the step's inside), the gap at the step's end is at least what is left and the pair
+  waits for its next due value; otherwise the step is examined by the narrow phase. The shape is held
+  against the examined one, not the last measured one: a vibrating robot's pair moves back and forth by
+  more, summed, than it strays.
 
 Examining a pair at a step where the numpy detector would not (or the reverse) changes no event:
 either knows the pair cannot change state there.
@@ -292,7 +294,7 @@ def detection_state(pair_nodes, radii_sum, watch, touch, fractions, around, copi
     """The kernels' detection tuple for ``copies`` copies, started over (no contact known, every pair
     examined at the next step): (pair_nodes (P, 4), radii_sum (P,) m, watch (W,), touch m, the search's
     sample fractions and offsets (``contact._FRACTIONS``, ``_AROUND``), then the state: inside (P, B),
-    snap (P, 4, 3, B) m (rows 1-3: the pair's a1, b0, b1 in its own frame when last measured), budget
+    snap (P, 4, 3, B) m (rows 1-3: the pair's a1, b0, b1 in its own frame when last examined), budget
     (P, B) m, due (P, B) m, min_due (B,) m, odometer (B,) m, the last step's odometer increment (B,) m)."""
     k = pair_nodes.shape[0]
     return (np.ascontiguousarray(pair_nodes, dtype=np.int64), np.ascontiguousarray(radii_sum, dtype=float),
@@ -377,7 +379,7 @@ def moved_on(x0, b0, x1, b1, b, det):
 def measure(x1, b1, b, det, work, first):
     """The due pairs ``first``, ``first + 1``, ... of copy ``b`` (state column ``b`` of ``det``,
     :func:`detection_state`) at the step's end ``x1[:, :, b1]`` (N, 3, .) m, after :func:`moved_on` said some
-    pair is due: each measured, and its state moved on if it cannot have changed state over the step.
+    pair is due: each measured, and its due value moved on if it cannot have changed state over the step.
     Returns the first pair that may have (then :func:`examine` it, and measure on from the next), or -1
     once every pair is done (``min_due`` then updated). Allocates nothing and counts no references
     (``_nrt=False``): it runs at most steps of a moving structure, the narrow phase rarely."""
@@ -387,7 +389,7 @@ def measure(x1, b1, b, det, work, first):
     local = work[3]
     for p in range(first, n_pairs):
         if due[p, b] <= odo:
-            # how far the pair's shape moved since it was last measured: its ends in its own frame
+            # how far the pair's shape moved since it was last examined: its ends in its own frame
             reach = np.inf
             if _pair_frame(x1, b1, pair_nodes[p], local):
                 shift_a = _distance(local, 0, snap[p, 1, 0, b], snap[p, 1, 1, b], snap[p, 1, 2, b])
@@ -396,27 +398,16 @@ def measure(x1, b1, b, det, work, first):
                 if shift_a + shift_b >= 0:   # (NaN: no shape measured yet)
                     reach = shift_a + shift_b
             # within the step the shape is at most this step's largest displacement (both members: twice)
-            # from the end's, where it is at most `reach` from the measured one
-            if budget[p, b] - reach - 2.0 * moved[b] <= 0:
+            # from the end's, where it is at most `reach` from the examined one
+            left = budget[p, b] - reach   # the gap at the step's end is at least this
+            if left - 2.0 * moved[b] <= 0:
                 return p
-            _moved_on_pair(p, b, budget[p, b] - reach, det, local)   # the gap at the step's end is at least this
+            due[p, b] = odo + 0.5 * left
     lowest = np.inf
     for p in range(n_pairs):
         lowest = min(lowest, due[p, b])
     min_due[b] = lowest
     return -1
-
-
-@njit(cache=True, error_model="numpy", _nrt=False)
-def _moved_on_pair(p, b, left, det, local):
-    """Pair ``p`` of copy ``b`` measured: ``left`` (m) is what is left of its gap (in contact: of its
-    penetration) at the step's end, ``local`` (9,) its shape there (:func:`_pair_frame`)."""
-    snap, budget, due, odometer = det[7], det[8], det[9], det[11]
-    budget[p, b] = left
-    for k in range(3):
-        for j in range(3):
-            snap[p, k + 1, j, b] = local[3 * k + j]
-    due[p, b] = odometer[b] + 0.5 * left if left > 0 else odometer[b]
 
 
 @njit(cache=True, error_model="numpy")
@@ -425,7 +416,8 @@ def examine(x0, b0, x1, b1, b, s, det, work, events, points, p):
     from ``x0[:, :, b0]`` to ``x1[:, :, b1]`` (N, 3, .) m), examined over the step by the narrow phase,
     then the due pairs after it measured, and examined where they need it: transitions are appended to
     ``events`` and ``points`` (:func:`new_events`); ``work``: :func:`new_work`."""
-    pair_nodes, radii_sum, touch, fractions, around, inside = det[0], det[1], det[3], det[4], det[5], det[6]
+    pair_nodes, radii_sum, touch, fractions, around, inside, snap, budget, due, odometer = (
+        det[0], det[1], det[3], det[4], det[5], det[6], det[7], det[8], det[9], det[11])
     p0, p1, disp, local, scratch, pair_tau, pair_begin = work
     while p >= 0:
         for k in range(4):
@@ -446,7 +438,12 @@ def examine(x0, b0, x1, b1, b, s, det, work, events, points, p):
         inside[p, b] = ins
         if not _pair_frame(x1, b1, pair_nodes[p], local):
             local[0] = np.nan   # no frame: the next look examines the pair again
-        _moved_on_pair(p, b, -gap if ins else gap, det, local)
+        left = -gap if ins else gap
+        budget[p, b] = left
+        for k in range(3):
+            for j in range(3):
+                snap[p, k + 1, j, b] = local[3 * k + j]
+        due[p, b] = odometer[b] + 0.5 * left if left > 0 else odometer[b]
         p = measure(x1, b1, b, det, work, p + 1)
 
 
