@@ -411,11 +411,12 @@ def measure(x1, b1, b, det, work, first):
 
 
 @njit(cache=True, error_model="numpy")
-def examine(x0, b0, x1, b1, b, s, det, work, events, points, p):
-    """Pair ``p``, which :func:`measure` found may have changed state over step ``s`` of copy ``b`` (positions
-    from ``x0[:, :, b0]`` to ``x1[:, :, b1]`` (N, 3, .) m), examined over the step by the narrow phase,
-    then the due pairs after it measured, and examined where they need it: transitions are appended to
-    ``events`` and ``points`` (:func:`new_events`); ``work``: :func:`new_work`."""
+def examine(x0, b0, x1, b1, b, s, det, work, events, points, p, copy):
+    """Pair ``p``, which :func:`measure` found may have changed state over step ``s`` (positions from
+    ``x0[:, :, b0]`` to ``x1[:, :, b1]`` (N, 3, .) m; state column ``b`` of ``det``), examined over the step by
+    the narrow phase, then the due pairs after it measured, and examined where they need it: transitions
+    are appended to ``events`` (as copy ``copy``'s) and ``points`` (:func:`new_events`); ``work``:
+    :func:`new_work`."""
     pair_nodes, radii_sum, touch, fractions, around, inside, snap, budget, due, odometer = (
         det[0], det[1], det[3], det[4], det[5], det[6], det[7], det[8], det[9], det[11])
     p0, p1, disp, local, scratch, pair_tau, pair_begin = work
@@ -428,7 +429,7 @@ def examine(x0, b0, x1, b1, b, s, det, work, events, points, p):
         found, ins, gap = _transitions(p0, p1, disp, radii_sum[p], inside[p, b], touch, fractions, around,
                                        pair_tau, pair_begin, scratch)
         for e in range(found):
-            events.append((s, b, p, pair_tau[e], pair_begin[e]))
+            events.append((s, copy, p, pair_tau[e], pair_begin[e]))
             for k in range(4):
                 for j in range(3):
                     points.append(p0[k, j])
@@ -498,20 +499,63 @@ def _pair_frame(x, b, nodes, local):
     return True
 
 
+# copies gathered at a time by detect_steps: the copies one cache line of a row holds
+_TILE = 8
+
+
+@njit(cache=True, error_model="numpy")
+def _column_state(det):
+    """A state of one copy beside ``det`` (:func:`detection_state`): its pairs, its state arrays of one column."""
+    k = det[0].shape[0]
+    return (det[0], det[1], det[2], det[3], det[4], det[5], np.empty((k, 1), dtype=np.bool_), np.empty((k, 4, 3, 1)),
+            np.empty((k, 1)), np.empty((k, 1)), np.empty(1), np.empty(1), np.empty(1))
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _copy_column(src, bs, dst, bd):
+    """Column ``bs`` of the state arrays of ``src`` (:func:`detection_state`) into column ``bd`` of ``dst``'s."""
+    for p in range(src[6].shape[0]):
+        dst[6][p, bd] = src[6][p, bs]
+        dst[8][p, bd] = src[8][p, bs]
+        dst[9][p, bd] = src[9][p, bs]
+        for k in range(4):
+            for j in range(3):
+                dst[7][p, k, j, bd] = src[7][p, k, j, bs]
+    dst[10][bd] = src[10][bs]
+    dst[11][bd] = src[11][bs]
+    dst[12][bd] = src[12][bs]
+
+
 @njit(cache=True, error_model="numpy", nogil=True)   # nogil: blocks of copies on threads (methods/_copy_blocks.py)
 def detect_steps(xs, stop, det):
     """Detection over the first ``stop[b]`` steps of a chunk, copy by copy: ``xs`` (K + 1, N, 3, B) m,
     the positions before the chunk's first step, then after each of its steps; ``stop`` (B,) int (a
     failed copy walks fewer, or none). Updates ``det`` (:func:`detection_state`); returns the events
-    (:func:`event_arrays`)."""
+    (:func:`event_arrays`).
+
+    Each copy is walked through the chunk in arrays of its own (its positions gathered ``_TILE`` copies at a
+    time, its state column copied in and out): a copy's numbers in ``xs`` and ``det`` lie ``B`` apart, and
+    with ``B`` a power of two every row of a step falls in the same cache set (walked in place, 0.72 µs per
+    copy-step at B = 512 against 0.29 at B = 500)."""
+    n_rows, n_nodes, _, n_copies = xs.shape
     events, points = new_events()
     work = new_work()
-    for s in range(xs.shape[0] - 1):   # the copies innermost: they lie side by side in memory
-        x0 = xs[s]
-        x1 = xs[s + 1]
-        for b in range(xs.shape[3]):
-            if s < stop[b] and moved_on(x0, b, x1, b, b, det):
-                p = measure(x1, b, b, det, work, 0)
-                if p >= 0:
-                    examine(x0, b, x1, b, b, s, det, work, events, points, p)
+    tile = np.empty((_TILE, n_rows, n_nodes, 3, 1))
+    one = _column_state(det)
+    for first in range(0, n_copies, _TILE):
+        last = min(first + _TILE, n_copies)
+        for s in range(n_rows):
+            for i in range(n_nodes):
+                for j in range(3):
+                    for b in range(first, last):
+                        tile[b - first, s, i, j, 0] = xs[s, i, j, b]
+        for b in range(first, last):
+            _copy_column(det, b, one, 0)
+            x = tile[b - first]
+            for s in range(min(stop[b], n_rows - 1)):
+                if moved_on(x[s], 0, x[s + 1], 0, 0, one):
+                    p = measure(x[s + 1], 0, 0, one, work, 0)
+                    if p >= 0:
+                        examine(x[s], 0, x[s + 1], 0, 0, s, one, work, events, points, p, b)
+            _copy_column(one, 0, det, b)
     return event_arrays(events, points)

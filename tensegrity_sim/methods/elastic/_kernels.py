@@ -357,7 +357,7 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
             if detecting and moved_on(before, 0, x, b, b, detection):
                 p = measure(x, b, b, detection, work, 0)
                 if p >= 0:
-                    examine(before, 0, x, b, b, s, detection, work, events, points, p)
+                    examine(before, 0, x, b, b, s, detection, work, events, points, p, b)
             for ci in range(nc):
                 total[ci] += imp[ci]
             if (s + 1) % every == 0 or s == n_steps - 1:
