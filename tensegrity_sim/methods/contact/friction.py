@@ -73,7 +73,12 @@ point; the first three follow from the alternatives' definitions and were not im
 cables' stabiliser: no sinking, no rebound. Like the cables' it is capped so that it never asks for more
 than the reversal of the node's normal velocity at the sub-step's start (the impulse then does no
 positive work), so that ``v_f = -v_i`` meets every row as it does the cables': a node that starts
-inside the ground is not pushed out faster than it came in. Sticking rows are the exception (they ask
+inside the ground is not pushed out faster than it came in. The elastic method floors the targets too, as
+the member pairs' (``floored``): no target lets a node sink past ``TOUCH_TOL`` deep, nor deeper where it is
+already past it, where it is not pushed out either (the cap alone let a node
+that left the ground upwards, kicked down by its members within the step, sink by as much as it rose: 0.13 mm
+in a throw of ``scripts/throws.py``); the inextensible method keeps the cap alone, which does no positive work
+(its energy law). Sticking rows are the exception (they ask
 for ``v_t = 0``): when sticking contacts hold a locked structure still and that misses a cable's or
 rigid strut's drift-correcting target, the QP is infeasible and is solved again with those targets at
 the pure velocity level (equalities 0, inequalities at least 0), which ``v = 0`` meets.
@@ -176,14 +181,16 @@ class ContactSet:
 
     # ------------------------------------------------------------------ arming
     def arm_step(self, x_m: np.ndarray, v: np.ndarray, v0: np.ndarray, tau: float, half: float,
-                 v_f: np.ndarray | None = None) -> bool:
+                 v_f: np.ndarray | None = None, floored: bool = False) -> bool:
         """Arm the contacts of a sub-step whose positions end at ``x_m + half * v_f`` (the inextensible
         midpoint: ``half = tau / 2``; the elastic drift: ``x_m = x_i``, ``half = h``): the nodes that may
         reach the ground by then, each with the target that lands it exactly on it, capped at the
         reversal of its normal velocity ``v`` (N, 3) at the start; and the member pairs likewise.
         Whether a node may reach the ground is judged on its free velocity ``v0`` (N, 3), and also on an
         answer ``v_f`` (N, 3) when given (a cable's impulse can carry a node the free motion kept clear
-        of the ground into it). Returns whether any is armed."""
+        of the ground into it). ``floored`` (the elastic method's): no target lets a node sink past
+        ``TOUCH_TOL`` deep, nor deeper where it already is (a node leaving the ground upwards but kicked down
+        by its members within the step was let down by as much as it rose). Returns whether any is armed."""
         p = self._grounded
         g = self._gaps_of(x_m, p)
         reach = g - half * np.abs(v0[p, 2])
@@ -192,6 +199,8 @@ class ContactSet:
         armed = reach <= TOUCH_TOL
         w = -g[armed] / half
         np.minimum(w, -v[p[armed], 2], out=w)
+        if floored:
+            np.maximum(w, np.minimum(-(g[armed] + TOUCH_TOL) / half, 0.0), out=w)
         touching = g[armed] <= TOUCH_TOL
         pairs = None if self.members is None else self.members.arm_step(x_m, v, v0, half, TOUCH_TOL)
         self.solver.arm(p[armed], w, touching, pairs)

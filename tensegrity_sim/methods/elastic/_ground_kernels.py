@@ -218,7 +218,8 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
         gap = x[p, 2, b] - radii[p] - height
         armed[p] = inv_mass[p] > 0.0 and gap - h * abs(v[p, 2, b]) <= touch_tol
         # the drift's target lands the node on the ground, capped at the reversal of its start velocity
-        target[p] = min(-gap / h, -vz0)
+        # but never letting it sink past touch_tol deep (ContactSet.arm_step's floored)
+        target[p] = max(min(-gap / h, -vz0), min(-(gap + touch_tol) / h, 0.0))
         landing[p] = max(-v[p, 2, b], 0.0) if gap > touch_tol else 0.0
         found = found or armed[p]
     if pair_nodes.shape[0] and _pair_armed(x, v, h, speed, pair_nodes, pair_radii, touch_tol, ends4, out6, s5, t5, b):

@@ -410,7 +410,7 @@ class ElasticMethod(StepMethod):
             self.ground.begin_step()
             # the drift's contact impulse: lands every node that would pass the ground exactly on it
             landing_speed = np.maximum(-v_half[:, 2], 0.0)
-            if self.ground.arm_step(x, v, v_half, h, h):
+            if self.ground.arm_step(x, v, v_half, h, h, floored=True):
                 v_half = self.ground.velocity_step(x, v_half, self.rigid)
             landing_speed *= self.ground.gaps(x) > TOUCH_TOL
         x_new = x + h * v_half
