@@ -434,7 +434,8 @@ def _forces_copies(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping,
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _pushes_copies(ends, inv_mass, rigid_members, strengths, dirs, out):
-    """:func:`_pushes` of every copy: ``strengths`` (nr, B), ``out`` (N, 3, B)."""
+    """``out`` (N, 3, B) = the node displacements (or velocity changes) of equal-and-opposite pushes of
+    ``strengths`` (nr, B) along the rigid struts' ``dirs`` of every copy (:func:`_push`, strut by strut)."""
     n_copies = out.shape[2]
     for i in range(out.shape[0]):
         for j in range(3):
