@@ -220,17 +220,15 @@ def write(rows: list[dict]) -> str:
 
 
 if __name__ == "__main__":
-    if "--ground" in sys.argv[1:]:
-        ground_rows = measure_ground()
+    # a single case: its own CSV
+    single = {"--ground": (measure_ground, "batch_ground.csv"), "--response": (measure_response, "batch_response.csv")}
+    chosen = [single[flag] for flag in sys.argv[1:] if flag in single]
+    if chosen:
+        case, name = chosen[0]
+        rows = case()
         RESULTS.mkdir(exist_ok=True)
-        write_csv(RESULTS / "batch_ground.csv", ground_rows)
-        for row in ground_rows:
-            print(row)
-    elif "--response" in sys.argv[1:]:
-        response_rows = measure_response()
-        RESULTS.mkdir(exist_ok=True)
-        write_csv(RESULTS / "batch_response.csv", response_rows)
-        for row in response_rows:
+        write_csv(RESULTS / name, rows)
+        for row in rows:
             print(row)
     else:
         print(write(measure()))
