@@ -2,8 +2,9 @@
 with its MCAP log on, driven by ``examples/roll_controller.py`` (issue 28: tick p99.9 <= 1 ms over 60 s, no
 catch-up burst).
 
-Run: ``python3 bench/bench_node.py [--duration 60] [--scene icosahedron_ground] [--step-rate 1000] [--csv FILE]``
-(default CSV: ``bench/results/node_tick.csv``).
+Run: ``python3 bench/bench_node.py [--duration 60] [--scene icosahedron_ground] [--step-rate 1000]
+[--thread-priorities 0,50] [--csv FILE]`` (default CSV: ``bench/results/node_tick.csv``): one run per
+``thread_priority`` in turn, 0 the default scheduler, 50 ``SCHED_FIFO`` (the server says if the OS refused it).
 
 The server runs in its own process over loopback on a random domain, logging to a temporary folder; the
 roll controller runs in another, as a user runs it (``examples/roll_controller.py --domain-id D``), with
@@ -42,12 +43,13 @@ CONTROLLER = ROOT / "examples" / "roll_controller.py"
 STOP_TIMEOUT = 60.0  # s for a stopped process to finish (the server finishes its log)
 
 
-def start_server(args, domain: int, log_dir: str, env: dict) -> tuple[subprocess.Popen, list[str]]:
+def start_server(args, priority: int, domain: int, log_dir: str, env: dict) -> tuple[subprocess.Popen, list[str]]:
     """The server, and the lines of its stderr (read by a thread, so that a chatty server never blocks on a
     full pipe); returns once it says it is serving."""
     command = [sys.executable, "-m", "tensegrity_sim.cli", "serve", args.scene, "--transport", "dds",
                "--domain-id", str(domain), "--log-path", log_dir, "--dt", str(args.dt),
-               "--step-rate", str(args.step_rate), "--publish-rate", str(args.publish_rate)]
+               "--step-rate", str(args.step_rate), "--publish-rate", str(args.publish_rate),
+               "--thread-priority", str(priority)]
     print("server:", " ".join(command[1:]), flush=True)
     server = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     lines: list[str] = []
@@ -108,21 +110,14 @@ def after_start(reports: list[dict[str, str]], stats: dict[str, str]) -> dict[st
             for k in ("ticks", "overruns", "burst_ticks")}
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--duration", type=float, default=60.0, help="s of wall-clock time the controller drives")
-    parser.add_argument("--scene", default="icosahedron_ground")
-    parser.add_argument("--dt", type=float, default=1e-3)
-    parser.add_argument("--step-rate", type=float, default=1000.0)
-    parser.add_argument("--publish-rate", type=float, default=100.0)
-    parser.add_argument("--csv", type=Path, default=RESULTS / "node_tick.csv")
-    args = parser.parse_args()
-
+def run(args, priority: int) -> dict:
+    """One run of the server at ``thread_priority`` ``priority`` driven by the controller: its CSV row,
+    printed."""
     domain = random.SystemRandom().randint(1, 200)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as log_dir:
-        server, server_err = start_server(args, domain, log_dir, env)
+        server, server_err = start_server(args, priority, domain, log_dir, env)
         controller = None
         try:
             cycles = int(args.duration / 2.0) + 10   # a cycle takes about 3 s: still rolling when stopped
@@ -140,18 +135,22 @@ def main() -> int:
         if "steps" not in stats or "log" not in stats:
             sys.exit(f"no summary from the server:\n{server_out}{''.join(server_err)}")
         travel, simulated, reports = read_log(stats["log"])
-    method = re.search(r"serving \S+ \((\w+),", "".join(server_err)).group(1)
+    err = "".join(server_err)
+    method = re.search(r"serving \S+ \((\w+),", err).group(1)
+    policy = "default" if priority == 0 or "refused SCHED_FIFO" in err else f"SCHED_FIFO {priority}"
     started = [int(n) for n in re.findall(r"^cycle (\d+):", controller_out, flags=re.MULTILINE)]
     ints = ("steps", "overruns", "ticks", "max_steps_per_tick", "burst_ticks", "failed_steps", "refused_rest_lengths")
     floats = ("real_time_factor_achieved", "max_lag_ms", "tick_p50_ms", "tick_p99_ms", "tick_p999_ms", "tick_max_ms")
-    row = {"scene": args.scene, "method": method, "duration_s": args.duration, "step_rate_hz": args.step_rate,
+    row = {"scene": args.scene, "method": method, "thread_priority": priority, "scheduler": policy,
+           "duration_s": args.duration, "step_rate_hz": args.step_rate,
            "dt_s": args.dt, "publish_rate_hz": args.publish_rate, "log": "on",
            **{k: int(stats[k]) for k in ints}, **{k: float(stats[k]) for k in floats}, **after_start(reports, stats),
            "cycles_started": max(started, default=-1) + 1, "com_travel_m": travel, "logged_s": simulated,
            "load_1min_before": load_before, "load_1min_after": load_after}
     print(f"{args.scene} ({method}), serve --transport dds at {args.step_rate:g} ticks/s, dt = {args.dt * 1e3:g} ms, "
-          f"publishing {args.publish_rate:g} Hz, log on, driven by examples/roll_controller.py for "
-          f"{args.duration:g} s; load average (1 min) {load_before:.2f} before, {load_after:.2f} after")
+          f"publishing {args.publish_rate:g} Hz, log on, stepping thread on the {policy} scheduler, driven by "
+          f"examples/roll_controller.py for {args.duration:g} s; load average (1 min) {load_before:.2f} before, "
+          f"{load_after:.2f} after")
     print(f"server: {row['steps']} steps in {row['ticks']} ticks, real-time factor {row['real_time_factor_achieved']}, "
           f"overruns {row['overruns']}, max lag {row['max_lag_ms']} ms, failed steps {row['failed_steps']}")
     print(f"tick: p50 {row['tick_p50_ms']} ms, p99 {row['tick_p99_ms']} ms, p99.9 {row['tick_p999_ms']} ms "
@@ -160,8 +159,22 @@ def main() -> int:
     print(f"after the first second (start-up left out): {row['ticks_after_1s']} ticks, {row['overruns_after_1s']} "
           f"overruns, {row['burst_ticks_after_1s']} catch-up bursts")
     print(f"robot: {row['cycles_started']} roll cycles started, centre of mass moved {travel:.3f} m over "
-          f"{simulated:.1f} s of logged simulated time; {row['refused_rest_lengths']} commands refused")
-    write_csv(args.csv, [row])
+          f"{simulated:.1f} s of logged simulated time; {row['refused_rest_lengths']} commands refused", flush=True)
+    return row
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=60.0, help="s of wall-clock time the controller drives")
+    parser.add_argument("--scene", default="icosahedron_ground")
+    parser.add_argument("--dt", type=float, default=1e-3)
+    parser.add_argument("--step-rate", type=float, default=1000.0)
+    parser.add_argument("--publish-rate", type=float, default=100.0)
+    parser.add_argument("--thread-priorities", type=lambda text: [int(p) for p in text.split(",")], default=[0, 50],
+                        help="the server's thread_priority of each run, in turn (default: 0,50)")
+    parser.add_argument("--csv", type=Path, default=RESULTS / "node_tick.csv")
+    args = parser.parse_args()
+    write_csv(args.csv, [run(args, priority) for priority in args.thread_priorities])
     print(f"wrote {args.csv}")
     return 0
 

@@ -13,8 +13,8 @@ import tensegrity_sim as ts
 from tensegrity_sim.results import ContactEvent
 from tensegrity_sim.ros import messages as M
 from tensegrity_sim.ros.node_logic import TOPICS, NodeSettings, SimNodeLogic, decode_contacts, encode_contacts
-from ros_helpers import (FakeClock, FakeRecorder, make_logic, positions_of, prism, rest_lengths_msg, stamp_of,
-                         wrench_msg)
+from ros_helpers import (FakeClock, FakeRecorder, ListLogger, make_logic, positions_of, prism, rest_lengths_msg,
+                         stamp_of, wrench_msg)
 
 
 # --------------------------------------------------------------------------- settings
@@ -45,6 +45,9 @@ BAD_SETTINGS = [
     ({"log_path": None}, "parameter 'log_path': must be a string, got None"),
     ({"solver": "cplex"}, "parameter 'solver': must be one of daqp, osqp, nnls, sparse, auto or empty, got 'cplex'"),
     ({"solver": None}, "parameter 'solver': must be one of daqp, osqp, nnls, sparse, auto or empty, got None"),
+    ({"thread_priority": 100}, "parameter 'thread_priority': must be an integer from 0 to 99, got 100"),
+    ({"thread_priority": 50.0}, "parameter 'thread_priority': must be an integer from 0 to 99, got 50.0"),
+    ({"thread_priority": True}, "parameter 'thread_priority': must be an integer from 0 to 99, got True"),
     ({"node_name": "tensegrity_sim"}, "parameter 'node_name': must be fully qualified (start with /), got "
                                       "'tensegrity_sim'"),
 ]
@@ -541,6 +544,104 @@ def test_the_spinning_node_wakes_on_the_schedule_so_a_late_wake_up_owes_no_step(
     start = polls[1] - 1e-3 - 1e-6 - late[1]
     phase = (np.array(polls[1:]) - start - 1e-6 - np.resize(late[::-1], len(polls) - 1)) * 1e3
     assert np.allclose(phase, np.round(phase), atol=1e-9)
+
+
+def test_the_spinning_node_hands_its_log_the_waiting_messages_between_ticks(tmp_path):
+    """live.spin hands the log its waiting messages in the idle time after a tick (more than SPARE_FOR_LOG of a
+    period left), so no tick pays for them: after every quick tick nothing waits. Ticks that leave less (each
+    takes 0.6 ms here) leave them waiting until the crash-safety bound (PENDING_SIZE bytes) hands them on in
+    a tick, as without the idle time; the finished log holds every message either way."""
+    import logging
+    import signal
+
+    from tensegrity_sim.ros.live import SPARE_FOR_LOG, spin
+    from tensegrity_sim.ros.log import PENDING_SIZE, LogRecorder, SignalLatch
+    from tensegrity_sim.ros.log_reader import LogReader
+
+    clock = FakeClock(t=10.0)
+    logic, _, _ = make_logic(prism(), clock=clock, publish_rate=1000.0)
+    path = tmp_path / "spin.mcap"
+    logic.recorder = LogRecorder(path, logic.channels(), logic.run_info())
+    latch, waiting, tick_length = SignalLatch(), [], [0.0]
+    assert 0.6e-3 > (1.0 - SPARE_FOR_LOG) * 1e-3   # the long ticks leave less than SPARE_FOR_LOG of a period
+
+    class Transport:
+        def poll(self, logic, log):
+            waiting.append(logic.recorder._writer._pending_bytes)   # bytes waiting as the tick starts
+            if len(waiting) == 100:
+                tick_length[0] = 0.6e-3
+            if len(waiting) == 300:
+                latch.signum = signal.SIGINT
+            clock.t += tick_length[0]
+
+    def sleep(seconds):
+        clock.t += seconds + 1e-7   # waking a little late
+
+    with logic.recorder, pytest.raises(KeyboardInterrupt):
+        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"), sleep=sleep)
+    quick, slow = np.array(waiting[2:100]), np.array(waiting[101:300])
+    assert logic.publications >= 290 and not quick.any()
+    # with ~2 KiB a publication: one or two publications wait, and every second or third tick hands them on
+    assert slow.max() < PENDING_SIZE and (slow > 0).sum() >= len(slow) / 2 and (slow == 0).sum() >= len(slow) / 4
+    with LogReader(path) as reader:
+        assert sum(1 for m in reader.messages() if m.topic.endswith("/node_poses")) == logic.publications
+
+
+def test_the_stepping_thread_runs_on_fifo_while_the_node_is_on_a_schedule():
+    """thread_priority puts the calling thread (only it) on SCHED_FIFO at that priority while the node runs on
+    a schedule and back on the default policy otherwise; where the OS refuses (no privilege), one warning says
+    so and the thread stays on the default policy."""
+    import os
+    import threading
+
+    from tensegrity_sim.ros.live import StepperScheduling
+
+    logger, seen = ListLogger(), []
+
+    def stepper():
+        scheduling = StepperScheduling(7, logger)
+        for scheduled in (True, False, True):
+            scheduling.follow(scheduled)
+            seen.append((os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
+        scheduling.restore()
+        seen.append((os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
+
+    thread = threading.Thread(target=stepper)
+    thread.start()
+    thread.join()
+    fifo, other = (os.SCHED_FIFO, 7), (os.SCHED_OTHER, 0)
+    if logger.warnings:   # an unprivileged run
+        assert seen == [other] * 4 and len(logger.warnings) == 1
+        assert logger.warnings[0].startswith("thread_priority 7: the OS refused SCHED_FIFO")
+    else:
+        assert seen == [fifo, other, fifo, other]
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER   # the test's own thread kept its policy
+
+
+def test_a_refused_thread_priority_warns_once_and_steps_on(monkeypatch):
+    import errno
+    import os
+
+    from tensegrity_sim.ros.live import StepperScheduling
+
+    calls = []
+
+    def refuse(pid, policy, param):
+        calls.append(policy)
+        raise PermissionError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    logger = ListLogger()
+    scheduling = StepperScheduling(50, logger)
+    for scheduled in (True, True, False, True):
+        scheduling.follow(scheduled)
+    scheduling.restore()
+    assert calls == [os.SCHED_FIFO] and logger.warnings == [
+        "thread_priority 50: the OS refused SCHED_FIFO (Operation not permitted); stepping on the default scheduler "
+        "(root, CAP_SYS_NICE or an rtprio limit of at least 50, e.g. ulimit -r 50, grants it)"]
+    calls.clear()
+    StepperScheduling(0, logger).follow(True)   # 0: the default scheduler, nothing asked of the OS
+    assert calls == []
 
 
 def test_real_time_factor_scales_the_schedule():

@@ -5,13 +5,14 @@ direction, QoS), services and parameters, with the parameters' validation (:clas
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import asdict, dataclass, field, fields
 
 from ..checks import MIN_DT, describe, real
 from ..methods.qp.solvers import SOLVERS
 
 __all__ = ["Qos", "TopicSpec", "TOPICS", "SERVICES", "resolve_topic", "stamp_ns", "MIN_RATE", "MAX_REAL_TIME_FACTOR",
-           "NodeSettings", "RUNTIME_PARAMETERS", "FAILURE_STATUS"]
+           "MAX_THREAD_PRIORITY", "NodeSettings", "RUNTIME_PARAMETERS", "FAILURE_STATUS"]
 
 
 # --------------------------------------------------------------------------- topics
@@ -72,6 +73,7 @@ def stamp_ns(seconds: float) -> int:
 # "as fast as possible", which 0 says.
 MIN_RATE = 1e-6                 # Hz
 MAX_REAL_TIME_FACTOR = 1e6
+MAX_THREAD_PRIORITY = 99        # Linux's highest SCHED_FIFO priority
 
 
 def _doc(text: str, runtime: bool = False) -> dict:
@@ -109,6 +111,11 @@ class NodeSettings:
         "MCAP log: a .mcap file, a directory (a timestamped file in it), or empty for no log"))
     max_rest_length_rate: float = field(default=0.0, metadata=_doc(
         "fastest a rest length may change, m/s (a motor reels at a finite speed); 0 = no limit"))
+    thread_priority: int = field(default=0, metadata=_doc(
+        f"SCHED_FIFO priority (1-{MAX_THREAD_PRIORITY}) of the thread that steps, while real_time_factor > 0: "
+        "the OS runs it before every ordinary thread, so no other process delays a tick; 0 = the default "
+        "scheduler. Needs root, CAP_SYS_NICE or an rtprio limit (ulimit -r); refused, the node warns and "
+        "steps on the default scheduler"))
     node_name: str = field(default="/tensegrity_sim", metadata=_doc(
         "fully qualified node name, the prefix of ~/ topics (set by the node, not a parameter)"))
 
@@ -122,6 +129,11 @@ class NodeSettings:
         if self.solver not in ("auto", "", *SOLVERS):
             raise ValueError(f"parameter 'solver': must be one of {', '.join(SOLVERS)}, auto or empty, got "
                              f"{self.solver!r}")
+        if (isinstance(self.thread_priority, bool) or not isinstance(self.thread_priority, numbers.Integral)
+                or not 0 <= self.thread_priority <= MAX_THREAD_PRIORITY):
+            raise ValueError(f"parameter 'thread_priority': must be an integer from 0 to {MAX_THREAD_PRIORITY}, got "
+                             f"{describe(self.thread_priority)}")
+        object.__setattr__(self, "thread_priority", int(self.thread_priority))
         if not self.node_name.startswith("/"):
             raise ValueError(f"parameter 'node_name': must be fully qualified (start with /), got "
                              f"{self.node_name!r}")

@@ -191,6 +191,12 @@ class LogWriter:
         if flush or self._pending_bytes >= self._pending_size:
             self._drain(flush)
 
+    def drain(self) -> None:
+        """Hand the waiting messages to mcap's writer now (a chunk that fills is written out), rather than
+        when the crash-safety bounds would: what a node does in the idle time between its ticks."""
+        if self._pending:
+            self._drain(False)
+
     def _drain(self, flush: bool) -> None:
         """Hand the waiting messages to mcap's writer in turn; with ``flush``, then write the chunk in
         progress out, however small, and sync the file to the disk."""
@@ -316,6 +322,10 @@ class LogRecorder:
     def record(self, records: Iterable[tuple[str, bytes]], log_time_ns: int) -> None:
         """Append every (topic, CDR data) of ``records`` at ``log_time_ns`` (see :meth:`LogWriter.write_all`)."""
         self._writer.write_all(records, log_time_ns)
+
+    def drain(self) -> None:
+        """:meth:`LogWriter.drain` on the current file."""
+        self._writer.drain()
 
     def restart(self, run_info: Mapping[str, str]) -> Path:
         """Finish this file and start the next, embedding ``run_info``; returns its path."""

@@ -34,6 +34,7 @@ from std_srvs.srv import Trigger
 from ..scene import load_scene
 from ..simulator import Simulator
 from . import messages as M
+from .live import DIAGNOSTICS_PERIOD, StepperScheduling
 from .log import LogRecorder, SignalLatch, log_file_path
 from .node_logic import RUNTIME_PARAMETERS, SERVICES, TOPICS, NodeSettings, Qos, SimNodeLogic
 
@@ -43,7 +44,6 @@ NODE_NAME = "tensegrity_sim"
 # rclpy publishes every accepted parameter change itself (stamped by the node's clock, the value as set);
 # the node logic's event, stamped with simulation time, goes to the log only
 PUBLISHED_BY_RCLPY = {"parameter_events"}
-DIAGNOSTICS_PERIOD = 1.0  # s of wall-clock time
 DISCOVERY_SETTINGS = ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY", "ROS_DISCOVERY_SERVER")
 
 
@@ -149,9 +149,14 @@ def main(args=None) -> None:
             node = SimNode()
             executor = SingleThreadedExecutor()
             executor.add_node(node)
-            while rclpy.ok():
-                executor.spin_once(timeout_sec=0.1)
-                latch.raise_if_signalled()
+            scheduling = StepperScheduling(node.logic.settings.thread_priority, node.get_logger())
+            try:
+                while rclpy.ok():
+                    scheduling.follow(node.logic.settings.real_time_factor > 0.0)
+                    executor.spin_once(timeout_sec=0.1)
+                    latch.raise_if_signalled()
+            finally:
+                scheduling.restore()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass  # SIGTERM raises SystemExit(143) through here, after the log is finished below
     except (ValueError, OSError) as exc:  # a bad parameter or scene, an unwritable log: say which, exit 2
