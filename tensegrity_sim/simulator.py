@@ -27,7 +27,7 @@ from .system import System
 __all__ = ["Simulator", "NonFiniteError", "SpeedError", "absurd_speed"]
 
 _CHUNK = 1024   # steps per compiled chunk when contact detection walks through a run's steps
-_AHEAD = 64     # most steps Simulator.step computes ahead in a compiled loop (they double up to it)
+_AHEAD = 64     # most steps Simulator.step computes ahead in a compiled loop (Simulator._look_ahead)
 
 
 class NonFiniteError(StepError):
@@ -211,6 +211,7 @@ class Simulator:
         self._ahead: _Ahead | None = None
         self._rows = _NO_ROWS     # the steps computed ahead still to hand out
         self._ahead_size = 1
+        self._inputs_since = 0    # the step count when the inputs last changed
         self._ground_busy = None  # (k,) bool: the steps ahead at which a ground contact begins or ends
         _, length, _ = self.system.geometry(scene.positions)
         self._shortest = float(length[length > 0].min(initial=math.inf))   # m, what absurd_speed compares with
@@ -314,20 +315,24 @@ class Simulator:
 
     def _inputs_changed(self) -> None:
         """The state changed from outside: the method recomputes what it cached, and the steps computed
-        ahead with the old inputs are dropped."""
+        ahead with the old inputs are dropped. The next look ahead computes as many steps as the old inputs
+        held (1 to ``_AHEAD``): a controller that commands every ``n`` steps gets its ``n`` steps in one compiled
+        call, none wasted (from 1 doubling, a command every 10 steps cost four calls and five steps dropped)."""
         self._method.invalidate()
         self._ahead, self._rows = None, _NO_ROWS
-        self._ahead_size = 1
+        count = self._state.step_count
+        self._ahead_size = min(max(1, count - self._inputs_since), _AHEAD)
+        self._inputs_since = count
 
     # ------------------------------------------------------------------ stepping
     def step(self) -> StepResult:
         """Advance one step of ``dt``. A :class:`~tensegrity_sim.methods.StepError` (a QP without a solution,
         a non-finite result) leaves the state as it was.
 
-        A method with a compiled loop computes steps ahead in it, the inputs held (1, 2, 4, ... up to
-        ``_AHEAD`` at a time while no input changes): one compiled call for many steps, each handed out
-        here as the very result of stepping it alone (rule 10 of ``methods/base.py``). A new input drops
-        them; ``run`` rewinds the loop to the state."""
+        A method with a compiled loop computes steps ahead in it, the inputs held (as many as the last
+        inputs held, then twice as many each time up to ``_AHEAD``, while no input changes): one compiled
+        call for many steps, each handed out here as the very result of stepping it alone (rule 10 of
+        ``methods/base.py``). A new input drops them; ``run`` rewinds the loop to the state."""
         if self._speeds_unchecked:
             self._check_speeds()
         row = next(self._rows, None)

@@ -220,6 +220,29 @@ def test_steps_computed_ahead_are_those_of_stepping_alone():
     np.testing.assert_array_equal(ahead.positions, alone.positions)
 
 
+def test_a_controller_commanding_every_n_steps_gets_its_n_steps_in_one_compiled_call():
+    """After an input change step() computes ahead as many steps as the last inputs held: the node's roll,
+    commanded every 10 steps, is one call of the compiled loop per command (from 1 doubling it was four, and
+    five steps dropped), and each step is still bit for bit that of stepping alone."""
+    ahead, alone = (ts.Simulator(ts.load_scene("icosahedron_ground"), method="elastic", dt=1e-3) for _ in range(2))
+    calls = []
+    advance = ahead._method.advance
+
+    def counted(state, steps, *args, **kwargs):
+        calls.append(steps)
+        return advance(state, steps, *args, **kwargs)
+
+    ahead._method.advance = counted
+    for k in range(200):
+        if k and k % 10 == 0:
+            for sim in (ahead, alone):
+                sim.set_rest_lengths((1.0 - 0.01 * (k % 20 == 0)) * sim.scene.cable_rest_lengths)
+        r, t = ahead.step(), alone.run(steps=1)
+        np.testing.assert_array_equal(r.positions, t.positions[0])
+        np.testing.assert_array_equal(r.contact_impulses, t.contact_impulses[0])
+    assert calls == [1, 2, 4, 8] + [10] * 19
+
+
 def test_non_finite_step_ahead_fails_at_that_step():
     """A step computed ahead that is not finite (here the 75th, inside the batch of 64 that starts at
     step 64) fails when it is taken, as stepping alone does: same step, same message, state before it."""
