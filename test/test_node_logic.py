@@ -506,11 +506,12 @@ def test_the_spinning_node_keeps_what_it_started_with_out_of_the_collector():
 
 
 def test_the_spinning_node_wakes_on_the_schedule_so_a_late_wake_up_owes_no_step():
-    """live.spin wakes each tick on the logic's grid (SimNodeLogic.next_tick), not on a cadence of its own.
-    Every wake-up here is late by 0.05 or 0.7 ms in turn, and one tick runs 3.6 ms long: the node catches up
-    the 4 steps it then owes in 4 ticks of 2 steps, and every other tick runs exactly one step. (A cadence
-    of its own, restarted at the long tick's end, sits 0.6 ms into the schedule's period: each 0.7 ms late
-    wake-up then owes two steps and the next none.)"""
+    """live.spin wakes each tick on the logic's grid (SimNodeLogic.next_tick), not on a cadence of its own:
+    every wake-up here is late by 0.05 or 0.7 ms in turn, and each such tick runs exactly one step. (A cadence
+    of its own, restarted after a long tick, sits at a random phase of the schedule: a 0.7 ms late wake-up then
+    owes two steps and the next none.) A turn that runs past the next tick of the grid runs what is due at
+    once, without sleeping: 1.3 ms long (the 50th), the one step it owes in a tick of its own (not a period
+    late beside the next); 3.6 ms long (the 150th), the 3 steps it owes in ticks of at most 2 (the cap)."""
     import logging
     import signal
 
@@ -519,30 +520,42 @@ def test_the_spinning_node_wakes_on_the_schedule_so_a_late_wake_up_owes_no_step(
 
     clock = FakeClock(t=10.0)
     logic, _, _ = make_logic(prism(), clock=clock)
-    latch, polls, steps, late = SignalLatch(), [], [], [0.05e-3, 0.7e-3]
+    latch, polls, steps, slept, late = SignalLatch(), [], [], [], [0.05e-3, 0.7e-3]
 
     class Transport:
         def poll(self, logic, log):
             polls.append(clock.t)
             steps.append(logic.sim.step_count)
-            if len(polls) == 50:
-                clock.t += 3.6e-3   # a long tick
             if len(polls) == 400:
                 latch.signum = signal.SIGINT
 
+    tick = logic.tick
+
+    def long_tick():   # the 51st and 151st ticks run long (a costly publication, say)
+        done = tick()
+        clock.t += {51: 1.3e-3, 151: 3.6e-3}.get(len(polls), 0.0)
+        return done
+
+    logic.tick = long_tick
+
     def sleep(seconds):
+        slept.append(len(polls))
         clock.t += seconds + late[len(polls) % 2]
 
     with pytest.raises(KeyboardInterrupt):
         spin(logic, Transport(), latch=latch, log=logging.getLogger("test"), sleep=sleep)
-    per_tick = np.diff(steps)   # the steps of each tick but the last
-    catch_up = np.flatnonzero(per_tick == 2)
-    assert list(catch_up) == [49, 50, 51, 52] and logic.burst_ticks == 4 and logic.max_steps_per_tick == 2
-    assert set(per_tick[2:49]) == set(per_tick[53:]) == {1}
+    per_tick = np.diff(steps)   # the steps of tick k (poll k + 1), but the last
+    assert sorted(set(range(1, 400)) - set(slept)) == [51, 151, 152]   # no sleep after the long ticks ...
+    assert polls[51] - polls[50] == pytest.approx(1.3e-3, abs=1e-12)   # ... the next at the long tick's end
+    assert polls[151] - polls[150] == pytest.approx(3.6e-3, abs=1e-12)
+    assert per_tick[151] == 2 and set(np.delete(per_tick, 151)[2:]) == {1}
+    assert logic.burst_ticks == 1 and logic.max_steps_per_tick == 2
     assert logic.sim.step_count == math.floor((polls[-1] - polls[0]) * 1e3)   # on time at the end
-    # the wake-ups: a whole number of periods after the schedule's start, and a microsecond, plus their lateness
+    # the other wake-ups: a whole number of periods after the schedule's start, and a microsecond, plus their
+    # lateness
     start = polls[1] - 1e-3 - 1e-6 - late[1]
-    phase = (np.array(polls[1:]) - start - 1e-6 - np.resize(late[::-1], len(polls) - 1)) * 1e3
+    woken = np.array([k for k in range(1, len(polls)) if k not in (51, 151, 152)])
+    phase = (np.array(polls)[woken] - start - 1e-6 - np.array([late[k % 2] for k in woken])) * 1e3
     assert np.allclose(phase, np.round(phase), atol=1e-9)
 
 

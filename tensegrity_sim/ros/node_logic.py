@@ -190,16 +190,26 @@ class SimNodeLogic:
         self._anchor_step = self.sim.step_count
 
     def next_tick(self, now: float) -> float | None:
-        """The first time (s, on :attr:`clock`) after ``now`` on the schedule's grid of ticks (its start plus
-        whole tick periods, and a microsecond, so that the schedule's floor sees the steps of that tick due);
-        None while paused or stepping as fast as possible (no schedule). A loop that wakes its ticks there, not
-        on a cadence of its own, has a whole tick period of slack before a late wake-up owes extra steps."""
+        """When (s, on :attr:`clock`) a loop runs its next tick, ``now`` the clock after the last: the first
+        time after ``now`` on the schedule's grid of ticks (its start plus whole tick periods, and a
+        microsecond, so that the schedule's floor sees the steps of that tick due), or ``now`` itself if a
+        whole tick's share of steps is due already (the last tick, or what the loop did after it, ran past a
+        tick of the grid: those steps run at once, in a tick of their own, not a period late beside the next
+        share); None while paused or stepping as fast as possible (no schedule). A loop that wakes its ticks
+        there, not on a cadence of its own, has a whole tick period of slack before a late wake-up owes extra
+        steps."""
         s = self.settings
         if self.paused or s.real_time_factor == 0.0:
             return None
+        steps_per_second = s.real_time_factor / s.dt
+        behind = self._anchor_step + math.floor((now - self._anchor_time) * steps_per_second) - self.sim.step_count
+        if behind >= max(1.0, steps_per_second / s.step_rate):
+            return now
         period = 1.0 / s.step_rate
-        return self._anchor_time + (math.floor((now - self._anchor_time - _WAKE_AFTER_DUE) / period) + 1) * period \
-            + _WAKE_AFTER_DUE
+        k = math.floor((now - self._anchor_time - _WAKE_AFTER_DUE) / period) + 1
+        wake = self._anchor_time + k * period + _WAKE_AFTER_DUE
+        # rounding can put the grid's time at ``now`` exactly (a tick woken on it): then the one after
+        return wake if wake > now else self._anchor_time + (k + 1) * period + _WAKE_AFTER_DUE
 
     @property
     def clock(self) -> Callable[[], float]:
