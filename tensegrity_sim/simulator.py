@@ -132,13 +132,16 @@ class _Ahead:
     rewind starts from). ``rows`` hands them out in order up to ``stop``, the first that is not finite
     (or their ``count``): (index, the state's positions and velocities, then the result's fields but
     time and contacts). ``pairs``: the member contacts' impulses of the steps that have any (the method's
-    ``advanced_pairs``)."""
+    ``advanced_pairs``). ``events``: {index: member-contact events} of the steps up to ``stop``, walked by
+    the compiled detector in one call, and ``detector`` its state before them (what it is put back to when
+    the steps are dropped before all are taken); None where the detector is stepped with each step."""
 
-    __slots__ = ("stop", "count", "start", "start_count", "carry", "positions", "rows", "pairs")
+    __slots__ = ("stop", "count", "start", "start_count", "carry", "positions", "rows", "pairs", "events", "detector")
 
     def __init__(self, start, start_count: int, carry, pos, vel, imp, slack, stop: int, dt: float, ground=None,
-                 pairs=None):
+                 pairs=None, events=None, detector=None):
         self.stop, self.count, self.pairs = stop, len(pos), pairs or {}
+        self.events, self.detector = events, detector
         self.start, self.start_count, self.carry, self.positions = start, start_count, carry, pos
         # the state takes one copy of the positions and velocities, the results another (a user may
         # write into theirs); every other field belongs to one result only
@@ -319,6 +322,7 @@ class Simulator:
         held (1 to ``_AHEAD``): a controller that commands every ``n`` steps gets its ``n`` steps in one compiled
         call, none wasted (from 1 doubling, a command every 10 steps cost four calls and five steps dropped)."""
         self._method.invalidate()
+        self._detector_at_state()
         self._ahead, self._rows = None, _NO_ROWS
         count = self._state.step_count
         self._ahead_size = min(max(1, count - self._inputs_since), _AHEAD)
@@ -341,9 +345,12 @@ class Simulator:
                 return self._step_once()
             row = next(self._rows)
         i, x, v, result_x, result_v, impulses, tensions, slack, ground = row
-        st = self._state
-        contacts = () if self._contacts is None else self._contacts.step(st.positions, x, st.step_count * self.dt,
-                                                                          self.dt, self._ahead.pairs.get(i))
+        st, a = self._state, self._ahead
+        if a.events is not None:
+            contacts = a.events.get(i, ())
+        else:
+            contacts = () if self._contacts is None else self._contacts.step(st.positions, x, st.step_count * self.dt,
+                                                                              self.dt, a.pairs.get(i))
         if self._ground is not None:
             if self._ground_busy[i]:
                 landed = self._ground.step(st.positions, x, st.velocities, st.step_count * self.dt, self.dt, ground)
@@ -392,15 +399,44 @@ class Simulator:
         add = np.add.reduce
         finite = np.isfinite(add(pos.reshape(k, -1), 1) + add(vel.reshape(k, -1), 1) + add(imp, 1))
         stop = k if finite.all() else int(np.argmin(finite))
+        events = saved = None
+        detector = self._contacts
+        if isinstance(detector, CompiledDetector) and stop:   # the steps' events in one walk
+            saved = detector.snapshot()
+            events = self._walk_ahead(st.positions, pos[:stop], st.step_count, method.advanced_pairs)
         self._ahead = a = _Ahead((st.positions, st.velocities), st.step_count, carry, pos, vel, imp, slack, stop,
-                                 self.dt, ground, method.advanced_pairs)
+                                 self.dt, ground, method.advanced_pairs, events, saved)
         self._rows = a.rows
         return self._look_ahead() if stop == 0 else True
+
+    def _walk_ahead(self, start: np.ndarray, positions: np.ndarray, count: int, pairs: dict) -> dict:
+        """The compiled detector walked from ``start`` (N, 3) m through steps ``count``, ``count + 1``, ...
+        ending at ``positions`` (k, N, 3), with the member contacts' impulses ``pairs`` ({index: impulses}):
+        {index: events} of the steps that have any."""
+        xs = np.empty((len(positions) + 1,) + start.shape)
+        xs[0], xs[1:] = start, positions
+        found = _walk(self._contacts, xs[..., None], lambda j: (count + j) * self.dt, self.dt, pairs)
+        return {step: events for (step, _), events in found.items()}
+
+    def _detector_at_state(self) -> bool:
+        """Put the compiled detector at the state if it walked the steps computed ahead further: its state
+        before them, walked again over those handed out (the same arithmetic, the same state; their events
+        were handed out already). Whether it did (not after a reset: a new state, the detector starts over)."""
+        a = self._ahead
+        taken = 0 if a is None else self._state.step_count - a.start_count
+        if a is None or a.detector is None or not 0 <= taken < a.stop:
+            return False
+        self._contacts.restore(a.detector)
+        if taken:
+            self._walk_ahead(a.start[0], a.positions[:taken], a.start_count,
+                             {i: impulses for i, impulses in a.pairs.items() if i < taken})
+        return True
 
     def _rewind(self) -> None:
         """Drop the steps computed ahead and not handed out, putting the method's loop back at the state:
         its carry from before them, advanced again over those handed out (the same arithmetic, so the
-        same carry)."""
+        same carry), and the detector at the state (:meth:`_detector_at_state`)."""
+        self._detector_at_state()
         a, self._ahead, self._rows = self._ahead, None, _NO_ROWS
         st = self._state
         taken = 0 if a is None else st.step_count - a.start_count
@@ -456,7 +492,14 @@ class Simulator:
         """Every contact going on now (begun, not yet ended), with its current gap (negative while the
         members overlap) and closest points: the events only mark begins and ends. Ground contacts
         (``(node name, "ground")``) carry the normal and friction impulses of the last step."""
-        members = () if self._contacts is None else self._contacts.active(self._state.positions)
+        detector, members = self._contacts, ()
+        if detector is not None:
+            # a detector that walked ahead of the state answers at the state, then goes on from where it was
+            ahead = detector.snapshot() if self._ahead is not None and self._ahead.detector is not None else None
+            back = ahead is not None and self._detector_at_state()
+            members = detector.active(self._state.positions)
+            if back:
+                detector.restore(ahead)
         ground = () if self._ground is None else self._ground.active(self._state.positions)
         return members + ground
 

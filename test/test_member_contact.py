@@ -205,6 +205,39 @@ def across(mu_ground=0.5, mu=0.3, e=0.3):
     return ts.Scene.from_dict(raw)
 
 
+def test_step_walks_the_detector_once_over_the_steps_it_computes_ahead():
+    """step() walks the compiled detector once over the steps it computes ahead and hands each step its
+    events: the same events (members, times, impulses) and active contacts as the numpy detector (the
+    reference) stepped with each step, across new inputs mid-way and active_contacts() asked mid-way (the
+    detector answers at the state, then goes on from where it was)."""
+    from tensegrity_sim.methods.contact.detection import ContactDetector
+    from tensegrity_sim.methods.contact.friction import TOUCH_TOL
+
+    scene = across(0.2, 1.0)
+    ahead, alone = simulator(scene, "elastic"), simulator(scene, "elastic")
+    alone._contacts = ContactDetector(alone.system, scene.contact_kinds, touch=TOUCH_TOL)
+    alone._contacts.reset(alone.positions)
+    events, chunked = [], 0
+    for k in range(900):
+        if k in (450, 613):
+            for sim in (ahead, alone):
+                sim.set_rest_lengths([0.4 if k == 450 else 0.45])
+        a, b = ahead.step(), alone.step()
+        chunked += ahead._ahead.events is not None
+        np.testing.assert_array_equal(a.positions, b.positions)   # detection does not change the motion
+        mine, its = ([e for e in r.contacts if "ground" not in e.members] for r in (a, b))
+        assert [(e.kind, e.members) for e in mine] == [(e.kind, e.members) for e in its], f"step {k}"
+        for e, f in zip(mine, its):
+            assert e.time == pytest.approx(f.time, abs=1e-12) and e.normal_impulse == f.normal_impulse
+        events += mine
+        if k % 7 == 3:
+            mine, its = ([c for c in sim.active_contacts() if "ground" not in c.members] for sim in (ahead, alone))
+            assert [(c.members, c.since) for c in mine] == [(c.members, c.since) for c in its], f"step {k}"
+            for c, d in zip(mine, its):
+                assert c.distance == pytest.approx(d.distance, abs=1e-15) and c.normal_impulse == d.normal_impulse
+    assert chunked == 900 and len(events) >= 2 and {e.kind for e in events} == {"begin", "end"}
+
+
 @pytest.mark.parametrize("mu_ground, mu", [(0.2, 1.0), (1.0, 0.3)])
 def test_elastic_compiled_response_matches_the_reference(mu_ground, mu):
     """The elastic method compiled (the ground's blocks by the block Newton of ``_friction_block_kernels``,
