@@ -402,7 +402,8 @@ class Simulator:
         events = saved = None
         detector = self._contacts
         if isinstance(detector, CompiledDetector) and stop:   # the steps' events in one walk
-            saved = detector.snapshot()
+            # (one step is handed out at once, never dropped: nothing to put the detector back to)
+            saved = detector.snapshot() if stop > 1 else None
             events = self._walk_ahead(st.positions, pos[:stop], st.step_count, method.advanced_pairs)
         self._ahead = a = _Ahead((st.positions, st.velocities), st.step_count, carry, pos, vel, imp, slack, stop,
                                  self.dt, ground, method.advanced_pairs, events, saved)
