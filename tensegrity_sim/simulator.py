@@ -27,7 +27,8 @@ from .system import System
 __all__ = ["Simulator", "NonFiniteError", "SpeedError", "absurd_speed"]
 
 _CHUNK = 1024   # steps per compiled chunk when contact detection walks through a run's steps
-_AHEAD = 64     # most steps Simulator.step computes ahead in a compiled loop (Simulator._look_ahead)
+AHEAD = 64      # most steps Simulator.step computes ahead in a compiled loop by default (Simulator.max_steps_ahead)
+MAX_AHEAD = 1 << 16   # ... at most (the steps' arrays: 48 bytes a node each)
 
 
 class NonFiniteError(StepError):
@@ -214,6 +215,7 @@ class Simulator:
         self._ahead: _Ahead | None = None
         self._rows = _NO_ROWS     # the steps computed ahead still to hand out
         self._ahead_size = 1
+        self._max_ahead = AHEAD
         self._inputs_since = 0    # the step count when the inputs last changed
         self._ground_busy = None  # (k,) bool: the steps ahead at which a ground contact begins or ends
         _, length, _ = self.system.geometry(scene.positions)
@@ -319,13 +321,13 @@ class Simulator:
     def _inputs_changed(self) -> None:
         """The state changed from outside: the method recomputes what it cached, and the steps computed
         ahead with the old inputs are dropped. The next look ahead computes as many steps as the old inputs
-        held (1 to ``_AHEAD``): a controller that commands every ``n`` steps gets its ``n`` steps in one compiled
+        held (1 to :attr:`max_steps_ahead`): a controller that commands every ``n`` steps gets its ``n`` steps in one compiled
         call, none wasted (from 1 doubling, a command every 10 steps cost four calls and five steps dropped)."""
         self._method.invalidate()
         self._detector_at_state()
         self._ahead, self._rows = None, _NO_ROWS
         count = self._state.step_count
-        self._ahead_size = min(max(1, count - self._inputs_since), _AHEAD)
+        self._ahead_size = min(max(1, count - self._inputs_since), self._max_ahead)
         self._inputs_since = count
 
     # ------------------------------------------------------------------ stepping
@@ -334,7 +336,7 @@ class Simulator:
         a non-finite result) leaves the state as it was.
 
         A method with a compiled loop computes steps ahead in it, the inputs held (as many as the last
-        inputs held, then twice as many each time up to ``_AHEAD``, while no input changes): one compiled
+        inputs held, then twice as many each time up to :attr:`max_steps_ahead`, while no input changes): one compiled
         call for many steps, each handed out here as the very result of stepping it alone (rule 10 of
         ``methods/base.py``). A new input drops them; ``run`` rewinds the loop to the state."""
         if self._speeds_unchecked:
@@ -382,7 +384,7 @@ class Simulator:
         if not method.has_loop() or (self._ground is not None and not method.has_ground_loop()):
             return False
         if a is not None:   # the last steps ahead were all taken, the inputs held: look further
-            self._ahead_size = min(2 * self._ahead_size, _AHEAD)
+            self._ahead_size = min(2 * self._ahead_size, self._max_ahead)
         k, st = self._ahead_size, self._state
         n, nc = st.positions.shape[0], st.rest_lengths.shape[0]
         pos, vel = np.empty((k, n, 3)), np.empty((k, n, 3))
@@ -483,6 +485,24 @@ class Simulator:
             contacts=contacts,
             contact_impulses=contact_impulses,
         )
+
+    @property
+    def max_steps_ahead(self) -> int:
+        """The most steps :meth:`step` computes ahead in one call of the method's compiled loop (default
+        :data:`AHEAD`): fewer spread the work more evenly over the steps (a live node's ticks), more
+        amortise the call over more steps."""
+        return self._max_ahead
+
+    @max_steps_ahead.setter
+    def max_steps_ahead(self, value: int) -> None:
+        try:
+            count = whole(value, "max_steps_ahead")
+        except ValueError:
+            count = 0
+        if not 1 <= count <= MAX_AHEAD:
+            raise ValueError(f"max_steps_ahead must be a whole number from 1 to {MAX_AHEAD}, got {describe(value)}")
+        self._max_ahead = count
+        self._ahead_size = min(self._ahead_size, count)
 
     @property
     def contact_kinds(self) -> tuple[str, ...]:

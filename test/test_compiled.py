@@ -241,6 +241,18 @@ def test_a_controller_commanding_every_n_steps_gets_its_n_steps_in_one_compiled_
         np.testing.assert_array_equal(r.positions, t.positions[0])
         np.testing.assert_array_equal(r.contact_impulses, t.contact_impulses[0])
     assert calls == [1, 2, 4, 8] + [10] * 19
+    # capped (a live node's NODE_STEPS_AHEAD): held inputs double up to the cap, a command's interval is cut to it
+    calls.clear()
+    ahead.max_steps_ahead = 6
+    for k in range(60):
+        if k == 24:
+            ahead.set_rest_lengths(ahead.scene.cable_rest_lengths)
+        ahead.step()
+    assert calls == [6, 6, 6, 6, 6, 6, 6, 6, 6, 6]   # the 10 held before, cut to 6; 24 steps, then 36
+    for bad in (0, 1.5, True, 1 << 17, "8"):
+        with pytest.raises(ValueError, match="max_steps_ahead must be a whole number from 1 to 65536"):
+            ahead.max_steps_ahead = bad
+    assert ahead.max_steps_ahead == 6
 
 
 def test_non_finite_step_ahead_fails_at_that_step():
