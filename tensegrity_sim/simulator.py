@@ -385,7 +385,7 @@ class Simulator:
             return False
         if a is not None:   # the last steps ahead were all taken, the inputs held: look further
             self._ahead_size = min(2 * self._ahead_size, self._max_ahead)
-        k, st = self._ahead_size, self._state
+        k, st = min(self._ahead_size, self._max_ahead), self._state
         n, nc = st.positions.shape[0], st.rest_lengths.shape[0]
         pos, vel = np.empty((k, n, 3)), np.empty((k, n, 3))
         imp, slack = np.empty((k, nc)), np.empty((k, nc), dtype=bool)
@@ -502,7 +502,6 @@ class Simulator:
         if not 1 <= count <= MAX_AHEAD:
             raise ValueError(f"max_steps_ahead must be a whole number from 1 to {MAX_AHEAD}, got {describe(value)}")
         self._max_ahead = count
-        self._ahead_size = min(self._ahead_size, count)
 
     @property
     def contact_kinds(self) -> tuple[str, ...]:

@@ -657,6 +657,33 @@ def test_a_refused_thread_priority_warns_once_and_steps_on(monkeypatch):
     assert calls == []
 
 
+def test_the_steps_computed_ahead_end_at_the_next_publication():
+    """The node's Simulator computes its steps ahead in chunks that end at the next publication (at most
+    NODE_STEPS_AHEAD): a tick that publishes never computes the next steps too (with a marker array, the two
+    were the node's slowest ticks), whatever the commands' cadence."""
+    from tensegrity_sim.ros.node_logic import NODE_STEPS_AHEAD
+
+    logic, _, _ = make_logic(prism(), publish_rate=100.0)
+    chunks = []
+    advance = logic.sim._method.advance
+
+    def counted(state, steps, *args, **kwargs):
+        chunks.append((state.step_count, steps))
+        return advance(state, steps, *args, **kwargs)
+
+    logic.sim._method.advance = counted
+    names = logic._cable_names
+    for k in range(300):
+        if k % 7 == 3:
+            assert logic.receive("cable_rest_lengths", rest_lengths_msg(names[:1], [0.9 + 0.001 * k])) is None
+        logic._advance()
+    every = logic.settings.publish_every
+    assert every == 10 and logic.publications == 30 and len(chunks) >= 60
+    for start, steps in chunks:   # steps start + 1 .. start + steps, none past the next publication
+        assert 1 <= steps <= NODE_STEPS_AHEAD and start + steps <= every * (start // every + 1), (start, steps)
+    assert max(steps for _, steps in chunks) == every   # ... and as many as that between two commands
+
+
 def test_real_time_factor_scales_the_schedule():
     clock = FakeClock(t=0.0)
     logic, _, _ = make_logic(prism(), clock=clock, real_time_factor=2.5)

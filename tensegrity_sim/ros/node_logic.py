@@ -59,9 +59,9 @@ __all__ = ["Qos", "TopicSpec", "TOPICS", "SERVICES", "NodeSettings", "SimNodeLog
 
 
 _WAKE_AFTER_DUE = 1e-6  # s after a tick of the schedule's grid that next_tick wakes it
-# The most steps the node's Simulator computes ahead in one compiled call: a tick that computed 64 (a robot held
-# still between commands) was among its slowest beside a marker publication; 16 of the rolling icosahedron cost
-# ~0.1 ms
+# The most steps the node's Simulator computes ahead in one compiled call (and never past the next publication,
+# SimNodeLogic.step): a tick that computed 64 (a robot held still between commands) was among its slowest; 16 of
+# the rolling icosahedron cost ~0.1 ms
 NODE_STEPS_AHEAD = 16
 # No tick holds the executor longer than this, wall-clock (services and subscriptions wait for a tick).
 TICK_WALL_LIMIT = 0.1           # s
@@ -130,7 +130,6 @@ class SimNodeLogic:
                  raw_transport: bool = False, clock: Callable[[], float] = time.monotonic, logger=None,
                  recorder=None):
         self.sim = sim
-        sim.max_steps_ahead = NODE_STEPS_AHEAD
         self.settings = settings
         self.recorder = recorder
         self._transport = transport
@@ -365,6 +364,9 @@ class SimNodeLogic:
             self._applied = np.where(np.abs(diff) <= max_change, self._target,
                                      self._applied + np.copysign(max_change, diff))
             self.sim.set_rest_lengths(self._applied)
+        # the steps computed ahead end at the next publication (at most NODE_STEPS_AHEAD of them): the tick
+        # that publishes hands out a step computed before, it does not compute the next ones too
+        self.sim.max_steps_ahead = min(NODE_STEPS_AHEAD, max(1, self.settings.publish_every - self._since_publish))
         try:
             r = self.sim.step()
         except StepError as exc:
