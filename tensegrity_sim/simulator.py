@@ -293,20 +293,26 @@ class Simulator:
         return out
 
     def set_rest_lengths(self, values) -> None:
-        """New cable rest lengths, m: ``{cable name: length}`` (partial) or an array in cable order."""
+        """New cable rest lengths, m: ``{cable name: length}`` (partial) or an array in cable order. The very
+        lengths in effect change nothing (a controller that sends its command every step keeps the steps
+        computed ahead, as a command schedule's unchanged step does in ``run``)."""
         new = self._by_name_or_array(values, "rest_lengths", self._cable_index, None, self._state.rest_lengths)
         bad = np.flatnonzero(new <= 0)
         if bad.size:
             name = self.scene.cable_names[bad[0]]
             raise ValueError(f"rest_lengths[{name!r}]: must be > 0, got {float(new[bad[0]])!r}")
+        if np.array_equal(new, self._state.rest_lengths):
+            return
         self._settle()
         self._state.rest_lengths = new
         self._inputs_changed()
 
     def set_external_forces(self, values) -> None:
         """External node forces, N: ``{node name: [fx, fy, fz]}`` (partial) or an (N, 3) array.
-        Held until replaced; a force on a fixed node has no effect."""
+        Held until replaced; a force on a fixed node has no effect. The very forces in effect change nothing."""
         new = self._by_name_or_array(values, "external_forces", self._node_index, 3, self._state.external_forces)
+        if np.array_equal(new, self._state.external_forces):
+            return
         self._settle()
         self._state.external_forces = new
         self._inputs_changed()

@@ -236,7 +236,7 @@ def test_a_controller_commanding_every_n_steps_gets_its_n_steps_in_one_compiled_
     for k in range(200):
         if k and k % 10 == 0:
             for sim in (ahead, alone):
-                sim.set_rest_lengths((1.0 - 0.01 * (k % 20 == 0)) * sim.scene.cable_rest_lengths)
+                sim.set_rest_lengths((1.01 if k % 20 else 0.99) * sim.scene.cable_rest_lengths)
         r, t = ahead.step(), alone.run(steps=1)
         np.testing.assert_array_equal(r.positions, t.positions[0])
         np.testing.assert_array_equal(r.contact_impulses, t.contact_impulses[0])
@@ -253,6 +253,31 @@ def test_a_controller_commanding_every_n_steps_gets_its_n_steps_in_one_compiled_
         with pytest.raises(ValueError, match="max_steps_ahead must be a whole number from 1 to 65536"):
             ahead.max_steps_ahead = bad
     assert ahead.max_steps_ahead == 6
+
+
+def test_setting_the_inputs_in_effect_changes_nothing():
+    """A controller that sends its command every step, unchanged: the steps computed ahead are kept (they
+    double up to 64, as with the inputs held) and every step is bit for bit that of not sending it (on a
+    damped cable, whose carried tension a recomputation at the state would change)."""
+    make, dt, _ = ELASTIC_SCENES["damped"]
+    held, resent = (ts.Simulator(make(), method="elastic", dt=dt) for _ in range(2))
+    calls = []
+    advance = resent._method.advance
+
+    def counted(state, steps, *args, **kwargs):
+        calls.append(steps)
+        return advance(state, steps, *args, **kwargs)
+
+    resent._method.advance = counted
+    names = resent.scene.cable_names
+    for k in range(200):
+        resent.set_rest_lengths(dict(zip(names, resent.rest_lengths.tolist())) if k % 2 else resent.rest_lengths)
+        resent.set_external_forces(resent.external_forces)
+        a, b = held.step(), resent.step()
+        np.testing.assert_array_equal(a.positions, b.positions)
+        np.testing.assert_array_equal(a.velocities, b.velocities)
+        np.testing.assert_array_equal(a.tensions, b.tensions)
+    assert calls == [1, 2, 4, 8, 16, 32, 64, 64, 64]
 
 
 def test_non_finite_step_ahead_fails_at_that_step():
