@@ -95,7 +95,7 @@ def float_array(values: Any, name: str, shape: tuple[int, ...] | None = None) ->
     if shape is not None and arr.shape != shape:
         expected = "a number" if shape == () else f"an array of shape {shape}"
         raise ValueError(f"{name} must be {expected}, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise ValueError(f"{name} must be finite, got {describe(values)}")
     return arr
 

@@ -282,14 +282,13 @@ class Simulator:
                           current: np.ndarray) -> np.ndarray:
         """A full new array from a partial {name: value} mapping or a complete array; checks shape,
         names and finiteness. ``width`` is None for scalars per entry, 3 for vectors."""
+        if not isinstance(values, Mapping):
+            return float_array(values, argument, current.shape)   # a new array
         out = current.copy()
-        if isinstance(values, Mapping):
-            for name, value in values.items():
-                if not isinstance(name, str) or name not in index:
-                    raise ValueError(f"{argument}: unknown name {describe(name)} (known: {', '.join(index)})")
-                out[index[name]] = float_array(value, f"{argument}[{name!r}]", () if width is None else (width,))
-        else:
-            out[...] = float_array(values, argument, current.shape)
+        for name, value in values.items():
+            if not isinstance(name, str) or name not in index:
+                raise ValueError(f"{argument}: unknown name {describe(name)} (known: {', '.join(index)})")
+            out[index[name]] = float_array(value, f"{argument}[{name!r}]", () if width is None else (width,))
         return out
 
     def set_rest_lengths(self, values) -> None:

@@ -488,3 +488,33 @@ def test_run_refuses_a_schedule_for_another_scene():
     with pytest.raises(ValueError, match="commands must be a CommandSchedule"):
         sim.run(steps=2, commands="roll.yaml")
     assert sim.step_count == 0
+
+
+def test_the_ground_detectors_changes_are_its_steps_events():
+    """GroundDetector.changes (compiled) flags exactly the steps at which its step() (numpy) finds an event: a
+    contact beginning or ending (gap within TOUCH_TOL or pushed by the ground, free nodes only), over random
+    chunks with nodes on the tolerance's edge, pushed or not, fixed or free."""
+    from tensegrity_sim.methods.contact.friction import TOUCH_TOL
+
+    sim = ts.Simulator(ts.load_scene("icosahedron_ground"), method="elastic", dt=1e-3)
+    detector = sim._ground
+    rng = np.random.default_rng(5)
+    n = len(detector.radii)
+    flagged = 0
+    for trial in range(200):
+        k = int(rng.integers(1, 9))
+        x = np.zeros((k, n, 3))
+        edge = detector.radii + detector.height + TOUCH_TOL   # a node's height at the tolerance's edge
+        x[..., 2] = edge + rng.choice([-1e-3, 0.0, 1e-3], size=(k, n))
+        impulses = np.zeros((k, n, 3))
+        impulses[..., 2] = rng.choice([0.0, 0.0, 1e-9], size=(k, n))
+        detector.free = rng.random(n) > 0.1
+        detector._inside = rng.random(n) > 0.5
+        changed = detector.changes(x, impulses)
+        inside = detector._inside.copy()
+        for j in range(k):   # the reference: step() one step at a time, its events
+            events = detector.step(x[j - 1] if j else x[j], x[j], np.zeros((n, 3)), 0.0, 1e-3, impulses[j])
+            assert changed[j] == bool(events), (trial, j)
+        flagged += changed.sum()
+        detector._inside = inside
+    assert 100 < flagged < 1000   # both kinds of steps were seen

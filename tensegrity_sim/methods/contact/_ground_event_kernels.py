@@ -12,7 +12,24 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["ground_changes"]
+__all__ = ["ground_changes", "changed_steps"]
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def changed_steps(positions, impulses, inside, radii, height, free, tol, changed):
+    """``changed`` (K,) bool: whether a node's contact begins or ends at each of the K consecutive steps to
+    ``positions`` with the ground's ``impulses`` (K, N, 3) of one copy, from ``inside`` (N,) bool (what the
+    detector knew before them); :func:`ground_changes`' test, for ``Simulator.step``'s steps ahead."""
+    n_nodes = positions.shape[1]
+    for k in range(positions.shape[0]):
+        changed[k] = False
+        for p in range(n_nodes):
+            now = free[p] and (positions[k, p, 2] - radii[p] - height <= tol or impulses[k, p, 2] > 0.0)
+            was = inside[p] if k == 0 else (free[p] and (positions[k - 1, p, 2] - radii[p] - height <= tol
+                                                         or impulses[k - 1, p, 2] > 0.0))
+            if now != was:
+                changed[k] = True
+                break
 
 
 @njit(cache=True, error_model="numpy")

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._ground_event_kernels import ground_changes
+from ._ground_event_kernels import changed_steps, ground_changes
 from .detection import ActiveContact
 from .friction import TOUCH_TOL
 from ...results import ContactEvent
@@ -93,11 +93,8 @@ class GroundDetector:
     def changes(self, positions: np.ndarray, impulses: np.ndarray) -> np.ndarray:
         """(K,) bool: the consecutive steps to ``positions`` (K, N, 3) with ``impulses`` (K, N, 3) at which
         :meth:`step` would find an event; at the others it only keeps the impulses (``impulses = ...``)."""
-        now = (positions[:, :, 2] - self.radii - self.height <= TOUCH_TOL) | (impulses[:, :, 2] > 0)
-        now &= self.free
-        changed = np.empty(len(now), dtype=bool)
-        changed[0] = (now[0] != self._inside).any()
-        changed[1:] = (now[1:] != now[:-1]).any(axis=1)
+        changed = np.empty(len(positions), dtype=bool)
+        changed_steps(positions, impulses, self._inside, self.radii, self.height, self.free, TOUCH_TOL, changed)
         return changed
 
     def active(self, positions: np.ndarray) -> tuple[ActiveContact, ...]:
