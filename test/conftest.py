@@ -42,6 +42,20 @@ def random_velocities(scene: ts.Scene, seed: int, scale: float = 1.0) -> ts.Scen
     return ts.Scene.from_dict(d)
 
 
+def record_advances(sim: ts.Simulator) -> list[tuple[int, int]]:
+    """The calls of ``sim``'s method's compiled loop from now on, as they happen: (the step count they start
+    from, the steps they compute)."""
+    calls = []
+    advance = sim._method.advance
+
+    def counted(state, steps, *args, **kwargs):
+        calls.append((state.step_count, steps))
+        return advance(state, steps, *args, **kwargs)
+
+    sim._method.advance = counted
+    return calls
+
+
 def class_k_dict():
     """Two rigid struts sharing node b (class-k) and a cable closing the triangle, all moving."""
     return {"nodes": [{"name": "a", "position": [0, 0, 0], "mass": 1.0, "velocity": [0, 1, 0]},

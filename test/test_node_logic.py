@@ -661,17 +661,11 @@ def test_the_steps_computed_ahead_end_at_the_next_publication():
     """The node's Simulator computes its steps ahead in chunks that end at the next publication (at most
     NODE_STEPS_AHEAD): a tick that publishes never computes the next steps too (with a marker array, the two
     were the node's slowest ticks), whatever the commands' cadence."""
+    from conftest import record_advances
     from tensegrity_sim.ros.node_logic import NODE_STEPS_AHEAD
 
     logic, _, _ = make_logic(prism(), publish_rate=100.0)
-    chunks = []
-    advance = logic.sim._method.advance
-
-    def counted(state, steps, *args, **kwargs):
-        chunks.append((state.step_count, steps))
-        return advance(state, steps, *args, **kwargs)
-
-    logic.sim._method.advance = counted
+    chunks = record_advances(logic.sim)
     names = logic._cable_names
     for k in range(300):
         if k % 7 == 3:
