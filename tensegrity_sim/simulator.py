@@ -326,13 +326,14 @@ class Simulator:
     def _inputs_changed(self) -> None:
         """The state changed from outside: the method recomputes what it cached, and the steps computed
         ahead with the old inputs are dropped. The next look ahead computes as many steps as the old inputs
-        held (1 to :attr:`max_steps_ahead`): a controller that commands every ``n`` steps gets its ``n`` steps in one compiled
-        call, none wasted (from 1 doubling, a command every 10 steps cost four calls and five steps dropped)."""
+        held (1 to :attr:`max_steps_ahead`): a controller that commands every ``n`` steps gets its ``n`` steps
+        in one compiled call, none wasted (from 1 doubling, a command every 10 steps cost four calls and five
+        steps dropped)."""
         self._method.invalidate()
         self._detector_at_state()
         self._ahead, self._rows = None, _NO_ROWS
         count = self._state.step_count
-        self._ahead_size = min(max(1, count - self._inputs_since), self._max_ahead)
+        self._ahead_size = max(1, count - self._inputs_since)   # (capped where it is used)
         self._inputs_since = count
 
     # ------------------------------------------------------------------ stepping
@@ -341,9 +342,9 @@ class Simulator:
         a non-finite result) leaves the state as it was.
 
         A method with a compiled loop computes steps ahead in it, the inputs held (as many as the last
-        inputs held, then twice as many each time up to :attr:`max_steps_ahead`, while no input changes): one compiled
-        call for many steps, each handed out here as the very result of stepping it alone (rule 10 of
-        ``methods/base.py``). A new input drops them; ``run`` rewinds the loop to the state."""
+        inputs held, then twice as many each time up to :attr:`max_steps_ahead`, while no input changes):
+        one compiled call for many steps, each handed out here as the very result of stepping it alone
+        (rule 10 of ``methods/base.py``). A new input drops them; ``run`` rewinds the loop to the state."""
         if self._speeds_unchecked:
             self._check_speeds()
         row = next(self._rows, None)
