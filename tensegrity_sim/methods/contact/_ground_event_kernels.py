@@ -15,21 +15,25 @@ from numba import njit
 __all__ = ["ground_changes", "changed_steps"]
 
 
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _touching(height_z, radius, ground, tol, pushed, free) -> bool:
+    """A node in contact after a step: free, and within ``tol`` of the ground or pushed by it."""
+    return free and (height_z - radius - ground <= tol or pushed > 0.0)
+
+
 @njit(cache=True, error_model="numpy", _nrt=False)
 def changed_steps(positions, impulses, inside, radii, height, free, tol, changed):
     """``changed`` (K,) bool: whether a node's contact begins or ends at each of the K consecutive steps to
     ``positions`` with the ground's ``impulses`` (K, N, 3) of one copy, from ``inside`` (N,) bool (what the
     detector knew before them); :func:`ground_changes`' test, for ``Simulator.step``'s steps ahead."""
-    n_nodes = positions.shape[1]
-    for k in range(positions.shape[0]):
-        changed[k] = False
-        for p in range(n_nodes):
-            now = free[p] and (positions[k, p, 2] - radii[p] - height <= tol or impulses[k, p, 2] > 0.0)
-            was = inside[p] if k == 0 else (free[p] and (positions[k - 1, p, 2] - radii[p] - height <= tol
-                                                         or impulses[k - 1, p, 2] > 0.0))
+    changed[:] = False
+    for p in range(positions.shape[1]):
+        was = inside[p]
+        for k in range(positions.shape[0]):
+            now = _touching(positions[k, p, 2], radii[p], height, tol, impulses[k, p, 2], free[p])
             if now != was:
                 changed[k] = True
-                break
+                was = now
 
 
 @njit(cache=True, error_model="numpy")
@@ -38,8 +42,9 @@ def ground_changes(positions, impulses, inside, radii, height, free, tol, last):
     ``(steps, nodes, copies, begins)`` (M,) each, begins True where the contact begins, in the order of
     the copies, then the steps, then the nodes; ``last`` (N, B) bool gets the contacts after the last step.
     Walks each copy's numbers in the order the batch's kernels write them (a copy's steps side by side:
-    twice as fast as node by node), counting the changes, then again recording them (the test written out in
-    both: passed to a function of its own, the arrays' reference counts cost 8 times the test)."""
+    twice as fast as node by node), counting the changes, then again recording them (the test,
+    :func:`_touching`, takes numbers, not the arrays: passing the arrays, their reference counts cost 8 times
+    the test)."""
     k_steps, n_nodes, _, n_copies = positions.shape
     was = np.empty(n_nodes, dtype=np.bool_)
     count = 0
@@ -48,7 +53,7 @@ def ground_changes(positions, impulses, inside, radii, height, free, tol, last):
             was[p] = inside[p, b]
         for k in range(k_steps):
             for p in range(n_nodes):
-                now = free[p] and (positions[k, p, 2, b] - radii[p] - height <= tol or impulses[k, p, 2, b] > 0.0)
+                now = _touching(positions[k, p, 2, b], radii[p], height, tol, impulses[k, p, 2, b], free[p])
                 if now != was[p]:
                     count += 1
                     was[p] = now
@@ -62,7 +67,7 @@ def ground_changes(positions, impulses, inside, radii, height, free, tol, last):
             was[p] = inside[p, b]
         for k in range(k_steps):
             for p in range(n_nodes):
-                now = free[p] and (positions[k, p, 2, b] - radii[p] - height <= tol or impulses[k, p, 2, b] > 0.0)
+                now = _touching(positions[k, p, 2, b], radii[p], height, tol, impulses[k, p, 2, b], free[p])
                 if now != was[p]:
                     steps[i] = k
                     nodes[i] = p
