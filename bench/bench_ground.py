@@ -28,8 +28,16 @@ its start in height, and a ratio is taken to the faster stable integrator (``muj
   inextensible icosahedron's motors reel its cables in with unlimited force, which the rigid structure
   can only follow by leaving the ground: its rate is reported with how high its centre rose.
 
+Member contacts (``--members``, issue 28): rigid strut B dropped across rigid strut A lying on the ground,
+an elastic cable between them reeled in half-way (``crossed_struts``: B lands on A, rests across it and on the
+ground, then slides over A), ``contact: response: true`` with the ground's friction: ours through
+``Simulator.run`` (the touching pair's coupled block in the compiled loop), through ``Simulator.step`` and by
+its numpy reference (each step the QP fixed point of ``friction.py``: what every step with the pair armed
+cost before the coupled blocks were compiled), beside MuJoCo with the struts' capsules colliding with each
+other and with the plane (``strut_contacts``, the same friction), each integrator, taking turns.
+
 Run: ``python bench/bench_ground.py [--duration S] [--repeats N]``; writes bench/results/ground.csv and
-ground_exactness.csv.
+ground_exactness.csv; ``--members`` writes ground_members.csv alone.
 """
 from __future__ import annotations
 
@@ -269,12 +277,105 @@ def exactness() -> list[dict]:
     return rows
 
 
+def crossed_struts(mu: float = 0.5) -> ts.Scene:
+    """Rigid strut A (1 m along x, 1 kg ends, radius 1 cm) lying on the ground; rigid strut B (1 m along y)
+    0.3 m above it, crossing it at x = 0.2 and thrown down onto it, tumbling; an elastic cable (200 N/m,
+    rest length 1.2 m: slack at first) from A's end a1 to B's end b1; ground and member friction ``mu``."""
+    r = 0.01
+    return ts.Scene.from_dict({
+        "gravity": [0, 0, -G], "ground": {"height": 0.0, "friction": mu, "restitution": 0.0},
+        "contact": {"kinds": ["strut_strut"], "response": True, "friction": mu, "restitution": 0.0},
+        "nodes": [{"name": "a0", "position": [-0.5, 0, r], "mass": 1.0},
+                  {"name": "a1", "position": [0.5, 0, r], "mass": 1.0},
+                  {"name": "b0", "position": [0.2, -0.5, 0.3], "mass": 1.0, "velocity": [0.3, 0, -0.5]},
+                  {"name": "b1", "position": [0.2, 0.5, 0.3], "mass": 1.0, "velocity": [0.3, 0.2, -0.8]}],
+        "struts": [{"name": "A", "nodes": ["a0", "a1"], "stiffness": "rigid", "radius": r},
+                   {"name": "B", "nodes": ["b0", "b1"], "stiffness": "rigid", "radius": r}],
+        "cables": [{"name": "c", "nodes": ["a1", "b1"], "rest_length": 1.2, "stiffness": 200.0, "radius": 0.0}]})
+
+
+def members(duration: float, repeats: int) -> list[dict]:
+    """Steps per second of :func:`crossed_struts` (module docstring): ours compiled (run, step), by the
+    numpy reference, and MuJoCo with capsule contacts, in turns; each run's cable reeled in to 0.4 m
+    half-way; the struts' gap at the end (B resting on A: about 0)."""
+    from bench.mujoco_peer import MujocoPeer
+    from tensegrity_sim.methods.contact.detection import contact_geometry
+
+    scene = crossed_struts()
+    steps = int(round(duration / 1e-3))
+    half = steps // 2
+    left = {}   # the compiled runs' steps left to the reference: (member pairs, unsolved blocks)
+
+    def ours(how, compiled=True):
+        sim = _simulator(scene, "elastic", compiled=compiled)
+        sim.run(steps=2)   # the kernels loaded
+        start = time.perf_counter()
+        for part in (half - 2, steps - half):
+            if how == "run":
+                sim.run(steps=part)
+            else:
+                for _ in range(part):
+                    sim.step()
+            sim.set_rest_lengths([0.4])
+        rate = steps / (time.perf_counter() - start)
+        method = sim._method
+        left[how, compiled] = (method.member_steps, method.fallbacks)
+        return rate, sim.positions
+
+    def mujoco(integrator):
+        peer = MujocoPeer(scene, model="elastic", dt=1e-3, integrator=integrator, strut_contacts=True)
+        law, tendons = peer.model.tendon_lengthspring[:, 1], peer._tendons
+        offset = law[tendons] - scene.cable_rest_lengths
+        start = time.perf_counter()
+        peer.advance(half)
+        law[tendons] = 0.4 + offset
+        peer.advance(steps - half)
+        return steps / (time.perf_counter() - start), peer.positions(), peer.unstable
+
+    contenders = {"elastic run": lambda: ours("run"), "elastic step": lambda: ours("step"),
+                  "elastic run, numpy reference": lambda: ours("run", compiled=False),
+                  "mujoco elastic Euler": lambda: mujoco("Euler"),
+                  "mujoco elastic implicitfast": lambda: mujoco("implicitfast")}
+    best, finals, unstable = {}, {}, {}
+    for go in contenders.values():   # warm-up: compile, caches
+        go()
+    for _ in range(repeats):
+        for name, go in contenders.items():
+            out = go()
+            best[name] = max(best.get(name, 0.0), out[0])
+            finals[name] = out[1]
+            unstable[name] = unstable.get(name, False) or (bool(out[2]) if len(out) > 2 else False)
+    # B above A where they cross (it rests on A, never passes through), and both on the ground
+    stable = {name: not unstable[name] and bool(np.isfinite(finals[name]).all())
+              and float(finals[name][:, 2].min()) > -1e-3 for name in best}
+    peers = [name for name in best if name.startswith("mujoco") and stable[name]]
+    peer = max(peers, key=best.get) if peers else None
+    rows = []
+    for name, rate in best.items():
+        rows.append({"case": "strut B across strut A on the ground, response on", "contender": name,
+                     "steps_per_s": round(rate),
+                     "ratio_to_mujoco": float("nan") if peer is None or name.startswith("mujoco") else rate / best[peer],
+                     "mujoco_integrator": "-" if peer is None else peer.split()[2],
+                     "final_gap_m": float(contact_geometry(finals[name][None], np.array([0.02]))[3][0]),
+                     "lowest_node_z_m": float(finals[name][:, 2].min()), "stable": stable[name], "load": _load()})
+    print(f"steps the compiled runs left to the reference (member pairs, unsolved blocks): run {left['run', True]}, "
+          f"step {left['step', True]}")
+    return rows
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=2.0, help="simulated s per timed run")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--members", action="store_true", help="the member-contact case alone (ground_members.csv)")
     args = parser.parse_args(argv)
     RESULTS.mkdir(exist_ok=True)
+    if args.members:
+        rows = members(args.duration, args.repeats)
+        write_csv(RESULTS / "ground_members.csv", rows)
+        for r in rows:
+            print(", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in r.items()))
+        return 0
     rows = speed(args.duration, args.repeats)
     rows.append(realtime())
     fields = ["case", "contender", "cables", "steps_per_s", "ratio_to_mujoco", "mujoco_integrator", "real_time_factor",

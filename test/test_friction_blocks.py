@@ -8,9 +8,12 @@ import numpy as np
 import pytest
 
 import tensegrity_sim as ts
-from tensegrity_sim.methods.contact._friction_block_kernels import MAX_ROWS, block_work, lone_contact, solve_block
+from tensegrity_sim.methods.contact._friction_block_kernels import (MAX_COUPLED, MAX_ROWS, block_work, coupled_work,
+                                                                    lone_contact, solve_block, solve_coupled)
 from tensegrity_sim.methods.base import State
-from tensegrity_sim.methods.contact.friction_blocks import lone_contact_reference, solve_block_reference
+from tensegrity_sim.methods.contact.friction_blocks import (lone_contact_reference, solve_block_reference,
+                                                            solve_coupled_reference)
+from tensegrity_sim.methods.contact.member import tangents
 
 from test_ground import G, MU, dropped, strut
 
@@ -102,6 +105,83 @@ def test_lone_contact_is_the_closed_form():
         assert np.hypot(*v_k[:2]) <= 1e-15 or np.hypot(*z_k[:2]) >= mu * z_k[2] * (1 - 1e-12)
 
 
+def random_coupled(rng):
+    """A random coupled block: rigid struts A (nodes 0, 1) and B (2, 3) and a cable C (lone nodes 4, 5); the
+    member contacts A-B and, sometimes, B-C (random normals and contact points); ground contacts on a random
+    subset of the nodes; random masses, velocities, targets, mu (ground and members apart) and warm starts.
+    Returns the arguments of ``solve_coupled`` (``g`` in its scratch's shape) and the contacts' normal rows."""
+    inv = 1.0 / rng.uniform(0.1, 3.0, 6)
+    struts = [rng.normal(size=3) for _ in range(2)]
+    grounded = np.flatnonzero(rng.random(6) < 0.4)
+    pairs = [(0, 1, 2, 3)] + ([(2, 3, 4, 5)] if rng.random() < 0.5 else [])
+    s, k = 2, len(grounded) + len(pairs)
+    g = np.zeros((MAX_COUPLED, 3 * (MAX_COUPLED // 3 + 1)))
+    for i, d in enumerate(struts):
+        d /= np.linalg.norm(d)
+        g[i, 6 * i: 6 * i + 3], g[i, 6 * i + 3: 6 * i + 6] = -d, d
+    row = s
+    for p in grounded:
+        g[row: row + 3, 3 * p: 3 * p + 3] = np.eye(3)
+        row += 3
+    for nodes in pairs:
+        normal = rng.normal(size=3)
+        normal /= np.linalg.norm(normal)
+        frame = np.vstack([tangents(normal[None])[0], normal])
+        a, b = rng.uniform(0, 1, 2)
+        for node, w in zip(nodes, (a - 1.0, -a, 1.0 - b, b)):
+            g[row: row + 3, 3 * node: 3 * node + 3] = w * frame
+        row += 3
+    target = 0.1 * rng.normal(size=k)
+    mu = np.concatenate([np.full(len(grounded), rng.choice([0.0, 0.3, 1.0])),
+                         np.full(len(pairs), rng.choice([0.0, 0.5, 1.2]))])
+    v = rng.normal(size=(6, 3))
+    z = np.zeros(MAX_COUPLED)
+    z[s: s + 3 * k] = 0.01 * rng.normal(size=3 * k) * float(rng.integers(0, 2))
+    return inv, g, 6, s, k, target, mu, v, z
+
+
+def test_coupled_block_kernel_matches_its_numpy_twin_and_meets_the_coulomb_law():
+    """``solve_coupled`` (two struts and a cable joined by member contacts, with ground contacts) against its
+    numpy twin to 1e-12, and its answer against the laws independently: the struts' length rates 0, each
+    contact's normal law ``min(y_n, m (u_n - w)) = 0`` and Coulomb's projection form ``f = proj_disc(mu y_n)(f
+    - m u_t)`` in its frame (``m = 1 / W_nn``, its effective mass), and the momentum balance ``M (v - v0) = G^T
+    z``."""
+    rng = np.random.default_rng(11)
+    work = coupled_work()
+    solved = 0
+    for _ in range(600):
+        inv, g, nb, s, k, target, mu, v, z = random_coupled(rng)
+        v_ref, z_ref, it_ref = solve_coupled_reference(inv, g, s, k, target, mu, v, z)
+        v_k, z_k = v.copy(), z.copy()
+        it = solve_coupled(inv, g, nb, s, k, target, mu, v_k, z_k, work)
+        assert it == it_ref
+        if it < 0:
+            np.testing.assert_array_equal(v_k, v)
+            continue
+        solved += 1
+        q = s + 3 * k
+        scale = max(1.0, float(np.abs(v).max()))
+        impulse = scale / inv.min()
+        np.testing.assert_allclose(v_k, v_ref, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(z_k[:q], z_ref, rtol=0, atol=1e-12 * impulse)
+        rows = g[:q, : 3 * nb]
+        u = rows @ v_k.ravel()
+        assert np.abs(u[:s]).max() <= 1e-12 * scale
+        delassus = (rows * np.repeat(inv, 3)) @ rows.T
+        for c in range(k):
+            o = s + 3 * c
+            m = 1.0 / delassus[o + 2, o + 2]
+            f, y = z_k[o: o + 2], z_k[o + 2]
+            assert abs(min(y, m * (u[o + 2] - target[c]))) <= 1e-11 * impulse
+            trial = f - m * u[o: o + 2]
+            size = np.hypot(*trial)
+            projected = trial * min(1.0, mu[c] * y / size) if size > 0 else trial
+            assert np.abs(f - projected).max() <= 1e-11 * impulse
+        balance = (v_k - v).ravel() - np.repeat(inv, 3) * (rows.T @ z_k[:q])
+        assert np.abs(balance).max() <= 1e-13 * scale
+    assert solved >= 0.99 * 600
+
+
 def _scenes():
     point = ts.Scene.from_dict({"gravity": [0, 0, -G], "ground": {"friction": 0.5, "restitution": 0.0},
                                 "nodes": [{"name": "p", "position": [0, 0, 0.05], "mass": 1.0, "velocity": [1, 0, 0]}]})
@@ -152,19 +232,24 @@ def test_compiled_ground_step_agrees_with_the_qp_fixed_point(name):
     assert contacted >= 50 and method.fallbacks == 0
 
 
-def test_a_block_whose_damped_matrix_is_not_definite_is_left_unsolved_not_nan():
+def test_a_block_whose_damped_matrix_is_not_definite_is_damped_more_and_solved():
     """Regression: strut A of ``test_member_contact.across`` coming to rest on the ground at both ends
     (the friction along it statically indeterminate: ``J`` singular) with ``|phi|`` already small, so that
     ``J^T J + nu I`` (``nu`` 1e-20) is not definite in floating point: the kernel's Cholesky met a negative
-    pivot, its NaN passed the convergence test (``max`` ignores NaN) and the step's velocities were NaN. Now
-    the kernel and its twin leave the block unsolved (the step goes to the reference) with ``v`` unchanged."""
+    pivot, its NaN passed the convergence test (``max`` ignores NaN) and the step's velocities were NaN; then
+    the block was left to the reference. Now ``nu`` is raised until the matrix is definite: the kernel and its
+    twin solve the block, to the same numbers, meeting the law."""
     direction = np.array([0.976349877261514, 0.21619647816610393, 0.0])
     v = np.array([[0.0, 0.0, -0.0049050000000000005], [0.0, 0.0, -0.0049050000000000005]])
     z = np.array([0.0, -8.414808548100362e-05, 0.00018160221569561182, 0.0049050000000000005,
                   -0.0001631096628726393, 6.828086776367975e-05, 0.0049050000000000005])
     inv, ends, target = np.ones(2), np.array([0, 1]), np.zeros(2)
     v_k, z_k = v.copy(), z.copy()
-    assert solve_block(inv, True, direction, ends, target, 2, 0.2, v_k, z_k, block_work()) == -1
-    assert np.array_equal(v_k, v)
-    v_ref, _, it_ref = solve_block_reference(inv, True, direction, ends, target, 0.2, v, z)
-    assert it_ref == -1 and np.array_equal(v_ref, v)
+    it = solve_block(inv, True, direction, ends, target, 2, 0.2, v_k, z_k, block_work())
+    v_ref, z_ref, it_ref = solve_block_reference(inv, True, direction, ends, target, 0.2, v, z)
+    assert it == it_ref >= 0
+    np.testing.assert_allclose(v_k, v_ref, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(z_k, z_ref, rtol=0, atol=1e-15)
+    rate, law, balance = coulomb_residual(inv, True, direction, ends, target, 0.2, v, v_k, z_k)
+    assert abs(rate) <= 1e-15 and law <= 1e-15 and balance <= 1e-17
+    assert np.abs(v_k).max() <= 1e-15   # it comes to rest: its weight's impulse held by the ground

@@ -232,16 +232,17 @@ def test_step_walks_the_detector_once_over_the_steps_it_computes_ahead():
         events += mine
         if k % 7 == 3:
             mine, its = ([c for c in sim.active_contacts() if "ground" not in c.members] for sim in (ahead, alone))
-            assert [(c.members, c.since) for c in mine] == [(c.members, c.since) for c in its], f"step {k}"
+            assert [c.members for c in mine] == [c.members for c in its], f"step {k}"
             for c, d in zip(mine, its):
+                assert c.since == pytest.approx(d.since, abs=1e-12)
                 assert c.distance == pytest.approx(d.distance, abs=1e-15) and c.normal_impulse == d.normal_impulse
     assert chunked == 900 and len(events) >= 2 and {e.kind for e in events} == {"begin", "end"}
 
 
 @pytest.mark.parametrize("mu_ground, mu", [(0.2, 1.0), (1.0, 0.3)])
 def test_elastic_compiled_response_matches_the_reference(mu_ground, mu):
-    """The elastic method compiled (the ground's blocks by the block Newton of ``_friction_block_kernels``,
-    a step with an armed member pair by the reference) against its numpy reference (the QP fixed point of
+    """The elastic method compiled (the ground's blocks and the coupled blocks of the touching pairs by the
+    block Newton of ``_friction_block_kernels``) against its numpy reference (the QP fixed point of
     ``friction.py`` for every step): B lands on A, rocks on it, its ends landing on the ground in turn, and
     slides over the ground and along A once its cable is reeled in mid-run. Each step of the compiled run
     taken again by the reference from the same state: the two algorithms meet the Coulomb law to their
@@ -263,12 +264,15 @@ def test_elastic_compiled_response_matches_the_reference(mu_ground, mu):
         np.testing.assert_allclose(a.positions, p.positions, rtol=0, atol=1e-12, err_msg=f"step {k}")
         np.testing.assert_allclose(a.impulses, p.impulses, rtol=0, atol=1e-9, err_msg=f"step {k}")
         # the ground's impulses: a strut's friction along itself can pass from one end to the other through its
-        # own impulse (statically indeterminate), so the two algorithms' splits differ; their sum and the
-        # normal impulses (the struts lie flat) do not
+        # own impulse (statically indeterminate), so the two algorithms' splits differ; their sum and, where the
+        # struts do not touch, the normal impulses (the struts lie flat) do not. (Touching, B lying on A and on
+        # the ground has six contact rows for its five degrees of freedom: the split between its contacts is
+        # indeterminate too.)
         np.testing.assert_allclose(a.contact_impulses.sum(axis=0), p.contact_impulses.sum(axis=0), rtol=0,
                                    atol=1e-9, err_msg=f"step {k}")
-        np.testing.assert_allclose(a.contact_impulses[:, 2], p.contact_impulses[:, 2], rtol=0, atol=1e-9,
-                                   err_msg=f"step {k}")
+        if not p.pair_impulses:
+            np.testing.assert_allclose(a.contact_impulses[:, 2], p.contact_impulses[:, 2], rtol=0, atol=1e-9,
+                                       err_msg=f"step {k}")
         np.testing.assert_allclose(a.velocities, b.velocities, rtol=0, atol=1e-7, err_msg=f"step {k}")
         # the member contacts' events (the ground's detector counts a node in contact while its impulse is above
         # 0, and the QP fixed point leaves 1e-25 N*s where the block Newton has 0)
@@ -280,16 +284,21 @@ def test_elastic_compiled_response_matches_the_reference(mu_ground, mu):
         touching += any(c.members == ("A", "B") for c in compiled.active_contacts())
         sliding += any(np.hypot(*a.velocities[n, :2]) > 0.1 and a.contact_impulses[n, 2] > 0 for n in (2, 3))
     method = compiled._method
-    # the pair touched for a good part of the run, B slid on the ground, and the kernel took most steps
-    assert touching >= 60 and sliding >= 30 and method.member_steps >= touching
-    assert method.member_steps <= steps - 300
+    # the pair touched for a good part of the run, B slid on the ground, and the kernel took every step
+    assert touching >= 60 and sliding >= 30 and method.member_steps == method.fallbacks == 0
 
 
-def test_elastic_loop_with_a_response_is_its_step_bitwise():
+@pytest.mark.parametrize("records", [None, 1])
+def test_elastic_loop_with_a_response_is_its_step_bitwise(monkeypatch, records):
     """The elastic method's compiled loop on a response scene (steps computed ahead, ``run`` in chunks)
     against each step through the method's compiled step alone: the same positions, velocities, cable and
-    ground impulses, slack flags and member contact events (with their impulses, from the steps the
-    reference took) to the last bit."""
+    ground impulses, slack flags and member contact events (with their impulses) to the last bit; also where
+    a compiled call has room for one step's pair impulses only (``records`` 1: it stops before each next step
+    with a pair armed, and the loop goes on from its carry)."""
+    from tensegrity_sim.methods.elastic import method as elastic_method
+
+    if records is not None:
+        monkeypatch.setattr(elastic_method, "_PAIR_RECORDS", records)
     scene = across()
     loop, one = simulator(scene, "elastic"), simulator(scene, "elastic")
     one._method.has_loop = lambda: False   # each step through ElasticMethod._step_impl

@@ -30,34 +30,54 @@ is always defined, is a descent direction of the merit, and becomes Newton's ste
 (Yamashita–Fukushima: superlinear under a local error bound, which holds for the indeterminate
 case); ``nu`` is kept within ``[1e-20, 1e-2]`` so that a poor warm start still takes near-Newton steps
 and ``J^T J + nu I`` stays definite where ``J`` is singular (in exact arithmetic: where round-off leaves a
-pivot of its Cholesky factor non-positive, the block is left unsolved, not answered with NaN).
+pivot of its Cholesky factor non-positive, ``nu`` is raised tenthousandfold until it is definite, and the
+block is left unsolved, not answered with NaN, where it is not even at ``nu = 1e-2``).
 Enumerating the 3^2 contact modes instead would need an inner iteration anyway (a sliding end's
 direction is coupled to the other end's through the strut), and the QP fixed point of ``friction.py``
 costs QPs per iterate. Measured: 1-3 iterations a block for the resting and sliding scenes, warm-started
 from the node's last impulse. The answer is accepted when ``max |phi| <= BLOCK_TOL S``, which is the
-projection form's natural residual (``friction.py``'s check with ``rho = m``) within that tolerance.
+projection form's natural residual (``friction.py``'s check with ``rho = m``) within that tolerance, or,
+where the Newton stalls at round-off's level (a strut lying on the ground under another, its friction
+indeterminate: 3e-12 S), at ``RELAXED_TOL S``, ten times tighter than ``friction.py``'s answers.
 
-Scratch: ``work`` (6, 7, 7) float64 (:func:`block_work`); the kernels allocate nothing per block.
+**Coupled blocks** (:func:`solve_coupled`): member contacts (``contact: response: true``) join the bodies
+they touch, so a block becomes the struts and lone nodes a chain of touching pairs joins, with their ground
+contacts and the pairs' contacts: general rows on the nodes, a pair's contact the rows ``(t1, t2, n)`` of
+its frame times its four nodes' weights (``methods/contact/member.py``), scaled by its effective mass
+``1 / W_nn``. The same Newton solves it (:func:`_newton`), up to ``MAX_COUPLED`` rows.
+
+Scratch: ``work`` (6, 7, 7) float64 (:func:`block_work`; a coupled block's (6, 48, 48), :func:`coupled_work`);
+the kernels allocate nothing per block.
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-__all__ = ["BLOCK_TOL", "MAX_NEWTON", "block_work", "solve_block", "lone_contact"]
+__all__ = ["BLOCK_TOL", "MAX_NEWTON", "MAX_COUPLED", "block_work", "coupled_work", "solve_block", "solve_coupled",
+           "lone_contact"]
 
-BLOCK_TOL = 1e-13      # relative to the block's impulse scale: max |phi| at the answer
+BLOCK_TOL = 1e-13      # relative to the block's impulse scale: max |phi| at the answer ...
+RELAXED_TOL = 1e-11    # ... or, where the Newton stalls at round-off's level, at its last iterate (friction.py's
+                       # answers meet FIXED_POINT_TOL = 1e-10)
 MAX_NEWTON = 60        # damped Newton iterations before a block is declared unsolved
 _ARMIJO = 1e-4         # sufficient decrease of the merit |phi|^2 / 2
 _MIN_STEP = 2.0 ** -40  # the line search's smallest step
 _MAX_DAMPING = 1e-2    # Levenberg–Marquardt's nu, at most (far from the answer: a step near Newton's) ...
-_MIN_DAMPING = 1e-20   # ... and at least (near it, where J may be singular: J^T J + nu I stays definite)
+_MIN_DAMPING = 1e-20   # ... and at least (near it, where J may be singular: J^T J + nu I stays definite) ...
+_DAMPING_GROWTH = 1e4  # ... raised by this factor where round-off leaves it not definite (up to _MAX_DAMPING)
 MAX_ROWS = 7           # a strut's row and two contacts
+MAX_COUPLED = 48       # the rows of a coupled block (struts, contacts) beyond which the reference takes the step
 
 
 def block_work() -> np.ndarray:
     """The scratch of :func:`solve_block`: (6, MAX_ROWS, MAX_ROWS) float64."""
     return np.zeros((6, MAX_ROWS, MAX_ROWS))
+
+
+def coupled_work() -> np.ndarray:
+    """The scratch of :func:`solve_coupled`: (6, MAX_COUPLED, MAX_COUPLED) float64."""
+    return np.zeros((6, MAX_COUPLED, MAX_COUPLED))
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -84,11 +104,11 @@ def lone_contact(inv, v, target, mu, z):
 
 
 @njit(cache=True, error_model="numpy", inline="always", _nrt=False)
-def _residual(q, s, k, target, mu, work, z, up, ur, pp, pr, jp):
+def _residual(q, s, k, target, work, z, up, ur, pp, pr, jp):
     """``u = u0 + W z`` into ``work[up, ur]``, ``phi`` (q,) into ``work[pp, pr]`` and its generalised
-    Jacobian (q, q) into ``work[jp]`` (module docstring; ``work``'s layout in :func:`solve_block`); ``s`` 1
-    with a strut row first, 0 without; ``k`` contacts. Returns ``|phi|^2 / 2``. The scratch is indexed, not
-    sliced: a view per array costs more than the arithmetic of a small block."""
+    Jacobian (q, q) into ``work[jp]`` (module docstring; ``work``'s layout in :func:`_newton`); ``s`` strut
+    rows first, then ``k`` contacts. Returns ``|phi|^2 / 2``. The scratch is indexed, not sliced: a view per
+    array costs more than the arithmetic of a small block."""
     for i in range(q):
         acc = work[4, 0, i]
         for j in range(q):
@@ -97,14 +117,15 @@ def _residual(q, s, k, target, mu, work, z, up, ur, pp, pr, jp):
     for i in range(q):
         for j in range(q):
             work[jp, i, j] = 0.0
-    if s:
-        r0 = work[4, 6, 0]
-        work[pp, pr, 0] = r0 * work[up, ur, 0]
+    for i in range(s):
+        r0 = work[4, 6, i]
+        work[pp, pr, i] = r0 * work[up, ur, i]
         for j in range(q):
-            work[jp, 0, j] = r0 * work[1, 0, j]
+            work[jp, i, j] = r0 * work[1, i, j]
     for c in range(k):
         o = s + 3 * c
         r = work[4, 6, o]
+        mu = work[5, 2, c]
         n = o + 2
         qn = z[n] - r * (work[up, ur, n] - target[c])
         yp = max(qn, 0.0)
@@ -187,6 +208,69 @@ def _cholesky_solve(q, work):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
+def _newton(q, s, k, target, work, z, scale):
+    """The damped semismooth Newton (module docstring) on the block set up in ``work``, from ``z`` (q,) N*s,
+    in place. Returns the iterations taken, or -1 if ``phi`` did not reach ``BLOCK_TOL`` times the impulse
+    ``scale`` (nor ``RELAXED_TOL`` times it where it stalled: then ``MAX_NEWTON``).
+
+    ``work`` (6, M, M), M >= max(q, 7): [1] W, [2] the Jacobian, [3] the damped normal matrix; rows of [4]:
+    u0, u, phi, -J^T phi, the step, the trial z, rho (each row's); rows of [5]: the trial's u and phi, each
+    contact's Coulomb coefficient."""
+    tol = BLOCK_TOL * scale
+    merit = _residual(q, s, k, target, work, z, 4, 1, 4, 2, 2)
+    for it in range(MAX_NEWTON + 1):
+        worst = 0.0
+        for i in range(q):
+            worst = max(worst, abs(work[4, 2, i]))
+        if worst <= tol:
+            return it
+        if it == MAX_NEWTON:
+            break
+        nu = min(2.0 * merit / (scale * scale), _MAX_DAMPING) + _MIN_DAMPING
+        for i in range(q):
+            acc = 0.0
+            for p in range(q):
+                acc += work[2, p, i] * work[4, 2, p]
+            work[4, 3, i] = -acc
+        while True:   # J^T J + nu I, damped more where round-off leaves it not definite
+            for i in range(q):
+                for j in range(q):
+                    acc = 0.0
+                    for p in range(q):
+                        acc += work[2, p, i] * work[2, p, j]
+                    work[3, i, j] = acc
+                work[3, i, i] += nu
+            definite = _cholesky_solve(q, work)
+            if definite or nu >= _MAX_DAMPING:
+                break
+            nu = min(nu * _DAMPING_GROWTH, _MAX_DAMPING)
+        if not definite:
+            break
+        slope = 0.0
+        for i in range(q):
+            slope -= work[4, 3, i] * work[4, 4, i]    # row 3 holds -J^T phi
+        step = 1.0
+        while True:
+            for i in range(q):
+                work[4, 5, i] = z[i] + step * work[4, 4, i]
+            new = _residual(q, s, k, target, work, work[4, 5], 5, 0, 5, 1, 3)
+            if new <= merit + _ARMIJO * step * slope or step <= _MIN_STEP:
+                break
+            step *= 0.5
+        for i in range(q):   # the accepted trial's z, u, phi and Jacobian (those of _residual at z)
+            z[i] = work[4, 5, i]
+            work[4, 1, i] = work[5, 0, i]
+            work[4, 2, i] = work[5, 1, i]
+            for j in range(q):
+                work[2, i, j] = work[3, i, j]
+        merit = new
+    worst = 0.0   # stalled: the last iterate (the best: the merit only falls) if it meets the relaxed tolerance
+    for i in range(q):
+        worst = max(worst, abs(work[4, 2, i]))
+    return MAX_NEWTON if worst <= RELAXED_TOL * scale else -1
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
 def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
     """One block (module docstring), in place: ``v`` (2, 3) m/s the two ends' velocities (the second
     unused without a strut), ``z`` (MAX_ROWS,) N*s the unknowns (in: a warm start for the contacts'; the
@@ -194,10 +278,7 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
     unit ``direction`` (3,) (end 0 to end 1), ``ends`` (k,) which end each contact is at, ``target`` (k,)
     m/s its normal target, ``mu`` its Coulomb coefficient. Returns the iterations taken, or -1 if
     ``phi`` did not reach ``BLOCK_TOL`` or the damped normal matrix is not definite in floating point (``v``
-    then unchanged).
-
-    ``work`` (6, 7, 7): [1] W, [2] the Jacobian, [3] the damped normal matrix; rows of [4]: u0, u, phi,
-    -J^T phi, the step, the trial z, rho; rows of [5]: the trial's u and phi."""
+    then unchanged). ``work`` (6, 7, 7): :func:`_newton`'s."""
     s = 1 if strut else 0
     q = s + 3 * k
     # u0 = G v and W = G M^-1 G^T written out (G's strut row is (-n, n), a contact's rows the unit vectors at
@@ -220,6 +301,7 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
         work[1, 0, 0] = acc
     for c in range(k):
         e = ends[c]
+        work[5, 2, c] = mu
         for j in range(3):
             row = s + 3 * c + j
             work[4, 0, row] = v[e, j]
@@ -247,50 +329,7 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
         for j in range(1, q):
             acc += work[1, 0, j] * z[j]
         z[0] = -acc / work[1, 0, 0]
-    tol = BLOCK_TOL * scale
-    merit = _residual(q, s, k, target, mu, work, z, 4, 1, 4, 2, 2)
-    done = -1
-    for it in range(MAX_NEWTON + 1):
-        worst = 0.0
-        for i in range(q):
-            worst = max(worst, abs(work[4, 2, i]))
-        if worst <= tol:
-            done = it
-            break
-        if it == MAX_NEWTON:
-            break
-        nu = min(2.0 * merit / (scale * scale), _MAX_DAMPING) + _MIN_DAMPING
-        for i in range(q):
-            acc = 0.0
-            for p in range(q):
-                acc += work[2, p, i] * work[4, 2, p]
-            work[4, 3, i] = -acc
-            for j in range(q):
-                acc = 0.0
-                for p in range(q):
-                    acc += work[2, p, i] * work[2, p, j]
-                work[3, i, j] = acc
-            work[3, i, i] += nu
-        if not _cholesky_solve(q, work):
-            break
-        slope = 0.0
-        for i in range(q):
-            slope -= work[4, 3, i] * work[4, 4, i]    # row 3 holds -J^T phi
-        step = 1.0
-        while True:
-            for i in range(q):
-                work[4, 5, i] = z[i] + step * work[4, 4, i]
-            new = _residual(q, s, k, target, mu, work, work[4, 5], 5, 0, 5, 1, 3)
-            if new <= merit + _ARMIJO * step * slope or step <= _MIN_STEP:
-                break
-            step *= 0.5
-        for i in range(q):   # the accepted trial's z, u, phi and Jacobian (those of _residual at z)
-            z[i] = work[4, 5, i]
-            work[4, 1, i] = work[5, 0, i]
-            work[4, 2, i] = work[5, 1, i]
-            for j in range(q):
-                work[2, i, j] = work[3, i, j]
-        merit = new
+    done = _newton(q, s, k, target, work, z, scale)
     if done < 0:
         return -1
     for e in range(2):   # v += M^-1 G^T z, G^T z's sums as the product's
@@ -302,4 +341,62 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
                 if ends[c] == e:
                     acc += z[s + 3 * c + j]
             v[e, j] += inv[e] * acc
+    return done
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def solve_coupled(inv, g, nb, s, k, target, mu, v, z, work):
+    """A coupled block, in place: the rigid struts and lone nodes that member contacts join, with their
+    ground and member contacts (``elastic/_ground_kernels.py``). ``nb`` nodes, ``inv`` (nb,) 1/kg, ``v``
+    (nb, 3) m/s their velocities; ``g`` (q, 3 nb) the rows, ``u = g v`` with the node's component ``j`` in
+    column ``3 i + j``: ``s`` strut length rows first (equalities, target 0; no two struts share a node),
+    then ``k`` contacts of three rows each (two tangents, then the normal; a ground contact's are the unit
+    vectors at its node, a member contact's its frame times the four nodes' weights); ``target`` (k,) m/s the
+    normal targets, ``mu`` (k,) the Coulomb coefficients. ``z`` (q,) N*s the unknowns (in: the contacts' warm
+    starts; the struts' are recomputed). Each row is scaled by its effective mass ``1 / W_ii`` (a contact's
+    rows by its normal's: the node's mass on the ground). Returns the iterations taken, or -1 as
+    :func:`solve_block` (``v`` then unchanged). ``work`` (6, M, M): :func:`_newton`'s."""
+    q = s + 3 * k
+    cols = 3 * nb
+    for i in range(q):   # u0 = G v, W = G M^-1 G^T
+        acc = 0.0
+        for col in range(cols):
+            acc += g[i, col] * v[col // 3, col % 3]
+        work[4, 0, i] = acc
+        for j in range(i + 1):
+            acc = 0.0
+            for col in range(cols):
+                acc += g[i, col] * inv[col // 3] * g[j, col]
+            work[1, i, j] = acc
+            work[1, j, i] = acc
+    scale = 1e-300
+    for i in range(nb):
+        if inv[i] > 0.0:
+            for j in range(3):
+                scale = max(scale, abs(v[i, j]) / inv[i])
+    for i in range(s):
+        work[4, 6, i] = 1.0 / work[1, i, i]
+    for c in range(k):
+        o = s + 3 * c
+        r = 1.0 / work[1, o + 2, o + 2]
+        work[4, 6, o] = r
+        work[4, 6, o + 1] = r
+        work[4, 6, o + 2] = r
+        work[5, 2, c] = mu[c]
+        scale = max(scale, abs(target[c]) * r)
+        for j in range(3):
+            scale = max(scale, abs(z[o + j]))
+    for i in range(s):   # each strut's impulse that meets its row for the contacts' warm start
+        acc = work[4, 0, i]
+        for j in range(s, q):
+            acc += work[1, i, j] * z[j]
+        z[i] = -acc / work[1, i, i]
+    done = _newton(q, s, k, target, work, z, scale)
+    if done < 0:
+        return -1
+    for col in range(cols):   # v += M^-1 G^T z
+        acc = 0.0
+        for i in range(q):
+            acc += g[i, col] * z[i]
+        v[col // 3, col % 3] += inv[col // 3] * acc
     return done

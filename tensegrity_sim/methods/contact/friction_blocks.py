@@ -1,14 +1,15 @@
-"""The plain numpy implementation of ``_friction_block_kernels.py``'s block solver (the same algorithm and
+"""The plain numpy implementation of ``_friction_block_kernels.py``'s block solvers (the same algorithm and
 arithmetic: the semismooth Newton with Levenberg–Marquardt damping on the Alart–Curnier form of one
-block's frictional contact problem; see that module's docstring), the reference the compiled kernel must
-match to 1e-12 in tests."""
+block's frictional contact problem, a strut's block or a coupled one; see that module's docstring), the
+reference the compiled kernels must match to 1e-12 in tests."""
 from __future__ import annotations
 
 import numpy as np
 
-from ._friction_block_kernels import _ARMIJO, _MAX_DAMPING, _MIN_DAMPING, _MIN_STEP, BLOCK_TOL, MAX_NEWTON
+from ._friction_block_kernels import (_ARMIJO, _DAMPING_GROWTH, _MAX_DAMPING, _MIN_DAMPING, _MIN_STEP, BLOCK_TOL,
+                                      MAX_NEWTON, RELAXED_TOL)
 
-__all__ = ["solve_block_reference", "lone_contact_reference"]
+__all__ = ["solve_block_reference", "solve_coupled_reference", "lone_contact_reference"]
 
 
 def lone_contact_reference(inv: float, v: np.ndarray, target: float, mu: float):
@@ -31,9 +32,8 @@ def _residual(s, k, rho, target, mu, w, u0, z):
     phi = np.empty(q)
     jac = np.zeros((q, q))
     eye = np.eye(q)
-    if s:
-        phi[0] = rho[0] * u[0]
-        jac[0] = rho[0] * w[0]
+    phi[:s] = rho[:s] * u[:s]
+    jac[:s] = rho[:s, None] * w[:s]
     for c in range(k):
         o = s + 3 * c
         r, n, t = rho[o], o + 2, slice(o, o + 2)
@@ -45,14 +45,14 @@ def _residual(s, k, rho, target, mu, w, u0, z):
         qt = z[t] - r * u[t]
         dqt = eye[t] - r * w[t]
         size = np.hypot(*qt)
-        bound = mu * yp
+        bound = mu[c] * yp
         if size <= bound:
             phi[t] = z[t] - qt
             jac[t] = eye[t] - dqt
         else:
             hat = qt / size
             phi[t] = z[t] - bound * hat
-            jac[t] = eye[t] - ((bound / size) * (dqt - np.outer(hat, hat @ dqt)) + np.outer(hat, mu * dyp))
+            jac[t] = eye[t] - ((bound / size) * (dqt - np.outer(hat, hat @ dqt)) + np.outer(hat, mu[c] * dyp))
     return phi, jac, 0.5 * float(phi @ phi)
 
 
@@ -77,7 +77,40 @@ def _definite(a: np.ndarray) -> bool:
     return True
 
 
-def solve_block_reference(inv: np.ndarray, strut: bool, direction: np.ndarray, ends: np.ndarray, 
+def _newton(s, k, rho, target, mu, w, u0, z, scale):
+    """The kernel's ``_newton`` from ``z`` (q,): ``(z, iterations)``, ``-1`` unsolved."""
+    q = len(z)
+    tol = BLOCK_TOL * scale
+    phi, jac, merit = _residual(s, k, rho, target, mu, w, u0, z)
+    for it in range(MAX_NEWTON + 1):
+        if np.abs(phi).max() <= tol:
+            return z, it
+        if it == MAX_NEWTON:
+            break
+        nu = min(2.0 * merit / (scale * scale), _MAX_DAMPING) + _MIN_DAMPING
+        while True:
+            normal = jac.T @ jac + nu * np.eye(q)
+            definite = _definite(normal)
+            if definite or nu >= _MAX_DAMPING:
+                break
+            nu = min(nu * _DAMPING_GROWTH, _MAX_DAMPING)
+        if not definite:
+            break
+        d = np.linalg.solve(normal, -(jac.T @ phi))
+        slope = float((jac.T @ phi) @ d)
+        step = 1.0
+        while True:
+            trial = z + step * d
+            new = _residual(s, k, rho, target, mu, w, u0, trial)[2]
+            if new <= merit + _ARMIJO * step * slope or step <= _MIN_STEP:
+                break
+            step *= 0.5
+        z = trial
+        phi, jac, merit = _residual(s, k, rho, target, mu, w, u0, z)
+    return z, (MAX_NEWTON if np.abs(phi).max() <= RELAXED_TOL * scale else -1)
+
+
+def solve_block_reference(inv: np.ndarray, strut: bool, direction: np.ndarray, ends: np.ndarray,
                           target: np.ndarray, mu: float, v: np.ndarray, z: np.ndarray):
     """``solve_block``'s answer, returned instead of written in place: ``(v, z, iterations)`` (``-1``:
     unsolved, ``v`` unchanged); the arguments as there, ``z`` (1 + 3k or 3k,) the warm start."""
@@ -101,27 +134,34 @@ def solve_block_reference(inv: np.ndarray, strut: bool, direction: np.ndarray, e
     if s:
         rho[0] = 1.0 / w[0, 0]
         z[0] = -(u0[0] + w[0, 1:] @ z[1:]) / w[0, 0]
-    tol = BLOCK_TOL * scale
-    phi, jac, merit = _residual(s, k, rho, target, mu, w, u0, z)
-    for it in range(MAX_NEWTON + 1):
-        if np.abs(phi).max() <= tol:
-            out = v.ravel() + inv6 * (g.T @ z)
-            return out.reshape(2, 3), z, it
-        if it == MAX_NEWTON:
-            break
-        nu = min(2.0 * merit / (scale * scale), _MAX_DAMPING) + _MIN_DAMPING
-        normal = jac.T @ jac + nu * np.eye(q)
-        if not _definite(normal):
-            break
-        d = np.linalg.solve(normal, -(jac.T @ phi))
-        slope = float((jac.T @ phi) @ d)
-        step = 1.0
-        while True:
-            trial = z + step * d
-            new = _residual(s, k, rho, target, mu, w, u0, trial)[2]
-            if new <= merit + _ARMIJO * step * slope or step <= _MIN_STEP:
-                break
-            step *= 0.5
-        z = trial
-        phi, jac, merit = _residual(s, k, rho, target, mu, w, u0, z)
-    return v.copy(), z, -1
+    z, it = _newton(s, k, rho, target, np.full(k, mu), w, u0, z, scale)
+    if it < 0:
+        return v.copy(), z, -1
+    out = v.ravel() + inv6 * (g.T @ z)
+    return out.reshape(2, 3), z, it
+
+
+def solve_coupled_reference(inv: np.ndarray, g: np.ndarray, s: int, k: int, target: np.ndarray, mu: np.ndarray,
+                            v: np.ndarray, z: np.ndarray):
+    """``solve_coupled``'s answer, returned instead of written in place: ``(v, z, iterations)`` (``-1``:
+    unsolved, ``v`` unchanged); ``inv`` (nb,), ``g`` (s + 3k, 3 nb), ``v`` (nb, 3), ``z`` (s + 3k,) the warm
+    start, the rest as there."""
+    q = s + 3 * k
+    g = g[:q, : 3 * len(inv)]
+    z = np.array(z[:q], dtype=float)
+    inv3 = np.repeat(inv, 3)
+    u0 = g @ v.ravel()
+    w = (g * inv3) @ g.T
+    moving = inv > 0
+    scale = max(1e-300, float(np.max(np.abs(v[moving]) / inv[moving, None], initial=0.0)))
+    rho = np.empty(q)
+    rho[:s] = 1.0 / np.diag(w)[:s]
+    for c in range(k):
+        o = s + 3 * c
+        rho[o: o + 3] = 1.0 / w[o + 2, o + 2]
+        scale = max(scale, abs(target[c]) * rho[o], float(np.abs(z[o: o + 3]).max()))
+    z[:s] = -(u0[:s] + w[:s, s:] @ z[s:]) / np.diag(w)[:s]
+    z, it = _newton(s, k, rho, target, np.asarray(mu, dtype=float), w, u0, z, scale)
+    if it < 0:
+        return v.copy(), z, -1
+    return (v.ravel() + inv3 * (g.T @ z)).reshape(-1, 3), z, it

@@ -7,16 +7,17 @@ Newton's restitution for those that landed), each velocity problem solved block 
 with elastic cables nothing else couples the nodes). As in the reference, a solve also zeroes every
 other rigid strut's length rate (RATTLE's projection, the QP's rows of the struts without contacts).
 
-**Member pairs** (``contact: response: true``; a scene without a ground has its plane at ``-inf``). A step
-in which ``MemberContacts`` would arm a member pair is not taken here: the kernel stops at it as at a block
-it leaves unsolved (``failed``, with the reason ``MEMBERS``) and the caller takes it by the reference, whose
-QP fixed point holds the pair rows beside the ground's. The test is ``MemberContacts.arm_step``'s before the
-drift (gap minus ``h`` times the pair's closing rate on the free velocities within ``touch_tol``) and
-``arm_settle``'s at the step's end (gap within ``touch_tol``), on every eligible pair
-(``_detection_kernels._closest``'s closest points) less those whose boxes are farther apart than any rate
-could close (``|n . u| <= 2 max_j |v_j|``, the weights' magnitudes summing to 2): a superset of the pairs the
-reference arms (it also leaves out pairs its own boxes keep apart), so a step taken here is one where the
-reference arms no pair, the same velocity problems.
+**Member pairs** (``contact: response: true``; a scene without a ground has its plane at ``-inf``) are armed as
+``MemberContacts`` arms them (:func:`_arm_pairs`): before the drift, ``arm_step``'s test (gap minus ``h`` times
+the pair's closing rate on the free velocities within ``touch_tol``; the target that closes the gap, capped at
+the reversal of the rate at the step's start, floored at ``touch_tol`` deep), at the step's end
+``arm_settle``'s (gap within ``touch_tol``; Newton's restitution for those that landed), on the eligible pairs
+whose boxes, grown as ``MemberContacts.candidates`` grows them, overlap, with ``_detection_kernels._closest``'s
+closest points and ``member.tangents``' frames. An armed pair joins the bodies of its moving nodes (union-find
+over the struts and the lone nodes) into one coupled block, solved by ``solve_coupled`` (the same Newton on
+the general rows); its impulse (normal, and friction in space, on the second member) is recorded by step
+(``out_pairs``). A step whose pair's segments meet (no normal: the reference's ``contact_geometry`` has its
+fallback) or whose coupled block has more than ``MAX_COUPLED`` rows is left to the reference (``MEMBERS``).
 
 Batch axis last, as the other kernels; :func:`ground_steps` steps the copies on every core (``prange``).
 The ground's model (:func:`ground_arrays`):
@@ -26,13 +27,15 @@ The ground's model (:func:`ground_arrays`):
     node_strut (N,) int64        the moving rigid strut a node ends (its row in rigid_members), or -1
     touch_tol m                  a node within this of the ground touches it (friction.TOUCH_TOL), and a
                                  member pair within this of contact
-    pair_nodes (P, 4) int64      the eligible member pairs' nodes (a0, a1, b0, b1) (none without a response)
-    pair_radii (P,) m            their radii's sums
+    pair_nodes (P, 4) int64      the eligible member pairs' nodes (a0, a1, b0, b1) (none without a response;
+                                 :func:`eligible_pairs`)
+    pair_radii (P, 2) m          their members' radii
+    pair_mu, pair_restitution    the member contacts' Coulomb coefficient and restitution
 
-What a step carries beside ``_elastic_kernels``' carry: ``warm`` (2, N, 3, B) N*s, each node's contact
-impulse (friction x, y, normal) in the last drift (0) and closing (1) solve, the block solver's warm start
-for the same solve of the next step (the two differ: a resting node's drift impulse holds its weight over
-the drift, the closing one cancels the closing half-kick).
+What a step carries beside ``_elastic_kernels``' carry: ``warm`` (2, N + P, 3, B) N*s, each node's contact
+impulse (friction x, y, normal) and each pair's (in space) in the last drift (0) and closing (1) solve, the
+block solver's warm start for the same solve of the next step (the two differ: a resting node's drift
+impulse holds its weight over the drift, the closing one cancels the closing half-kick).
 """
 from __future__ import annotations
 
@@ -44,12 +47,14 @@ from numba import njit, prange
 
 from ._kernels import _close, _drift, elastic_forces, gather_copy, keep, scatter_copy
 from ..contact._detection_kernels import _closest
-from ..contact._friction_block_kernels import MAX_ROWS, lone_contact, solve_block
+from ..contact._friction_block_kernels import MAX_COUPLED, MAX_ROWS, lone_contact, solve_block, solve_coupled
 
-__all__ = ["GroundModel", "ground_arrays", "ground_steps", "ground_steps_serial", "UNSOLVED", "MEMBERS"]
+__all__ = ["GroundModel", "ground_arrays", "ground_steps", "ground_steps_serial", "pair_scratch", "UNSOLVED", "MEMBERS",
+           "FULL"]
 
 UNSOLVED = 1   # the reasons a step is left to the reference (``failed``): a contact block the Newton left unsolved,
-MEMBERS = 2    # or a member pair armed
+MEMBERS = 2    # or a member pair's the kernel does not take (segments that meet, a coupled block beyond its scratch);
+FULL = 3       # and where the loop stops before a step, not left to the reference: no room for its pairs' impulses
 
 
 class GroundModel(NamedTuple):
@@ -63,6 +68,19 @@ class GroundModel(NamedTuple):
     touch_tol: float
     pair_nodes: np.ndarray
     pair_radii: np.ndarray
+    pair_mu: float
+    pair_restitution: float
+
+
+def eligible_pairs(system, members=None) -> np.ndarray:
+    """(P, 2) int64: the member pairs ``(i, j)``, ``i < j`` (system order), that the kernels examine (the
+    rows of ``pair_nodes``): the eligible pairs of ``MemberContacts`` ``members`` (None: none) with a free
+    node (two fixed members never move against each other)."""
+    if members is None:
+        return np.zeros((0, 2), dtype=np.int64)
+    i, j = members.detector.eligible_pairs()
+    moving = system.free[system.ends[i]].any(axis=1) | system.free[system.ends[j]].any(axis=1)
+    return np.stack([i[moving], j[moving]], axis=1).astype(np.int64)
 
 
 def ground_arrays(system, rigid, touch_tol: float, members=None) -> GroundModel:
@@ -72,69 +90,289 @@ def ground_arrays(system, rigid, touch_tol: float, members=None) -> GroundModel:
     node_strut = np.full(system.n_nodes, -1, dtype=np.int64)
     for k, (a, c) in enumerate(rigid.ends):
         node_strut[a] = node_strut[c] = k
-    if members is None:
-        pair_nodes, pair_radii = np.zeros((0, 4), dtype=np.int64), np.zeros(0)
-    else:
-        i, j = members.detector.eligible_pairs()
-        pair_nodes = np.ascontiguousarray(np.concatenate([system.ends[i], system.ends[j]], axis=1), dtype=np.int64)
-        pair_radii = members.detector.radius[i] + members.detector.radius[j]
+    pairs = eligible_pairs(system, members)
+    pair_nodes = np.ascontiguousarray(system.ends[pairs].reshape(-1, 4), dtype=np.int64)
+    pair_radii = (np.zeros((0, 2)) if members is None
+                  else np.ascontiguousarray(members.detector.radius[pairs], dtype=float))
+    pair_mu, pair_restitution = (0.0, 0.0) if members is None else (float(members.mu), float(members.restitution))
     height, mu, restitution = ((-np.inf, 0.0, 0.0) if ground is None
                                else (float(ground.height), float(ground.friction), float(ground.restitution)))
     return GroundModel(height, mu, restitution, np.ascontiguousarray(system.scene.node_radii, dtype=float),
-                       node_strut, float(touch_tol), pair_nodes, pair_radii)
+                       node_strut, float(touch_tol), pair_nodes, pair_radii, pair_mu, pair_restitution)
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _pair_armed(x, v, h, speed, pair_nodes, pair_radii, touch_tol, ends4, out, s5, t5, b):
-    """Whether copy ``b`` has a member pair that ``MemberContacts`` would arm (module docstring): with
-    ``h`` > 0 before the drift of ``h`` s from ``x`` at the free velocities ``v`` (N, 3, B), whose largest
-    node speed is ``speed`` m/s; with ``h`` = 0 touching at ``x``. The rest is scratch."""
-    reach = touch_tol + 2.0 * h * speed
+def _arm_pairs(x, v, v0, h, pair_nodes, pair_radii, touch_tol, restitution, armed_pairs, frames, weights, targets,
+               landing, ends4, out, s5, t5, b):
+    """The member pairs of copy ``b`` that ``MemberContacts`` arms (module docstring). With ``h`` > 0,
+    ``arm_step``'s before the drift of ``h`` s from ``x`` (N, 3, B) at the free velocities ``v`` (N, 3, B), the
+    step starting at ``v0`` (N, 3): within ``touch_tol`` of contact by the drift's end on the free closing
+    rate, each targeting the rate that closes its gap (capped at the reversal of its rate at ``v0``, floored
+    at ``touch_tol`` deep), and ``landing`` (P,) gets the closing speed of those not yet touching (0 for the
+    others). With ``h`` = 0, ``arm_settle``'s at ``x``: those touching, each targeting ``restitution`` times
+    its ``landing`` speed. Writes the armed pairs' indices into ``armed_pairs`` and, by pair index,
+    ``frames`` (P, 3, 3) (the tangents, then the unit normal from a to b), ``weights`` (P, 4) and ``targets``
+    (P,) m/s. Returns how many, or -1 where a pair's segments meet (no normal between their closest points:
+    the reference's ``contact_geometry`` takes it). The pairs examined are those whose boxes, grown as
+    ``MemberContacts.candidates`` grows them, overlap; the rest is scratch."""
+    pad = touch_tol
+    if h > 0.0:   # the candidates' reach: h times the largest velocity components, free and at the start
+        fast = 0.0
+        start = 0.0
+        for p in range(x.shape[0]):
+            for j in range(3):
+                fast = max(fast, abs(v[p, j, b]))
+                start = max(start, abs(v0[p, j]))
+        pad = h * (fast + start) + touch_tol
+    count = 0
     for k in range(pair_nodes.shape[0]):
         a0 = pair_nodes[k, 0]
         a1 = pair_nodes[k, 1]
         b0 = pair_nodes[k, 2]
         b1 = pair_nodes[k, 3]
-        far = reach + pair_radii[k]
+        grow_a = pair_radii[k, 0] + pad
+        grow_b = pair_radii[k, 1] + pad
         apart = False
-        for j in range(3):   # the segments' boxes: their distance along an axis is at most the capsules'
-            if (min(x[b0, j, b], x[b1, j, b]) - max(x[a0, j, b], x[a1, j, b]) > far
-                    or min(x[a0, j, b], x[a1, j, b]) - max(x[b0, j, b], x[b1, j, b]) > far):
+        for j in range(3):   # the members' boxes, grown by their radii and the reach
+            if (min(x[b0, j, b], x[b1, j, b]) - grow_b > max(x[a0, j, b], x[a1, j, b]) + grow_a
+                    or min(x[a0, j, b], x[a1, j, b]) - grow_a > max(x[b0, j, b], x[b1, j, b]) + grow_b):
                 apart = True
                 break
+        if h > 0.0:
+            landing[k] = 0.0
         if apart:
             continue
+        size = 0.0
         for i in range(4):
             for j in range(3):
                 ends4[i, j] = x[pair_nodes[k, i], j, b]
+                size = max(size, abs(ends4[i, j]))
         _closest(ends4, out, s5, t5)
-        gap = out[0] - pair_radii[k]
-        if gap <= touch_tol:
-            return True
-        if h > 0.0:   # apart: the normal is along the closest points' vector, out[3:6]
-            s = out[1]
-            t = out[2]
-            rate = 0.0
+        gap = out[0] - (pair_radii[k, 0] + pair_radii[k, 1])
+        if gap > touch_tol and h == 0.0:
+            continue
+        s = out[1]
+        t = out[2]
+        w0 = s - 1.0
+        w1 = -s
+        w2 = 1.0 - t
+        w3 = t
+        rate = 0.0    # the closing rate on the free velocities (h > 0)
+        rate0 = 0.0   # ... and at the step's start
+        if out[0] <= 1e-12 * (1.0 + size):
+            return -1
+        for j in range(3):
+            n = out[3 + j] / out[0]
+            rate += n * (w0 * v[a0, j, b] + w1 * v[a1, j, b] + w2 * v[b0, j, b] + w3 * v[b1, j, b])
+            rate0 += n * (w0 * v0[a0, j] + w1 * v0[a1, j] + w2 * v0[b0, j] + w3 * v0[b1, j])
+        if h > 0.0:
+            if gap - h * abs(rate) > touch_tol:
+                continue
+            target = max(min(-gap / h, -rate0), -(gap + touch_tol) / h)
+            if gap > touch_tol:
+                landing[k] = max(-rate, 0.0)
+        else:
+            target = restitution * landing[k]
+        armed_pairs[count] = k
+        count += 1
+        targets[k] = target
+        weights[k, 0] = w0
+        weights[k, 1] = w1
+        weights[k, 2] = w2
+        weights[k, 3] = w3
+        least = 0   # the tangents (member.tangents): the normal crossed with the axis it is least aligned with
+        for j in range(3):
+            frames[k, 2, j] = out[3 + j] / out[0]
+        for j in range(1, 3):
+            if abs(frames[k, 2, j]) < abs(frames[k, 2, least]):
+                least = j
+        n0 = frames[k, 2, 0]
+        n1 = frames[k, 2, 1]
+        n2 = frames[k, 2, 2]
+        c0 = n1 * (least == 2) - n2 * (least == 1)
+        c1 = n2 * (least == 0) - n0 * (least == 2)
+        c2 = n0 * (least == 1) - n1 * (least == 0)
+        norm = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+        frames[k, 0, 0] = c0 / norm
+        frames[k, 0, 1] = c1 / norm
+        frames[k, 0, 2] = c2 / norm
+        frames[k, 1, 0] = n1 * frames[k, 0, 2] - n2 * frames[k, 0, 1]
+        frames[k, 1, 1] = n2 * frames[k, 0, 0] - n0 * frames[k, 0, 2]
+        frames[k, 1, 2] = n0 * frames[k, 0, 1] - n1 * frames[k, 0, 0]
+    return count
+
+
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _root(parent, i):
+    """The root of ``i`` in the union-find forest ``parent``, halving the path on the way."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _pair_root(parent, pair_nodes, k, inv_mass, node_strut, nr):
+    """The union-find root of pair ``k``'s block: that of its first moving node's body (its rigid strut, or
+    the node alone: ``nr`` + the node)."""
+    p = pair_nodes[k, 0]
+    for e in range(1, 4):
+        if inv_mass[p] > 0.0:
+            break
+        p = pair_nodes[k, e]
+    return _root(parent, nr + p if node_strut[p] < 0 else node_strut[p])
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _solve_coupled(v, b, root, armed, target, inv_mass, ends, rigid_members, dirs, node_strut, mu, warm, contact,
+                   n_armed, armed_pairs, pair_nodes, frames, weights, targets, pair_mu, pair_impulse, parent, local,
+                   nodes, g, inv_b, vel_b, z_b, target_b, mu_b, cwork):
+    """The coupled block of the bodies whose union-find root is ``root`` (:func:`_solve`): its rigid struts'
+    rows, its nodes' ground contacts and its member pairs' contacts by ``solve_coupled``, in place on ``v``;
+    the ground's impulses added to ``contact`` and kept in ``warm`` as :func:`_solve`'s, each pair's in
+    ``pair_impulse`` (P, 4) (normal, then the friction in space) and in ``warm``'s row ``N + k`` (its impulse in
+    space, the next solve's warm start in that solve's frame). Returns 0, ``UNSOLVED``, or ``MEMBERS`` (a
+    block beyond the scratch's ``MAX_COUPLED`` rows). The rest is scratch."""
+    n_nodes = v.shape[0]
+    nr = rigid_members.shape[0]
+    max_nodes = inv_b.shape[0]
+    nb = 0
+    s = 0
+    for k in range(nr):   # the struts' ends, then the lone nodes
+        if _root(parent, k) == root:
+            for e in range(2):
+                if nb == max_nodes:
+                    return MEMBERS
+                p = ends[rigid_members[k], e]
+                local[p] = nb
+                nodes[nb] = p
+                nb += 1
+            s += 1
+    for p in range(n_nodes):
+        if node_strut[p] < 0 and inv_mass[p] > 0.0 and _root(parent, nr + p) == root:
+            if nb == max_nodes:
+                return MEMBERS
+            local[p] = nb
+            nodes[nb] = p
+            nb += 1
+    k_ground = 0
+    for i in range(nb):
+        k_ground += armed[nodes[i]]
+    k_pairs = 0
+    for c in range(n_armed):
+        k_pairs += _pair_root(parent, pair_nodes, armed_pairs[c], inv_mass, node_strut, nr) == root
+    q = s + 3 * (k_ground + k_pairs)
+    if q > g.shape[0]:
+        return MEMBERS
+    for i in range(q):
+        for col in range(3 * nb):
+            g[i, col] = 0.0
+    row = 0
+    for k in range(nr):
+        if _root(parent, k) == root:
+            la = local[ends[rigid_members[k], 0]]
+            lc = local[ends[rigid_members[k], 1]]
             for j in range(3):
-                u = (s - 1.0) * v[a0, j, b] - s * v[a1, j, b] + (1.0 - t) * v[b0, j, b] + t * v[b1, j, b]
-                rate += u * out[3 + j]
-            if gap - h * abs(rate / out[0]) <= touch_tol:
-                return True
-    return False
+                g[row, 3 * la + j] = -dirs[k, j, b]
+                g[row, 3 * lc + j] = dirs[k, j, b]
+            row += 1
+    c = 0
+    for i in range(nb):
+        p = nodes[i]
+        inv_b[i] = inv_mass[p]
+        for j in range(3):
+            vel_b[i, j] = v[p, j, b]
+        if armed[p]:
+            for j in range(3):
+                g[row + j, 3 * i + j] = 1.0
+                z_b[row + j] = warm[p, j, b]
+            target_b[c] = target[p]
+            mu_b[c] = mu
+            row += 3
+            c += 1
+    for a in range(n_armed):
+        k = armed_pairs[a]
+        if _pair_root(parent, pair_nodes, k, inv_mass, node_strut, nr) != root:
+            continue
+        for r in range(3):
+            for e in range(4):
+                p = pair_nodes[k, e]
+                if inv_mass[p] > 0.0:
+                    for j in range(3):
+                        g[row + r, 3 * local[p] + j] = weights[k, e] * frames[k, r, j]
+            acc = 0.0
+            for j in range(3):
+                acc += warm[n_nodes + k, j, b] * frames[k, r, j]
+            z_b[row + r] = acc
+        target_b[c] = targets[k]
+        mu_b[c] = pair_mu
+        row += 3
+        c += 1
+    if solve_coupled(inv_b, g, nb, s, k_ground + k_pairs, target_b, mu_b, vel_b, z_b, cwork) < 0:
+        return UNSOLVED
+    for i in range(nb):
+        for j in range(3):
+            v[nodes[i], j, b] = vel_b[i, j]
+    row = s
+    for i in range(nb):
+        p = nodes[i]
+        if armed[p]:
+            for j in range(3):
+                contact[p, j] += z_b[row + j]
+                warm[p, j, b] = z_b[row + j]
+            row += 3
+    for a in range(n_armed):
+        k = armed_pairs[a]
+        if _pair_root(parent, pair_nodes, k, inv_mass, node_strut, nr) != root:
+            continue
+        pair_impulse[k, 0] += z_b[row + 2]
+        for j in range(3):
+            friction = z_b[row] * frames[k, 0, j] + z_b[row + 1] * frames[k, 1, j]
+            pair_impulse[k, 1 + j] += friction
+            warm[n_nodes + k, j, b] = friction + z_b[row + 2] * frames[k, 2, j]
+        row += 3
+    return 0
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, node_strut, mu, warm, contact,
-           work, inv2, vel, z, ends_k, target_k, vel3, z3):
+           work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, armed_pairs, pair_nodes, frames, weights,
+           targets, pair_mu, pair_impulse, parent, joined, local, nodes, g, inv_b, vel_b, z_b, target_b, mu_b, cwork):
     """The armed contacts' velocity problem of copy ``b``, block by block, in place on ``v``; adds the
-    contact impulses to ``contact`` (N, 3) and keeps them in ``warm`` (N, 3, B), this solve's warm starts. ``dirs`` (nr, 3, B): the rigid
-    struts' unit vectors at the configuration. The rest is scratch. Returns False if a block was not
-    solved (``v`` is then partly changed: the caller starts the step again in the reference)."""
-    for p in range(v.shape[0]):
+    ground's contact impulses to ``contact`` (N, 3) and keeps them in ``warm`` (N + P, 3, B), this solve's
+    warm starts. ``dirs`` (nr, 3, B): the rigid struts' unit vectors at the configuration. A rigid strut
+    with its ends' ground contacts is a block (``solve_block``), a lone node's contact one more (its closed
+    form); the ``n_armed`` member pairs ``armed_pairs`` (:func:`_arm_pairs`' frames, weights and targets) join
+    the bodies their nodes belong to (union-find over ``parent``: the struts, then the nodes) into coupled
+    blocks (:func:`_solve_coupled`, whose impulses go to ``pair_impulse``); ``joined`` (nr + N,) marks their
+    roots. The rest is scratch. Returns 0,
+    ``UNSOLVED`` if a block was not solved, ``MEMBERS`` for a coupled block beyond the scratch (``v`` is then
+    partly changed: the caller starts the step again in the reference)."""
+    n_nodes = v.shape[0]
+    nr = rigid_members.shape[0]
+    for p in range(n_nodes):
         if not armed[p]:
             for j in range(3):
                 warm[p, j, b] = 0.0
-    for k in range(rigid_members.shape[0]):
+    for i in range(nr + n_nodes):
+        parent[i] = i
+        joined[i] = False
+    for a in range(n_armed):   # a pair joins the bodies of its moving nodes
+        k = armed_pairs[a]
+        first = -1
+        for e in range(4):
+            p = pair_nodes[k, e]
+            if inv_mass[p] > 0.0:
+                body = _root(parent, nr + p if node_strut[p] < 0 else node_strut[p])
+                if first < 0:
+                    first = body
+                elif body != first:
+                    parent[body] = first
+    for a in range(n_armed):
+        joined[_pair_root(parent, pair_nodes, armed_pairs[a], inv_mass, node_strut, nr)] = True
+    for k in range(nr):
+        if joined[_root(parent, k)]:
+            continue
         m = rigid_members[k]
         a = ends[m, 0]
         c = ends[m, 1]
@@ -174,7 +412,7 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
             for j in range(3):
                 z[1 + 3 * i + j] = warm[p, j, b]
         if solve_block(inv2, True, vel3, ends_k, target_k, count, mu, vel, z, work) < 0:
-            return False
+            return UNSOLVED
         for j in range(3):
             v[a, j, b] = vel[0, j]
             v[c, j, b] = vel[1, j]
@@ -183,8 +421,8 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
             for j in range(3):
                 contact[p, j] += z[1 + 3 * i + j]
                 warm[p, j, b] = z[1 + 3 * i + j]
-    for p in range(v.shape[0]):
-        if armed[p] and node_strut[p] < 0:
+    for p in range(n_nodes):
+        if armed[p] and node_strut[p] < 0 and not joined[_root(parent, nr + p)]:
             for j in range(3):
                 vel3[j] = v[p, j, b]
             lone_contact(inv_mass[p], vel3, target[p], mu, z3)
@@ -192,29 +430,75 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
                 v[p, j, b] = vel3[j]
                 contact[p, j] += z3[j]
                 warm[p, j, b] = z3[j]
-    return True
+    for a in range(n_armed):   # each coupled block once, from its first pair
+        root = _pair_root(parent, pair_nodes, armed_pairs[a], inv_mass, node_strut, nr)
+        if not joined[root]:
+            continue
+        joined[root] = False
+        why = _solve_coupled(v, b, root, armed, target, inv_mass, ends, rigid_members, dirs, node_strut, mu, warm,
+                             contact, n_armed, armed_pairs, pair_nodes, frames, weights, targets, pair_mu,
+                             pair_impulse, parent, local, nodes, g, inv_b, vel_b, z_b, target_b, mu_b, cwork)
+        if why:
+            return why
+    return 0
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _arm_pairs_for(x, v, v0, h, pair_nodes, pair_radii, touch_tol, restitution, warm, ends4, out6, s5, t5, pairs, b):
+    """:func:`_arm_pairs` with the scratch ``pairs`` (:func:`pair_scratch`); the pairs it arms are marked in
+    ``touched`` (the step's pairs with impulses to report) and those it does not lose their warm starts in
+    ``warm`` (N + P, 3, B), the solve's. Returns as :func:`_arm_pairs`."""
+    armed_pairs, frames, weights, targets, landing, touched = pairs[0], pairs[1], pairs[2], pairs[3], pairs[4], pairs[6]
+    count = _arm_pairs(x, v, v0, h, pair_nodes, pair_radii, touch_tol, restitution, armed_pairs, frames, weights,
+                       targets, landing, ends4, out6, s5, t5, b)
+    n_nodes = x.shape[0]
+    c = 0
+    for k in range(pair_nodes.shape[0]):
+        if c < count and armed_pairs[c] == k:
+            touched[k] = True
+            c += 1
+        else:
+            for j in range(3):
+                warm[n_nodes + k, j, b] = 0.0
+    return count
+
+
+@njit(cache=True)
+def pair_scratch(n_nodes, n_rigid, n_pairs):
+    """The member pairs' scratch of the kernels (a tuple): by pair, the armed pairs' indices, their frames,
+    weights, targets, landing speeds, the step's impulses (normal, friction in space) and whether the step
+    armed them; the union-find of the bodies (struts, then nodes) and the coupled block's arrays."""
+    rows = MAX_COUPLED
+    width = rows // 3 + 1   # nodes a coupled block may hold
+    return (np.empty(n_pairs, dtype=np.int64), np.empty((n_pairs, 3, 3)), np.empty((n_pairs, 4)), np.empty(n_pairs),
+            np.zeros(n_pairs), np.zeros((n_pairs, 4)), np.zeros(n_pairs, dtype=np.bool_),
+            np.empty(n_rigid + n_nodes, dtype=np.int64), np.empty(n_rigid + n_nodes, dtype=np.bool_),
+            np.empty(n_nodes, dtype=np.int64), np.empty(width, dtype=np.int64), np.empty((rows, 3 * width)),
+            np.empty(width), np.empty((width, 3)), np.empty(rows), np.empty(rows // 3), np.empty(rows // 3),
+            np.zeros((6, rows, rows)))
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                  rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu, restitution, radii,
-                 node_strut, touch_tol, pair_nodes, pair_radii, warm, dx, impulses, slack, contact, armed, target,
-                 landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, b):
+                 node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, dx, impulses, slack,
+                 contact, armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5,
+                 t5, pairs, b):
     """One step of copy ``b`` with the contacts (module docstring), in place as ``_elastic_kernels._step``;
-    ``contact`` (N, 3) gets the ground's impulses of the step. Returns 0, or the reason the step is left to
+    ``contact`` (N, 3) gets the ground's impulses of the step, ``pairs`` (:func:`pair_scratch`) the member
+    pairs' (``v0`` (N, 3): the velocities at the step's start). Returns 0, or the reason the step is left to
     the reference (``UNSOLVED``, ``MEMBERS``: the copy's ``x``, ``v`` and carry are then not those of a step,
     the caller restarts it)."""
     n_nodes = x.shape[0]
+    n_pairs = pair_nodes.shape[0]
     half = 0.5 * h
     found = False
-    speed = 0.0
     for p in range(n_nodes):
         for j in range(3):
             contact[p, j] = 0.0
         vz0 = v[p, 2, b]
         for j in range(3):
             v[p, j, b] += half * acc[p, j, b]
-        speed = max(speed, np.sqrt(v[p, 0, b] * v[p, 0, b] + v[p, 1, b] * v[p, 1, b] + v[p, 2, b] * v[p, 2, b]))
         gap = x[p, 2, b] - radii[p] - height
         armed[p] = inv_mass[p] > 0.0 and gap - h * abs(v[p, 2, b]) <= touch_tol
         # the drift's target lands the node on the ground, capped at the reversal of its start velocity
@@ -222,25 +506,43 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
         target[p] = max(min(-gap / h, -vz0), min(-(gap + touch_tol) / h, 0.0))
         landing[p] = max(-v[p, 2, b], 0.0) if gap > touch_tol else 0.0
         found = found or armed[p]
-    if pair_nodes.shape[0] and _pair_armed(x, v, h, speed, pair_nodes, pair_radii, touch_tol, ends4, out6, s5, t5, b):
-        return MEMBERS
-    if found and not _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut,
-                            mu, warm[0], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3):
-        return UNSOLVED
+    (armed_pairs, frames, weights, targets, _, pair_impulse, touched, parent, joined, local, nodes, g, inv_b, vel_b,
+     z_b, target_b, mu_b, cwork) = pairs
+    n_armed = 0
+    if n_pairs:
+        for k in range(n_pairs):
+            touched[k] = False
+            for j in range(4):
+                pair_impulse[k, j] = 0.0
+        n_armed = _arm_pairs_for(x, v, v0, h, pair_nodes, pair_radii, touch_tol, pair_restitution, warm[0], ends4,
+                                 out6, s5, t5, pairs, b)
+        if n_armed < 0:
+            return MEMBERS
+    if found or n_armed:
+        why = _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu, warm[0],
+                     contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, armed_pairs, pair_nodes, frames,
+                     weights, targets, pair_mu, pair_impulse, parent, joined, local, nodes, g, inv_b, vel_b, z_b,
+                     target_b, mu_b, cwork)
+        if why:
+            return why
     _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
     _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
            rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b)
-    if pair_nodes.shape[0] and _pair_armed(x, v, 0.0, 0.0, pair_nodes, pair_radii, touch_tol, ends4, out6, s5, t5,
-                                           b):
-        return MEMBERS
+    if n_pairs:
+        n_armed = _arm_pairs_for(x, v, v0, 0.0, pair_nodes, pair_radii, touch_tol, pair_restitution, warm[1], ends4,
+                                 out6, s5, t5, pairs, b)
+        if n_armed < 0:
+            return MEMBERS
     found = False
     for p in range(n_nodes):
         armed[p] = inv_mass[p] > 0.0 and x[p, 2, b] - radii[p] - height <= touch_tol
         target[p] = restitution * landing[p]
         found = found or armed[p]
-    if found and not _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
-                            warm[1], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3):
-        return UNSOLVED
+    if found or n_armed:
+        return _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
+                      warm[1], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, armed_pairs,
+                      pair_nodes, frames, weights, targets, pair_mu, pair_impulse, parent, joined, local, nodes, g,
+                      inv_b, vel_b, z_b, target_b, mu_b, cwork)
     return 0
 
 
@@ -262,14 +564,18 @@ def _take_inputs(rest_seq, ext_seq, s, bs, rest, ext) -> bool:
 
 def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
                   gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, height,
-                  mu, restitution, radii, node_strut, touch_tol, pair_nodes, pair_radii, warm, rest_seq, ext_seq, out_x,
-                  out_v, out_impulses, out_slack, out_contact, failed, reason, blocks):
+                  mu, restitution, radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu,
+                  pair_restitution, warm, rest_seq, ext_seq, out_x, out_v, out_impulses, out_slack, out_contact,
+                  out_pairs, n_records, failed, reason, blocks):
     """``n_steps`` steps of ``h`` (s) of every copy (in ``blocks`` contiguous blocks of copies spread over the
     cores), in place on ``x``, ``v`` and the carry (``acc``, ``tension``, ``rigid_dirs``, ``warm``); the kept steps as
     ``_elastic_kernels.elastic_steps`` keeps them, and ``out_contact`` (K, N, 3, B) the ground's impulses
-    summed like the cables'. ``failed`` (B,) int64: -1, or the step of the copy left to the reference (the copy
-    stops there: its ``x``, ``v`` are those at that step's start, its carry is not), and ``reason`` (B,) int64
-    why (``UNSOLVED``, ``MEMBERS``).
+    summed like the cables'. ``out_pairs`` (B, R, 6): each copy's member contacts of each step, one record a
+    pair armed in the step (the step, the pair's index, its normal impulse, its friction in space, N*s),
+    ``n_records`` (B,) int64 of them. ``failed`` (B,) int64: -1, or the step of the copy left to the reference
+    (the copy stops there: its ``x``, ``v`` are those at that step's start, its carry is not), and ``reason``
+    (B,) int64 why (``UNSOLVED``, ``MEMBERS``), or the step before which a copy stopped for want of room for
+    its records (``FULL``: fewer than P left; its carry is that step's start's, for a call that goes on).
     Each copy is stepped in contiguous arrays of its own (a batch of one: the very arithmetic of
     ``Simulator``'s loop, and no stride of B between a copy's numbers).
 
@@ -292,11 +598,13 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
         rigid_length_sq_b, rigid_w_b, radii_b, node_strut_b = (rigid_length_sq.copy(), rigid_w.copy(), radii.copy(),
                                                                node_strut.copy())
         floor_b, pair_nodes_b, pair_radii_b = floor.copy(), pair_nodes.copy(), pair_radii.copy()
+        n_pairs = pair_nodes.shape[0]
+        pairs = pair_scratch(n_nodes, nr, n_pairs)
         xb = np.empty((n_nodes, 3, 1))
         vb = np.empty((n_nodes, 3, 1))
         accb = np.empty((n_nodes, 3, 1))
         extb = np.empty((n_nodes, 3, 1))
-        warmb = np.empty((2, n_nodes, 3, 1))
+        warmb = np.empty((2, n_nodes + n_pairs, 3, 1))
         restb = np.empty((nc, 1))
         tensionb = np.empty((nc, 1))
         dirsb = np.empty((nr, 3, 1))
@@ -326,7 +634,7 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
         first = np.int64(blk)   # prange's index is unsigned: with a signed number it would make a float
         for b in range(n_copies * first // blocks, n_copies * (first + 1) // blocks):
             gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, xb, vb, accb, extb, restb, tensionb, dirsb)
-            for i in range(n_nodes):
+            for i in range(n_nodes + n_pairs):
                 for j in range(3):
                     warmb[0, i, j, 0] = warm[0, i, j, b]
                     warmb[1, i, j, 0] = warm[1, i, j, b]
@@ -336,8 +644,13 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
             z[:] = 0.0
             failed[b] = -1
             reason[b] = 0
+            n_records[b] = 0
             bs = b if rest_seq.shape[2] > 1 else 0   # the copy's column of the inputs (or the one of every copy's)
             for s in range(n_steps):
+                if n_pairs and n_records[b] + n_pairs > out_pairs.shape[1]:   # no room for this step's pairs
+                    failed[b] = s
+                    reason[b] = FULL
+                    break
                 for i in range(n_nodes):
                     for j in range(3):
                         x0[i, j] = xb[i, j, 0]
@@ -348,8 +661,9 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
                 why = _ground_step(xb, vb, restb, extb, h, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
                                    inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb,
                                    tensionb, dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol,
-                                   pair_nodes_b, pair_radii_b, warmb, dx, imp, sl, contact, armed, target, landing,
-                                   work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, 0)
+                                   pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, warmb, dx, imp, sl, contact,
+                                   armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4,
+                                   out6, s5, t5, pairs, 0)
                 if why:
                     for i in range(n_nodes):
                         for j in range(3):
@@ -358,6 +672,16 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
                     failed[b] = s
                     reason[b] = why
                     break
+                if n_pairs:   # the step's member contacts: (step, pair, normal, friction in space)
+                    pair_impulse, touched = pairs[5], pairs[6]
+                    for k in range(n_pairs):
+                        if touched[k]:
+                            r = n_records[b]
+                            out_pairs[b, r, 0] = s
+                            out_pairs[b, r, 1] = k
+                            for j in range(4):
+                                out_pairs[b, r, 2 + j] = pair_impulse[k, j]
+                            n_records[b] = r + 1
                 for ci in range(nc):
                     total[ci] += imp[ci]
                 for i in range(n_nodes):
@@ -371,7 +695,7 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
                             out_contact[k, i, j, b] = total_contact[i, j]
                             total_contact[i, j] = 0.0
             scatter_copy(xb, vb, accb, tensionb, dirsb, b, x, v, acc, tension, rigid_dirs)
-            for i in range(n_nodes):
+            for i in range(n_nodes + n_pairs):
                 for j in range(3):
                     warm[0, i, j, b] = warmb[0, i, j, 0]
                     warm[1, i, j, b] = warmb[1, i, j, 0]

@@ -27,6 +27,8 @@ from .._copy_blocks import copy_blocks, on_blocks
 from ..base import State
 from .method import _HELD, ElasticMethod
 
+_PAIR_RECORDS = 512   # member-pair impulse records a copy keeps at most in a compiled call (beyond: its advance)
+
 __all__ = ["ElasticBatch"]
 
 
@@ -40,7 +42,7 @@ class ElasticBatch:
     A scene with a ground or a member contact response is stepped by ``_elastic_ground_kernels.ground_steps``,
     the copies spread over every core, each copy the very arithmetic of a ``Simulator``'s loop (the
     reference: an :class:`ElasticMethod` reference per copy); a copy at a step the kernel leaves to the
-    reference (an armed member pair, an unsolved block) goes on as ``ElasticMethod.advance`` does, to the end
+    reference (a member pair it does not take, an unsolved block) goes on as ``ElasticMethod.advance`` does, to the end
     of the call. :attr:`contact` then holds the ground's impulses of the last :meth:`advance`, (steps, N, 3, B)
     N*s, and :attr:`pairs` the member contacts' impulses of its steps that had any, {(step, copy): impulses}
     (``ElasticMethod.advanced_pairs``).
@@ -238,6 +240,7 @@ class ElasticBatch:
     def _advance_ground(self, x, v, rest_lengths, f_ext, steps: int, commands=None, first_step: int = 0):
         """:meth:`advance` with a ground; its impulses go to :attr:`contact`."""
         n, nc, b = x.shape[0], rest_lengths.shape[0], x.shape[2]
+        n_pairs = len(self.single._pair_keys)
         self.pairs = {}
 
         def copy_major(*shape, dtype=float):
@@ -271,27 +274,36 @@ class ElasticBatch:
         if self._cache is None:
             self._cache = (np.empty_like(x), np.empty((nc, b)), np.empty((self.rigid.count, 3, b)))
             kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._cache)
-            # each node's last contact impulses (drift, closing)
-            self._cache += (np.zeros((2,) + x.shape) if self._warm is None else self._warm,)
+            # each node's and member pair's last contact impulses (drift, closing)
+            self._cache += (np.zeros((2, n + n_pairs, 3, b)) if self._warm is None else self._warm,)
             self._warm = None
-        failed, reason = np.empty(b, dtype=np.int64), np.empty(b, dtype=np.int64)
+        failed, reason, count = (np.empty(b, dtype=np.int64) for _ in range(3))
+        records = np.empty((b, n_pairs and max(n_pairs, min(steps * n_pairs, _PAIR_RECORDS)), 6))
         seq = _HELD if commands is None else self._inputs(commands, rest, ext, steps, first_step)
         ground_kernels.ground_steps(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache[:3], *self.ground,
-                                    self._cache[3], *seq, out_x, out_v, out_imp, out_slack, out_contact, failed,
-                                    reason, min(b, numba.get_num_threads()))
+                                    self._cache[3], *seq, out_x, out_v, out_imp, out_slack, out_contact, records,
+                                    count, failed, reason, min(b, numba.get_num_threads()))
         if commands is not None:
             self.inputs_in_effect = (np.ascontiguousarray(np.broadcast_to(seq[0][-1], rest.shape)),
                                      np.ascontiguousarray(np.broadcast_to(seq[1][-1], ext.shape)))
+        for c in np.flatnonzero(count > 0):
+            self.pairs.update({(k, c): pairs for k, pairs in self.single._pair_records(records[c, :count[c]]).items()})
         for c in np.flatnonzero(failed >= 0):
-            # a contact block the compiled solver left unsolved, or an armed member pair: this copy goes on from
-            # that step's start as a Simulator's loop does (ElasticMethod.advance: that step by the reference, then
-            # compiled)
+            # a contact block the compiled solver left unsolved, or a member pair it does not take: this copy goes
+            # on from that step's start as a Simulator's loop does (ElasticMethod.advance: that step by the
+            # reference, then compiled); where the kernel ran out of room for the pairs' impulses, from its carry
             done = int(failed[c])
+            full = reason[c] == ground_kernels.FULL
             method = ElasticMethod(self.system, self.dt)
             bs = c if seq[0].shape[2] > 1 else 0
             inputs = None if commands is None else (seq[0][done:, :, bs], seq[1][done:, ..., bs])
-            state = (State(x[..., c].copy(), v[..., c].copy(), rest[:, c].copy(), ext[..., c].copy()) if inputs is None
-                     else State(x[..., c].copy(), v[..., c].copy(), inputs[0][0].copy(), inputs[1][0].copy()))
+            state = State(x[..., c].copy(), v[..., c].copy(), rest[:, c].copy(), ext[..., c].copy())
+            if inputs is not None and (done or not full):   # the inputs in effect (at FULL: the step's before)
+                state.rest_lengths = seq[0][done - full, :, bs].copy()
+                state.external_forces = seq[1][done - full, ..., bs].copy()
+            if full:
+                method.restore(tuple(a[..., c:c + 1] for a in self._cache[:3]) + (np.zeros((nc, 1), dtype=bool),
+                                                                                  self._cache[3][..., c:c + 1]))
             rows = steps - done
             pos, vel, contact = np.empty((rows, n, 3)), np.empty((rows, n, 3)), np.empty((rows, n, 3))
             imp, slack = np.empty((rows, nc)), np.empty((rows, nc), dtype=bool)
@@ -306,7 +318,7 @@ class ElasticBatch:
                                                                                      inputs[1][-1][..., None])
                 forces = (np.empty_like(xc), np.empty((nc, 1)), np.empty((self.rigid.count, 3, 1)))
                 kernels.elastic_forces(xc, vc, *(np.ascontiguousarray(a) for a in last), *self._model[:8], *forces)
-                carry = forces + (None, np.zeros((2,) + xc.shape))   # and no warm start, as ElasticMethod's
+                carry = forces + (None, np.zeros((2, n + n_pairs, 3, 1)))   # and no warm start, as ElasticMethod's
             for mine, its in zip(self._cache, carry[:3] + carry[4:]):
                 mine[..., c] = its[..., 0]
         return out_x, out_v, out_imp, out_slack

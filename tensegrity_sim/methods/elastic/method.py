@@ -68,12 +68,12 @@ paths. A block the Newton leaves unsolved (measured: 1 % of random blocks with a
 masses and mu up to 1; none on the test scenes) has its step taken by the reference (``fallbacks`` counts
 them), and the compiled loop goes on after it. A member contact
 response (``contact: response: true``, ``methods/contact/member.py``) is the same impulse step with the
-member pairs' rows beside the ground's, at the same cost to the order and energy behaviour. Compiled, a
-step in which a member pair is armed (one that may touch by the drift's end, or touches at the step's end)
-is taken by the reference in the same way (``member_steps`` counts them; the pairs' impulses of those steps
-in :meth:`ElasticMethod.advance` are kept in ``advanced_pairs``), and every other step, the ground's blocks
-and all, by the kernel: the blocks that member contacts join (struts touching struts) are not solved
-compiled.
+member pairs' rows beside the ground's, at the same cost to the order and energy behaviour. Compiled, an
+armed member pair (one that may touch by the drift's end, or touches at the step's end) joins the blocks of
+the bodies it touches into one coupled block (``solve_coupled``: the same Newton on general rows; the pairs'
+impulses of :meth:`ElasticMethod.advance` are kept in ``advanced_pairs``); a step the kernel does not take
+(a coupled block beyond ``MAX_COUPLED`` rows, segments that meet) goes to the reference in the same way
+(``member_steps`` counts them).
 """
 from __future__ import annotations
 
@@ -95,6 +95,7 @@ from ..rigid import RigidStruts
 __all__ = ["ElasticMethod"]
 
 _GROUND_CHUNK = 1024   # steps per compiled call of :meth:`ElasticMethod.advance` with a ground
+_PAIR_RECORDS = 4096   # member-pair impulse records a compiled call keeps at most (it stops where they run out)
 _HELD = (np.empty((0, 0, 1)), np.empty((0, 0, 3, 1)))   # no per-step inputs: the state's held
 
 
@@ -165,7 +166,11 @@ class ElasticMethod(StepMethod):
         self._ground_model = (None if self.ground is None
                               else ground_kernels.ground_arrays(system, self.rigid, TOUCH_TOL, self.ground.members))
         self.fallbacks = 0     # compiled steps with contacts retaken by the reference (a block unsolved) ...
-        self.member_steps = 0  # ... and taken by it (a member pair armed)
+        self.member_steps = 0  # ... and taken by it (a member pair the kernel does not take)
+        # the member pairs the kernel examines, (P, 2) system member indices: its impulse records' keys
+        self._pair_keys = (None if self.ground is None
+                           else ground_kernels.eligible_pairs(system, self.ground.members).tolist())
+        self._records = {}    # the member pairs' impulses of the last compiled call, {step: pair_impulses}
         self._plain = self.order == 2 and not self.locate_switches
         self._weights = np.array(WEIGHTS[self.order])
         self._model = kernels.model_arrays(system, self.rigid)
@@ -201,7 +206,10 @@ class ElasticMethod(StepMethod):
 
     def prepare(self, state: State) -> None:
         """Initial velocities that would stretch a rigid strut lose that component (a rigid body cannot
-        have it); the change is internal, so momentum is unchanged."""
+        have it); the change is internal, so momentum is unchanged. A reset forgets the contact solver's
+        warm starts, so that a reset simulator steps as a fresh one does, to the bit (a warm start from
+        the steps computed ahead before the reset gave a rolling pair's run 1e-16 m apart)."""
+        self._carry = self._warm = None
         if self.rigid.count:
             state.velocities = state.velocities + self.rigid.project_velocities(state.positions, state.velocities)
 
@@ -232,34 +240,44 @@ class ElasticMethod(StepMethod):
                  impulses, slack, contact=None, inputs=_HELD) -> int:
         """The compiled loop (batch of one) from ``state`` but at ``x``, ``v`` (N, 3, 1), which it
         advances in place; the outputs are those of :meth:`advance` with a trailing batch axis, and with a
-        ground ``contact`` (K, N, 3, 1) N*s its impulses. ``inputs`` (a ground): each step's rest lengths
-        (steps, nc, 1) and forces (steps, N, 3, 1), ``state``'s being those in effect before them. Returns -1,
-        or (contacts) the step left to the reference (a contact block not solved, a member pair armed): ``x``,
-        ``v`` are then at its start, the carry is dropped, and (with ``inputs``) that step's inputs are in
-        ``state``; ``fallbacks`` or ``member_steps`` counts it."""
+        ground ``contact`` (K, N, 3, 1) N*s its impulses, and ``_records`` the member pairs' of the steps that had
+        any, {step: ``MethodStep.pair_impulses``}. ``inputs`` (a ground): each step's rest lengths (steps, nc, 1)
+        and forces (steps, N, 3, 1), ``state``'s being those in effect before them. Returns ``(-1, 0)``, or
+        (contacts) a step and why the loop stopped there (``_ground_kernels``' reasons): ``x``, ``v`` are then
+        at its start; one left to the reference (a contact block not solved, a member pair the kernel does not
+        take) has the carry dropped, its inputs (with ``inputs``) in ``state`` and ``fallbacks`` or
+        ``member_steps`` counting it; at ``FULL`` (no room for its pairs' impulses) the carry holds and
+        ``state`` has the inputs before it, for a call that goes on from there."""
         rest = state.rest_lengths.reshape(-1, 1)
         ext = state.external_forces.reshape(-1, 3, 1)
         if self._carry is None:   # the start forces: the last step's end, or computed here
             forces = (np.empty_like(x), np.empty((self.system.n_cables, 1)), np.empty((self.rigid.count, 3, 1)))
             # with a ground: each node's last contact impulses (drift and closing solves), kept over an input
-            warm = np.zeros((2,) + x.shape) if self._warm is None else self._warm
+            warm = (np.zeros((2, x.shape[0] + len(self._pair_keys or ()), 3, 1)) if self._warm is None
+                    else self._warm)
             self._warm = None
             self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *forces), warm)
         if self._ground_model is not None:
-            failed, reason = np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64)
+            failed, reason, count = (np.empty(1, dtype=np.int64) for _ in range(3))
+            n_pairs = len(self._pair_keys)
+            records = np.empty((1, n_pairs and max(n_pairs, min(steps * n_pairs, _PAIR_RECORDS)), 6))
             ground_kernels.ground_steps_serial(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
                                                *self._ground_model, self._carry[4], *inputs, positions, velocities,
-                                               impulses, slack, contact, failed, reason, 1)
-            if failed[0] >= 0:
+                                               impulses, slack, contact, records, count, failed, reason, 1)
+            self._records = self._pair_records(records[0, :count[0]])
+            at, why = int(failed[0]), int(reason[0])
+            if at >= 0 and why != ground_kernels.FULL:
                 self._carry = None
-                if reason[0] == ground_kernels.MEMBERS:
+                if why == ground_kernels.MEMBERS:
                     self.member_steps += 1
                 else:
                     self.fallbacks += 1
             if inputs[0].shape[0]:   # the inputs of the last step taken (or of the one not taken)
-                last = steps - 1 if failed[0] < 0 else int(failed[0])
-                state.rest_lengths, state.external_forces = inputs[0][last, :, 0].copy(), inputs[1][last, ..., 0].copy()
-            return int(failed[0])
+                last = steps - 1 if at < 0 else at - (why == ground_kernels.FULL)
+                if last >= 0:
+                    state.rest_lengths = inputs[0][last, :, 0].copy()
+                    state.external_forces = inputs[1][last, ..., 0].copy()
+            return at, why
         if self._plain:
             self.found = kernels.elastic_steps(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
                                                positions, velocities, impulses, slack,
@@ -268,7 +286,15 @@ class ElasticMethod(StepMethod):
             composed.composed_steps(x, v, rest, ext, self.dt, steps, every, self._weights, self.locate_switches,
                                     MIN_SPLIT * self.dt, *self._model, *self._carry[:4], positions, velocities,
                                     impulses, slack)
-        return -1
+        return -1, 0
+
+    def _pair_records(self, records: np.ndarray) -> dict:
+        """The kernel's member-pair records (k, 6) (step, pair, normal, friction in space) as
+        {step: ``MethodStep.pair_impulses``}."""
+        out = {}
+        for step, pair, normal, *friction in records.tolist():
+            out.setdefault(int(step), {})[tuple(self._pair_keys[int(pair)])] = (normal, np.array(friction))
+        return out
 
     def _step_impl(self, state: State) -> MethodStep:
         if not self.compiled:
@@ -279,14 +305,14 @@ class ElasticMethod(StepMethod):
         slack = np.empty((1, self.system.n_cables, 1), dtype=bool)
         contact = np.empty((1, n, 3, 1))
         x3, v3 = x.reshape(-1, 3, 1), v.reshape(-1, 3, 1)
-        # the step writes in place
-        if self._advance(state, x3, v3, 1, 1, x3[None], v3[None], impulses, slack, contact) >= 0:
+        # the step writes in place (a record buffer has room for one step's pairs: never FULL)
+        if self._advance(state, x3, v3, 1, 1, x3[None], v3[None], impulses, slack, contact)[0] >= 0:
             # a contact block the compiled solver left unsolved or an armed member pair: the step in the
             # reference (friction.py's QP fixed point and its fallbacks)
             self._cache = None
             return self._step_reference(state)
         return MethodStep(x, v, impulses.reshape(-1), slack.reshape(-1),
-                          None if self._ground_model is None else contact.reshape(n, 3))
+                          None if self._ground_model is None else contact.reshape(n, 3), self._records.get(0))
 
     def has_loop(self) -> bool:
         return self.compiled
@@ -318,8 +344,7 @@ class ElasticMethod(StepMethod):
         """:meth:`StepMethod.advance`; with a ground, ``contact`` (K, N, 3) N*s gets its impulses, summed
         like the cables' (None: not kept), and ``inputs`` may give each step's rest lengths (steps, nc) and
         external forces (steps, N, 3) (:meth:`runs_commands`; ``state``'s are those in effect before them, and
-        are not changed). The member contacts' impulses of the steps the reference took with armed pairs go
-        to ``advanced_pairs``."""
+        are not changed). The member contacts' impulses of the steps that had any go to ``advanced_pairs``."""
         x, v = state.positions.copy(), state.velocities.copy()
         x3, v3 = x.reshape(-1, 3, 1), v.reshape(-1, 3, 1)
         self.advanced_pairs = {}
@@ -328,21 +353,23 @@ class ElasticMethod(StepMethod):
                           impulses[..., None], slack[..., None])
             return x, v
         # contacts: chunks of single steps, summed into the kept ones here; a step whose contact block the
-        # compiled solver leaves unsolved, or with an armed member pair, is taken by the reference, and the
-        # compiled loop goes on after it
+        # compiled solver leaves unsolved, or with a member pair it does not take, is taken by the reference,
+        # and the compiled loop goes on after it
         now = State(x, v, state.rest_lengths, state.external_forces, state.step_count)
         seq = None if inputs is None else (inputs[0][..., None], inputs[1][..., None])
 
         def run(first, m, *outs):
-            """Steps ``first`` .. ``first + m - 1`` compiled; on a failed one, that step by the reference."""
-            got = self._advance(now, x3, v3, m, 1, *outs, _HELD if seq is None else
-                                (seq[0][first:first + m], seq[1][first:first + m]))
-            if got < 0:
-                return got, None
+            """Steps ``first`` .. ``first + m - 1`` compiled: the steps the kernel took and, where it left the
+            next one to the reference, that step by the reference (else None)."""
+            at, why = self._advance(now, x3, v3, m, 1, *outs, _HELD if seq is None else
+                                    (seq[0][first:first + m], seq[1][first:first + m]))
+            self.advanced_pairs.update({first + k: pairs for k, pairs in self._records.items()})
+            if at < 0 or why == ground_kernels.FULL:
+                return (m if at < 0 else at), None
             out = self._retake(now, x, v)
             if out.pair_impulses:
-                self.advanced_pairs[first + got] = out.pair_impulses
-            return got, out
+                self.advanced_pairs[first + at] = out.pair_impulses
+            return at, out
 
         n, nc = x.shape[0], self.system.n_cables
         if every == 1 and contact is not None:   # every step kept: straight into the outputs
@@ -350,12 +377,11 @@ class ElasticMethod(StepMethod):
             while done < steps:
                 got, out = run(done, steps - done, positions[done:, ..., None], velocities[done:, ..., None],
                                impulses[done:, :, None], slack[done:, :, None], contact[done:, ..., None])
-                if got < 0:
-                    return x, v
                 done += got
-                positions[done], velocities[done], contact[done] = x, v, out.contact_impulses
-                impulses[done], slack[done] = out.impulses, out.slack
-                done += 1
+                if out is not None:
+                    positions[done], velocities[done], contact[done] = x, v, out.contact_impulses
+                    impulses[done], slack[done] = out.impulses, out.slack
+                    done += 1
             return x, v
         chunk = min(steps, _GROUND_CHUNK)
         c_x, c_v, c_contact = np.empty((chunk, n, 3, 1)), np.empty((chunk, n, 3, 1)), np.empty((chunk, n, 3, 1))
@@ -367,9 +393,7 @@ class ElasticMethod(StepMethod):
         while done < steps:
             m = min(chunk, steps - done)
             got, out = run(done, m, c_x[:m], c_v[:m], c_imp[:m], c_slack[:m], c_contact[:m])
-            if got < 0:
-                got = m
-            else:
+            if out is not None:
                 c_x[got, ..., 0], c_v[got, ..., 0], c_contact[got, ..., 0] = x, v, out.contact_impulses
                 c_imp[got, :, 0], c_slack[got, :, 0] = out.impulses, out.slack
                 got += 1
