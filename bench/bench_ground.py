@@ -307,7 +307,7 @@ def members(duration: float, repeats: int) -> list[dict]:
     left = {}   # the compiled runs' steps left to the reference: (member pairs, unsolved blocks)
 
     def ours(how, compiled=True):
-        sim = _simulator(scene, "elastic", compiled=compiled)
+        sim = _simulator(scene, "elastic", None, compiled)   # the scene's detection: its response needs it
         sim.run(steps=2)   # the kernels loaded
         start = time.perf_counter()
         for part in (half - 2, steps - half):

@@ -340,6 +340,32 @@ def test_sliding_at_touching_distance_does_not_chatter():
     assert pair.size == 0 and not now[0]
 
 
+def test_a_pair_held_in_contact_by_a_response_stays_in_contact_over_the_step():
+    """With a response (``touch`` > 0) a pair in contact at both ends of a step is in contact throughout it: the
+    response holds it there, and the straight path between its two resting configurations is not the motion.
+    Two nearly parallel struts touching at both ends, whose straight path in between parts them by 1 mm
+    (their closest points jump along them): without a response the search finds the end and the new begin;
+    with one, none; the compiled detector's kernel gives the numpy detector's answers (certifying the step
+    instead cost a strut resting on another up to 2.5 ms a step)."""
+    from tensegrity_sim.methods.contact._detection_kernels import _transitions
+    from tensegrity_sim.methods.contact.detection import _AROUND, _FRACTIONS
+
+    a = [[-0.5, 0.0, 0.0], [0.5, 0.0, 0.0]]
+    p0 = np.array([a + [[-0.7884478542181588, 0.01831776920642238, 0.02962910222063064],
+                        [0.21075706481673628, -0.01831776920642238, 0.01390119385144191]]])
+    p1 = np.array([a + [[-0.7875639948222979, 0.01008030467765645, 0.04649906714345907],
+                        [0.21187320542087534, -0.00808030467765646, 0.01829490011212562]]])
+    radii = np.array([0.02])
+    for touch, kinds in ((0.0, [False, True]), (1e-9, [])):
+        pair, tau, begin, now, gap = transitions(p0, p1, radii, np.array([True]), touch)
+        assert list(begin[np.argsort(tau)]) == kinds and now[0] and gap[0] < 0
+        ev_tau, ev_begin = np.empty(8), np.empty(8, dtype=bool)
+        n, inside, end_gap = _transitions(p0[0], p1[0], np.empty((4, 3)), 0.02, True, touch, _FRACTIONS, _AROUND,
+                                          ev_tau, ev_begin, np.empty(22))
+        assert list(ev_begin[:n]) == kinds and inside and end_gap == gap[0]
+        np.testing.assert_allclose(ev_tau[:n], np.sort(tau), rtol=0, atol=1e-12)
+
+
 # --------------------------------------------------------------------------- broad phase vs all pairs
 def gas_scene(rng, sticks, size, radius):
     """Sticks (struts, and every third one a cable) scattered in a box of ``size`` m, a few cables

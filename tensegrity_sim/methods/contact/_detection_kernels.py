@@ -198,7 +198,8 @@ def _transitions(p0, p1, disp, radii_sum, inside, touch, fractions, around, ev_t
     if not inside and gap0 < 0:
         n = _event(0.0, True, ev_tau, ev_begin, n)
         inside = True
-    if not _crossed(-gap1 if inside else gap1, inside, margin) and r0[1] + r1[2] >= 1.0:
+    # (with a response, touch > 0, a pair in contact at both ends is held there: contact.transitions)
+    if not _crossed(-gap1 if inside else gap1, inside, margin) and (r0[1] + r1[2] >= 1.0 or (inside and touch > 0.0)):
         return n, inside, gap1
     # the certified search (contact._search) for this pair
     sign = -1.0 if inside else 1.0

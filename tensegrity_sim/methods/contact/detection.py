@@ -248,7 +248,8 @@ def transitions(p0: np.ndarray, p1: np.ndarray, radii_sum: np.ndarray, inside: n
 
     ``p0``, ``p1``: (n, 4, 3) m, end points [a0, a1, b0, b1] at the step's start and end.
     ``radii_sum``: (n,) m. ``inside``: (n,) bool, in contact just before the step. ``touch``: m, an end
-    needs the gap at least at this too (members held in contact by a response rest at a gap of ~0).
+    needs the gap at least at this too (members held in contact by a response rest at a gap of ~0); with
+    ``touch`` > 0 (a response) a pair in contact at both ends of the step is in contact throughout it.
 
     Returns ``(pair, tau, begin, inside_end, gap_end)``: for each transition, in no particular order,
     the pair's index (e,), the step fraction (e,) in [0, 1] and whether it is a begin (e,) bool; then
@@ -269,8 +270,12 @@ def transitions(p0: np.ndarray, p1: np.ndarray, radii_sum: np.ndarray, inside: n
         found_tau.append(np.zeros(int(starts.sum())))
         found_begin.append(np.ones(int(starts.sum()), dtype=bool))
         inside |= starts
-    # the whole step at once: the same side at both ends, and their reaches overlap?
-    sure = ~_crossed(np.where(inside, -gap[1], gap[1]), inside, margin) & (forward[0] + backward[1] >= 1.0)
+    # the whole step at once: the same side at both ends, and their reaches overlap? With a response (touch > 0),
+    # a pair in contact at both ends stays in contact: the response holds it there over the step, where the
+    # straight path between two resting configurations is not the motion (certifying it to the gap's round-off
+    # took rounds of samples: 0.2 ms a step for a strut resting on another)
+    held = inside & (touch > 0.0)
+    sure = ~_crossed(np.where(inside, -gap[1], gap[1]), inside, margin) & ((forward[0] + backward[1] >= 1.0) | held)
     todo = np.flatnonzero(~sure)
     if todo.size:
         pair, tau, begin, inside_todo = _search(p0[todo], p1[todo], radii_sum[todo], margin[todo],
