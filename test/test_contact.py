@@ -340,6 +340,13 @@ def test_sliding_at_touching_distance_does_not_chatter():
     assert pair.size == 0 and not now[0]
 
 
+def test_the_compiled_search_has_the_numpy_search_s_round_bound():
+    from tensegrity_sim.methods.contact import _detection_kernels as kernels
+    from tensegrity_sim.methods.contact import detection
+
+    assert kernels._MAX_ROUNDS == detection.MAX_ROUNDS
+
+
 def test_a_pair_held_in_contact_by_a_response_stays_in_contact_over_the_step():
     """With a response (``touch`` > 0) a pair in contact at both ends of a step is in contact throughout it: the
     response holds it there, and the straight path between its two resting configurations is not the motion.
