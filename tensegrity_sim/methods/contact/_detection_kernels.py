@@ -114,6 +114,46 @@ def _over(num, den):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
+def _line_reach(e, d, r, out):
+    """``contact._line_reach`` of one configuration ``e`` (4, 3) m moving by ``d`` (4, 3) per step fraction,
+    the same sums in the same order: its forward and backward reaches into ``out`` (2,)."""
+    da0, da1, da2 = e[1, 0] - e[0, 0], e[1, 1] - e[0, 1], e[1, 2] - e[0, 2]
+    db0, db1, db2 = e[3, 0] - e[2, 0], e[3, 1] - e[2, 1], e[3, 2] - e[2, 2]
+    w0, w1, w2 = e[2, 0] - e[0, 0], e[2, 1] - e[0, 1], e[2, 2] - e[0, 2]
+    ea0, ea1, ea2 = d[1, 0] - d[0, 0], d[1, 1] - d[0, 1], d[1, 2] - d[0, 2]
+    eb0, eb1, eb2 = d[3, 0] - d[2, 0], d[3, 1] - d[2, 1], d[3, 2] - d[2, 2]
+    v0, v1, v2 = d[2, 0] - d[0, 0], d[2, 1] - d[0, 1], d[2, 2] - d[0, 2]
+    c00, c01, c02 = da1 * db2 - da2 * db1, da2 * db0 - da0 * db2, da0 * db1 - da1 * db0
+    c20, c21, c22 = ea1 * eb2 - ea2 * eb1, ea2 * eb0 - ea0 * eb2, ea0 * eb1 - ea1 * eb0
+    c10 = (ea1 * db2 - ea2 * db1) + (da1 * eb2 - da2 * eb1)
+    c11 = (ea2 * db0 - ea0 * db2) + (da2 * eb0 - da0 * eb2)
+    c12 = (ea0 * db1 - ea1 * db0) + (da0 * eb1 - da1 * eb0)
+    n0 = w0 * c00 + w1 * c01 + w2 * c02
+    sign = -1.0 if n0 < 0.0 else 1.0
+    n1 = sign * ((w0 * c10 + w1 * c11 + w2 * c12) + (v0 * c00 + v1 * c01 + v2 * c02))
+    n2 = (w0 * c20 + w1 * c21 + w2 * c22) + (v0 * c10 + v1 * c11 + v2 * c12)
+    n3 = v0 * c20 + v1 * c21 + v2 * c22
+    size0 = np.sqrt(c00 * c00 + c01 * c01 + c02 * c02)
+    size1 = np.sqrt(c10 * c10 + c11 * c11 + c12 * c12)
+    size2 = np.sqrt(c20 * c20 + c21 * c21 + c22 * c22)
+    f0 = sign * n0 - r * size0
+    out[0] = 0.0
+    out[1] = 0.0
+    if not (f0 > 0.0 and size0 > 0.0):
+        return
+    inv = 1.0 / size0
+    f1 = n1 - r * ((c00 * c10 + c01 * c11 + c02 * c12) * inv)
+    q2 = abs(n2) + r * (abs(c00 * c20 + c01 * c21 + c02 * c22) * inv) + r * (size1 * size1 * (0.5 * inv))
+    q3 = abs(n3) + r * (size1 * size2 * inv)
+    q4 = r * (size2 * size2 * (0.5 * inv))
+    quarter = f0 / 4.0
+    rest = min(min(np.sqrt(_over(quarter, q2)), _over(quarter, q3) ** (1.0 / 3.0)),
+               np.sqrt(np.sqrt(_over(quarter, q4))))
+    out[0] = min(_over(quarter, -f1), rest)
+    out[1] = min(_over(quarter, f1), rest)
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _reaches(e, disp, radii_sum, inside, scratch, out):
     """``contact._reaches`` of one configuration ``e`` (4, 3) m moving by ``disp`` (4, 3) per step
     fraction; ``inside``: 1 in contact, 0 not, -1 as the gap says. Writes gap, forward, backward into
@@ -140,6 +180,9 @@ def _reaches(e, disp, radii_sum, inside, scratch, out):
                 v = rj - ri
                 forward = min(forward, _over(c, -v))
                 backward = min(backward, _over(c, v))
+        _line_reach(e, disp, radii_sum, out)
+        forward = out[0] if out[0] > forward else forward
+        backward = out[1] if out[1] > backward else backward
         if dist == 0:
             forward = 0.0
             backward = 0.0

@@ -20,7 +20,9 @@ stretch of the step it leaves behind (:func:`_reaches`): from any configuration,
 plane through the closest points separates the segments, every end point's height along its normal moves
 linearly, so the capsules cannot touch before one of the four end-point height differences drops to
 ``r_a + r_b`` (exact for a translation, never weaker than the Lipschitz bound ``|Δg| <= V |Δτ|`` with
-``V`` the largest relative end-point displacement); in contact, the two closest *material* points move
+``V`` the largest relative end-point displacement), nor, where it reaches further, before the distance of
+their lines can (:func:`_line_reach`: exact to first order, so a strut rocking on another a fraction of a µm
+away, whose end points sweep thousands of gaps a step, is certified at once); in contact, the two closest *material* points move
 linearly, and the contact lasts at least while they stay within ``r_a + r_b`` (a quadratic in ``τ``).
 Both bounds hold forwards and backwards in time, so two samples certify the interval between them when
 their reaches overlap.
@@ -119,6 +121,53 @@ def _over(num: np.ndarray, den: np.ndarray) -> np.ndarray:
     return np.divide(num, den, out=out, where=den > 0)
 
 
+def _cross(u, v):
+    """``u x v`` of (..., 3) arrays, written out (``_detection_kernels._line_reach`` does the same sums)."""
+    return np.stack([u[..., 1] * v[..., 2] - u[..., 2] * v[..., 1], u[..., 2] * v[..., 0] - u[..., 0] * v[..., 2],
+                     u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]], axis=-1)
+
+
+def _sum3(u, v):
+    return u[..., 0] * v[..., 0] + u[..., 1] * v[..., 1] + u[..., 2] * v[..., 2]
+
+
+def _line_reach(ends, disp, radii_sum):
+    """How long (step fractions, forwards and backwards) two capsules apart surely stay apart by their *lines*:
+    the segments' distance is at least the lines', ``s (w . C) / |C|`` with ``C = d_a x d_b``, ``w`` from a's
+    first end to b's and ``s`` the sign of ``w . C`` now. Along the step ``w . C = N0 + N1 x + N2 x^2 + N3 x^3``
+    and ``C = C0 + C1 x + C2 x^2`` exactly, and ``|C| <= |C0| + u . (C - C0) + |C - C0|^2 / (2 |C0|)`` (``u`` =
+    ``C0 / |C0|``), so ``s w . C - r |C| >= f0 + f1 x - q2 x^2 - q3 |x|^3 - q4 x^4`` with ``f0 = s N0 - r |C0|``
+    and ``f1 = s N1 - r u . C1`` (the first derivative: a lifting pair's helps forwards); each of the four
+    falling terms held to ``f0 / 4`` gives the reach. Exact to first order where the closest points are inside
+    both segments: a strut rocking on another 0.2 um away, whose end points' heights (the plane's bound) move
+    2,000 times its gap a step, is certified for the whole step. 0 where the lines do not keep the capsules
+    apart (parallel lines, closest points at an end beyond the other line)."""
+    e, d, r = ends, disp, radii_sum
+    da, db, w = e[..., 1, :] - e[..., 0, :], e[..., 3, :] - e[..., 2, :], e[..., 2, :] - e[..., 0, :]
+    dda, ddb, dw = d[..., 1, :] - d[..., 0, :], d[..., 3, :] - d[..., 2, :], d[..., 2, :] - d[..., 0, :]
+    c0, c2 = _cross(da, db), _cross(dda, ddb)
+    c1 = _cross(dda, db) + _cross(da, ddb)
+    n0 = _sum3(w, c0)
+    sign = np.where(n0 < 0.0, -1.0, 1.0)
+    n1 = sign * (_sum3(w, c1) + _sum3(dw, c0))
+    n2 = _sum3(w, c2) + _sum3(dw, c1)
+    n3 = _sum3(dw, c2)
+    size0, size1, size2 = np.sqrt(_sum3(c0, c0)), np.sqrt(_sum3(c1, c1)), np.sqrt(_sum3(c2, c2))
+    f0 = sign * n0 - r * size0
+    inv = 1.0 / np.where(size0 > 0.0, size0, np.inf)
+    f1 = n1 - r * (_sum3(c0, c1) * inv)
+    q2 = np.abs(n2) + r * (np.abs(_sum3(c0, c2)) * inv) + r * (size1 * size1 * (0.5 * inv))
+    q3 = np.abs(n3) + r * (size1 * size2 * inv)
+    q4 = r * (size2 * size2 * (0.5 * inv))
+    quarter = np.maximum(f0, 0.0) / 4.0   # (f0 <= 0: no reach, below)
+    rest = np.minimum(np.minimum(np.sqrt(_over(quarter, q2)), _over(quarter, q3) ** (1.0 / 3.0)),
+                      np.sqrt(np.sqrt(_over(quarter, q4))))
+    ahead = np.minimum(_over(quarter, -f1), rest)
+    behind = np.minimum(_over(quarter, f1), rest)
+    keep = (f0 > 0.0) & (size0 > 0.0)
+    return np.where(keep, ahead, 0.0), np.where(keep, behind, 0.0)
+
+
 def closest_points(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray):
     """Closest points of segments ``p0-p1`` and ``q0-q1``; arrays of shape (..., 3), m.
 
@@ -211,7 +260,8 @@ def _reaches(ends, disp, radii_sum, inside):
     Returns ``gap`` (...) m and ``forward``, ``backward`` (...) in step fractions (inf: for ever).
     Out of contact: the closest points define a plane that separates the two segments; along its
     normal each end point's height moves linearly, so the capsules cannot touch before the first of
-    the four (end of a, end of b) height differences reaches ``r_a + r_b``. In contact: the two closest
+    the four (end of a, end of b) height differences reaches ``r_a + r_b``; or, where it reaches further,
+    before the lines' distance can (:func:`_line_reach`). In contact: the two closest
     *material* points move linearly, and the contact surely lasts while they stay within ``r_a + r_b``.
     Both bounds become exact for a translation, and are never weaker than the Lipschitz bound.
     """
@@ -227,10 +277,15 @@ def _reaches(ends, disp, radii_sum, inside):
         height, rise = _dot(ends, normal[..., None, :]), _dot(disp, normal[..., None, :])
         c = np.maximum(height[..., None, 2:] - height[..., :2, None] - radii_sum[..., None, None], 0.0)
         v = rise[..., None, 2:] - rise[..., :2, None]                                  # (..., 2, 2)
+        # ... or the lines' bound where it reaches further (_line_reach)
+        line_ahead, line_behind = _line_reach(ends, disp, radii_sum)
+        ahead, behind = _over(c, -v).min(axis=(-2, -1)), _over(c, v).min(axis=(-2, -1))
+        ahead = np.where(line_ahead > ahead, line_ahead, ahead)
+        behind = np.where(line_behind > behind, line_behind, behind)
         # (a segment distance of 0 leaves no normal: no reach; out of contact it needs zero radii)
         touching = dist == 0
-        np.copyto(forward, np.where(touching, 0.0, _over(c, -v).min(axis=(-2, -1))), where=outside)
-        np.copyto(backward, np.where(touching, 0.0, _over(c, v).min(axis=(-2, -1))), where=outside)
+        np.copyto(forward, np.where(touching, 0.0, ahead), where=outside)
+        np.copyto(backward, np.where(touching, 0.0, behind), where=outside)
     if inside.any():
         # the closest material points: w(x) = w + x dw stays within r_a + r_b between the roots of
         # qa x^2 + 2 qb x + qc (qc <= 0), written as -qc / (qb +- root) to avoid cancellation
