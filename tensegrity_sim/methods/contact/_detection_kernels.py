@@ -180,9 +180,10 @@ def _reaches(e, disp, radii_sum, inside, scratch, out):
                 v = rj - ri
                 forward = min(forward, _over(c, -v))
                 backward = min(backward, _over(c, v))
-        _line_reach(e, disp, radii_sum, out)
-        forward = out[0] if out[0] > forward else forward
-        backward = out[1] if out[1] > backward else backward
+        if forward < 1.0 or backward < 1.0:   # (a step's reaches are compared with at most 1)
+            _line_reach(e, disp, radii_sum, out)
+            forward = out[0] if out[0] > forward else forward
+            backward = out[1] if out[1] > backward else backward
         if dist == 0:
             forward = 0.0
             backward = 0.0

@@ -277,11 +277,13 @@ def _reaches(ends, disp, radii_sum, inside):
         height, rise = _dot(ends, normal[..., None, :]), _dot(disp, normal[..., None, :])
         c = np.maximum(height[..., None, 2:] - height[..., :2, None] - radii_sum[..., None, None], 0.0)
         v = rise[..., None, 2:] - rise[..., :2, None]                                  # (..., 2, 2)
-        # ... or the lines' bound where it reaches further (_line_reach)
+        # ... or the lines' bound where it reaches further, wherever the plane's falls short of a step (a step's
+        # reaches are compared with at most 1; the compiled twin computes the lines' there only)
         line_ahead, line_behind = _line_reach(ends, disp, radii_sum)
         ahead, behind = _over(c, -v).min(axis=(-2, -1)), _over(c, v).min(axis=(-2, -1))
-        ahead = np.where(line_ahead > ahead, line_ahead, ahead)
-        behind = np.where(line_behind > behind, line_behind, behind)
+        short = (ahead < 1.0) | (behind < 1.0)
+        ahead = np.where(short & (line_ahead > ahead), line_ahead, ahead)
+        behind = np.where(short & (line_behind > behind), line_behind, behind)
         # (a segment distance of 0 leaves no normal: no reach; out of contact it needs zero radii)
         touching = dist == 0
         np.copyto(forward, np.where(touching, 0.0, ahead), where=outside)
