@@ -207,7 +207,7 @@ def _cholesky_solve(q, work):
     return True
 
 
-@njit(cache=True, error_model="numpy", _nrt=False)
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
 def _newton(q, s, k, target, work, z, scale):
     """The damped semismooth Newton (module docstring) on the block set up in ``work``, from ``z`` (q,) N*s,
     in place. Returns the iterations taken, or -1 if ``phi`` did not reach ``BLOCK_TOL`` times the impulse
@@ -232,7 +232,15 @@ def _newton(q, s, k, target, work, z, scale):
             for p in range(q):
                 acc += work[2, p, i] * work[4, 2, p]
             work[4, 3, i] = -acc
-        while True:   # J^T J + nu I, damped more where round-off leaves it not definite
+            for j in range(q):
+                acc = 0.0
+                for p in range(q):
+                    acc += work[2, p, i] * work[2, p, j]
+                work[3, i, j] = acc
+            work[3, i, i] += nu
+        definite = _cholesky_solve(q, work)
+        while not definite and nu < _MAX_DAMPING:   # damped more where round-off leaves it not definite
+            nu = min(nu * _DAMPING_GROWTH, _MAX_DAMPING)
             for i in range(q):
                 for j in range(q):
                     acc = 0.0
@@ -241,9 +249,6 @@ def _newton(q, s, k, target, work, z, scale):
                     work[3, i, j] = acc
                 work[3, i, i] += nu
             definite = _cholesky_solve(q, work)
-            if definite or nu >= _MAX_DAMPING:
-                break
-            nu = min(nu * _DAMPING_GROWTH, _MAX_DAMPING)
         if not definite:
             break
         slope = 0.0

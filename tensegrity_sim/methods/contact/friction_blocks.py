@@ -88,12 +88,12 @@ def _newton(s, k, rho, target, mu, w, u0, z, scale):
         if it == MAX_NEWTON:
             break
         nu = min(2.0 * merit / (scale * scale), _MAX_DAMPING) + _MIN_DAMPING
-        while True:
+        normal = jac.T @ jac + nu * np.eye(q)
+        definite = _definite(normal)
+        while not definite and nu < _MAX_DAMPING:
+            nu = min(nu * _DAMPING_GROWTH, _MAX_DAMPING)
             normal = jac.T @ jac + nu * np.eye(q)
             definite = _definite(normal)
-            if definite or nu >= _MAX_DAMPING:
-                break
-            nu = min(nu * _DAMPING_GROWTH, _MAX_DAMPING)
         if not definite:
             break
         d = np.linalg.solve(normal, -(jac.T @ phi))

@@ -225,14 +225,15 @@ def _pair_root(parent, pair_nodes, k, inv_mass, node_strut, nr):
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _solve_coupled(v, b, root, armed, target, inv_mass, ends, rigid_members, dirs, node_strut, mu, warm, contact,
-                   n_armed, armed_pairs, pair_nodes, frames, weights, targets, pair_mu, pair_impulse, parent, local,
-                   nodes, g, inv_b, vel_b, z_b, target_b, mu_b, cwork):
+                   n_armed, pair_nodes, pair_mu, pairs):
     """The coupled block of the bodies whose union-find root is ``root`` (:func:`_solve`): its rigid struts'
     rows, its nodes' ground contacts and its member pairs' contacts by ``solve_coupled``, in place on ``v``;
     the ground's impulses added to ``contact`` and kept in ``warm`` as :func:`_solve`'s, each pair's in
     ``pair_impulse`` (P, 4) (normal, then the friction in space) and in ``warm``'s row ``N + k`` (its impulse in
     space, the next solve's warm start in that solve's frame). Returns 0, ``UNSOLVED``, or ``MEMBERS`` (a
-    block beyond the scratch's ``MAX_COUPLED`` rows). The rest is scratch."""
+    block beyond the scratch's ``MAX_COUPLED`` rows). ``pairs``: :func:`pair_scratch`'s."""
+    (armed_pairs, frames, weights, targets, _, pair_impulse, _, parent, _, local, nodes, g, inv_b, vel_b, z_b, target_b,
+     mu_b, cwork) = pairs
     n_nodes = v.shape[0]
     nr = rigid_members.shape[0]
     max_nodes = inv_b.shape[0]
@@ -336,25 +337,25 @@ def _solve_coupled(v, b, root, armed, target, inv_mass, ends, rigid_members, dir
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, node_strut, mu, warm, contact,
-           work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, armed_pairs, pair_nodes, frames, weights,
-           targets, pair_mu, pair_impulse, parent, joined, local, nodes, g, inv_b, vel_b, z_b, target_b, mu_b, cwork):
+           work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes, pair_mu, pairs):
     """The armed contacts' velocity problem of copy ``b``, block by block, in place on ``v``; adds the
     ground's contact impulses to ``contact`` (N, 3) and keeps them in ``warm`` (N + P, 3, B), this solve's
     warm starts. ``dirs`` (nr, 3, B): the rigid struts' unit vectors at the configuration. A rigid strut
     with its ends' ground contacts is a block (``solve_block``), a lone node's contact one more (its closed
-    form); the ``n_armed`` member pairs ``armed_pairs`` (:func:`_arm_pairs`' frames, weights and targets) join
-    the bodies their nodes belong to (union-find over ``parent``: the struts, then the nodes) into coupled
-    blocks (:func:`_solve_coupled`, whose impulses go to ``pair_impulse``); ``joined`` (nr + N,) marks their
-    roots. The rest is scratch. Returns 0,
-    ``UNSOLVED`` if a block was not solved, ``MEMBERS`` for a coupled block beyond the scratch (``v`` is then
-    partly changed: the caller starts the step again in the reference)."""
+    form); the ``n_armed`` member pairs armed in ``pairs`` (:func:`pair_scratch`: :func:`_arm_pairs`' indices,
+    frames, weights and targets) join the bodies their nodes belong to (union-find: the struts, then the nodes)
+    into coupled blocks (:func:`_solve_coupled`, whose impulses go to the scratch's pair impulses), skipped by
+    the strut and node loops. The rest is scratch. Returns 0, ``UNSOLVED`` if a block was not solved,
+    ``MEMBERS`` for a coupled block beyond the scratch (``v`` is then partly changed: the caller starts the step
+    again in the reference)."""
     n_nodes = v.shape[0]
     nr = rigid_members.shape[0]
+    armed_pairs, parent, joined = pairs[0], pairs[7], pairs[8]
     for p in range(n_nodes):
         if not armed[p]:
             for j in range(3):
                 warm[p, j, b] = 0.0
-    for i in range(nr + n_nodes):
+    for i in range(nr + n_nodes if n_armed else 0):
         parent[i] = i
         joined[i] = False
     for a in range(n_armed):   # a pair joins the bodies of its moving nodes
@@ -371,7 +372,7 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
     for a in range(n_armed):
         joined[_pair_root(parent, pair_nodes, armed_pairs[a], inv_mass, node_strut, nr)] = True
     for k in range(nr):
-        if joined[_root(parent, k)]:
+        if n_armed and joined[_root(parent, k)]:
             continue
         m = rigid_members[k]
         a = ends[m, 0]
@@ -422,7 +423,7 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
                 contact[p, j] += z[1 + 3 * i + j]
                 warm[p, j, b] = z[1 + 3 * i + j]
     for p in range(n_nodes):
-        if armed[p] and node_strut[p] < 0 and not joined[_root(parent, nr + p)]:
+        if armed[p] and node_strut[p] < 0 and not (n_armed and joined[_root(parent, nr + p)]):
             for j in range(3):
                 vel3[j] = v[p, j, b]
             lone_contact(inv_mass[p], vel3, target[p], mu, z3)
@@ -436,8 +437,7 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
             continue
         joined[root] = False
         why = _solve_coupled(v, b, root, armed, target, inv_mass, ends, rigid_members, dirs, node_strut, mu, warm,
-                             contact, n_armed, armed_pairs, pair_nodes, frames, weights, targets, pair_mu,
-                             pair_impulse, parent, local, nodes, g, inv_b, vel_b, z_b, target_b, mu_b, cwork)
+                             contact, n_armed, pair_nodes, pair_mu, pairs)
         if why:
             return why
     return 0
@@ -506,10 +506,9 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
         target[p] = max(min(-gap / h, -vz0), min(-(gap + touch_tol) / h, 0.0))
         landing[p] = max(-v[p, 2, b], 0.0) if gap > touch_tol else 0.0
         found = found or armed[p]
-    (armed_pairs, frames, weights, targets, _, pair_impulse, touched, parent, joined, local, nodes, g, inv_b, vel_b,
-     z_b, target_b, mu_b, cwork) = pairs
     n_armed = 0
     if n_pairs:
+        pair_impulse, touched = pairs[5], pairs[6]
         for k in range(n_pairs):
             touched[k] = False
             for j in range(4):
@@ -520,9 +519,7 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
             return MEMBERS
     if found or n_armed:
         why = _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu, warm[0],
-                     contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, armed_pairs, pair_nodes, frames,
-                     weights, targets, pair_mu, pair_impulse, parent, joined, local, nodes, g, inv_b, vel_b, z_b,
-                     target_b, mu_b, cwork)
+                     contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes, pair_mu, pairs)
         if why:
             return why
     _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
@@ -540,9 +537,8 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
         found = found or armed[p]
     if found or n_armed:
         return _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
-                      warm[1], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, armed_pairs,
-                      pair_nodes, frames, weights, targets, pair_mu, pair_impulse, parent, joined, local, nodes, g,
-                      inv_b, vel_b, z_b, target_b, mu_b, cwork)
+                      warm[1], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes, pair_mu,
+                      pairs)
     return 0
 
 
@@ -584,121 +580,138 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
     ``rest`` and ``ext`` held. A step whose inputs differ from the last step's starts from forces computed anew
     at its start (as ``Simulator`` does after a new input: the carry dropped, ``elastic_forces`` at the state;
     the contact warm starts kept): a run with a schedule here is the very arithmetic of commanding each step."""
+    for blk in prange(blocks):
+        _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping,
+               inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu,
+               restitution, radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm,
+               rest_seq, ext_seq, out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed,
+               reason)
+
+
+@njit(cache=True, error_model="numpy")
+def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
+           gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu, restitution,
+           radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, rest_seq, ext_seq,
+           out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason):
+    """Block ``blk`` of ``blocks`` of :func:`_ground_steps`' copies (its arguments), in a function of its own:
+    the parallel loop calls it once a block, and the steps inside it are compiled as in the serial loop (inside
+    the parallel loop's body, the reference counts of the arrays a step is handed were kept at every step: the
+    pairs' scratch added 1 us a copy-step to 1,024 rolling copies)."""
     n_nodes = x.shape[0]
     nc, n_copies = rest.shape
     nr = rigid_members.shape[0]
-    for blk in prange(blocks):
-        # a block of copies a thread (the scratch allocated once for its copies: allocated for each copy, it
-        # cost 7 ms a call of 1,024 copies); the model's arrays copied for each block: numba counts references
-        # to an array passed between its functions, atomically, and threads sharing one array's count take turns
-        # at it (1,024 rolling copies through BatchSimulator.run on 2 threads, best of 6: 178-204k scene-steps/s
-        # sharing them, 233-243k with copies)
-        ends_b, stiffness_b, strut_rest_b, damping_b = ends.copy(), stiffness.copy(), strut_rest.copy(), damping.copy()
-        inv_mass_b, gravity_b, rigid_members_b = inv_mass.copy(), gravity_force.copy(), rigid_members.copy()
-        rigid_length_sq_b, rigid_w_b, radii_b, node_strut_b = (rigid_length_sq.copy(), rigid_w.copy(), radii.copy(),
-                                                               node_strut.copy())
-        floor_b, pair_nodes_b, pair_radii_b = floor.copy(), pair_nodes.copy(), pair_radii.copy()
-        n_pairs = pair_nodes.shape[0]
-        pairs = pair_scratch(n_nodes, nr, n_pairs)
-        xb = np.empty((n_nodes, 3, 1))
-        vb = np.empty((n_nodes, 3, 1))
-        accb = np.empty((n_nodes, 3, 1))
-        extb = np.empty((n_nodes, 3, 1))
-        warmb = np.empty((2, n_nodes + n_pairs, 3, 1))
-        restb = np.empty((nc, 1))
-        tensionb = np.empty((nc, 1))
-        dirsb = np.empty((nr, 3, 1))
-        dx = np.empty((n_nodes, 3))
-        imp = np.empty(nc)
-        total = np.empty(nc)
-        sl = np.empty(nc, dtype=np.bool_)
-        contact = np.empty((n_nodes, 3))
-        total_contact = np.empty((n_nodes, 3))
-        armed = np.empty(n_nodes, dtype=np.bool_)
-        target = np.empty(n_nodes)
-        landing = np.empty(n_nodes)
-        x0 = np.empty((n_nodes, 3))
-        v0 = np.empty((n_nodes, 3))
-        work = np.empty((6, MAX_ROWS, MAX_ROWS))
-        inv2 = np.empty(2)
-        vel = np.empty((2, 3))
-        z = np.empty(MAX_ROWS)
-        ends_k = np.empty(2, dtype=np.int64)
-        target_k = np.empty(2)
-        vel3 = np.empty(3)
-        z3 = np.empty(3)
-        ends4 = np.empty((4, 3))
-        out6 = np.empty(6)
-        s5 = np.empty(5)
-        t5 = np.empty(5)
-        first = np.int64(blk)   # prange's index is unsigned: with a signed number it would make a float
-        for b in range(n_copies * first // blocks, n_copies * (first + 1) // blocks):
-            gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, xb, vb, accb, extb, restb, tensionb, dirsb)
-            for i in range(n_nodes + n_pairs):
+    # a block of copies a thread (the scratch allocated once for its copies: allocated for each copy, it
+    # cost 7 ms a call of 1,024 copies); the model's arrays copied for each block: numba counts references
+    # to an array passed between its functions, atomically, and threads sharing one array's count take turns
+    # at it (1,024 rolling copies through BatchSimulator.run on 2 threads, best of 6: 178-204k scene-steps/s
+    # sharing them, 233-243k with copies)
+    ends_b, stiffness_b, strut_rest_b, damping_b = ends.copy(), stiffness.copy(), strut_rest.copy(), damping.copy()
+    inv_mass_b, gravity_b, rigid_members_b = inv_mass.copy(), gravity_force.copy(), rigid_members.copy()
+    rigid_length_sq_b, rigid_w_b, radii_b, node_strut_b = (rigid_length_sq.copy(), rigid_w.copy(), radii.copy(),
+                                                           node_strut.copy())
+    floor_b, pair_nodes_b, pair_radii_b = floor.copy(), pair_nodes.copy(), pair_radii.copy()
+    n_pairs = pair_nodes.shape[0]
+    pairs = pair_scratch(n_nodes, nr, n_pairs)
+    xb = np.empty((n_nodes, 3, 1))
+    vb = np.empty((n_nodes, 3, 1))
+    accb = np.empty((n_nodes, 3, 1))
+    extb = np.empty((n_nodes, 3, 1))
+    warmb = np.empty((2, n_nodes + n_pairs, 3, 1))
+    restb = np.empty((nc, 1))
+    tensionb = np.empty((nc, 1))
+    dirsb = np.empty((nr, 3, 1))
+    dx = np.empty((n_nodes, 3))
+    imp = np.empty(nc)
+    total = np.empty(nc)
+    sl = np.empty(nc, dtype=np.bool_)
+    contact = np.empty((n_nodes, 3))
+    total_contact = np.empty((n_nodes, 3))
+    armed = np.empty(n_nodes, dtype=np.bool_)
+    target = np.empty(n_nodes)
+    landing = np.empty(n_nodes)
+    x0 = np.empty((n_nodes, 3))
+    v0 = np.empty((n_nodes, 3))
+    work = np.empty((6, MAX_ROWS, MAX_ROWS))
+    inv2 = np.empty(2)
+    vel = np.empty((2, 3))
+    z = np.empty(MAX_ROWS)
+    ends_k = np.empty(2, dtype=np.int64)
+    target_k = np.empty(2)
+    vel3 = np.empty(3)
+    z3 = np.empty(3)
+    ends4 = np.empty((4, 3))
+    out6 = np.empty(6)
+    s5 = np.empty(5)
+    t5 = np.empty(5)
+    first = np.int64(blk)   # prange's index is unsigned: with a signed number it would make a float
+    for b in range(n_copies * first // blocks, n_copies * (first + 1) // blocks):
+        gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, xb, vb, accb, extb, restb, tensionb, dirsb)
+        for i in range(n_nodes + n_pairs):
+            for j in range(3):
+                warmb[0, i, j, 0] = warm[0, i, j, b]
+                warmb[1, i, j, 0] = warm[1, i, j, b]
+        total[:] = 0.0   # each copy starts from the scratch a call of its own would have
+        total_contact[:] = 0.0
+        work[:] = 0.0
+        z[:] = 0.0
+        failed[b] = -1
+        reason[b] = 0
+        n_records[b] = 0
+        bs = b if rest_seq.shape[2] > 1 else 0   # the copy's column of the inputs (or the one of every copy's)
+        for s in range(n_steps):
+            if n_pairs and n_records[b] + n_pairs > out_pairs.shape[1]:   # no room for this step's pairs
+                failed[b] = s
+                reason[b] = FULL
+                break
+            for i in range(n_nodes):
                 for j in range(3):
-                    warmb[0, i, j, 0] = warm[0, i, j, b]
-                    warmb[1, i, j, 0] = warm[1, i, j, b]
-            total[:] = 0.0   # each copy starts from the scratch a call of its own would have
-            total_contact[:] = 0.0
-            work[:] = 0.0
-            z[:] = 0.0
-            failed[b] = -1
-            reason[b] = 0
-            n_records[b] = 0
-            bs = b if rest_seq.shape[2] > 1 else 0   # the copy's column of the inputs (or the one of every copy's)
-            for s in range(n_steps):
-                if n_pairs and n_records[b] + n_pairs > out_pairs.shape[1]:   # no room for this step's pairs
-                    failed[b] = s
-                    reason[b] = FULL
-                    break
+                    x0[i, j] = xb[i, j, 0]
+                    v0[i, j] = vb[i, j, 0]
+            if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, restb, extb):
+                elastic_forces(xb, vb, restb, extb, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
+                               inv_mass_b, gravity_b, rigid_members_b, accb, tensionb, dirsb)
+            why = _ground_step(xb, vb, restb, extb, h, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
+                               inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb,
+                               tensionb, dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol,
+                               pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, warmb, dx, imp, sl, contact,
+                               armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4,
+                               out6, s5, t5, pairs, 0)
+            if why:
                 for i in range(n_nodes):
                     for j in range(3):
-                        x0[i, j] = xb[i, j, 0]
-                        v0[i, j] = vb[i, j, 0]
-                if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, restb, extb):
-                    elastic_forces(xb, vb, restb, extb, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
-                                   inv_mass_b, gravity_b, rigid_members_b, accb, tensionb, dirsb)
-                why = _ground_step(xb, vb, restb, extb, h, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
-                                   inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb,
-                                   tensionb, dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol,
-                                   pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, warmb, dx, imp, sl, contact,
-                                   armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4,
-                                   out6, s5, t5, pairs, 0)
-                if why:
-                    for i in range(n_nodes):
-                        for j in range(3):
-                            xb[i, j, 0] = x0[i, j]
-                            vb[i, j, 0] = v0[i, j]
-                    failed[b] = s
-                    reason[b] = why
-                    break
-                if n_pairs:   # the step's member contacts: (step, pair, normal, friction in space)
-                    pair_impulse, touched = pairs[5], pairs[6]
-                    for k in range(n_pairs):
-                        if touched[k]:
-                            r = n_records[b]
-                            out_pairs[b, r, 0] = s
-                            out_pairs[b, r, 1] = k
-                            for j in range(4):
-                                out_pairs[b, r, 2 + j] = pair_impulse[k, j]
-                            n_records[b] = r + 1
-                for ci in range(nc):
-                    total[ci] += imp[ci]
+                        xb[i, j, 0] = x0[i, j]
+                        vb[i, j, 0] = v0[i, j]
+                failed[b] = s
+                reason[b] = why
+                break
+            if n_pairs:   # the step's member contacts: (step, pair, normal, friction in space)
+                pair_impulse, touched = pairs[5], pairs[6]
+                for k in range(n_pairs):
+                    if touched[k]:
+                        r = n_records[b]
+                        out_pairs[b, r, 0] = s
+                        out_pairs[b, r, 1] = k
+                        for j in range(4):
+                            out_pairs[b, r, 2 + j] = pair_impulse[k, j]
+                        n_records[b] = r + 1
+            for ci in range(nc):
+                total[ci] += imp[ci]
+            for i in range(n_nodes):
+                for j in range(3):
+                    total_contact[i, j] += contact[i, j]
+            if (s + 1) % every == 0 or s == n_steps - 1:
+                k = s // every
+                keep(xb, vb, 0, total, sl, k, b, out_x, out_v, out_impulses, out_slack)
                 for i in range(n_nodes):
                     for j in range(3):
-                        total_contact[i, j] += contact[i, j]
-                if (s + 1) % every == 0 or s == n_steps - 1:
-                    k = s // every
-                    keep(xb, vb, 0, total, sl, k, b, out_x, out_v, out_impulses, out_slack)
-                    for i in range(n_nodes):
-                        for j in range(3):
-                            out_contact[k, i, j, b] = total_contact[i, j]
-                            total_contact[i, j] = 0.0
-            scatter_copy(xb, vb, accb, tensionb, dirsb, b, x, v, acc, tension, rigid_dirs)
-            for i in range(n_nodes + n_pairs):
-                for j in range(3):
-                    warm[0, i, j, b] = warmb[0, i, j, 0]
-                    warm[1, i, j, b] = warmb[1, i, j, 0]
+                        out_contact[k, i, j, b] = total_contact[i, j]
+                        total_contact[i, j] = 0.0
+        scatter_copy(xb, vb, accb, tensionb, dirsb, b, x, v, acc, tension, rigid_dirs)
+        for i in range(n_nodes + n_pairs):
+            for j in range(3):
+                warm[0, i, j, b] = warmb[0, i, j, 0]
+                warm[1, i, j, b] = warmb[1, i, j, 0]
+
 
 
 def _named(function, name: str):
