@@ -215,7 +215,7 @@ def _newton(q, s, k, target, work, z, scale):
 
     ``work`` (6, M, M), M >= max(q, 7): [1] W, [2] the Jacobian, [3] the damped normal matrix; rows of [4]:
     u0, u, phi, -J^T phi, the step, the trial z, rho (each row's); rows of [5]: the trial's u and phi, each
-    contact's Coulomb coefficient."""
+    contact's Coulomb coefficient, the diagonal of J^T J."""
     tol = BLOCK_TOL * scale
     merit = _residual(q, s, k, target, work, z, 4, 1, 4, 2, 2)
     for it in range(MAX_NEWTON + 1):
@@ -237,17 +237,15 @@ def _newton(q, s, k, target, work, z, scale):
                 for p in range(q):
                     acc += work[2, p, i] * work[2, p, j]
                 work[3, i, j] = acc
+            work[5, 3, i] = work[3, i, i]
             work[3, i, i] += nu
         definite = _cholesky_solve(q, work)
         while not definite and nu < _MAX_DAMPING:   # damped more where round-off leaves it not definite
             nu = min(nu * _DAMPING_GROWTH, _MAX_DAMPING)
-            for i in range(q):
-                for j in range(q):
-                    acc = 0.0
-                    for p in range(q):
-                        acc += work[2, p, i] * work[2, p, j]
-                    work[3, i, j] = acc
-                work[3, i, i] += nu
+            for i in range(q):   # J^T J again: the factor overwrote the lower triangle and the diagonal
+                work[3, i, i] = work[5, 3, i] + nu
+                for j in range(i):
+                    work[3, i, j] = work[3, j, i]
             definite = _cholesky_solve(q, work)
         if not definite:
             break

@@ -88,11 +88,12 @@ def _newton(s, k, rho, target, mu, w, u0, z, scale):
         if it == MAX_NEWTON:
             break
         nu = min(2.0 * merit / (scale * scale), _MAX_DAMPING) + _MIN_DAMPING
-        normal = jac.T @ jac + nu * np.eye(q)
+        gram = jac.T @ jac
+        normal = gram + nu * np.eye(q)
         definite = _definite(normal)
         while not definite and nu < _MAX_DAMPING:
             nu = min(nu * _DAMPING_GROWTH, _MAX_DAMPING)
-            normal = jac.T @ jac + nu * np.eye(q)
+            normal = gram + nu * np.eye(q)
             definite = _definite(normal)
         if not definite:
             break
@@ -116,29 +117,13 @@ def solve_block_reference(inv: np.ndarray, strut: bool, direction: np.ndarray, e
     unsolved, ``v`` unchanged); the arguments as there, ``z`` (1 + 3k or 3k,) the warm start."""
     s, k = int(bool(strut)), len(ends)
     q = s + 3 * k
-    z = np.array(z[:q], dtype=float)
     g = np.zeros((q, 6))
     if s:
         g[0, :3], g[0, 3:] = -direction, direction
     for c in range(k):
         g[s + 3 * c: s + 3 * c + 3, 3 * ends[c]: 3 * ends[c] + 3] = np.eye(3)
-    inv6 = np.repeat(inv, 3)
-    u0 = g @ v.ravel()
-    w = (g * inv6) @ g.T
-    moving = inv > 0
-    scale = max(1e-300, float(np.max(np.abs(v[moving]) / inv[moving, None], initial=0.0)))
-    rho = np.empty(q)
-    for c in range(k):
-        rho[s + 3 * c: s + 3 * c + 3] = 1.0 / inv[ends[c]]
-        scale = max(scale, abs(target[c]) * rho[s + 3 * c], float(np.abs(z[s + 3 * c: s + 3 * c + 3]).max()))
-    if s:
-        rho[0] = 1.0 / w[0, 0]
-        z[0] = -(u0[0] + w[0, 1:] @ z[1:]) / w[0, 0]
-    z, it = _newton(s, k, rho, target, np.full(k, mu), w, u0, z, scale)
-    if it < 0:
-        return v.copy(), z, -1
-    out = v.ravel() + inv6 * (g.T @ z)
-    return out.reshape(2, 3), z, it
+    # the coupled block's arithmetic is the strut's (a ground row's W_nn is its end's inverse mass exactly)
+    return solve_coupled_reference(inv, g, s, k, target, np.full(k, mu), v, z)
 
 
 def solve_coupled_reference(inv: np.ndarray, g: np.ndarray, s: int, k: int, target: np.ndarray, mu: np.ndarray,
