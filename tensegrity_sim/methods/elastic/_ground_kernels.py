@@ -593,10 +593,8 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, stiffness, flo
            gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu, restitution,
            radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, rest_seq, ext_seq,
            out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason):
-    """Block ``blk`` of ``blocks`` of :func:`_ground_steps`' copies (its arguments), in a function of its own:
-    the parallel loop calls it once a block, and the steps inside it are compiled as in the serial loop (inside
-    the parallel loop's body, the reference counts of the arrays a step is handed were kept at every step: the
-    pairs' scratch added 1 us a copy-step to 1,024 rolling copies)."""
+    """Block ``blk`` of ``blocks`` of :func:`_ground_steps`' copies (its arguments): one function that the
+    parallel loop calls once a block and the serial loop once, so both step the copies with the same code."""
     n_nodes = x.shape[0]
     nc, n_copies = rest.shape
     nr = rigid_members.shape[0]
