@@ -104,54 +104,76 @@ def lone_contact(inv, v, target, mu, z):
 
 
 @njit(cache=True, error_model="numpy", inline="always", _nrt=False)
-def _residual(q, s, k, target, work, z, up, ur, pp, pr, jp):
-    """``u = u0 + W z`` into ``work[up, ur]``, ``phi`` (q,) into ``work[pp, pr]`` and its generalised
-    Jacobian (q, q) into ``work[jp]`` (module docstring; ``work``'s layout in :func:`_newton`); ``s`` strut
-    rows first, then ``k`` contacts. Returns ``|phi|^2 / 2``. The scratch is indexed, not sliced: a view per
-    array costs more than the arithmetic of a small block."""
+def _residual(q, s, k, target, work, z, up, ur, pp, pr):
+    """``u = u0 + W z`` into ``work[up, ur]`` and ``phi`` (q,) into ``work[pp, pr]`` (module docstring;
+    ``work``'s layout in :func:`_newton`); ``s`` strut rows first, then ``k`` contacts. Returns ``|phi|^2 / 2``.
+    The scratch is indexed, not sliced: a view per array costs more than the arithmetic of a small block."""
     for i in range(q):
         acc = work[4, 0, i]
         for j in range(q):
             acc += work[1, i, j] * z[j]
         work[up, ur, i] = acc
+    for i in range(s):
+        work[pp, pr, i] = work[4, 6, i] * work[up, ur, i]
+    for c in range(k):
+        o = s + 3 * c
+        r = work[4, 6, o]
+        n = o + 2
+        yp = max(z[n] - r * (work[up, ur, n] - target[c]), 0.0)
+        work[pp, pr, n] = z[n] - yp
+        t0 = z[o] - r * work[up, ur, o]
+        t1 = z[o + 1] - r * work[up, ur, o + 1]
+        size = np.sqrt(t0 * t0 + t1 * t1)
+        bound = work[5, 2, c] * yp
+        if size <= bound:   # inside the disc: P = q_t, phi_t = r u_t
+            work[pp, pr, o] = z[o] - t0
+            work[pp, pr, o + 1] = z[o + 1] - t1
+        else:               # on the edge: P = bound q_t / |q_t|
+            work[pp, pr, o] = z[o] - bound * (t0 / size)
+            work[pp, pr, o + 1] = z[o + 1] - bound * (t1 / size)
+    total = 0.0
+    for i in range(q):
+        total += work[pp, pr, i] * work[pp, pr, i]
+    return 0.5 * total
+
+
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _jacobian(q, s, k, target, work, z):
+    """The generalised Jacobian (q, q) of ``phi`` at ``z`` into ``work[2]``, from its ``u`` in ``work[4, 1]``
+    (:func:`_residual`'s, same arithmetic): computed only where the Newton takes a step from ``z``, not at
+    every trial of its line search nor at the answer."""
     for i in range(q):
         for j in range(q):
-            work[jp, i, j] = 0.0
+            work[2, i, j] = 0.0
     for i in range(s):
         r0 = work[4, 6, i]
-        work[pp, pr, i] = r0 * work[up, ur, i]
         for j in range(q):
-            work[jp, i, j] = r0 * work[1, i, j]
+            work[2, i, j] = r0 * work[1, i, j]
     for c in range(k):
         o = s + 3 * c
         r = work[4, 6, o]
         mu = work[5, 2, c]
         n = o + 2
-        qn = z[n] - r * (work[up, ur, n] - target[c])
+        qn = z[n] - r * (work[4, 1, n] - target[c])
         yp = max(qn, 0.0)
-        work[pp, pr, n] = z[n] - yp
         # d yp / dz: the row e_n - r W[n] where qn > 0
         if qn > 0.0:
             for j in range(q):
-                work[jp, n, j] = r * work[1, n, j]
+                work[2, n, j] = r * work[1, n, j]
         else:
-            work[jp, n, n] = 1.0
-        t0 = z[o] - r * work[up, ur, o]
-        t1 = z[o + 1] - r * work[up, ur, o + 1]
+            work[2, n, n] = 1.0
+        t0 = z[o] - r * work[4, 1, o]
+        t1 = z[o + 1] - r * work[4, 1, o + 1]
         size = np.sqrt(t0 * t0 + t1 * t1)
         bound = mu * yp
-        if size <= bound:   # inside the disc: P = q_t, phi_t = r u_t
-            work[pp, pr, o] = z[o] - t0
-            work[pp, pr, o + 1] = z[o + 1] - t1
+        if size <= bound:   # inside the disc
             for j in range(q):
-                work[jp, o, j] = r * work[1, o, j]
-                work[jp, o + 1, j] = r * work[1, o + 1, j]
-        else:               # on the edge: P = bound q_t / |q_t|
+                work[2, o, j] = r * work[1, o, j]
+                work[2, o + 1, j] = r * work[1, o + 1, j]
+        else:               # on the edge
             h0 = t0 / size
             h1 = t1 / size
             ratio = bound / size
-            work[pp, pr, o] = z[o] - bound * h0
-            work[pp, pr, o + 1] = z[o + 1] - bound * h1
             for j in range(q):
                 d0 = -r * work[1, o, j]
                 d1 = -r * work[1, o + 1, j]
@@ -165,14 +187,10 @@ def _residual(q, s, k, target, work, z, up, ur, pp, pr, jp):
                     dyp = -r * work[1, n, j]
                     if j == n:
                         dyp += 1.0
-                work[jp, o, j] = -(ratio * (d0 - h0 * along) + h0 * mu * dyp)
-                work[jp, o + 1, j] = -(ratio * (d1 - h1 * along) + h1 * mu * dyp)
-            work[jp, o, o] += 1.0
-            work[jp, o + 1, o + 1] += 1.0
-    total = 0.0
-    for i in range(q):
-        total += work[pp, pr, i] * work[pp, pr, i]
-    return 0.5 * total
+                work[2, o, j] = -(ratio * (d0 - h0 * along) + h0 * mu * dyp)
+                work[2, o + 1, j] = -(ratio * (d1 - h1 * along) + h1 * mu * dyp)
+            work[2, o, o] += 1.0
+            work[2, o + 1, o + 1] += 1.0
 
 
 @njit(cache=True, error_model="numpy", inline="always", _nrt=False)
@@ -217,7 +235,7 @@ def _newton(q, s, k, target, work, z, scale):
     u0, u, phi, -J^T phi, the step, the trial z, rho (each row's); rows of [5]: the trial's u and phi, each
     contact's Coulomb coefficient, the diagonal of J^T J."""
     tol = BLOCK_TOL * scale
-    merit = _residual(q, s, k, target, work, z, 4, 1, 4, 2, 2)
+    merit = _residual(q, s, k, target, work, z, 4, 1, 4, 2)
     for it in range(MAX_NEWTON + 1):
         worst = 0.0
         for i in range(q):
@@ -226,6 +244,7 @@ def _newton(q, s, k, target, work, z, scale):
             return it
         if it == MAX_NEWTON:
             break
+        _jacobian(q, s, k, target, work, z)
         nu = min(2.0 * merit / (scale * scale), _MAX_DAMPING) + _MIN_DAMPING
         for i in range(q):
             acc = 0.0
@@ -256,16 +275,14 @@ def _newton(q, s, k, target, work, z, scale):
         while True:
             for i in range(q):
                 work[4, 5, i] = z[i] + step * work[4, 4, i]
-            new = _residual(q, s, k, target, work, work[4, 5], 5, 0, 5, 1, 3)
+            new = _residual(q, s, k, target, work, work[4, 5], 5, 0, 5, 1)
             if new <= merit + _ARMIJO * step * slope or step <= _MIN_STEP:
                 break
             step *= 0.5
-        for i in range(q):   # the accepted trial's z, u, phi and Jacobian (those of _residual at z)
+        for i in range(q):   # the accepted trial's z, u and phi
             z[i] = work[4, 5, i]
             work[4, 1, i] = work[5, 0, i]
             work[4, 2, i] = work[5, 1, i]
-            for j in range(q):
-                work[2, i, j] = work[3, i, j]
         merit = new
     worst = 0.0   # stalled: the last iterate (the best: the merit only falls) if it meets the relaxed tolerance
     for i in range(q):
