@@ -45,7 +45,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ._kernels import _close, _drift, elastic_forces, gather_copy, keep, scatter_copy
+from ._kernels import _close, _drift, _forces, gather_copy, keep, scatter_copy
 from ..contact._detection_kernels import _closest
 from ..contact._friction_block_kernels import MAX_COUPLED, MAX_ROWS, lone_contact, solve_block, solve_coupled
 
@@ -588,6 +588,69 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
                reason)
 
 
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _copy_steps(b, bs, h, n_steps, every, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b, inv_mass_b, gravity_b,
+                rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu, restitution, radii_b, node_strut_b,
+                touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb, extb, accb, tensionb,
+                dirsb, warmb, rest_seq, ext_seq, dx, imp, total, sl, contact, total_contact, armed, target, landing, x0,
+                v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, out_x, out_v,
+                out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason):
+    """Copy ``b``'s ``n_steps`` steps in its own arrays (``*b``; ``bs`` its column of the inputs), for
+    :func:`_block`, which allocates; this loop hands a step dozens of arrays and is compiled without
+    reference counts (a counted call of ``_ground_step`` adds and subtracts one per array: ~5 ns each)."""
+    n_nodes = xb.shape[0]
+    nc = restb.shape[0]
+    n_pairs = pair_nodes_b.shape[0]
+    for s in range(n_steps):
+        if n_pairs and n_records[b] + n_pairs > out_pairs.shape[1]:   # no room for this step's pairs
+            failed[b] = s
+            reason[b] = FULL
+            break
+        for i in range(n_nodes):
+            for j in range(3):
+                x0[i, j] = xb[i, j, 0]
+                v0[i, j] = vb[i, j, 0]
+        if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, restb, extb):
+            _forces(xb, vb, restb, extb, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b, inv_mass_b,
+                    gravity_b, rigid_members_b, accb, tensionb, dirsb, sl, 0)
+        why = _ground_step(xb, vb, restb, extb, h, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
+                           inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb,
+                           tensionb, dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol,
+                           pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, warmb, dx, imp, sl, contact,
+                           armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4,
+                           out6, s5, t5, pairs, 0)
+        if why:
+            for i in range(n_nodes):
+                for j in range(3):
+                    xb[i, j, 0] = x0[i, j]
+                    vb[i, j, 0] = v0[i, j]
+            failed[b] = s
+            reason[b] = why
+            break
+        if n_pairs:   # the step's member contacts: (step, pair, normal, friction in space)
+            pair_impulse, touched = pairs[5], pairs[6]
+            for k in range(n_pairs):
+                if touched[k]:
+                    r = n_records[b]
+                    out_pairs[b, r, 0] = s
+                    out_pairs[b, r, 1] = k
+                    for j in range(4):
+                        out_pairs[b, r, 2 + j] = pair_impulse[k, j]
+                    n_records[b] = r + 1
+        for ci in range(nc):
+            total[ci] += imp[ci]
+        for i in range(n_nodes):
+            for j in range(3):
+                total_contact[i, j] += contact[i, j]
+        if (s + 1) % every == 0 or s == n_steps - 1:
+            k = s // every
+            keep(xb, vb, 0, total, sl, k, b, out_x, out_v, out_impulses, out_slack)
+            for i in range(n_nodes):
+                for j in range(3):
+                    out_contact[k, i, j, b] = total_contact[i, j]
+                    total_contact[i, j] = 0.0
+
+
 @njit(cache=True, error_model="numpy")
 def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
            gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu, restitution,
@@ -656,54 +719,13 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, stiffness, flo
         reason[b] = 0
         n_records[b] = 0
         bs = b if rest_seq.shape[2] > 1 else 0   # the copy's column of the inputs (or the one of every copy's)
-        for s in range(n_steps):
-            if n_pairs and n_records[b] + n_pairs > out_pairs.shape[1]:   # no room for this step's pairs
-                failed[b] = s
-                reason[b] = FULL
-                break
-            for i in range(n_nodes):
-                for j in range(3):
-                    x0[i, j] = xb[i, j, 0]
-                    v0[i, j] = vb[i, j, 0]
-            if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, restb, extb):
-                elastic_forces(xb, vb, restb, extb, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
-                               inv_mass_b, gravity_b, rigid_members_b, accb, tensionb, dirsb)
-            why = _ground_step(xb, vb, restb, extb, h, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
-                               inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb,
-                               tensionb, dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol,
-                               pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, warmb, dx, imp, sl, contact,
-                               armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4,
-                               out6, s5, t5, pairs, 0)
-            if why:
-                for i in range(n_nodes):
-                    for j in range(3):
-                        xb[i, j, 0] = x0[i, j]
-                        vb[i, j, 0] = v0[i, j]
-                failed[b] = s
-                reason[b] = why
-                break
-            if n_pairs:   # the step's member contacts: (step, pair, normal, friction in space)
-                pair_impulse, touched = pairs[5], pairs[6]
-                for k in range(n_pairs):
-                    if touched[k]:
-                        r = n_records[b]
-                        out_pairs[b, r, 0] = s
-                        out_pairs[b, r, 1] = k
-                        for j in range(4):
-                            out_pairs[b, r, 2 + j] = pair_impulse[k, j]
-                        n_records[b] = r + 1
-            for ci in range(nc):
-                total[ci] += imp[ci]
-            for i in range(n_nodes):
-                for j in range(3):
-                    total_contact[i, j] += contact[i, j]
-            if (s + 1) % every == 0 or s == n_steps - 1:
-                k = s // every
-                keep(xb, vb, 0, total, sl, k, b, out_x, out_v, out_impulses, out_slack)
-                for i in range(n_nodes):
-                    for j in range(3):
-                        out_contact[k, i, j, b] = total_contact[i, j]
-                        total_contact[i, j] = 0.0
+        _copy_steps(b, bs, h, n_steps, every, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b, inv_mass_b,
+                    gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu, restitution, radii_b,
+                    node_strut_b, touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb,
+                    extb, accb, tensionb, dirsb, warmb, rest_seq, ext_seq, dx, imp, total, sl, contact,
+                    total_contact, armed, target, landing, x0, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3,
+                    ends4, out6, s5, t5, pairs, out_x, out_v, out_impulses, out_slack, out_contact, out_pairs,
+                    n_records, failed, reason)
         scatter_copy(xb, vb, accb, tensionb, dirsb, b, x, v, acc, tension, rigid_dirs)
         for i in range(n_nodes + n_pairs):
             for j in range(3):
