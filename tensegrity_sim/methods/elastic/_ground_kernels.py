@@ -336,41 +336,45 @@ def _solve_coupled(v, b, root, armed, target, inv_mass, ends, rigid_members, dir
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, node_strut, mu, warm, contact,
-           work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes, pair_mu, pairs):
-    """The armed contacts' velocity problem of copy ``b``, block by block, in place on ``v``; adds the
-    ground's contact impulses to ``contact`` (N, 3) and keeps them in ``warm`` (N + P, 3, B), this solve's
-    warm starts. ``dirs`` (nr, 3, B): the rigid struts' unit vectors at the configuration. A rigid strut
-    with its ends' ground contacts is a block (``solve_block``), a lone node's contact one more (its closed
-    form); the ``n_armed`` member pairs armed in ``pairs`` (:func:`pair_scratch`: :func:`_arm_pairs`' indices,
-    frames, weights and targets) join the bodies their nodes belong to (union-find: the struts, then the nodes)
-    into coupled blocks (:func:`_solve_coupled`, whose impulses go to the scratch's pair impulses), skipped by
-    the strut and node loops. The rest is scratch. Returns 0, ``UNSOLVED`` if a block was not solved,
-    ``MEMBERS`` for a coupled block beyond the scratch (``v`` is then partly changed: the caller starts the step
-    again in the reference)."""
-    n_nodes = v.shape[0]
-    nr = rigid_members.shape[0]
+def _join(n_armed, pair_nodes, inv_mass, node_strut, n_rigid, pairs):
+    """The bodies (union-find over the rigid struts, then the nodes) that the ``n_armed`` member pairs armed in
+    ``pairs`` (:func:`pair_scratch`) join: each pair joins the bodies of its moving nodes, and each joined
+    set's root is marked in the scratch's ``joined``."""
     armed_pairs, parent, joined = pairs[0], pairs[7], pairs[8]
-    for p in range(n_nodes):
-        if not armed[p]:
-            for j in range(3):
-                warm[p, j, b] = 0.0
-    for i in range(nr + n_nodes if n_armed else 0):
+    for i in range(parent.shape[0]):
         parent[i] = i
         joined[i] = False
-    for a in range(n_armed):   # a pair joins the bodies of its moving nodes
+    for a in range(n_armed):
         k = armed_pairs[a]
         first = -1
         for e in range(4):
             p = pair_nodes[k, e]
             if inv_mass[p] > 0.0:
-                body = _root(parent, nr + p if node_strut[p] < 0 else node_strut[p])
+                body = _root(parent, n_rigid + p if node_strut[p] < 0 else node_strut[p])
                 if first < 0:
                     first = body
                 elif body != first:
                     parent[body] = first
     for a in range(n_armed):
-        joined[_pair_root(parent, pair_nodes, armed_pairs[a], inv_mass, node_strut, nr)] = True
+        joined[_pair_root(parent, pair_nodes, armed_pairs[a], inv_mass, node_strut, n_rigid)] = True
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, node_strut, mu, warm, contact,
+           work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, parent, joined):
+    """The armed ground contacts' velocity problem of copy ``b``, block by block, in place on ``v``; adds their
+    impulses to ``contact`` (N, 3) and keeps them in ``warm`` (N + P, 3, B), this solve's warm starts. ``dirs``
+    (nr, 3, B): the rigid struts' unit vectors at the configuration. A rigid strut with its ends' ground
+    contacts is a block (``solve_block``), a lone node's contact one more (its closed form). With ``n_armed``
+    member pairs, the bodies they join (:func:`_join`'s ``parent`` and ``joined``) are skipped: their coupled
+    blocks are :func:`_solve_pairs`' (after this, in the same solve). The rest is scratch. Returns 0, or
+    ``UNSOLVED`` if a block was not solved (the caller starts the step again in the reference)."""
+    n_nodes = v.shape[0]
+    nr = rigid_members.shape[0]
+    for p in range(n_nodes):
+        if not armed[p]:
+            for j in range(3):
+                warm[p, j, b] = 0.0
     for k in range(nr):
         if n_armed and joined[_root(parent, k)]:
             continue
@@ -431,7 +435,19 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
                 v[p, j, b] = vel3[j]
                 contact[p, j] += z3[j]
                 warm[p, j, b] = z3[j]
-    for a in range(n_armed):   # each coupled block once, from its first pair
+    return 0
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _solve_pairs(v, b, armed, target, inv_mass, ends, rigid_members, dirs, node_strut, mu, warm, contact, n_armed,
+                 pair_nodes, pair_mu, pairs):
+    """The coupled blocks of :func:`_solve` (its arguments; ``pairs``: :func:`pair_scratch`, joined by
+    :func:`_join`), each once, from its first pair (:func:`_solve_coupled`). Returns 0, ``UNSOLVED``, or
+    ``MEMBERS`` for a coupled block beyond the scratch (``v`` is then partly changed: the caller starts the step
+    again in the reference)."""
+    armed_pairs, parent, joined = pairs[0], pairs[7], pairs[8]
+    nr = rigid_members.shape[0]
+    for a in range(n_armed):
         root = _pair_root(parent, pair_nodes, armed_pairs[a], inv_mass, node_strut, nr)
         if not joined[root]:
             continue
@@ -441,6 +457,22 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
         if why:
             return why
     return 0
+
+
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _solve_all(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, node_strut, mu, warm, contact,
+               work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes, pair_mu, pairs):
+    """A solve of the step: the bodies the ``n_armed`` member pairs join (:func:`_join`), the strut and node
+    blocks (:func:`_solve`), then the coupled ones (:func:`_solve_pairs`); returns as those. Compiled into its
+    caller: :func:`_solve` is handed the pairs' scratch only where pairs are armed (a call costs ~4 ns an array)."""
+    if n_armed:
+        _join(n_armed, pair_nodes, inv_mass, node_strut, rigid_members.shape[0], pairs)
+    why = _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, node_strut, mu, warm, contact,
+                 work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pairs[7], pairs[8])
+    if why or not n_armed:
+        return why
+    return _solve_pairs(v, b, armed, target, inv_mass, ends, rigid_members, dirs, node_strut, mu, warm, contact,
+                        n_armed, pair_nodes, pair_mu, pairs)
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -518,8 +550,9 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
         if n_armed < 0:
             return MEMBERS
     if found or n_armed:
-        why = _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu, warm[0],
-                     contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes, pair_mu, pairs)
+        why = _solve_all(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
+                         warm[0], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes,
+                         pair_mu, pairs)
         if why:
             return why
     _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
@@ -536,9 +569,9 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
         target[p] = restitution * landing[p]
         found = found or armed[p]
     if found or n_armed:
-        return _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
-                      warm[1], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes, pair_mu,
-                      pairs)
+        return _solve_all(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
+                          warm[1], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes,
+                          pair_mu, pairs)
     return 0
 
 
