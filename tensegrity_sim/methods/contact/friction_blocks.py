@@ -26,7 +26,8 @@ def lone_contact_reference(inv: float, v: np.ndarray, target: float, mu: float):
 
 
 def _residual(s, k, rho, target, mu, w, u0, z):
-    """``phi`` (q,), its generalised Jacobian (q, q) and ``|phi|^2 / 2`` (the kernel's ``_residual``)."""
+    """``phi`` (q,), its generalised Jacobian (q, q) and ``|phi|^2 / 2`` (the kernel's ``_residual`` and
+    ``_jacobian``, which it computes only where the Newton steps: the same numbers)."""
     q = len(z)
     u = u0 + w @ z
     phi = np.empty(q)

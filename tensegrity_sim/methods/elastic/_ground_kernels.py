@@ -695,10 +695,10 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, stiffness, flo
     nc, n_copies = rest.shape
     nr = rigid_members.shape[0]
     # a block of copies a thread (the scratch allocated once for its copies: allocated for each copy, it
-    # cost 7 ms a call of 1,024 copies); the model's arrays copied for each block: numba counts references
-    # to an array passed between its functions, atomically, and threads sharing one array's count take turns
-    # at it (1,024 rolling copies through BatchSimulator.run on 2 threads, best of 6: 178-204k scene-steps/s
-    # sharing them, 233-243k with copies)
+    # cost 7 ms a call of 1,024 copies); the model's arrays copied for each block, measured when the step loop
+    # still counted references per call (threads sharing one array's count took turns at it: 178-204k
+    # scene-steps/s sharing them, 233-243k with copies); since _copy_steps counts none per step, only the
+    # counts of this function's calls, once a copy, remain
     ends_b, stiffness_b, strut_rest_b, damping_b = ends.copy(), stiffness.copy(), strut_rest.copy(), damping.copy()
     inv_mass_b, gravity_b, rigid_members_b = inv_mass.copy(), gravity_force.copy(), rigid_members.copy()
     rigid_length_sq_b, rigid_w_b, radii_b, node_strut_b = (rigid_length_sq.copy(), rigid_w.copy(), radii.copy(),
@@ -764,7 +764,6 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, stiffness, flo
             for j in range(3):
                 warm[0, i, j, b] = warmb[0, i, j, 0]
                 warm[1, i, j, b] = warmb[1, i, j, 0]
-
 
 
 def _named(function, name: str):
