@@ -316,6 +316,40 @@ def test_messages_wait_up_to_the_pending_size_and_the_flush_period(tmp_path):
         assert [m.sequence for m in reader.messages()] == list(range(12)) and not reader.unfinished
 
 
+def test_drain_writes_out_when_the_flush_period_ends_soon(tmp_path):
+    """drain() (the node's idle time) hands on the waiting messages, and writes everything out once the flush
+    period ends within FLUSH_AHEAD s, not before: the write that would find the flush due (in a tick) then
+    does not, and the next period counts from the drain's write-out."""
+    from tensegrity_sim.ros.log import FLUSH_AHEAD
+
+    spec = TOPICS["clock"]
+    now = [0.0]
+    path = tmp_path / "log.mcap"
+    writer = LogWriter(path, [("/clock", spec.typename, spec.qos)], {"a": "b"}, chunk_size=1 << 20,
+                       pending_size=100, flush_period=1.0, clock=lambda: now[0])
+    data = M.serialize(M.new(spec.typename, clock=M.time(0)), spec.typename)
+    writer.write("/clock", data, 0)
+    now[0] = 1.0 - FLUSH_AHEAD - 1e-3
+    writer.drain()   # handed on, into the chunk in progress, in memory
+    assert writer.counts["/clock"] == 1
+    with LogReader(path) as reader:
+        assert sum(1 for _ in reader.messages()) == 0
+    writer.write("/clock", data, 1)
+    now[0] = 1.0 - FLUSH_AHEAD
+    writer.drain()
+    with LogReader(path) as reader:
+        assert [m.log_time for m in reader.messages()] == [0, 1]
+    now[0] = 1.0   # the old period's end: no write-out
+    writer.write("/clock", data, 2)
+    with LogReader(path) as reader:
+        assert [m.log_time for m in reader.messages()] == [0, 1]
+    now[0] = 2.0 - FLUSH_AHEAD   # a period after the drain's write-out: the write finds it due
+    writer.write("/clock", data, 3)
+    with LogReader(path) as reader:
+        assert [m.log_time for m in reader.messages()] == [0, 1, 2, 3]
+    writer.finish()
+
+
 def test_the_disk_sync_runs_beside_the_writer_and_a_failed_one_fails_the_log(tmp_path, monkeypatch):
     """The flush period's sync to the disk (``os.fsync``) runs on a thread of its own: the write that starts
     it returns while it is still running (the node's tick does not wait for the disk), the next flush does

@@ -54,7 +54,7 @@ from . import messages as M
 from .interface import Qos
 
 __all__ = ["RUN_INFO", "LogWriter", "LogWriteError", "LogRecorder", "SignalLatch", "log_file_path",
-           "qos_profiles_yaml", "CHUNK_SIZE", "PENDING_SIZE", "FLUSH_PERIOD"]
+           "qos_profiles_yaml", "CHUNK_SIZE", "PENDING_SIZE", "FLUSH_PERIOD", "FLUSH_AHEAD"]
 
 RUN_INFO = "tensegrity_sim"   # name of the metadata record that makes a log re-runnable
 ROSBAG2_METADATA_VERSION = 9  # Jazzy
@@ -70,6 +70,7 @@ _INFINITE = {"sec": 9223372036, "nsec": 854775807}  # RMW_DURATION_INFINITE, as 
 CHUNK_SIZE = 16 * 1024   # bytes (mcap's default: 1 MiB)
 PENDING_SIZE = 4 * 1024  # bytes
 FLUSH_PERIOD = 1.0       # s
+FLUSH_AHEAD = 0.1        # s before the flush period ends that drain() does the write-out
 
 
 class LogWriteError(OSError):
@@ -193,9 +194,12 @@ class LogWriter:
 
     def drain(self) -> None:
         """Hand the waiting messages to mcap's writer now (a chunk that fills is written out), rather than
-        when the crash-safety bounds would: what a node does in the idle time between its ticks."""
-        if self._pending:
-            self._drain(False)
+        when the crash-safety bounds would, and write out and sync the chunk in progress if the flush period
+        ends within :data:`FLUSH_AHEAD` s: what a node does in the idle time between its ticks, called often
+        enough that the write that would find the flush due (inside a tick) rarely does."""
+        flush = self._next_flush is not None and self._clock() >= self._next_flush - FLUSH_AHEAD
+        if self._pending or flush:
+            self._drain(flush)
 
     def _drain(self, flush: bool) -> None:
         """Hand the waiting messages to mcap's writer in turn; with ``flush``, then write the chunk in
