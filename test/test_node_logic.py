@@ -399,6 +399,28 @@ def test_log_and_raw_transport_get_the_messages_bytes(monkeypatch, scene, frame_
 
 
 # --------------------------------------------------------------------------- markers
+def test_the_marker_templates_a_rolling_run_meets_first_are_built_with_the_node(monkeypatch):
+    """The markers' templates of a robot landing on the ground (contacts and their forces) with a cable let
+    out (slack cables shown, then deleted) are built when the node is (Markers.prepare), not at a
+    publication (~2 ms each)."""
+    scene = ts.load_scene("icosahedron_ground")
+    logic, sent, _ = make_logic(scene)
+    logic.recorder = BytesRecorder()   # the log takes the markers' bytes, from their templates
+    built = []
+    real_base = logic._markers._base
+    monkeypatch.setattr(logic._markers, "_base", lambda kinds: built.append(kinds) or real_base(kinds))
+    cable, rest = scene.cable_names[0], float(scene.cable_rest_lengths[0])
+    for k in range(300):
+        if k in (100, 200):
+            logic.receive("cable_rest_lengths", rest_lengths_msg([cable], [2.0 * rest if k == 100 else rest]))
+        logic.step()
+        if logic.publication_due:
+            logic.publish()
+    kinds = {tuple((m.ns, m.action) for m in msg.markers) for key, msg in sent if key == "markers"}
+    assert {("slack_cables", 0) in k for k in kinds} == {True, False} and any(("slack_cables", 2) in k for k in kinds)
+    assert all(("contact_forces", 0) in k for k in kinds) and built == []
+
+
 def test_markers_show_struts_taut_and_slack_cables_and_supports():
     scene = prism(fixed_base=True, gravity=9.81)
     logic, sent, _ = make_logic(scene, publish_rate=1000.0)
