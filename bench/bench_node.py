@@ -12,9 +12,10 @@ more cycles than ``--duration`` allows, so it is still rolling when both are sto
 then finishes its log and prints its statistics). The figures are the server's own (``SimNodeLogic``'s
 statistics, over its whole run): steps, the achieved real-time factor, overruns and the worst lag, the
 wall-clock duration of its ticks (p50, p99, p99.9, max), the most steps a tick ran and the ticks that ran
-more than their nominal share (catch-up bursts). Whether the robot rolled: the command cycles the
-controller started and how far the centre of mass moved horizontally between the first and the last
-``node_poses`` of the log. The load average (1 min) before and after goes beside them (other work on the
+more than their nominal share (catch-up bursts); and the work done between ticks, in the loop's idle time
+(the markers and contact events of the publications, ``idle_send_*``). Whether the robot rolled: the command
+cycles the controller started and how far the centre of mass moved horizontally between the first and the
+last ``node_poses`` of the log. The load average (1 min) before and after goes beside them (other work on the
 machine takes the node's CPU). Prints figures; never asserts a time.
 """
 from __future__ import annotations
@@ -139,8 +140,10 @@ def run(args, priority: int) -> dict:
     method = re.search(r"serving \S+ \((\w+),", err).group(1)
     policy = "default" if priority == 0 or "refused SCHED_FIFO" in err else f"SCHED_FIFO {priority}"
     started = [int(n) for n in re.findall(r"^cycle (\d+):", controller_out, flags=re.MULTILINE)]
-    ints = ("steps", "overruns", "ticks", "max_steps_per_tick", "burst_ticks", "failed_steps", "refused_rest_lengths")
-    floats = ("real_time_factor_achieved", "max_lag_ms", "tick_p50_ms", "tick_p99_ms", "tick_p999_ms", "tick_max_ms")
+    ints = ("steps", "overruns", "ticks", "max_steps_per_tick", "burst_ticks", "idle_sends", "failed_steps",
+            "refused_rest_lengths")
+    floats = ("real_time_factor_achieved", "max_lag_ms", "tick_p50_ms", "tick_p99_ms", "tick_p999_ms", "tick_max_ms",
+              "idle_send_p999_ms", "idle_send_max_ms")
     row = {"scene": args.scene, "method": method, "thread_priority": priority, "scheduler": policy,
            "duration_s": args.duration, "step_rate_hz": args.step_rate,
            "dt_s": args.dt, "publish_rate_hz": args.publish_rate, "log": "on",
@@ -156,6 +159,8 @@ def run(args, priority: int) -> dict:
     print(f"tick: p50 {row['tick_p50_ms']} ms, p99 {row['tick_p99_ms']} ms, p99.9 {row['tick_p999_ms']} ms "
           f"(target <= 1 ms), max {row['tick_max_ms']} ms; most steps in a tick {row['max_steps_per_tick']}, "
           f"ticks over their nominal share (catch-up bursts) {row['burst_ticks']} (target 0)")
+    print(f"idle time: {row['idle_sends']} publications' markers and contact events sent between ticks, p99.9 "
+          f"{row['idle_send_p999_ms']} ms, max {row['idle_send_max_ms']} ms")
     print(f"after the first second (start-up left out): {row['ticks_after_1s']} ticks, {row['overruns_after_1s']} "
           f"overruns, {row['burst_ticks_after_1s']} catch-up bursts")
     print(f"robot: {row['cycles_started']} roll cycles started, centre of mass moved {travel:.3f} m over "

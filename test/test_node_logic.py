@@ -354,15 +354,18 @@ def test_log_and_raw_transport_get_the_messages_bytes(monkeypatch, scene, frame_
     """Every output and input the log records, and every output a raw transport gets, is byte for byte
     the message object the transport gets, serialised by rosbags (clock, poses, cable states and
     impulses, markers of several shapes come from templates; contacts, diagnostics and inputs from the
-    objects)."""
+    objects). With ``idle_outputs`` (the markers and contacts wait for ``send_waiting``, called after some
+    publications only: the others' go out before the next input, publication or diagnostics), the transport
+    and the log get the same messages in the same order at the same log times."""
     logics = {}
-    for raw in (False, True):
+    for raw, idle in ((False, False), (True, False), (False, True)):
         sent = []
         logic = SimNodeLogic(ts.Simulator(scene, method="elastic", dt=1e-3),
                              NodeSettings(scene=scene.name, frame_id=frame_id, marker_rate=100.0),
                              transport=lambda key, msg, sent=sent: sent.append((key, msg)), raw_transport=raw,
                              clock=FakeClock())
         logic.recorder = None if raw else BytesRecorder()
+        logic.idle_outputs = idle
         script = {3: [contact("begin", scene.strut_names[0], scene.cable_names[-1], 0.0025, 1)],
                   57: [contact("end", scene.strut_names[0], scene.cable_names[-1], 0.0565, 2)]}
         real_step = logic.sim.step
@@ -379,10 +382,17 @@ def test_log_and_raw_transport_get_the_messages_bytes(monkeypatch, scene, frame_
             logic.step()
             if logic.publication_due:
                 logic.publish()
+                if k % 30 == 19:
+                    logic.send_waiting()
         logic.publish_diagnostics()
-        logics[raw] = (logic, sent)
-    (logic, sent), (_, raw_sent) = logics[False], logics[True]
+        logics[raw, idle] = (logic, sent)
+    (logic, sent), (_, raw_sent), (idle_logic, idle_sent) = logics.values()
     outputs = [(logic.topic_names[key], M.serialize(msg, TOPICS[key].typename)) for key, msg in sent]
+    # all but the diagnostics, whose statistics count the idle sends
+    assert [(logic.topic_names[key], M.serialize(msg, TOPICS[key].typename)) for key, msg in idle_sent][:-1] == \
+        outputs[:-1] and outputs[-1][0] == "/diagnostics"
+    assert idle_logic.recorder.records[:-1] == logic.recorder.records[:-1]
+    assert idle_logic.statistics()["idle_sends"] == 4   # at steps 20, 50, 80 and 110
     assert [k for k, _ in sent].count("contacts") == 2 and [k for k, _ in sent].count("markers") == 12
     shapes = {tuple((m.ns, m.action, len(m.points), len(m.colors)) for m in msg.markers)
               for key, msg in sent if key == "markers"}
@@ -581,15 +591,17 @@ def test_the_spinning_node_wakes_on_the_schedule_so_a_late_wake_up_owes_no_step(
     assert np.allclose(phase, np.round(phase), atol=1e-9)
 
 
-def test_the_spinning_node_hands_its_log_the_waiting_messages_between_ticks(tmp_path):
-    """live.spin hands the log its waiting messages in the idle time after a tick (more than SPARE_FOR_LOG of a
-    period left), so no tick pays for them: after every quick tick nothing waits. Ticks that leave less (each
-    takes 0.6 ms here) leave them waiting until the crash-safety bound (PENDING_SIZE bytes) hands them on in
-    a tick, as without the idle time; the finished log holds every message either way."""
+def test_the_spinning_node_sends_markers_and_hands_its_log_the_waiting_messages_between_ticks(tmp_path):
+    """live.spin sends a publication's markers and hands the log its waiting messages in the idle time after
+    a tick (more than SPARE_FOR_IDLE of a period left), so no tick pays for them: after every quick tick
+    nothing waits. Ticks that leave less (each takes 0.6 ms here) leave the markers to the next publication
+    and the log's messages until the crash-safety bound (PENDING_SIZE bytes) hands them on in a tick, as
+    without the idle time; the finished log holds every message either way, the last markers too (sent as
+    SIGINT ends the loop)."""
     import logging
     import signal
 
-    from tensegrity_sim.ros.live import SPARE_FOR_LOG, spin
+    from tensegrity_sim.ros.live import SPARE_FOR_IDLE, spin
     from tensegrity_sim.ros.log import PENDING_SIZE, LogRecorder, SignalLatch
     from tensegrity_sim.ros.log_reader import LogReader
 
@@ -597,12 +609,14 @@ def test_the_spinning_node_hands_its_log_the_waiting_messages_between_ticks(tmp_
     logic, _, _ = make_logic(prism(), clock=clock, publish_rate=1000.0)
     path = tmp_path / "spin.mcap"
     logic.recorder = LogRecorder(path, logic.channels(), logic.run_info())
-    latch, waiting, tick_length = SignalLatch(), [], [0.0]
-    assert 0.6e-3 > (1.0 - SPARE_FOR_LOG) * 1e-3   # the long ticks leave less than SPARE_FOR_LOG of a period
+    latch, waiting, markers_waiting, published, tick_length = SignalLatch(), [], [], [], [0.0]
+    assert 0.6e-3 > (1.0 - SPARE_FOR_IDLE) * 1e-3   # the long ticks leave less than SPARE_FOR_IDLE of a period
 
     class Transport:
         def poll(self, logic, log):
             waiting.append(logic.recorder._writer._pending_bytes)   # bytes waiting as the tick starts
+            markers_waiting.append(logic._waiting is not None)
+            published.append(logic.publications)
             if len(waiting) == 100:
                 tick_length[0] = 0.6e-3
             if len(waiting) == 300:
@@ -615,11 +629,15 @@ def test_the_spinning_node_hands_its_log_the_waiting_messages_between_ticks(tmp_
     with logic.recorder, pytest.raises(KeyboardInterrupt):
         spin(logic, Transport(), latch=latch, log=logging.getLogger("test"), sleep=sleep)
     quick, slow = np.array(waiting[2:100]), np.array(waiting[101:300])
-    assert logic.publications >= 290 and not quick.any()
+    assert logic.publications >= 290 and not quick.any() and not any(markers_waiting[2:100])
+    assert all(markers_waiting[102:300])
+    # the markers of every quick tick's publication, none of a slow one's, and the last (as SIGINT ends the loop)
+    assert logic.statistics()["idle_sends"] == published[99] + 1
     # with ~2 KiB a publication: one or two publications wait, and every second or third tick hands them on
     assert slow.max() < PENDING_SIZE and (slow > 0).sum() >= len(slow) / 2 and (slow == 0).sum() >= len(slow) / 4
     with LogReader(path) as reader:
-        assert sum(1 for m in reader.messages() if m.topic.endswith("/node_poses")) == logic.publications
+        topics = [m.topic for m in reader.messages()]
+    assert topics.count("/tensegrity_sim/node_poses") == topics.count("/tensegrity_sim/markers") == logic.publications
 
 
 def test_the_stepping_thread_runs_on_fifo_while_the_node_is_on_a_schedule():

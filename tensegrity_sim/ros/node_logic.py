@@ -68,8 +68,9 @@ TICK_WALL_LIMIT = 0.1           # s
 
 
 class TickDurations:
-    """The wall-clock duration of every tick since start, in a fixed histogram (a node runs for hours: its
-    memory stays bounded, and a tick only adds one to a bin), for the percentiles of the summary.
+    """The wall-clock duration of every tick since start (or of another recurring piece of work), in a fixed
+    histogram (a node runs for hours: its memory stays bounded, and a tick only adds one to a bin), for the
+    percentiles of the summary.
 
     Bins are logarithmic, :attr:`BINS_PER_DECADE` to a decade from :attr:`LOW` to :attr:`HIGH` s (the first
     and the last take whatever falls below or above), so a percentile is known to within one bin, a relative
@@ -124,6 +125,10 @@ class SimNodeLogic:
     the messages at that time, in order: a publication's outputs in one call) and ``restart(run_info)``
     (the MCAP log, :class:`~tensegrity_sim.ros.log.LogRecorder`), or None; it can be attached after
     construction.
+
+    idle_outputs: the markers and contact events of a publication wait for :meth:`send_waiting` (the live
+    loop's idle time, :func:`~.live.spin`) instead of going out in the tick that publishes; False (the
+    default): every output goes out at once.
     """
 
     def __init__(self, sim: Simulator, settings: NodeSettings, *, transport: Transport | None = None,
@@ -132,6 +137,8 @@ class SimNodeLogic:
         self.sim = sim
         self.settings = settings
         self.recorder = recorder
+        self.idle_outputs = False
+        self._waiting: tuple | None = None   # what publish left to send_waiting: _send_rest's arguments
         self._transport = transport
         self._raw = raw_transport
         self._clock = clock
@@ -159,6 +166,7 @@ class SimNodeLogic:
         self.overruns = 0
         self.max_lag = 0.0          # wall-clock s behind the schedule, the worst seen
         self._tick_durations = TickDurations()
+        self._idle_durations = TickDurations()   # of send_waiting's sending
         self.max_steps_per_tick = 0
         self.burst_ticks = 0        # ticks that ran more steps than their nominal share (catching up)
         self.publications = 0
@@ -275,6 +283,7 @@ class SimNodeLogic:
             return self._refuse(key, f"not a {typename} message ({type(exc).__name__}: {describe(str(exc))}): "
                                      f"{describe(message)}")
         if self.recorder is not None:
+            self._send_waiting()   # the log keeps the order of events
             self.recorder.record([(self.topic_names[key], data)], self.stamp_ns())
         message = M.deserialize(data, typename)
         undo = self._undo or (self._target, self._applied, self.sim.external_forces, [])
@@ -492,7 +501,10 @@ class SimNodeLogic:
     def publish(self) -> None:
         """Send and record one message on every output topic (``markers`` at every ``markers_every``-th
         publication, ``contacts`` only if events are queued), stamped with the simulation time, then start
-        summing afresh. Nothing before the first step; no message is made when no one listens."""
+        summing afresh. Nothing before the first step; no message is made when no one listens.
+
+        With :attr:`idle_outputs` the markers and contact events wait (:meth:`send_waiting`): the clock,
+        poses, cable states and impulses go out at once, a controller's inputs."""
         r = self._last
         if r is None:
             return
@@ -508,39 +520,66 @@ class SimNodeLogic:
         self._until_markers -= 1
         if self._transport is not None or self.recorder is not None:
             ns = stamp_ns(self.sim.time)
-            self._send(ns, self._outputs(ns, r, markers, events))
+            self._send(ns, self._outputs(ns, r))
+            if markers or events:
+                rest = (ns, r, list(self._active_contacts.values()) if markers else None, events)
+                if self.idle_outputs:
+                    self._waiting = rest
+                else:
+                    self._send_rest(*rest)
         self._impulse_sum.fill(0.0)  # the messages hold copies
         self._contact_queue = []
         self._since_publish = 0
         self.publications += 1
 
-    def _outputs(self, ns: int, r: StepResult, markers: bool, events: list[ContactEvent]
-                 ) -> list[tuple[str, object, bytes | None]]:
-        """(key, message object or None, CDR bytes or None) of one publication at ``ns`` after step ``r``:
-        :data:`~.publication.PUBLISHED`, then markers if ``markers``, then contacts if ``events``. Objects
-        where the transport takes them (and for contacts, which are serialised from them), bytes where the
-        log or a raw transport takes them (:class:`~.publication.PublicationCdr`, the markers' templates)."""
+    def send_waiting(self) -> None:
+        """Send and record the markers and contact events that the last publication left waiting
+        (:attr:`idle_outputs`), if any: what the live loop does in its idle time (its duration goes into the
+        statistics' ``idle_send_*``). Whatever is sent or recorded before sends them first, so the log holds
+        every publication's messages in the same order either way."""
+        if self._waiting is not None:
+            start = self._clock()
+            self._send_waiting()
+            self._idle_durations.add(self._clock() - start)
+
+    def _send_waiting(self) -> None:
+        if self._waiting is not None:
+            rest, self._waiting = self._waiting, None
+            self._send_rest(*rest)
+
+    def _outputs(self, ns: int, r: StepResult) -> list[tuple[str, object, bytes | None]]:
+        """(key, message object or None, CDR bytes or None) of :data:`~.publication.PUBLISHED` at ``ns``
+        after step ``r``: objects where the transport takes them, bytes where the log or a raw transport
+        takes them (:class:`~.publication.PublicationCdr`)."""
         takes_objects = self._transport is not None and not self._raw
-        header = M.header(ns, self.settings.frame_id) if takes_objects or events else None
-        drawn = self._markers.content(r, self._active_contacts.values()) if markers else None
         if self.recorder is not None or self._raw:
             data = self._cdr.encode(ns, r.positions, r.velocities, r.tensions, self._impulse_sum)
-            if drawn is not None:
-                data.append(self._markers.cdr(ns, drawn))
         else:
-            data = [None] * (5 if drawn is not None else 4)
+            data = [None] * len(PUBLISHED)
         if takes_objects:
             length, rate = self._length, self._rate
             member_kinematics(r.positions, r.velocities, self._cable_ends, length, rate)
-            messages = self._messages(ns, header, r.positions, length, rate, r.tensions, self._impulse_sum)
-            if drawn is not None:
-                messages.append(self._markers.message(header, drawn))
+            messages = self._messages(ns, M.header(ns, self.settings.frame_id), r.positions, length, rate,
+                                      r.tensions, self._impulse_sum)
         else:
             messages = [None] * len(data)
-        outputs = list(zip((*PUBLISHED, "markers"), messages, data))
+        return list(zip(PUBLISHED, messages, data))
+
+    def _send_rest(self, ns: int, r: StepResult, active: list[ContactEvent] | None,
+                   events: list[ContactEvent]) -> None:
+        """Send and record the rest of the publication at ``ns`` after step ``r``: the markers with the
+        contacts ``active`` then (None: no markers this time; the markers' templates give their bytes), then
+        the contact ``events`` if any (serialised from their objects)."""
+        takes_objects = self._transport is not None and not self._raw
+        header = M.header(ns, self.settings.frame_id) if takes_objects or events else None
+        outputs = []
+        if active is not None:
+            drawn = self._markers.content(r, active)
+            data = self._markers.cdr(ns, drawn) if self.recorder is not None or self._raw else None
+            outputs.append(("markers", self._markers.message(header, drawn) if takes_objects else None, data))
         if events:
             outputs.append(self._output("contacts", encode_contacts(events, header)))
-        return outputs
+        self._send(ns, outputs)
 
     def _messages(self, ns: int, header, positions, length, rate, tensions, impulses) -> list:
         """The message objects of :data:`~.publication.PUBLISHED` (the arrays as in
@@ -560,7 +599,9 @@ class SimNodeLogic:
     def _send(self, ns: int, outputs: list[tuple[str, object, bytes | None]]) -> None:
         """Record and send ``outputs`` at ``ns``, in order: (key, message object or None if only bytes are
         taken, its CDR bytes or None if neither the log nor a raw transport takes them). The log takes them
-        in one call (:meth:`~.log.LogRecorder.record`), then the transport one by one."""
+        in one call (:meth:`~.log.LogRecorder.record`), then the transport one by one; what the last
+        publication left waiting goes first (:meth:`send_waiting`)."""
+        self._send_waiting()
         if self.recorder is not None:
             names = self.topic_names
             self.recorder.record([(names[key], data) for key, _, data in outputs], ns)
@@ -596,6 +637,7 @@ class SimNodeLogic:
     def reset(self) -> tuple[bool, str]:
         """Back to the scene's initial state (time 0, initial rest lengths, no external force). A log
         holds one run from the initial state, so the recorder starts a new file."""
+        self._send_waiting()   # the publication before the reset, whole in its file
         self.sim.reset()
         self._clear()
         self.restart_schedule()
@@ -648,7 +690,7 @@ class SimNodeLogic:
     def statistics(self) -> dict:
         """Counters for diagnostics and the summary (``msg_docs/diagnostics.md`` says what each is)."""
         wall = self._clock() - self._started
-        ticks = self._tick_durations
+        ticks, idle = self._tick_durations, self._idle_durations
         return {
             "steps": self._steps_run, "sim_time_s": round(self.sim.time, 9),
             "real_time_factor_achieved": round(self._steps_run * self.sim.dt / wall, 4) if wall > 0 else 0.0,
@@ -658,6 +700,8 @@ class SimNodeLogic:
             "tick_p99_ms": round(1e3 * ticks.percentile(99.0), 3),
             "tick_p999_ms": round(1e3 * ticks.percentile(99.9), 3), "tick_max_ms": round(1e3 * ticks.longest, 3),
             "max_steps_per_tick": self.max_steps_per_tick, "burst_ticks": self.burst_ticks,
+            "idle_sends": idle.ticks, "idle_send_p999_ms": round(1e3 * idle.percentile(99.9), 3),
+            "idle_send_max_ms": round(1e3 * idle.longest, 3),
             "publications": self.publications, "failed_steps": self.failed_steps,
             "refused_rest_lengths": self.refused["cable_rest_lengths"],
             "refused_wrenches": self.refused["external_wrench"], "paused": self.paused,
