@@ -12,7 +12,8 @@ more cycles than ``--duration`` allows, so it is still rolling when both are sto
 then finishes its log and prints its statistics). The figures are the server's own (``SimNodeLogic``'s
 statistics, over its whole run): steps, the achieved real-time factor, overruns and the worst lag, the
 wall-clock duration of its ticks (p50, p99, p99.9, max), the most steps a tick ran and the ticks that ran
-more than their nominal share (catch-up bursts); and the work done between ticks, in the loop's idle time
+more than their nominal share (catch-up bursts) beside the wake-ups that came over a tick period late (the
+operating system's, each owing a tick a step more); and the work done between ticks, in the loop's idle time
 (the markers and contact events of the publications, ``idle_send_*``). Whether the robot rolled: the command
 cycles the controller started and how far the centre of mass moved horizontally between the first and the
 last ``node_poses`` of the log. The load average (1 min) before and after goes beside them (other work on the
@@ -103,12 +104,12 @@ def read_log(path: str) -> tuple[float, float, list[dict[str, str]]]:
 
 
 def after_start(reports: list[dict[str, str]], stats: dict[str, str]) -> dict[str, int]:
-    """The ticks, overruns and catch-up bursts after the node's first diagnostics report (1 s into its
+    """The ticks, overruns, catch-up bursts and late wake-ups after the node's first diagnostics report (1 s into its
     run): the final counts less that report's, so the start (kernels loaded from the cache, the first
     messages serialised) is left out; -1 if there was no report."""
     first = reports[0] if reports else None
     return {f"{k}_after_1s": int(stats[k]) - int(first[k]) if first else -1
-            for k in ("ticks", "overruns", "burst_ticks")}
+            for k in ("ticks", "overruns", "burst_ticks", "late_wakeups")}
 
 
 def run(args, priority: int) -> dict:
@@ -140,10 +141,10 @@ def run(args, priority: int) -> dict:
     method = re.search(r"serving \S+ \((\w+),", err).group(1)
     policy = "default" if priority == 0 or "refused SCHED_FIFO" in err else f"SCHED_FIFO {priority}"
     started = [int(n) for n in re.findall(r"^cycle (\d+):", controller_out, flags=re.MULTILINE)]
-    ints = ("steps", "overruns", "ticks", "max_steps_per_tick", "burst_ticks", "idle_sends", "failed_steps",
-            "refused_rest_lengths")
+    ints = ("steps", "overruns", "ticks", "max_steps_per_tick", "burst_ticks", "late_wakeups", "idle_sends",
+            "failed_steps", "refused_rest_lengths")
     floats = ("real_time_factor_achieved", "max_lag_ms", "tick_p50_ms", "tick_p99_ms", "tick_p999_ms", "tick_max_ms",
-              "idle_send_p999_ms", "idle_send_max_ms")
+              "max_wakeup_delay_ms", "idle_send_p999_ms", "idle_send_max_ms")
     row = {"scene": args.scene, "method": method, "thread_priority": priority, "scheduler": policy,
            "duration_s": args.duration, "step_rate_hz": args.step_rate,
            "dt_s": args.dt, "publish_rate_hz": args.publish_rate, "log": "on",
@@ -159,10 +160,12 @@ def run(args, priority: int) -> dict:
     print(f"tick: p50 {row['tick_p50_ms']} ms, p99 {row['tick_p99_ms']} ms, p99.9 {row['tick_p999_ms']} ms "
           f"(target <= 1 ms), max {row['tick_max_ms']} ms; most steps in a tick {row['max_steps_per_tick']}, "
           f"ticks over their nominal share (catch-up bursts) {row['burst_ticks']} (target 0)")
+    print(f"wake-ups over a tick period late (the OS: each owes the next tick a step) {row['late_wakeups']}, the "
+          f"latest {row['max_wakeup_delay_ms']} ms")
     print(f"idle time: {row['idle_sends']} publications' markers and contact events sent between ticks, p99.9 "
           f"{row['idle_send_p999_ms']} ms, max {row['idle_send_max_ms']} ms")
     print(f"after the first second (start-up left out): {row['ticks_after_1s']} ticks, {row['overruns_after_1s']} "
-          f"overruns, {row['burst_ticks_after_1s']} catch-up bursts")
+          f"overruns, {row['burst_ticks_after_1s']} catch-up bursts, {row['late_wakeups_after_1s']} late wake-ups")
     print(f"robot: {row['cycles_started']} roll cycles started, centre of mass moved {travel:.3f} m over "
           f"{simulated:.1f} s of logged simulated time; {row['refused_rest_lengths']} commands refused", flush=True)
     return row

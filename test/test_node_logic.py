@@ -582,6 +582,7 @@ def test_the_spinning_node_wakes_on_the_schedule_so_a_late_wake_up_owes_no_step(
     assert polls[151] - polls[150] == pytest.approx(3.6e-3, abs=1e-12)
     assert per_tick[151] == 2 and set(np.delete(per_tick, 151)[2:]) == {1}
     assert logic.burst_ticks == 1 and logic.max_steps_per_tick == 2
+    assert logic.late_wakeups == 0 and logic.max_wakeup_delay == pytest.approx(0.7e-3, abs=1e-12)
     assert logic.sim.step_count == math.floor((polls[-1] - polls[0]) * 1e3)   # on time at the end
     # the other wake-ups: a whole number of periods after the schedule's start, and a microsecond, plus their
     # lateness
@@ -589,6 +590,36 @@ def test_the_spinning_node_wakes_on_the_schedule_so_a_late_wake_up_owes_no_step(
     woken = np.array([k for k in range(1, len(polls)) if k not in (51, 151, 152)])
     phase = (np.array(polls)[woken] - start - 1e-6 - np.array([late[k % 2] for k in woken])) * 1e3
     assert np.allclose(phase, np.round(phase), atol=1e-9)
+
+
+def test_a_wake_up_over_a_period_late_is_counted_and_owes_the_next_tick_a_step():
+    """The loop counts the wake-ups that come over a tick period after the time it slept to (the OS's doing:
+    late_wakeups, and the latest in max_wakeup_delay): here six, 1.6 ms late (the others 0.1 ms); each
+    owes the tick after it one step more, so the ticks of two steps are exactly those."""
+    import logging
+    import signal
+
+    from tensegrity_sim.ros.live import spin
+    from tensegrity_sim.ros.log import SignalLatch
+
+    clock = FakeClock(t=10.0)
+    logic, _, _ = make_logic(prism(), clock=clock)
+    latch, polls = SignalLatch(), []
+
+    class Transport:
+        def poll(self, logic, log):
+            polls.append(clock.t)
+            if len(polls) == 300:
+                latch.signum = signal.SIGINT
+
+    def sleep(seconds):
+        clock.t += seconds + (1.6e-3 if len(polls) % 50 == 25 else 0.1e-3)
+
+    with pytest.raises(KeyboardInterrupt):
+        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"), sleep=sleep)
+    stats = logic.statistics()
+    assert stats["late_wakeups"] == 6 and stats["max_wakeup_delay_ms"] == pytest.approx(1.6, abs=1e-9)
+    assert stats["burst_ticks"] == 6 and stats["max_steps_per_tick"] == 2
 
 
 def test_the_spinning_node_sends_markers_and_hands_its_log_the_waiting_messages_between_ticks(tmp_path):

@@ -92,7 +92,9 @@ def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Log
     the log's waiting messages and its periodic write-out (:meth:`.log.LogRecorder.drain`). Whatever must
     follow them (an input, the next publication) sends them first, so a loop without idle time still sends
     everything, in order. The stepping thread runs on ``SCHED_FIFO`` if ``thread_priority`` asks for it
-    (:class:`StepperScheduling`)."""
+    (:class:`StepperScheduling`); how late each wake-up comes goes to the statistics
+    (:meth:`SimNodeLogic.woke`), so that a tick of two steps after one over a period late is told from one after a
+    long tick."""
     clock = logic.clock
     logic.warm_up()
     # what exists now (the package, numba's kernels, the transport: ~150,000 objects) is kept out of the
@@ -130,6 +132,7 @@ def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Log
                 delay = next_tick - clock()
             if delay > 0:
                 sleep(delay)
+                logic.woke(clock() - next_tick)
             else:
                 next_tick = clock()
     except BaseException:

@@ -169,6 +169,8 @@ class SimNodeLogic:
         self._idle_durations = TickDurations()   # of send_waiting's sending
         self.max_steps_per_tick = 0
         self.burst_ticks = 0        # ticks that ran more steps than their nominal share (catching up)
+        self.late_wakeups = 0       # the loop's wake-ups over a tick period after the time it slept to (woke)
+        self.max_wakeup_delay = 0.0  # s, the latest of them all
         self.publications = 0
         self.failed_steps = 0
         self._steps_run = 0
@@ -429,6 +431,13 @@ class SimNodeLogic:
     @property
     def publication_due(self) -> bool:
         return self._since_publish >= self.settings._publish_every
+
+    def woke(self, delay: float) -> None:
+        """The loop's thread woke ``delay`` s after the time it slept to (:func:`~.live.spin`): over a tick
+        period late, the OS owes the schedule a step, which the next tick catches up (``late_wakeups``)."""
+        self.max_wakeup_delay = max(self.max_wakeup_delay, delay)
+        if delay > 1.0 / self.settings.step_rate:
+            self.late_wakeups += 1
 
     def tick(self) -> int:
         """Run the steps that are due on the real-time schedule (publishing whenever due); returns how
@@ -700,6 +709,7 @@ class SimNodeLogic:
             "tick_p99_ms": round(1e3 * ticks.percentile(99.0), 3),
             "tick_p999_ms": round(1e3 * ticks.percentile(99.9), 3), "tick_max_ms": round(1e3 * ticks.longest, 3),
             "max_steps_per_tick": self.max_steps_per_tick, "burst_ticks": self.burst_ticks,
+            "late_wakeups": self.late_wakeups, "max_wakeup_delay_ms": round(1e3 * self.max_wakeup_delay, 3),
             "idle_sends": idle.ticks, "idle_send_p999_ms": round(1e3 * idle.percentile(99.9), 3),
             "idle_send_max_ms": round(1e3 * idle.longest, 3),
             "publications": self.publications, "failed_steps": self.failed_steps,
