@@ -348,6 +348,34 @@ class BytesRecorder:
             self.records.append((topic, data, log_time_ns))
 
 
+def test_a_message_a_transport_decoded_is_taken_as_it_is(monkeypatch):
+    """receive(..., decoded=True) (the DDS transport's samples, decoded from the wire's CDR): the same log
+    bytes, the same refusals and the same commanded rest lengths as the message taken by an in-process caller,
+    without decoding it again from the logged bytes."""
+    from tensegrity_sim.ros import node_logic
+
+    scene = prism()
+    typename = TOPICS["cable_rest_lengths"].typename
+    messages = [rest_lengths_msg(["c0", "c2"], [0.31, 0.27]), rest_lengths_msg(["c9"], [0.3]),
+                rest_lengths_msg(["c1"], [float("nan")])]
+    runs = []
+    for decoded in (False, True):
+        logic, _, _ = make_logic(scene)
+        logic.recorder = BytesRecorder()
+        decodes = []
+        real = node_logic.M.deserialize
+        monkeypatch.setattr(node_logic.M, "deserialize", lambda data, t: decodes.append(t) or real(data, t))
+        reasons = [logic.receive("cable_rest_lengths", real(M.serialize(m, typename), typename) if decoded else m,
+                                 decoded=decoded) for m in messages]
+        monkeypatch.setattr(node_logic.M, "deserialize", real)
+        runs.append((reasons, logic.recorder.records, logic._target.copy(), len(decodes)))
+    (reasons, records, target, decodes), (reasons2, records2, target2, decodes2) = runs
+    assert reasons == reasons2 and reasons[0] is None and "c9" in reasons[1] and "finite" in reasons[2]
+    assert records == records2 and len(records) == 3
+    np.testing.assert_array_equal(target, target2)
+    assert target[[0, 2]].tolist() == [0.31, 0.27] and (decodes, decodes2) == (3, 0)
+
+
 @pytest.mark.parametrize("scene, frame_id", [(prism(gravity=9.81), "world"), (ts.load_scene("icosahedron"), "map"),
                                              (ts.load_scene("tower"), "b")])
 def test_log_and_raw_transport_get_the_messages_bytes(monkeypatch, scene, frame_id):

@@ -66,7 +66,7 @@ class DdsTransport:
         """Hand every input that arrived to the logic, and run every command, in arrival order per topic."""
         for key, reader in self.readers.items():
             for message in self._take(reader, log):
-                logic.receive(key, message)
+                logic.receive(key, message, decoded=True)
         for message in self._take(self.commands, log):
             self.results.write(M.new(_STRING, data=run_command(logic, message.data)))
 
