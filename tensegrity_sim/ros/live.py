@@ -87,8 +87,9 @@ def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Log
 
     Work that no step waits for is done in the loop's idle time, when more than :data:`SPARE_FOR_IDLE` of a tick
     period is left before the next tick, rather than inside a tick: a publication's markers and contact events
-    (:attr:`SimNodeLogic.idle_outputs`: in a 60 s ``bench/bench_node.py`` run the ticks that drew markers took
-    0.52 ms at the median against 0.15 ms for the other publications, and made most of the slowest 0.1 %), and
+    (:attr:`SimNodeLogic.idle_outputs`: in a 30 s ``bench/bench_node.py`` run timed tick by tick, the ticks that
+    drew markers took 0.52 ms at the median against 0.15 ms for the other publications, and made most of the
+    slowest 0.1 %), and
     the log's waiting messages and its periodic write-out (:meth:`.log.LogRecorder.drain`). Whatever must
     follow them (an input, the next publication) sends them first, so a loop without idle time still sends
     everything, in order. The stepping thread runs on ``SCHED_FIFO`` if ``thread_priority`` asks for it
