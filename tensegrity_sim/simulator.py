@@ -8,7 +8,6 @@ only when it fails.
 """
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import replace
 from typing import Mapping
@@ -161,11 +160,10 @@ def _walk(detector, xs: np.ndarray, step_start, dt: float, pairs: dict) -> dict:
     impulses, a strut resting on another cost 0.5 ms a step; walked as the steps before the last, then the last,
     a live node's chunk of steps paid a second walk, 30 us.)"""
     steps = len(xs) - 1
-    last = pairs.get(steps - 1)
-    per_step = {(k, 0): impulses for k, impulses in pairs.items() if k < steps}
-    if last:   # the walk gives a step without impulses of its own the last step's: give it none
-        per_step = {**dict.fromkeys(zip(range(steps), itertools.repeat(0)), {}), **per_step}
-    return detector.walk(xs, step_start, dt, impulses=last, per_step=per_step) if steps > 0 else {}
+    if steps < 1:
+        return {}
+    return detector.walk(xs, step_start, dt, impulses=pairs.get(steps - 1),
+                         per_step={(k, 0): impulses for k, impulses in pairs.items() if k < steps})
 
 
 class Simulator:

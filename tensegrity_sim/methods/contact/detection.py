@@ -568,13 +568,13 @@ class ContactDetector:
         """:meth:`CompiledDetector.walk` of one copy (``xs`` (K + 1, N, 3, 1)), step after step."""
         steps = len(xs) - 1 if stop is None else int(stop[0])
         start = step_start(np.arange(steps))
-        per_step = per_step or {}
         found = {}
         for k in range(steps):
             events = self.step(xs[k, ..., 0], xs[k + 1, ..., 0], float(start[k]), dt,
-                               per_step.get((k, 0), impulses))
+                               impulses if per_step is None else per_step.get((k, 0)))
             if events:
                 found[(k, 0)] = events
+        self._impulses = impulses or {}
         return found
 
     def _careful_step(self, x0, x1, t0, dt):
@@ -698,9 +698,10 @@ class CompiledDetector(ContactDetector):
              impulses: dict | None = None, per_step: dict | None = None) -> dict:
         """The events of a chunk of ``K`` steps of every copy: ``xs`` (K + 1, N, 3, B) m, the positions
         before the first step and after each; ``step_start(k)``: the times (s) steps ``k`` (array) start; ``stop``
-        (B,): steps to walk per copy (default all); ``impulses`` as :meth:`step`'s, or ``per_step``'s for the
-        steps it has ({(step, copy): impulses}). Returns {(step, copy): events in time order} of the steps that
-        have any."""
+        (B,): steps to walk per copy (default all); ``per_step``: the member contacts' impulses of the steps that
+        had any ({(step, copy): impulses}; a step it lacks had none), or None: every step's are ``impulses``
+        (:meth:`step`'s); ``impulses`` are also what the active contacts report after the walk (the last step's).
+        Returns {(step, copy): events in time order} of the steps that have any."""
         from ._detection_kernels import detect_steps
 
         xs = np.ascontiguousarray(xs, dtype=float)
@@ -726,9 +727,8 @@ class CompiledDetector(ContactDetector):
         """ContactEvents of the kernel's transitions (``_detection_kernels.event_arrays``; steps counted
         from the call's first, step ``k`` starting at ``step_start(k)`` s), as
         :meth:`ContactDetector._evaluate` makes them: {(step, copy): events in time order}; their impulses
-        ``per_step``'s ({(step, copy): impulses}) where it has the step, else ``impulses``."""
+        ``per_step``'s and ``impulses`` as :meth:`walk` takes them."""
         self._impulses = impulses or {}
-        per_step = per_step or {}
         if not len(step):
             return {}
         time = step_start(step) + tau * dt
@@ -741,7 +741,7 @@ class CompiledDetector(ContactDetector):
             if begin[k]:
                 self._since[p, b] = time[k]
             key = (int(step[k]), int(b))
-            self._impulses = per_step.get(key, impulses) or {}
+            self._impulses = (impulses if per_step is None else per_step.get(key)) or {}
             event = ContactEvent("begin" if begin[k] else "end", (self.names[self._i[p]], self.names[self._j[p]]),
                                  float(time[k]), pa[k], pb[k], normal[k], float(gap[k]), *self._impulse(p))
             out[key] = out.get(key, ()) + (event,)
