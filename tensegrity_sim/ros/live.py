@@ -89,13 +89,12 @@ def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Log
     period is left before the next tick, rather than inside a tick: a publication's markers and contact events
     (:attr:`SimNodeLogic.idle_outputs`: in a 30 s ``bench/bench_node.py`` run timed tick by tick, the ticks that
     drew markers took 0.52 ms at the median against 0.15 ms for the other publications, and made most of the
-    slowest 0.1 %), and
-    the log's waiting messages and its periodic write-out (:meth:`.log.LogRecorder.drain`). Whatever must
-    follow them (an input, the next publication) sends them first, so a loop without idle time still sends
-    everything, in order. The stepping thread runs on ``SCHED_FIFO`` if ``thread_priority`` asks for it
-    (:class:`StepperScheduling`); how late each wake-up comes goes to the statistics
-    (:meth:`SimNodeLogic.woke`), so that a tick of two steps after one over a period late is told from one after a
-    long tick."""
+    slowest 0.1 %), and the log's waiting messages and its periodic write-out (:meth:`.log.LogRecorder.drain`).
+    Whatever must follow them (an input, the next publication) sends them first, so a loop without idle time
+    still sends everything, in order. The stepping thread runs on ``SCHED_FIFO`` if ``thread_priority`` asks for
+    it (:class:`StepperScheduling`); how late each wake-up comes goes to the statistics
+    (:meth:`SimNodeLogic.woke`), so that a tick of two steps after a wake-up over a period late is told from one
+    after a long tick."""
     clock = logic.clock
     logic.warm_up()
     # what exists now (the package, numba's kernels, the transport: ~150,000 objects) is kept out of the
