@@ -317,8 +317,12 @@ class Simulator:
     def _settle(self) -> None:
         """Before an input changes or the method is asked about the present: a method whose loop carries
         what a command does not rebuild from the state (``carry_outlives_inputs``) is put back at the
-        state, the steps computed ahead dropped (the others are dropped by :meth:`_inputs_changed`)."""
-        if self._ahead is not None and self._method.carry_outlives_inputs:
+        state, the steps computed ahead dropped (the others are dropped by :meth:`_inputs_changed`). So is
+        any method when none of the steps ahead was handed out (computed early, :meth:`look_ahead`): its
+        carry from before them costs no step again, and the elastic method's warm start (a hint it keeps
+        across inputs) is then the state's, as if they had never been computed."""
+        a = self._ahead
+        if a is not None and (self._method.carry_outlives_inputs or self._state.step_count == a.start_count):
             self._rewind()
 
     def _inputs_changed(self) -> None:
@@ -367,6 +371,20 @@ class Simulator:
         st.positions, st.velocities = x, v
         st.step_count += 1
         return step_result(st.step_count * self.dt, result_x, result_v, impulses, tensions, slack, contacts, ground)
+
+    def look_ahead(self) -> bool:
+        """Compute now the steps that the next :meth:`step` would compute ahead, if none are left to hand out:
+        a caller with time to spare between two steps (a live node's idle time) takes that work out of the
+        step. The same steps either way (a new input drops them as it drops any). Whether steps computed ahead
+        are waiting now; nothing is computed for a method that steps one at a time, before the first step
+        (which checks the speeds first), or where the steps ahead stopped at one that is not finite (the next
+        step raises there)."""
+        a = self._ahead
+        if a is not None and self._state.step_count - a.start_count < a.stop:
+            return True
+        if self._speeds_unchecked or (a is not None and a.stop < a.count):
+            return False
+        return self._look_ahead()
 
     def _check_speeds(self) -> None:
         """Refuse (:class:`SpeedError`) a start from speeds no step can resolve: the scene's, once."""

@@ -248,6 +248,28 @@ def test_a_controller_commanding_every_n_steps_gets_its_n_steps_in_one_compiled_
     assert ahead.max_steps_ahead == 6
 
 
+def test_look_ahead_computes_the_steps_the_next_step_would_and_the_same():
+    """Simulator.look_ahead computes now the steps ahead that the next step() would (a live node's idle time):
+    nothing before the first step (which checks the speeds) or while steps wait; every step bit for bit the
+    same, and the same chunks, plus one the inputs held (twice the last, 20 steps) computed before each command
+    that moves a rest length (from step 120 on: dropped, and the 10 steps to the next command computed again),
+    and the one after the last step."""
+    early, plain = (ts.Simulator(ts.load_scene("icosahedron_ground"), method="elastic", dt=1e-3) for _ in range(2))
+    calls, plain_calls = record_advances(early), record_advances(plain)
+    assert early.look_ahead() is False and calls == []
+    for k in range(200):
+        if k and k % 10 == 0:
+            factor = 1.0 if k < 100 else (1.01 if k % 20 else 0.99)   # the same lengths resent, then moved
+            for sim in (early, plain):
+                sim.set_rest_lengths(factor * sim.scene.cable_rest_lengths)
+        r, t = early.step(), plain.step()
+        for x, y in zip(_fields(r), _fields(t)):
+            np.testing.assert_array_equal(x, y)
+        assert early.look_ahead() is True
+    assert [c for c in calls if c in plain_calls] == plain_calls
+    assert [c for c in calls if c not in plain_calls] == [(k, 20) for k in range(120, 201, 10)]
+
+
 def test_setting_the_inputs_in_effect_changes_nothing():
     """A controller that sends its command every step, unchanged: the steps computed ahead are kept (they
     double up to 64, as with the inputs held) and every step is bit for bit that of not sending it (on a
