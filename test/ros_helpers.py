@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import yaml
@@ -89,7 +90,7 @@ class FakeRecorder:
         return f"restart{self.restarts}.mcap"
 
 
-def make_logic(scene: ts.Scene, clock=None, method: str = "elastic", **settings):
+def make_logic(scene: ts.Scene, clock=None, method: str = "elastic", cpu_clock=time.thread_time, **settings):
     """(node logic, list of (key, message) it sent, its logger) for ``scene`` at dt = 1 ms.
     Markers go out with every publication unless ``marker_rate`` is given."""
     sent: list = []
@@ -98,7 +99,7 @@ def make_logic(scene: ts.Scene, clock=None, method: str = "elastic", **settings)
     sim = ts.Simulator(scene, method=method, dt=settings.pop("dt", 1e-3))
     logic = SimNodeLogic(sim, NodeSettings(scene=scene.name, dt=sim.dt, **settings),
                          transport=lambda key, msg: sent.append((key, msg)), clock=clock or FakeClock(),
-                         logger=logger)
+                         cpu_clock=cpu_clock, logger=logger)
     return logic, sent, logger
 
 

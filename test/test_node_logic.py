@@ -383,9 +383,11 @@ def test_log_and_raw_transport_get_the_messages_bytes(monkeypatch, scene, frame_
     the message object the transport gets, serialised by rosbags (clock, poses, cable states and
     impulses, markers of several shapes come from templates; contacts, diagnostics and inputs from the
     objects). With ``idle_outputs`` (the markers and contacts wait for ``send_waiting``, called after some
-    publications only: the others' go out before the next input, publication or diagnostics), the transport
-    and the log get the same messages in the same order at the same log times."""
+    publications only: the others' go out before the next publication or diagnostics; an input that arrives
+    meanwhile acts at once, its record waits behind them), the transport and the log get the same messages in
+    the same order at the same log times."""
     logics = {}
+    waited = []   # with idle_outputs: (outputs sent, records) before and after the inputs at step 15
     for raw, idle in ((False, False), (True, False), (False, True)):
         sent = []
         logic = SimNodeLogic(ts.Simulator(scene, method="elastic", dt=1e-3),
@@ -405,8 +407,12 @@ def test_log_and_raw_transport_get_the_messages_bytes(monkeypatch, scene, frame_
         monkeypatch.setattr(logic.sim, "step", step_with_contacts)
         for k in range(120):
             if k == 15:
+                before = (len(sent), len(logic.recorder.records)) if idle else None
                 logic.receive("cable_rest_lengths", rest_lengths_msg([scene.cable_names[1]], [0.3]))
                 logic.receive("external_wrench", wrench_msg("nope", [0.0, 0.0, 5.0]))  # refused, still logged
+                if idle:
+                    waited += [before, (len(sent), len(logic.recorder.records))]
+                    np.testing.assert_array_equal(logic._target[1], 0.3)   # the input acts at once
             logic.step()
             if logic.publication_due:
                 logic.publish()
@@ -420,6 +426,7 @@ def test_log_and_raw_transport_get_the_messages_bytes(monkeypatch, scene, frame_
     assert [(logic.topic_names[key], M.serialize(msg, TOPICS[key].typename)) for key, msg in idle_sent][:-1] == \
         outputs[:-1] and outputs[-1][0] == "/diagnostics"
     assert idle_logic.recorder.records[:-1] == logic.recorder.records[:-1]
+    assert waited[0] == waited[1]   # step 10's markers still waiting: the inputs drew nothing, recorded nothing yet
     assert idle_logic.statistics()["idle_sends"] == 4   # at steps 20, 50, 80 and 110
     assert [k for k, _ in sent].count("contacts") == 2 and [k for k, _ in sent].count("markers") == 12
     shapes = {tuple((m.ns, m.action, len(m.points), len(m.colors)) for m in msg.markers)
@@ -537,6 +544,28 @@ def test_tick_durations_and_catch_up_bursts_in_the_statistics():
     assert (stats["ticks"], stats["max_steps_per_tick"], stats["burst_ticks"], stats["overruns"]) == (1003, 2, 2, 0)
     # three ticks of 0 ms joined them: the 502nd shortest of 1003 is the 499th of the first 1000
     assert 0.499 <= stats["tick_p50_ms"] <= 0.499 * bin_ratio + 5e-4 and stats["tick_max_ms"] == 1.0
+
+
+def test_a_catch_up_tick_is_the_nodes_own_when_its_thread_used_over_a_period_of_cpu_time():
+    """A catch-up tick counts as the node's own (own_burst_ticks) when the ticking thread used over a tick
+    period of CPU time since the tick before began (or since the loop woke, if it slept after it), else as the
+    machine's: at 1 kHz, ticks on time using 0.2 ms each; then a tick 3 ms late after 0.3 ms of CPU time (the
+    thread was off its core: the machine's), one after a tick that used 1.5 ms (the node's own), and one after
+    0.9 ms of idle work, a sleep, a wake-up 1.2 ms late and 0.2 ms of work (the machine's), all of two steps."""
+    clock, cpu = FakeClock(t=0.0), FakeClock(t=5.0)
+    logic, _, _ = make_logic(prism(), clock=clock, cpu_clock=cpu)
+    for k, used in [(k, 0.2e-3) for k in range(1, 11)] + [(13, 0.3e-3), (14, 1.5e-3), (15, 0.2e-3)]:
+        clock.t = 1e-3 * k + 1e-7
+        cpu.t += used   # the CPU time of the thread since the tick before began
+        logic.tick()
+    cpu.t += 0.9e-3
+    logic.woke(1.2e-3)
+    cpu.t += 0.2e-3
+    clock.t = 17.2e-3
+    logic.tick()
+    stats = logic.statistics()
+    assert logic.sim.step_count == 17 and stats["max_steps_per_tick"] == 2 and stats["late_wakeups"] == 1
+    assert (stats["burst_ticks"], stats["own_burst_ticks"]) == (3, 1)
 
 
 def test_the_spinning_node_keeps_what_it_started_with_out_of_the_collector():
@@ -699,6 +728,47 @@ def test_the_spinning_node_sends_markers_and_hands_its_log_the_waiting_messages_
     assert topics.count("/tensegrity_sim/node_poses") == topics.count("/tensegrity_sim/markers") == logic.publications
 
 
+def test_the_spinning_node_publishes_diagnostics_in_its_idle_time_or_after_waiting_for_it():
+    """live.spin publishes /diagnostics once a second in the loop's idle time: at once while the ticks leave
+    more than SPARE_FOR_IDLE of a period (0.1 ms ticks here), DIAGNOSTICS_WAIT late when they leave none (0.6 ms
+    ticks, from 1.5 s on): the one due at 2 s goes out at 2.1 s, the next (due a second after it) at 3.2 s."""
+    import logging
+    import signal
+
+    from tensegrity_sim.ros.live import DIAGNOSTICS_WAIT, spin
+    from tensegrity_sim.ros.log import SignalLatch
+
+    clock = FakeClock(t=10.0)
+    logic, _, _ = make_logic(prism(), clock=clock)
+    latch, published, start = SignalLatch(), [], []
+    publish = logic.publish_diagnostics
+
+    def publish_diagnostics():
+        published.append(clock.t)
+        publish()
+
+    logic.publish_diagnostics = publish_diagnostics
+
+    class Transport:
+        def poll(self, logic, log):
+            if not start:
+                start.append(clock.t)
+            late = clock.t - start[0] > 1.5
+            clock.t += 0.6e-3 if late else 0.1e-3
+            if clock.t - start[0] > 3.5:
+                latch.signum = signal.SIGINT
+
+    def sleep(seconds):
+        clock.t += seconds
+
+    with pytest.raises(KeyboardInterrupt):
+        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"), sleep=sleep)
+    since = np.array(published) - start[0]
+    assert len(since) == 3 and abs(since[0] - 1.0) < 1e-3
+    assert abs(since[1] - (since[0] + 1.0 + DIAGNOSTICS_WAIT)) < 1e-3
+    assert abs(since[2] - (since[1] + 1.0 + DIAGNOSTICS_WAIT)) < 1e-3
+
+
 def test_the_stepping_thread_runs_on_fifo_while_the_node_is_on_a_schedule():
     """thread_priority puts the calling thread (only it) on SCHED_FIFO at that priority while the node runs on
     a schedule and back on the default policy otherwise; where the OS refuses (no privilege), one warning says
@@ -775,6 +845,36 @@ def test_the_steps_computed_ahead_end_at_the_next_publication():
     for start, steps in chunks:   # steps start + 1 .. start + steps, none past the next publication
         assert 1 <= steps <= NODE_STEPS_AHEAD and start + steps <= every * (start // every + 1), (start, steps)
     assert max(steps for _, steps in chunks) == every   # ... and as many as that between two commands
+
+
+@pytest.mark.parametrize("rate", [0.0, 0.5])
+def test_steps_computed_ahead_in_idle_time_change_no_message(rate):
+    """The live loop's idle look-ahead (SimNodeLogic.look_ahead after each publication: the next publication's
+    steps computed before the tick that takes them) leaves every logged message bit for bit as without it: a
+    rolling icosahedron commanded at every publication, its rest lengths resent unchanged or moved (at once,
+    or at a limited rate: then nothing is computed early while they move), and a wrench."""
+    scene = ts.load_scene("icosahedron_ground")
+    runs, early = [], []
+    for idle in (False, True):
+        logic, _, _ = make_logic(scene, publish_rate=100.0, max_rest_length_rate=rate)
+        logic.recorder = BytesRecorder()
+        names = logic._cable_names
+        for k in range(400):
+            if logic.publication_due:
+                logic.publish()
+                command = scene.cable_rest_lengths * (1.0 if (k // 10) % 3 == 0 else 1.0 + 0.01 * ((k // 10) % 3))
+                assert logic.receive("cable_rest_lengths", rest_lengths_msg(names, command.tolist())) is None
+                if k == 150:
+                    assert logic.receive("external_wrench", wrench_msg(scene.node_names[0], [0.0, 1.0, 0.0])) is None
+                if idle:
+                    early.append(logic.look_ahead())
+            logic.step()
+        runs.append(logic.recorder.records)
+    assert runs[0] == runs[1] and len(runs[0]) > 200
+    # after every publication at once; with a limited rate, only after those that found the lengths arrived
+    assert sum(early) == len(early) == 39 if rate == 0.0 else 0 < sum(early) < len(early) / 2
+    assert logic.statistics()["idle_look_aheads"] == sum(early)
+    assert logic.look_ahead() is False   # between two publications: nothing
 
 
 def test_real_time_factor_scales_the_schedule():

@@ -119,6 +119,8 @@ class SimNodeLogic:
     output instead of a message object: for a transport that sends raw CDR (a DDS writer, rclpy's
     ``publish`` of bytes) and for the replay; an output is then encoded once, for it and the log alike.
     clock(): monotonic wall-clock seconds (``time.monotonic``; a fake one in tests).
+    cpu_clock(): the CPU time (s) of the thread that ticks (``time.thread_time``; a fake one in tests): it tells
+    the catch-up ticks that the node's own work caused from those the machine did (:meth:`tick`).
     logger: where refusals, warnings (``warning``) and the reason of a pause after a failed step (``error``)
     go (a ``logging.Logger``-like object).
     recorder: an object with ``record(records, log_time_ns)`` (``records``: the (topic name, CDR bytes) of
@@ -127,21 +129,24 @@ class SimNodeLogic:
     construction.
 
     idle_outputs: the markers and contact events of a publication wait for :meth:`send_waiting` (the live
-    loop's idle time, :func:`~.live.spin`) instead of going out in the tick that publishes; False (the
-    default): every output goes out at once.
+    loop's idle time, :func:`~.live.spin`) instead of going out in the tick that publishes, and so do the log
+    records of the inputs that arrive meanwhile; False (the default): every output goes out at once.
     """
 
     def __init__(self, sim: Simulator, settings: NodeSettings, *, transport: Transport | None = None,
-                 raw_transport: bool = False, clock: Callable[[], float] = time.monotonic, logger=None,
-                 recorder=None):
+                 raw_transport: bool = False, clock: Callable[[], float] = time.monotonic,
+                 cpu_clock: Callable[[], float] = time.thread_time, logger=None, recorder=None):
         self.sim = sim
         self.settings = settings
         self.recorder = recorder
         self.idle_outputs = False
         self._waiting: tuple | None = None   # what publish left to send_waiting: _send_rest's arguments
+        # the log's records of the inputs that arrived while _waiting waits, (records, ns) each: they follow it
+        self._waiting_inputs: list[tuple[list[tuple[str, bytes]], int]] = []
         self._transport = transport
         self._raw = raw_transport
         self._clock = clock
+        self._cpu_clock = cpu_clock
         self._log = logger if logger is not None else logging.getLogger("tensegrity_sim")
         self.topic_names = {k: resolve_topic(s.name, settings.node_name) for k, s in TOPICS.items()}
         scene = sim.scene
@@ -169,7 +174,9 @@ class SimNodeLogic:
         self._idle_durations = TickDurations()   # of send_waiting's sending
         self.max_steps_per_tick = 0
         self.burst_ticks = 0        # ticks that ran more steps than their nominal share (catching up)
+        self.own_burst_ticks = 0    # of them, those after over a tick period of the ticking thread's CPU time
         self.late_wakeups = 0       # the loop's wake-ups over a tick period after the time it slept to (woke)
+        self.idle_look_aheads = 0   # publications after which look_ahead computed the next steps
         self.max_wakeup_delay = 0.0  # s, the latest of them all
         self.publications = 0
         self.failed_steps = 0
@@ -202,6 +209,7 @@ class SimNodeLogic:
         """Restart the real-time schedule here: step ``k`` is due at ``t0 + (k - k0) dt / rtf``."""
         self._anchor_time = self._clock()
         self._anchor_step = self.sim.step_count
+        self._tick_cpu = self._cpu_clock()   # the ticking thread's CPU time (s) when the last tick began
 
     def next_tick(self, now: float) -> float | None:
         """When (s, on :attr:`clock`) a loop runs its next tick, ``now`` the clock after the last: the first
@@ -287,8 +295,13 @@ class SimNodeLogic:
             return self._refuse(key, f"not a {typename} message ({type(exc).__name__}: {describe(str(exc))}): "
                                      f"{describe(message)}")
         if self.recorder is not None:
-            self._send_waiting()   # the log keeps the order of events
-            self.recorder.record([(self.topic_names[key], data)], self.stamp_ns())
+            # the log keeps the order of events: behind a publication's waiting outputs, the input waits too
+            # (it acts on the simulation now; only its record waits, so the input costs no marker drawing)
+            records = [(self.topic_names[key], data)]
+            if self._waiting is not None:
+                self._waiting_inputs.append((records, self.stamp_ns()))
+            else:
+                self.recorder.record(records, self.stamp_ns())
         if not decoded:
             message = M.deserialize(data, typename)
         undo = self._undo or (self._target, self._applied, self.sim.external_forces, [])
@@ -378,9 +391,7 @@ class SimNodeLogic:
             self._applied = np.where(np.abs(diff) <= max_change, self._target,
                                      self._applied + np.copysign(max_change, diff))
             self.sim.set_rest_lengths(self._applied)
-        # the steps computed ahead end at the next publication (at most NODE_STEPS_AHEAD of them): the tick
-        # that publishes hands out a step computed before, it does not compute the next ones too
-        self.sim.max_steps_ahead = min(NODE_STEPS_AHEAD, max(1, self.settings.publish_every - self._since_publish))
+        self._limit_ahead()
         try:
             r = self.sim.step()
         except StepError as exc:
@@ -394,6 +405,30 @@ class SimNodeLogic:
         self._since_publish += 1
         self._steps_run += 1
         return r
+
+    def _limit_ahead(self) -> None:
+        """The steps computed ahead end at the next publication (at most NODE_STEPS_AHEAD of them): the tick
+        that publishes hands out a step computed before, it does not compute the next ones too."""
+        self.sim.max_steps_ahead = min(NODE_STEPS_AHEAD, max(1, self.settings.publish_every - self._since_publish))
+
+    def look_ahead(self) -> bool:
+        """Compute the simulator's next steps ahead now, if none are left (:meth:`.Simulator.look_ahead`): what
+        the live loop does in its idle time after a publication, so that the tick after it hands out steps
+        computed before rather than computing them (unless an input changes them: a controller's command that
+        moves a rest length drops them, and that tick computes them again). Nothing while paused, while a
+        rate-limited rest length moves (every step changes it), or between publications (the steps computed
+        before end at one; the loop asks in every idle time). A step that would fail here is left to the
+        step that meets it (:meth:`step`), which fails there as without this. Whether steps computed ahead
+        wait now."""
+        if self.paused or self._since_publish or not np.array_equal(self._applied, self._target):
+            return False
+        self._limit_ahead()
+        try:
+            ready = self.sim.look_ahead()
+        except StepError:
+            return False
+        self.idle_look_aheads += ready
+        return ready
 
     def _step_failed(self, error: StepError, before_move: np.ndarray | None) -> None:
         """Give up what made the step from now fail (:meth:`step`); log and report it. ``before_move``: the
@@ -441,6 +476,7 @@ class SimNodeLogic:
         self.max_wakeup_delay = max(self.max_wakeup_delay, delay)
         if delay > 1.0 / self.settings.step_rate:
             self.late_wakeups += 1
+        self._tick_cpu = self._cpu_clock()   # what the thread did before it slept did not make the next tick late
 
     def tick(self) -> int:
         """Run the steps that are due on the real-time schedule (publishing whenever due); returns how
@@ -457,17 +493,25 @@ class SimNodeLogic:
 
         Every tick's wall-clock duration and steps go into the statistics (:meth:`statistics`: the
         duration percentiles, the most steps a tick ran, and the ticks that ran more than their nominal
-        share, catching up).
+        share, catching up). A catch-up tick is the node's own (``own_burst_ticks``) if the ticking thread
+        used over a tick period of CPU time since the tick before began, or since the loop last woke if it
+        slept after it (:meth:`woke`): its work alone would have fallen a period behind; the others are the
+        machine's: the thread had less work than a period, but woke late or was held off its core (by another
+        thread, process or the hypervisor).
         """
         if self.paused:
             return 0
         start = self._clock()
+        cpu = self._cpu_clock()
         done, end = self._run_due(start)
         self._tick_durations.add(end - start)
         self.max_steps_per_tick = max(self.max_steps_per_tick, done)
         s = self.settings
         if s.real_time_factor > 0.0 and done > math.ceil(s.real_time_factor / (s.dt * s.step_rate) - 1e-9):
             self.burst_ticks += 1   # more than the nominal share (rounded up: 2.5 steps a tick run 2 or 3)
+            if cpu - self._tick_cpu > 1.0 / s.step_rate:
+                self.own_burst_ticks += 1
+        self._tick_cpu = cpu
         return done
 
     def _run_due(self, start: float) -> tuple[int, float]:
@@ -548,7 +592,10 @@ class SimNodeLogic:
         """Send and record the markers and contact events that the last publication left waiting
         (:attr:`idle_outputs`), if any: what the live loop does in its idle time (its duration goes into the
         statistics' ``idle_send_*``). Whatever is sent or recorded before sends them first, so the log holds
-        every publication's messages in the same order either way."""
+        every publication's messages in the same order either way; an input that arrives while they wait acts
+        at once, and its record follows them (a controller's command answering the publication does not draw
+        its markers: in a 60 s ``bench/bench_node.py`` run timed phase by phase, 0.3-1.4 ms of the polls that
+        took a command did, 4.5 % of all polls)."""
         if self._waiting is not None:
             start = self._clock()
             self._send_waiting()
@@ -558,6 +605,9 @@ class SimNodeLogic:
         if self._waiting is not None:
             rest, self._waiting = self._waiting, None
             self._send_rest(*rest)
+            inputs, self._waiting_inputs = self._waiting_inputs, []
+            for records, ns in inputs:
+                self.recorder.record(records, ns)
 
     def _outputs(self, ns: int, r: StepResult) -> list[tuple[str, object, bytes | None]]:
         """(key, message object or None, CDR bytes or None) of :data:`~.publication.PUBLISHED` at ``ns``
@@ -712,9 +762,10 @@ class SimNodeLogic:
             "tick_p99_ms": round(1e3 * ticks.percentile(99.0), 3),
             "tick_p999_ms": round(1e3 * ticks.percentile(99.9), 3), "tick_max_ms": round(1e3 * ticks.longest, 3),
             "max_steps_per_tick": self.max_steps_per_tick, "burst_ticks": self.burst_ticks,
+            "own_burst_ticks": self.own_burst_ticks,
             "late_wakeups": self.late_wakeups, "max_wakeup_delay_ms": round(1e3 * self.max_wakeup_delay, 3),
             "idle_sends": idle.ticks, "idle_send_p999_ms": round(1e3 * idle.percentile(99.9), 3),
-            "idle_send_max_ms": round(1e3 * idle.longest, 3),
+            "idle_send_max_ms": round(1e3 * idle.longest, 3), "idle_look_aheads": self.idle_look_aheads,
             "publications": self.publications, "failed_steps": self.failed_steps,
             "refused_rest_lengths": self.refused["cable_rest_lengths"],
             "refused_wrenches": self.refused["external_wrench"], "paused": self.paused,
