@@ -12,11 +12,13 @@ more cycles than ``--duration`` allows, so it is still rolling when both are sto
 then finishes its log and prints its statistics). The figures are the server's own (``SimNodeLogic``'s
 statistics, over its whole run): steps, the achieved real-time factor, overruns and the worst lag, the
 wall-clock duration of its ticks (p50, p99, p99.9, max), the most steps a tick ran and the ticks that ran
-more than their nominal share (catch-up bursts) beside the wake-ups that came over a tick period late (the
-operating system's, each owing a tick a step more); and the work done between ticks, in the loop's idle time
-(the markers and contact events of the publications, ``idle_send_*``). Whether the robot rolled: the command
-cycles the controller started and how far the centre of mass moved horizontally between the first and the
-last ``node_poses`` of the log. The load average (1 min) before and after goes beside them (other work on the
+more than their nominal share (catch-up bursts), those of them the node's own work caused (over a tick period
+of the stepping thread's CPU time before them, ``own_burst_ticks``: the others the machine's), beside the
+wake-ups that came over a tick period late (the operating system's, each owing a tick a step more); and the
+work done between ticks, in the loop's idle time (the markers and contact events of the publications,
+``idle_send_*``, and the steps up to the next publication, ``idle_look_aheads``). Whether the robot rolled:
+the command cycles the controller started and how far the centre of mass moved horizontally between the first
+and the last ``node_poses`` of the log. The load average (1 min) before and after goes beside them (other work on the
 machine takes the node's CPU). Prints figures; never asserts a time.
 """
 from __future__ import annotations
@@ -109,7 +111,7 @@ def after_start(reports: list[dict[str, str]], stats: dict[str, str]) -> dict[st
     messages serialised) is left out; -1 if there was no report."""
     first = reports[0] if reports else None
     return {f"{k}_after_1s": int(stats[k]) - int(first[k]) if first else -1
-            for k in ("ticks", "overruns", "burst_ticks", "late_wakeups")}
+            for k in ("ticks", "overruns", "burst_ticks", "own_burst_ticks", "late_wakeups")}
 
 
 def run(args, priority: int) -> dict:
@@ -141,8 +143,8 @@ def run(args, priority: int) -> dict:
     method = re.search(r"serving \S+ \((\w+),", err).group(1)
     policy = "default" if priority == 0 or "refused SCHED_FIFO" in err else f"SCHED_FIFO {priority}"
     started = [int(n) for n in re.findall(r"^cycle (\d+):", controller_out, flags=re.MULTILINE)]
-    ints = ("steps", "overruns", "ticks", "max_steps_per_tick", "burst_ticks", "late_wakeups", "idle_sends",
-            "failed_steps", "refused_rest_lengths")
+    ints = ("steps", "overruns", "ticks", "max_steps_per_tick", "burst_ticks", "own_burst_ticks", "late_wakeups",
+            "idle_sends", "idle_look_aheads", "failed_steps", "refused_rest_lengths")
     floats = ("real_time_factor_achieved", "max_lag_ms", "tick_p50_ms", "tick_p99_ms", "tick_p999_ms", "tick_max_ms",
               "max_wakeup_delay_ms", "idle_send_p999_ms", "idle_send_max_ms")
     row = {"scene": args.scene, "method": method, "thread_priority": priority, "scheduler": policy,
@@ -159,13 +161,16 @@ def run(args, priority: int) -> dict:
           f"overruns {row['overruns']}, max lag {row['max_lag_ms']} ms, failed steps {row['failed_steps']}")
     print(f"tick: p50 {row['tick_p50_ms']} ms, p99 {row['tick_p99_ms']} ms, p99.9 {row['tick_p999_ms']} ms "
           f"(target <= 1 ms), max {row['tick_max_ms']} ms; most steps in a tick {row['max_steps_per_tick']}, "
-          f"ticks over their nominal share (catch-up bursts) {row['burst_ticks']} (target 0)")
+          f"ticks over their nominal share (catch-up bursts) {row['burst_ticks']}, of which the node's own work "
+          f"caused {row['own_burst_ticks']} (target 0; the others the machine's)")
     print(f"wake-ups over a tick period late (the OS: each owes the next tick a step) {row['late_wakeups']}, the "
           f"latest {row['max_wakeup_delay_ms']} ms")
     print(f"idle time: {row['idle_sends']} publications' markers and contact events sent between ticks, p99.9 "
-          f"{row['idle_send_p999_ms']} ms, max {row['idle_send_max_ms']} ms")
+          f"{row['idle_send_p999_ms']} ms, max {row['idle_send_max_ms']} ms; the next steps computed after "
+          f"{row['idle_look_aheads']} publications")
     print(f"after the first second (start-up left out): {row['ticks_after_1s']} ticks, {row['overruns_after_1s']} "
-          f"overruns, {row['burst_ticks_after_1s']} catch-up bursts, {row['late_wakeups_after_1s']} late wake-ups")
+          f"overruns, {row['burst_ticks_after_1s']} catch-up bursts ({row['own_burst_ticks_after_1s']} the node's "
+          f"own), {row['late_wakeups_after_1s']} late wake-ups")
     print(f"robot: {row['cycles_started']} roll cycles started, centre of mass moved {travel:.3f} m over "
           f"{simulated:.1f} s of logged simulated time; {row['refused_rest_lengths']} commands refused", flush=True)
     return row
