@@ -99,6 +99,13 @@ _PAIR_RECORDS = 4096   # member-pair impulse records a compiled call keeps at mo
 _HELD = (np.empty((0, 0, 1)), np.empty((0, 0, 3, 1)))   # no per-step inputs: the state's held
 
 
+class _Warm(NamedTuple):
+    """A carry of :meth:`ElasticMethod.carry` that is only the contact solver's warm start (2, N + P, 3, 1):
+    what an input left for the next step."""
+
+    warm: np.ndarray
+
+
 class _Forces(NamedTuple):
     """What the step needs at one configuration: accelerations (N, 3) m/s^2, cable tensions
     (n_cables,) N, member unit vectors (m, 3), slack cables (n_cables,) bool, cable elongations
@@ -197,6 +204,14 @@ class ElasticMethod(StepMethod):
         out = (x[None].copy(), v[None].copy(), np.empty((0,) + rest.shape), np.empty((0,) + rest.shape, dtype=bool))
         self._advance(State(x, v, rest, np.zeros_like(x)), x, v, 0, 1, *out, np.empty((0,) + x.shape))
         self._carry = None
+
+    @property
+    def carry_outlives_inputs(self) -> bool:
+        """With contacts: the contact solver's warm starts outlive an input (:meth:`invalidate` keeps them), so
+        the simulator puts the loop back at the state before an input changes (``base.py``'s rule 10): the warm
+        start an input leaves is the state's, not that of steps computed ahead and dropped, whenever they were
+        computed (a live node computes them in its idle time, its replay in the step)."""
+        return self.ground is not None
 
     def invalidate(self) -> None:
         self._cache = None
@@ -324,10 +339,18 @@ class ElasticMethod(StepMethod):
         return self.compiled and self._plain and self._ground_model is None
 
     def carry(self):
-        return None if self._carry is None else tuple(a.copy() for a in self._carry)
+        """The compiled loop's carry (a copy), or, where no step ran since an input dropped it, the contact
+        solver's warm start kept for the next step (:class:`_Warm`; None: none): a rewind to it computes the
+        same steps again."""
+        if self._carry is not None:
+            return tuple(a.copy() for a in self._carry)
+        return None if self._warm is None else _Warm(self._warm.copy())
 
     def restore(self, carry) -> None:
-        self._carry = None if carry is None else tuple(a.copy() for a in carry)
+        if isinstance(carry, _Warm):
+            self._carry, self._warm = None, carry.warm.copy()
+        else:
+            self._carry, self._warm = (None if carry is None else tuple(a.copy() for a in carry)), None
 
     def retrace(self, state: State) -> MethodStep | None:
         if not self.compiled:
