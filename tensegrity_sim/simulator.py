@@ -253,6 +253,12 @@ class Simulator:
         return self._state.step_count
 
     @property
+    def steps_ahead(self) -> int:
+        """How many steps computed ahead wait for :meth:`step` to hand them out (see :meth:`look_ahead`)."""
+        a = self._ahead
+        return 0 if a is None else max(0, a.stop - (self._state.step_count - a.start_count))
+
+    @property
     def positions(self) -> np.ndarray:
         return self._state.positions.copy()
 
@@ -380,7 +386,7 @@ class Simulator:
         (which checks the speeds first), or where the steps ahead stopped at one that is not finite (the next
         step raises there)."""
         a = self._ahead
-        if a is not None and self._state.step_count - a.start_count < a.stop:
+        if self.steps_ahead:
             return True
         if self._speeds_unchecked or (a is not None and a.stop < a.count):
             return False

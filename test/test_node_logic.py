@@ -849,32 +849,53 @@ def test_the_steps_computed_ahead_end_at_the_next_publication():
 
 @pytest.mark.parametrize("rate", [0.0, 0.5])
 def test_steps_computed_ahead_in_idle_time_change_no_message(rate):
-    """The live loop's idle look-ahead (SimNodeLogic.look_ahead after each publication: the next publication's
-    steps computed before the tick that takes them) leaves every logged message bit for bit as without it: a
-    rolling icosahedron commanded at every publication, its rest lengths resent unchanged or moved (at once,
-    or at a limited rate: then nothing is computed early while they move), and a wrench."""
+    """The live loop's idle look-ahead (SimNodeLogic.look_ahead, here after every tick: the steps up to the next
+    publication computed before the ticks that take them) leaves every logged message bit for bit as without
+    it: a rolling icosahedron commanded after every publication, its rest lengths resent unchanged or moved (at
+    once, or at a limited rate: then nothing is computed early while they move), and a wrench. A command that
+    moves them drops the steps computed ahead (the loop is rewound over the one taken): the tick after it
+    computes its own step alone, the idle time the rest, up to the next publication."""
+    from conftest import record_advances
+
     scene = ts.load_scene("icosahedron_ground")
     runs, early = [], []
     for idle in (False, True):
         logic, _, _ = make_logic(scene, publish_rate=100.0, max_rest_length_rate=rate)
         logic.recorder = BytesRecorder()
+        logic.idle_outputs = idle
+        chunks = record_advances(logic.sim)
+        by = {"input": [], "tick": [], "idle": []}   # the chunks computed by each
         names = logic._cable_names
-        for k in range(400):
-            if logic.publication_due:
-                logic.publish()
-                command = scene.cable_rest_lengths * (1.0 if (k // 10) % 3 == 0 else 1.0 + 0.01 * ((k // 10) % 3))
-                assert logic.receive("cable_rest_lengths", rest_lengths_msg(names, command.tolist())) is None
-                if k == 150:
-                    assert logic.receive("external_wrench", wrench_msg(scene.node_names[0], [0.0, 1.0, 0.0])) is None
-                if idle:
-                    early.append(logic.look_ahead())
-            logic.step()
+
+        def computing(what, call, *args):
+            before = len(chunks)
+            out = call(*args)
+            by[what] += chunks[before:]
+            return out
+
+        for k in range(400):   # as the loop: the inputs, a tick (a step, and a publication if due), idle time
+            if k % 10 == 1:   # the controller's answer to the publication: the same lengths every other time
+                command = scene.cable_rest_lengths * (1.0 + 0.01 * ((k // 20) % 3))
+                msg = rest_lengths_msg(names, command.tolist())
+                assert computing("input", logic.receive, "cable_rest_lengths", msg) is None
+            if k == 155:
+                msg = wrench_msg(scene.node_names[0], [0.0, 1.0, 0.0])
+                assert computing("input", logic.receive, "external_wrench", msg) is None
+            assert computing("tick", logic._advance)
+            logic.send_waiting()
+            if idle:
+                early.append(computing("idle", logic.look_ahead))
         runs.append(logic.recorder.records)
     assert runs[0] == runs[1] and len(runs[0]) > 200
-    # after every publication at once; with a limited rate, only after those that found the lengths arrived
-    assert sum(early) == len(early) == 39 if rate == 0.0 else 0 < sum(early) < len(early) / 2
-    assert logic.statistics()["idle_look_aheads"] == sum(early)
-    assert logic.look_ahead() is False   # between two publications: nothing
+    if rate == 0.0:   # steps wait after every tick
+        assert all(early) and logic.statistics()["idle_look_aheads"] == len(by["idle"])
+        assert {steps for _, steps in by["tick"]} == {1}   # a tick computes one step at most
+        # the rewinds over the step taken after a publication; the wrench's over the five taken before it
+        assert [steps for _, steps in by["input"] if steps != 1] == [5] and len(by["input"]) >= 9
+        # as many as step() would compute (doubling from the last input), none past the next publication
+        assert all(start + steps <= 10 * (start // 10 + 1) for start, steps in by["idle"]) and len(by["idle"]) > 39
+    else:   # and not while the lengths move
+        assert 0 < sum(early) < len(early) / 2
 
 
 def test_real_time_factor_scales_the_schedule():

@@ -408,19 +408,25 @@ class SimNodeLogic:
 
     def _limit_ahead(self) -> None:
         """The steps computed ahead end at the next publication (at most NODE_STEPS_AHEAD of them): the tick
-        that publishes hands out a step computed before, it does not compute the next ones too."""
-        self.sim.max_steps_ahead = min(NODE_STEPS_AHEAD, max(1, self.settings.publish_every - self._since_publish))
+        that publishes hands out a step computed before, it does not compute the next ones too. With the live
+        loop's idle time (:attr:`idle_outputs`), the step after an input that dropped them is computed alone,
+        and the loop computes the rest in its idle time (:meth:`look_ahead`), not the tick that took the input."""
+        limit = min(NODE_STEPS_AHEAD, max(1, self.settings.publish_every - self._since_publish))
+        self.sim.max_steps_ahead = 1 if self.idle_outputs and self._undo is not None else limit
 
     def look_ahead(self) -> bool:
-        """Compute the simulator's next steps ahead now, if none are left (:meth:`.Simulator.look_ahead`): what
-        the live loop does in its idle time after a publication, so that the tick after it hands out steps
-        computed before rather than computing them (unless an input changes them: a controller's command that
-        moves a rest length drops them, and that tick computes them again). Nothing while paused, while a
-        rate-limited rest length moves (every step changes it), or between publications (the steps computed
-        before end at one; the loop asks in every idle time). A step that would fail here is left to the
-        step that meets it (:meth:`step`), which fails there as without this. Whether steps computed ahead
-        wait now."""
-        if self.paused or self._since_publish or not np.array_equal(self._applied, self._target):
+        """Compute the simulator's next steps ahead now, up to the next publication, if none are left
+        (:meth:`.Simulator.look_ahead`): what the live loop does in its idle time, so that its ticks hand out
+        steps computed before rather than computing them (a controller's command that moves a rest length
+        drops them: the tick that takes it computes its own step, and the loop the rest). Nothing while
+        paused or while a rate-limited rest length moves (every step changes it). A step that would fail here
+        is left to the step that meets it (:meth:`step`), which fails there as without this. Whether steps
+        computed ahead wait now."""
+        if self.paused:
+            return False
+        if self.sim.steps_ahead:
+            return True
+        if not np.array_equal(self._applied, self._target):
             return False
         self._limit_ahead()
         try:
