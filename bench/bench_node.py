@@ -166,8 +166,8 @@ def run(args, priority: int) -> dict:
     print(f"wake-ups over a tick period late (the OS: each owes the next tick a step) {row['late_wakeups']}, the "
           f"latest {row['max_wakeup_delay_ms']} ms")
     print(f"idle time: {row['idle_sends']} publications' markers and contact events sent between ticks, p99.9 "
-          f"{row['idle_send_p999_ms']} ms, max {row['idle_send_max_ms']} ms; the next steps computed after "
-          f"{row['idle_look_aheads']} publications")
+          f"{row['idle_send_p999_ms']} ms, max {row['idle_send_max_ms']} ms; steps computed ahead "
+          f"{row['idle_look_aheads']} times")
     print(f"after the first second (start-up left out): {row['ticks_after_1s']} ticks, {row['overruns_after_1s']} "
           f"overruns, {row['burst_ticks_after_1s']} catch-up bursts ({row['own_burst_ticks_after_1s']} the node's "
           f"own), {row['late_wakeups_after_1s']} late wake-ups")

@@ -176,7 +176,7 @@ class SimNodeLogic:
         self.burst_ticks = 0        # ticks that ran more steps than their nominal share (catching up)
         self.own_burst_ticks = 0    # of them, those after over a tick period of the ticking thread's CPU time
         self.late_wakeups = 0       # the loop's wake-ups over a tick period after the time it slept to (woke)
-        self.idle_look_aheads = 0   # publications after which look_ahead computed the next steps
+        self.idle_look_aheads = 0   # the times look_ahead computed steps ahead
         self.max_wakeup_delay = 0.0  # s, the latest of them all
         self.publications = 0
         self.failed_steps = 0
