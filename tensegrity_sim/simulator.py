@@ -323,12 +323,10 @@ class Simulator:
     def _settle(self) -> None:
         """Before an input changes or the method is asked about the present: a method whose loop carries
         what a command does not rebuild from the state (``carry_outlives_inputs``) is put back at the
-        state, the steps computed ahead dropped (the others are dropped by :meth:`_inputs_changed`). So is
-        any method when none of the steps ahead was handed out (computed early, :meth:`look_ahead`): its
-        carry from before them costs no step again, and the elastic method's warm start (a hint it keeps
-        across inputs) is then the state's, as if they had never been computed."""
-        a = self._ahead
-        if a is not None and (self._method.carry_outlives_inputs or self._state.step_count == a.start_count):
+        state, the steps computed ahead dropped (the others are dropped by :meth:`_inputs_changed`), so
+        that what follows an input does not depend on how far ahead the steps were computed
+        (:meth:`look_ahead`)."""
+        if self._ahead is not None and self._method.carry_outlives_inputs:
             self._rewind()
 
     def _inputs_changed(self) -> None:

@@ -599,9 +599,9 @@ class SimNodeLogic:
         (:attr:`idle_outputs`), if any: what the live loop does in its idle time (its duration goes into the
         statistics' ``idle_send_*``). Whatever is sent or recorded before sends them first, so the log holds
         every publication's messages in the same order either way; an input that arrives while they wait acts
-        at once, and its record follows them (a controller's command answering the publication does not draw
-        its markers: in a 60 s ``bench/bench_node.py`` run timed phase by phase, 0.3-1.4 ms of the polls that
-        took a command did, 4.5 % of all polls)."""
+        at once, and its record follows them, so a controller's command answering the publication does not
+        draw its markers (timed phase by phase in a 60 s ``bench/bench_node.py`` run, a one-off: drawing them
+        made 4.5 % of the polls take 0.3-1.4 ms)."""
         if self._waiting is not None:
             start = self._clock()
             self._send_waiting()
