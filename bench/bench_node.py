@@ -5,6 +5,8 @@ catch-up burst).
 Run: ``python3 bench/bench_node.py [--duration 60] [--scene icosahedron_ground] [--step-rate 1000]
 [--thread-priorities 0,50] [--csv FILE]`` (default CSV: ``bench/results/node_tick.csv``): one run per
 ``thread_priority`` in turn, 0 the default scheduler, 50 ``SCHED_FIFO`` (the server says if the OS refused it).
+``--in-process``: the node's own work alone (:func:`in_process`; default CSV ``bench/results/node_in_process.csv``),
+what the live runs' catch-up ticks are held to.
 
 The server runs in its own process over loopback on a random domain, logging to a temporary folder; the
 roll controller runs in another, as a user runs it (``examples/roll_controller.py --domain-id D``), with
@@ -176,6 +178,97 @@ def run(args, priority: int) -> dict:
     return row
 
 
+def in_process(args) -> dict:
+    """The node's own work with nothing else on the machine's clock (``--in-process``): the same node (log on,
+    outputs encoded for a raw transport, the idle work of ``live.spin``) turned in this process for
+    ``--duration`` s of simulated time, the roll controller answering each publication, without sleeping or
+    DDS. Each turn as the live loop's on a machine that never makes it wait, its CPU time standing for the
+    clock: the input that arrived, the tick (its step, and the publication if due), then each piece of the idle
+    work while more than ``SPARE_FOR_IDLE`` of a period is left before the next tick (markers and contact
+    events, the steps ahead, ``/diagnostics`` once a second of simulated time, waiting ``DIAGNOSTICS_WAIT`` at
+    most, the log's write-out). A turn that runs past the next tick's time makes that tick start late; a tick
+    that starts a whole period late owes two steps: a catch-up tick the node's own work causes on a perfect
+    machine (``catch_up_ticks``). Its row: those, and the CPU time (``time.thread_time``) of the turns' input and
+    tick and of whole turns, p50/p99/p99.9/max, with how many of each took over a tick period."""
+    import gc
+
+    from tensegrity_sim import Simulator, load_scene
+    from tensegrity_sim.ros.live import DIAGNOSTICS_WAIT, SPARE_FOR_IDLE
+    from tensegrity_sim.ros.log import LogRecorder, log_file_path
+    from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic
+
+    sys.path.insert(0, str(CONTROLLER.parent))
+    import roll_controller as rc
+
+    loaded = load_scene(args.scene)
+    sim = Simulator(loaded, method="auto", dt=args.dt)
+    poses = []
+    settings = NodeSettings(scene=args.scene, dt=args.dt, step_rate=args.step_rate, publish_rate=args.publish_rate,
+                            log_path="")
+    logic = SimNodeLogic(sim, settings, transport=lambda key, data: poses.append(data) if key == "node_poses" else None,
+                         raw_transport=True)
+    controller = rc.RollController(rc.planner_for(loaded), dict(zip(loaded.cable_names, loaded.cable_rest_lengths)),
+                                   (1.0, 0.0))
+    turns = round(args.duration / args.dt)
+    inputs_tick, whole = np.empty(turns), np.empty(turns)
+    with tempfile.TemporaryDirectory() as log_dir:
+        with LogRecorder(log_file_path(log_dir, args.scene), logic.channels(), logic.run_info()) as recorder:
+            logic.recorder = recorder
+            logic.warm_up()
+            gc.collect()
+            gc.freeze()
+            logic.idle_outputs = True
+            command = diagnostics_due = None
+            late, catch_up = 0.0, 0   # s the turn starts after its tick's time; ticks that owed two steps
+            period = 1.0 / args.step_rate
+            spare, second, wait = SPARE_FOR_IDLE * period, round(1.0 / args.dt), round(DIAGNOSTICS_WAIT / args.dt)
+            try:
+                for k in range(turns):
+                    start = time.thread_time()
+                    if late >= period:   # this tick runs the step it owes beside its own
+                        catch_up += 1
+                        late -= period
+                    if command:
+                        logic.receive("cable_rest_lengths", M.joint_state(M.header(0, ""), list(command),
+                                                                           position=list(command.values())))
+                        command = None
+                    logic._advance()
+                    inputs_tick[k] = time.thread_time() - start
+                    if k % second == 0:
+                        diagnostics_due = k
+                    for work in (logic.send_waiting, logic.look_ahead, None, recorder.drain):   # None: diagnostics
+                        idle = late + time.thread_time() - start < period - spare
+                        if work is not None and idle:
+                            work()
+                        elif work is None and diagnostics_due is not None and (idle or k - diagnostics_due >= wait):
+                            logic.publish_diagnostics()
+                            diagnostics_due = None
+                    whole[k] = time.thread_time() - start
+                    late = max(0.0, late + whole[k] - period)   # how late the next tick starts
+                    if poses:   # the controller's answer, the next turn's input (not timed: another process's work)
+                        msg = M.deserialize(poses.pop(), "geometry_msgs/msg/PoseArray")
+                        x = np.array([[p.position.x, p.position.y, p.position.z] for p in msg.poses])
+                        command = controller.update(sim.time, x)
+            finally:
+                gc.unfreeze()
+    row = {"scene": args.scene, "method": sim.method, "turns": turns, "dt_s": args.dt,
+           "publish_rate_hz": args.publish_rate, "log": "on", "cycles_started": controller.cycle + 1,
+           "idle_look_aheads": logic.idle_look_aheads, "catch_up_ticks": catch_up}
+    for name, cpu in (("input_tick", inputs_tick), ("turn", whole)):
+        for q, label in ((50, "p50"), (99, "p99"), (99.9, "p999")):
+            row[f"{name}_cpu_{label}_ms"] = round(1e3 * float(np.percentile(cpu, q)), 3)
+        row[f"{name}_cpu_max_ms"] = round(1e3 * float(cpu.max()), 3)
+        row[f"{name}s_over_a_period"] = int((cpu > period).sum())
+    print(f"{args.scene} ({sim.method}) in this process, {turns} turns of the live loop (log on, idle work, the roll "
+          f"controller answering each publication: {row['cycles_started']} cycles started)")
+    for name, what in (("input_tick", "input and tick"), ("turn", "whole turn (with the idle work)")):
+        print(f"{what}: CPU p50 {row[f'{name}_cpu_p50_ms']} ms, p99 {row[f'{name}_cpu_p99_ms']} ms, p99.9 "
+              f"{row[f'{name}_cpu_p999_ms']} ms, max {row[f'{name}_cpu_max_ms']} ms; over a tick period: "
+              f"{row[f'{name}s_over_a_period']}", flush=True)
+    print(f"catch-up ticks (two steps owed) on a perfect machine: {catch_up}")
+    return row
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=60.0, help="s of wall-clock time the controller drives")
@@ -185,9 +278,17 @@ def main() -> int:
     parser.add_argument("--publish-rate", type=float, default=100.0)
     parser.add_argument("--thread-priorities", type=lambda text: [int(p) for p in text.split(",")], default=[0, 50],
                         help="the server's thread_priority of each run, in turn (default: 0,50)")
-    parser.add_argument("--csv", type=Path, default=RESULTS / "node_tick.csv")
+    parser.add_argument("--in-process", action="store_true",
+                        help="the node's own work alone: its loop turned in this process (default CSV: "
+                             "bench/results/node_in_process.csv)")
+    parser.add_argument("--csv", type=Path, default=None)
     args = parser.parse_args()
-    write_csv(args.csv, [run(args, priority) for priority in args.thread_priorities])
+    if args.in_process:
+        args.csv = args.csv or RESULTS / "node_in_process.csv"
+        write_csv(args.csv, [in_process(args)])
+    else:
+        args.csv = args.csv or RESULTS / "node_tick.csv"
+        write_csv(args.csv, [run(args, priority) for priority in args.thread_priorities])
     print(f"wrote {args.csv}")
     return 0
 
