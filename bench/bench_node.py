@@ -183,17 +183,17 @@ def in_process(args) -> dict:
     outputs encoded for a raw transport, the idle work of ``live.spin``) turned in this process for
     ``--duration`` s of simulated time, the roll controller answering each publication, without sleeping or
     DDS. Each turn as the live loop's on a machine that never makes it wait, its CPU time standing for the
-    clock: the input that arrived, the tick (its step, and the publication if due), then each piece of the idle
-    work while more than ``SPARE_FOR_IDLE`` of a period is left before the next tick (markers and contact
-    events, the steps ahead, ``/diagnostics`` once a second of simulated time, waiting ``DIAGNOSTICS_WAIT`` at
-    most, the log's write-out). A turn that runs past the next tick's time makes that tick start late; a tick
-    that starts a whole period late owes two steps: a catch-up tick the node's own work causes on a perfect
-    machine (``catch_up_ticks``). Its row: those, and the CPU time (``time.thread_time``) of the turns' input and
-    tick and of whole turns, p50/p99/p99.9/max, with how many of each took over a tick period."""
+    clock: the input that arrived, the tick (its step, and the publication if due), then the idle work by the
+    loop's own rule (``live.idle_work``: markers and contact events, the steps ahead, ``/diagnostics`` once a
+    second of simulated time, waiting ``DIAGNOSTICS_WAIT`` at most, the log's write-out). A turn that runs past
+    the next tick's time makes that tick start late; a tick that starts a whole period late owes two steps: a
+    catch-up tick the node's own work causes on a perfect machine (``catch_up_ticks``). Its row: those, and the
+    CPU time (``time.thread_time``) of the turns' input and tick and of whole turns, p50/p99/p99.9/max, with how
+    many of each took over a tick period."""
     import gc
 
     from tensegrity_sim import Simulator, load_scene
-    from tensegrity_sim.ros.live import DIAGNOSTICS_WAIT, SPARE_FOR_IDLE
+    from tensegrity_sim.ros.live import DIAGNOSTICS_WAIT, idle_work
     from tensegrity_sim.ros.log import LogRecorder, log_file_path
     from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic
 
@@ -221,7 +221,7 @@ def in_process(args) -> dict:
             command = diagnostics_due = None
             late, catch_up = 0.0, 0   # s the turn starts after its tick's time; ticks that owed two steps
             period = 1.0 / args.step_rate
-            spare, second, wait = SPARE_FOR_IDLE * period, round(1.0 / args.dt), round(DIAGNOSTICS_WAIT / args.dt)
+            second, wait = round(1.0 / args.dt), round(DIAGNOSTICS_WAIT / args.dt)
             try:
                 for k in range(turns):
                     start = time.thread_time()
@@ -236,13 +236,10 @@ def in_process(args) -> dict:
                     inputs_tick[k] = time.thread_time() - start
                     if k % second == 0:
                         diagnostics_due = k
-                    for work in (logic.send_waiting, logic.look_ahead, None, recorder.drain):   # None: diagnostics
-                        idle = late + time.thread_time() - start < period - spare
-                        if work is not None and idle:
-                            work()
-                        elif work is None and diagnostics_due is not None and (idle or k - diagnostics_due >= wait):
-                            logic.publish_diagnostics()
-                            diagnostics_due = None
+                    due = diagnostics_due is not None
+                    if idle_work(logic, lambda: period - late - (time.thread_time() - start), period, due,
+                                 due and k - diagnostics_due >= wait):
+                        diagnostics_due = None
                     whole[k] = time.thread_time() - start
                     late = max(0.0, late + whole[k] - period)   # how late the next tick starts
                     if poses:   # the controller's answer, the next turn's input (not timed: another process's work)

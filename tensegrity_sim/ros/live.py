@@ -13,7 +13,8 @@ from typing import Callable
 from .log import LogRecorder, SignalLatch
 from .node_logic import SimNodeLogic
 
-__all__ = ["DIAGNOSTICS_PERIOD", "DIAGNOSTICS_WAIT", "SPARE_FOR_IDLE", "StepperScheduling", "run_logged", "spin"]
+__all__ = ["DIAGNOSTICS_PERIOD", "DIAGNOSTICS_WAIT", "SPARE_FOR_IDLE", "StepperScheduling", "idle_work", "run_logged",
+           "spin"]
 
 DIAGNOSTICS_PERIOD = 1.0  # s of wall-clock time between two /diagnostics, as the rclpy node
 DIAGNOSTICS_WAIT = 0.1    # s that due /diagnostics wait for idle time at most
@@ -74,6 +75,25 @@ def run_logged(logic: SimNodeLogic, transport, path, *, latch: SignalLatch, log:
         print("\n".join(lines), flush=True)
 
 
+def idle_work(logic: SimNodeLogic, left: Callable[[], float], period: float, diagnostics_due: bool,
+              diagnostics_overdue: bool) -> bool:
+    """The loop's work after a tick that no step waits for, each piece while ``left()`` (s to the next tick)
+    is more than :data:`SPARE_FOR_IDLE` of a tick ``period``: the waiting markers and contact events, the steps
+    ahead, ``/diagnostics`` if due (at once if overdue), the log's write-out. Whether it published
+    ``/diagnostics``. (:func:`spin`'s; ``bench/bench_node.py --in-process`` turns the node by it too.)"""
+    spare = SPARE_FOR_IDLE * period
+    if left() > spare:
+        logic.send_waiting()
+    if left() > spare:
+        logic.look_ahead()
+    published = diagnostics_overdue or (diagnostics_due and left() > spare)
+    if published:
+        logic.publish_diagnostics()
+    if logic.recorder is not None and left() > spare:
+        logic.recorder.drain()
+    return published
+
+
 def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Logger,
          sleep: Callable[[float], None] = time.sleep) -> None:
     """The node's single thread, as the rclpy node's executor: every ``1/step_rate`` s of wall-clock time
@@ -124,22 +144,11 @@ def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Log
             on_schedule = logic.next_tick(now)
             period = 1.0 / logic.settings.step_rate
             next_tick = next_tick + period if on_schedule is None else on_schedule
-            # the idle work, each piece while the next tick is still far enough
-            spare = SPARE_FOR_IDLE * period
-            if next_tick - now > spare:
-                logic.send_waiting()
-                now = clock()
-            if next_tick - now > spare:
-                logic.look_ahead()
-                now = clock()
-            if now >= next_diagnostics and (next_tick - now > spare or now >= next_diagnostics + DIAGNOSTICS_WAIT):
-                logic.publish_diagnostics()
-                next_diagnostics = now + DIAGNOSTICS_PERIOD
-                now = clock()
-            if logic.recorder is not None and next_tick - now > spare:
-                logic.recorder.drain()
-                now = clock()
-            delay = next_tick - now
+            due = now >= next_diagnostics
+            overdue = due and now >= next_diagnostics + DIAGNOSTICS_WAIT
+            if idle_work(logic, lambda: next_tick - clock(), period, due, overdue):
+                next_diagnostics = clock() + DIAGNOSTICS_PERIOD
+            delay = next_tick - clock()
             if delay > 0:
                 sleep(delay)
                 logic.woke(clock() - next_tick)
