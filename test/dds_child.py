@@ -151,14 +151,17 @@ def control(domain: int, actions: list) -> None:
         writers = {k: p.writer(topic, typename) for k, (topic, typename) in NODE_INPUTS.items()}
         strangers = {}
 
-        def drain(seconds: float) -> None:
+        def drain(seconds: float, until_any: bool = False) -> None:
+            """Print what arrives for ``seconds`` s (``until_any``: or until a first sample)."""
             end = time.monotonic() + seconds
             while True:
+                got = 0
                 for key, reader in readers.items():
                     for data in reader.take():
                         TYPESTORE.deserialize_cdr(data, NODE_OUTPUTS[key][1])  # must decode, or the child fails
                         print(json.dumps({"key": key, "cdr": data.hex(), "received": time.monotonic()}))
-                if time.monotonic() >= end:
+                        got += 1
+                if time.monotonic() >= end or (until_any and got):
                     return
                 p.wait(min(0.01, max(end - time.monotonic(), 0.0)))
 
@@ -167,6 +170,8 @@ def control(domain: int, actions: list) -> None:
             if time.monotonic() > deadline:
                 sys.exit("the node did not appear within 15 s")
             time.sleep(0.01)
+        # the node publishes once warmed up (numba compiling a scene's kernels the first time takes seconds)
+        drain(60.0, until_any=True)
         drain(0.2)
         for action in actions:
             (kind, arg), = action.items()
