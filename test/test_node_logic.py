@@ -587,9 +587,12 @@ def test_the_spinning_node_keeps_what_it_started_with_out_of_the_collector():
             if len(frozen) == 3:
                 latch.signum = signal.SIGINT
 
+        def wait(self, seconds):
+            return False
+
     assert gc.get_freeze_count() == 0
     with pytest.raises(KeyboardInterrupt):
-        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"), sleep=lambda s: None)
+        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"))
     assert len(frozen) == 3 and min(frozen) > 10_000   # the package, numpy, numba, pytest: all frozen
     assert gc.get_freeze_count() == 0
 
@@ -618,6 +621,11 @@ def test_the_spinning_node_wakes_on_the_schedule_so_a_late_wake_up_owes_no_step(
             if len(polls) == 400:
                 latch.signum = signal.SIGINT
 
+        def wait(self, seconds):
+            slept.append(len(polls))
+            clock.t += seconds + late[len(polls) % 2]
+            return False
+
     tick = logic.tick
 
     def long_tick():   # the 51st and 151st ticks run long (a costly publication, say)
@@ -627,12 +635,8 @@ def test_the_spinning_node_wakes_on_the_schedule_so_a_late_wake_up_owes_no_step(
 
     logic.tick = long_tick
 
-    def sleep(seconds):
-        slept.append(len(polls))
-        clock.t += seconds + late[len(polls) % 2]
-
     with pytest.raises(KeyboardInterrupt):
-        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"), sleep=sleep)
+        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"))
     per_tick = np.diff(steps)   # the steps of tick k (poll k + 1), but the last
     assert sorted(set(range(1, 400)) - set(slept)) == [51, 151, 152]   # no sleep after the long ticks ...
     assert polls[51] - polls[50] == pytest.approx(1.3e-3, abs=1e-12)   # ... the next at the long tick's end
@@ -669,14 +673,76 @@ def test_a_wake_up_over_a_period_late_is_counted_and_owes_the_next_tick_a_step()
             if len(polls) == 300:
                 latch.signum = signal.SIGINT
 
-    def sleep(seconds):
-        clock.t += seconds + (1.6e-3 if len(polls) % 50 == 25 else 0.1e-3)
+        def wait(self, seconds):
+            clock.t += seconds + (1.6e-3 if len(polls) % 50 == 25 else 0.1e-3)
+            return False
 
     with pytest.raises(KeyboardInterrupt):
-        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"), sleep=sleep)
+        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"))
     stats = logic.statistics()
     assert stats["late_wakeups"] == 6 and stats["max_wakeup_delay_ms"] == pytest.approx(1.6, abs=1e-9)
     assert stats["burst_ticks"] == 6 and stats["max_steps_per_tick"] == 2
+
+
+def test_an_input_that_comes_between_ticks_is_taken_at_once_and_the_step_after_it_computed_ahead():
+    """live.spin waits for inputs between ticks (the transport's wait): one that comes there is taken at once,
+    and the step after it computed ahead in the rest of the idle time, so the tick after it only hands that
+    step out. The run is the one that takes each input as its tick starts (the inputs given by the ticks'
+    polls instead), bit for bit: the inputs act on the same steps. Here a rest-length command comes 0.3 ms into
+    every 10th tick's idle time."""
+    import logging
+    import signal
+
+    from tensegrity_sim.ros.live import spin
+    from tensegrity_sim.ros.log import SignalLatch
+
+    def run(between_ticks: bool):
+        clock = FakeClock(t=10.0)
+        logic, _, _ = make_logic(prism(), clock=clock, publish_rate=100.0)
+        names = logic.sim.scene.cable_names
+        start = np.array(logic.sim.scene.cable_rest_lengths)
+        latch, ticks, ahead_at_tick, taken_between = SignalLatch(), [0], [], []
+
+        def command():
+            k = ticks[0] // 10
+            return rest_lengths_msg(names, list(start * (1.0 - 0.01 * (k % 3))))
+
+        class Transport:
+            waiting = False   # an input came in the idle time
+
+            def poll(self, logic, log):
+                if self.waiting:   # taken in the idle time
+                    self.waiting = False
+                    taken_between.append(logic.sim.step_count)
+                    logic.receive("cable_rest_lengths", command())
+                    return
+                ticks[0] += 1
+                ahead_at_tick.append(logic.sim.steps_ahead)
+                if not between_ticks and ticks[0] % 10 == 1 and ticks[0] > 1:
+                    logic.receive("cable_rest_lengths", command())
+                if ticks[0] == 200:
+                    latch.signum = signal.SIGINT
+
+            def wait(self, seconds):
+                if between_ticks and ticks[0] % 10 == 0 < 200 - ticks[0] and taken_between[-1:] != [logic.sim.step_count]:
+                    clock.t += 0.3e-3
+                    self.waiting = True
+                    return True
+                clock.t += seconds + 1e-6
+                return False
+
+        with pytest.raises(KeyboardInterrupt):
+            spin(logic, Transport(), latch=latch, log=logging.getLogger("test"))
+        return logic, ahead_at_tick, taken_between
+
+    logic, ahead_at_tick, taken = run(between_ticks=True)
+    reference, _, _ = run(between_ticks=False)
+    assert len(taken) == 19 and logic.received["cable_rest_lengths"] == 19
+    # every tick after an input hands out a step computed in the idle time after it
+    assert all(ahead_at_tick[k] >= 1 for k in range(10, 200, 10))
+    assert logic.sim.step_count == reference.sim.step_count
+    assert np.array_equal(logic.sim.positions, reference.sim.positions)
+    assert np.array_equal(logic.sim.velocities, reference.sim.velocities)
 
 
 def test_the_spinning_node_sends_markers_and_hands_its_log_the_waiting_messages_between_ticks(tmp_path):
@@ -711,11 +777,12 @@ def test_the_spinning_node_sends_markers_and_hands_its_log_the_waiting_messages_
                 latch.signum = signal.SIGINT
             clock.t += tick_length[0]
 
-    def sleep(seconds):
-        clock.t += seconds + 1e-7   # waking a little late
+        def wait(self, seconds):
+            clock.t += seconds + 1e-7   # waking a little late
+            return False
 
     with logic.recorder, pytest.raises(KeyboardInterrupt):
-        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"), sleep=sleep)
+        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"))
     quick, slow = np.array(waiting[2:100]), np.array(waiting[101:300])
     assert logic.publications >= 290 and not quick.any() and not any(markers_waiting[2:100])
     assert all(markers_waiting[102:300])
@@ -758,11 +825,12 @@ def test_the_spinning_node_publishes_diagnostics_in_its_idle_time_or_after_waiti
             if clock.t - start[0] > 3.5:
                 latch.signum = signal.SIGINT
 
-    def sleep(seconds):
-        clock.t += seconds
+        def wait(self, seconds):
+            clock.t += seconds
+            return False
 
     with pytest.raises(KeyboardInterrupt):
-        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"), sleep=sleep)
+        spin(logic, Transport(), latch=latch, log=logging.getLogger("test"))
     since = np.array(published) - start[0]
     assert len(since) == 3 and abs(since[0] - 1.0) < 1e-3
     assert abs(since[1] - (since[0] + 1.0 + DIAGNOSTICS_WAIT)) < 1e-3

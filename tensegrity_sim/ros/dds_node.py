@@ -45,10 +45,11 @@ class DdsTransport:
     """Writers for the node's outputs, readers for its inputs and for ``~/command``.
 
     ``transport(key, data)`` is the logic's raw output callback (CDR bytes); :meth:`poll` feeds the logic
-    what arrived.
+    what arrived, and :meth:`wait` waits for it.
     """
 
     def __init__(self, participant: Participant, node_name: str):
+        self._participant = participant
         self.writers, self.readers = {}, {}
         for key, spec in TOPICS.items():
             make = participant.writer if spec.direction == "out" else participant.reader
@@ -69,6 +70,10 @@ class DdsTransport:
                 logic.receive(key, message, decoded=True)
         for message in self._take(self.commands, log):
             self.results.write(M.new(_STRING, data=run_command(logic, message.data)))
+
+    def wait(self, timeout: float) -> bool:
+        """Block until an input or a command arrives or ``timeout`` s pass; True if one is there."""
+        return self._participant.wait(timeout)
 
     def _take(self, reader, log: logging.Logger) -> list:
         """The messages a reader holds; each sample that does not decode is refused (logged, counted)."""

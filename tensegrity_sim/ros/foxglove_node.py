@@ -11,6 +11,7 @@ the DDS or rclpy node to drive it); the run is stopped with Ctrl-C, which finish
 from __future__ import annotations
 
 import logging
+import time
 
 import foxglove
 
@@ -51,6 +52,11 @@ class FoxgloveTransport:
 
     def poll(self, logic: SimNodeLogic, log: logging.Logger) -> None:
         """No inputs come through Foxglove: nothing to take (what :func:`~.live.spin` asks of a transport)."""
+
+    def wait(self, timeout: float) -> bool:
+        """No inputs come through Foxglove: sleep ``timeout`` s (what :func:`~.live.spin` asks of a transport)."""
+        time.sleep(timeout)
+        return False
 
 
 def serve_foxglove(settings: NodeSettings, *, port: int = DEFAULT_PORT, host: str = "127.0.0.1",

@@ -1,13 +1,13 @@
 """The live node's loop, whatever carries its messages (DDS: :mod:`.dds_node`; Foxglove:
-:mod:`.foxglove_node`). A transport is the logic's raw output callback with a ``poll(logic, log)``
-that hands the logic whatever inputs arrived."""
+:mod:`.foxglove_node`). A transport is the logic's raw output callback with a ``poll(logic, log)`` that hands
+the logic whatever inputs arrived, and a ``wait(timeout)`` that blocks until an input may have arrived or
+``timeout`` s pass (True: one may have; False: the time is up)."""
 from __future__ import annotations
 
 import contextlib
 import gc
 import logging
 import os
-import time
 from typing import Callable
 
 from .log import LogRecorder, SignalLatch
@@ -94,8 +94,7 @@ def idle_work(logic: SimNodeLogic, left: Callable[[], float], period: float, dia
     return published
 
 
-def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Logger,
-         sleep: Callable[[float], None] = time.sleep) -> None:
+def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Logger) -> None:
     """The node's single thread, as the rclpy node's executor: every ``1/step_rate`` s of wall-clock time
     take the inputs, run the steps due (:meth:`SimNodeLogic.tick`), and once a second publish
     ``/diagnostics``; until SIGINT or SIGTERM, which ``latch`` raises here, between two ticks. The node is
@@ -149,10 +148,19 @@ def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Log
             if idle_work(logic, lambda: next_tick - clock(), period, due, overdue):
                 next_diagnostics = clock() + DIAGNOSTICS_PERIOD
             delay = next_tick - clock()
-            if delay > 0:
-                sleep(delay)
-                logic.woke(clock() - next_tick)
-            else:
+            while delay > 0:
+                arrived = transport.wait(delay)
+                late = clock() - next_tick
+                if not arrived or late >= 0.0:   # the tick's time came (an input then is the tick's to take)
+                    logic.woke(late)
+                    break
+                # an input that comes before the tick is taken now, and the step after it computed ahead, so the
+                # tick only hands that step out
+                transport.poll(logic, log)
+                if next_tick - clock() > SPARE_FOR_IDLE * period:
+                    logic.look_ahead()
+                delay = next_tick - clock()
+            else:   # the idle work, or an input, ran past the tick's time
                 next_tick = clock()
     except BaseException:
         # the last publication whole in the log (SIGINT, SIGTERM), or as much of it as a failing transport or log
