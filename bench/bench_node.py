@@ -15,7 +15,9 @@ then finishes its log and prints its statistics). The figures are the server's o
 statistics, over its whole run): steps, the achieved real-time factor, overruns and the worst lag, the
 wall-clock duration of its ticks (p50, p99, p99.9, max), the most steps a tick ran and the ticks that ran
 more than their nominal share (catch-up bursts), those of them the node's own work caused (over a tick period
-of the stepping thread's CPU time before them, ``own_burst_ticks``: the others the machine's), beside the
+of the stepping thread's CPU time before them, ``own_burst_ticks``: the others the machine's; a virtual
+machine counts its host's pauses as the running thread's CPU time, so some of these are the machine's too:
+``bench/bench_wakeups.py`` counts them on a thread that never sleeps), beside the
 wake-ups that came over a tick period late (the operating system's, each owing a tick a step more); and the
 work done between ticks, in the loop's idle time (the markers and contact events of the publications,
 ``idle_send_*``, and the steps up to the next publication, ``idle_look_aheads``). Whether the robot rolled:
@@ -163,16 +165,17 @@ def run(args, priority: int) -> dict:
           f"overruns {row['overruns']}, max lag {row['max_lag_ms']} ms, failed steps {row['failed_steps']}")
     print(f"tick: p50 {row['tick_p50_ms']} ms, p99 {row['tick_p99_ms']} ms, p99.9 {row['tick_p999_ms']} ms "
           f"(target <= 1 ms), max {row['tick_max_ms']} ms; most steps in a tick {row['max_steps_per_tick']}, "
-          f"ticks over their nominal share (catch-up bursts) {row['burst_ticks']}, of which the node's own work "
-          f"caused {row['own_burst_ticks']} (target 0; the others the machine's)")
+          f"ticks over their nominal share (catch-up bursts) {row['burst_ticks']}, of which {row['own_burst_ticks']} "
+          f"after over a period of the thread's CPU time (its own work, or a pause of the host counted as its CPU "
+          f"time); the others the machine's")
     print(f"wake-ups over a tick period late (the OS: each owes the next tick a step) {row['late_wakeups']}, the "
           f"latest {row['max_wakeup_delay_ms']} ms")
     print(f"idle time: {row['idle_sends']} publications' markers and contact events sent between ticks, p99.9 "
           f"{row['idle_send_p999_ms']} ms, max {row['idle_send_max_ms']} ms; steps computed ahead "
           f"{row['idle_look_aheads']} times")
     print(f"after the first second (start-up left out): {row['ticks_after_1s']} ticks, {row['overruns_after_1s']} "
-          f"overruns, {row['burst_ticks_after_1s']} catch-up bursts ({row['own_burst_ticks_after_1s']} the node's "
-          f"own), {row['late_wakeups_after_1s']} late wake-ups")
+          f"overruns, {row['burst_ticks_after_1s']} catch-up bursts ({row['own_burst_ticks_after_1s']} after over a "
+          f"period of CPU time), {row['late_wakeups_after_1s']} late wake-ups")
     print(f"robot: {row['cycles_started']} roll cycles started, centre of mass moved {travel:.3f} m over "
           f"{simulated:.1f} s of logged simulated time; {row['refused_rest_lengths']} commands refused", flush=True)
     return row
@@ -183,17 +186,20 @@ def in_process(args) -> dict:
     outputs encoded for a raw transport, the idle work of ``live.spin``) turned in this process for
     ``--duration`` s of simulated time, the roll controller answering each publication, without sleeping or
     DDS. Each turn as the live loop's on a machine that never makes it wait, its CPU time standing for the
-    clock: the input that arrived, the tick (its step, and the publication if due), then the idle work by the
-    loop's own rule (``live.idle_work``: markers and contact events, the steps ahead, ``/diagnostics`` once a
-    second of simulated time, waiting ``DIAGNOSTICS_WAIT`` at most, the log's write-out). A turn that runs past
-    the next tick's time makes that tick start late; a tick that starts a whole period late owes two steps: a
+    clock: the tick (its step, and the publication if due), the idle work by the loop's own rule
+    (``live.idle_work``: markers and contact events, the steps ahead, ``/diagnostics`` once a second of
+    simulated time, waiting ``DIAGNOSTICS_WAIT`` at most, the log's write-out), then the controller's answer
+    to the last publication, which arrives between ticks, taken as the live loop takes it
+    (``live.take_between_ticks``: the step after it computed ahead if time is left). A turn that runs past the
+    next tick's time makes that tick start late; a tick that starts a whole period late owes two steps: a
     catch-up tick the node's own work causes on a perfect machine (``catch_up_ticks``). Its row: those, and the
-    CPU time (``time.thread_time``) of the turns' input and tick and of whole turns, p50/p99/p99.9/max, with how
-    many of each took over a tick period."""
+    CPU time (``time.thread_time``) of the turns' ticks and of whole turns, p50/p99/p99.9/max, with how many of
+    each took over a tick period. The CPU clock is this machine's, which on a virtual machine counts the
+    host's pauses as the running thread's time (``bench/bench_wakeups.py``): a turn of a few ms may be one."""
     import gc
 
     from tensegrity_sim import Simulator, load_scene
-    from tensegrity_sim.ros.live import DIAGNOSTICS_WAIT, idle_work
+    from tensegrity_sim.ros.live import DIAGNOSTICS_WAIT, idle_work, take_between_ticks
     from tensegrity_sim.ros.log import LogRecorder, log_file_path
     from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic
 
@@ -210,7 +216,7 @@ def in_process(args) -> dict:
     controller = rc.RollController(rc.planner_for(loaded), dict(zip(loaded.cable_names, loaded.cable_rest_lengths)),
                                    (1.0, 0.0))
     turns = round(args.duration / args.dt)
-    inputs_tick, whole = np.empty(turns), np.empty(turns)
+    ticks, whole = np.empty(turns), np.empty(turns)
     with tempfile.TemporaryDirectory() as log_dir:
         with LogRecorder(log_file_path(log_dir, args.scene), logic.channels(), logic.run_info()) as recorder:
             logic.recorder = recorder
@@ -228,21 +234,24 @@ def in_process(args) -> dict:
                     if late >= period:   # this tick runs the step it owes beside its own
                         catch_up += 1
                         late -= period
-                    if command:
-                        logic.receive("cable_rest_lengths", M.joint_state(M.header(0, ""), list(command),
-                                                                           position=list(command.values())))
-                        command = None
                     logic._advance()
-                    inputs_tick[k] = time.thread_time() - start
+                    ticks[k] = time.thread_time() - start
                     if k % second == 0:
                         diagnostics_due = k
                     due = diagnostics_due is not None
-                    if idle_work(logic, lambda: period - late - (time.thread_time() - start), period, due,
-                                 due and k - diagnostics_due >= wait):
+
+                    def left():
+                        return period - late - (time.thread_time() - start)
+
+                    if idle_work(logic, left, period, due, due and k - diagnostics_due >= wait):
                         diagnostics_due = None
+                    if command:
+                        message = M.joint_state(M.header(0, ""), list(command), position=list(command.values()))
+                        take_between_ticks(logic, lambda: logic.receive("cable_rest_lengths", message), left, period)
+                        command = None
                     whole[k] = time.thread_time() - start
                     late = max(0.0, late + whole[k] - period)   # how late the next tick starts
-                    if poses:   # the controller's answer, the next turn's input (not timed: another process's work)
+                    if poses:   # the controller's answer, in the next turn (not timed: another process's work)
                         msg = M.deserialize(poses.pop(), "geometry_msgs/msg/PoseArray")
                         x = np.array([[p.position.x, p.position.y, p.position.z] for p in msg.poses])
                         command = controller.update(sim.time, x)
@@ -251,14 +260,14 @@ def in_process(args) -> dict:
     row = {"scene": args.scene, "method": sim.method, "turns": turns, "dt_s": args.dt,
            "publish_rate_hz": args.publish_rate, "log": "on", "cycles_started": controller.cycle + 1,
            "idle_look_aheads": logic.idle_look_aheads, "catch_up_ticks": catch_up}
-    for name, cpu in (("input_tick", inputs_tick), ("turn", whole)):
+    for name, cpu in (("tick", ticks), ("turn", whole)):
         for q, label in ((50, "p50"), (99, "p99"), (99.9, "p999")):
             row[f"{name}_cpu_{label}_ms"] = round(1e3 * float(np.percentile(cpu, q)), 3)
         row[f"{name}_cpu_max_ms"] = round(1e3 * float(cpu.max()), 3)
         row[f"{name}s_over_a_period"] = int((cpu > period).sum())
     print(f"{args.scene} ({sim.method}) in this process, {turns} turns of the live loop (log on, idle work, the roll "
           f"controller answering each publication: {row['cycles_started']} cycles started)")
-    for name, what in (("input_tick", "input and tick"), ("turn", "whole turn (with the idle work)")):
+    for name, what in (("tick", "tick"), ("turn", "whole turn (with the idle work and the input)")):
         print(f"{what}: CPU p50 {row[f'{name}_cpu_p50_ms']} ms, p99 {row[f'{name}_cpu_p99_ms']} ms, p99.9 "
               f"{row[f'{name}_cpu_p999_ms']} ms, max {row[f'{name}_cpu_max_ms']} ms; over a tick period: "
               f"{row[f'{name}s_over_a_period']}", flush=True)

@@ -503,7 +503,8 @@ class SimNodeLogic:
         used over a tick period of CPU time since the tick before began, or since the loop last woke if it
         slept after it (:meth:`woke`): its work alone would have fallen a period behind; the others are the
         machine's: the thread had less work than a period, but woke late or was held off its core (by another
-        thread, process or the hypervisor).
+        thread, process or the hypervisor). A virtual machine counts its host's pauses as the running thread's
+        CPU time, so there some of the first are the machine's too (``bench/bench_wakeups.py`` counts them).
         """
         if self.paused:
             return 0
