@@ -7,8 +7,10 @@ The table sits between the markers ``<!-- speed table -->`` and ``<!-- end speed
 the thrown icosahedron's CPU time per step beside MuJoCo's, without and with member contact detection
 (``bench/results/head_to_head.csv``, written by ``bench/head_to_head.py``); ``icosahedron_ground`` resting and
 rolling beside MuJoCo with its ground contact (``bench/results/ground.csv``, ``bench/bench_ground.py``); and a
-batch's scene-steps per second beside ``mujoco.rollout`` (``bench/results/batch.csv``, ``bench/bench_batch.py``);
-each CSV's command, commit and machine are in its ``.json`` sidecar and on the site's benchmarks page.
+batch's scene-steps per second beside ``mujoco.rollout`` (``bench/results/batch.csv``, ``bench/bench_batch.py``).
+Below it, the real-time figures: the command line's rolling run (``ground.csv``) and the live node's ticks
+(``bench/results/node_tick.csv`` and ``node_in_process.csv``, ``bench/bench_node.py``). Each CSV's command,
+commit and machine are in its ``.json`` sidecar and on the site's benchmarks page.
 """
 from __future__ import annotations
 
@@ -70,11 +72,33 @@ def table() -> str:
         lines.append(f"| {label.format(ours['batch'])} | {cell(ours['scene_steps_per_s'])} "
                      f"scene-steps/s | {cell(peer['scene_steps_per_s'])} scene-steps/s (`rollout`, "
                      f"{peer['threads']} threads) | **{cell(ours['ratio_to_mujoco'])}** |")
+    lines += ["", *real_time(ground)]
     commits = ", ".join(f"`{name}` at {provenance(RESULTS / name)['commit']}"
-                        for name in ("head_to_head.csv", "ground.csv", "batch.csv"))
+                        for name in ("head_to_head.csv", "ground.csv", "batch.csv", "node_tick.csv",
+                                     "node_in_process.csv"))
     lines += ["", f"Generated from {commits} by `scripts/readme_table.py`;",
               "commands and machines: [benchmarks](docs/benchmarks.md)."]
     return "\n".join(lines)
+
+
+def real_time(ground: list[dict]) -> list[str]:
+    """The robot on the ground in real time: the command line's real-time factor (``ground.csv``) and the live
+    node's ticks (``node_tick.csv``, ``node_in_process.csv``, ``bench/bench_node.py``)."""
+    command = "run icosahedron_ground --commands examples/roll.yaml --duration 10 --method elastic"
+    rtf = _one(ground, case=command, contender="command line")["real_time_factor"]
+    node = {row["scheduler"]: row for row in read_csv(RESULTS / "node_tick.csv")}
+    default, fifo = node["default"], next(row for name, row in node.items() if name != "default")
+    alone = read_csv(RESULTS / "node_in_process.csv")[0]
+    owed = int(alone["catch_up_ticks"])
+    return [f"Real time: `tensegrity-sim {command}` runs at **{cell(rtf)}×** real time (as it reports). The "
+            f"node (`serve icosahedron_ground --transport dds` driven by `examples/roll_controller.py`, 1 kHz, log "
+            f"on, {cell(default['duration_s'])} s) ticks in **{cell(default['tick_p999_ms'])} ms** at p99.9 on the "
+            f"default scheduler, **{cell(fifo['tick_p999_ms'])} ms** on {fifo['scheduler']}, never more than "
+            f"{max(int(default['max_steps_per_tick']), int(fifo['max_steps_per_tick']))} steps a tick: of its "
+            f"{cell(default['burst_ticks'])} and {cell(fifo['burst_ticks'])} ticks of two steps, "
+            f"{cell(default['late_wakeups'])} and {cell(fifo['late_wakeups'])} came after the machine woke it over a "
+            f"period late, and its own work alone (`--in-process`) owes a second step "
+            f"{'once' if owed == 1 else f'{owed} times'} in {cell(alone['turns'])} ticks."]
 
 
 def render(readme: str) -> str:
