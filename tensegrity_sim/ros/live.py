@@ -111,9 +111,9 @@ def spin(logic: SimNodeLogic, transport, *, latch: SignalLatch, log: logging.Log
     warmed up first (:meth:`SimNodeLogic.warm_up`), so its schedule starts with nothing left to compile.
     Between ticks the loop waits on the transport rather than sleeping: an input that comes then is taken at
     once, and the step after it computed ahead (:func:`take_between_ticks`; what a tick that took it paid
-    before: receive p99.9 0.45-0.8 ms of CPU time in 60 s ``bench/bench_node.py`` runs timed phase by phase,
-    and the step it rewound). It acts on the same step either way: the simulation runs as if the tick had
-    taken it.
+    before: 0.45-0.8 ms of CPU time at p99.9 to receive it in 60 s ``bench/bench_node.py`` runs timed phase by
+    phase, a one-off, and the step it rewound). It acts on the same step either way: the simulation runs as if
+    the tick had taken it.
 
     Ticks wake on the logic's schedule (:meth:`SimNodeLogic.next_tick`, on its clock), not on a cadence of
     their own: a cadence restarted after a long tick sits at a random phase of the schedule, and then a
