@@ -21,7 +21,7 @@ __version__ = "0.1.0"
 
 # robot files from other formats (tensegrity_sim.io): imported on first use, so that importing the package reads
 # no file-format code (and MuJoCo's parser is imported only when an MJCF file is read)
-_IO = ("load_mjcf",)
+_IO = ("load_mjcf", "load_ntrt")
 
 
 def __getattr__(name: str):
@@ -36,5 +36,5 @@ __all__ = [
     "LengthOffsetWarning", "NonFiniteError", "QPError", "StepError", "SOLVERS", "StepResult", "Strut", "Trajectory",
     "SpeedError", "builtin_scenes",
     "load_scene", "__version__",
-    "ActiveContact", "BatchSimulator", "AccuracyChoice", "choose_accuracy", "load_mjcf",
+    "ActiveContact", "BatchSimulator", "AccuracyChoice", "choose_accuracy", "load_mjcf", "load_ntrt",
 ]

@@ -11,5 +11,6 @@ from __future__ import annotations
 
 from ._common import Imported, MappingWarning
 from .mjcf import import_mjcf, load_mjcf, scene_to_mjcf
+from .ntrt import import_ntrt, load_ntrt
 
-__all__ = ["Imported", "MappingWarning", "import_mjcf", "load_mjcf", "scene_to_mjcf"]
+__all__ = ["Imported", "MappingWarning", "import_mjcf", "import_ntrt", "load_mjcf", "load_ntrt", "scene_to_mjcf"]

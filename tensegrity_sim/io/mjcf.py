@@ -258,7 +258,7 @@ _GEOM_KIND = {_PLANE: "plane", _HFIELD: "height field", _SPHERE: "sphere", _CAPS
               _ELLIPSOID: "ellipsoid", _CYLINDER: "cylinder", _BOX: "box", _MESH: "mesh"}
 _JOINT_KIND = {0: "free", 1: "ball", 2: "slide", 3: "hinge"}
 _VOLUME_KINDS = (_SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX)
-_TOL = 1e-6     # relative to a rod's length: a point this close to the axis or an end is on it
+_TOL = 1e-3     # relative to a rod's length: a point this close to its axis or an end is on it (files round)
 
 
 def _volume(kind: int, size: np.ndarray) -> float:
@@ -358,7 +358,7 @@ def import_mjcf(source) -> Imported:
       and one end, or with both ends. The inertia kept is the mean of the two about axes normal to the rod
       (a slender rod does not spin about its own axis: the axial inertia is dropped, and a warning says when
       the two normal ones differ). A centre of mass off the axis is projected onto it, with a warning. The
-      largest capsule's or cylinder's radius is the strut's radius (a node touches the ground at its largest
+      largest radius of the capsules and cylinders from end to end (else of any) is the strut's radius (a node touches the ground at its largest
       member radius, which so covers a capsule's rounded end); a sphere centred at an end is an end cap: its
       radius is the node's.
     * A body with exactly three orthogonal slide joints is a point-mass node (what :func:`scene_to_mjcf`
@@ -476,9 +476,10 @@ def _rod(r: _Reader, b: int, bname: str, nodes: list, struts: list) -> dict:
         raise r.error(f"body {bname!r}: its geoms and sites span no length along the axis (not a rod)")
     tol = _TOL * length
     for g, centre, half in segments[1:]:
-        if np.linalg.norm(np.cross(half, axis)) > _TOL * np.linalg.norm(half) or along(centre)[1] > tol:
+        if max(along(centre - half)[1], along(centre + half)[1]) > tol:   # both its ends on the axis
+            first = segments[0][0]
             raise r.error(f"body {bname!r}: geom {r.name(mj.mjtObj.mjOBJ_GEOM, g, f'#{g}')!r} does not lie along "
-                          f"the axis of geom {r.name(mj.mjtObj.mjOBJ_GEOM, segments[0][0], '#0')!r} (not a rod)")
+                          f"the axis of geom {r.name(mj.mjtObj.mjOBJ_GEOM, first, f'#{first}')!r} (not a rod)")
     pa, pb = start + low * axis, start + high * axis
     strut = scene_name(bname, r.taken)
     end_names = []
@@ -490,16 +491,16 @@ def _rod(r: _Reader, b: int, bname: str, nodes: list, struts: list) -> dict:
     explicit = r.spec.bodies[b].explicitinertial and \
         r.spec.compiler.inertiafromgeom != mj.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE
     caps = [0.0, 0.0]
-    strut_radius = 0.0
+    radii = {True: 0.0, False: 0.0}   # of the capsules and cylinders from end to end, and of the others
     payloads = []
     for g, kind, gname in geoms:
         mass, size = float(r.geom_mass[g]), model.geom_size[g]
         t, off = along(data.geom_xpos[g])
         s = (t - low) / length
         if kind in (_CAPSULE, _CYLINDER):
-            strut_radius = max(strut_radius, float(size[0]))
             half = float(size[1])
             spans = abs(t - half - low) <= tol and abs(t + half - high) <= tol
+            radii[spans] = max(radii[spans], float(size[0]))
             share = "the strut's uniform mass" if spans else f"a payload at {s:.6g}"
         elif kind == _SPHERE and off <= tol and min(s, 1.0 - s) <= _TOL:
             j = int(s > 0.5)
@@ -550,7 +551,8 @@ def _rod(r: _Reader, b: int, bname: str, nodes: list, struts: list) -> dict:
         payloads.append((float(rest[1] / rest[0]), mp))
     for name, p, m, cap in zip(end_names, (pa, pb), (ma, mb), caps):
         nodes.append({"name": name, "position": [float(v) for v in p], "mass": float(m), **_radius(cap)})
-    struts.append({"name": strut, "nodes": end_names, "stiffness": "rigid", "mass": float(ms), "radius": strut_radius,
+    struts.append({"name": strut, "nodes": end_names, "stiffness": "rigid", "mass": float(ms),
+                   "radius": radii[True] or radii[False],
                    **({"payloads": [{"at": float(s), "mass": float(m)} for s, m in payloads]} if payloads else {})})
     r.notes.append(f"body {bname!r} -> strut {strut!r} ({length:.6g} m): {total:.6g} kg as node masses "
                    f"{ma:.6g}, {mb:.6g} kg, uniform {ms:.6g} kg, payloads "
