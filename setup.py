@@ -87,6 +87,11 @@ EXTRAS_REQUIRE = {
     "bench": [
         "mujoco>=4.0.0,<5",      # the peer in bench/run_all.py (matplotlib is a core dependency)
     ],
+    # Robots from MJCF files (tensegrity_sim.load_mjcf, tensegrity-sim import ROBOT.xml): MuJoCo's own parser.
+    # Writing MJCF (Scene.to_mjcf) and reading NTRT YAML need nothing more.
+    "io": [
+        "mujoco>=4.0.0,<5",
+    ],
     # The documentation site (mkdocs.yml, docs/): mkdocs build --strict, run by test/test_docs.py in CI
     "docs": [
         "mkdocs>=1.6.1,<2",

@@ -411,8 +411,8 @@ def import_mjcf(source) -> Imported:
             raise r.error(f"joint {r.name(mj.mjtObj.mjOBJ_JOINT, j, f'#{j}')!r} of body {bname!r}: "
                           f"{_JOINT_KIND[int(model.jnt_type[j])]} joints{' beside others' if kinds[0] == 0 else ''} "
                           f"are not mapped (only a free joint, a rod, or three slide joints, a point mass)")
-    ground = _world(r, world_bodies)
     cables, cable_of = _tendons(r, nodes, struts, node_of_site, rod_of_body, world_bodies)
+    ground = _world(r, world_bodies)
     actuators = {}
     for a in range(model.nu):
         aname = r.name(mj.mjtObj.mjOBJ_ACTUATOR, a, f"actuator{a}")
@@ -625,14 +625,15 @@ def _tendons(r: _Reader, nodes: list, struts: list, node_of_site: dict, rod_of_b
         tname = r.name(mj.mjtObj.mjOBJ_TENDON, t, f"tendon{t}")
         adr, num = int(model.tendon_adr[t]), int(model.tendon_num[t])
         types = [int(model.wrap_type[w]) for w in range(adr, adr + num)]
-        if any(k == mj.mjtWrap.mjWRAP_JOINT for k in types):
+        site, joint = int(mj.mjtWrap.mjWRAP_SITE), int(mj.mjtWrap.mjWRAP_JOINT)
+        if joint in types:
             raise r.error(f"tendon {tname!r}: a fixed (joint) tendon is not mapped (a cable joins two sites)")
-        wraps = [w for w in range(adr, adr + num) if model.wrap_type[w] in (mj.mjtWrap.mjWRAP_SPHERE,
-                                                                            mj.mjtWrap.mjWRAP_CYLINDER)]
+        wraps = [w for w, k in zip(range(adr, adr + num), types) if k in (int(mj.mjtWrap.mjWRAP_SPHERE),
+                                                                         int(mj.mjtWrap.mjWRAP_CYLINDER))]
         if wraps:
             gname = r.name(mj.mjtObj.mjOBJ_GEOM, int(model.wrap_objid[wraps[0]]), "?")
             raise r.error(f"tendon {tname!r}: wraps around geom {gname!r}: wrapping tendons are not mapped")
-        if types.count(mj.mjtWrap.mjWRAP_SITE) != 2 or num != 2:
+        if types != [site, site]:
             raise r.error(f"tendon {tname!r}: runs through {num} sites or pulleys: only a tendon through two sites "
                           f"maps to a cable")
         ends = [_end(r, int(model.wrap_objid[w]), tname, nodes, node_of_site, rod_of_body, world_bodies)

@@ -99,19 +99,19 @@ class _Reader:
         self.pairs: list[tuple[str, int, int, str]] = []   # (tags, node, node, where)
         self.builders = {"rod": ("tgRodInfo", dict(_ROD)), "string": ("tgBasicActuatorInfo", dict(_BASIC))}
         self.notes: list[str] = []
-        self.stack: list[Path] = []
+        self.stack: list[tuple[Path, str]] = []   # the files being read: (resolved, as named)
 
     def structure(self, path: Path, name: str, prefix: str) -> _Structure:
         label = str(path)
-        if path.resolve() in self.stack:
-            raise SceneError(f"{label}: includes itself (through {' -> '.join(str(p) for p in self.stack)})")
+        if path.resolve() in [resolved for resolved, _ in self.stack]:
+            raise SceneError(f"{label}: includes itself (through {' -> '.join(name for _, name in self.stack)})")
         root = read_yaml(label, SceneError)
         if root is None:
             root = {}
         if not isinstance(root, dict):
             raise SceneError(f"{label}: must be a mapping of {', '.join(_ROOT_KEYS)}, got {describe(root)}")
         _only(label, "", root, _ROOT_KEYS)
-        self.stack.append(path.resolve())
+        self.stack.append((path.resolve(), label))
         s = _Structure(name)
         self._children(label, path, s, prefix, _mapping(label, "substructures", root.get("substructures")))
         self._builders(label, _mapping(label, "builders", root.get("builders")))
