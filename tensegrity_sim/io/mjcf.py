@@ -59,7 +59,8 @@ def _unique(name: str, taken: set[str]) -> str:
 def rod_moments(strut: dict, mass_a: float, mass_b: float) -> np.ndarray:
     """The three mass moments ``(∫dm, ∫s dm, ∫s² dm)`` (kg) of a strut of a scene mapping along ``s`` in
     [0, 1] from its first node, with its end nodes' own masses ``mass_a``, ``mass_b``: they fix its mass,
-    centre of mass (``∫s dm / ∫dm``) and inertia normal to the axis about it (``L² (∫s² dm - (∫s dm)²/∫dm)``),
+    centre of mass (``∫s dm / ∫dm``) and inertia normal to the axis about it
+    (``L² (∫s² dm - (∫s dm)²/∫dm)``),
     and its consistent mass block ``[[M0 - 2 M1 + M2, M1 - M2], [M1 - M2, M2]]``."""
     m = float(strut.get("mass", 0.0))
     second = 0.5 if strut.get("mass_distribution", "uniform") == "ends" else 1.0 / 3.0
@@ -358,9 +359,9 @@ def import_mjcf(source) -> Imported:
       and one end, or with both ends. The inertia kept is the mean of the two about axes normal to the rod
       (a slender rod does not spin about its own axis: the axial inertia is dropped, and a warning says when
       the two normal ones differ). A centre of mass off the axis is projected onto it, with a warning. The
-      largest radius of the capsules and cylinders from end to end (else of any) is the strut's radius (a node touches the ground at its largest
-      member radius, which so covers a capsule's rounded end); a sphere centred at an end is an end cap: its
-      radius is the node's.
+      largest radius of the capsules and cylinders from end to end (else of any) is the strut's radius (a
+      node touches the ground at its largest member radius, which so covers a capsule's rounded end); a
+      sphere centred at an end is an end cap: its radius is the node's.
     * A body with exactly three orthogonal slide joints is a point-mass node (what :func:`scene_to_mjcf`
       writes for a node without a rigid strut); a body with no joint is part of the world (its sites are
       fixed nodes, its geoms the world's).
