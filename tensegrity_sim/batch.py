@@ -29,7 +29,7 @@ from .commands import CommandSchedule
 from .methods.contact.detection import make_detector
 from .methods.contact.friction import TOUCH_TOL
 from .methods.contact.ground import GroundDetector, walk_copies
-from .methods import StepError, check_backend, choose_method
+from .methods import StepError, check_backend, choose_method, mass_model
 from .methods.elastic.method import ElasticMethod
 from .methods.elastic.batch import ElasticBatch
 from .results import ContactEvent
@@ -196,6 +196,7 @@ class BatchSimulator:
         if method == "elastic":
             if solver is not None and requested:
                 raise ValueError(f"solver={solver!r} is an option of a method with a QP; method 'elastic' has none")
+            self.system = mass_model(self.system, ElasticMethod)   # both engines apply its blocks in free flight
             if backend == "jax":
                 from .methods.jax.engine import ElasticBatchJax   # imports JAX: only here
 
@@ -548,7 +549,7 @@ class BatchSimulator:
             per = [c.energy() for c in self._copies]
             return {k: np.array([e[k] for e in per]) for k in ("kinetic", "strain", "gravity", "total")}
         sys = self.system
-        kinetic = 0.5 * np.sum((sys.masses * sys.free)[:, None, None] * self._v ** 2, axis=(0, 1))
+        kinetic = 0.5 * np.sum(self._v * sys.mass.apply(self._v), axis=(0, 1))
         strain = self._engine.strain_energy(self._x, self._rest)
         gravity = -np.sum(sys.gravity_force[:, :, None] * self._x, axis=(0, 1))
         return {"kinetic": kinetic, "strain": strain, "gravity": gravity, "total": kinetic + strain + gravity}

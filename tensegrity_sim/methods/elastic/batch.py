@@ -116,12 +116,12 @@ class ElasticBatch:
             cables += np.where(cables > 0, sys.cable_damping[:, None] * rate, 0.0)
             np.maximum(cables, 0.0, out=cables)   # a damped cable never pushes
         f = self._assemble(self._incidence, t[:, None, :] * n) + sys.gravity_force[:, :, None] + f_ext
-        return f * sys.inv_mass[:, None, None], t[sys.n_struts:], n, length[sys.n_struts:] < rest_lengths
+        return sys.mass.solve(f), t[sys.n_struts:], n, length[sys.n_struts:] < rest_lengths
 
     def _push(self, strengths, directions):
         """Node displacements (N, 3, B) of equal-and-opposite pushes ``strengths`` (nr, B) along the struts."""
-        return self.system.inv_mass[:, None, None] * self._assemble(self._rigid_incidence,
-                                                                     strengths[:, None, :] * directions)
+        return self.system.mass.axial_inverse[:, None, None] * self._assemble(self._rigid_incidence,
+                                                                              strengths[:, None, :] * directions)
 
     def _shake(self, x_start, x_pred, n0):
         """SHAKE (see :mod:`.rigid`) for every copy: the displacement (N, 3, B) back onto the strut lengths."""
