@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import Scene, SceneError
+from ..scene import Scene, SceneError, Strut
 from ._common import Imported, MappingWarning, scene_name
 
 __all__ = ["scene_to_mjcf", "import_mjcf", "load_mjcf", "INTEGRATORS"]
@@ -56,19 +56,13 @@ def _unique(name: str, taken: set[str]) -> str:
     return name
 
 
-def rod_moments(strut: dict, mass_a: float, mass_b: float) -> np.ndarray:
-    """The three mass moments ``(∫dm, ∫s dm, ∫s² dm)`` (kg) of a strut of a scene mapping along ``s`` in
-    [0, 1] from its first node, with its end nodes' own masses ``mass_a``, ``mass_b``: they fix its mass,
-    centre of mass (``∫s dm / ∫dm``) and inertia normal to the axis about it
-    (``L² (∫s² dm - (∫s dm)²/∫dm)``),
-    and its consistent mass block ``[[M0 - 2 M1 + M2, M1 - M2], [M1 - M2, M2]]``."""
-    m = float(strut.get("mass", 0.0))
-    second = 0.5 if strut.get("mass_distribution", "uniform") == "ends" else 1.0 / 3.0
-    out = np.array([mass_a + mass_b + m, mass_b + 0.5 * m, mass_b + second * m])
-    for p in strut.get("payloads", []) or []:
-        at, pm = float(p["at"]), float(p["mass"])
-        out += pm * np.array([1.0, at, at * at])
-    return out
+def rod_moments(strut: Strut, mass_a: float, mass_b: float) -> np.ndarray:
+    """The three mass moments ``(∫dm, ∫s dm, ∫s² dm)`` (kg) of ``strut`` along ``s`` in [0, 1] from its first
+    node (its :attr:`~tensegrity_sim.scene.Strut.mass_block`), with its end nodes' own masses ``mass_a``,
+    ``mass_b``: they fix its mass, centre of mass (``∫s dm / ∫dm``) and inertia normal to the axis about it
+    (``L² (∫s² dm - (∫s dm)²/∫dm)``)."""
+    a, b, c = strut.mass_block
+    return np.array([a + 2.0 * b + c + mass_a + mass_b, b + c + mass_b, c + mass_b])
 
 
 def scene_to_mjcf(scene: Scene, *, cable_model: str | None = None, dt: float = 1e-3, integrator: str = "RK4",
@@ -95,9 +89,10 @@ def scene_to_mjcf(scene: Scene, *, cable_model: str | None = None, dt: float = 1
     where = scene.source or scene.name
     nodes = {n["name"]: n for n in d["nodes"]}
     x = {n: np.asarray(v["position"], float) for n, v in nodes.items()}
-    own = {n: float(v.get("mass", 0.0)) for n, v in nodes.items()}
+    own = {n.name: n.mass for n in scene.nodes}
+    # a node without a rigid strut is a point mass: its own mass and its elastic struts' shares (row sums)
+    point_mass = dict(zip(scene.node_names, (float(m) for m in scene.masses)))
     rigid_of: dict[str, dict] = {}
-    point_mass = dict(own)
     for s in d["struts"]:
         if s["stiffness"] == "rigid":
             for n in s["nodes"]:
@@ -106,10 +101,6 @@ def scene_to_mjcf(scene: Scene, *, cable_model: str | None = None, dt: float = 1
                 if n in rigid_of:
                     raise ValueError(f"{where}: node {n!r} carries two rigid struts (not modelled in MJCF)")
                 rigid_of[n] = s
-        else:  # an elastic strut's mass is lumped on its ends by the consistent block's row sums
-            m0, m1, _ = rod_moments(s, 0.0, 0.0)
-            point_mass[s["nodes"][0]] += float(m0 - m1)
-            point_mass[s["nodes"][1]] += float(m1)
     ground = d.get("ground")
     # what touches the ground: contype 1 against the plane's conaffinity 1, never each other (MuJoCo combines
     # two geoms' friction by the larger: the moving geoms carry the ground's too)
@@ -122,13 +113,7 @@ def scene_to_mjcf(scene: Scene, *, cable_model: str | None = None, dt: float = 1
                    f'condim="{3 if ground is not None else 1}" friction="{friction!r} 0 0"')
     if not capsule and visual:
         capsule = ' contype="0" conaffinity="0"'
-    radius = {n: float(v.get("radius", 0.0)) for n, v in nodes.items()}
-    member_radius = dict.fromkeys(nodes, 0.0)
-    for m in d["struts"] + d["cables"]:
-        for n in m["nodes"]:
-            if isinstance(n, str):
-                member_radius[n] = max(member_radius[n], float(m.get("radius", 0.0)))
-
+    radius = dict(zip(scene.node_names, (float(r) for r in scene.node_radii)))   # where a node touches the ground
     sites = set(nodes)   # MuJoCo's site names: the nodes', then the attachment points'
     attached: dict[str, list[str]] = {s["name"]: [] for s in d["struts"]}
     cable_sites = []
@@ -159,19 +144,18 @@ def scene_to_mjcf(scene: Scene, *, cable_model: str | None = None, dt: float = 1
     for n, v in nodes.items():
         if v.get("fixed", False) or n in rigid_of:
             continue
-        r = max(radius[n], member_radius[n])
         bodies.append(
             f'<body name="{n}" pos="{_fmt(x[n])}">'
             + "".join(f'<joint type="slide" axis="{ax}"/>' for ax in ("1 0 0", "0 1 0", "0 0 1"))
             # no rotational freedom: this inertia never enters the dynamics, MuJoCo only needs it > 0
             + f'<inertial pos="0 0 0" mass="{point_mass[n]!r}" diaginertia="1e-9 1e-9 1e-9"/>'
-            + (f'<geom type="sphere" size="{max(r, 1e-6)!r}" mass="0"{touch}/>' if touch else "")
+            + (f'<geom type="sphere" size="{max(radius[n], 1e-6)!r}" mass="0"{touch}/>' if touch else "")
             + f'<site name="{n}"/></body>')
-    for s in d["struts"]:
-        if s["stiffness"] != "rigid":
+    for strut, s in zip(scene.struts, d["struts"]):
+        if not strut.rigid:
             continue
         a, b = s["nodes"]
-        moments = rod_moments(s, own[a], own[b])
+        moments = rod_moments(strut, own[a], own[b])
         length = float(np.linalg.norm(x[b] - x[a]))
         axis = (x[b] - x[a]) / length
         com = x[a] + (moments[1] / moments[0]) * (x[b] - x[a])
@@ -182,8 +166,9 @@ def scene_to_mjcf(scene: Scene, *, cable_model: str | None = None, dt: float = 1
         if capsule:
             geoms += (f'<geom type="capsule" fromto="{_fmt(np.concatenate([x[a] - com, x[b] - com]))}" '
                       f'size="{max(float(s.get("radius", 0.0)), 1e-6)!r}" mass="0"{capsule}/>')
+            # an end cap of the node's own (a smaller one is hidden in the capsule, which touches first)
             geoms += "".join(f'<geom type="sphere" pos="{_fmt(x[n] - com)}" size="{radius[n]!r}" mass="0"{capsule}/>'
-                             for n in (a, b) if radius[n] > float(s.get("radius", 0.0)))
+                             for n in (a, b) if nodes[n].get("radius") is not None and radius[n] > 0)
         bodies.append(
             f'<body name="{s["name"]}" pos="{_fmt(com)}"><freejoint/>'
             f'<inertial pos="0 0 0" mass="{float(moments[0])!r}" fullinertia="{_fmt(full)}"/>'
@@ -350,7 +335,8 @@ def import_mjcf(source) -> Imported:
       after it. The axis is that of its capsule and cylinder geoms (all collinear), else the line through
       its two farthest geoms and sites. Its two end nodes sit at the extremes of its geoms (segment ends,
       centres) and sites projected onto the axis; a node takes the name of a site exactly there, else
-      ``BODY_a``/``BODY_b``. Each geom's share of the mass is named in the notes: a capsule or cylinder from
+      ``BODY_a``/``BODY_b``; node a is the end of the first site on an end, else of the first capsule's or
+      cylinder's ``fromto`` start. Each geom's share of the mass is named in the notes: a capsule or cylinder from
       end to end goes to the strut's uniform mass, a sphere centred at an end to that node, any other geom
       to a payload at its centre's projection. MuJoCo's compiled body (mass, centre of mass, inertia) is
       then matched exactly: the payloads are kept and the rest of the three mass moments
@@ -450,8 +436,8 @@ def _rod(r: _Reader, b: int, bname: str, nodes: list, struts: list) -> dict:
     sites = [s for s in range(model.nsite) if model.site_bodyid[s] == b]
     segments = [(g, data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3)[:, 2] * model.geom_size[g, 1])
                 for g, kind, _ in geoms if kind in (_CAPSULE, _CYLINDER)]
-    if segments:
-        start, axis = segments[0][1], segments[0][2] / np.linalg.norm(segments[0][2])
+    if segments:   # MuJoCo turns a fromto geom's z axis from its second point to its first: a runs from first
+        start, axis = segments[0][1], -segments[0][2] / np.linalg.norm(segments[0][2])
     else:
         points = [data.geom_xpos[g] for g, _, _ in geoms] + [data.site_xpos[s] for s in sites]
         far = max(((p, q) for p in points for q in points), key=lambda pq: np.linalg.norm(pq[1] - pq[0]),
