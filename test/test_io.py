@@ -131,8 +131,9 @@ def test_imported_robot_round_trips():
     moments, attachment points, end caps)."""
     pytest.importorskip("mujoco")
     with pytest.warns(MappingWarning):
-        scene = ts.load_mjcf(THREE_BAR)
-    d = scene.to_dict()
+        imported = import_mjcf(THREE_BAR)
+    assert imported.actuators == {f"motor_{c}": c for c in ("bottom0", "bottom1", "bottom2", "top0", "top1", "top2")}
+    d = imported.scene.to_dict()
     for c in d["cables"]:
         c["damping"] = 0.0
     scene = ts.Scene.from_dict(d)
@@ -241,6 +242,10 @@ def _xml(body: str = "", extra: str = "", world: str = "") -> str:
           extra='<tendon><spatial name="t" stiffness="1"><site site="a"/><geom geom="drum"/><site site="c"/>'
           '</spatial></tendon>'),
      "<MJCF string>: tendon 't': wraps around geom 'drum': wrapping tendons are not mapped"),
+    (_xml('<geom name="hull" type="mesh" mesh="tetra" mass="0.1"/>',
+          '<asset><mesh name="tetra" vertex="0 0 0 0.1 0 0 0 0.1 0 0 0 0.1"/></asset>'),
+     "<MJCF string>: body 'r': geom 'hull' is a mesh that carries mass or collides: not mapped (a rod is made "
+     "of capsules, cylinders, spheres, boxes and ellipsoids)"),
     (_xml(extra='<equality><connect name="pin" body1="r" body2="q" anchor="0 0 0"/></equality>'),
      "<MJCF string>: equality 'pin': equality constraints are not mapped (a scene has none)"),
     (_xml(extra='<tendon><spatial name="t"><site site="a"/><site site="c"/></spatial></tendon>'),
