@@ -60,6 +60,14 @@ EXTRAS_REQUIRE = {
         "foxglove-sdk>=0.30.3,<0.31",    # serve --foxglove is tested end to end
         "websocket-client>=1.9.2,<2",   # a WebSocket client of our own for that test (and bench/bench_view.py)
         "ray>=2.60.0,<3",        # test/test_sweep.py runs a sweep on a real local Ray cluster
+        "gymnasium>=1.4.0,<2",   # test/test_envs.py: the environments, Gymnasium's checker
+        "cma>=4.5.0,<5",         # test/test_gait.py: optimize-gait's CMA-ES
+    ],
+    # Learning and optimising gaits (tensegrity_sim.envs, tensegrity-sim optimize-gait): Gymnasium environments
+    # and CMA-ES; the gradient search takes the "jax" extra too.
+    "learn": [
+        "gymnasium>=1.4.0,<2",
+        "cma>=4.5.0,<5",
     ],
     # Live to Foxglove without ROS (tensegrity-sim serve --foxglove).
     "foxglove": [
