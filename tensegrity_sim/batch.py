@@ -388,7 +388,8 @@ class BatchSimulator:
                 self._grounds[b].reset(x[j])
             reason = absurd_speed(self.scene, self._v[..., b], self.dt, self._shortest)
             if reason is not None:
-                self.failures[b] = f"step {self._step_count + 1} (t = {(self._step_count + 1) * self.dt:.6g} s): {reason}"
+                at = self._step_count + 1
+                self.failures[b] = f"step {at} (t = {at * self.dt:.6g} s): {reason}"
                 self._frozen[b] = (self._step_count, self._x[..., b].copy(), self._v[..., b].copy())
 
     # ------------------------------------------------------------------ stepping

@@ -43,7 +43,8 @@ def draw_frame(task: RollTask, copy: int) -> np.ndarray:
     canvas = FigureCanvasAgg(fig)
     ax = fig.add_subplot(projection="3d")
     system = task.sim.system
-    for ends, style in ((system.strut_ends, dict(color="0.15", lw=3)), (system.cable_ends, dict(color="tab:blue", lw=1))):
+    for ends, style in ((system.strut_ends, dict(color="0.15", lw=3)),
+                        (system.cable_ends, dict(color="tab:blue", lw=1))):
         for a, b in ends:
             ax.plot(*x[[a, b]].T, **style)
     goal = task.goals[copy]

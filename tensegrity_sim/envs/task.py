@@ -89,7 +89,8 @@ class RollTask:
         self.control_dt = _positive("control_dt", p["control_dt"])
         self.substeps = round(self.control_dt / self.dt)
         if self.substeps < 1 or abs(self.substeps * self.dt - self.control_dt) > 1e-9 * self.control_dt:
-            raise ValueError(f"control_dt ({self.control_dt!r} s) must be a whole number of steps of dt ({self.dt!r} s)")
+            raise ValueError(f"control_dt ({self.control_dt!r} s) must be a whole number of steps of dt "
+                             f"({self.dt!r} s)")
         seconds = _positive("episode_seconds", p["episode_seconds"])
         self.periods = round(seconds / self.control_dt)
         if self.periods < 1 or abs(self.periods * self.control_dt - seconds) > 1e-9 * seconds:

@@ -4,7 +4,7 @@ mass rolls along a goal direction in a set time (``tensegrity-sim optimize-gait`
 A gait is ``knots`` values per actuated cable and ``period`` (s): at times ``period / knots``, ``2 period /
 knots``, ... each cable's rest length is ``low + u (high - low)`` times its rest length in the scene, ``u`` in
 [0, 1] the knot's value (knot ``j mod knots`` at the ``j``-th time), linear between them, from the scene's rest
-length at time 0: a :class:`~tensegrity_sim.commands.CommandSchedule` (:func:`gait_schedule`, written as YAML by
+length at time 0: a :class:`~tensegrity_sim.commands.CommandSchedule` (:meth:`GaitProblem.schedule`, written as YAML by
 :func:`schedule_yaml`) that ``tensegrity-sim run --commands`` replays. Its fastest reel is ``(high - low)`` times
 the longest actuated rest length per ``period / knots`` (the defaults: under 1 m/s on the icosahedron).
 
@@ -29,7 +29,7 @@ from ..batch import BatchSimulator
 from ..commands import CommandSchedule
 from ..scene import Scene
 
-__all__ = ["Gait", "cma_search", "distances", "gait_schedule", "gradient_search", "schedule_yaml"]
+__all__ = ["Gait", "GaitProblem", "cma_search", "distances", "gradient_search", "schedule_yaml"]
 
 
 @dataclass(frozen=True)
@@ -84,10 +84,6 @@ class GaitProblem:
     def com_xy(self, x: np.ndarray) -> np.ndarray:
         return (np.einsum("n,...nk->...k", self.masses, x) / self.masses.sum())[..., :2]
 
-
-def gait_schedule(problem: GaitProblem, u: np.ndarray) -> CommandSchedule:
-    """The command schedule of knot values ``u`` (n_actuated, knots)."""
-    return problem.schedule(u)
 
 
 def schedule_yaml(problem: GaitProblem, u: np.ndarray, comment: str = "") -> str:
