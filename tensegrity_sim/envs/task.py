@@ -34,6 +34,28 @@ PARAMETERS = {
 }
 
 
+class _Reel(CommandSchedule):
+    """One control period's rest lengths of the actuated cables, every step of every copy: ``reel`` (S, B, na) m,
+    the cables ``rest_cables`` (na,). Only what the compiled ground run asks of a batch's schedule (style rule 8:
+    one schedule for all copies, its per-copy values on the trailing axis): :meth:`inputs_at` for the S step times
+    of the period, ``base`` (nc, B) and ``forces`` (N, 3, B) held; the same numbers as B schedules that name each
+    step's value at its start time (``np.interp`` at a point is the point's value), without a Python loop."""
+
+    def __init__(self, cables: np.ndarray, reel: np.ndarray, n_nodes: int):
+        super().__init__(cables, (), (), np.zeros(0), np.zeros((0, n_nodes, 3)))
+        object.__setattr__(self, "reel", reel)
+
+    def inputs_at(self, times, base, forces):
+        steps, copies = len(times), self.reel.shape[1]
+        if self.reel.shape[0] != steps or base.ndim != 2:
+            raise ValueError(f"a control period of {self.reel.shape[0]} steps asked for {steps} steps' inputs")
+        # (the run passes one column where every copy's inputs are equal)
+        base, forces = np.broadcast_to(base, (len(base), copies)), np.broadcast_to(forces, forces.shape[:2] + (copies,))
+        rest = np.repeat(base[None], steps, axis=0)
+        rest[:, self.rest_cables] = np.moveaxis(self.reel, 1, 2)
+        return rest, np.repeat(forces[None], steps, axis=0)
+
+
 def _positive(name: str, value) -> float:
     try:
         out = float(value)
@@ -203,13 +225,7 @@ class RollTask:
         current = sim.rest_lengths[:, self.actuated]
         reach = self.reel_speed * self.dt * np.arange(1, s + 1)[:, None, None]          # (S, 1, 1) m
         rest = current + np.clip(self.targets(actions) - current, -reach, reach)        # (S, B, na)
-        # every step's rest lengths given at every step's start time: the compiled run takes them exactly
-        times = (sim.step_count + np.arange(s)) * sim.dt
-        empty_t, empty_f = np.zeros(0), np.zeros((0, len(self.scene.nodes), 3))
-        commands = [CommandSchedule(self.actuated, (times,) * len(self.actuated),
-                                    tuple(np.ascontiguousarray(rest[:, b].T)), empty_t, empty_f)
-                    for b in range(self.batch)]
-        sim.run(steps=s, every=s, commands=commands)
+        sim.run(steps=s, every=s, commands=_Reel(self.actuated, rest, len(self.scene.nodes)))
         after = self.com(sim.positions)[:, :2]
         effort = np.abs(rest[-1] - current).sum(axis=1)
         rewards = np.einsum("bk,bk->b", after - before, self.goals) - self.effort_cost * effort
