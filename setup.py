@@ -94,6 +94,8 @@ EXTRAS_REQUIRE = {
     )],
     "bench": [
         "mujoco>=4.0.0,<5",      # the peer in bench/run_all.py (matplotlib is a core dependency)
+        "gymnasium>=1.4.0,<2",   # bench/bench_envs.py: Gymnasium's MujocoEnv and SyncVectorEnv, the envs' peers
+        "imageio>=2.38.2,<3",    # what gymnasium.envs.mujoco imports (its renderer)
     ],
     # The documentation site (mkdocs.yml, docs/): mkdocs build --strict, run by test/test_docs.py in CI
     "docs": [
