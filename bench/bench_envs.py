@@ -7,9 +7,8 @@ Contenders, each stepping random actions in [-1, 1] (one control period of 20 ms
 * ``single``: one :class:`~tensegrity_sim.envs.RollEnv`, stepped one by one;
 * ``mujoco``: a Gymnasium ``MujocoEnv`` of the scene's MJCF (``bench/mujoco_peer.py``: a free body per rigid
   strut, a tendon per cable, the ground a plane, the struts capsules on it; Euler integrator, MuJoCo's
-  cheapest), stepped one by one. An action sets the actuated tendons' spring lengths (MuJoCo's rest lengths,
-  ``tendon_lengthspring``) to their targets for the whole period (``frame_skip`` 20): no reel ramp, less work
-  than ours does;
+  cheapest), stepped one by one. An action's targets are reeled toward at 1 m/s as ours are: each of the
+  period's 20 steps (``frame_skip``) moves the tendons' spring lengths (``tendon_lengthspring``) and steps;
 * ``mujoco_sync``: Gymnasium's ``SyncVectorEnv`` of ``--copies`` of them.
 
 Rates are environment steps (control periods) per second of wall time, best of ``--repeats`` turns after a
@@ -41,9 +40,10 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 
 class MujocoRoll(MujocoEnv):
-    """The roll task's robot in MuJoCo through Gymnasium's ``MujocoEnv``: actions in [-1, 1] set the cables'
-    spring lengths between 0.5 and 1.0 of the scene's rest lengths; observation qpos and qvel; reward the
-    bodies' mean x progress (a comparable amount of work to ours: read the state, one dot product)."""
+    """The roll task's robot in MuJoCo through Gymnasium's ``MujocoEnv``: an action in [-1, 1] per cable is a
+    spring-length target between 0.5 and 1.0 of the scene's rest length, reeled toward at 1 m/s step by step as
+    ours is (setting it at once makes MuJoCo's Euler step go unstable within 0.1 s); observation qpos and qvel;
+    reward the bodies' mean x progress."""
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"], "render_fps": 50}
 
@@ -55,18 +55,23 @@ class MujocoRoll(MujocoEnv):
         super().__init__(xml_path, 20, gym.spaces.Box(-np.inf, np.inf, (size,), np.float64), **kwargs)
         self.rest = rest
         self.action_space = gym.spaces.Box(-1.0, 1.0, (len(rest),), np.float64)
+        self.reach = 1.0 * self.model.opt.timestep   # m of rest length a step (the motors' 1 m/s)
 
     def _set_action_space(self):   # MujocoEnv's from the actuators: this model has none; set in __init__
         return None
 
     def step(self, action):
         before = self.data.xpos[1:, 0].mean()
-        self.model.tendon_lengthspring[:, 1] = self.rest * (0.75 + 0.25 * np.asarray(action))
-        self.do_simulation(np.zeros(0), self.frame_skip)
+        target = self.rest * (0.75 + 0.25 * np.asarray(action))
+        spring = self.model.tendon_lengthspring
+        for _ in range(self.frame_skip):
+            spring[:, 1] += np.clip(target - spring[:, 1], -self.reach, self.reach)
+            self.do_simulation(np.zeros(0), 1)
         obs = np.concatenate([self.data.qpos, self.data.qvel])
         return obs, float(self.data.xpos[1:, 0].mean() - before), False, False, {}
 
     def reset_model(self):
+        self.model.tendon_lengthspring[:, 1] = self.rest
         self.set_state(self.init_qpos, self.init_qvel)
         return np.concatenate([self.data.qpos, self.data.qvel])
 

@@ -394,7 +394,8 @@ def _cmd_optimize_gait(args: argparse.Namespace) -> int:
             gait = gradient_search(problem, start, iterations=args.iterations, report=report)
         except ImportError as exc:
             raise ValueError(f"{exc} (pip install \"tensegrity_sim[jax]\")") from None
-        lines.append(f"gradient: {gait.distance:.4f} m in {args.duration:g} s ({args.iterations} steps)")
+        lines.append(f"gradient: {gait.distance:.4f} m in {args.duration:g} s ({len(gait.history) - 1} steps uphill, "
+                     f"at most {args.iterations})")
     comment = (f"tensegrity-sim optimize-gait {args.scene}: {gait.distance:.4f} m along ({goal[0]:g}, {goal[1]:g}) in "
                f"{args.duration:g} s; period {args.period:g} s, {args.knots} knots; search {args.search}\n"
                f"replay: tensegrity-sim run {args.scene} --commands {args.out} --duration {args.duration:g}")
