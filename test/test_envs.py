@@ -125,3 +125,35 @@ def test_bad_reset_option():
     env = RollEnv()
     with pytest.raises(ValueError, match="unknown option 'tilt'"):
         env.reset(options={"tilt": 1.0})
+
+
+def test_jax_functional_env_equals_the_numba_one_over_an_episode():
+    """RollJax (gymnax's interface) from RollEnv's start, the same actions: 25 control periods to 1e-9; its reset
+    and step vmap over keys and states (a batch of robots)."""
+    jax = pytest.importorskip("jax")   # the jax extra (CI's first leg installs it)
+    from tensegrity_sim.envs.jax_roll import RollJax
+
+    params_ = dict(episode_seconds=0.5, noise=0.05)
+    env, fenv = RollEnv(**params_), RollJax(**params_)
+    params = fenv.default_params
+    obs, _ = env.reset(seed=3)
+    x, v = env.task.sim.positions[0], env.task.sim.velocities[0]
+    fobs, state = jax.jit(fenv.reset_to)(x, v, params)
+    np.testing.assert_allclose(fobs, obs, rtol=0, atol=1e-12)
+    step = jax.jit(fenv.step)
+    key = jax.random.PRNGKey(0)
+    rng = np.random.default_rng(0)
+    done = truncated = False
+    while not truncated:
+        a = rng.uniform(-1, 1, 24)
+        obs, reward, _, truncated, _ = env.step(a)
+        fobs, state, freward, done, info = step(key, state, a, params)
+        np.testing.assert_allclose(fobs, obs, rtol=0, atol=1e-9)
+        assert abs(float(freward) - reward) <= 1e-9 and bool(done) == truncated and bool(info["finite"])
+    assert int(state.elapsed) == 25
+    keys = jax.random.split(key, 2)
+    obs2, states = jax.vmap(fenv.reset, in_axes=(0, None))(keys, params)
+    assert obs2.shape == (2, fenv.num_observations) and not np.array_equal(obs2[0], obs2[1])
+    obs2, states, rewards, dones, _ = jax.vmap(fenv.step, in_axes=(0, 0, 0, None))(keys, states, np.zeros((2, 24)),
+                                                                                   params)
+    assert obs2.shape == (2, fenv.num_observations) and np.all(np.isfinite(obs2)) and rewards.shape == (2,)

@@ -3,6 +3,8 @@
 * ``tensegrity_sim/Roll-v0``: roll a scene with a ground toward a goal direction by reeling its actuated
   cables (:class:`~.roll.RollEnv`); ``gymnasium.make_vec(ID, num_envs=N, vectorization_mode="vector_entry_point")``
   builds :class:`~.roll.RollVectorEnv`, N copies stepped in one compiled call.
+* :mod:`.jax_roll` (the ``jax`` extra, imported on its own): the same task as a JAX functional environment
+  (gymnax's ``reset``/``step`` with explicit keys, state and parameters; jit-able, vmap-able).
 
     import gymnasium as gym
     import tensegrity_sim.envs  # registers
