@@ -369,8 +369,11 @@ class BatchSimulator:
         x = self._states(positions, "positions", k, n)
         v = self._states(velocities, "velocities", k, n)
         rest = float_array(rest_lengths, "rest_lengths")
-        if rest.shape != (k, nc) or not np.all(rest > 0):
-            raise ValueError(f"rest_lengths: expected shape {(k, nc)}, every value > 0, got {rest.shape}")
+        if rest.shape != (k, nc):
+            raise ValueError(f"rest_lengths: expected shape {(k, nc)}, got {rest.shape}")
+        if not np.all(rest > 0):
+            j, i = np.argwhere(~(rest > 0))[0]
+            raise ValueError(f"rest_lengths[{j}][{self.scene.cable_names[i]!r}]: must be > 0, got {float(rest[j, i])!r}")
         for j, b in enumerate(idx):
             self._with_state(self.scene, x[j], v[j], int(b))   # the checks of a new batch's state
         # the engine's carry (forces at the last step's end) is dropped for every copy (the others' are computed

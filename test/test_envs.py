@@ -157,3 +157,26 @@ def test_jax_functional_env_equals_the_numba_one_over_an_episode():
     obs2, states, rewards, dones, _ = jax.vmap(fenv.step, in_axes=(0, 0, 0, None))(keys, states, np.zeros((2, 24)),
                                                                                    params)
     assert obs2.shape == (2, fenv.num_observations) and np.all(np.isfinite(obs2)) and rewards.shape == (2,)
+
+
+@pytest.mark.parametrize("args, message", [
+    (([3], None, None, None), r"copies: expected copy indices in \[0, 2\)"),
+    (([1], np.zeros((2, 12, 3)), np.zeros((1, 12, 3)), None), "positions: expected shape"),
+    (([1], "scene", np.zeros((1, 12, 3)), "scene"), "rigid strut 's0' has length"),
+    (([1], "scene", np.zeros((1, 12, 3)), -np.ones((1, 24))), r"rest_lengths\[0\]\['c0'\]: must be > 0"),
+])
+def test_restart_refuses_bad_input_and_changes_nothing(args, message):
+    scene = ts.load_scene("icosahedron_ground")
+    sim = ts.BatchSimulator(scene, 2, method="elastic", contacts=())
+    sim.run(steps=3)
+    before = (sim.positions, sim.velocities, sim.rest_lengths)
+    copies, x, v, rest = args
+    x = scene.positions[None] * (1.1 if "length" in message else 1.0) if isinstance(x, str) else x
+    rest = scene.cable_rest_lengths[None] if isinstance(rest, str) else rest
+    with pytest.raises(ValueError, match=message):
+        sim.restart(copies, x, v, rest)
+    for a, b in zip(before, (sim.positions, sim.velocities, sim.rest_lengths)):
+        assert np.array_equal(a, b)
+    with pytest.raises(ValueError, match="member contacts"):
+        ts.BatchSimulator(scene, 2, method="elastic").restart([0], scene.positions[None], np.zeros((1, 12, 3)),
+                                                               scene.cable_rest_lengths[None])
