@@ -82,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
         moved = drive_offline(args.gait, args.seconds, args.rate, args.scene)
         print(f"centre of mass moved {np.round(moved, 4).tolist()} m in {args.seconds:g} s")
         return 0
+    from roll_controller import latest_pose   # beside this file
     from tensegrity_sim import load_scene
     from tensegrity_sim.commands import load_commands
     from tensegrity_sim.ros import messages as M
@@ -96,12 +97,10 @@ def main(argv: list[str] | None = None) -> int:
         next_command = 0.0
         while True:
             dds.wait(0.2 / args.rate)
-            got, _ = poses.take_messages()
-            if not got:
+            latest = latest_pose(poses)
+            if latest is None:
                 continue
-            msg = got[-1]
-            t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-            x = np.array([[p.position.x, p.position.y, p.position.z] for p in msg.poses])
+            t, x = latest
             if t0 is None:
                 t0, start = t, _centre(scene, x)
             if t - t0 >= args.seconds:
