@@ -180,3 +180,16 @@ def test_restart_refuses_bad_input_and_changes_nothing(args, message):
     with pytest.raises(ValueError, match="member contacts"):
         ts.BatchSimulator(scene, 2, method="elastic").restart([0], scene.positions[None], np.zeros((1, 12, 3)),
                                                                scene.cable_rest_lengths[None])
+
+
+def test_core_imports_no_learning_library():
+    """gymnasium and cma (the learn extra) load only with tensegrity_sim.envs or optimize-gait's search."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import sys, tensegrity_sim, tensegrity_sim.cli, tensegrity_sim.batch, tensegrity_sim.optimize.gait; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('gymnasium', 'cma')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.stdout.strip() == "[]"
