@@ -15,6 +15,7 @@ import numpy as np
 
 from ..batch import BatchSimulator
 from ..commands import CommandSchedule
+from ..methods.rigid import RigidStruts
 from ..scene import Scene, load_scene
 
 __all__ = ["PARAMETERS", "RollTask"]
@@ -134,6 +135,9 @@ class RollTask:
         self.rest0 = rest.copy()
         self.low, self.high = low * rest[self.actuated], high * rest[self.actuated]
         self.sim = BatchSimulator(scene, copies, method="elastic", dt=self.dt, contacts=())
+        if RigidStruts(self.sim.system).coupled:   # stepped by the numpy reference, one step at a time
+            raise ValueError(f"scene {scene.name!r}: rigid struts that share a node (class-k) have no compiled run; "
+                             f"the environments reel the cables inside one")
         self.masses = self.sim.system.masses
         self.batch = copies
         n, nc = len(scene.nodes), len(scene.cables)
