@@ -52,6 +52,8 @@ def test_vector_equals_single_environments():
             assert abs(rewards[i] - r) <= 1e-12 and truncated[i] == tr
         ended = truncated
     assert resets == 2 * n   # 12 steps of 5-period episodes: two autoresets per copy
+    listed, _ = vec.reset(seed=[7, 8, 9])   # one seed per copy: the same as seed=7
+    assert np.array_equal(listed, RollVectorEnv(n, **SHORT).reset(seed=7)[0])
 
 
 def test_reel_and_reward_against_a_plain_simulator():

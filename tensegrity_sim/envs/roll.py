@@ -126,7 +126,7 @@ class RollVectorEnv(VectorEnv):
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
 
     def reset(self, *, seed=None, options: dict | None = None):
-        super().reset(seed=seed)
+        super().reset(seed=seed if isinstance(seed, (int, np.integer)) else None)
         options = {} if options is None else dict(options)
         mask = np.asarray(options.pop("reset_mask", np.ones(self.num_envs, dtype=bool)))
         if mask.shape != (self.num_envs,) or mask.dtype != bool:
