@@ -84,6 +84,13 @@ class ElasticBatch:
             for method in self._copies:
                 method.invalidate()
 
+    def forget(self, copies: np.ndarray) -> None:
+        """:meth:`invalidate`, and the contact warm starts of ``copies`` zeroed: they start again (a new batch's
+        copies start from zero warm starts)."""
+        self.invalidate()
+        if self._warm is not None:
+            self._warm[..., copies] = 0.0
+
     def prepare(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Initial velocities (N, 3, B) without the components that would stretch a rigid strut."""
         if not self.rigid.count:
