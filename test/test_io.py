@@ -86,6 +86,18 @@ def test_ntrt_rods_and_strings_in_closed_form():
     assert metres.struts[0].rest_length == pytest.approx(16.8) and metres.cables[0].stiffness == 600.0
 
 
+def test_ntrt_string_node_along_a_rod_goes_to_its_nearer_end(tmp_path):
+    path = tmp_path / "m.yaml"
+    path.write_text("nodes: {a: [0, 0, 0], b: [10, 0, 0], m: [7, 0, 0], c: [0, 5, 0], d: [10, 5, 0]}\n"
+                    "pair_groups: {rod: [[a, b], [c, d]], string: [[m, c], [b, d]]}\n")
+    with pytest.warns(MappingWarning) as record:
+        scene = ts.load_ntrt(path)
+    assert [str(w.message) for w in record] == [
+        f"{path}: pair_groups: 'string': node 'm' lies at 0.7 along rod (a, b): attached to its end node 'b', 0.3 m "
+        f"away"]
+    assert [c.nodes for c in scene.cables] == [("b", "c"), ("b", "d")]
+
+
 def test_ntrt_substructures_are_turned_about_their_reference():
     """prism3.yaml: three copies of rod.yaml, two turned about NTRT's y axis (here z) through the origin by
     -120 and -240 degrees; strings bonded between the copies' nodes."""
@@ -265,10 +277,12 @@ def test_mjcf_refusals_name_the_element(xml, message):
 
 
 def test_mjcf_drops_with_a_warning():
-    """A push below the dead band's lower bound, a joint actuator, world geoms: dropped, each said."""
+    """A push below the dead band's lower bound, a site along a rod (a cable ends at a node), world geoms:
+    dropped, each said."""
     pytest.importorskip("mujoco")
     xml = _xml(world='<geom name="rock" type="sphere" pos="3 3 3" size="0.1"/>',
                extra='<tendon><spatial name="t" stiffness="100" springlength="0.2 0.5"><site site="b"/>'
+                     '<site site="c"/></spatial><spatial name="u" stiffness="100" springlength="0 1"><site site="m"/>'
                      '<site site="c"/></spatial></tendon><actuator><motor name="drive" tendon="t"/></actuator>')
     with pytest.warns(MappingWarning) as record:
         imported = import_mjcf(xml)
@@ -276,9 +290,11 @@ def test_mjcf_drops_with_a_warning():
     assert "<MJCF string>: world geoms 'rock' dropped (a scene's world is its ground)" in said
     assert ("<MJCF string>: tendon 't': MuJoCo also pushes while it is shorter than 0.2 m (springlength's lower "
             "bound); the cable goes slack instead") in said
-    (cable,) = imported.scene.cables
+    assert ("<MJCF string>: site 'm' (tendon 'u') lies at 0.5 along rod 'r': attached to its end node 'a', 0.5 m "
+            "away") in said
+    cable, other = imported.scene.cables
     assert cable.rest_length == 0.5 and imported.actuators == {"drive": "t"}
-    assert cable.nodes == ("b", "c")
+    assert cable.nodes == ("b", "c") and other.nodes == ("a", "c")
 
 
 @pytest.mark.parametrize("files, message", [

@@ -6,8 +6,8 @@ point mass, nothing else:
 * A **rigid strut** is a body with a free joint, its origin at the strut's centre of mass, carrying the
   strut's mass, payloads and its end nodes' own masses with their exact centre of mass and inertia normal to
   the axis (the consistent mass of physics.md §4c has the same three moments), a site named after each end
-  node, a site per cable attached along it, and a massless capsule of the strut's radius (a sphere of a
-  node's radius at an end cap). A slender rod has no inertia about its axis; MuJoCo needs some, so
+  node, and a massless capsule of the strut's radius (a sphere of a node's radius at an end cap). A
+  slender rod has no inertia about its axis; MuJoCo needs some, so
   ``axial_inertia`` (relative to the transverse inertia) is added: no cable acts off the axis, so it only
   enters through round-off.
 * Any other free node is a body with three slide joints (a point mass), a fixed node a site on the world.
@@ -77,7 +77,7 @@ def scene_to_mjcf(scene: Scene, *, cable_model: str | None = None, dt: float = 1
     frictional-to-normal impedance ratio on the ground; ``strut_contacts``: struts' capsules collide with
     each other (no ground); ``visual``: massless, non-colliding capsules show the struts where nothing else
     does (the benchmarks leave them out). Refused (``ValueError``): a rigid strut with a fixed end, a node
-    carrying two rigid struts, a cable attached along an elastic strut.
+    carrying two rigid struts.
     """
     d = scene.to_dict()
     if cable_model is None:
@@ -114,26 +114,6 @@ def scene_to_mjcf(scene: Scene, *, cable_model: str | None = None, dt: float = 1
     if not capsule and visual:
         capsule = ' contype="0" conaffinity="0"'
     radius = dict(zip(scene.node_names, (float(r) for r in scene.node_radii)))   # where a node touches the ground
-    sites = set(nodes)   # MuJoCo's site names: the nodes', then the attachment points'
-    attached: dict[str, list[str]] = {s["name"]: [] for s in d["struts"]}
-    cable_sites = []
-    for c in d["cables"]:
-        ends = []
-        for j, end in enumerate(c["nodes"]):
-            if isinstance(end, str):
-                ends.append(end)
-                continue
-            strut = next(s for s in d["struts"] if s["name"] == end["strut"])
-            if strut["stiffness"] != "rigid":
-                raise ValueError(f"{where}: cable {c['name']!r} attaches along elastic strut {end['strut']!r} "
-                                 f"(not modelled in MJCF: a site moves with one body)")
-            a, b = strut["nodes"]
-            site = _unique(f"{c['name']}_{'ab'[j]}", sites)
-            attached[strut["name"]].append(
-                (site, (1.0 - float(end["at"])) * x[a] + float(end["at"]) * x[b]))
-            ends.append(site)
-        cable_sites.append(ends)
-
     world, bodies = [], []
     if ground is not None:
         world.append(f'<geom name="ground" type="plane" size="0 0 1" pos="0 0 {ground["height"]!r}" contype="0" '
@@ -173,16 +153,15 @@ def scene_to_mjcf(scene: Scene, *, cable_model: str | None = None, dt: float = 1
             f'<body name="{s["name"]}" pos="{_fmt(com)}"><freejoint/>'
             f'<inertial pos="0 0 0" mass="{float(moments[0])!r}" fullinertia="{_fmt(full)}"/>'
             f'<site name="{a}" pos="{_fmt(x[a] - com)}"/><site name="{b}" pos="{_fmt(x[b] - com)}"/>'
-            + "".join(f'<site name="{site}" pos="{_fmt(p - com)}"/>' for site, p in attached[s["name"]])
             + geoms + "</body>")
     tendons, sensors = [], []
     for s in d["struts"]:
         if s["stiffness"] == "rigid" or all(nodes[n].get("fixed", False) for n in s["nodes"]):
             continue
         tendons.append(f'<spatial name="{s["name"]}" stiffness="{float(s["stiffness"])!r}" '
-                       f'springlength="{float(s["rest_length"])!r}"{_width(s)}><site site="{s["nodes"][0]}"/>'
+                       f'springlength="{float(s["rest_length"])!r}"{_width(s["radius"])}><site site="{s["nodes"][0]}"/>'
                        f'<site site="{s["nodes"][1]}"/></spatial>')
-    for cable, c, (a, b) in zip(scene.cables, d["cables"], cable_sites):
+    for cable, (a, b) in zip(scene.cables, (c.nodes for c in scene.cables)):
         if cable_model == "elastic":
             if cable.stiffness is None:
                 raise ValueError(f"{where}: cable {cable.name!r} has no stiffness (an elastic model needs one)")
@@ -190,9 +169,10 @@ def scene_to_mjcf(scene: Scene, *, cable_model: str | None = None, dt: float = 1
             if cable.damping > 0:
                 law += f' damping="{cable.damping!r}"'
         else:
-            limit = max(cable.rest_length, _distance(scene, c["nodes"]))
+            limit = max(cable.rest_length, float(np.linalg.norm(x[b] - x[a])))
             law = f'limited="true" range="0 {limit!r}" solreflimit="{2 * dt!r} {float(limit_dampratio)!r}"'
-        tendons.append(f'<spatial name="{cable.name}" {law}{_width(c)}><site site="{a}"/><site site="{b}"/></spatial>')
+        tendons.append(f'<spatial name="{cable.name}" {law}{_width(cable.radius)}><site site="{a}"/>'
+                       f'<site site="{b}"/></spatial>')
         kind = "tendonpos" if cable_model == "elastic" else "tendonlimitfrc"
         sensors.append(f'<{kind} tendon="{cable.name}"/>')
     option = f'<option timestep="{dt!r}" integrator="{integrator}" gravity="{_fmt(scene.gravity)}"'
@@ -205,23 +185,9 @@ def scene_to_mjcf(scene: Scene, *, cable_model: str | None = None, dt: float = 1
             f'<tendon>{"".join(tendons)}</tendon><sensor>{"".join(sensors)}</sensor></mujoco>')
 
 
-def _width(member: dict) -> str:
-    r = float(member.get("radius", 0.0))
-    return f' width="{r!r}"' if r > 0 else ""
-
-
-def _distance(scene: Scene, ends) -> float:
-    """The distance (m) between a cable's two ends (node names or points along struts) at the scene's start."""
-    x = dict(zip(scene.node_names, scene.positions))
-    struts = {s.name: s for s in scene.struts}
-
-    def point(end):
-        if isinstance(end, str):
-            return x[end]
-        a, b = struts[end["strut"]].nodes
-        return (1.0 - float(end["at"])) * x[a] + float(end["at"]) * x[b]
-
-    return float(np.linalg.norm(point(ends[1]) - point(ends[0])))
+def _width(radius: float) -> str:
+    """A tendon's width: its member's radius (MuJoCo's default where the member has none)."""
+    return f' width="{float(radius)!r}"' if radius > 0 else ""
 
 
 # ------------------------------------------------------------------------------------------------ import
@@ -351,8 +317,10 @@ def import_mjcf(source) -> Imported:
     * A body with exactly three orthogonal slide joints is a point-mass node (what :func:`scene_to_mjcf`
       writes for a node without a rigid strut); a body with no joint is part of the world (its sites are
       fixed nodes, its geoms the world's).
-    * A spatial tendon through two sites is a **cable** (a site on a rod becomes its end node, or the
-      attachment point ``{strut, at}`` of its projection; a site's radial offset from the axis is noted).
+    * A spatial tendon through two sites is a **cable** between nodes: a site at a rod's end is that node (its
+      radial offset from the axis is noted); a site along the rod is attached to the nearer end node, with a
+      warning naming the site, its place along the rod and the distance dropped (a scene's cables end at
+      nodes).
       Its ``stiffness``, ``damping`` and ``springlength`` become the cable's stiffness, damping and rest
       length: MuJoCo's dead band ``[lower, upper]`` pulls beyond ``upper``, which is the rest length (a
       push below ``lower`` is dropped, with a warning). A two-sided spring (one ``springlength``) between
@@ -662,7 +630,7 @@ def _tendons(r: _Reader, nodes: list, struts: list, node_of_site: dict, rod_of_b
 
 def _end(r: _Reader, site: int, tname: str, nodes: list, node_of_site: dict, rod_of_body: dict,
          world_bodies: set):
-    """A cable end from a tendon's site: a node name, or ``{strut, at}`` along a rod."""
+    """A cable end from a tendon's site: a node name (a site along a rod: its nearer end's)."""
     model, data, mj = r.model, r.data, r.mj
     sname = r.name(mj.mjtObj.mjOBJ_SITE, site, f"#{site}")
     body = int(model.site_bodyid[site])
@@ -679,7 +647,11 @@ def _end(r: _Reader, site: int, tname: str, nodes: list, node_of_site: dict, rod
     at = min(max(t / rod["length"], 0.0), 1.0)
     if off > _TOL * rod["length"]:
         r.notes.append(f"site {sname!r} (tendon {tname!r}) lies {off:.3g} m off rod {rod['strut']!r}'s axis: "
-                       f"attached at its projection")
-    if at <= _TOL or at >= 1.0 - _TOL:
-        return rod["a"] if at <= _TOL else rod["b"]
-    return {"strut": rod["strut"], "at": at}
+                       f"attached on the axis")
+    end = "a" if at <= 0.5 else "b"
+    if _TOL < at < 1.0 - _TOL:   # a scene's cable ends at nodes: the nearer end takes it
+        node = rod["start"] + (end == "b") * rod["length"] * rod["axis"]
+        dropped = float(np.linalg.norm(data.site_xpos[site] - node))
+        r.warn(f"site {sname!r} (tendon {tname!r}) lies at {at:.4g} along rod {rod['strut']!r}: attached to its end "
+               f"node {rod[end]!r}, {dropped:.3g} m away")
+    return rod[end]

@@ -24,7 +24,8 @@ Mapping (:func:`import_ntrt`):
   tgBasicActuator starts at that rest length). Every NTRT string is motor-driven: command its rest length.
   The motor's own parameters (``max_tension``, ``target_velocity``, motor inertia, ...) are noted, not
   mapped; a string's anchor is its node (NTRT may move it to the rod's surface: ``moveCablePoint*ToEdge``).
-* A string node that is no rod's end but lies on a rod becomes an attachment point ``{strut, at}``.
+* A string node that is no rod's end but lies on a rod is attached to that rod's nearer end node, with a
+  warning naming it, its place along the rod and the distance dropped (a scene's cables end at nodes).
 * A ground ``z = 0`` under the lowest rod end (its centre minus the rod's radius), gravity 9.81 m/s² down.
 
 Refused (``SceneError`` naming the file and the element): a malformed file, an unknown key, builder class
@@ -309,7 +310,7 @@ def import_ntrt(path, length_scale: float | None = None) -> Imported:
                        f"{p['restitution']:g} not mapped")
     rod_ends = {i for s in rods for i in s[1:3]}
     for tag, a, b, cls, p, where in strings:
-        ends = [node(i) if i in rod_ends else _along(i, x, rods, struts, r.node_names, where) for i in (a, b)]
+        ends = [node(i) if i in rod_ends else _along(i, x, rods, node, r.node_names, where) for i in (a, b)]
         length = float(np.linalg.norm(x[b] - x[a]))
         rest = length - p["pretension"] * length_scale / p["stiffness"]
         name = scene_name(f"{tag}{len(cables)}", taken)
@@ -332,11 +333,15 @@ def import_ntrt(path, length_scale: float | None = None) -> Imported:
     return Imported(Scene.from_dict(mapping, source=label), {}, tuple(r.notes))
 
 
-def _along(i: int, x: np.ndarray, rods: list, struts: list, names: list, where: str) -> dict:
-    """A string's node that is no rod's end: the point ``{strut, at}`` of the rod it lies on (m positions)."""
-    for (_, a, b, _, _, _), strut in zip(rods, struts):
+def _along(i: int, x: np.ndarray, rods: list, node, names: list, where: str) -> str:
+    """A string's node that is no rod's end: the nearer end node of the rod it lies on (m positions), warned."""
+    for _, a, b, _, _, _ in rods:
         d = x[b] - x[a]
         at = float((x[i] - x[a]) @ d / (d @ d))
         if 0.0 <= at <= 1.0 and np.linalg.norm(x[a] + at * d - x[i]) <= 1e-9 * math.sqrt(d @ d):
-            return {"strut": strut["name"], "at": at}
+            end = a if at <= 0.5 else b
+            warnings.warn(f"{where}: node {names[i]!r} lies at {at:.4g} along rod ({names[a]}, {names[b]}): attached "
+                          f"to its end node {names[end]!r}, {np.linalg.norm(x[i] - x[end]):.3g} m away",
+                          MappingWarning, stacklevel=3)
+            return node(end)
     raise SceneError(f"{where}: node {names[i]!r} lies on no rod (NTRT anchors a string on a rigid body)")
