@@ -97,6 +97,11 @@ EXTRAS_REQUIRE = {
         "gymnasium>=1.4.0,<2",   # bench/bench_envs.py: Gymnasium's MujocoEnv and SyncVectorEnv, the envs' peers
         "imageio>=2.38.2,<3",    # what gymnasium.envs.mujoco imports (its renderer)
     ],
+    # Robots from MJCF files (tensegrity_sim.load_mjcf, tensegrity-sim import ROBOT.xml): MuJoCo's own parser.
+    # Writing MJCF (Scene.to_mjcf) and reading NTRT YAML need nothing more.
+    "io": [
+        "mujoco>=4.0.0,<5",
+    ],
     # The documentation site (mkdocs.yml, docs/): mkdocs build --strict, run by test/test_docs.py in CI
     "docs": [
         "mkdocs>=1.6.1,<2",

@@ -357,6 +357,51 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_import(args: argparse.Namespace) -> int:
+    from .io import import_mjcf, import_ntrt   # io sits around the core; MuJoCo's parser only for MJCF
+
+    source = Path(args.robot)
+    if source.suffix.lower() == ".xml":
+        if args.length_scale is not None:
+            raise ValueError(f"--length-scale: applies to an NTRT YAML file, not to {source} (MJCF is in metres)")
+        imported = import_mjcf(source)
+    elif source.suffix.lower() in (".yaml", ".yml"):
+        imported = import_ntrt(source, args.length_scale)
+    else:
+        raise ValueError(f"{source}: not a robot file this verb reads (ROBOT.xml: MJCF, ROBOT.yaml: NTRT)")
+    out = Path(args.out)
+    text = imported.header() + imported.scene.to_yaml()
+    # written beside the target and renamed over it: never a half-written scene
+    partial = out.with_name(f".{out.name}.partial")
+    try:
+        partial.write_text(text)
+        os.replace(partial, out)
+    finally:
+        partial.unlink(missing_ok=True)
+    scene = imported.scene
+    print("\n".join(imported.notes))
+    for actuator, cable in imported.actuators.items():
+        print(f"actuator {actuator} drives cable {cable}")
+    print(f"scene {scene.name}: {len(scene.nodes)} nodes, {len(scene.struts)} struts, {len(scene.cables)} cables"
+          f"{', on the ground' if scene.ground is not None else ''} -> {out}")
+    return 0
+
+
+def _add_import(verbs) -> None:
+    """``import``: a robot from MuJoCo's MJCF or NTRT's YAML as a scene YAML."""
+    imp = verbs.add_parser(
+        "import", help="a robot from MJCF (MuJoCo) or NTRT YAML as a scene YAML",
+        description="Read ROBOT.xml (MJCF, through MuJoCo's parser: pip install \"tensegrity_sim[io]\") or "
+                    "ROBOT.yaml (NTRT's YAML structure format) and write the scene. Prints how each element "
+                    "was mapped and which cable each actuator drives (also written as comments at the top of "
+                    "the scene); what cannot be mapped is refused, or dropped with a warning (docs/robots.md).")
+    imp.add_argument("robot", metavar="ROBOT.xml|ROBOT.yaml", help="the robot file")
+    imp.add_argument("--out", required=True, metavar="SCENE.yaml", help="the scene file to write")
+    imp.add_argument("--length-scale", type=_positive_float, default=None, metavar="S",
+                     help="NTRT: metres per file unit (default: 0.1, NTRT's decimetres)")
+    imp.set_defaults(func=_cmd_import)
+
+
 def _cmd_optimize_gait(args: argparse.Namespace) -> int:
     from .optimize.gait import GaitProblem, cma_search, gradient_search, schedule_yaml
 
@@ -603,6 +648,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_serve(verbs)
     _add_sweep(verbs)
     _add_fit(verbs)
+    _add_import(verbs)
     _add_optimize_gait(verbs)
     return parser
 

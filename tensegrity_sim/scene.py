@@ -534,6 +534,13 @@ class Scene:
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.to_dict(), sort_keys=False)
 
+    def to_mjcf(self, **options) -> str:
+        """The scene as a MuJoCo model (MJCF text), so that one robot runs in both engines:
+        :func:`tensegrity_sim.io.mjcf.scene_to_mjcf` (its keyword options and mapping); the mapping back
+        is :func:`tensegrity_sim.load_mjcf`. Needs no MuJoCo to write."""
+        from .io.mjcf import scene_to_mjcf   # io sits around the core: imported only here
+        return scene_to_mjcf(self, **options)
+
 
 # --------------------------------------------------------------------------- loading
 _SCENE_PACKAGE = "tensegrity_sim.scenes"
