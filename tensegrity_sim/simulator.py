@@ -701,9 +701,11 @@ class Simulator:
 
     # ------------------------------------------------------------------ invariants
     def energy(self) -> dict[str, float]:
-        """Energies, J: kinetic, strain (what the method's model stores), gravity (``-sum m g.x``), total."""
+        """Energies, J: kinetic (the nodes' and, in the massive method, the moving cable plates'), strain (what
+        the method's model stores), gravity (``-sum m g.x``), total."""
         st, sys = self._state, self.system
         kinetic = 0.5 * float(np.sum(sys.masses[:, None] * st.velocities ** 2 * sys.free[:, None]))
+        kinetic += self._method.plate_energy(st.positions, st.velocities, st.rest_lengths)   # cables' plates
         strain = self._method.strain_energy(st.positions, st.rest_lengths)
         gravity = -float(np.sum(sys.gravity_force * st.positions))
         return {"kinetic": kinetic, "strain": strain, "gravity": gravity,
