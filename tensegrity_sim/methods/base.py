@@ -14,7 +14,9 @@ Rules for whoever writes a new method (compare ``scipy.integrate.OdeSolver``):
    outside (new rest lengths, new external forces, a reset); the method must then recompute.
 5. ``strain_energy(positions, rest_lengths)`` is the elastic energy the method's model stores (J);
    ``plate_energy(positions, velocities, rest_lengths)`` the kinetic energy its model keeps apart from the
-   nodes' (the full model's moving cable plates; 0 by default), counted in ``Simulator.energy()["kinetic"]``.
+   nodes' (the full model's moving cable plates; 0 by default), counted in ``Simulator.energy()["kinetic"]``;
+   ``losses`` the energy (J) its model removed at events since ``prepare`` (the plates' at snaps and releases;
+   ``Simulator.energy_lost``).
 6. ``impulses`` are each cable's impulse over the step (N*s), snaps included, in cable order.
 7. ``prepare(state)`` makes an initial state consistent with the method's constraints (e.g. removes
    the part of the initial velocities that would stretch a rigid strut); it may modify ``state``.
@@ -88,6 +90,7 @@ class StepMethod:
     carry_outlives_inputs = False   # rule 10: True: rewind the steps ahead before an input changes
     advanced_pairs: dict = {}       # rule 10: the member contacts' impulses of the last advance(), by step
     options: tuple[str, ...] = ()
+    losses: float = 0.0             # rule 5: J removed at events since prepare()
 
     def __init__(self, system: System, dt: float):
         self.system = system
