@@ -36,10 +36,12 @@ the earliest switch's time by Newton on the step itself) and resolved at that in
 Every loss is added to ``losses`` (J), so ``energy()["total"] + losses`` is conserved to the integrator's
 error; ``energy()["kinetic"]`` includes the moving plates' (:meth:`plate_energy`).
 
-The structure's inverse mass is applied in one place, :meth:`MassiveMethod.inverse_mass` (lumped, diagonal,
-now). Not available yet (refused at construction with a message): rigid struts (RATTLE's projections would
-need the plate-augmented mass), a ground and a member contact response. There is no compiled kernel yet:
-every step is the numpy code below.
+Two implementations of the same arithmetic: the numba kernel ``massive/_kernels.py`` (one step per call; used
+unless ``compiled`` is False) and the numpy code below, the plain reference it must match to 1e-12 in tests.
+The structure's inverse mass is applied in one place in each, :meth:`MassiveMethod.inverse_mass` and
+``_kernels.inverse_mass`` (lumped, diagonal, now). Not available yet (refused at construction with a message):
+rigid struts (RATTLE's projections would need the plate-augmented mass), a ground and a member contact
+response; nor a compiled multi-step loop (``run()`` calls the kernel once a step).
 """
 from __future__ import annotations
 
@@ -51,8 +53,11 @@ from scipy.optimize import nnls
 
 from ...system import System
 from ..base import MethodStep, State, StepMethod
-from ..elastic.composition import MAX_SWITCHES, STABILITY, Stepper
+from ..elastic import _kernels as elastic_kernels
+from ..elastic.composition import MAX_SWITCHES, MIN_SPLIT, STABILITY, WEIGHTS, Stepper
 from ..elastic.method import ElasticMethod
+from ..rigid import RigidStruts
+from . import _kernels as kernels
 
 __all__ = ["MassiveMethod", "plate_impact", "BAND"]
 
@@ -66,7 +71,8 @@ class _Forces(NamedTuple):
     """The step's record at one configuration (the fields the located stepper reads): accelerations (N, 3)
     m/s^2, each cable's force on the structure ``k e + c de + m_c d2e`` (n_cables,) N, member unit vectors
     (m, 3), ``slack`` (n_cables,) bool: not in the switch state taut, elongations (n_cables,) m, elongation
-    rates (n_cables,) m/s, ``plated`` (n_cables,) bool: the cables whose plates ``acc`` moves with them."""
+    rates (n_cables,) m/s, ``held`` (n_cables,) bool: the cables taut in ``acc`` (damped, their plates moving with
+    them)."""
 
     acc: np.ndarray
     cable_tensions: np.ndarray
@@ -74,7 +80,7 @@ class _Forces(NamedTuple):
     slack: np.ndarray
     elongations: np.ndarray
     rates: np.ndarray
-    plated: np.ndarray
+    held: np.ndarray
 
 
 def plate_impact(g: np.ndarray, rates: np.ndarray, snapping: np.ndarray) -> np.ndarray:
@@ -128,12 +134,14 @@ class _PlateStepper(Stepper):
 class MassiveMethod(StepMethod):
     """Options: ``order`` 2 (velocity Verlet) or 4 (Suzuki's composition of five), ``locate_switches``
     (default True: snaps, releases and slack/taut switches located inside the step; False: resolved at the
-    end of the step they happen in, first order). ``losses`` (J): the plates' energy lost since the reset."""
+    end of the step they happen in, first order). ``losses`` (J): the plates' energy lost since the reset.
+    ``compiled``: step with the numba kernel (True) or the numpy reference (False)."""
 
     name = "massive"
     options = ("order", "locate_switches")
 
-    def __init__(self, system: System, dt: float, *, order: int = 2, locate_switches: bool | None = None):
+    def __init__(self, system: System, dt: float, *, order: int = 2, locate_switches: bool | None = None,
+                 compiled: bool = True):
         super().__init__(system, dt)
         scene = system.scene
         missing = [c.name for c in scene.cables if c.stiffness is None]
@@ -169,6 +177,44 @@ class MassiveMethod(StepMethod):
         self._cache: _Forces | None = None
         self._step_loss = 0.0
         self.losses = 0.0
+        self.compiled = bool(compiled)
+        if self.compiled:
+            self._set_up_kernel()
+
+    def _set_up_kernel(self) -> None:
+        """The kernel's system arrays and workspaces; compiled (or loaded from numba's cache) now, not in the
+        first step."""
+        sys = self.system
+        n, nc, m = sys.n_nodes, sys.n_cables, sys.n_members
+        self._model = (*elastic_kernels.model_arrays(sys, RigidStruts(sys))[:7], np.ascontiguousarray(self.plates),
+                       BAND, self._damped)
+
+        def workspace():
+            return (np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(nc), np.empty((m, 3)),
+                    np.empty(nc, dtype=bool), np.empty(nc), np.empty(nc), np.zeros(nc, dtype=bool))
+
+        self._start, self._trial = workspace(), workspace()
+        self._scratch = (np.empty((n, 3)), np.empty(nc, dtype=np.int64), np.empty((nc, nc)), np.empty((nc, n, 3)),
+                         np.empty(nc), np.empty((n, 3)))
+        self._weights = np.array(WEIGHTS[self.order])
+        self._fresh = True   # the start workspace's record is not the state's: compute it
+        scene = sys.scene
+        self._step_compiled(State(scene.positions, scene.velocities, scene.cable_rest_lengths, np.zeros((n, 3))))
+        self._fresh = True
+
+    def _step_compiled(self, state: State) -> tuple[MethodStep, float]:
+        ws = self._start
+        ws[0][...], ws[1][...] = state.positions, state.velocities
+        rest = np.ascontiguousarray(state.rest_lengths, dtype=float)
+        ext = np.ascontiguousarray(state.external_forces, dtype=float)
+        if self._fresh:
+            kernels.forces(ws[0], ws[1], rest, ext, *self._model, False, ws[2:], *self._scratch[:5])
+            self._fresh = False
+        impulses = np.empty(self.system.n_cables)
+        loss = kernels.massive_step(ws, self._trial, self.dt, self._weights, self.locate_switches, MIN_SPLIT * self.dt,
+                                    rest, ext, self._model, self.system.masses, self.system.free, self._scratch,
+                                    impulses)
+        return MethodStep(ws[0].copy(), ws[1].copy(), impulses, ws[6] < 0), loss
 
     # ------------------------------------------------------------------ the mass
     def inverse_mass(self, f: np.ndarray) -> np.ndarray:
@@ -198,10 +244,10 @@ class MassiveMethod(StepMethod):
         band = BAND * rest
         return (e > band) | ((e >= -band) & (rate > 0.0))
 
-    def accelerations(self, x: np.ndarray, v: np.ndarray, state: State, plated: np.ndarray | None = None) -> _Forces:
-        """The forces at ``x``, ``v`` (N, 3) with the plates of the taut massive cables, or of ``plated``
-        (n_cables,) bool where given (the set of the part that ends here: an event at its end is resolved
-        after its closing kick)."""
+    def accelerations(self, x: np.ndarray, v: np.ndarray, state: State, held: np.ndarray | None = None) -> _Forces:
+        """The forces at ``x``, ``v`` (N, 3): the taut cables (:meth:`switch_state`), or those of ``held``
+        (n_cables,) bool where given (the set of the part that ends here: a switch at its end comes after its
+        closing kick), damped and with their plates."""
         sys = self.system
         rest = self._rest
         rest[sys.n_struts:] = state.rest_lengths
@@ -210,18 +256,17 @@ class MassiveMethod(StepMethod):
         nc = n[sys.n_struts:]
         rate = sys.member_rates(v, nc, sys.cable_ends)
         cables = t[sys.n_struts:]
-        if self._damped:
-            cables += np.where(cables > 0, sys.cable_damping * rate, 0.0)
-            np.maximum(cables, 0.0, out=cables)   # a damped cable never pushes
-        f = sys.assemble(t[:, None] * n) + sys.gravity_force + state.external_forces
         e = length[sys.n_struts:] - state.rest_lengths
         taut = self.switch_state(e, rate, state.rest_lengths)
+        if held is None:
+            held = taut
+        if self._damped:
+            cables += np.where(held, sys.cable_damping * rate, 0.0)
+            np.maximum(cables, 0.0, out=cables)   # a damped cable never pushes
+        f = sys.assemble(t[:, None] * n) + sys.gravity_force + state.external_forces
         acc = self.inverse_mass(f)
         tensions = cables.copy()
-        if plated is None:
-            plated = taut & self._massive
-        on = plated
-        plated = np.flatnonzero(on)
+        plated = np.flatnonzero(held & self._massive)
         if len(plated):
             # the plates' inertial forces y = m_c d2e/dt2: (B M^-1 B^T + diag(1/m_c)) y = B M^-1 f + q
             ends = sys.cable_ends[plated]
@@ -232,7 +277,7 @@ class MassiveMethod(StepMethod):
             y = np.linalg.solve(g, rhs)
             acc = acc - np.einsum("k,knj->nj", y, mb)
             tensions[plated] += y
-        return _Forces(acc, tensions, n, ~taut, e, rate, on)
+        return _Forces(acc, tensions, n, ~taut, e, rate, held)
 
     def verlet(self, x: np.ndarray, v: np.ndarray, start: _Forces, h: float, state: State):
         """One velocity-Verlet step of ``h`` (s) from ``x``, ``v`` (N, 3) with the forces ``start`` at them;
@@ -240,11 +285,11 @@ class MassiveMethod(StepMethod):
         velocities (N, 3) and forces there."""
         v_half = v + (0.5 * h) * start.acc
         x_new = x + h * v_half
-        # the plates of the step's start: a snap or release at its end comes after its closing kick (_events)
-        end = self.accelerations(x_new, v_half, state, start.plated)
+        # the taut set of the step's start: a switch at its end (a snap, a release) comes after its closing kick
+        end = self.accelerations(x_new, v_half, state, start.held)
         v_new = v_half + (0.5 * h) * end.acc
-        if self._damped or start.plated.any():   # forces that depend on the velocity: damping, the plates' q
-            end = self.accelerations(x_new, v_new, state, start.plated)
+        if self._damped or np.any(start.held & self._massive):   # forces that depend on the velocity
+            end = self.accelerations(x_new, v_new, state, start.held)
             v_new = v_half + (0.5 * h) * end.acc
         return x_new, v_new, end
 
@@ -254,10 +299,10 @@ class MassiveMethod(StepMethod):
         tuple), resolved at its end: returns the velocities (N, 3), the forces there, and the snap impulses
         (n_cables,) N*s. The energy they remove is added to ``_step_loss``."""
         x, v, end = part[0], part[1], part[2]
-        taut_before, taut_after = end.plated, ~end.slack & self._massive
         kicks = np.zeros(self.system.n_cables)
-        if np.array_equal(taut_before, taut_after):
+        if np.array_equal(end.held, ~end.slack):
             return v, end, kicks
+        taut_before, taut_after = end.held & self._massive, ~end.slack & self._massive
         released = taut_before & ~taut_after
         self._step_loss += float(0.5 * np.sum(self.plates[released] * end.rates[released] ** 2))
         snapping = taut_after & ~taut_before
@@ -284,11 +329,25 @@ class MassiveMethod(StepMethod):
     # ------------------------------------------------------------------ the contract
     def invalidate(self) -> None:
         self._cache = None
+        self._fresh = True
 
     def prepare(self, state: State) -> None:
         self.losses = 0.0
 
     def _step_impl(self, state: State) -> MethodStep:
+        if self.compiled:
+            out, loss = self._step_compiled(state)
+            self.losses += loss
+            return out
+        return self._step_reference(state)
+
+    def retrace(self, state: State) -> MethodStep | None:
+        if not self.compiled:
+            return None
+        self._cache = None
+        return self._step_reference(state)
+
+    def _step_reference(self, state: State) -> MethodStep:
         x, v = state.positions, state.velocities
         start = self._cache if self._cache is not None else self.accelerations(x, v, state)
         self._step_loss = 0.0
