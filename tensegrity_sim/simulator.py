@@ -716,6 +716,7 @@ class Simulator:
     def energy_lost(self) -> float:
         """J: the energy the method's model removed at its events since the reset, apart from any drift (the
         massive method's cable plates at snaps and releases, physics.md §4b; 0 in the other methods)."""
+        self._settle()   # the steps computed ahead put back: the losses up to the present
         return self._method.losses
 
     def momentum(self) -> tuple[np.ndarray, np.ndarray]:

@@ -273,3 +273,21 @@ def test_kernel_matches_the_numpy_reference(case, options):
     assert np.abs(a.velocities - b.velocities).max() < 1e-12 * np.abs(b.velocities).max()
     assert np.abs(a.impulses - b.impulses).max() < 1e-12
     assert lost_a == pytest.approx(lost_b, rel=1e-12, abs=1e-14)
+
+
+def test_run_loop_equals_single_steps_and_losses_follow_the_present():
+    """run() in the kernel's loop, and step() (steps computed ahead in it, rewound when an input changes): the
+    same numbers, and energy_lost is the present's, not that of the steps computed ahead."""
+    scene = _free_scene("prism3", 0.05)
+    loop = ts.Simulator(scene, method="massive", dt=2.5e-4)
+    traj = loop.run(steps=200)
+    single = ts.Simulator(scene, method="massive", dt=2.5e-4)
+    lost = []
+    for k in range(200):
+        r = single.step()
+        assert np.array_equal(r.positions, traj.positions[k]) and np.array_equal(r.impulses, traj.impulses[k])
+        lost.append(single.energy_lost)
+    assert single.energy_lost == loop.energy_lost > 0
+    assert lost == sorted(lost) and lost[0] < lost[-1]   # read step by step, the losses grow as they happen
+    single.set_rest_lengths(single.rest_lengths * 0.99)   # an input: the steps ahead dropped, the losses kept
+    assert single.energy_lost == loop.energy_lost

@@ -18,7 +18,7 @@ from numba import njit
 from ..elastic._composition_kernels import _first_switch
 from ..elastic.composition import _FLOW_ITER, LOCATE_TOL, MAX_SWITCHES
 
-__all__ = ["inverse_mass", "forces", "massive_step", "plate_impact"]
+__all__ = ["inverse_mass", "forces", "massive_step", "massive_steps", "plate_impact"]
 
 _PIVOTS = 64   # principal pivots of the snap's complementarity problem at most (a few in practice)
 
@@ -429,4 +429,31 @@ def massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, 
     for ci in range(nc):
         impulses[ci] = impulses[ci] + trial_imp[ci] + kicks[ci]
     _copy(trial, start)
+    return loss
+
+
+@njit(cache=True, error_model="numpy")
+def massive_steps(start, trial, h, n_steps, every, weights, locate, min_split, rest, ext, model, masses, free,
+                  scratch, out_x, out_v, out_impulses, out_slack):
+    """``n_steps`` steps of :func:`massive_step` in place on ``start``, keeping steps ``every``, ``2 every``, ...
+    and the last in ``out_x``, ``out_v`` (K, N, 3), ``out_impulses`` (K, nc; summed over the steps since the last
+    kept one) and ``out_slack`` (K, nc: shorter than the rest length), ``K = ceil(n_steps / every)``. Returns the
+    energy the plates lost (J)."""
+    nc = rest.shape[0]
+    imp = np.empty(nc)
+    total = np.zeros(nc)
+    loss = 0.0
+    for s in range(n_steps):
+        loss += massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, masses, free, scratch,
+                             imp)
+        for ci in range(nc):
+            total[ci] += imp[ci]
+        if (s + 1) % every == 0 or s == n_steps - 1:
+            k = s // every
+            out_x[k] = start[0]
+            out_v[k] = start[1]
+            for ci in range(nc):
+                out_impulses[k, ci] = total[ci]
+                out_slack[k, ci] = start[6][ci] < 0
+                total[ci] = 0.0
     return loss

@@ -41,7 +41,11 @@ unless ``compiled`` is False) and the numpy code below, the plain reference it m
 The structure's inverse mass is applied in one place in each, :meth:`MassiveMethod.inverse_mass` and
 ``_kernels.inverse_mass`` (lumped, diagonal, now). Not available yet (refused at construction with a message):
 rigid struts (RATTLE's projections would need the plate-augmented mass), a ground and a member contact
-response; nor a compiled multi-step loop (``run()`` calls the kernel once a step).
+response.
+
+``run()`` steps in the kernel's loop (``massive_steps``, base.py's rule 10); its carry is the start workspace
+(positions, velocities and the forces there) and the losses so far, so the simulator rewinds the steps it
+computed ahead before an input changes or ``energy_lost`` is read (``carry_outlives_inputs``).
 """
 from __future__ import annotations
 
@@ -199,10 +203,15 @@ class MassiveMethod(StepMethod):
         self._weights = np.array(WEIGHTS[self.order])
         self._fresh = True   # the start workspace's record is not the state's: compute it
         scene = sys.scene
-        self._step_compiled(State(scene.positions, scene.velocities, scene.cable_rest_lengths, np.zeros((n, 3))))
-        self._fresh = True
+        state = State(scene.positions, scene.velocities, scene.cable_rest_lengths, np.zeros((n, 3)))
+        self._step_compiled(state)
+        self.advance(state, 1, 1, np.empty((1, n, 3)), np.empty((1, n, 3)), np.empty((1, nc)),
+                     np.empty((1, nc), dtype=bool))
+        self._fresh, self.losses = True, 0.0
 
-    def _step_compiled(self, state: State) -> tuple[MethodStep, float]:
+    def _at_state(self, state: State):
+        """The start workspace at ``state``'s positions and velocities (its forces recomputed after an input),
+        and the rest lengths and external forces as the kernel takes them."""
         ws = self._start
         ws[0][...], ws[1][...] = state.positions, state.velocities
         rest = np.ascontiguousarray(state.rest_lengths, dtype=float)
@@ -210,6 +219,10 @@ class MassiveMethod(StepMethod):
         if self._fresh:
             kernels.forces(ws[0], ws[1], rest, ext, *self._model, False, ws[2:], *self._scratch[:5])
             self._fresh = False
+        return ws, rest, ext
+
+    def _step_compiled(self, state: State) -> tuple[MethodStep, float]:
+        ws, rest, ext = self._at_state(state)
         impulses = np.empty(self.system.n_cables)
         loss = kernels.massive_step(ws, self._trial, self.dt, self._weights, self.locate_switches, MIN_SPLIT * self.dt,
                                     rest, ext, self._model, self.system.masses, self.system.free, self._scratch,
@@ -340,6 +353,34 @@ class MassiveMethod(StepMethod):
             self.losses += loss
             return out
         return self._step_reference(state)
+
+    @property
+    def carry_outlives_inputs(self) -> bool:
+        """The loop's carry holds the losses, which no input rebuilds: the simulator rewinds before reading them."""
+        return self.compiled
+
+    def has_loop(self) -> bool:
+        return self.compiled
+
+    def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
+                impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ws, rest, ext = self._at_state(state)
+        self.losses += kernels.massive_steps(ws, self._trial, self.dt, steps, every, self._weights,
+                                             self.locate_switches, MIN_SPLIT * self.dt, rest, ext, self._model,
+                                             self.system.masses, self.system.free, self._scratch, positions,
+                                             velocities, impulses, slack)
+        return ws[0].copy(), ws[1].copy()
+
+    def carry(self):
+        """The start workspace (None after an input: recomputed from the state) and the losses so far."""
+        return (None if self._fresh else tuple(a.copy() for a in self._start)), self.losses
+
+    def restore(self, carry) -> None:
+        ws, self.losses = carry
+        self._fresh = ws is None
+        if ws is not None:
+            for a, b in zip(self._start, ws):
+                a[...] = b
 
     def retrace(self, state: State) -> MethodStep | None:
         if not self.compiled:
