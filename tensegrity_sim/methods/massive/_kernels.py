@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..elastic._composition_kernels import _first_switch
+from ..elastic._composition_kernels import _first_switch, newton_in_bracket
+from ..qp._qp_kernels import cho_solve, cholesky
 from ..elastic.composition import _FLOW_ITER, LOCATE_TOL, MAX_SWITCHES
 
 __all__ = ["inverse_mass", "forces", "massive_step", "massive_steps", "plate_impact"]
@@ -34,31 +35,21 @@ def inverse_mass(inv_mass, f, out):
 
 @njit(cache=True, error_model="numpy")
 def _solve_spd(a, b):
-    """Solve ``a x = b`` in place in ``b`` (n,) or (n, r) for a symmetric positive definite ``a`` (n, n), by
-    Cholesky (``a`` is overwritten with its factor)."""
-    n = a.shape[0]
-    for j in range(n):
-        s = a[j, j]
-        for k in range(j):
-            s -= a[j, k] * a[j, k]
-        a[j, j] = np.sqrt(s)
-        for i in range(j + 1, n):
-            s = a[i, j]
-            for k in range(j):
-                s -= a[i, k] * a[j, k]
-            a[i, j] = s / a[j, j]
-    cols = b.reshape((n, -1))
-    for r in range(cols.shape[1]):
-        for i in range(n):
-            s = cols[i, r]
-            for k in range(i):
-                s -= a[i, k] * cols[k, r]
-            cols[i, r] = s / a[i, i]
-        for i in range(n - 1, -1, -1):
-            s = cols[i, r]
-            for k in range(i + 1, n):
-                s -= a[k, i] * cols[k, r]
-            cols[i, r] = s / a[i, i]
+    """``b`` (n,) overwritten by ``a^-1 b`` for a symmetric positive definite ``a`` (n, n), overwritten by its
+    Cholesky factor (the QP kernels' ``cholesky``/``cho_solve``)."""
+    cholesky(a, 0.0)
+    cho_solve(a, b)
+
+
+@njit(cache=True, error_model="numpy")
+def _subtract_columns(coef, count, mb, out):
+    """``out -= sum_k coef[k] mb[k]`` over the first ``count`` node vectors ``mb`` (count, N, 3)."""
+    for i in range(out.shape[0]):
+        for j in range(3):
+            s = 0.0
+            for k in range(count):
+                s += coef[k] * mb[k, i, j]
+            out[i, j] -= s
 
 
 @njit(cache=True, error_model="numpy")
@@ -146,12 +137,7 @@ def forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mas
             s += (acc[c, j] - acc[a, j]) * dirs[n_struts + ci, j]
         y[k] = s + q
     _solve_spd(g[:count, :count], y[:count])
-    for i in range(x.shape[0]):
-        for j in range(3):
-            s = 0.0
-            for k in range(count):
-                s += y[k] * mb[k, i, j]
-            acc[i, j] -= s
+    _subtract_columns(y, count, mb, acc)
     for k in range(count):
         tension[cables[k]] += y[k]
 
@@ -182,7 +168,12 @@ def plate_impact(g, rates, snapping, p):
         for i in range(na):
             for j in range(na):
                 gaa[i, j] = g[a_rows[i], a_rows[j]]
-        _solve_spd(gaa, coupling)
+        cholesky(gaa, 0.0)
+        column = np.empty(na)
+        for j in range(ns):
+            column[:] = coupling[:, j]
+            cho_solve(gaa, column)
+            coupling[:, j] = column
     h = np.empty((ns, ns))
     for i in range(ns):
         for j in range(ns):
@@ -346,12 +337,7 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
     p = np.empty(count)
     plate_impact(g[:count, :count].copy(), before_rates, snapping, p)
     kinetic_before = _kinetic(v, masses, free)
-    for i in range(x.shape[0]):
-        for j in range(3):
-            s = 0.0
-            for k in range(count):
-                s += p[k] * mb[k, i, j]
-            v[i, j] -= s
+    _subtract_columns(p, count, mb, v)
     forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, plates, band,
            damped, False, rec, f, cables, g, mb, y)
     kept = 0.0
@@ -405,16 +391,11 @@ def massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, 
             if abs(e) <= tol:
                 converged = True
                 break
-            if e * e0 > 0:
-                lo = s
-            else:
-                hi = s
             tv, dirs = trial[1], trial[4]
             rate = 0.0
             for j in range(3):
                 rate += dirs[n_struts + cable, j] * (tv[c, j] - tv[a, j])
-            s_new = s - e / rate if rate != 0.0 else lo
-            s = s_new if lo < s_new < hi else 0.5 * (lo + hi)
+            s, lo, hi = newton_in_bracket(s, e, e0, rate, lo, hi)
         if not converged:
             _copy(start, trial)
             _flow(trial, s, weights, rest, ext, model, scratch, part_imp)

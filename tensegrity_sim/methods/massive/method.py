@@ -58,7 +58,7 @@ from scipy.optimize import nnls
 from ...system import System
 from ..base import MethodStep, State, StepMethod
 from ..elastic import _kernels as elastic_kernels
-from ..elastic.composition import MAX_SWITCHES, MIN_SPLIT, STABILITY, WEIGHTS, Stepper
+from ..elastic.composition import MIN_SPLIT, STABILITY, WEIGHTS, Stepper, check_stable
 from ..elastic.method import ElasticMethod
 from ..rigid import RigidStruts
 from . import _kernels as kernels
@@ -112,27 +112,7 @@ class _PlateStepper(Stepper):
 
     def __init__(self, base, events, order: int, system, dt: float, locate: bool):
         super().__init__(base, order, system, dt, locate)
-        self.events = events
-
-    def step(self, x, v, start, h, state):
-        impulses, remaining = 0.0, h
-        trial = self.flow(x, v, start, h, state)
-        for _ in range(MAX_SWITCHES if self.locate else 0):
-            changed = trial[2].slack != start.slack
-            if not changed.any():
-                break
-            cable, guess = self._first_switch(x, v, start, trial[2], changed, remaining, state.rest_lengths)
-            if cable < 0:
-                break
-            s, part = self._locate(x, v, start, cable, guess, remaining, state)
-            v, end, kicks = self.events(start, part, state)
-            x, start = part[0], end
-            impulses = impulses + part[3] + kicks
-            remaining -= s
-            trial = self.flow(x, v, start, remaining, state)
-        # a switch not located (none, a graze, one at a part's very end) is resolved at the step's end
-        v, end, kicks = self.events(start, trial, state)
-        return trial[0], v, end, impulses + trial[3] + kicks
+        self.resolve = events
 
 
 class MassiveMethod(StepMethod):
@@ -166,12 +146,7 @@ class MassiveMethod(StepMethod):
         self.locate_switches = True if locate_switches is None else bool(locate_switches)
         # the plates only add mass: the massless cables' highest frequency bounds the method's
         self.omega_max = system.max_frequency(scene.positions, include_cables=True)
-        limit = STABILITY[self.order]
-        if self.omega_max * self.dt >= limit:
-            raise ValueError(
-                f"dt={self.dt!r} s is beyond the stability limit of the explicit massive method (order {self.order}): "
-                f"dt must be < {limit:g}/omega_max = {limit / self.omega_max:.6g} s (omega_max = "
-                f"{self.omega_max:.6g} rad/s from the stiffest members); use a smaller dt")
+        check_stable("massive", self.order, self.dt, self.omega_max, "use a smaller dt")
         self.plates = scene.cable_masses
         self._massive = self.plates > 0
         self._damped = bool(np.any(system.cable_damping > 0))
@@ -307,9 +282,9 @@ class MassiveMethod(StepMethod):
         return x_new, v_new, end
 
     # ------------------------------------------------------------------ events
-    def _events(self, start: _Forces, part, state: State):
-        """The snaps and releases between the part's start record and its end ``part`` (``Stepper.flow``'s
-        tuple), resolved at its end: returns the velocities (N, 3), the forces there, and the snap impulses
+    def _events(self, part, state: State):
+        """The snaps and releases between the part's taut set (its end record's ``held``) and the switch state at
+        its end ``part`` (``Stepper.flow``'s tuple), resolved there (``Stepper.resolve``): returns the velocities (N, 3), the forces there, and the snap impulses
         (n_cables,) N*s. The energy they remove is added to ``_step_loss``."""
         x, v, end = part[0], part[1], part[2]
         kicks = np.zeros(self.system.n_cables)
