@@ -291,3 +291,14 @@ def test_run_loop_equals_single_steps_and_losses_follow_the_present():
     assert lost == sorted(lost) and lost[0] < lost[-1]   # read step by step, the losses grow as they happen
     single.set_rest_lengths(single.rest_lengths * 0.99)   # an input: the steps ahead dropped, the losses kept
     assert single.energy_lost == loop.energy_lost
+
+
+def test_batch_copies_step_the_massive_method():
+    """BatchSimulator: one simulator per copy; each copy's rebound is its own closed form m v/(m + m_c)."""
+    speeds = np.array([1.0, 0.5])
+    v = np.zeros((2, 2, 3))
+    v[:, 1, 0] = speeds
+    batch = ts.BatchSimulator(bungee(0.5), 2, method="massive", dt=1e-3, velocities=v)
+    traj = batch.run(steps=600)
+    assert batch.method_reason == "massive: requested"
+    assert traj.velocities[:, -1, 1, 0] == pytest.approx(-M * speeds / (M + 0.5), rel=1e-6)
