@@ -1,9 +1,12 @@
 """Stepping methods, picked by name from :data:`METHODS`; ``"auto"`` is :func:`choose_method`."""
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ..checks import describe
+from ..scene import LumpedMassWarning
 from ..system import System
 from .base import MethodStep, State, StepError, StepMethod
 from .elastic.method import ElasticMethod
@@ -67,7 +70,11 @@ def restitutions(system: System) -> np.ndarray:
     1/(b_c^T M^-1 b_c)`` the structure's effective mass along the cable (physics §4b): 1 for a massless cable,
     0 for one whose ends are both fixed (or whose plate is infinitely heavier)."""
     _, _, n = system.geometry(system.scene.positions, system.cable_ends)
-    inv = system.inv_mass[system.cable_ends].sum(axis=1)   # b^T M^-1 b for a lumped M: the two ends' 1/m
+    k = np.arange(system.n_cables)
+    b = np.zeros((system.n_nodes, 3, system.n_cables))   # each cable's b_c, batch last
+    b[system.cable_ends[:, 0], :, k] -= n
+    b[system.cable_ends[:, 1], :, k] += n
+    inv = np.einsum("njk,njk->k", b, system.mass.solve(b))   # b^T M^-1 b
     plates = system.scene.cable_masses
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(plates > 0, 1.0 / (1.0 + plates * inv), 1.0)
@@ -135,6 +142,20 @@ def _massive_choice(system: System) -> str | None:
             f"methods 1 and 2)")
 
 
+def mass_model(system: System, cls: type[StepMethod]) -> System:
+    """``system``, or its lumped form (``System.lumped``, with a :class:`LumpedMassWarning`) where its mass
+    matrix has rigid struts' blocks (physics.md section 4c) that method ``cls`` does not take on this scene."""
+    if not system.mass.consistent or cls.takes_mass_blocks(system):
+        return system
+    struts = [system.scene.struts[i].name for i in range(system.n_struts)
+              if any(system.mass.partner[system.strut_ends[i]] >= 0)]
+    where = f" {cls.mass_blocks_missing}" if cls.mass_blocks_missing else ""
+    warnings.warn(f"{system.scene.source or system.scene.name}: the {cls.name} method{where} takes "
+                  f"no rigid strut's mass spread along it: struts {struts} are lumped at their ends (row sums: their "
+                  f"weight and momentum exact, their rotational inertia too large)", LumpedMassWarning, stacklevel=3)
+    return system.lumped()
+
+
 # what has each option, for the error when a named method lacks it
 _OPTION_OF = {"solver": "a method with a QP", "order": "the elastic and massive methods",
               "locate_switches": "the elastic and massive methods",
@@ -177,4 +198,5 @@ def make_method(system: System, method: str, dt: float, *, backend: str = "numba
             raise ValueError(f"{name}={describe(given[name])} is an option of {_OPTION_OF[name]}; "
                              f"method {method!r} has none")
     extra = {} if backend == "numba" else {"dtype": dtype or "float64"}
+    system = mass_model(system, cls)
     return cls(system, dt, **{name: value for name, value in given.items() if name in cls.options}, **extra), reason

@@ -4,11 +4,12 @@ reference, which tests require this to match to 1e-12), with numba.
 A batch of one (``Simulator``'s; ``BatchSimulator`` steps one simulator per copy for this method). Shapes: ``N``
 nodes, ``m`` members (struts first), ``nc`` cables. The system arrays are those of the elastic kernels
 (``elastic/_kernels.model_arrays``: ``ends``, ``stiffness``, ``floor``, ``strut_rest``, ``damping``,
-``inv_mass``, ``gravity_force``) and ``plates`` (nc,) kg. A step's record at a configuration (``_Forces`` of the
+``inv_mass`` (N, 2), ``gravity_force``, ``rigid_members``: none, the method takes no rigid strut yet) and
+``plates`` (nc,) kg. A step's record at a configuration (``_Forces`` of the
 reference) is the tuple ``(acc (N, 3), tension (nc,), dirs (m, 3), slack (nc,) bool, elong (nc,), rates (nc,),
 held (nc,) bool)``; a workspace is ``(x (N, 3), v (N, 3)) + record``, stepped in place.
 
-The structure's inverse mass is applied by :func:`inverse_mass` only (lumped now: the node's ``1/m``).
+The structure's inverse mass is applied by :func:`inverse_mass` only (``_mass_kernels.solve_forces``).
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import numpy as np
 from numba import njit
 
 from ..elastic._composition_kernels import _first_switch, newton_in_bracket
+from .._mass_kernels import solve_forces
 from ..qp._qp_kernels import cho_solve, cholesky
 from ..elastic.composition import _FLOW_ITER, LOCATE_TOL, MAX_SWITCHES
 
@@ -25,12 +27,11 @@ _PIVOTS = 64   # principal pivots of the snap's complementarity problem at most 
 
 
 @njit(cache=True, error_model="numpy")
-def inverse_mass(inv_mass, f, out):
+def inverse_mass(inv_mass, ends, rigid_members, f, out):
     """``out = M^-1 f`` for node vectors ``f`` (N, 3): the one place the kernels apply the structure's inverse
-    mass (fixed nodes: 0)."""
-    for i in range(f.shape[0]):
-        for j in range(3):
-            out[i, j] = f[i, j] * inv_mass[i]
+    mass (``_mass_kernels.solve_forces``, ``inv_mass`` (N, 2) its kernel form; fixed nodes: 0)."""
+    out[:] = f
+    solve_forces(out.reshape((out.shape[0], 3, 1)), inv_mass, ends, rigid_members, 0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -53,7 +54,7 @@ def _subtract_columns(coef, count, mb, out):
 
 
 @njit(cache=True, error_model="numpy")
-def _delassus(cables, count, dirs, n_struts, ends, inv_mass, plates, g, mb):
+def _delassus(cables, count, dirs, n_struts, ends, inv_mass, rigid_members, plates, g, mb):
     """``G = B M^-1 B^T + diag(1/m_c)`` into ``g[:count, :count]`` over ``cables[:count]`` and ``M^-1 b_c`` into
     ``mb[:count]`` (count, N, 3), the cables' unit vectors in ``dirs`` (m, 3)."""
     b = np.zeros(mb.shape[1:])
@@ -63,7 +64,7 @@ def _delassus(cables, count, dirs, n_struts, ends, inv_mass, plates, g, mb):
         for j in range(3):
             b[a, j] -= dirs[n_struts + ci, j]
             b[c, j] += dirs[n_struts + ci, j]
-        inverse_mass(inv_mass, b, mb[k])
+        inverse_mass(inv_mass, ends, rigid_members, b, mb[k])
         for j in range(3):
             b[a, j] = 0.0
             b[c, j] = 0.0
@@ -79,8 +80,8 @@ def _delassus(cables, count, dirs, n_struts, ends, inv_mass, plates, g, mb):
 
 
 @njit(cache=True, error_model="numpy")
-def forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, plates, band,
-           damped, given, rec, f, cables, g, mb, y):
+def forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
+           plates, band, damped, given, rec, f, cables, g, mb, y):
     """The record ``rec`` at ``x``, ``v`` (N, 3) (MassiveMethod.accelerations): the taut cables damped and with
     their plates, or those of ``rec``'s ``held`` as it is when ``given``. Scratch: ``f`` (N, 3), ``cables`` (nc,),
     ``g`` (nc, nc), ``mb`` (nc, N, 3), ``y`` (nc,)."""
@@ -115,7 +116,7 @@ def forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mas
         f[c, 0] -= t * n0
         f[c, 1] -= t * n1
         f[c, 2] -= t * n2
-    inverse_mass(inv_mass, f, acc)
+    inverse_mass(inv_mass, ends, rigid_members, f, acc)
     count = 0
     for ci in range(rest.shape[0]):
         if held[ci] and plates[ci] > 0:
@@ -124,7 +125,7 @@ def forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mas
     if count == 0:
         return
     # the plates' inertial forces y = m_c d2e/dt2: (B M^-1 B^T + diag(1/m_c)) y = B M^-1 f + q
-    _delassus(cables, count, dirs, n_struts, ends, inv_mass, plates, g, mb)
+    _delassus(cables, count, dirs, n_struts, ends, inv_mass, rigid_members, plates, g, mb)
     for k in range(count):
         ci = cables[k]
         a, c = ends[n_struts + ci, 0], ends[n_struts + ci, 1]
@@ -243,7 +244,7 @@ def _flow(ws, h, weights, rest, ext, model, scratch, impulses):
     cable's impulse over it (MassiveMethod.verlet, Stepper.flow)."""
     x, v = ws[0], ws[1]
     rec = ws[2:]
-    ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, plates, band, damped = model
+    ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, band, damped = model
     f, cables, g, mb, y, v_half = scratch
     impulses[:] = 0.0
     for w in weights:
@@ -255,14 +256,14 @@ def _flow(ws, h, weights, rest, ext, model, scratch, impulses):
                 v_half[i, j] = v[i, j] + (0.5 * hw) * rec[0][i, j]
                 x[i, j] = x[i, j] + hw * v_half[i, j]
         # the taut set of the step's start (the record's held, kept): a switch at its end comes after the kick
-        forces(x, v_half, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, plates,
-               band, damped, True, rec, f, cables, g, mb, y)
+        forces(x, v_half, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+               rigid_members, plates, band, damped, True, rec, f, cables, g, mb, y)
         for i in range(x.shape[0]):
             for j in range(3):
                 v[i, j] = v_half[i, j] + (0.5 * hw) * rec[0][i, j]
         if damped or _any_plate(rec[6], plates):
-            forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, plates,
-                   band, damped, True, rec, f, cables, g, mb, y)
+            forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+                   rigid_members, plates, band, damped, True, rec, f, cables, g, mb, y)
             for i in range(x.shape[0]):
                 for j in range(3):
                     v[i, j] = v_half[i, j] + (0.5 * hw) * rec[0][i, j]
@@ -297,7 +298,7 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
     x, v = ws[0], ws[1]
     rec = ws[2:]
     acc, tension, dirs, slack, elong, rates, held = rec
-    ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, plates, band, damped = model
+    ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, band, damped = model
     f, cables, g, mb, y, v_half = scratch
     nc = rest.shape[0]
     n_struts = strut_rest.shape[0]
@@ -315,8 +316,8 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
     if not changed:
         return loss
     if not snaps:
-        forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, plates, band,
-               damped, False, rec, f, cables, g, mb, y)
+        forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
+               plates, band, damped, False, rec, f, cables, g, mb, y)
         return loss
     involved = np.empty(nc, dtype=np.int64)
     count = 0
@@ -333,13 +334,13 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
         before_rates[k] = rates[ci]
         if not snapping[k]:
             before += 0.5 * plates[ci] * rates[ci] ** 2
-    _delassus(involved, count, dirs, n_struts, ends, inv_mass, plates, g, mb)
+    _delassus(involved, count, dirs, n_struts, ends, inv_mass, rigid_members, plates, g, mb)
     p = np.empty(count)
     plate_impact(g[:count, :count].copy(), before_rates, snapping, p)
     kinetic_before = _kinetic(v, masses, free)
     _subtract_columns(p, count, mb, v)
-    forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, plates, band,
-           damped, False, rec, f, cables, g, mb, y)
+    forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
+           plates, band, damped, False, rec, f, cables, g, mb, y)
     kept = 0.0
     for ci in range(nc):
         if held[ci] and plates[ci] > 0:

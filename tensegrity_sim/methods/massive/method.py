@@ -165,7 +165,7 @@ class MassiveMethod(StepMethod):
         first step."""
         sys = self.system
         n, nc, m = sys.n_nodes, sys.n_cables, sys.n_members
-        self._model = (*elastic_kernels.model_arrays(sys, RigidStruts(sys))[:7], np.ascontiguousarray(self.plates),
+        self._model = (*elastic_kernels.model_arrays(sys, RigidStruts(sys))[:8], np.ascontiguousarray(self.plates),
                        BAND, self._damped)
 
         def workspace():
@@ -206,9 +206,11 @@ class MassiveMethod(StepMethod):
 
     # ------------------------------------------------------------------ the mass
     def inverse_mass(self, f: np.ndarray) -> np.ndarray:
-        """The structure's ``M^-1`` applied to node vectors ``f`` (..., N, 3) (forces or impulses): the one
-        place this method applies it (fixed nodes: 0)."""
-        return f * self.system.inv_mass[:, None]
+        """The structure's ``M^-1`` applied to node vectors ``f`` (N, 3) or (k, N, 3) (forces or impulses): the
+        one place this method applies it (``System.mass``; fixed nodes: 0)."""
+        if f.ndim == 2:
+            return self.system.mass.solve(f)
+        return np.moveaxis(self.system.mass.solve(np.moveaxis(f, 0, -1)), -1, 0)
 
     def _rows(self, cables: np.ndarray, n: np.ndarray):
         """The compatibility vectors ``b_c`` of ``cables`` (k,) as node vectors (k, N, 3), ``n`` (k, 3) their
@@ -311,8 +313,7 @@ class MassiveMethod(StepMethod):
         return v, after, kicks
 
     def _kinetic(self, v: np.ndarray) -> float:
-        sys = self.system
-        return 0.5 * float(np.sum(sys.masses[:, None] * v * v * sys.free[:, None]))
+        return self.system.mass.kinetic_energy(v)
 
     # ------------------------------------------------------------------ the contract
     def invalidate(self) -> None:
