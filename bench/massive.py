@@ -60,7 +60,8 @@ def drop_rows(plate: float = 0.2, dt: float = 1e-4) -> list[dict]:
         snapped = np.flatnonzero(~r.slack & slack0)
         ends = sim.system.cable_ends[top]
         d = x[ends[:, 1]] - x[ends[:, 0]]
-        rate = float(np.mean(np.einsum("ij,ij->i", v[ends[:, 1]] - v[ends[:, 0]], d / np.linalg.norm(d, axis=1)[:, None])))
+        unit = d / np.linalg.norm(d, axis=1)[:, None]
+        rate = float(np.mean(np.einsum("ij,ij->i", v[ends[:, 1]] - v[ends[:, 0]], unit)))
         plastic = 0.5 * m * rate ** 2
         predicted = {"elastic": 0.0, "inextensible": plastic, "massive": plastic * plate / (m / 3 + plate)}[method]
         lost = before["total"] - sim.energy()["total"]

@@ -286,8 +286,9 @@ class MassiveMethod(StepMethod):
     # ------------------------------------------------------------------ events
     def _events(self, part, state: State):
         """The snaps and releases between the part's taut set (its end record's ``held``) and the switch state at
-        its end ``part`` (``Stepper.flow``'s tuple), resolved there (``Stepper.resolve``): returns the velocities (N, 3), the forces there, and the snap impulses
-        (n_cables,) N*s. The energy they remove is added to ``_step_loss``."""
+        its end ``part`` (``Stepper.flow``'s tuple), resolved there (``Stepper.resolve``): returns the velocities
+        (N, 3), the forces there, and the snap impulses (n_cables,) N*s. The energy they remove is added to
+        ``_step_loss``."""
         x, v, end = part[0], part[1], part[2]
         kicks = np.zeros(self.system.n_cables)
         if np.array_equal(end.held, ~end.slack):
