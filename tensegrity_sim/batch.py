@@ -96,7 +96,7 @@ def structure_of(scene: Scene) -> Scene:
 class BatchSimulator:
     """``batch`` copies of ``scene`` stepped together (see the module docstring).
 
-    ``method``: "elastic", "inextensible" or "auto" (decided once, on ``scene``; ``method_reason``).
+    ``method``: "elastic", "inextensible", "massive" or "auto" (decided once, on ``scene``; ``method_reason``).
     ``dt``: s. ``positions``, ``velocities``: initial states (batch, N, 3) m, m/s, or (N, 3) for all
     copies (default: the scene's); a rigid strut must keep its length. ``solver``: QP backend of the
     inextensible method. ``contacts``: member kinds checked for contact, as for ``Simulator``.

@@ -51,11 +51,12 @@ class RunSummary:
     energy_start: float = 0.0
     energy_end: float = 0.0
     commanded: bool = False  # commands did work: the energy change is not a drift
+    energy_lost: float = 0.0  # J: what the model removed at its events (massive cables' plates), not a drift
     extra: dict = field(default_factory=dict)
 
     def lines(self) -> list[str]:
         rate = self.steps / self.wall_time if self.wall_time > 0 else float("inf")
-        drift = self.energy_end - self.energy_start
+        drift = self.energy_end + self.energy_lost - self.energy_start
         scale = max(abs(self.energy_start), 1e-300)
         out = [
             f"scene            {self.scene}",
@@ -70,7 +71,8 @@ class RunSummary:
             f"{self.contacts - self.contact_begins} end) between {self.contact_pairs} member pairs",
             f"energy           {self.energy_start:.9g} J -> {self.energy_end:.9g} J "
             + (f"(change {drift:+.3e} J, the commands' work included)" if self.commanded else
-               f"(drift {drift:+.3e} J, {drift / scale:+.3e} relative)"),
+               f"(drift {drift:+.3e} J, {drift / scale:+.3e} relative)")
+            + (f" after the cable plates' losses of {self.energy_lost:.6g} J" if self.energy_lost else ""),
         ]
         out += [f"{k:<16} {v}" for k, v in self.extra.items()]
         return out
@@ -86,7 +88,7 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
     """
     target = sim if driver is None else driver
     base_rest, start_forces = sim.rest_lengths, sim.external_forces
-    energy_start = sim.energy()["total"]
+    energy_start, lost_start = sim.energy()["total"], sim.energy_lost
     max_t, max_cable = 0.0, -1
     switches = 0
     contacts, begins, pairs = 0, 0, set()
@@ -146,7 +148,7 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
         max_tension_cable=sim.scene.cable_names[max_cable] if max_cable >= 0 else "",
         switches=switches, contacts=contacts, contact_begins=begins, contact_pairs=len(pairs),
         energy_start=energy_start,
-        energy_end=sim.energy()["total"],
+        energy_end=sim.energy()["total"], energy_lost=sim.energy_lost - lost_start,
     )
 
 
@@ -577,12 +579,12 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"a built-in scene name or a YAML file; without it the main job: {DEFAULT_SCENE} with the "
                           f"schedule tensegrity_sim/schedules/{DEMO_SCHEDULE}, where cables slacken and snap "
                           f"(unless --commands is given)")
-    run.add_argument("--method", default="auto", help="elastic | inextensible | auto (default: auto)")
+    run.add_argument("--method", default="auto", help="elastic | inextensible | massive | auto (default: auto)")
     run.add_argument("--solver", choices=sorted(SOLVERS), default=None,
                      help=f"QP backend of the inextensible method (default: daqp below {SPARSE_NODES} free "
                           f"nodes, sparse from there)")
     run.add_argument("--order", type=int, choices=(2, 4), default=None,
-                     help="order of the elastic method (default: 2; 4 for small errors, docs/methods.md)")
+                     help="order of the elastic and massive methods (default: 2; 4 for small errors, docs/methods.md)")
     run.add_argument("--dt", type=_positive_float, default=1e-3, help="step, s (default: 0.001)")
     run.add_argument("--duration", type=_positive_float, default=10.0, help="simulated time, s (default: 10)")
     run.add_argument("--commands", help="a rest-length/force schedule (YAML; see tensegrity_sim.commands)")

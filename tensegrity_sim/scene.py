@@ -108,6 +108,7 @@ class Cable:
     rest_length: float  # m
     damping: float = 0.0  # N*s/m, acts only while taut
     radius: float = 0.0  # m
+    mass: float = 0.0  # kg, the plate of the full model (physics §4b); 0: massless (methods 1 and 2)
 
 
 @dataclass(frozen=True)
@@ -234,7 +235,7 @@ _NODE_KEYS = {"name", "position", "mass", "velocity", "fixed", "radius"}
 _STRUT_KEYS = {"name", "nodes", "stiffness", "rest_length", "mass", "radius", "mass_distribution", "payloads"}
 _PAYLOAD_KEYS = {"at", "mass"}
 MASS_DISTRIBUTIONS = ("uniform", "ends")
-_CABLE_KEYS = {"name", "nodes", "stiffness", "rest_length", "damping", "radius"}
+_CABLE_KEYS = {"name", "nodes", "stiffness", "rest_length", "damping", "radius", "mass"}
 
 
 @dataclass(frozen=True)
@@ -303,6 +304,11 @@ class Scene:
     def cable_rest_lengths(self) -> np.ndarray:
         """Initial cable rest lengths, (n_cables,) m."""
         return np.array([c.rest_length for c in self.cables], dtype=float)
+
+    @property
+    def cable_masses(self) -> np.ndarray:
+        """Cable (plate) masses, (n_cables,) kg (physics §4b; 0: massless)."""
+        return np.array([c.mass for c in self.cables], dtype=float)
 
     @property
     def node_radii(self) -> np.ndarray:
@@ -453,7 +459,8 @@ class Scene:
                 out.append(Strut(name, (ends[0], ends[1]), stiffness, rest, mass, radius, distribution, payloads))
             else:
                 damping = _non_negative(ctx, where, "damping", raw.get("damping", 0.0))
-                out.append(Cable(name, (ends[0], ends[1]), stiffness, rest, damping, radius))
+                mass = _non_negative(ctx, where, "mass", raw.get("mass", 0.0))
+                out.append(Cable(name, (ends[0], ends[1]), stiffness, rest, damping, radius, mass))
         return out
 
     @staticmethod
@@ -515,7 +522,8 @@ class Scene:
             "struts": [strut(s) for s in self.struts],
             "cables": [{"name": c.name, "nodes": list(c.nodes),
                         **({"stiffness": c.stiffness} if c.stiffness is not None else {}),
-                        "rest_length": c.rest_length, "damping": c.damping, "radius": c.radius}
+                        "rest_length": c.rest_length, "damping": c.damping, "radius": c.radius,
+                        **({"mass": c.mass} if c.mass > 0 else {})}   # massless: written as before
                        for c in self.cables],
         }
         contact: dict[str, Any] = {}

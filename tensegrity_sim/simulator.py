@@ -169,16 +169,17 @@ def _walk(detector, xs: np.ndarray, step_start, dt: float, pairs: dict) -> dict:
 class Simulator:
     """Steps a :class:`Scene` with a method picked by name.
 
-    ``method``: "elastic", "inextensible" or "auto" (then ``method_reason`` says why).
+    ``method``: "elastic", "inextensible", "massive" (cables with mass, physics.md §4b) or "auto" (then
+    ``method_reason`` says why).
     ``dt``: the fixed step, s.
     ``contacts``: member kinds to check for contact (see ``scene.CONTACT_KINDS``), overriding the
     scene's ``contact: kinds`` (``self.scene`` is then the scene with that override); ``()`` switches
     detection off. ``contact_kinds`` is what is in use.
     ``solver``: the QP backend of the inextensible method (``methods.qp.SOLVERS``; default: chosen by
     size, ``methods.qp.choose_solver``); ``method_settings`` reports the one in use and why.
-    ``order``: 2 (default) or 4, the elastic method's order (docs/methods.md: which for which error);
+    ``order``: 2 (default) or 4, the elastic and massive methods' order (docs/methods.md: which for which error);
     ``locate_switches``: the elastic method splits a step at each slack/taut switch (default: at order 4
-    only; ``method_settings`` says which).
+    only; ``method_settings`` says which); the massive method locates its snaps and releases (default: on).
     ``reel_speed``: the inextensible method's motor top speed, m/s (default 1 m/s; ``math.inf``: none):
     a faster rest-length command is followed at that speed (``applied_rest_lengths``).
     ``backend``: where the elastic method's step runs: "numba" (default: the compiled kernels) or "jax" (the
@@ -702,13 +703,22 @@ class Simulator:
 
     # ------------------------------------------------------------------ invariants
     def energy(self) -> dict[str, float]:
-        """Energies, J: kinetic, strain (what the method's model stores), gravity (``-sum m g.x``), total."""
+        """Energies, J: kinetic (the nodes' and, in the massive method, the moving cable plates'), strain (what
+        the method's model stores), gravity (``-sum m g.x``), total."""
         st, sys = self._state, self.system
         kinetic = sys.mass.kinetic_energy(st.velocities)
+        kinetic += self._method.plate_energy(st.positions, st.velocities, st.rest_lengths)   # cables' plates
         strain = self._method.strain_energy(st.positions, st.rest_lengths)
         gravity = -float(np.sum(sys.gravity_force * st.positions))
         return {"kinetic": kinetic, "strain": strain, "gravity": gravity,
                 "total": kinetic + strain + gravity}
+
+    @property
+    def energy_lost(self) -> float:
+        """J: the energy the method's model removed at its events since the reset, apart from any drift (the
+        massive method's cable plates at snaps and releases, physics.md §4b; 0 in the other methods)."""
+        self._settle()   # the steps computed ahead put back: the losses up to the present
+        return self._method.losses
 
     def momentum(self) -> tuple[np.ndarray, np.ndarray]:
         """Total linear momentum (3,) kg*m/s and angular momentum about the origin (3,) kg*m^2/s,

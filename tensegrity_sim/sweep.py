@@ -3,7 +3,7 @@
 The spec (YAML; ``tensegrity-sim sweep SPEC.yaml --out RESULTS.parquet``)::
 
     scene: icosahedron          # a built-in scene or a YAML file (a relative path is from the spec's folder)
-    method: elastic             # elastic | inextensible | auto (default auto, decided per run)
+    method: elastic             # elastic | inextensible | massive | auto (default auto, decided per run)
     dt: 0.001                   # s (default 0.001)
     duration: 2.0               # s, required
     solver: daqp                # optional: the inextensible method's QP backend

@@ -134,7 +134,8 @@ def test_options_are_checked_and_reported():
         ts.Simulator(scene, method="elastic", order=3)
     with pytest.raises(ValueError, match=r"locate_switches must be True, False or None \(automatic\), got 'yes'"):
         ts.Simulator(scene, method="elastic", locate_switches="yes")
-    with pytest.raises(ValueError, match=r"order=4 is an option of the elastic method; method 'inextensible' has none"):
+    with pytest.raises(ValueError,
+                       match=r"order=4 is an option of the elastic and massive methods; method 'inextensible' has none"):
         ts.Simulator(scene, method="inextensible", order=4)
     sim = ts.Simulator(scene, method="elastic", dt=1e-3, order=4, locate_switches=False)
     assert sim.method_settings == {"method": "elastic", "dt": 1e-3, "order": 4, "locate_switches": False}

@@ -118,7 +118,7 @@ def test_reset_returns_to_the_scene():
     ({"dt": math.nan}, "dt must be finite, got nan"),
     ({"dt": "fast"}, "dt must be a number, got 'fast'"),
     ({"dt": 10 ** 400}, "dt is too large for a float: an integer of 401 digits"),
-    ({"method": ["auto"]}, "method must be one of ['elastic', 'inextensible', 'auto'], got ['auto']"),
+    ({"method": ["auto"]}, "method must be one of ['elastic', 'inextensible', 'massive', 'auto'], got ['auto']"),
     ({"solver": {}}, "solver must be one of ['daqp', 'nnls', 'osqp', 'sparse'], got {}"),
 ])
 def test_bad_constructor_arguments(kwargs, message):

@@ -11,6 +11,7 @@ from ..system import System
 from .base import MethodStep, State, StepError, StepMethod
 from .elastic.method import ElasticMethod
 from .inextensible.method import InextensibleMethod
+from .massive.method import MassiveMethod
 from .qp.solvers import SOLVERS
 
 __all__ = ["METHODS", "SOLVERS", "BACKENDS", "choose_method", "make_method", "check_backend", "State", "MethodStep",
@@ -19,6 +20,7 @@ __all__ = ["METHODS", "SOLVERS", "BACKENDS", "choose_method", "make_method", "ch
 METHODS: dict[str, type[StepMethod]] = {
     ElasticMethod.name: ElasticMethod,
     InextensibleMethod.name: InextensibleMethod,
+    MassiveMethod.name: MassiveMethod,
 }
 
 
@@ -41,6 +43,9 @@ def check_backend(backend, method: str, dtype) -> None:
 # The auto rule's two thresholds (docs/methods.md, "auto"):
 RESOLVED = 0.5      # omega * dt at or below which the step resolves a vibration (>= 12.6 steps per period)
 SEPARATION = 10.0   # a cable vibration this many times faster than the scene's other time scales is instantaneous
+# a snap restitution m*/(m* + m_c) within this of 0 or 1 is taken as its limit (plastic: inextensible; elastic:
+# the massless cables of methods 1 and 2)
+RESTITUTION_TOL = 0.02
 
 
 def scene_frequency(system: System) -> tuple[float, str]:
@@ -60,10 +65,29 @@ def scene_frequency(system: System) -> tuple[float, str]:
     return max(candidates, key=lambda c: c[0])
 
 
+def restitutions(system: System) -> np.ndarray:
+    """Each cable's snap restitution ``m*/(m* + m_c)`` (n_cables,) at the scene's configuration, with ``m* =
+    1/(b_c^T M^-1 b_c)`` the structure's effective mass along the cable (physics §4b): 1 for a massless cable,
+    0 for one whose ends are both fixed (or whose plate is infinitely heavier)."""
+    _, _, n = system.geometry(system.scene.positions, system.cable_ends)
+    k = np.arange(system.n_cables)
+    b = np.zeros((system.n_nodes, 3, system.n_cables))   # each cable's b_c, batch last
+    b[system.cable_ends[:, 0], :, k] -= n
+    b[system.cable_ends[:, 1], :, k] += n
+    inv = np.einsum("njk,njk->k", b, system.mass.solve(b))   # b^T M^-1 b
+    plates = system.scene.cable_masses
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(plates > 0, 1.0 / (1.0 + plates * inv), 1.0)
+
+
 def choose_method(system: System, dt: float) -> tuple[str, str]:
     """The method ``"auto"`` resolves to for this scene and step, and the reason, in one sentence.
 
-    With ``omega_c`` the highest axial frequency of the cables (all taut, struts ignored) and
+    A scene whose cables carry mass (physics §4b) gets the massive method where some cable's snap restitution
+    ``m*/(m* + m_c)`` (:func:`restitutions`) lies more than ``RESTITUTION_TOL`` from 0 and from 1, and the
+    scene's mass allows it (no rigid struts, ground or contact response yet); otherwise the rules below pick
+    the cheaper limit (restitution near 1: massless cables; near 0: plastic snaps, which the inextensible
+    method makes). With ``omega_c`` the highest axial frequency of the cables (all taut, struts ignored) and
     ``omega_s`` the scene's fastest other time scale (:func:`scene_frequency`):
 
     1. a cable without a stiffness can only be inextensible;
@@ -76,6 +100,9 @@ def choose_method(system: System, dt: float) -> tuple[str, str]:
     """
     if not system.n_cables:
         return "elastic", "elastic: the scene has no cables"
+    massive = _massive_choice(system)
+    if massive is not None:
+        return "massive", massive
     missing = [c.name for c in system.scene.cables if c.stiffness is None]
     if missing:
         return "inextensible", f"inextensible: cables without a stiffness ({', '.join(missing)})"
@@ -98,6 +125,23 @@ def choose_method(system: System, dt: float) -> tuple[str, str]:
                        f"{omega_c / omega_s:.3g} times faster than {what}: their elasticity matters")
 
 
+def _massive_choice(system: System) -> str | None:
+    """The reason to pick the massive method for a scene with cable masses, or None."""
+    scene = system.scene
+    if not np.any(scene.cable_masses > 0) or any(c.stiffness is None for c in scene.cables):
+        return None
+    if any(s.rigid for s in scene.struts) or scene.ground is not None or scene.contact_response.response:
+        return None
+    e = restitutions(system)
+    between = (e > RESTITUTION_TOL) & (e < 1.0 - RESTITUTION_TOL)
+    if not between.any():
+        return None
+    i = int(np.argmax(np.minimum(e, 1.0 - e) * between))
+    return (f"massive: the cables carry mass and a snap's restitution m*/(m*+m_c) is away from 0 and 1 "
+            f"({scene.cables[i].name}: {e[i]:.3g}; limits within {RESTITUTION_TOL:g} of them are left to "
+            f"methods 1 and 2)")
+
+
 def mass_model(system: System, cls: type[StepMethod]) -> System:
     """``system``, or its lumped form (``System.lumped``, with a :class:`LumpedMassWarning`) where its mass
     matrix has rigid struts' blocks (physics.md section 4c) that method ``cls`` does not take on this scene."""
@@ -113,7 +157,8 @@ def mass_model(system: System, cls: type[StepMethod]) -> System:
 
 
 # what has each option, for the error when a named method lacks it
-_OPTION_OF = {"solver": "a method with a QP", "order": "the elastic method", "locate_switches": "the elastic method",
+_OPTION_OF = {"solver": "a method with a QP", "order": "the elastic and massive methods",
+              "locate_switches": "the elastic and massive methods",
               "reel_speed": "the inextensible method"}
 
 
@@ -122,7 +167,7 @@ def make_method(system: System, method: str, dt: float, *, backend: str = "numba
     """Instantiate ``method`` (a name of :data:`METHODS` or ``"auto"``); returns it and the reason.
 
     ``options`` are the methods' keyword options (``solver`` of a method that solves QPs, ``order`` and
-    ``locate_switches`` of the elastic method, ``reel_speed`` of the inextensible one); None means the
+    ``locate_switches`` of the elastic and massive methods, ``reel_speed`` of the inextensible one); None means the
     method's default. An option the chosen method does not have is an error when the method was named,
     and ignored when ``"auto"`` chose it. ``backend="jax"`` steps the elastic method in JAX
     (:class:`~tensegrity_sim.methods.jax.engine.ElasticMethodJax`, in ``dtype`` "float64" or "float32")."""

@@ -12,7 +12,11 @@ Rules for whoever writes a new method (compare ``scipy.integrate.OdeSolver``):
 4. A method may cache quantities derived from the state between steps (forces at the step's end become
    the next step's start). The simulator calls ``invalidate()`` whenever it changes the state from
    outside (new rest lengths, new external forces, a reset); the method must then recompute.
-5. ``strain_energy(positions, rest_lengths)`` is the elastic energy the method's model stores (J).
+5. ``strain_energy(positions, rest_lengths)`` is the elastic energy the method's model stores (J);
+   ``plate_energy(positions, velocities, rest_lengths)`` the kinetic energy its model keeps apart from the
+   nodes' (the full model's moving cable plates; 0 by default), counted in ``Simulator.energy()["kinetic"]``;
+   ``losses`` the energy (J) its model removed at events since ``prepare`` (the plates' at snaps and releases;
+   ``Simulator.energy_lost``).
 6. ``impulses`` are each cable's impulse over the step (N*s), snaps included, in cable order.
 7. ``prepare(state)`` makes an initial state consistent with the method's constraints (e.g. removes
    the part of the initial velocities that would stretch a rigid strut); it may modify ``state``.
@@ -90,6 +94,7 @@ class StepMethod:
     carry_outlives_inputs = False   # rule 10: True: rewind the steps ahead before an input changes
     advanced_pairs: dict = {}       # rule 10: the member contacts' impulses of the last advance(), by step
     options: tuple[str, ...] = ()
+    losses: float = 0.0             # rule 5: J removed at events since prepare()
     mass_blocks_missing = ""        # rule 12: where it takes no mass blocks, said in the warning ("on the ground")
 
     def __init__(self, system: System, dt: float):
@@ -167,6 +172,10 @@ class StepMethod:
         """(n_cables,) bool: the cables that are slack at ``positions`` (m) for ``rest_lengths`` (m)."""
         _, length, _ = self.system.geometry(positions, self.system.cable_ends)
         return length < rest_lengths
+
+    def plate_energy(self, positions: np.ndarray, velocities: np.ndarray, rest_lengths: np.ndarray) -> float:
+        """Kinetic energy (J) the model keeps beyond the nodes' (rule 5): none unless the cables carry mass."""
+        return 0.0
 
     def describe(self) -> dict:
         """Settings of the method worth logging (solver, tolerances...)."""

@@ -89,7 +89,7 @@ class NodeSettings:
     """
 
     scene: str = field(default="prism3", metadata=_doc("built-in scene name or path to a scene YAML file"))
-    method: str = field(default="auto", metadata=_doc("stepping method: elastic | inextensible | auto"))
+    method: str = field(default="auto", metadata=_doc("stepping method: elastic | inextensible | massive | auto"))
     solver: str = field(default="auto", metadata=_doc(
         f"QP backend of the inextensible method: {' | '.join(SOLVERS)}, or auto (or empty) for the method's "
         f"default"))

@@ -20,7 +20,7 @@ from numba import njit
 from ._kernels import _step, gather_copy, keep, scatter_copy
 from .composition import _FLOW_ITER, _POLY_ITER, LOCATE_TOL, MAX_SWITCHES
 
-__all__ = ["composed_steps"]
+__all__ = ["composed_steps", "newton_in_bracket"]
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -114,6 +114,20 @@ def _first_switch(x, v, acc, slack0, x1, slack1, span, rest, ends, n_struts, min
     return best, best_t
 
 
+@njit(cache=True, error_model="numpy", _nrt=False)
+def newton_in_bracket(s, e, e0, rate, lo, hi):
+    """One step of the locating Newton iteration (Stepper._locate): the part of length ``s`` (s) ended at the
+    elongation ``e`` (m; ``e0`` at its start) moving at ``rate`` (m/s); the bracket ``(lo, hi)`` narrowed to the
+    switch's side, then Newton's next ``s``, or the bracket's midpoint where Newton leaves it. Returns
+    ``(s, lo, hi)``."""
+    if e * e0 > 0:
+        lo = s
+    else:
+        hi = s
+    s_new = s - e / rate if rate != 0.0 else lo
+    return (s_new if lo < s_new < hi else 0.5 * (lo + hi)), lo, hi
+
+
 @njit(cache=True, error_model="numpy")
 def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_split, rest, ext, ends, stiffness,
                    floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w,
@@ -155,18 +169,13 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
                 if abs(e) <= tol:
                     converged = True
                     break
-                if e * e0 > 0:
-                    lo = s
-                else:
-                    hi = s
                 d0 = tx[c, 0, 0] - tx[a, 0, 0]
                 d1 = tx[c, 1, 0] - tx[a, 1, 0]
                 d2 = tx[c, 2, 0] - tx[a, 2, 0]
                 length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
                 rate = ((d0 / length) * (tv[c, 0, 0] - tv[a, 0, 0]) + (d1 / length) * (tv[c, 1, 0] - tv[a, 1, 0])
                         + (d2 / length) * (tv[c, 2, 0] - tv[a, 2, 0]))
-                s_new = s - e / rate if rate != 0.0 else lo
-                s = s_new if lo < s_new < hi else 0.5 * (lo + hi)
+                s, lo, hi = newton_in_bracket(s, e, e0, rate, lo, hi)
             if not converged:
                 _states(x, v, acc, tension, dirs, slack, tx, tv, tacc, tten, tdirs, tslack)
                 _flow(tx, tv, tacc, tten, tdirs, tslack, s, weights, rest, ext, ends, stiffness, floor, strut_rest,

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["WEIGHTS", "STABILITY", "Stepper", "MAX_SWITCHES", "MIN_SPLIT", "LOCATE_TOL"]
+__all__ = ["WEIGHTS", "STABILITY", "Stepper", "check_stable", "MAX_SWITCHES", "MIN_SPLIT", "LOCATE_TOL"]
 
 _SUZUKI_W = 1.0 / (4.0 - 4.0 ** (1.0 / 3.0))
 # the stage weights of one step, per order
@@ -57,6 +57,17 @@ MIN_SPLIT = 1e-6      # relative to dt: a switch this close to a part's ends is 
 LOCATE_TOL = 1e-13    # relative to the rest length: a located switch leaves |e| below this
 _POLY_ITER = 8        # safeguarded Newton iterations on the position polynomial (quadratic convergence)
 _FLOW_ITER = 6        # Newton iterations on the step itself (0 for Verlet without rigid struts)
+
+
+def check_stable(name: str, order: int, dt: float, omega_max: float, advice: str) -> None:
+    """Refuse a step ``dt`` (s) beyond the stability limit of the explicit method ``name`` composed to ``order``,
+    ``omega_max`` (rad/s) that of its stiffest members, with a ValueError ending with ``advice``."""
+    limit = STABILITY[order]
+    if omega_max * dt >= limit:
+        raise ValueError(
+            f"dt={dt!r} s is beyond the stability limit of the explicit {name} method (order {order}): dt must be < "
+            f"{limit:g}/omega_max = {limit / omega_max:.6g} s (omega_max = {omega_max:.6g} rad/s from the stiffest "
+            f"members); {advice}")
 
 
 class Stepper:
@@ -87,10 +98,8 @@ class Stepper:
     def step(self, x, v, start, h, state):
         """One step of ``h`` (s), split at the switches inside it; returns what :meth:`flow` does."""
         trial = self.flow(x, v, start, h, state)
-        if not self.locate:
-            return trial
         impulses, remaining = 0.0, h
-        for _ in range(MAX_SWITCHES):
+        for _ in range(MAX_SWITCHES if self.locate else 0):
             changed = trial[2].slack != start.slack
             if not changed.any():
                 break
@@ -98,11 +107,19 @@ class Stepper:
             if cable < 0:
                 break
             s, part = self._locate(x, v, start, cable, guess, remaining, state)
-            x, v, start = part[0], part[1], part[2]
-            impulses = impulses + part[3]
+            v, start, kicks = self.resolve(part, state)
+            x = part[0]
+            impulses = impulses + part[3] + kicks
             remaining -= s
             trial = self.flow(x, v, start, remaining, state)
-        return trial[0], trial[1], trial[2], impulses + trial[3]
+        # a switch not located (none, a graze, one at a part's very end) is resolved at the step's end
+        v, end, kicks = self.resolve(trial, state)
+        return trial[0], v, end, impulses + trial[3] + kicks
+
+    def resolve(self, part, state):
+        """What happens where a part (a :meth:`flow` tuple) ends: its velocities (N, 3), forces and impulses
+        (n_cables,) N*s. Massless cables: nothing (the massive method's plates take impacts there)."""
+        return part[1], part[2], 0.0
 
     def _first_switch(self, x, v, start, end, changed, span, rest):
         """The cable (index, or -1) whose switch comes first among ``changed`` ones, and its time (s)

@@ -87,7 +87,7 @@ from . import _ground_kernels as ground_kernels
 from ..contact import _detection_kernels as detection_kernels
 from . import _kernels as kernels
 from ..base import MethodStep, State, StepMethod
-from .composition import MIN_SPLIT, STABILITY, WEIGHTS, Stepper
+from .composition import MIN_SPLIT, STABILITY, WEIGHTS, Stepper, check_stable
 from ..contact.friction import TOUCH_TOL, ContactSet
 from ..qp.solvers import make_solver
 from ..rigid import RigidStruts
@@ -153,12 +153,7 @@ class ElasticMethod(StepMethod):
         if locate_switches is None:
             locate_switches = self.order == 4
         self.locate_switches = bool(locate_switches)
-        limit = STABILITY[self.order]
-        if self.omega_max * self.dt >= limit:
-            raise ValueError(
-                f"dt={self.dt!r} s is beyond the stability limit of the explicit elastic method (order "
-                f"{self.order}): dt must be < {limit:g}/omega_max = {limit / self.omega_max:.6g} s (omega_max = "
-                f"{self.omega_max:.6g} rad/s from the stiffest members); use a smaller dt or rigid struts")
+        check_stable("elastic", self.order, self.dt, self.omega_max, "use a smaller dt or rigid struts")
         self.stepper = Stepper(self.verlet, self.order, system, self.dt, self.locate_switches)
         self._damped = bool(np.any(system.cable_damping > 0))
         self._rest = np.empty(system.n_members)

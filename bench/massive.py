@@ -1,0 +1,169 @@
+"""The full model (method "massive", physics.md §4b) beside its two limits: three studies, printed and written to
+``bench/results/massive_*.csv``.
+
+* ``drop``: the hard case where the three methods differ. prism3 with its bottom triangle fixed, every cable
+  3 cm slack, dropped under gravity until its top triangle's three cables snap taut together (by symmetry).
+  The energy kept at that first snap, per method, against the closed form: the three cables' symmetric mode
+  has the effective mass ``m/3`` per cable (top nodes of mass ``m``; the elastic struts take no part in an
+  impact), so a plastic snap (inextensible) loses ``1/2 m de^2`` and the plates' (massive) that times
+  ``m_c/(m/3 + m_c)``, with ``de`` the cables' rate at the snap; the elastic method loses nothing.
+* ``order``: the 1-D snap (a body of 1 kg at 1 m/s on an anchored cable, plate 0.5 kg, taut at 10 rad/s) against
+  its closed form after the rebound, over steps: located snaps (the default) and not located; error against
+  wall time per simulated second.
+* ``speed``: the icosahedron thrown (spin and random node velocities; struts elastic at 1e5 N/m, since the
+  massive method takes no rigid struts yet) with cable plates of 0.05 kg, 1 ms: the massive method's ``run()``
+  (compiled) and numpy reference against the elastic method's, all with located switches (CPU time, best of 3).
+
+``python3 bench/massive.py [--quick]``.
+"""
+from __future__ import annotations
+
+import math
+import time
+import warnings
+
+import numpy as np
+
+import tensegrity_sim as ts
+
+G = 9.81
+
+
+def drop_scene(plate: float, slack: float = 0.03) -> ts.Scene:
+    d = ts.load_scene("prism3").to_dict()
+    for n in d["nodes"][:3]:
+        n["fixed"] = True
+    for c in d["cables"]:
+        c["rest_length"] += slack
+        c["mass"] = plate
+    d["gravity"] = [0.0, 0.0, -G]
+    return ts.Scene.from_dict(d)
+
+
+def drop_rows(plate: float = 0.2, dt: float = 1e-4) -> list[dict]:
+    """Each method up to the step of the first snap: kinetic energy before it, the energy lost in it (measured:
+    the total's change, the plates' energy included), and the closed form's loss from the rates before it."""
+    rows = []
+    for method in ("elastic", "inextensible", "massive"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ts.LengthOffsetWarning)
+            sim = ts.Simulator(drop_scene(plate), method=method, dt=dt)
+        slack0 = sim.slack()
+        top = np.array([3, 4, 5])   # c3, c4, c5: the top triangle
+        m = float(sim.system.masses[3])
+        for k in range(100_000):
+            before = sim.energy()
+            x, v = sim.positions, sim.velocities
+            r = sim.step()
+            if (~r.slack & slack0).any():
+                break
+        snapped = np.flatnonzero(~r.slack & slack0)
+        ends = sim.system.cable_ends[top]
+        d = x[ends[:, 1]] - x[ends[:, 0]]
+        unit = d / np.linalg.norm(d, axis=1)[:, None]
+        rate = float(np.mean(np.einsum("ij,ij->i", v[ends[:, 1]] - v[ends[:, 0]], unit)))
+        plastic = 0.5 * m * rate ** 2
+        predicted = {"elastic": 0.0, "inextensible": plastic, "massive": plastic * plate / (m / 3 + plate)}[method]
+        lost = before["total"] - sim.energy()["total"]
+        rows.append({"method": method, "plate_kg": plate, "dt": dt, "snap_step": k + 1,
+                     "cables": " ".join(sim.scene.cable_names[i] for i in snapped),
+                     "kinetic_before_J": before["kinetic"], "lost_J": lost, "closed_form_lost_J": predicted,
+                     "kept": 1.0 - lost / before["kinetic"], "closed_form_kept": 1.0 - predicted / before["kinetic"],
+                     "plates_lost_J": sim.energy_lost})
+    return rows
+
+
+def bungee(plate: float, omega: float = 10.0) -> ts.Scene:
+    return ts.Scene.from_dict({
+        "name": "bungee", "nodes": [{"name": "a", "position": [0, 0, 0], "fixed": True},
+                                    {"name": "b", "position": [0.95, 0, 0], "mass": 1.0, "velocity": [1.0, 0, 0]}],
+        "cables": [{"name": "c", "nodes": ["a", "b"], "stiffness": omega ** 2 * (1 + plate), "rest_length": 1.0,
+                    "mass": plate}]})
+
+
+def order_rows(quick: bool) -> list[dict]:
+    plate, omega, duration = 0.5, 10.0, 0.45
+    rebound = 1.0 / (1 + plate)
+    exact = 1.0 - rebound * (duration - 0.05 - math.pi / omega)
+    rows = []
+    for locate in (True, False):
+        for dt in (4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4) if not quick else (2e-3, 1e-3, 5e-4):
+            dt *= 1.0 + 1 / 7   # the snap inside a step
+            sim = ts.Simulator(bungee(plate, omega), method="massive", dt=dt, locate_switches=locate)
+            steps = round(duration / dt)
+            start = time.perf_counter()
+            sim.run(steps=steps)
+            wall = time.perf_counter() - start
+            exact_x = exact - rebound * (sim.time - duration)
+            rows.append({"locate_switches": locate, "dt": dt, "pos_err_m": abs(sim.positions[1, 0] - exact_x),
+                         "wall_per_sim_s": wall / sim.time})
+    for a, b in zip(rows, rows[1:]):
+        if a["locate_switches"] == b["locate_switches"]:
+            b["ratio"] = a["pos_err_m"] / b["pos_err_m"]
+    return rows
+
+
+def thrown_icosahedron(plate: float) -> ts.Scene:
+    raw = ts.load_scene("icosahedron").to_dict()
+    x = np.array([n["position"] for n in raw["nodes"]])
+    rng = np.random.default_rng(7)
+    v = np.cross([0.3, -0.5, 2.0], x - x.mean(axis=0)) + 1.5 * rng.normal(size=x.shape)
+    v -= v.mean(axis=0)
+    index = {n["name"]: i for i, n in enumerate(raw["nodes"])}
+    for node, vi in zip(raw["nodes"], v):
+        node["velocity"] = [float(a) for a in vi]
+    for s in raw["struts"]:
+        a, b = (index[e] for e in s["nodes"])
+        s["stiffness"], s["rest_length"] = 1e5, float(np.linalg.norm(x[b] - x[a]))
+    for c in raw["cables"]:
+        c["mass"] = plate
+    return ts.Scene.from_dict(raw)
+
+
+def speed_rows(quick: bool) -> list[dict]:
+    steps = 300 if quick else 1000
+    rows = []
+    for label, method, plate, compiled in (("massive run() (compiled)", "massive", 0.05, True),
+                                           ("massive (numpy reference)", "massive", 0.05, False),
+                                           ("elastic run() (compiled)", "elastic", 0.0, True),
+                                           ("elastic (numpy reference)", "elastic", 0.0, False)):
+        sim = ts.Simulator(thrown_icosahedron(plate), method=method, dt=1e-3, locate_switches=True)
+        if compiled is False:
+            sim._method.compiled = False
+        sim.run(steps=20)   # warm: kernels loaded, caches filled
+        best = math.inf
+        for _ in range(3):
+            sim.reset()
+            start = time.process_time()
+            sim.run(steps=steps, every=steps)
+            best = min(best, time.process_time() - start)
+        rows.append({"run": label, "steps": steps, "us_per_step": 1e6 * best / steps})
+    base = next(r["us_per_step"] for r in rows if r["run"].startswith("elastic run()"))
+    for r in rows:
+        r["over_elastic_run"] = r["us_per_step"] / base
+    return rows
+
+
+def main(argv=None) -> int:
+    import argparse
+    from pathlib import Path
+
+    from bench.tables import write_csv
+    parser = argparse.ArgumentParser(description="The massive method: the drop hard case, order, speed.")
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args(argv)
+    out = Path(__file__).resolve().parent / "results"
+    for name, rows in (("drop", drop_rows()), ("order", order_rows(args.quick)), ("speed", speed_rows(args.quick))):
+        print(f"-- {name}")
+        for row in rows:
+            print("  " + ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
+        fields = list(dict.fromkeys(k for row in rows for k in row))
+        write_csv(out / f"massive_{name}.csv", rows, fields)
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run as a script: this checkout first
+    raise SystemExit(main())
