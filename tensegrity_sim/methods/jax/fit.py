@@ -150,8 +150,8 @@ class FitResult:
     """start, fitted, sigma: each unknown's value and standard deviation (its unit in ``KINDS``; a group of
     cables: the mean over it; a mass: its total); rms_start, rms_fitted: the observation residual's root mean
     square, m; noise: the pose noise estimated from it, m; scene: the scene with the fitted values; window: grid
-    intervals per window, windows, every: steps of ``dt`` s per grid interval; grid_steps (G,), observed (G, N, 3) (NaN where
-    no pose), before, after (G, N, 3): the windows' simulated positions at the start and at the optimum;
+    intervals per window, windows, every: steps of ``dt`` s per grid interval; grid_steps (G,), observed
+    (G, N, 3) (NaN where no pose), before, after (G, N, 3): the windows' simulated positions at the start and at the optimum;
     evaluations: runs of the model; message: the solver's; reel_speed: the fitted one (m/s, 0: none)."""
 
     unknowns: list[Unknown]
@@ -304,28 +304,29 @@ class _Problem:
         return jnp.moveaxis(applied[self.step_idx], 2, -1)
 
     # ----------------------------------------------------------------- the run of the windows
-    def _states(self, state):
-        """Start positions and velocities (N, 3, W) from the unknown states (W, 6 nf)."""
-        w, nf = self.windows, self.nf
-        xf = state[:, :3 * nf].reshape(w, nf, 3)
-        vf = state[:, 3 * nf:].reshape(w, nf, 3)
-        x = jnp.asarray(self.fixed_x).at[self.free].set(jnp.moveaxis(xf, 0, -1))
+    def _states(self, state, copies):
+        """Start positions and velocities (N, 3, B) of copies of windows ``copies`` (B,) from their unknown
+        states (B, 6 nf)."""
+        nf = self.nf
+        xf = state[:, :3 * nf].reshape(-1, nf, 3)
+        vf = state[:, 3 * nf:].reshape(-1, nf, 3)
+        x = jnp.asarray(self.fixed_x[..., copies]).at[self.free].set(jnp.moveaxis(xf, 0, -1))
         v = jnp.zeros_like(x).at[self.free].set(jnp.moveaxis(vf, 0, -1))
         return x, v
 
-    def run(self, p, state):
-        """The windows from their start states: positions at each observation (L, N, 3, W), end positions and
-        velocities (N, 3, W)."""
+    def run(self, p, state, copies):
+        """The windows ``copies`` (B,) (a window may be run by several copies) from start states ``state``
+        (B, 6 nf): positions at each observation (L, N, 3, B), end positions and velocities (N, 3, B)."""
         model = self.model_of(p)
-        rest, forces = self.rest_of(p), jnp.asarray(self.forces)
-        x0, v0 = self._states(state)
+        rest, forces = self.rest_of(p)[..., copies], jnp.asarray(self.forces[..., copies])
+        x0, v0 = self._states(state, copies)
         h = jnp.asarray(self.obs.dt)
         carry = start_carry(model, x0, v0, rest[0, 0], forces[0, 0])
 
         def step(loop, inputs):
             carry, r_prev, f_prev = loop
             r, f = inputs
-            changed = jnp.any(r != r_prev, axis=0) | jnp.any(f != f_prev, axis=(0, 1))   # (W,)
+            changed = jnp.any(r != r_prev, axis=0) | jnp.any(f != f_prev, axis=(0, 1))   # (B,)
 
             def restart():   # a new input: the start forces with it, in the windows where it changed
                 fresh = start_carry(model, carry.x, carry.v, r, f)
@@ -343,19 +344,32 @@ class _Problem:
         return xs, carry.x, carry.v
 
     def _jit(self):
-        free = self.free
+        free, s = self.free, 6 * self.nf
+        windows = np.arange(self.windows)
+        replicas = np.repeat(windows, s)   # window w's start state once per coordinate: copies w s .. w s + s - 1
 
-        def pieces(p, state):
-            xs, xe, ve = self.run(p, state)
+        def pieces(p, state, copies=windows):
+            xs, xe, ve = self.run(p, state, copies)
             return xs[:, free], xe[free], ve[free]
 
         self.pieces = jax.jit(pieces)
-        self.simulated = jax.jit(lambda p, state: self.run(p, state)[0])
+        self.simulated = jax.jit(lambda p, state: self.run(p, state, windows)[0])
+        # a parameter's tangent: every window at once; the start states' tangents: one copy of each window per
+        # coordinate, all in one batch (the step's own layout, which a vmap over tangents would put first)
+        self.param_tangent = jax.jit(lambda p, state, dp: jax.jvp(lambda q: pieces(q, state), (p,), (dp,))[1])
+        seeds = np.tile(np.eye(s), (self.windows, 1))
+        self.state_tangents = jax.jit(lambda p, state: jax.jvp(
+            lambda st: pieces(p, st, replicas), (jnp.repeat(state, s, axis=0),), (jnp.asarray(seeds),))[1])
 
-        def tangents(p, state, dp, dstate):
-            return jax.jvp(pieces, (p, state), (dp, dstate))[1]
-
-        self.tangents = jax.jit(jax.vmap(tangents, in_axes=(None, None, 0, 0)))
+    def tangents(self, p, state):
+        """Every parameter's and start-state coordinate's tangent: (T, L, nf, 3, W), (T, nf, 3, W) twice."""
+        p, state = jnp.asarray(p), jnp.asarray(state)
+        out = [[np.asarray(a)[None] for a in self.param_tangent(p, state, jnp.eye(len(p))[i])]
+               for i in range(len(p))]
+        s, w = 6 * self.nf, self.windows
+        out.append([np.moveaxis(np.asarray(a).reshape(*a.shape[:-1], w, s), -1, 0)
+                    for a in self.state_tangents(p, state)])
+        return [np.concatenate(parts) for parts in zip(*out)]
 
     # ----------------------------------------------------------------- least squares
     def split(self, z):
@@ -388,12 +402,7 @@ class _Problem:
         P, nf, W, L = self.n_params, self.nf, self.windows, self.window
         s = 6 * nf
         T = P + s
-        dp = np.zeros((T, P))
-        dp[np.arange(P), np.arange(P)] = 1.0
-        dstate = np.zeros((T, W, s))
-        dstate[P + np.arange(s), :, np.arange(s)] = 1.0
-        dxs, dxe, dve = (np.asarray(a) for a in self.tangents(jnp.asarray(p), jnp.asarray(state),
-                                                               jnp.asarray(dp), jnp.asarray(dstate)))
+        dxs, dxe, dve = self.tangents(p, state)
         rows, cols, vals = [], [], []
         per = L * nf * 3
         # observation rows of window w: (T, L, nf, 3, W) -> (W, per, T)
@@ -441,7 +450,7 @@ class _Problem:
         """The windows' simulated positions on the grid (G, N, 3): each window's start, then its steps."""
         p, state = self.split(z)
         xs = np.asarray(self.simulated(jnp.asarray(p), jnp.asarray(state)))   # (L, N, 3, W)
-        x0, _ = self._states(jnp.asarray(state))
+        x0, _ = self._states(jnp.asarray(state), np.arange(self.windows))
         out = np.concatenate([np.moveaxis(np.asarray(x0)[..., :1], -1, 0),
                               np.moveaxis(xs, -1, 0).reshape(-1, *xs.shape[1:3])])
         return out[:len(self.observed)]
@@ -478,7 +487,7 @@ def _parameter_sigma(jac, n_params: int, noise: float) -> np.ndarray:
 
 def fit_observed(scene: Scene, obs: Observed, unknowns: list[Unknown], *, window: int | None = None,
                  loss: str = "linear", loss_scale: float = 3e-3, continuity: float = CONTINUITY,
-                 tolerance: float = 1e-12, max_evaluations: int = 200) -> FitResult:
+                 tolerance: float = 1e-10, max_evaluations: int = 100) -> FitResult:
     """Fit ``unknowns`` of ``scene`` (their start values) to ``obs`` by multiple shooting (module docstring);
     ``window``: grid intervals per window (None: :func:`choose_window`)."""
     if loss not in LOSSES:
@@ -514,7 +523,8 @@ def fit_observed(scene: Scene, obs: Observed, unknowns: list[Unknown], *, window
                         x_scale="jac", loss=loss, f_scale=loss_scale, xtol=tolerance, ftol=tolerance,
                         gtol=tolerance, max_nfev=max_evaluations, tr_solver="lsmr")
     r = problem.residual(sol.x)
-    dof = max(1, n_obs - len(sol.x))
+    # the continuity rows act as constraints: each takes one unknown off
+    dof = max(1, n_obs - len(sol.x) + (len(r) - n_obs))
     noise = float(np.sqrt(np.sum(r[:n_obs] ** 2) / dof))
     jac = problem.jacobian(sol.x)
     scale = np.array([b if f else 1.0 for b, f in zip(problem.base, problem.factor)])
