@@ -78,7 +78,7 @@ def test_sparse_jacobian_is_the_dense_one(logged):
 
     def residual(z):
         p, state = z[:problem.n_params], z[problem.n_params:].reshape(problem.windows, -1)
-        xs, xe, ve = problem.pieces(p, state)
+        xs, xe, ve = problem.pieces(p, state, problem.data)
         obs_rows = (xs - problem.target) * problem.obs_mask[:, None, None, :]
         nf = problem.nf
         x_next = jnp.moveaxis(state[1:, :3 * nf].reshape(-1, nf, 3), 0, -1)
@@ -158,3 +158,39 @@ def test_noise_script_and_python_api(logged, tmp_path):
     result = ts.fit(noisy, "stiffness", scene=logged / "nominal.yaml")
     assert abs(result.fitted[0] / STIFFNESS - 1) < 0.03
     assert abs(result.noise / 1e-3 - 1) < 0.1, result.noise
+
+
+def test_rate_limited_rest_lengths_are_the_nodes(tmp_path):
+    """A node run with max_rest_length_rate 0.2 m/s (the motors' reel speed), commanded: the rest lengths the
+    fit replays at every step from the log's targets are the ones the node applied, to the last bit."""
+    import jax.numpy as jnp
+
+    from tensegrity_sim.cli import simulate
+    from tensegrity_sim.commands import load_commands
+    from tensegrity_sim.methods.jax.fit import _Problem, parse_parameters
+    from tensegrity_sim.ros.fit_log import read_observed
+    from tensegrity_sim.ros.log import LogRecorder
+    from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic
+    from tensegrity_sim.ros.offline import CommandDriver
+
+    scene = ts.load_scene("prism3")
+    (tmp_path / "commands.yaml").write_text(COMMANDS)
+    sim = ts.Simulator(scene, method="elastic", dt=1e-3)
+    settings = NodeSettings(scene="prism3", method="elastic", dt=1e-3, publish_rate=100.0,
+                            log_path=str(tmp_path / "reel.mcap"), max_rest_length_rate=0.2)
+    logic = SimNodeLogic(sim, settings)
+    applied = []
+    with LogRecorder(tmp_path / "reel.mcap", logic.channels(), logic.run_info()) as recorder:
+        logic.recorder = recorder
+        simulate(sim, 300, load_commands(tmp_path / "commands.yaml", scene), driver=CommandDriver(logic),
+                 on_step=lambda r: applied.append(sim.rest_lengths.copy()))
+    _, obs = read_observed(tmp_path / "reel.mcap")
+    assert obs.reel_speed == 0.2
+    unknowns = parse_parameters("reel_speed", scene, reel_speed=obs.reel_speed)
+    problem = _Problem(scene, obs, unknowns, 5, 10.0)
+    rest = np.asarray(problem.rest_of(jnp.ones(1), problem.data))          # (L, every, nc, W)
+    replayed = np.moveaxis(rest, -1, 0).reshape(-1, len(scene.cables))      # step by step from the first pose
+    first = int(obs.steps[0])
+    logged = np.array(applied)[first:first + len(replayed)]
+    assert np.ptp(logged[:, 0]) > 0.05    # c0 reeled in at 0.2 m/s: 0.058 m over the poses
+    np.testing.assert_array_equal(replayed[:len(logged)], logged)

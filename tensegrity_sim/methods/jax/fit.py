@@ -241,8 +241,8 @@ class _Problem:
         self.rest_fixed = np.moveaxis(obs.rest[self.step_idx], 2, -1) if len(obs.rest) else \
             np.broadcast_to(scene.cable_rest_lengths[None, None, :, None], (L, every, len(scene.cables), W))
         self.reel = obs.reel_speed
-        self.targets = jnp.asarray(obs.rest)
-        self.base_rest = jnp.asarray(scene.cable_rest_lengths)
+        # the commands, handed to the compiled runs as arguments (as constants XLA would fold them, slowly)
+        self.data = (jnp.asarray(self.rest_fixed), jnp.asarray(self.forces), jnp.asarray(obs.rest))
         # the unknowns: factors on their start values (an unknown starting at 0: its value)
         self.base = [self._base_value(u) for u in unknowns]
         self.factor = [bool(b > 0) for b in self.base]
@@ -285,10 +285,11 @@ class _Problem:
                 m = m._replace(ground=m.ground._replace(**{u.kind: base * value if f else value}))
         return m._replace(masses=masses)
 
-    def rest_of(self, p):
+    def rest_of(self, p, data):
         """The rest lengths in effect at every step of every window (L, every, nc, W)."""
+        rest_fixed, _, targets = data
         if not self.reel > 0:
-            return jnp.asarray(self.rest_fixed)
+            return rest_fixed
         speed = self.reel
         for u, value in zip(self.unknowns, p):
             if u.kind == "reel_speed":
@@ -300,40 +301,43 @@ class _Problem:
             applied = jnp.where(jnp.abs(diff) <= reach, target, applied + jnp.sign(diff) * reach)
             return applied, applied
 
-        _, applied = lax.scan(move, self.base_rest, self.targets)
+        _, applied = lax.scan(move, jnp.asarray(self.scene.cable_rest_lengths), targets)
         return jnp.moveaxis(applied[self.step_idx], 2, -1)
 
     # ----------------------------------------------------------------- the run of the windows
-    def _states(self, state, copies):
-        """Start positions and velocities (N, 3, B) of copies of windows ``copies`` (B,) from their unknown
-        states (B, 6 nf)."""
+    def _states(self, state, reps):
+        """Start positions and velocities (N, 3, B) of the windows, each run by ``reps`` consecutive copies,
+        from their unknown states (B, 6 nf)."""
         nf = self.nf
         xf = state[:, :3 * nf].reshape(-1, nf, 3)
         vf = state[:, 3 * nf:].reshape(-1, nf, 3)
-        x = jnp.asarray(self.fixed_x[..., copies]).at[self.free].set(jnp.moveaxis(xf, 0, -1))
+        x = jnp.asarray(np.repeat(self.fixed_x, reps, axis=-1)).at[self.free].set(jnp.moveaxis(xf, 0, -1))
         v = jnp.zeros_like(x).at[self.free].set(jnp.moveaxis(vf, 0, -1))
         return x, v
 
-    def run(self, p, state, copies):
-        """The windows ``copies`` (B,) (a window may be run by several copies) from start states ``state``
-        (B, 6 nf): positions at each observation (L, N, 3, B), end positions and velocities (N, 3, B)."""
+    def run(self, p, state, data, reps=1):
+        """The windows, each run by ``reps`` consecutive copies, from start states ``state`` (B, 6 nf), with
+        ``data`` (the commands, :attr:`data`): positions at each observation (L, N, 3, B), end positions and
+        velocities (N, 3, B)."""
         model = self.model_of(p)
-        rest, forces = self.rest_of(p)[..., copies], jnp.asarray(self.forces[..., copies])
-        x0, v0 = self._states(state, copies)
+        rest, forces = self.rest_of(p, data), data[1]
+        x0, v0 = self._states(state, reps)
         h = jnp.asarray(self.obs.dt)
-        carry = start_carry(model, x0, v0, rest[0, 0], forces[0, 0])
+        copies = (lambda a: jnp.repeat(a, reps, axis=-1)) if reps > 1 else (lambda a: a)
+        carry = start_carry(model, x0, v0, copies(rest[0, 0]), copies(forces[0, 0]))
 
         def step(loop, inputs):
             carry, r_prev, f_prev = loop
             r, f = inputs
-            changed = jnp.any(r != r_prev, axis=0) | jnp.any(f != f_prev, axis=(0, 1))   # (B,)
+            changed = jnp.any(r != r_prev, axis=0) | jnp.any(f != f_prev, axis=(0, 1))   # (W,)
+            rb, fb = copies(r), copies(f)
 
             def restart():   # a new input: the start forces with it, in the windows where it changed
-                fresh = start_carry(model, carry.x, carry.v, r, f)
-                return Carry(*(jnp.where(changed, a, b) for a, b in zip(fresh, carry)))
+                fresh = start_carry(model, carry.x, carry.v, rb, fb)
+                return Carry(*(jnp.where(copies(changed), a, b) for a, b in zip(fresh, carry)))
 
             carry = lax.cond(jnp.any(changed), restart, lambda: carry)
-            carry = verlet_step(model, carry, r, f, h)[0]
+            carry = verlet_step(model, carry, rb, fb, h)[0]
             return (carry, r, f), None
 
         def interval(loop, inputs):
@@ -345,30 +349,29 @@ class _Problem:
 
     def _jit(self):
         free, s = self.free, 6 * self.nf
-        windows = np.arange(self.windows)
-        replicas = np.repeat(windows, s)   # window w's start state once per coordinate: copies w s .. w s + s - 1
 
-        def pieces(p, state, copies=windows):
-            xs, xe, ve = self.run(p, state, copies)
+        def pieces(p, state, data, reps=1):
+            xs, xe, ve = self.run(p, state, data, reps)
             return xs[:, free], xe[free], ve[free]
 
         self.pieces = jax.jit(pieces)
-        self.simulated = jax.jit(lambda p, state: self.run(p, state, windows)[0])
-        # a parameter's tangent: every window at once; the start states' tangents: one copy of each window per
-        # coordinate, all in one batch (the step's own layout, which a vmap over tangents would put first)
-        self.param_tangent = jax.jit(lambda p, state, dp: jax.jvp(lambda q: pieces(q, state), (p,), (dp,))[1])
+        self.simulated = jax.jit(lambda p, state, data: self.run(p, state, data)[0])
+        # a parameter's tangent: every window at once; the start states' tangents: s copies of each window, one
+        # per coordinate, all in one batch (the step's own layout, which a vmap over tangents would put first)
+        self.param_tangent = jax.jit(lambda p, state, data, dp: jax.jvp(lambda q: pieces(q, state, data), (p,),
+                                                                         (dp,))[1])
         seeds = np.tile(np.eye(s), (self.windows, 1))
-        self.state_tangents = jax.jit(lambda p, state: jax.jvp(
-            lambda st: pieces(p, st, replicas), (jnp.repeat(state, s, axis=0),), (jnp.asarray(seeds),))[1])
+        self.state_tangents = jax.jit(lambda p, state, data: jax.jvp(
+            lambda st: pieces(p, st, data, s), (jnp.repeat(state, s, axis=0),), (jnp.asarray(seeds),))[1])
 
     def tangents(self, p, state):
         """Every parameter's and start-state coordinate's tangent: (T, L, nf, 3, W), (T, nf, 3, W) twice."""
         p, state = jnp.asarray(p), jnp.asarray(state)
-        out = [[np.asarray(a)[None] for a in self.param_tangent(p, state, jnp.eye(len(p))[i])]
+        out = [[np.asarray(a)[None] for a in self.param_tangent(p, state, self.data, jnp.eye(len(p))[i])]
                for i in range(len(p))]
         s, w = 6 * self.nf, self.windows
         out.append([np.moveaxis(np.asarray(a).reshape(*a.shape[:-1], w, s), -1, 0)
-                    for a in self.state_tangents(p, state)])
+                    for a in self.state_tangents(p, state, self.data)])
         return [np.concatenate(parts) for parts in zip(*out)]
 
     # ----------------------------------------------------------------- least squares
@@ -377,7 +380,7 @@ class _Problem:
 
     def residual(self, z) -> np.ndarray:
         p, state = self.split(z)
-        xs, xe, ve = (np.asarray(a) for a in self.pieces(jnp.asarray(p), jnp.asarray(state)))
+        xs, xe, ve = (np.asarray(a) for a in self.pieces(jnp.asarray(p), jnp.asarray(state), self.data))
         return self._assemble(xs, xe, ve, state)
 
     def _assemble(self, xs, xe, ve, state) -> np.ndarray:
@@ -449,8 +452,8 @@ class _Problem:
     def positions(self, z) -> np.ndarray:
         """The windows' simulated positions on the grid (G, N, 3): each window's start, then its steps."""
         p, state = self.split(z)
-        xs = np.asarray(self.simulated(jnp.asarray(p), jnp.asarray(state)))   # (L, N, 3, W)
-        x0, _ = self._states(jnp.asarray(state), np.arange(self.windows))
+        xs = np.asarray(self.simulated(jnp.asarray(p), jnp.asarray(state), self.data))   # (L, N, 3, W)
+        x0, _ = self._states(jnp.asarray(state), 1)
         out = np.concatenate([np.moveaxis(np.asarray(x0)[..., :1], -1, 0),
                               np.moveaxis(xs, -1, 0).reshape(-1, *xs.shape[1:3])])
         return out[:len(self.observed)]
