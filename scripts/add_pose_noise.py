@@ -10,12 +10,11 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-import yaml
 
 from tensegrity_sim.ros import messages as M
-from tensegrity_sim.ros.interface import TOPICS, Qos
+from tensegrity_sim.ros.interface import TOPICS
 from tensegrity_sim.ros.log import RUN_INFO, LogWriter
-from tensegrity_sim.ros.log_reader import LogReader
+from tensegrity_sim.ros.log_reader import LogReader, log_channels
 
 TYPENAME = TOPICS["node_poses"].typename
 
@@ -26,12 +25,7 @@ def rewrite_poses(source: Path, target: Path, change: Callable[[np.ndarray], np.
     seen = 0
     with LogReader(source) as reader:
         run_info = reader.metadata[RUN_INFO]
-        channels = []
-        for channel in reader.channels.values():
-            profile = (yaml.safe_load(channel.metadata.get("offered_qos_profiles", "")) or [{}])[0]
-            qos = Qos(reliability=profile.get("reliability", "reliable"), depth=profile.get("depth", 10),
-                      durability=profile.get("durability", "volatile"))
-            channels.append((channel.topic, reader.schemas[channel.schema_id].name, qos))
+        channels = log_channels(reader)
         poses_topic = next(c[0] for c in channels if c[1] == TYPENAME)
         with LogWriter(target, channels, run_info) as writer:
             for message in reader.messages():
