@@ -64,7 +64,7 @@ def nominal(truth: ts.Scene, factor: float) -> ts.Scene:
     return ts.Scene.from_dict(d)
 
 
-def truth_values(truth: ts.Scene, params: str) -> dict[str, float]:
+def truth_values(truth: ts.Scene) -> dict[str, float]:
     return {"stiffness": truth.cables[0].stiffness, "damping": truth.cables[0].damping,
             "friction": truth.ground.friction if truth.ground else 0.0}
 
@@ -87,7 +87,7 @@ def main_() -> int:
             argv = ["run", str(tmp / "truth.yaml"), "--method", "elastic", "--duration", str(duration), "--quiet",
                     "--log", str(log)]
             assert main(argv + (["--commands", str(commands)] if commands else [])) == 0
-            expected = truth_values(truth, params)
+            expected = truth_values(truth)
             for sigma in (float(s) for s in args.noise.split(",")):
                 source = log
                 if sigma > 0:

@@ -68,12 +68,16 @@ def test_sparse_jacobian_is_the_dense_one(logged):
     import jax
     import jax.numpy as jnp
 
-    from tensegrity_sim.methods.jax.fit import _Problem, parse_parameters
+    from tensegrity_sim.methods.jax.fit import Observed, _Problem, parse_parameters
     from tensegrity_sim.ros.fit_log import read_observed
 
     scene = ts.load_scene(logged / "nominal.yaml")
     _, obs = read_observed(logged / "run.mcap", scene)
+    k = 23   # 0.23 s: a reel-in and the force in three windows
+    obs = Observed(obs.dt, obs.steps[:k], obs.positions[:k], obs.rest[:obs.steps[k - 1]],
+                   obs.forces[:obs.steps[k - 1]])
     problem = _Problem(scene, obs, parse_parameters("stiffness,damping", scene), 8, 10.0)
+    assert problem.windows == 3
     z = np.concatenate([problem.p0, problem.state0.ravel()]) * 1.001
 
     def residual(z):

@@ -490,9 +490,10 @@ def _parameter_sigma(jac, n_params: int, noise: float) -> np.ndarray:
 
 def fit_observed(scene: Scene, obs: Observed, unknowns: list[Unknown], *, window: int | None = None,
                  loss: str = "linear", loss_scale: float = 3e-3, continuity: float = CONTINUITY,
-                 tolerance: float = 1e-10, max_evaluations: int = 100) -> FitResult:
+                 tolerance: float = 1e-10, max_evaluations: int = 100, verbose: int = 0) -> FitResult:
     """Fit ``unknowns`` of ``scene`` (their start values) to ``obs`` by multiple shooting (module docstring);
-    ``window``: grid intervals per window (None: :func:`choose_window`)."""
+    ``window``: grid intervals per window (None: :func:`choose_window`); ``verbose``: least_squares' (2: every
+    iteration)."""
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {', '.join(LOSSES)}, got {loss!r}")
     steps = np.asarray(obs.steps, dtype=np.int64)
@@ -524,7 +525,7 @@ def fit_observed(scene: Scene, obs: Observed, unknowns: list[Unknown], *, window
     rms = lambda r: float(np.sqrt(np.sum(r[:n_obs] ** 2) / n_obs))   # noqa: E731
     sol = least_squares(problem.residual, z0, jac=problem.jacobian, bounds=(lo, hi), method="trf",
                         x_scale="jac", loss=loss, f_scale=loss_scale, xtol=tolerance, ftol=tolerance,
-                        gtol=tolerance, max_nfev=max_evaluations, tr_solver="lsmr")
+                        gtol=tolerance, max_nfev=max_evaluations, tr_solver="lsmr", verbose=verbose)
     r = problem.residual(sol.x)
     # the continuity rows act as constraints: each takes one unknown off
     dof = max(1, n_obs - len(sol.x) + (len(r) - n_obs))
