@@ -48,8 +48,11 @@ def logged(tmp_path_factory):
 def test_fit_recovers_stiffness_and_damping_of_a_commanded_run(logged, capsys):
     capsys.readouterr()
     assert main(["fit", str(logged / "run.mcap"), "--params", "stiffness,damping", "--scene",
-                 str(logged / "nominal.yaml"), "--out", str(logged / "fitted.yaml")]) == 0
+                 str(logged / "nominal.yaml"), "--out", str(logged / "fitted.yaml"), "--plot",
+                 str(logged / "plots")]) == 0
     out = capsys.readouterr().out
+    assert {p.name for p in (logged / "plots").iterdir()} == {f"fit_{k}.{e}" for k in ("positions", "residual")
+                                                              for e in ("png", "svg")}
     fitted = ts.load_scene(logged / "fitted.yaml")
     for c in fitted.cables:
         assert abs(c.stiffness / STIFFNESS - 1) < 1e-3 and abs(c.damping / DAMPING - 1) < 1e-3, (c, out)
