@@ -111,6 +111,8 @@ def test_fit_refuses_bad_input(logged, capsys, tmp_path):
     assert "unknown parameter 'inertia'" in refused("--params", "stiffness,inertia")
     assert "no cable 'nope'" in refused("--params", "damping:nope")
     assert "the scene has no ground" in refused("--params", "friction")
+    assert "no node or strut 'nope'" in refused("--params", "mass:nope")
+    assert "'mass:s0': it has no mass in the scene" in refused("--params", "mass:s0")
     assert "no speed limit" in refused("--params", "reel_speed")
     # a cable the log cannot see: c0 let out far beyond its span, slack at every pose
     d = ts.load_scene(logged / "nominal.yaml").to_dict()
