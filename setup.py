@@ -60,6 +60,14 @@ EXTRAS_REQUIRE = {
         "foxglove-sdk>=0.30.3,<0.31",    # serve --foxglove is tested end to end
         "websocket-client>=1.9.2,<2",   # a WebSocket client of our own for that test (and bench/bench_view.py)
         "ray>=2.60.0,<3",        # test/test_sweep.py runs a sweep on a real local Ray cluster
+        "gymnasium>=1.4.0,<2",   # test/test_envs.py: the environments, Gymnasium's checker
+        "cma>=4.5.0,<5",         # test/test_gait.py: optimize-gait's CMA-ES
+    ],
+    # Learning and optimising gaits (tensegrity_sim.envs, tensegrity-sim optimize-gait): Gymnasium environments
+    # and CMA-ES; the gradient search takes the "jax" extra too.
+    "learn": [
+        "gymnasium>=1.4.0,<2",
+        "cma>=4.5.0,<5",
     ],
     # Live to Foxglove without ROS (tensegrity-sim serve --foxglove).
     "foxglove": [
@@ -86,6 +94,13 @@ EXTRAS_REQUIRE = {
     )],
     "bench": [
         "mujoco>=4.0.0,<5",      # the peer in bench/run_all.py (matplotlib is a core dependency)
+        "gymnasium>=1.4.0,<2",   # bench/bench_envs.py: Gymnasium's MujocoEnv and SyncVectorEnv, the envs' peers
+        "imageio>=2.38.2,<3",    # what gymnasium.envs.mujoco imports (its renderer)
+    ],
+    # Robots from MJCF files (tensegrity_sim.load_mjcf, tensegrity-sim import ROBOT.xml): MuJoCo's own parser.
+    # Writing MJCF (Scene.to_mjcf) and reading NTRT YAML need nothing more.
+    "io": [
+        "mujoco>=4.0.0,<5",
     ],
     # The documentation site (mkdocs.yml, docs/): mkdocs build --strict, run by test/test_docs.py in CI
     "docs": [

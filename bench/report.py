@@ -265,7 +265,8 @@ def write(path: Path, *, meta: dict, cases, references, rows, throughput, size_r
     w.append("\n![step halving](reference_convergence.png)\n")
 
     w.append("\n## The MuJoCo peer\n")
-    w.append("`bench/mujoco_peer.py`: rigid struts are free bodies carrying the two end masses; other nodes "
+    w.append("`bench/mujoco_peer.py` runs `Scene.to_mjcf()` (`tensegrity_sim/io/mjcf.py`): rigid struts are free "
+             "bodies with the strut's mass, centre of mass and inertia normal to its axis; other nodes "
              "are point masses on three slide joints; elastic struts are tendon springs; elastic cables are "
              "tendons with a dead band `springlength=\"0 L\"`; inextensible cables are limited tendons "
              "`range=\"0 L\"` (soft constraints, `solreflimit=\"2dt zeta\"`); contacts off, no damping. "

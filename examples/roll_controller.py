@@ -166,6 +166,16 @@ class RollController:
         return {c: self.rest[c] * (1.0 - (1.0 - PULL) * f) for c in self.cables}
 
 
+def latest_pose(poses):
+    """The newest ``node_poses`` message a DDS reader holds, as (its stamp s, node positions (N, 3) m), or None."""
+    got, _ = poses.take_messages()
+    if not got:
+        return None
+    msg = got[-1]
+    return (msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
+            np.array([[p.position.x, p.position.y, p.position.z] for p in msg.poses]))
+
+
 def planner_for(scene) -> RollPlanner:
     """The :class:`RollPlanner` of a :class:`tensegrity_sim.Scene`."""
     return RollPlanner(scene.node_names, [(s.name, *s.nodes) for s in scene.struts],
@@ -259,12 +269,10 @@ def main(argv: list[str] | None = None) -> int:
         start, t0 = None, None
         while True:
             dds.wait(0.01)
-            got, _ = poses.take_messages()
-            if not got:
+            latest = latest_pose(poses)
+            if latest is None:
                 continue
-            msg = got[-1]
-            t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-            x = np.array([[p.position.x, p.position.y, p.position.z] for p in msg.poses])
+            t, x = latest
             if t0 is None:
                 t0, start = t, x.mean(axis=0)
             cycle = controller.cycle

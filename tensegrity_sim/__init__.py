@@ -19,12 +19,24 @@ from .simulator import NonFiniteError, Simulator, SpeedError
 
 __version__ = "0.1.0"
 
+# robot files from other formats (tensegrity_sim.io): imported on first use, so that importing the package reads
+# no file-format code (and MuJoCo's parser is imported only when an MJCF file is read)
+_IO = ("load_mjcf", "load_ntrt")
+
+
+def __getattr__(name: str):
+    if name in _IO:
+        from . import io
+        return getattr(io, name)
+    raise AttributeError(f"module 'tensegrity_sim' has no attribute {name!r}")
+
+
 __all__ = [
     "METHODS", "Cable", "ClassKWarning", "ContactEvent", "Node", "Scene", "SceneError", "Simulator",
     "LengthOffsetWarning", "NonFiniteError", "QPError", "StepError", "SOLVERS", "StepResult", "Strut", "Trajectory",
     "SpeedError", "builtin_scenes",
     "load_scene", "__version__",
-    "ActiveContact", "BatchSimulator", "AccuracyChoice", "choose_accuracy", "fit",
+    "ActiveContact", "BatchSimulator", "AccuracyChoice", "choose_accuracy", "load_mjcf", "load_ntrt", "fit",
 ]
 
 

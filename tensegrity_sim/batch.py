@@ -29,7 +29,7 @@ from .commands import CommandSchedule
 from .methods.contact.detection import make_detector
 from .methods.contact.friction import TOUCH_TOL
 from .methods.contact.ground import GroundDetector, walk_copies
-from .methods import StepError, check_backend, choose_method
+from .methods import StepError, check_backend, choose_method, mass_model
 from .methods.elastic.method import ElasticMethod
 from .methods.elastic.batch import ElasticBatch
 from .results import ContactEvent
@@ -196,6 +196,7 @@ class BatchSimulator:
         if method == "elastic":
             if solver is not None and requested:
                 raise ValueError(f"solver={solver!r} is an option of a method with a QP; method 'elastic' has none")
+            self.system = mass_model(self.system, ElasticMethod)   # both engines apply its blocks in free flight
             if backend == "jax":
                 from .methods.jax.engine import ElasticBatchJax   # imports JAX: only here
 
@@ -225,9 +226,9 @@ class BatchSimulator:
             self._frozen: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
             # a copy starting at speeds no step resolves fails at its first step, as Simulator.step does
             _, length, _ = self.system.geometry(scene.positions)
-            shortest = float(length[length > 0].min(initial=np.inf))
+            self._shortest = float(length[length > 0].min(initial=np.inf))
             for b in range(self.batch):
-                reason = absurd_speed(scene, self._v[..., b], self.dt, shortest)
+                reason = absurd_speed(scene, self._v[..., b], self.dt, self._shortest)
                 if reason is not None:
                     self.failures[b] = f"step 1 (t = {self.dt:.6g} s): {reason}"
                     self._frozen[b] = (0, self._x[..., b].copy(), self._v[..., b].copy())
@@ -352,6 +353,48 @@ class BatchSimulator:
         else:
             for c, row in zip(self._copies, new):
                 c.set_external_forces(row)
+
+    def restart(self, copies, positions, velocities, rest_lengths) -> None:
+        """Start ``copies`` (k,) int again from new states, as a new batch would start them, the other copies
+        going on untouched: positions, velocities (k, N, 3) m, m/s and rest lengths (k, n_cables) m (checked
+        as the constructor checks a state), their failures forgotten, their contact warm starts zeroed. The
+        batch's clock runs on. Elastic method, numba backend only (what an environment's autoreset needs)."""
+        if self._copies is not None or self.backend != "numba":
+            raise ValueError("restart: only the elastic method's numba batch restarts copies")
+        if self._detectors is not None:
+            raise ValueError("restart: a batch that detects member contacts cannot restart copies (contacts=())")
+        idx = np.asarray(copies)
+        if idx.ndim != 1 or idx.dtype.kind not in "iu" or np.any((idx < 0) | (idx >= self.batch)):
+            raise ValueError(f"copies: expected copy indices in [0, {self.batch}), got {copies!r}")
+        n, nc, k = len(self.scene.nodes), self._nc, len(idx)
+        x = self._states(positions, "positions", k, n)
+        v = self._states(velocities, "velocities", k, n)
+        rest = float_array(rest_lengths, "rest_lengths")
+        if rest.shape != (k, nc):
+            raise ValueError(f"rest_lengths: expected shape {(k, nc)}, got {rest.shape}")
+        if not np.all(rest > 0):
+            j, i = np.argwhere(~(rest > 0))[0]
+            raise ValueError(f"rest_lengths[{j}][{self.scene.cable_names[i]!r}]: must be > 0, got {float(rest[j, i])!r}")
+        for j, b in enumerate(idx):
+            self._with_state(self.scene, x[j], v[j], int(b))   # the checks of a new batch's state
+        # the engine's carry (forces at the last step's end) is dropped for every copy (the others' are computed
+        # again from their state, the same numbers); the restarted copies' contact warm starts are zeroed
+        self._engine.forget(idx)
+        self._x, self._v, self._rest = (np.array(a) for a in (self._x, self._v, self._rest))   # writable copies
+        self._x[..., idx] = np.moveaxis(x, 0, -1)
+        self._v[..., idx] = self._engine.prepare(np.moveaxis(x, 0, -1), np.moveaxis(v, 0, -1))
+        self._rest[:, idx] = rest.T
+        for j, b in enumerate(idx):
+            b = int(b)
+            self.failures.pop(b, None)
+            self._frozen.pop(b, None)
+            if self._grounds is not None:
+                self._grounds[b].reset(x[j])
+            reason = absurd_speed(self.scene, self._v[..., b], self.dt, self._shortest)
+            if reason is not None:
+                at = self._step_count + 1
+                self.failures[b] = f"step {at} (t = {at * self.dt:.6g} s): {reason}"
+                self._frozen[b] = (self._step_count, self._x[..., b].copy(), self._v[..., b].copy())
 
     # ------------------------------------------------------------------ stepping
     def _advance(self, steps: int, commands=None):
@@ -548,7 +591,7 @@ class BatchSimulator:
             per = [c.energy() for c in self._copies]
             return {k: np.array([e[k] for e in per]) for k in ("kinetic", "strain", "gravity", "total")}
         sys = self.system
-        kinetic = 0.5 * np.sum((sys.masses * sys.free)[:, None, None] * self._v ** 2, axis=(0, 1))
+        kinetic = 0.5 * np.sum(self._v * sys.mass.apply(self._v), axis=(0, 1))
         strain = self._engine.strain_energy(self._x, self._rest)
         gravity = -np.sum(sys.gravity_force[:, :, None] * self._x, axis=(0, 1))
         return {"kinetic": kinetic, "strain": strain, "gravity": gravity, "total": kinetic + strain + gravity}

@@ -334,6 +334,126 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_import(args: argparse.Namespace) -> int:
+    from .io import import_mjcf, import_ntrt   # io sits around the core; MuJoCo's parser only for MJCF
+
+    source = Path(args.robot)
+    if source.suffix.lower() == ".xml":
+        if args.length_scale is not None:
+            raise ValueError(f"--length-scale: applies to an NTRT YAML file, not to {source} (MJCF is in metres)")
+        imported = import_mjcf(source)
+    elif source.suffix.lower() in (".yaml", ".yml"):
+        imported = import_ntrt(source, args.length_scale)
+    else:
+        raise ValueError(f"{source}: not a robot file this verb reads (ROBOT.xml: MJCF, ROBOT.yaml: NTRT)")
+    out = Path(args.out)
+    text = imported.header() + imported.scene.to_yaml()
+    # written beside the target and renamed over it: never a half-written scene
+    partial = out.with_name(f".{out.name}.partial")
+    try:
+        partial.write_text(text)
+        os.replace(partial, out)
+    finally:
+        partial.unlink(missing_ok=True)
+    scene = imported.scene
+    print("\n".join(imported.notes))
+    for actuator, cable in imported.actuators.items():
+        print(f"actuator {actuator} drives cable {cable}")
+    print(f"scene {scene.name}: {len(scene.nodes)} nodes, {len(scene.struts)} struts, {len(scene.cables)} cables"
+          f"{', on the ground' if scene.ground is not None else ''} -> {out}")
+    return 0
+
+
+def _add_import(verbs) -> None:
+    """``import``: a robot from MuJoCo's MJCF or NTRT's YAML as a scene YAML."""
+    imp = verbs.add_parser(
+        "import", help="a robot from MJCF (MuJoCo) or NTRT YAML as a scene YAML",
+        description="Read ROBOT.xml (MJCF, through MuJoCo's parser: pip install \"tensegrity_sim[io]\") or "
+                    "ROBOT.yaml (NTRT's YAML structure format) and write the scene. Prints how each element "
+                    "was mapped and which cable each actuator drives (also written as comments at the top of "
+                    "the scene); what cannot be mapped is refused, or dropped with a warning (docs/robots.md).")
+    imp.add_argument("robot", metavar="ROBOT.xml|ROBOT.yaml", help="the robot file")
+    imp.add_argument("--out", required=True, metavar="SCENE.yaml", help="the scene file to write")
+    imp.add_argument("--length-scale", type=_positive_float, default=None, metavar="S",
+                     help="NTRT: metres per file unit (default: 0.1, NTRT's decimetres)")
+    imp.set_defaults(func=_cmd_import)
+
+
+def _cmd_optimize_gait(args: argparse.Namespace) -> int:
+    from .optimize.gait import GaitProblem, cma_search, gradient_search, schedule_yaml
+
+    scene = load_scene(args.scene)
+    index = {n: i for i, n in enumerate(scene.cable_names)}
+    names = list(scene.cable_names) if args.cables is None else [n for n in args.cables.split(",") if n]
+    for n in names:
+        if n not in index:
+            raise ValueError(f"--cables: unknown cable {n!r} (scene {scene.name!r} has {', '.join(index) or 'none'})")
+    goal = np.asarray(args.goal, dtype=float)
+    if not np.all(np.isfinite(goal)) or not np.any(goal):
+        raise ValueError(f"--goal must be a horizontal direction (not zero, finite), got {args.goal}")
+    problem = GaitProblem(scene, [index[n] for n in names], goal / np.linalg.norm(goal), args.duration, args.period,
+                          args.knots)
+    for name in ("generations", "population", "iterations"):
+        if getattr(args, name) < (2 if name == "population" else 0):
+            raise ValueError(f"--{name} must be >= {2 if name == 'population' else 0}, got {getattr(args, name)}")
+    report = None if args.quiet else print
+    gait, lines = None, []
+    if args.search in ("cma", "both"):
+        try:
+            gait = cma_search(problem, generations=args.generations, population=args.population, seed=args.seed,
+                              report=report)
+        except ImportError as exc:   # a missing cma: the message names the extra
+            raise ValueError(f"{exc} (pip install \"tensegrity_sim[learn]\")") from None
+        lines.append(f"CMA-ES: {gait.distance:.4f} m in {args.duration:g} s ({args.generations} generations of "
+                     f"{args.population})")
+    if args.search in ("gradient", "both"):
+        # from CMA-ES's best, or from every cable at 75 % (u = 0.5: the robot squats and stays put) nudged by 1 %
+        # at random: the gradient there grows a roll (from random knots it starts mid-tumble, and stalls)
+        rng = np.random.default_rng(args.seed)
+        start = gait.u if gait is not None else np.clip(0.5 + 0.01 * rng.standard_normal((len(names), args.knots)),
+                                                        0.0, 1.0)
+        try:
+            gait = gradient_search(problem, start, iterations=args.iterations, report=report)
+        except ImportError as exc:
+            raise ValueError(f"{exc} (pip install \"tensegrity_sim[jax]\")") from None
+        lines.append(f"gradient: {gait.distance:.4f} m in {args.duration:g} s ({len(gait.history) - 1} steps uphill, "
+                     f"at most {args.iterations})")
+    comment = (f"tensegrity-sim optimize-gait {args.scene}: {gait.distance:.4f} m along ({goal[0]:g}, {goal[1]:g}) in "
+               f"{args.duration:g} s; period {args.period:g} s, {args.knots} knots; search {args.search}\n"
+               f"replay: tensegrity-sim run {args.scene} --commands {args.out} --duration {args.duration:g}")
+    Path(args.out).write_text(schedule_yaml(problem, gait.u, comment))
+    print("\n".join(lines + [f"gait             {args.out}"]))
+    return 0
+
+
+def _add_optimize_gait(verbs) -> None:
+    """``optimize-gait``: a periodic rest-length schedule that rolls a scene farthest (CMA-ES, gradient)."""
+    gait = verbs.add_parser(
+        "optimize-gait", help="optimise a periodic cable schedule for distance rolled (needs the learn extra)",
+        description="Search a periodic open-loop rest-length schedule of the actuated cables for the distance the "
+                    "centre of mass rolls along --goal in --duration s: CMA-ES (every generation one batch run), "
+                    "gradient ascent through the JAX run (the jax extra), or CMA-ES then the gradient. Writes a "
+                    "command schedule that tensegrity-sim run --commands replays. Needs "
+                    "pip install \"tensegrity_sim[learn]\".")
+    gait.add_argument("scene", help="a built-in scene's name or a scene YAML with a ground")
+    gait.add_argument("--out", required=True, metavar="GAIT.yaml", help="the command schedule to write")
+    gait.add_argument("--search", choices=("cma", "gradient", "both"), default="cma",
+                      help="CMA-ES, the gradient (from every knot at 0.5, nudged), or CMA-ES then the gradient "
+                           "(default: cma)")
+    gait.add_argument("--cables", help="comma-separated actuated cables (default: every cable)")
+    gait.add_argument("--goal", nargs=2, type=float, default=(1.0, 0.0), metavar=("X", "Y"),
+                      help="the horizontal direction to roll in (default: 1 0)")
+    gait.add_argument("--duration", type=float, default=6.0, help="s of rolling the distance is measured over")
+    gait.add_argument("--period", type=float, default=2.0, help="s, the gait's period (default 2)")
+    gait.add_argument("--knots", type=int, default=4, help="rest lengths per cable and period (default 4)")
+    gait.add_argument("--generations", type=int, default=20, help="CMA-ES generations (default 20)")
+    gait.add_argument("--population", type=int, default=16, help="CMA-ES candidates per generation (default 16)")
+    gait.add_argument("--iterations", type=int, default=10, help="gradient steps (default 10)")
+    gait.add_argument("--seed", type=int, default=0, help="CMA-ES's seed and the gradient's random start")
+    gait.add_argument("--quiet", action="store_true", help="no line per generation")
+    gait.set_defaults(func=_cmd_optimize_gait)
+
+
 def _add_fit(verbs) -> None:
     """``fit``: scene parameters from a logged run (the JAX backend's gradients)."""
     fit = verbs.add_parser(
@@ -516,6 +636,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_serve(verbs)
     _add_sweep(verbs)
     _add_fit(verbs)
+    _add_import(verbs)
+    _add_optimize_gait(verbs)
     return parser
 
 

@@ -19,7 +19,8 @@ member (a, b) pushes node a with ``+t (x_b - x_a)/l`` and node b with the opposi
 ``k max(0, l - L)``, elastic struts ``k (l - L)``, rigid struts whatever equilibrium needs.
 
 ``python -m tensegrity_sim.formfinding`` regenerates ``scenes/prism3.yaml``, ``scenes/icosahedron.yaml``,
-``scenes/icosahedron_ground.yaml`` and ``scenes/tower.yaml`` next to this file.
+``scenes/icosahedron_ground.yaml``, ``scenes/tower.yaml``, ``scenes/superball.yaml`` and
+``scenes/three_bar.yaml`` next to this file.
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ __all__ = [
     "icosahedron",
     "icosahedron_ground",
     "tower",
+    "superball",
+    "three_bar",
     "equilibrium_residual",
     "member_forces",
     "write_builtin_scenes",
@@ -374,14 +377,16 @@ def _settle_on_face(X, weight, members, cable, k, rest, strut_lengths, strut_for
         return np.concatenate([force.ravel(), l[~cable] - strut_lengths])
 
     sol = root(residual, np.concatenate([X[others].ravel(), strut_forces]), method="hybr", tol=1e-14)
-    if not sol.success or np.abs(residual(sol.x)).max() > 1e-9:
+    # judged by its residual: hybr may stop short of its own xtol with the residual already at round-off
+    if np.abs(residual(sol.x)).max() > 1e-9:
         raise RuntimeError(f"no static equilibrium on the face: {sol.message}")
     Y = X.copy()
     Y[others] = sol.x[: 3 * n_other].reshape(-1, 3)
     return Y
 
 
-def icosahedron_ground(friction: float = 0.8, cable_tension: float = 80.0, gravity: float = 9.81) -> dict:
+def icosahedron_ground(friction: float = 0.8, cable_tension: float = 80.0, gravity: float = 9.81,
+                       cap_radius: float | None = None, name: str = "icosahedron_ground") -> dict:
     """The :func:`icosahedron` resting on one of its closed cable faces on the ground ``z = 0`` (Coulomb
     ``friction``), under ``gravity`` (m/s^2, along -z), in exact static equilibrium for both methods.
 
@@ -393,9 +398,10 @@ def icosahedron_ground(friction: float = 0.8, cable_tension: float = 80.0, gravi
     gravity plus reactions, plus the multiple of the self-stress that makes the cables' mean tension
     ``cable_tension`` (N); the cable rest lengths are ``l - t/k``. The structure has an infinitesimal
     mechanism, so that is not yet equilibrium: the nodes off the face then settle to where it is
-    (:func:`_settle_on_face`, a few mm), with the face held by the ground and friction.
+    (:func:`_settle_on_face`, a few mm), with the face held by the ground and friction. ``cap_radius`` (m):
+    the face nodes touch the ground at that radius (end caps of their own) instead of the struts'.
     """
-    base = icosahedron(cable_tension=cable_tension, name="icosahedron_ground")
+    base = icosahedron(cable_tension=cable_tension, name=name)
     X, mass, _, members, kind, k, _ = _parse(base)
     face = [0, 4, 8]
     normal = np.cross(X[face[1]] - X[face[0]], X[face[2]] - X[face[0]])
@@ -409,7 +415,7 @@ def icosahedron_ground(friction: float = 0.8, cable_tension: float = 80.0, gravi
     cross = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     R = np.eye(3) + cross + cross @ cross * ((1 - cos) / sin ** 2)
     X = X @ R.T
-    radius = max(m["radius"] for m in base["struts"] + base["cables"])
+    radius = max(m["radius"] for m in base["struts"] + base["cables"]) if cap_radius is None else cap_radius
     centre = (mass[:, None] * X).sum(axis=0) / mass.sum()
     X -= np.array([centre[0], centre[1], X[face, 2].min() - radius])
     X[face, 2] = radius   # exactly on the ground (the rotation leaves round-off)
@@ -433,13 +439,82 @@ def icosahedron_ground(friction: float = 0.8, cable_tension: float = 80.0, gravi
     rest = _rest_lengths(l[cable], t[cable], k[cable])
     X = _settle_on_face(X, mass * gravity, members, cable, k, rest, l[~cable], t[~cable], face)
     l, _ = _unit_vectors(X, members)
-    scene = _scene("icosahedron_ground", X, (0.0, 0.0, -gravity), mass, np.zeros(len(X), bool),
+    scene = _scene(name, X, (0.0, 0.0, -gravity), mass, np.zeros(len(X), bool),
                    [{"a": a, "b": b, "stiffness": "rigid", "rest_length": l[i], "radius": m["radius"]}
                     for i, ((a, b), m) in enumerate(zip(members[~cable], base["struts"]))],
                    [{"a": a, "b": b, "stiffness": k[cable][i], "rest_length": rest[i], "radius": m["radius"]}
                     for i, ((a, b), m) in enumerate(zip(members[cable], base["cables"]))])
     scene["ground"] = {"height": 0.0, "friction": float(friction), "restitution": 0.0}
     return scene
+
+
+def _end_caps(scene: dict, cap_mass: float, cap_radius: float, payload: float = 0.0) -> dict:
+    """``scene`` (every node carrying its struts' mass, as :func:`_scene` writes it) with that mass moved
+    onto the struts, uniform and a ``payload`` (kg) at mid-strut, leaving ``cap_mass`` (kg) and ``cap_radius``
+    (m) on each end node: each end carries the same weight as before (the row sums of the strut's consistent
+    block: half the strut's and half the payload's), so the equilibrium is unchanged."""
+    share = {n["name"]: n["mass"] for n in scene["nodes"]}
+    for s in scene["struts"]:
+        a, b = s["nodes"]
+        if abs(share[a] - share[b]) > 1e-12 * share[a]:
+            raise ValueError("the ends of a strut must carry the same mass to move it onto the strut")
+        s["mass"] = 2.0 * (share[a] - cap_mass) - payload
+        if s["mass"] < 0.0:
+            raise ValueError("end caps and payload heavier than the strut's share")
+        if payload:
+            s["payloads"] = [{"at": 0.5, "mass": payload}]
+    for n in scene["nodes"]:
+        n["mass"], n["radius"] = cap_mass, cap_radius
+    return scene
+
+
+def superball(cap_mass: float = 0.35, cap_radius: float = 0.05, friction: float = 0.99) -> dict:
+    """NTRT's SUPERball layout on the ground: the six-rod, 24-cable expanded octahedron of :func:`icosahedron`
+    with SUPERball's numbers (rods 1.684 m and 3.5 kg, cables 613 N/m: NTRT's ``SuperBall.yaml`` in metres,
+    Bruce et al., "SUPERball: Exploring tensegrities for planetary probes", i-SAIRAS 2014), every cable
+    actuated. Each rod is a 2.8 kg uniform tube with 0.35 kg end caps of ``cap_radius`` (m; they touch the
+    ground), resting on the cable triangle n0 n4 n8 in exact static equilibrium (:func:`icosahedron_ground`,
+    whose nodes carry the same weight), ground friction ``friction`` (NTRT's rods: 0.99)."""
+    scene = icosahedron_ground(friction=friction, cap_radius=cap_radius, name="superball")
+    return _end_caps(scene, cap_mass, cap_radius)
+
+
+def three_bar(strut_length: float = 0.6, radius: float = 0.2, cable_tension: float = 100.0,
+              cable_stiffness: float = 2000.0, rod_mass: float = 0.15, motor_mass: float = 0.3,
+              cap_mass: float = 0.05, cap_radius: float = 0.03, strut_radius: float = 0.01,
+              friction: float = 0.8, gravity: float = 9.81) -> dict:
+    """A 3-bar robot standing on the ground: the twisted prism of :func:`prism` (three rods of
+    ``strut_length`` m on circles of ``radius`` m, 150 degree twist) with rigid rods of ``rod_mass`` kg spread
+    uniformly, a motor of ``motor_mass`` kg at each rod's middle (a payload), end caps of ``cap_mass`` kg and
+    ``cap_radius`` m; six actuated cables (the triangles ``c0``-``c5``, each reeled by a motor) and three
+    passive ones (the sides ``c6``-``c8``), ``cable_stiffness`` N/m, prestressed by the prism's self-stress at
+    ``cable_tension`` N in the most tensioned cable. The bottom triangle stands on the ground (its end caps
+    touching it, held by ``friction``); the top settles under gravity to where every node is in exact static
+    equilibrium (:func:`_settle_on_face`, the prism's mechanism gives a little).
+    Layout: the 3-strut tensegrity prism (Snelson's simplex; NTRT's ``3Prism.yaml``), the body of the 3-bar
+    robots built with a motor on each rod (e.g. Kim et al., "Rapid prototyping design and control of
+    tensegrity soft robot for locomotion", ROBIO 2014)."""
+    base = prism(strut_length=strut_length, radius=radius, cable_tension=cable_tension,
+                 cable_stiffness=cable_stiffness, strut_radius=strut_radius, name="three_bar")
+    X, _, _, members, kind, k, rest = _parse(base)
+    X[:, 2] += cap_radius   # the bottom triangle's caps on the ground z = 0
+    cable = kind == "cable"
+    node_mass = cap_mass + 0.5 * (rod_mass + motor_mass)   # the weight each end carries (row sums)
+    l, _ = _unit_vectors(X, members)
+    t = member_forces(base)["struts"]
+    face = [0, 1, 2]
+    X = _settle_on_face(X, np.full(len(X), node_mass * gravity), members, cable, k, rest[cable], l[~cable],
+                        np.array(list(t.values())), face)
+    l, _ = _unit_vectors(X, members)
+    if np.any(l[cable] <= rest[cable]):
+        raise RuntimeError("three_bar: a cable is slack at the settled geometry")
+    scene = _scene("three_bar", X, (0.0, 0.0, -gravity), np.full(len(X), node_mass), np.zeros(len(X), bool),
+                   [{"a": a, "b": b, "stiffness": "rigid", "rest_length": l[i], "radius": strut_radius}
+                    for i, (a, b) in enumerate(members[~cable])],
+                   [{"a": a, "b": b, "stiffness": cable_stiffness, "rest_length": rest[cable][i], "radius": 0.003}
+                    for i, (a, b) in enumerate(members[cable])])
+    scene["ground"] = {"height": 0.0, "friction": float(friction), "restitution": 0.0}
+    return _end_caps(scene, cap_mass, cap_radius, payload=motor_mass)
 
 
 def _tower_topology(stages, radius, height, overlap, twist, shift):
@@ -636,6 +711,8 @@ def _forces(scene: dict):
         radius = np.zeros(len(X))
         for (a, b), m in zip(members, (scene.get("struts") or []) + (scene.get("cables") or [])):
             radius[[a, b]] = np.maximum(radius[[a, b]], float(m.get("radius", 0.0)))
+        for p, node in enumerate(scene["nodes"]):   # an end cap of its own replaces its members' radius
+            radius[p] = node.get("radius", radius[p])
         touching = np.flatnonzero(~fixed & (X[:, 2] - radius - scene["ground"].get("height", 0.0) <= 1e-9))
         push = np.zeros((A.shape[0], len(touching)))
         push[3 * free[touching] + 2, np.arange(len(touching))] = 1.0
@@ -694,7 +771,8 @@ def _dump(scene: dict, path: Path, func: str, notes: str) -> None:
 
 
 def write_builtin_scenes(directory: str | Path | None = None) -> dict[str, float]:
-    """(Re)write prism3.yaml, icosahedron.yaml and tower.yaml; returns each file's equilibrium residual (N)."""
+    """(Re)write the built-in scenes (prism3, icosahedron, tower, icosahedron_ground, superball, three_bar);
+    returns each file's equilibrium residual (N)."""
     directory = Path(directory) if directory is not None else Path(__file__).resolve().parent / "scenes"
     directory.mkdir(parents=True, exist_ok=True)
     out = {}
@@ -730,6 +808,24 @@ def write_builtin_scenes(directory: str | Path | None = None) -> dict[str, float
             "The icosahedron resting on its cable face n0 n4 n8 on the ground z = 0 (friction 0.8, plastic),\n"
             "gravity -9.81 m/s^2 along z: ground reactions on n0, n4, n8 balance the weight (206 N); member\n"
             "forces solve equilibrium with them plus the self-stress at a mean cable tension of 80 N.",
+        ),
+        (
+            "superball.yaml",
+            "superball()",
+            superball(),
+            "NTRT's SUPERball layout on the ground (sources: NTRT's resources/YamlStructures/BaseStructures/\n"
+            "SuperBall.yaml; Bruce et al., i-SAIRAS 2014): six rigid rods 1.684 m, each a 2.8 kg uniform tube\n"
+            "with 0.35 kg end caps of radius 0.05 m; 24 actuated cables 613 N/m at a mean tension of 80 N;\n"
+            "resting on the cable triangle n0 n4 n8 (friction 0.99), in exact static equilibrium.",
+        ),
+        (
+            "three_bar.yaml",
+            "three_bar()",
+            three_bar(),
+            "A 3-bar robot standing on its bottom triangle (sources: the 3-strut prism, NTRT's 3Prism.yaml; 3-bar\n"
+            "robots with a motor on each rod, Kim et al., ROBIO 2014): rigid rods 0.6 m of 0.15 kg uniform, a\n"
+            "0.3 kg motor at mid-rod (payload), 0.05 kg end caps of radius 0.03 m; actuated cables c0-c5 (the\n"
+            "triangles), passive c6-c8 (the sides), 2000 N/m, self-stress 100 N in the most tensioned cable.",
         ),
     ]
     for fname, func, scene, notes in specs:

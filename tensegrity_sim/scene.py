@@ -26,6 +26,7 @@ from .checks import describe, read_yaml, real
 __all__ = [
     "SceneError",
     "ClassKWarning",
+    "LumpedMassWarning",
     "Node",
     "Strut",
     "Cable",
@@ -51,6 +52,11 @@ class ClassKWarning(UserWarning):
     """A node carries more than one strut: a class-k structure, not a tensegrity in the strict sense."""
 
 
+class LumpedMassWarning(UserWarning):
+    """A rigid strut's distributed mass is lumped at its ends (row sums) because its consistent mass block cannot
+    stand alone: one of its ends is also another rigid strut's (class-k), or the method lumps masses."""
+
+
 @dataclass(frozen=True)
 class Node:
     name: str
@@ -58,6 +64,7 @@ class Node:
     mass: float  # kg (own lumped mass, without strut masses); 0.0 allowed only for a fixed node
     velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m/s
     fixed: bool = False
+    radius: float | None = None  # m: an end cap of its own (ground contact); None: its members' largest radius
 
 
 @dataclass(frozen=True)
@@ -66,12 +73,31 @@ class Strut:
     nodes: tuple[str, str]
     stiffness: float  # N/m axial (EA/L); math.inf for a rigid strut
     rest_length: float  # m
-    mass: float = 0.0  # kg, lumped half to each end node
+    mass: float = 0.0  # kg, spread along the strut as ``mass_distribution`` says
     radius: float = 0.0  # m
+    mass_distribution: str = "uniform"  # "uniform" along the strut, or "ends" (half at each end node)
+    payloads: tuple[tuple[float, float], ...] = ()  # point masses (at, kg), ``at`` in [0, 1] from the first node
 
     @property
     def rigid(self) -> bool:
         return math.isinf(self.stiffness)
+
+    @property
+    def mass_block(self) -> tuple[float, float, float]:
+        """The strut's consistent mass matrix in its two end nodes' coordinates, ``[[A, B], [B, C]] (x) I3``
+        (physics.md section 4c), as ``(A, B, C)`` kg: ``A = int (1-s)^2 dm``, ``B = int s(1-s) dm``,
+        ``C = int s^2 dm`` over the strut's mass (``s`` from 0 at the first node to 1 at the second): a uniform
+        rod gives ``m/6 [[2, 1], [1, 2]]``, its ends only ``m/2 [[1, 0], [0, 1]]``, a payload ``m_p`` at ``s = a``
+        adds ``m_p [[(1-a)^2, a(1-a)], [a(1-a), a^2]]``. Its row sums are the mass each end carries."""
+        if self.mass_distribution == "uniform":
+            a, b, c = self.mass / 3.0, self.mass / 6.0, self.mass / 3.0
+        else:
+            a, b, c = 0.5 * self.mass, 0.0, 0.5 * self.mass
+        for at, m in self.payloads:
+            a += m * (1.0 - at) ** 2
+            b += m * at * (1.0 - at)
+            c += m * at * at
+        return a, b, c
 
 
 @dataclass(frozen=True)
@@ -204,8 +230,10 @@ def contact_kinds(value: Any, fld: str) -> tuple[str, ...]:
 _TOP_KEYS = {"name", "gravity", "nodes", "struts", "cables", "contact", "ground"}
 _CONTACT_KEYS = {"kinds", "response", "friction", "restitution"}
 _GROUND_KEYS = {"height", "friction", "restitution"}
-_NODE_KEYS = {"name", "position", "mass", "velocity", "fixed"}
-_STRUT_KEYS = {"name", "nodes", "stiffness", "rest_length", "mass", "radius"}
+_NODE_KEYS = {"name", "position", "mass", "velocity", "fixed", "radius"}
+_STRUT_KEYS = {"name", "nodes", "stiffness", "rest_length", "mass", "radius", "mass_distribution", "payloads"}
+_PAYLOAD_KEYS = {"at", "mass"}
+MASS_DISTRIBUTIONS = ("uniform", "ends")
 _CABLE_KEYS = {"name", "nodes", "stiffness", "rest_length", "damping", "radius"}
 
 
@@ -258,13 +286,17 @@ class Scene:
 
     @property
     def masses(self) -> np.ndarray:
-        """Lumped node masses, (N,) kg: each node's own mass plus half of every strut touching it."""
+        """Lumped node masses, (N,) kg: each node's own mass plus its share of every strut touching it (the
+        row sums of the strut's :attr:`Strut.mass_block`: half of a uniform strut's mass, a payload's by the
+        lever rule). They carry the weight, the linear momentum and the total mass exactly; the rotational
+        inertia of a rigid strut is its block's (``System.mass``)."""
         index = {n.name: i for i, n in enumerate(self.nodes)}
         m = np.array([n.mass for n in self.nodes], dtype=float)
         with np.errstate(over="ignore"):  # a sum beyond the float range is refused by from_dict
             for s in self.struts:
-                for end in s.nodes:
-                    m[index[end]] += 0.5 * s.mass
+                a, b, c = s.mass_block
+                m[index[s.nodes[0]]] += a + b
+                m[index[s.nodes[1]]] += b + c
         return m
 
     @property
@@ -274,13 +306,16 @@ class Scene:
 
     @property
     def node_radii(self) -> np.ndarray:
-        """(N,) m: the largest radius of each node's members (0 for a bare node). A node touches the
-        ground at its position minus this radius."""
+        """(N,) m: a node's own ``radius`` (an end cap) where it gives one, else the largest radius of its
+        members (0 for a bare node). A node touches the ground at its position minus this radius."""
         index = {n.name: i for i, n in enumerate(self.nodes)}
         r = np.zeros(len(self.nodes))
         for m in self.struts + self.cables:
             for end in m.nodes:
                 r[index[end]] = max(r[index[end]], m.radius)
+        own = [(i, n.radius) for i, n in enumerate(self.nodes) if n.radius is not None]
+        for i, radius in own:
+            r[i] = radius
         return r
 
     def member_index(self, members: tuple[Strut, ...] | tuple[Cable, ...]) -> np.ndarray:
@@ -358,7 +393,8 @@ class Scene:
                 mass = 0.0
             if fixed and any(velocity):
                 raise ctx.error(where, f"velocity of a fixed node must be zero, got {list(velocity)!r}")
-            nodes.append(Node(name, position, mass, velocity, fixed))
+            radius = _non_negative(ctx, where, "radius", raw["radius"]) if "radius" in raw else None
+            nodes.append(Node(name, position, mass, velocity, fixed, radius))
         return nodes
 
     @staticmethod
@@ -404,16 +440,32 @@ class Scene:
             radius = _non_negative(ctx, where, "radius", raw.get("radius", 0.0))
             if kind == "struts":
                 mass = _non_negative(ctx, where, "mass", raw.get("mass", 0.0))
+                distribution = raw.get("mass_distribution", "uniform")
+                if distribution not in MASS_DISTRIBUTIONS:
+                    raise ctx.error(where, f"mass_distribution must be one of {', '.join(MASS_DISTRIBUTIONS)}, "
+                                           f"got {describe(distribution)}")
+                payloads = Scene._parse_payloads(ctx, where, raw.get("payloads", []))
                 if stiffness == math.inf:
                     if "rest_length" in raw and abs(rest - length) > 1e-9 * length:
                         raise ctx.error(where, f"rest_length of a rigid strut must equal its length {length!r}, "
                                                f"got {rest!r}")
                     rest = length
-                out.append(Strut(name, (ends[0], ends[1]), stiffness, rest, mass, radius))
+                out.append(Strut(name, (ends[0], ends[1]), stiffness, rest, mass, radius, distribution, payloads))
             else:
                 damping = _non_negative(ctx, where, "damping", raw.get("damping", 0.0))
                 out.append(Cable(name, (ends[0], ends[1]), stiffness, rest, damping, radius))
         return out
+
+    @staticmethod
+    def _parse_payloads(ctx: _Context, where: str, raw: Any) -> tuple[tuple[float, float], ...]:
+        if not isinstance(raw, list):
+            raise ctx.error(where, f"payloads must be a list of {{at, mass}} mappings, got {describe(raw)}")
+        out = []
+        for j, item in enumerate(raw):
+            label = f"{where} payloads[{j}]"
+            _check_keys(ctx, label, item, _PAYLOAD_KEYS, _PAYLOAD_KEYS)
+            out.append((_fraction(ctx, label, "at", item["at"]), _non_negative(ctx, label, "mass", item["mass"])))
+        return tuple(out)
 
     def _check_masses(self, ctx: _Context) -> None:
         masses = self.masses
@@ -423,7 +475,7 @@ class Scene:
                                 f"mass must be > 0 for a free node, got {float(masses[i])!r}")
             if not math.isfinite(masses[i]):
                 raise ctx.error(_entry_label("nodes", i, {"name": n.name}),
-                                "its mass plus half of its struts' masses overflows the float range")
+                                "its mass plus its share of its struts' masses overflows the float range")
 
     def _warn_class_k(self) -> None:
         counts: dict[str, int] = {}
@@ -444,15 +496,23 @@ class Scene:
                 d["mass"] = n.mass
             d["velocity"] = list(n.velocity)
             d["fixed"] = n.fixed
+            if n.radius is not None:
+                d["radius"] = n.radius
+            return d
+
+        def strut(s: Strut) -> dict[str, Any]:
+            d: dict[str, Any] = {"name": s.name, "nodes": list(s.nodes), "stiffness": RIGID if s.rigid else s.stiffness,
+                                 "rest_length": s.rest_length, "mass": s.mass, "radius": s.radius,
+                                 "mass_distribution": s.mass_distribution}
+            if s.payloads:
+                d["payloads"] = [{"at": at, "mass": m} for at, m in s.payloads]
             return d
 
         out = {
             "name": self.name,
             "gravity": list(self.gravity),
             "nodes": [node(n) for n in self.nodes],
-            "struts": [{"name": s.name, "nodes": list(s.nodes),
-                        "stiffness": RIGID if s.rigid else s.stiffness, "rest_length": s.rest_length,
-                        "mass": s.mass, "radius": s.radius} for s in self.struts],
+            "struts": [strut(s) for s in self.struts],
             "cables": [{"name": c.name, "nodes": list(c.nodes),
                         **({"stiffness": c.stiffness} if c.stiffness is not None else {}),
                         "rest_length": c.rest_length, "damping": c.damping, "radius": c.radius}
@@ -473,6 +533,13 @@ class Scene:
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+    def to_mjcf(self, **options) -> str:
+        """The scene as a MuJoCo model (MJCF text), so that one robot runs in both engines:
+        :func:`tensegrity_sim.io.mjcf.scene_to_mjcf` (its keyword options and mapping); the mapping back
+        is :func:`tensegrity_sim.load_mjcf`. Needs no MuJoCo to write."""
+        from .io.mjcf import scene_to_mjcf   # io sits around the core: imported only here
+        return scene_to_mjcf(self, **options)
 
 
 # --------------------------------------------------------------------------- loading

@@ -203,6 +203,7 @@ class Simulator:
         self._method, self.method_reason = make_method(self.system, method, self.dt, backend=backend, dtype=dtype,
                                                        solver=solver, order=order, locate_switches=locate_switches,
                                                        reel_speed=reel_speed)
+        self.system = self._method.system   # its mass model (make_method lumps what the method takes no block of)
         # None when nothing can be in contact: then detection costs nothing at all
         # with a contact response, members rest in contact at a gap of ~0: a contact ends beyond TOUCH_TOL
         self._contacts = make_detector(self.system, scene.contact_kinds,
@@ -703,7 +704,7 @@ class Simulator:
     def energy(self) -> dict[str, float]:
         """Energies, J: kinetic, strain (what the method's model stores), gravity (``-sum m g.x``), total."""
         st, sys = self._state, self.system
-        kinetic = 0.5 * float(np.sum(sys.masses[:, None] * st.velocities ** 2 * sys.free[:, None]))
+        kinetic = sys.mass.kinetic_energy(st.velocities)
         strain = self._method.strain_energy(st.positions, st.rest_lengths)
         gravity = -float(np.sum(sys.gravity_force * st.positions))
         return {"kinetic": kinetic, "strain": strain, "gravity": gravity,
@@ -711,7 +712,6 @@ class Simulator:
 
     def momentum(self) -> tuple[np.ndarray, np.ndarray]:
         """Total linear momentum (3,) kg*m/s and angular momentum about the origin (3,) kg*m^2/s,
-        of the free nodes."""
-        st, sys = self._state, self.system
-        p = (sys.masses * sys.free)[:, None] * st.velocities
-        return p.sum(axis=0), np.cross(st.positions, p).sum(axis=0)
+        of the free nodes (``sum M v`` and ``sum x cross M v``: a rigid strut's its whole mass's)."""
+        st = self._state
+        return self.system.mass.momentum(st.positions, st.velocities)

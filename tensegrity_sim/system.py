@@ -14,6 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import eigsh
 
+from .mass import MassOperator
 from .scene import Scene, SceneError
 
 __all__ = ["System", "SPARSE_THRESHOLD"]
@@ -28,8 +29,11 @@ class System:
 
     Attributes (shapes; units):
         n_nodes, n_struts, n_cables, n_members: counts.
-        masses: (N,) kg, lumped. inv_mass: (N,) 1/kg, zero for fixed nodes (they never move).
-        free: (N,) bool. gravity_force: (N, 3) N, ``m g`` on free nodes.
+        mass: the mass matrix ``M`` as an operator (:class:`~tensegrity_sim.mass.MassOperator`: a 2x2 block
+            per rigid strut with its mass spread along it, diagonal elsewhere); apply ``M^-1`` through it.
+        masses: (N,) kg, lumped (``M``'s row sums: weights, linear momentum). inv_mass: (N,) 1/kg, the diagonal
+            of ``M^-1`` (``1 / masses`` where ``M`` has no block), zero for fixed nodes (they never move).
+        free: (N,) bool. gravity_force: (N, 3) N, ``m g`` on free nodes (``m`` the lumped masses).
         ends: (m, 2) int node indices of every member, struts first.
         strut_ends, cable_ends: views into ``ends``.
         stiffness: (m,) N/m; zero for rigid struts (their force is a constraint force).
@@ -39,7 +43,7 @@ class System:
         strut_rest: (n_struts,) m.
     """
 
-    def __init__(self, scene: Scene):
+    def __init__(self, scene: Scene, consistent_mass: bool = True):
         self.scene = scene
         self.n_nodes = len(scene.nodes)
         self.n_struts = len(scene.struts)
@@ -47,8 +51,8 @@ class System:
         self.n_members = self.n_struts + self.n_cables
         self.masses = scene.masses
         self.free = ~scene.fixed
-        with np.errstate(over="ignore"):  # a mass too small for this is refused by max_frequency
-            self.inv_mass = np.where(self.free, 1.0 / np.where(self.free, self.masses, 1.0), 0.0)
+        self.mass = MassOperator(scene, self.free, consistent_mass)
+        self.inv_mass = self.mass.inv_diagonal
         self.gravity_force = (self.masses * self.free)[:, None] * np.asarray(scene.gravity)[None, :]
         self.ends = np.vstack([scene.member_index(scene.struts), scene.member_index(scene.cables)])
         self.strut_ends = self.ends[: self.n_struts]
@@ -62,6 +66,11 @@ class System:
         self.cable_damping = np.array([c.damping for c in scene.cables], dtype=float)
         self.sparse = self.n_nodes * max(self.n_members, 1) > SPARSE_THRESHOLD
         self._incidence = self.incidence_matrix(self.ends)
+
+    def lumped(self) -> "System":
+        """This system with every strut's mass lumped at its ends by row sums (itself if it has no mass block):
+        for a method or a path that takes a diagonal ``M`` only."""
+        return System(self.scene, consistent_mass=False) if self.mass.consistent else self
 
     # ------------------------------------------------------------------ algebra
     def incidence_matrix(self, ends: np.ndarray):

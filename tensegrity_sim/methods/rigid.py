@@ -34,10 +34,12 @@ class RigidStruts:
         self.length_sq = system.strut_rest[idx][moves] ** 2
         self.count = len(self.ends)
         self._system = system
-        self._inv_mass = system.inv_mass[:, None]
+        # M^-1 of a push along a node's own strut: the diagonal less the block's cross entry (mass.py)
+        axial = system.mass.axial_inverse
+        self._inv_mass = axial[:, None]
         self._incidence = system.incidence_matrix(self.ends)      # (N, nr): +1 at a, -1 at b
         inc = np.asarray(self._incidence.todense()) if system.sparse else self._incidence
-        self.w_matrix = inc.T @ (system.inv_mass[:, None] * inc)  # W = S M^-1 S^T, (nr, nr)
+        self.w_matrix = inc.T @ (axial[:, None] * inc)  # W = S M^-1 S^T, (nr, nr)
         self._w = np.diag(self.w_matrix).copy()
         self.coupled = bool(np.any(self.w_matrix - np.diag(self._w)))
 

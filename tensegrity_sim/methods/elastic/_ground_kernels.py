@@ -46,6 +46,7 @@ import numpy as np
 from numba import njit, prange
 
 from ._kernels import _close, _drift, _forces, gather_copy, keep, scatter_copy
+from .._mass_kernels import axial_inverse
 from ..contact._detection_kernels import _closest
 from ..contact._friction_block_kernels import MAX_COUPLED, MAX_ROWS, lone_contact, solve_block, solve_coupled
 
@@ -217,7 +218,7 @@ def _pair_root(parent, pair_nodes, k, inv_mass, node_strut, nr):
     the node alone: ``nr`` + the node)."""
     p = pair_nodes[k, 0]
     for e in range(1, 4):
-        if inv_mass[p] > 0.0:
+        if inv_mass[p, 0] > 0.0:
             break
         p = pair_nodes[k, e]
     return _root(parent, nr + p if node_strut[p] < 0 else node_strut[p])
@@ -250,7 +251,7 @@ def _solve_coupled(v, b, root, armed, target, inv_mass, ends, rigid_members, dir
                 nb += 1
             s += 1
     for p in range(n_nodes):
-        if node_strut[p] < 0 and inv_mass[p] > 0.0 and _root(parent, nr + p) == root:
+        if node_strut[p] < 0 and inv_mass[p, 0] > 0.0 and _root(parent, nr + p) == root:
             if nb == max_nodes:
                 return MEMBERS
             local[p] = nb
@@ -280,7 +281,7 @@ def _solve_coupled(v, b, root, armed, target, inv_mass, ends, rigid_members, dir
     c = 0
     for i in range(nb):
         p = nodes[i]
-        inv_b[i] = inv_mass[p]
+        inv_b[i] = inv_mass[p, 0]
         for j in range(3):
             vel_b[i, j] = v[p, j, b]
         if armed[p]:
@@ -298,7 +299,7 @@ def _solve_coupled(v, b, root, armed, target, inv_mass, ends, rigid_members, dir
         for r in range(3):
             for e in range(4):
                 p = pair_nodes[k, e]
-                if inv_mass[p] > 0.0:
+                if inv_mass[p, 0] > 0.0:
                     for j in range(3):
                         g[row + r, 3 * local[p] + j] = weights[k, e] * frames[k, r, j]
             acc = 0.0
@@ -349,7 +350,7 @@ def _join(n_armed, pair_nodes, inv_mass, node_strut, n_rigid, pairs):
         first = -1
         for e in range(4):
             p = pair_nodes[k, e]
-            if inv_mass[p] > 0.0:
+            if inv_mass[p, 0] > 0.0:
                 body = _root(parent, n_rigid + p if node_strut[p] < 0 else node_strut[p])
                 if first < 0:
                     first = body
@@ -396,15 +397,17 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
         if count == 0:   # RATTLE's projection (_rattle) of this strut alone
             rate = ((v[c, 0, b] - v[a, 0, b]) * n0 + (v[c, 1, b] - v[a, 1, b]) * n1 + (v[c, 2, b] - v[a, 2, b]) * n2)
             s = rate / rigid_w[k, k]
-            v[a, 0, b] += inv_mass[a] * (s * n0)
-            v[a, 1, b] += inv_mass[a] * (s * n1)
-            v[a, 2, b] += inv_mass[a] * (s * n2)
-            v[c, 0, b] -= inv_mass[c] * (s * n0)
-            v[c, 1, b] -= inv_mass[c] * (s * n1)
-            v[c, 2, b] -= inv_mass[c] * (s * n2)
+            wa = axial_inverse(inv_mass, a)
+            wc = axial_inverse(inv_mass, c)
+            v[a, 0, b] += wa * (s * n0)
+            v[a, 1, b] += wa * (s * n1)
+            v[a, 2, b] += wa * (s * n2)
+            v[c, 0, b] -= wc * (s * n0)
+            v[c, 1, b] -= wc * (s * n1)
+            v[c, 2, b] -= wc * (s * n2)
             continue
-        inv2[0] = inv_mass[a]
-        inv2[1] = inv_mass[c]
+        inv2[0] = inv_mass[a, 0]
+        inv2[1] = inv_mass[c, 0]
         vel3[0] = n0
         vel3[1] = n1
         vel3[2] = n2
@@ -430,7 +433,7 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
         if armed[p] and node_strut[p] < 0 and not (n_armed and joined[_root(parent, nr + p)]):
             for j in range(3):
                 vel3[j] = v[p, j, b]
-            lone_contact(inv_mass[p], vel3, target[p], mu, z3)
+            lone_contact(inv_mass[p, 0], vel3, target[p], mu, z3)
             for j in range(3):
                 v[p, j, b] = vel3[j]
                 contact[p, j] += z3[j]
@@ -532,7 +535,7 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
         for j in range(3):
             v[p, j, b] += half * acc[p, j, b]
         gap = x[p, 2, b] - radii[p] - height
-        armed[p] = inv_mass[p] > 0.0 and gap - h * abs(v[p, 2, b]) <= touch_tol
+        armed[p] = inv_mass[p, 0] > 0.0 and gap - h * abs(v[p, 2, b]) <= touch_tol
         # the drift's target lands the node on the ground, capped at the reversal of its start velocity
         # but never letting it sink past touch_tol deep (ContactSet.arm_step's floored)
         target[p] = max(min(-gap / h, -vz0), min(-(gap + touch_tol) / h, 0.0))
@@ -565,7 +568,7 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
             return MEMBERS
     found = False
     for p in range(n_nodes):
-        armed[p] = inv_mass[p] > 0.0 and x[p, 2, b] - radii[p] - height <= touch_tol
+        armed[p] = inv_mass[p, 0] > 0.0 and x[p, 2, b] - radii[p] - height <= touch_tol
         target[p] = restitution * landing[p]
         found = found or armed[p]
     if found or n_armed:

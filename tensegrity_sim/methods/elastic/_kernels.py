@@ -13,7 +13,8 @@ The system (never changes during a run; :func:`model_arrays` builds it from a ``
     floor (m,)                  -inf for struts, 0 for cables: tension ``k max(floor, l - rest)``
     strut_rest (n_struts,) m
     damping (nc,) N*s/m         cable damping (acts while taut, total tension clipped at 0)
-    inv_mass (N,) 1/kg          zero for fixed nodes
+    inv_mass (N, 2) 1/kg        M^-1 (methods/_mass_kernels.py): its diagonal (zero for fixed nodes) and the
+                                cross entry of a rigid strut's 2x2 block where its mass is spread along it
     gravity_force (N, 3) N
     rigid_members (nr,) int64   rows of the moving rigid struts in the member arrays
     rigid_length_sq (nr,) m^2
@@ -46,6 +47,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .._mass_kernels import axial_inverse, solve_forces, solve_forces_copies
 from ..contact._detection_kernels import event_arrays, examine, measure, moved_on, new_events, new_work
 
 __all__ = ["ElasticModel", "model_arrays", "elastic_forces", "elastic_steps", "elastic_steps_copies", "keep", "verlet_step"]
@@ -72,7 +74,7 @@ def model_arrays(system, rigid) -> ElasticModel:
     return ElasticModel(
         np.ascontiguousarray(system.ends, dtype=np.int64), np.ascontiguousarray(system.stiffness, dtype=float),
         np.ascontiguousarray(system.floor, dtype=float), np.ascontiguousarray(system.strut_rest, dtype=float),
-        np.ascontiguousarray(system.cable_damping, dtype=float), np.ascontiguousarray(system.inv_mass, dtype=float),
+        np.ascontiguousarray(system.cable_damping, dtype=float), system.mass.kernel_array,
         np.ascontiguousarray(system.gravity_force, dtype=float),
         np.ascontiguousarray(rigid.members, dtype=np.int64), np.ascontiguousarray(rigid.length_sq, dtype=float),
         np.ascontiguousarray(rigid.w_matrix, dtype=float), bool(rigid.coupled))
@@ -127,9 +129,7 @@ def _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_ma
         acc[c, 0, b] -= t * n0
         acc[c, 1, b] -= t * n1
         acc[c, 2, b] -= t * n2
-    for i in range(n_nodes):
-        for j in range(3):
-            acc[i, j, b] *= inv_mass[i]
+    solve_forces(acc, inv_mass, ends, rigid_members, b)
 
 
 @njit(cache=True, error_model="numpy")
@@ -149,14 +149,15 @@ def elastic_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping,
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _push(node_a, node_b, inv_mass, s, n0, n1, n2, out):
-    """Equal-and-opposite push ``s`` along ``n`` on a strut's ends, scaled by their inverse masses,
-    added to ``out`` (N, 3)."""
-    out[node_a, 0] += inv_mass[node_a] * (s * n0)
-    out[node_a, 1] += inv_mass[node_a] * (s * n1)
-    out[node_a, 2] += inv_mass[node_a] * (s * n2)
-    out[node_b, 0] -= inv_mass[node_b] * (s * n0)
-    out[node_b, 1] -= inv_mass[node_b] * (s * n1)
-    out[node_b, 2] -= inv_mass[node_b] * (s * n2)
+    """Equal-and-opposite push ``s`` along ``n`` on a rigid strut's ends, ``M^-1`` of it, added to ``out`` (N, 3)."""
+    wa = axial_inverse(inv_mass, node_a)
+    wb = axial_inverse(inv_mass, node_b)
+    out[node_a, 0] += wa * (s * n0)
+    out[node_a, 1] += wa * (s * n1)
+    out[node_a, 2] += wa * (s * n2)
+    out[node_b, 0] -= wb * (s * n0)
+    out[node_b, 1] -= wb * (s * n1)
+    out[node_b, 2] -= wb * (s * n2)
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -426,10 +427,7 @@ def _forces_copies(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping,
             acc[c, 2, b] -= t * n2
         if is_rigid:
             rigid_k += 1
-    for i in range(n_nodes):
-        for j in range(3):
-            for b in range(n_copies):
-                acc[i, j, b] *= inv_mass[i]
+    solve_forces_copies(acc, inv_mass, ends, rigid_members)
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -445,8 +443,8 @@ def _pushes_copies(ends, inv_mass, rigid_members, strengths, dirs, out):
         m = rigid_members[k]
         node_a = ends[m, 0]
         node_b = ends[m, 1]
-        wa = inv_mass[node_a]
-        wb = inv_mass[node_b]
+        wa = axial_inverse(inv_mass, node_a)
+        wb = axial_inverse(inv_mass, node_b)
         for j in range(3):
             for b in range(n_copies):
                 push = strengths[k, b] * dirs[k, j, b]

@@ -84,6 +84,13 @@ class ElasticBatch:
             for method in self._copies:
                 method.invalidate()
 
+    def forget(self, copies: np.ndarray) -> None:
+        """:meth:`invalidate`, and the contact warm starts of ``copies`` zeroed: they start again (a new batch's
+        copies start from zero warm starts)."""
+        self.invalidate()
+        if self._warm is not None:
+            self._warm[..., copies] = 0.0
+
     def prepare(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Initial velocities (N, 3, B) without the components that would stretch a rigid strut."""
         if not self.rigid.count:
@@ -116,12 +123,12 @@ class ElasticBatch:
             cables += np.where(cables > 0, sys.cable_damping[:, None] * rate, 0.0)
             np.maximum(cables, 0.0, out=cables)   # a damped cable never pushes
         f = self._assemble(self._incidence, t[:, None, :] * n) + sys.gravity_force[:, :, None] + f_ext
-        return f * sys.inv_mass[:, None, None], t[sys.n_struts:], n, length[sys.n_struts:] < rest_lengths
+        return sys.mass.solve(f), t[sys.n_struts:], n, length[sys.n_struts:] < rest_lengths
 
     def _push(self, strengths, directions):
         """Node displacements (N, 3, B) of equal-and-opposite pushes ``strengths`` (nr, B) along the struts."""
-        return self.system.inv_mass[:, None, None] * self._assemble(self._rigid_incidence,
-                                                                     strengths[:, None, :] * directions)
+        return self.system.mass.axial_inverse[:, None, None] * self._assemble(self._rigid_incidence,
+                                                                              strengths[:, None, :] * directions)
 
     def _shake(self, x_start, x_pred, n0):
         """SHAKE (see :mod:`.rigid`) for every copy: the displacement (N, 3, B) back onto the strut lengths."""

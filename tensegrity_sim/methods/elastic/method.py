@@ -129,6 +129,13 @@ class ElasticMethod(StepMethod):
 
     name = "elastic"
     options = ("order", "locate_switches")
+    mass_blocks_missing = "with a ground or a member contact response"
+
+    @classmethod
+    def takes_mass_blocks(cls, system) -> bool:
+        """In free flight (its kernels and reference apply ``system.mass``); its contact blocks take diagonal
+        masses."""
+        return system.scene.ground is None and not system.scene.contact_response.response
 
     def __init__(self, system: System, dt: float, *, order: int = 2, locate_switches: bool | None = None,
                  compiled: bool = True):
@@ -249,7 +256,7 @@ class ElasticMethod(StepMethod):
         sys = self.system
         f = sys.assemble(t[:, None] * n) + sys.gravity_force + state.external_forces
         e = length[sys.n_struts:] - state.rest_lengths
-        return _Forces(f * sys.inv_mass[:, None], t[sys.n_struts:], n, e < 0, e)
+        return _Forces(sys.mass.solve(f), t[sys.n_struts:], n, e < 0, e)
 
     def _advance(self, state: State, x: np.ndarray, v: np.ndarray, steps: int, every: int, positions, velocities,
                  impulses, slack, contact=None, inputs=_HELD) -> int:

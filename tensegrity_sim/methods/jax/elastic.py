@@ -64,17 +64,20 @@ def _index(values) -> tuple:
     return tuple(tuple(int(i) for i in row) if np.ndim(row) else int(row) for row in np.asarray(values))
 
 
-@_pytree("rigid_members", "rigid_ends")
+@_pytree("rigid_members", "rigid_ends", "mass_partner")
 class ElasticModel:
     """What does not change during a run (a pytree: a gradient may be taken with respect to any array, the
     topology's index tuples being static). ``m`` members (struts first), ``N`` nodes, ``nr`` moving rigid
     struts.
 
     stiffness (m,) N/m (0 for rigid struts), floor (m,) (-inf for struts, 0 for cables), strut_rest (n_struts,) m,
-    damping (nc,) N*s/m, masses (N,) kg, free (N,) 1.0 for a free node and 0.0 for a fixed one, gravity (3,)
-    m/s^2, incidence (N, m) (+1 at a member's first node, -1 at its second), rigid_incidence (N, nr),
-    rigid_length_sq (nr,) m^2; static: rigid_members (nr rows in the member arrays), rigid_ends (nr pairs of node
-    indices); ground: the scene's ground (``ground.GroundModel``) or None."""
+    damping (nc,) N*s/m, masses (N,) kg (lumped: ``M``'s row sums), mass_block (N,) kg (the off-diagonal entry
+    ``B`` of the 2x2 mass block of a node's rigid strut, 0 without one: ``M``'s diagonal is ``masses -
+    mass_block``), free (N,) 1.0 for a free node and 0.0 for a fixed one, gravity (3,) m/s^2, incidence (N, m)
+    (+1 at a member's first node, -1 at its second), rigid_incidence (N, nr), rigid_length_sq (nr,) m^2; static:
+    rigid_members (nr rows in the member arrays), rigid_ends (nr pairs of node indices), mass_partner (N: the
+    other end of a node's block where both move, else the node itself); ground: the scene's ground
+    (``ground.GroundModel``) or None."""
 
     stiffness: jax.Array
     floor: jax.Array
@@ -88,6 +91,8 @@ class ElasticModel:
     rigid_length_sq: jax.Array
     rigid_members: tuple
     rigid_ends: tuple
+    mass_block: jax.Array = None
+    mass_partner: tuple = ()
     ground: object = None   # a ground.GroundModel, or None without a ground
 
 
@@ -129,12 +134,14 @@ def model_arrays(system, rigid, dtype=jnp.float64) -> ElasticModel:
     from .ground import ground_model
 
     rigid_ends = rigid.ends.reshape(-1, 2)
+    mass = system.mass
+    partner = np.where(mass.partner >= 0, mass.partner, np.arange(system.n_nodes))
     return ElasticModel(
         f(system.stiffness), f(system.floor), f(system.strut_rest), f(system.cable_damping), f(system.masses),
         f(system.free.astype(float)), f(np.asarray(system.scene.gravity, dtype=float)),
         f(_incidence(system.ends, len(system.masses))), f(_incidence(rigid_ends, len(system.masses))),
-        f(rigid.length_sq), _index(rigid.members), _index(rigid_ends),
-        ground_model(system, rigid, dtype))
+        f(rigid.length_sq), _index(rigid.members), _index(rigid_ends), f(mass.lumped - mass.diagonal),
+        _index(partner), ground_model(system, rigid, dtype))
 
 
 def _incidence(ends: np.ndarray, n_nodes: int) -> np.ndarray:
@@ -188,14 +195,31 @@ def schedule_inputs(schedules, rest, ext, dtype=jnp.float64) -> Inputs:
 
 
 def _derived(model: ElasticModel):
-    """Inverse masses (N,) 1/kg (0 for fixed nodes), gravity forces (N, 3) N and the rigid struts'
-    ``W_kk = 1/m_a + 1/m_b`` (nr,), from the masses (so that a gradient with respect to them sees all three)."""
+    """``M^-1`` as its diagonal and its blocks' cross entries (N,) 1/kg (0 for fixed nodes; ``mass.MassOperator``),
+    gravity forces (N, 3) N and the rigid struts' ``W_kk`` (nr,) 1/kg (an equal-and-opposite push's: ``1/m_a +
+    1/m_b`` lumped), from the masses (so that a gradient with respect to them sees all of them)."""
     free = model.free > 0
-    inv_mass = jnp.where(free, 1.0 / jnp.where(free, model.masses, 1.0), 0.0)
+    partner = np.asarray(model.mass_partner, dtype=int)
+    blocked = partner != np.arange(len(partner))
+    diagonal = model.masses - model.mass_block
+    cross = jnp.where(blocked, model.mass_block, 0.0)
+    det = jnp.where(blocked, diagonal * diagonal[partner] - cross * cross, diagonal)
+    inv_mass = jnp.where(free, jnp.where(blocked, diagonal[partner], 1.0) / jnp.where(free, det, 1.0), 0.0)
+    inv_cross = jnp.where(free & blocked, -cross / jnp.where(blocked, det, 1.0), 0.0)
     gravity_force = (model.masses * model.free)[:, None] * model.gravity[None, :]
     rigid_ends = np.asarray(model.rigid_ends, dtype=int).reshape(-1, 2)
-    w = inv_mass[rigid_ends[:, 0]] + inv_mass[rigid_ends[:, 1]]
-    return inv_mass, gravity_force, w
+    axial = inv_mass - inv_cross
+    w = axial[rigid_ends[:, 0]] + axial[rigid_ends[:, 1]]
+    return (inv_mass, inv_cross), gravity_force, w
+
+
+def _solve_mass(model: ElasticModel, inverse, f):
+    """``M^-1 f`` for forces ``f`` (N, 3, B) N: ``inverse`` is :func:`_derived`'s first item."""
+    inv_mass, inv_cross = inverse
+    out = inv_mass[:, None, None] * f
+    if any(p != i for i, p in enumerate(model.mass_partner)):   # static: only where the scene has blocks
+        out = out + inv_cross[:, None, None] * f[np.asarray(model.mass_partner, dtype=int)]
+    return out
 
 
 def _dot3(a, b):
@@ -218,7 +242,7 @@ def _differences(incidence, x):
 def _forces(model: ElasticModel, x, v, rest, ext):
     """Accelerations (N, 3, B), cable tensions (nc, B), member unit vectors (m, 3, B) and slack cables (nc, B) at
     ``x`` (damping from ``v``) with rest lengths ``rest`` (nc, B) and external forces ``ext`` (N, 3, B)."""
-    inv_mass, gravity_force, _ = _derived(model)
+    inverse, gravity_force, _ = _derived(model)
     d = _differences(model.incidence, x)
     length = jnp.sqrt(_dot3(d, d))
     n = d / length[:, None]
@@ -231,7 +255,7 @@ def _forces(model: ElasticModel, x, v, rest, ext):
     cables = jnp.maximum(cables, 0.0)   # a damped cable never pushes
     t = jnp.concatenate([t[:ns], cables])
     assembled = _through("nm,mjb->njb", model.incidence, t[:, None] * n)
-    acc = (gravity_force[:, :, None] + ext + assembled) * inv_mass[:, None, None]
+    acc = _solve_mass(model, inverse, gravity_force[:, :, None] + ext + assembled)
     return acc, cables, n, length[ns:] < rest
 
 
@@ -242,10 +266,11 @@ def elastic_forces(model: ElasticModel, x, v, rest, ext):
     return acc, tension, n[np.asarray(model.rigid_members, dtype=int)], slack
 
 
-def _push(model, inv_mass, strengths, dirs):
+def _push(model, inverse, strengths, dirs):
     """Node displacements (or velocity changes) (N, 3, B) of equal-and-opposite pushes ``strengths`` (nr, B)
-    along the rigid struts' ``dirs`` (nr, 3, B), scaled by the inverse masses."""
-    return inv_mass[:, None, None] * _through("nk,kjb->njb", model.rigid_incidence, strengths[:, None] * dirs)
+    along the rigid struts' ``dirs`` (nr, 3, B): ``M^-1`` of them (``inverse`` is :func:`_derived`'s first item)."""
+    axial = inverse[0] - inverse[1]
+    return axial[:, None, None] * _through("nk,kjb->njb", model.rigid_incidence, strengths[:, None] * dirs)
 
 
 def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
@@ -258,7 +283,7 @@ def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
     from .ground import TOUCH_TOL, contact_step, drift_contacts, gaps
 
     x, v, acc, tension, dirs = carry
-    inv_mass, _, w = _derived(model)
+    inverse, _, w = _derived(model)
     half = 0.5 * h
     v_half = v + half * acc
     ground = model.ground
@@ -275,7 +300,7 @@ def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
         q = _dot3(r, r) - model.rigid_length_sq[:, None]
         # SHAKE: the small root of w^2 g^2 - 2 w p g + q = 0, written to avoid cancellation
         gamma = q / (w[:, None] * (p + jnp.sqrt(jnp.maximum(p * p - q, 0.0))))
-        dx = _push(model, inv_mass, gamma, dirs)
+        dx = _push(model, inverse, gamma, dirs)
         x_new = x_new + dx
         v_half = v_half + dx / h
     acc_end, tension_end, n, slack = _forces(model, x_new, v_half, rest, ext)
@@ -285,7 +310,7 @@ def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
         dirs = n[np.asarray(model.rigid_members, dtype=int)]
         # RATTLE: zero every rigid strut's length rate along its end-of-step direction
         rate = _dot3(_differences(model.rigid_incidence, v_new), dirs)
-        v_new = v_new + _push(model, inv_mass, rate / w[:, None], dirs)
+        v_new = v_new + _push(model, inverse, rate / w[:, None], dirs)
     if ground is not None:
         touching = (model.free > 0)[:, None] & (gaps(ground, x_new) <= TOUCH_TOL)
         v_new = contact_step(model, ground, x_new, v_new, touching, ground.restitution * landing_speed)[0]

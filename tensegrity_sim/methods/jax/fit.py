@@ -130,19 +130,27 @@ def parse_parameters(spec: str, scene: Scene, *, reel_speed: float = 0.0) -> lis
 
 def _mass_share(scene: Scene, name: str, nodes: dict, struts: dict) -> np.ndarray:
     """(N,) kg: what the mass ``name`` (none: every mass) adds to each node's lumped mass."""
-    if not name:
-        return scene.masses
-    share = np.zeros(len(scene.nodes))
-    if name in nodes:
-        share[nodes[name]] = scene.nodes[nodes[name]].mass
-    elif name in struts:
-        for end in struts[name].nodes:
-            share[nodes[end]] += 0.5 * struts[name].mass
-    else:
+    if name and name not in nodes and name not in struts:
         raise ValueError(f"--params: 'mass:{name}': no node or strut {name!r} in the scene")
+    share = _scaled(scene, name, 2.0).masses - scene.masses
     if not np.any(share > 0):
         raise ValueError(f"--params: 'mass:{name}': it has no mass in the scene (nothing to scale)")
     return share
+
+
+def _scaled(scene: Scene, name: str, factor: float) -> Scene:
+    """``scene`` with the mass of node or strut ``name`` (a strut's payloads too; none: every mass) times
+    ``factor``."""
+    d = scene.to_dict()
+    for key in ("nodes", "struts"):
+        for item in d.get(key) or []:
+            if name and item["name"] != name:
+                continue
+            if "mass" in item:
+                item["mass"] = float(item["mass"]) * factor
+            for payload in item.get("payloads") or []:
+                payload["mass"] = float(payload["mass"]) * factor
+    return Scene.from_dict(d, source=scene.source)
 
 
 @dataclass(frozen=True)
@@ -151,8 +159,8 @@ class FitResult:
     cables: the mean over it; a mass: its total); rms_start, rms_fitted: the observation residual's root mean
     square, m; noise: the pose noise estimated from it, m; scene: the scene with the fitted values; window: grid
     intervals per window, windows, every: steps of ``dt`` s per grid interval; grid_steps (G,), observed
-    (G, N, 3) (NaN where no pose), before, after (G, N, 3): the windows' simulated positions at the start and at the optimum;
-    evaluations: runs of the model; message: the solver's; reel_speed: the fitted one (m/s, 0: none)."""
+    (G, N, 3) (NaN where no pose), before, after (G, N, 3): the windows' simulated positions at the start and at
+    the optimum; evaluations: runs of the model; message: the solver's; reel_speed: the fitted one (m/s, 0: none)."""
 
     unknowns: list[Unknown]
     start: np.ndarray
@@ -244,6 +252,14 @@ class _Problem:
         # the commands, handed to the compiled runs as arguments (as constants XLA would fold them, slowly)
         self.data = (jnp.asarray(self.rest_fixed), jnp.asarray(self.forces), jnp.asarray(obs.rest))
         # the unknowns: factors on their start values (an unknown starting at 0: its value)
+        # a mass unknown's share of the model's lumped masses and mass blocks (both linear in the masses)
+        self.mass_shares = {}
+        for u in unknowns:
+            if u.kind == "mass":
+                doubled = System(_scaled(scene, u.name.partition(":")[2], 2.0))
+                other = model_arrays(doubled, RigidStruts(doubled))
+                self.mass_shares[u.name] = (other.masses - self.model.masses,
+                                            other.mass_block - self.model.mass_block)
         self.base = [self._base_value(u) for u in unknowns]
         self.factor = [bool(b > 0) for b in self.base]
         self.p0 = np.array([1.0 if f else 0.0 for f in self.factor])
@@ -279,7 +295,9 @@ class _Problem:
                 idx = np.array(u.cables)
                 m = m._replace(damping=m.damping.at[idx].set(self.model.damping[idx] * value if f else value))
             elif u.kind == "mass":
-                masses = masses + (value - 1.0) * jnp.asarray(u.masses)
+                lumped, block = self.mass_shares[u.name]
+                masses = masses + (value - 1.0) * lumped
+                m = m._replace(mass_block=m.mass_block + (value - 1.0) * block)
             elif u.kind in ("friction", "restitution"):
                 base = getattr(self.model.ground, u.kind)
                 m = m._replace(ground=m.ground._replace(**{u.kind: base * value if f else value}))
@@ -551,6 +569,7 @@ def _fitted_scene(scene: Scene, unknowns: list[Unknown], problem: _Problem, p) -
     d = scene.to_dict()
     m = problem.model_of(jnp.asarray(p))
     ns = problem.ns
+    masses = []   # (name, factor) of the fitted masses, applied last
     for u, value in zip(unknowns, p):
         if u.kind == "stiffness":
             for i in u.cables:
@@ -559,11 +578,10 @@ def _fitted_scene(scene: Scene, unknowns: list[Unknown], problem: _Problem, p) -
             for i in u.cables:
                 d["cables"][i]["damping"] = float(m.damping[i])
         elif u.kind == "mass":
-            name = u.name.partition(":")[2]
-            for key in ("nodes", "struts"):
-                for item in d[key]:
-                    if "mass" in item and (not name or item["name"] == name):
-                        item["mass"] = float(item["mass"]) * float(value)
+            masses.append((u.name.partition(":")[2], float(value)))
         elif u.kind in ("friction", "restitution"):
             d["ground"][u.kind] = float(getattr(m.ground, u.kind))
-    return Scene.from_dict(d, source=f"{scene.source} (fitted)")
+    fitted = Scene.from_dict(d, source=f"{scene.source} (fitted)")
+    for name, factor in masses:
+        fitted = _scaled(fitted, name, factor)
+    return fitted

@@ -1,0 +1,133 @@
+"""Environment steps per second: ``tensegrity_sim/Roll-v0``'s vector environment against Gymnasium's MuJoCo
+environment of the same robot (issue 50).
+
+Contenders, each stepping random actions in [-1, 1] (one control period of 20 ms = 20 steps of 1 ms each):
+
+* ``vector``: :class:`~tensegrity_sim.envs.RollVectorEnv` of ``--copies`` copies (one compiled call a period);
+* ``single``: one :class:`~tensegrity_sim.envs.RollEnv`, stepped one by one;
+* ``mujoco``: a Gymnasium ``MujocoEnv`` of the scene's MJCF (``bench/mujoco_peer.py``: a free body per rigid
+  strut, a tendon per cable, the ground a plane, the struts capsules on it; Euler integrator, MuJoCo's
+  cheapest), stepped one by one. An action's targets are reeled toward at 1 m/s as ours are: each of the
+  period's 20 steps (``frame_skip``) moves the tendons' spring lengths (``tendon_lengthspring``) and steps;
+* ``mujoco_sync``: Gymnasium's ``SyncVectorEnv`` of ``--copies`` of them.
+
+Rates are environment steps (control periods) per second of wall time, best of ``--repeats`` turns after a
+warm-up; ``ratio``: the vector environment's rate over each contender's. CSV: ``bench/results/envs.csv``.
+
+    python3 bench/bench_envs.py --copies 256 --periods 20
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import gymnasium as gym  # noqa: E402
+from gymnasium.envs.mujoco.mujoco_env import MujocoEnv  # noqa: E402
+
+import tensegrity_sim as ts  # noqa: E402
+from bench.mujoco_peer import MujocoPeer  # noqa: E402
+from bench.tables import write_csv  # noqa: E402
+from tensegrity_sim.envs import RollEnv, RollVectorEnv  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+class MujocoRoll(MujocoEnv):
+    """The roll task's robot in MuJoCo through Gymnasium's ``MujocoEnv``: an action in [-1, 1] per cable is a
+    spring-length target between 0.5 and 1.0 of the scene's rest length, reeled toward at 1 m/s step by step as
+    ours is (setting it at once makes MuJoCo's Euler step go unstable within 0.1 s); observation qpos and qvel;
+    reward the bodies' mean x progress."""
+
+    metadata = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"], "render_fps": 50}
+
+    def __init__(self, xml_path: str, rest: np.ndarray, **kwargs):
+        import mujoco
+
+        model = mujoco.MjModel.from_xml_path(xml_path)
+        size = model.nq + model.nv
+        super().__init__(xml_path, 20, gym.spaces.Box(-np.inf, np.inf, (size,), np.float64), **kwargs)
+        self.rest = rest
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (len(rest),), np.float64)
+        self.reach = 1.0 * self.model.opt.timestep   # m of rest length a step (the motors' 1 m/s)
+
+    def _set_action_space(self):   # MujocoEnv's from the actuators: this model has none; set in __init__
+        return None
+
+    def step(self, action):
+        before = self.data.xpos[1:, 0].mean()
+        target = self.rest * (0.75 + 0.25 * np.asarray(action))
+        spring = self.model.tendon_lengthspring
+        for _ in range(self.frame_skip):
+            spring[:, 1] += np.clip(target - spring[:, 1], -self.reach, self.reach)
+            self.do_simulation(np.zeros(0), 1)
+        obs = np.concatenate([self.data.qpos, self.data.qvel])
+        return obs, float(self.data.xpos[1:, 0].mean() - before), False, False, {}
+
+    def reset_model(self):
+        self.model.tendon_lengthspring[:, 1] = self.rest
+        self.set_state(self.init_qpos, self.init_qvel)
+        return np.concatenate([self.data.qpos, self.data.qvel])
+
+
+def _rate(step, periods: int, copies: int, repeats: int) -> float:
+    """Environment steps per second: ``step()`` (``copies`` environment steps each) ``periods`` times."""
+    step()   # warm-up (compiling)
+    best = np.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(periods):
+            step()
+        best = min(best, time.perf_counter() - start)
+    return periods * copies / best
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--copies", type=int, default=256)
+    parser.add_argument("--periods", type=int, default=20, help="control periods per timed turn")
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args(argv)
+    scene = ts.load_scene("icosahedron_ground")
+    rng = np.random.default_rng(0)
+    na = len(scene.cables)
+    rows = []
+
+    vec = RollVectorEnv(args.copies)
+    vec.reset(seed=0)
+    rows.append(("vector", args.copies, _rate(lambda: vec.step(rng.uniform(-1, 1, (args.copies, na))),
+                                              args.periods, args.copies, args.repeats)))
+    single = RollEnv()
+    single.reset(seed=0)
+    rows.append(("single", 1, _rate(lambda: single.step(rng.uniform(-1, 1, na)), args.periods, 1, args.repeats)))
+
+    peer = MujocoPeer(scene, model="elastic", dt=1e-3, integrator="Euler")
+    with tempfile.TemporaryDirectory() as tmp:
+        xml = Path(tmp) / "icosahedron_ground.xml"
+        xml.write_text(peer.xml)
+        rest = scene.cable_rest_lengths
+        env = MujocoRoll(str(xml), rest)
+        env.reset(seed=0)
+        rows.append(("mujoco", 1, _rate(lambda: env.step(rng.uniform(-1, 1, na)), args.periods, 1, args.repeats)))
+        sync = gym.vector.SyncVectorEnv([lambda: MujocoRoll(str(xml), rest) for _ in range(args.copies)])
+        sync.reset(seed=0)
+        rows.append(("mujoco_sync", args.copies,
+                     _rate(lambda: sync.step(rng.uniform(-1, 1, (args.copies, na))), max(1, args.periods // 4),
+                           args.copies, args.repeats)))
+    ours = rows[0][2]
+    out = [{"contender": name, "copies": copies, "env_steps_per_s": float(rate), "ratio": float(ours / rate)}
+           for name, copies, rate in rows]
+    for row in out:
+        print(f"{row['contender']:<12} {row['copies']:>5} copies {row['env_steps_per_s']:>12.1f} env-steps/s   "
+              f"vector / this: {row['ratio']:.2f}")
+    write_csv(RESULTS / "envs.csv", out)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,84 @@
+"""What a rod's true inertia costs (issue 46): the thrown icosahedron (``bench.cases.icosahedron_thrown``: rigid
+struts, snapping cables, no gravity) with each strut's 3.5 kg spread along it (``mass_distribution: uniform``, the
+consistent 2x2 block per strut that ``methods/_mass_kernels.py`` applies) beside the same scene with that mass
+at its ends (``ends``: the diagonal mass matrix every path took before), elastic method, dt = 1 ms, in one process
+taking turns (``bench.timing.time_alternating``): ``run()`` (the compiled loop), ``step()`` one at a time, and a
+batch of 1,024 copies. Prints the per-step times and their ratios, writes ``bench/results/mass.csv``. Never asserts
+a time.
+
+    python3 bench/bench_mass.py [--repeats 5]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import tensegrity_sim as ts  # noqa: E402
+from bench.cases import icosahedron_thrown  # noqa: E402
+from bench.tables import RESULTS, write_csv  # noqa: E402
+from bench.timing import SETTLE, time_alternating  # noqa: E402
+from tensegrity_sim.batch import BatchSimulator  # noqa: E402
+
+STRUT_MASS = 3.5   # kg: the built-in icosahedron's struts, which it carries as 1.75 kg on each end node
+BATCH = 1024
+
+
+def scene(distribution: str) -> ts.Scene:
+    """The thrown icosahedron with its strut mass on the struts (``distribution``) and 0.05 kg end caps."""
+    d = icosahedron_thrown(scale=2.0, seed=1).to_dict()
+    for node in d["nodes"]:
+        node["mass"] = 0.05
+    for strut in d["struts"]:
+        strut["mass"], strut["mass_distribution"] = STRUT_MASS, distribution
+    return ts.Scene.from_dict(d)
+
+
+def contenders(kind: str, distribution: str):
+    """``(run(n), reset())`` of one way of stepping the scene."""
+    sc = scene(distribution)
+    if kind == "batch":
+        holder = {}
+
+        def reset():
+            holder["sim"] = BatchSimulator(sc, BATCH, method="elastic", dt=1e-3)
+
+        return (lambda n: holder["sim"].run(steps=n, every=n)), reset
+    holder = {}
+
+    def reset_one():
+        holder["sim"] = ts.Simulator(sc, method="elastic", dt=1e-3)
+
+    if kind == "run":
+        return (lambda n: holder["sim"].run(steps=n, every=n)), reset_one
+
+    def steps(n):
+        sim = holder["sim"]
+        for _ in range(n):
+            sim.step()
+
+    return steps, reset_one
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args(argv)
+    rows = []
+    for kind in ("run", "step", "batch"):
+        timings = time_alternating({dist: contenders(kind, dist) for dist in ("ends", "uniform")},
+                                   repeats=args.repeats, settle=SETTLE)
+        per_copy = BATCH if kind == "batch" else 1
+        lumped, block = timings["ends"].best / per_copy, timings["uniform"].best / per_copy
+        rows.append({"case": "icosahedron_thrown", "path": kind, "copies": per_copy,
+                     "lumped_us": lumped * 1e6, "consistent_us": block * 1e6, "ratio": block / lumped})
+        print(f"{kind:>5}: lumped (ends) {lumped * 1e6:8.3f} us/step, consistent (uniform) {block * 1e6:8.3f} "
+              f"us/step{' per copy' if per_copy > 1 else ''}: {block / lumped:.3f}x")
+    write_csv(RESULTS / "mass.csv", rows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

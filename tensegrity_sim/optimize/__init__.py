@@ -1,0 +1,1 @@
+"""Optimising what moves a robot (the ``learn`` extra: CMA-ES; the ``jax`` extra: gradients): :mod:`.gait`."""

@@ -1,0 +1,230 @@
+"""Rods with their true inertia (issue 46, physics.md section 4c): a rigid strut's mass spread along it is its
+consistent 2x2 mass block in its end nodes' coordinates.
+
+Closed forms, each of which fails when the rod's mass is lumped half at each end: a uniform rod spinning end over
+end has ``I = m L^2 / 12`` (lumped: ``m L^2 / 4``), a payload puts the centre of mass and the inertia where the
+integrals say, a rod pinned at one end swings with the physical pendulum's period ``2 pi sqrt(2 L / 3 g)``
+(lumped: ``2 pi sqrt(L / g)``). Every path that applies the blocks (the elastic method's numpy reference, its
+compiled step and loop, the batch and the JAX backend) is held to them and to each other.
+"""
+import math
+import os
+import warnings
+
+import numpy as np
+import pytest
+
+import tensegrity_sim as ts
+from tensegrity_sim.batch import BatchSimulator
+from tensegrity_sim.mass import MassOperator
+from tensegrity_sim.scene import LumpedMassWarning
+from tensegrity_sim.system import System
+
+HAVE_JAX = os.environ.get("TENSEGRITY_SIM_REQUIRE_JAX") == "1"
+if not HAVE_JAX:
+    try:
+        import jax  # noqa: F401
+        HAVE_JAX = True
+    except ImportError:
+        pass
+PATHS = ["reference", "compiled", "run", "batch"] + (["jax"] if HAVE_JAX else [])
+
+L, M = 1.2, 2.0   # m, kg
+
+
+def rod(*, distribution="uniform", payloads=(), fixed_first=False, gravity=(0.0, 0.0, 0.0), velocities=None,
+        ground=None, angle=0.0):
+    """One rigid rod of length L along x (tilted down by ``angle`` about y) from node a at the origin."""
+    b = [L * math.cos(angle), 0.0, -L * math.sin(angle)]
+    nodes = [{"name": "a", "position": [0.0, 0.0, 0.0]}, {"name": "b", "position": b}]
+    if fixed_first:
+        nodes[0]["fixed"] = True
+    if velocities is not None:
+        for node, vel in zip(nodes, velocities):
+            node["velocity"] = list(vel)
+    d = {"name": "rod", "gravity": list(gravity), "nodes": nodes,
+         "struts": [{"name": "s", "nodes": ["a", "b"], "stiffness": "rigid", "mass": M,
+                     "mass_distribution": distribution, "payloads": [{"at": at, "mass": m} for at, m in payloads]}]}
+    if ground is not None:
+        d["ground"] = ground
+    return ts.Scene.from_dict(d)
+
+
+def simulate(scene, path, steps, dt):
+    """Positions (K, N, 3) and velocities after each step, and the final momentum/energy, along ``path``."""
+    if path == "batch":
+        batch = BatchSimulator(scene, 2, method="elastic", dt=dt)
+        traj = batch.run(steps=steps)
+        return traj.positions[0], traj.velocities[0], None
+    sim = ts.Simulator(scene, method="elastic", dt=dt, backend="jax" if path == "jax" else "numba")
+    if path == "reference":
+        sim._method.compiled = False
+    if path in ("run", "jax"):
+        traj = sim.run(steps=steps)
+        return traj.positions, traj.velocities, sim
+    rows = [sim.step() for _ in range(steps)]
+    return np.array([r.positions for r in rows]), np.array([r.velocities for r in rows]), sim
+
+
+def rod_angular_momentum(x, v, payloads, distribution, about):
+    """The rod's angular momentum about ``about`` (3,), integrated along it: the uniform part by 2-point Gauss
+    quadrature (exact for the quadratic integrand), ``ends`` as two point masses, each payload as a point."""
+    points = []
+    if distribution == "uniform":
+        for s in (0.5 - 0.5 / math.sqrt(3.0), 0.5 + 0.5 / math.sqrt(3.0)):
+            points.append((s, 0.5 * M))
+    else:
+        points += [(0.0, 0.5 * M), (1.0, 0.5 * M)]
+    points += list(payloads)
+    total = np.zeros(3)
+    for s, m in points:
+        r = (1 - s) * x[0] + s * x[1] - about
+        u = (1 - s) * v[0] + s * v[1]
+        total += m * np.cross(r, u)
+    return total
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_a_free_uniform_rod_spins_end_over_end_with_a_twelfth_of_m_l_squared(path):
+    omega, drift = 3.0, np.array([0.2, -0.1, 0.3])   # rad/s about z, m/s of the centre
+    half = 0.5 * L * omega
+    scene = rod(velocities=[drift - [0.0, half, 0.0], drift + [0.0, half, 0.0]])
+    x, v, sim = simulate(scene, path, 400, 1e-3)
+    centre = 0.5 * (x[:, 0] + x[:, 1])
+    np.testing.assert_allclose(centre[-1], 0.5 * np.array([L, 0, 0]) + 0.4 * drift, rtol=0, atol=1e-12)
+    for k in (0, 199, 399):
+        spin = rod_angular_momentum(x[k], v[k], (), "uniform", centre[k])
+        np.testing.assert_allclose(spin, [0.0, 0.0, M * L * L / 12.0 * omega], rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(np.linalg.norm(x[k, 1] - x[k, 0]), L, rtol=1e-14)
+    # the rod turns at omega: the angle after 0.4 s, to RATTLE's second order ((omega dt)^2 relative)
+    d = x[-1, 1] - x[-1, 0]
+    assert abs(math.atan2(d[1], d[0]) - 0.4 * omega) <= (omega * 1e-3) ** 2 * 0.4 * omega
+    if sim is not None:
+        linear, angular = sim.momentum()
+        np.testing.assert_allclose(linear, M * drift, rtol=1e-12)
+        expected = M * np.cross(centre[-1], drift) + [0.0, 0.0, M * L * L / 12.0 * omega]
+        np.testing.assert_allclose(angular, expected, rtol=1e-12, atol=1e-14)
+        kinetic = 0.5 * M * drift @ drift + 0.5 * M * L * L / 12.0 * omega ** 2
+        assert math.isclose(sim.energy()["kinetic"], kinetic, rel_tol=1e-12)
+
+
+@pytest.mark.parametrize("distribution", ["uniform", "ends"])
+def test_a_payload_puts_the_centre_of_mass_and_the_inertia_where_the_integrals_say(distribution):
+    payloads = ((0.8, 1.5), (0.25, 0.4))
+    scene = rod(distribution=distribution, payloads=payloads)
+    op = System(scene).mass
+    shares = [(0.5, M)] if distribution == "uniform" else [(0.0, 0.5 * M), (1.0, 0.5 * M)]
+    total = M + sum(m for _, m in payloads)
+    first = sum(s * m for s, m in shares + list(payloads))
+    second = sum(s * s * m for s, m in list(payloads) + ([] if distribution == "uniform" else [(1.0, 0.5 * M)]))
+    second += M / 3.0 if distribution == "uniform" else 0.0
+    centre = first / total                       # along the rod, from node a
+    inertia = (second - total * centre ** 2) * L * L   # about the centre, normal to the rod
+    np.testing.assert_allclose(op.lumped.sum(), total, rtol=1e-15)
+    np.testing.assert_allclose(op.lumped[1] / total, centre, rtol=1e-14)   # the lever rule: the weight's shares
+    # a rotation about the centre at omega: linear momentum 0, angular I omega, energy I omega^2 / 2
+    omega = 2.0
+    v = np.array([[0.0, -centre * L * omega, 0.0], [0.0, (1 - centre) * L * omega, 0.0]])
+    x = np.array([[0.0, 0.0, 0.0], [L, 0.0, 0.0]])
+    linear, angular = op.momentum(x - [centre * L, 0.0, 0.0], v)
+    np.testing.assert_allclose(linear, 0.0, atol=1e-14)
+    np.testing.assert_allclose(angular, [0.0, 0.0, inertia * omega], rtol=1e-13)
+    assert math.isclose(op.kinetic_energy(v), 0.5 * inertia * omega ** 2, rel_tol=1e-13)
+    np.testing.assert_allclose(angular, rod_angular_momentum(x - [centre * L, 0, 0], v, payloads, distribution,
+                                                             np.zeros(3)), rtol=1e-13)
+    # M^-1 undoes M
+    f = np.array([[0.3, -1.0, 2.0], [1.5, 0.2, -0.7]])
+    np.testing.assert_allclose(op.apply(op.solve(f)), f, rtol=1e-14, atol=1e-15)
+
+
+def test_the_ends_distribution_keeps_the_old_lumped_meaning():
+    lumped = rod(distribution="ends")
+    op = System(lumped).mass
+    assert not op.consistent
+    np.testing.assert_array_equal(op.inv_diagonal, [1.0 / (0.5 * M), 1.0 / (0.5 * M)])
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_a_rod_pinned_at_one_end_swings_with_the_physical_pendulums_period(path):
+    g, theta0, dt = 9.81, 0.02, 2e-4
+    scene = rod(fixed_first=True, gravity=(0.0, 0.0, -g), angle=math.pi / 2 - theta0)   # hanging, 0.02 rad out
+    period = 2 * math.pi * math.sqrt(2 * L / (3 * g)) * (1 + theta0 ** 2 / 16)   # small-angle series
+    steps = int(2.2 * period / dt)
+    x, _, _ = simulate(scene, path, steps, dt)
+    sway = x[:, 1, 0]
+    up = np.flatnonzero((sway[:-1] > 0) & (sway[1:] <= 0))   # downward zero crossings, interpolated
+    times = (up + sway[up] / (sway[up] - sway[up + 1]) + 1) * dt
+    measured = times[1] - times[0]
+    assert abs(measured - period) / period < 2e-5, (measured, period)   # lumped: 2 pi sqrt(L/g), 22 % longer
+
+
+def blocked_icosahedron():
+    """The built-in icosahedron thrown and spun, its struts' mass spread along them and end caps on the nodes."""
+    d = ts.load_scene("icosahedron").to_dict()
+    rng = np.random.default_rng(7)
+    for node in d["nodes"]:
+        node["mass"] = 0.25
+        node["velocity"] = list(rng.normal(0.0, 1.5, 3))
+    for i, s in enumerate(d["struts"]):
+        s["mass"] = 3.0
+        s["payloads"] = [{"at": 0.3 + 0.1 * i, "mass": 0.5}]
+    return ts.Scene.from_dict(d)
+
+
+@pytest.mark.parametrize("path", ["compiled", "run", "batch"] + (["jax"] if HAVE_JAX else []))
+def test_the_fast_paths_apply_the_blocks_as_the_numpy_reference_does(path):
+    scene = blocked_icosahedron()
+    assert System(scene).mass.consistent
+    x_ref, v_ref, ref = simulate(scene, "reference", 300, 1e-3)
+    x, v, _ = simulate(scene, path, 300, 1e-3)
+    scale = max(1.0, float(np.max(np.abs(v_ref))))
+    assert np.max(np.abs(x - x_ref)) <= 1e-12 * max(1.0, float(np.max(np.abs(x_ref))))
+    assert np.max(np.abs(v - v_ref)) <= 1e-12 * scale
+    # momentum through 300 steps of snapping cables, to round-off
+    start = ts.Simulator(scene, method="elastic", dt=1e-3).momentum()
+    end = ref.momentum()
+    np.testing.assert_allclose(end[0], start[0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(end[1], start[1], rtol=0, atol=1e-12)
+
+
+def test_paths_without_blocks_lump_the_struts_and_say_so():
+    scene = rod(ground={"friction": 0.5}, gravity=(0.0, 0.0, -9.81), angle=0.0)
+    with pytest.warns(LumpedMassWarning, match=r"the elastic method with a ground or a member contact response "
+                                               r"takes no rigid strut's mass spread along it: struts \['s'\]"):
+        sim = ts.Simulator(scene, method="elastic", dt=1e-3)
+    assert not sim.system.mass.consistent
+    np.testing.assert_array_equal(sim.system.inv_mass, [1.0 / (0.5 * M)] * 2)
+    with pytest.warns(LumpedMassWarning, match="the inextensible method takes no"):
+        ts.Simulator(rod(), method="inextensible", dt=1e-3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ts.Simulator(rod(distribution="ends", ground={"friction": 0.5}), method="elastic", dt=1e-3)
+
+
+def test_a_class_k_joint_lumps_the_struts_that_share_it():
+    d = {"name": "vee", "nodes": [{"name": "a", "position": [0, 0, 0]}, {"name": "b", "position": [1, 0, 0]},
+                                  {"name": "c", "position": [0, 1, 0]}],
+         "struts": [{"name": "s0", "nodes": ["a", "b"], "stiffness": "rigid", "mass": 1.0},
+                    {"name": "s1", "nodes": ["a", "c"], "stiffness": "rigid", "mass": 1.0}]}
+    with pytest.warns(UserWarning) as caught:
+        scene = ts.Scene.from_dict(d)
+        op = MassOperator(scene, np.ones(3, dtype=bool))
+    assert any(issubclass(w.category, LumpedMassWarning) and "['s0', 's1']" in str(w.message) for w in caught)
+    assert not op.consistent
+    np.testing.assert_array_equal(op.lumped, [1.0, 0.5, 0.5])
+
+
+@pytest.mark.parametrize("method", ["elastic", "inextensible"])
+def test_an_end_cap_radius_sets_where_a_node_touches_the_ground(method):
+    d = rod(ground={"friction": 0.3}, gravity=(0.0, 0.0, -9.81), distribution="ends").to_dict()
+    d["struts"][0]["radius"] = 0.01
+    d["nodes"][0]["radius"] = 0.05    # an end cap at a, none at b: b rests on the strut's own radius
+    d["nodes"][0]["position"] = [0.0, 0.0, 0.06]
+    d["nodes"][1]["position"][2] = 0.03
+    del d["struts"][0]["rest_length"]
+    scene = ts.Scene.from_dict(d)
+    np.testing.assert_array_equal(scene.node_radii, [0.05, 0.01])
+    assert ts.Scene.from_dict(scene.to_dict()) == scene
+    sim = ts.Simulator(scene, method=method, dt=1e-3)
+    sim.run(duration=1.0)
+    np.testing.assert_allclose(sim.positions[:, 2], [0.05, 0.01], rtol=0, atol=1e-6)
