@@ -36,5 +36,15 @@ __all__ = [
     "LengthOffsetWarning", "NonFiniteError", "QPError", "StepError", "SOLVERS", "StepResult", "Strut", "Trajectory",
     "SpeedError", "builtin_scenes",
     "load_scene", "__version__",
-    "ActiveContact", "BatchSimulator", "AccuracyChoice", "choose_accuracy", "load_mjcf", "load_ntrt",
+    "ActiveContact", "BatchSimulator", "AccuracyChoice", "choose_accuracy", "load_mjcf", "load_ntrt", "fit",
 ]
+
+
+def fit(log, params: str, **options):
+    """Fit scene parameters to a logged run by multiple shooting (``tensegrity-sim fit``; needs the jax extra):
+    ``tensegrity_sim.ros.fit_log.fit_log``'s arguments (``scene``, ``window``, ``loss``, ``loss_scale``, ``out``,
+    ``plot``). Returns the ``FitResult`` (start, fitted and sigma per parameter, the fitted scene, the estimated
+    pose noise, the trajectories before and after)."""
+    from .ros.fit_log import fit_log   # imported here: the core needs neither MCAP nor JAX
+
+    return fit_log(log, params, **options)

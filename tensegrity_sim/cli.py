@@ -317,45 +317,22 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 def _cmd_fit(args: argparse.Namespace) -> int:
     try:
-        from .methods.jax.fit import KINDS, fit_positions, parse_parameters   # imports JAX (the jax extra)
+        from .methods.jax.fit import LOSSES   # imports JAX (the jax extra)
     except ImportError as exc:   # a missing JAX: the message names the extra
         raise ValueError(str(exc)) from None
-    from .ros.log_reader import LogReader
-    from .ros.record import read_log
-    from .ros.replay import _run_info
+    from .ros.fit_log import fit_log, table
 
-    record = read_log(args.log)
-    with LogReader(args.log) as reader:   # the fit replays the logged run with its inputs held
-        topics = json.loads(_run_info(reader, Path(args.log))["topics"])
-        inputs = {topics["cable_rest_lengths"], topics["external_wrench"]}
-        commanded = sum(m.topic in inputs for m in reader.messages())
-    if commanded:
-        raise ValueError(f"{args.log}: the run was commanded ({commanded} rest-length or wrench messages); fit "
-                         f"replays runs with their inputs held")
-    scene = record.scene
-    if args.scene is not None:   # the start values of the fitted parameters from another scene of the structure
-        guess = load_scene(args.scene)
-        if guess.node_names != scene.node_names or guess.cable_names != scene.cable_names:
-            raise ValueError(f"--scene {args.scene}: its nodes and cables are not the logged scene's")
-        d = scene.to_dict()
-        for item, other in zip(d["cables"], guess.to_dict()["cables"]):
-            item["stiffness"], item["damping"] = other.get("stiffness"), other.get("damping", 0.0)
-        for key in ("nodes", "struts"):
-            for item, other in zip(d[key], guess.to_dict()[key]):
-                if "mass" in other:
-                    item["mass"] = other["mass"]
-        scene = Scene.from_dict(d, source=scene.source)
-    unknowns = parse_parameters(args.params, scene)
-    steps = np.rint(record.times / record.dt).astype(np.int64)
-    result = fit_positions(scene, record.dt, steps, record.positions, unknowns)
+    if args.loss not in LOSSES:
+        raise ValueError(f"--loss: one of {', '.join(LOSSES)}, got {args.loss!r}")
     out = Path(args.out) if args.out else Path(args.log).with_name(Path(args.log).stem + "_fit.yaml")
-    out.write_text(result.scene.to_yaml())
-    print(f"log              {args.log} ({len(steps)} node_poses, {steps[-1]} steps of {record.dt:g} s)")
-    for u, a, b in zip(result.unknowns, result.start, result.fitted):
-        print(f"{u.name:<16} {a:.10g} -> {b:.10g} {KINDS[u.kind]}" + (" (mean)" if u.kind == "mass" else ""))
-    print(f"residual (rms)   {result.rms_start:.6g} m -> {result.rms_fitted:.6g} m "
-          f"({result.evaluations} runs; {result.message})")
+    plot = None if args.plot is None else Path(args.plot or Path(DEFAULT_PLOT_DIR) / (Path(args.log).stem + "_fit"))
+    result = fit_log(args.log, args.params, scene=args.scene, window=args.window, loss=args.loss,
+                     loss_scale=args.loss_scale, out=out, plot=plot)
+    print(f"log              {args.log} ({len(result.grid_steps)} poses on a grid of {result.every} steps)")
+    print("\n".join(table(result)))
     print(f"fitted scene     {out}")
+    if plot is not None:
+        print(f"figures          {plot}")
     return 0
 
 
@@ -484,18 +461,29 @@ def _add_fit(verbs) -> None:
     fit = verbs.add_parser(
         "fit", help="fit scene parameters to a logged run (needs the jax extra)",
         description="Fit scene parameters to a log's node_poses (a run of this project, or a real robot's motion "
-                    "capture written in the same topic) by least squares with the JAX run's exact Jacobian: "
-                    "prints the fitted values and the residual before and after, writes the fitted scene YAML. "
-                    "The run starts from the log's embedded scene with its inputs held. Needs JAX: "
-                    "pip install \"tensegrity_sim[jax]\".")
+                    "capture written in the same topic) by multiple shooting: the log cut into windows, each "
+                    "restarted from its own fitted start state, every window one copy of a JAX batch, with the "
+                    "commands the run received (cable_rest_lengths, external_wrench) replayed in each; least "
+                    "squares with the exact Jacobian. Prints a table (start, fitted, standard deviation), the "
+                    "residual before and after and the estimated pose noise; writes the fitted scene YAML. Needs "
+                    "JAX: pip install \"tensegrity_sim[jax]\".")
     fit.add_argument("log", help="an MCAP log with node_poses and the embedded scene")
     fit.add_argument("--params", required=True,
                      help="comma-separated: stiffness (every cable's, one factor), damping (every cable's, one "
-                          "value), mass (every mass, one factor), stiffness:CABLE, damping:CABLE")
+                          "value), stiffness:CABLE, damping:CABLE, stiffness:each, damping:each (one per cable), "
+                          "mass (every mass, one factor), mass:NODE, mass:STRUT, friction, restitution (the "
+                          "ground's), reel_speed (the motors', a log of the node with max_rest_length_rate > 0)")
     fit.add_argument("--scene", metavar="SCENE.yaml",
-                     help="start values of the parameters from this scene (same nodes and cables); default: the "
-                          "log's")
+                     help="the nominal model to start from (the log's nodes and cables); default: the log's scene")
     fit.add_argument("--out", metavar="FILE.yaml", help="the fitted scene (default: <log>_fit.yaml beside the log)")
+    fit.add_argument("--window", type=int, metavar="N",
+                     help="pose intervals per window (default: chosen from the slack/taut switches in the poses)")
+    fit.add_argument("--loss", default="linear",
+                     help="least squares loss: linear (default), or robust: soft_l1, huber, cauchy, arctan")
+    fit.add_argument("--loss-scale", type=float, default=3e-3, metavar="M",
+                     help="a robust loss's residual scale, m (default 0.003): larger residuals count less")
+    fit.add_argument("--plot", nargs="?", const="", metavar="DIR",
+                     help=f"write the before/after figures into DIR (default {DEFAULT_PLOT_DIR}/<log name>_fit)")
     fit.set_defaults(func=_cmd_fit)
 
 

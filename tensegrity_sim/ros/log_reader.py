@@ -37,7 +37,7 @@ from mcap.writer import MCAP0_MAGIC
 from .log import RUN_INFO, LogWriter
 from .interface import TOPICS, Qos
 
-__all__ = ["LogError", "LogCorruptError", "LogReader", "LogMessage", "recover"]
+__all__ = ["LogError", "LogCorruptError", "LogReader", "LogMessage", "log_channels", "recover"]
 
 _PARSERS = {Opcode.HEADER: Header.read, Opcode.SCHEMA: Schema.read, Opcode.CHANNEL: Channel.read,
             Opcode.CHUNK: Chunk.read, Opcode.METADATA: Metadata.read, Opcode.DATA_END: DataEnd.read,
@@ -268,6 +268,18 @@ def _chain(first, rest):
     yield from rest
 
 
+def log_channels(reader: LogReader) -> list[tuple[str, str, Qos]]:
+    """(topic, type name, QoS) of every channel ``reader`` has met: what a :class:`~.log.LogWriter` of a copy
+    of the log takes."""
+    channels = []
+    for channel in reader.channels.values():
+        profile = (yaml.safe_load(channel.metadata.get("offered_qos_profiles", "")) or [{}])[0]
+        qos = Qos(reliability=profile.get("reliability", "reliable"), depth=profile.get("depth", 10),
+                  durability=profile.get("durability", "volatile"))
+        channels.append((channel.topic, reader.schemas[channel.schema_id].name, qos))
+    return channels
+
+
 def recover(source: str | Path, target: str | Path) -> tuple[int, str | None]:
     """Write a finished copy of the log ``source`` (finished or not) to ``target``: the run info, every
     channel with its QoS, every complete message in order; returns (messages copied, how the source was
@@ -278,12 +290,7 @@ def recover(source: str | Path, target: str | Path) -> tuple[int, str | None]:
         run_info = reader.metadata.get(RUN_INFO)
         if run_info is None:
             raise LogError(f"{source}: no {RUN_INFO!r} metadata: not a tensegrity_sim log")
-        channels = []
-        for channel in reader.channels.values():
-            profile = (yaml.safe_load(channel.metadata.get("offered_qos_profiles", "")) or [{}])[0]
-            qos = Qos(reliability=profile.get("reliability", "reliable"), depth=profile.get("depth", 10),
-                      durability=profile.get("durability", "volatile"))
-            channels.append((channel.topic, reader.schemas[channel.schema_id].name, qos))
+        channels = log_channels(reader)
         if not channels:  # cut off before its first chunk: the node's topics, as the run info names them
             names = json.loads(run_info.get("topics", "{}"))
             channels = [(names[k], spec.typename, spec.qos) for k, spec in TOPICS.items() if k in names]

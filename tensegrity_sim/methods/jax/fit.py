@@ -1,166 +1,587 @@
-"""Fitting scene parameters to observed node positions by least squares with the JAX run's exact Jacobian
-(``tensegrity-sim fit``, which reads the positions from a log's ``node_poses``).
+"""Fitting scene parameters to observed node positions by multiple shooting (``tensegrity-sim fit``, which reads
+the positions and the commands from a log: ``tensegrity_sim.ros.fit_log``).
 
-The unknowns (``--params``, comma-separated):
+**The unknowns** (``parse_parameters``, comma-separated):
 
-    stiffness        every cable's stiffness times one factor (N/m)
-    damping          one damping for every cable (N*s/m)
-    mass             every mass of the scene (nodes and struts) times one factor (kg)
-    stiffness:NAME   cable NAME's stiffness alone; damping:NAME likewise
+    stiffness, damping            one factor on every cable's stiffness (N/m) / one damping for every cable
+    stiffness:CABLE, damping:CABLE that cable's alone; stiffness:each, damping:each one unknown per cable
+    mass                          one factor on every mass of the scene (nodes and struts), kg
+    mass:NODE, mass:STRUT         a node's own mass / a strut's mass (half on each end)
+    friction, restitution         the ground's Coulomb coefficient and Newton's restitution
+    reel_speed                    the motors' top speed (the node's max_rest_length_rate), m/s
 
-The residual is the run's positions at the observed steps minus the observed ones (m), from the scene's initial
-state with its inputs held; ``scipy.optimize.least_squares`` (Levenberg-Marquardt) minimises its sum of squares,
-with the Jacobian from ``jax.jacfwd`` (forward mode: a few unknowns, many residuals). Each unknown is scaled by
-its start value (a damping that starts at zero by 1 N*s/m), so the problem is well conditioned whatever the units.
-The derivative is that of the discrete run (``elastic.py``'s docstring): through slack/taut switches the
-residual is only piecewise smooth, and a start that moves a switch across a step may need a closer guess.
+**Multiple shooting.** The observed steps are put on a grid (the greatest common divisor of their spacing) and
+cut into windows of ``window`` grid intervals. Each window is restarted from its own initial positions and
+velocities, which are unknowns of the least squares too (started from the observed positions and their central
+finite differences), so that an error in the parameters cannot build up over more than one window and the
+landscape stays close to quadratic: the fit does not depend on a start within a factor of 2 of the truth. The
+residual holds, in metres: every observation minus the simulated position at its step (each observation once:
+the first by the first window's initial positions, every other by the window that ends at or runs through it),
+and, weighted by ``continuity``, each window's end state minus the next window's start (velocities times the
+grid interval). All windows run as one batch of the JAX step (the batch axis is the window: on a GPU they run
+together), with the commands in effect at every step of each (rest lengths, forces; a rate-limited motor
+follows its targets at ``reel_speed``, differentiable in it).
+
+**The Jacobian** is exact (forward mode) and sparse: a window's residuals depend on the parameters and its own
+start state only (a continuity row also on the next window's start, linearly). One ``jax.jvp`` per parameter
+and per start-state coordinate, seeded in every window at once, gives every window's block together (6 N + P
+tangents whatever the number of windows). ``scipy.optimize.least_squares`` (trust region reflective, bounds
+from physics: stiffness, mass and reel speed > 0, damping and friction >= 0, restitution in [0, 1]) minimises
+the sum of squares, or a robust loss (``loss``: ``soft_l1``, ``huber``, ``cauchy``, ``arctan``, with
+``loss_scale`` in m).
+
+**Uncertainty and noise.** The pose noise is estimated from the observation residual at the optimum (its root
+mean square with the degrees of freedom taken off); each parameter's standard deviation is that noise times
+the square root of the parameter's diagonal entry of ``(J^T J)^-1``, the window states eliminated by their Schur
+complement (a sparse factorisation).
+
+**Windows by default** (``choose_window``): the observed cable lengths against the rest lengths give the
+slack/taut switches; a window holds about ``SWITCHES_PER_WINDOW`` of them (a switch moves where a parameter
+changes, and the discrete run's derivative jumps there: ``elastic.py``), between ``MIN_WINDOW`` and
+``MAX_WINDOW`` grid intervals.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from math import gcd
+from dataclasses import dataclass, field
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.sparse as sp
+from jax import lax
 from scipy.optimize import least_squares
+from scipy.sparse.linalg import splu
 
 from ...scene import Scene
 from ...system import System
 from ..rigid import RigidStruts
-from .elastic import held_inputs, model_arrays, rollout
+from .elastic import Carry, model_arrays, start_carry, verlet_step
 
-__all__ = ["FitResult", "fit_positions", "parse_parameters"]
+__all__ = ["KINDS", "LOSSES", "FitResult", "Observed", "Unknown", "choose_window", "fit_observed",
+           "parse_parameters"]
 
-KINDS = {"stiffness": "N/m", "damping": "N*s/m", "mass": "kg"}
+KINDS = {"stiffness": "N/m", "damping": "N*s/m", "mass": "kg", "friction": "", "restitution": "",
+         "reel_speed": "m/s"}
+LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
+SWITCHES_PER_WINDOW = 4.0
+MIN_WINDOW, MAX_WINDOW = 5, 40   # grid intervals
+CONTINUITY = 10.0                # weight of the continuity rows against the observations'
 
 
 @dataclass(frozen=True)
 class Unknown:
-    """One fitted number: ``kind`` (stiffness, damping, mass), the cables it sets (indices; all for mass) and its
-    name as given."""
+    """One fitted number: ``kind`` (a key of ``KINDS``), its name as given; the cables it sets (stiffness,
+    damping) and, for a mass, its share of every node's lumped mass (N,) kg in the scene."""
 
     name: str
     kind: str
-    cables: tuple[int, ...]
+    cables: tuple[int, ...] = ()
+    masses: tuple[float, ...] = ()
 
 
-def parse_parameters(spec: str, scene: Scene) -> list[Unknown]:
-    """The unknowns of ``--params`` (module docstring), checked against ``scene``."""
-    index = {n: i for i, n in enumerate(scene.cable_names)}
+@dataclass(frozen=True)
+class Observed:
+    """What a run shows: ``positions`` (K, N, 3) m after ``steps`` (K,) steps of ``dt`` s (strictly increasing,
+    >= 0); the commands in effect at every step ``k < steps[-1]`` (the one from ``k dt`` to ``(k + 1) dt``):
+    ``rest`` (S, nc) m (a motor's target where ``reel_speed`` > 0) and ``forces`` (S, N, 3) N; ``reel_speed``
+    m/s, the fastest a rest length follows its target (0: at once)."""
+
+    dt: float
+    steps: np.ndarray
+    positions: np.ndarray
+    rest: np.ndarray
+    forces: np.ndarray
+    reel_speed: float = 0.0
+
+
+def parse_parameters(spec: str, scene: Scene, *, reel_speed: float = 0.0) -> list[Unknown]:
+    """The unknowns of ``--params`` (module docstring), checked against ``scene`` (and ``reel_speed``, the run's
+    motor speed: 0, no limit, has nothing to fit)."""
+    cables = {n: i for i, n in enumerate(scene.cable_names)}
+    nodes = {n: i for i, n in enumerate(scene.node_names)}
+    struts = {s.name: s for s in scene.struts}
+    known = "stiffness, damping, mass, friction, restitution, reel_speed, stiffness:CABLE|each, " \
+            "damping:CABLE|each, mass:NODE|STRUT"
     out = []
     for item in [s.strip() for s in spec.split(",") if s.strip()]:
         kind, _, name = item.partition(":")
-        if kind not in KINDS or (name and kind == "mass"):
-            raise ValueError(f"--params: unknown parameter {item!r} (known: stiffness, damping, mass, "
-                             f"stiffness:CABLE, damping:CABLE)")
-        if name and name not in index:
-            raise ValueError(f"--params: {item!r}: no cable {name!r} in the scene (cables: {', '.join(index)})")
-        cables = (index[name],) if name else tuple(range(len(scene.cables)))
-        out.append(Unknown(item, kind, cables))
+        if kind not in KINDS or (name and kind not in ("stiffness", "damping", "mass")):
+            raise ValueError(f"--params: unknown parameter {item!r} (known: {known})")
+        if kind in ("friction", "restitution") and scene.ground is None:
+            raise ValueError(f"--params: {item!r}: the scene has no ground")
+        if kind == "reel_speed" and not reel_speed > 0:
+            raise ValueError("--params: 'reel_speed': the run's motors had no speed limit (the node's "
+                             "max_rest_length_rate was 0): nothing to fit")
+        if kind == "mass":
+            out.append(Unknown(item, kind, masses=tuple(_mass_share(scene, name, nodes, struts))))
+        elif name == "each":
+            out += [Unknown(f"{kind}:{c}", kind, (i,)) for c, i in cables.items()]
+        elif name and name not in cables:
+            raise ValueError(f"--params: {item!r}: no cable {name!r} in the scene (cables: {', '.join(cables)})")
+        else:
+            out.append(Unknown(item, kind, (cables[name],) if name else tuple(range(len(scene.cables)))))
     if not out:
-        raise ValueError("--params: name at least one parameter (stiffness, damping, mass)")
+        raise ValueError(f"--params: name at least one parameter ({known})")
     names = [u.name for u in out]
     if len(set(names)) != len(names):
         raise ValueError(f"--params: a parameter is named twice: {spec!r}")
     return out
 
 
+def _mass_share(scene: Scene, name: str, nodes: dict, struts: dict) -> np.ndarray:
+    """(N,) kg: what the mass ``name`` (none: every mass) adds to each node's lumped mass."""
+    if name and name not in nodes and name not in struts:
+        raise ValueError(f"--params: 'mass:{name}': no node or strut {name!r} in the scene")
+    share = _scaled(scene, name, 2.0).masses - scene.masses
+    if not np.any(share > 0):
+        raise ValueError(f"--params: 'mass:{name}': it has no mass in the scene (nothing to scale)")
+    return share
+
+
+def _scaled(scene: Scene, name: str, factor: float) -> Scene:
+    """``scene`` with the mass of node or strut ``name`` (a strut's payloads too; none: every mass) times
+    ``factor``."""
+    d = scene.to_dict()
+    for key in ("nodes", "struts"):
+        for item in d.get(key) or []:
+            if name and item["name"] != name:
+                continue
+            if "mass" in item:
+                item["mass"] = float(item["mass"]) * factor
+            for payload in item.get("payloads") or []:
+                payload["mass"] = float(payload["mass"]) * factor
+    return Scene.from_dict(d, source=scene.source)
+
+
 @dataclass(frozen=True)
 class FitResult:
-    """start and fitted: each unknown's value (its unit in ``KINDS``; a stiffness or mass group: the mean over it);
-    rms_start, rms_fitted: the residual's root mean square, m; scene: the scene with the fitted values;
-    evaluations: runs of the model; message: the solver's."""
+    """start, fitted, sigma: each unknown's value and standard deviation (its unit in ``KINDS``; a group of
+    cables: the mean over it; a mass: its total); rms_start, rms_fitted: the observation residual's root mean
+    square, m; noise: the pose noise estimated from it, m; scene: the scene with the fitted values; window: grid
+    intervals per window, windows, every: steps of ``dt`` s per grid interval; grid_steps (G,), observed
+    (G, N, 3) (NaN where no pose), before, after (G, N, 3): the windows' simulated positions at the start and at
+    the optimum; evaluations: runs of the model; message: the solver's; reel_speed: the fitted one (m/s, 0: none)."""
 
     unknowns: list[Unknown]
     start: np.ndarray
     fitted: np.ndarray
+    sigma: np.ndarray
     rms_start: float
     rms_fitted: float
+    noise: float
     scene: Scene
+    window: int
+    windows: int
+    every: int
+    dt: float
+    grid_steps: np.ndarray
+    observed: np.ndarray
+    before: np.ndarray
+    after: np.ndarray
     evaluations: int
     message: str
+    reel_speed: float = 0.0
+    switches: int = field(default=0)
 
 
-def _base_values(scene: Scene, u: Unknown) -> np.ndarray:
-    if u.kind == "mass":
-        return scene.masses
-    return np.array([getattr(scene.cables[i], u.kind) for i in u.cables], dtype=float)
-
-
-def fit_positions(scene: Scene, dt: float, steps: np.ndarray, positions: np.ndarray, unknowns: list[Unknown], *,
-                  tolerance: float = 1e-14) -> FitResult:
-    """Fit ``unknowns`` of ``scene`` (start values and initial state) so that its elastic run with steps of ``dt``
-    (s), inputs held, passes through ``positions`` (K, N, 3) m after ``steps`` (K,) steps (increasing, > 0)."""
-    steps = np.asarray(steps, dtype=np.int64)
-    if steps.ndim != 1 or not len(steps) or np.any(steps <= 0) or np.any(np.diff(steps) <= 0):
-        raise ValueError("the observed steps must increase strictly from 1 on")
-    if positions.shape != (len(steps), len(scene.nodes), 3):
-        raise ValueError(f"positions: expected shape {(len(steps), len(scene.nodes), 3)}, got {positions.shape}")
+def observed_slack(scene: Scene, obs: Observed) -> tuple[np.ndarray, int]:
+    """Which cables are seen taut at some pose ((nc,) bool), and the slack/taut switches between consecutive
+    poses (against the rest lengths in effect, or targeted, at each)."""
     system = System(scene)
-    rigid = RigidStruts(system)
-    model = model_arrays(system, rigid)
-    x0, v0 = scene.positions, scene.velocities
-    if rigid.count:   # as Simulator's reset: no initial velocity stretches a rigid strut
-        v0 = v0 + rigid.project_velocities(x0, v0)
-    every = int(np.gcd.reduce(steps))
-    kept = steps // every - 1
-    inputs = held_inputs(scene.cable_rest_lengths[:, None], np.zeros((len(scene.nodes), 3, 1)))
-    ns = system.n_struts
-    bases = [_base_values(scene, u) for u in unknowns]
-    # each unknown is a factor on its start values, or (a damping starting at 0) a value in N*s/m
-    factor = [u.kind == "mass" or bool(np.all(b > 0)) for u, b in zip(unknowns, bases)]
-    scales = [b if f else np.ones_like(b) for b, f in zip(bases, factor)]
-    start = np.array([1.0 if f else float(np.mean(b)) for b, f in zip(bases, factor)])
-    observed = jnp.asarray(positions)
-
-    def model_of(p):
-        m = model
-        for u, scale, value in zip(unknowns, scales, p):
-            if u.kind == "stiffness":
-                m = m._replace(stiffness=m.stiffness.at[ns + np.array(u.cables)].set(scale * value))
-            elif u.kind == "damping":
-                m = m._replace(damping=m.damping.at[np.array(u.cables)].set(scale * value))
-            else:
-                m = m._replace(masses=jnp.asarray(scale) * value)
-        return m
-
-    @jax.jit
-    def residual(p):
-        out = rollout(model_of(p), jnp.asarray(x0[..., None]), jnp.asarray(v0[..., None]), inputs, dt,
-                      int(steps[-1]), every)
-        return (out.x[kept, ..., 0] - observed).ravel()
-
-    jacobian = jax.jit(jax.jacfwd(residual))
-    r0 = np.asarray(residual(jnp.asarray(start)))
-    sol = least_squares(lambda p: np.asarray(residual(jnp.asarray(p))), start,
-                        jac=lambda p: np.asarray(jacobian(jnp.asarray(p))), method="lm",
-                        xtol=tolerance, ftol=tolerance, gtol=tolerance)
-    fitted_model = model_of(sol.x)
-    values = lambda m: np.array([float(np.mean(_values(m, u, ns))) for u in unknowns])   # noqa: E731
-    return FitResult(unknowns, values(model), values(fitted_model), float(np.sqrt(np.mean(r0 ** 2))),
-                     float(np.sqrt(np.mean(sol.fun ** 2))), _fitted_scene(scene, unknowns, fitted_model, ns),
-                     int(sol.nfev), sol.message)
+    ends = system.ends[system.n_struts:]
+    d = obs.positions[:, ends[:, 1]] - obs.positions[:, ends[:, 0]]
+    length = np.sqrt(np.einsum("kcj,kcj->kc", d, d))
+    rest = obs.rest[np.minimum(obs.steps, len(obs.rest) - 1)] if len(obs.rest) else scene.cable_rest_lengths[None]
+    taut = length >= rest
+    return taut.any(axis=0), int(np.count_nonzero(taut[1:] != taut[:-1]))
 
 
-def _values(m, u: Unknown, ns: int) -> np.ndarray:
-    if u.kind == "stiffness":
-        return np.asarray(m.stiffness)[ns + np.array(u.cables)]
-    if u.kind == "damping":
-        return np.asarray(m.damping)[np.array(u.cables)]
-    return np.asarray(m.masses)
+def choose_window(obs: Observed, switches: int, every: int) -> int:
+    """Grid intervals per window: about ``SWITCHES_PER_WINDOW`` switches in each (module docstring)."""
+    intervals = max(1, (int(obs.steps[-1]) - int(obs.steps[0])) // every)
+    if switches == 0:
+        return int(min(MAX_WINDOW, intervals))
+    return int(np.clip(round(SWITCHES_PER_WINDOW * intervals / switches), MIN_WINDOW, MAX_WINDOW))
 
 
-def _fitted_scene(scene: Scene, unknowns: list[Unknown], m, ns: int) -> Scene:
-    """``scene`` with the fitted values (every mass scaled by the fitted factor: node and strut masses)."""
-    d = scene.to_dict()
-    for u in unknowns:
+class _Problem:
+    """The windows, their data and the residual and Jacobian of the least squares (module docstring)."""
+
+    def __init__(self, scene: Scene, obs: Observed, unknowns: list[Unknown], window: int, continuity: float):
+        self.scene, self.obs, self.unknowns = scene, obs, unknowns
+        system = System(scene)
+        rigid = RigidStruts(system)
+        self.model = model_arrays(system, rigid)
+        self.ns = system.n_struts
+        self.free = np.flatnonzero(system.free)
+        steps = np.asarray(obs.steps, dtype=np.int64)
+        self.every = every = int(np.gcd.reduce(np.diff(steps))) if len(steps) > 1 else 1
+        self.first = int(steps[0])
+        g = (int(steps[-1]) - self.first) // every + 1
+        self.window = L = int(min(window, g - 1))
+        self.windows = W = -(-(g - 1) // L)
+        n, nf = len(scene.nodes), len(self.free)
+        grid = np.full((W * L + 1, n, 3), np.nan)
+        grid[(steps - self.first) // every] = obs.positions
+        self.grid_steps = self.first + every * np.arange(g)
+        self.observed = grid[:g]
+        self.mask = ~np.isnan(grid[:, 0, 0])
+        filled = _fill(grid)
+        # targets in window order: obs (L, nf, 3, W) of grid w L + 1 .. w L + L, and the window starts
+        idx = np.arange(W)[None, :] * L + np.arange(1, L + 1)[:, None]          # (L, W)
+        self.target = np.transpose(filled[idx][:, :, self.free], (0, 2, 3, 1))   # (L, nf, 3, W)
+        self.obs_mask = self.mask[idx].astype(float)                            # (L, W)
+        self.start_grid = np.arange(W) * L
+        tau = every * obs.dt
+        x0 = filled[self.start_grid]                                            # (W, N, 3)
+        before, after = _fill_at(filled, self.start_grid - 1), _fill_at(filled, self.start_grid + 1)
+        span = np.where((self.start_grid > 0) & (self.start_grid + 1 < len(filled)), 2.0, 1.0)
+        v0 = (after - before) / (span[:, None, None] * tau)
+        self.fixed_x = np.moveaxis(filled[self.start_grid], 0, -1)               # (N, 3, W)
+        self.state0 = np.concatenate([x0[:, self.free].reshape(W, -1), v0[:, self.free].reshape(W, -1)], axis=1)
+        self.nf, self.tau, self.cw = nf, tau, continuity
+        # the steps of every window: (L, every) step indices into the per-step commands (held past the last)
+        step_idx = (self.first + np.arange(W)[None, None, :] * L * every
+                    + np.arange(L)[:, None, None] * every + np.arange(every)[None, :, None])   # (L, every, W)
+        self.step_idx = np.minimum(step_idx, max(len(obs.rest) - 1, 0))
+        self.forces = np.moveaxis(obs.forces[self.step_idx], 2, -1) if len(obs.forces) else \
+            np.zeros((L, every, n, 3, W))                                        # (L, every, N, 3, W)
+        self.rest_fixed = np.moveaxis(obs.rest[self.step_idx], 2, -1) if len(obs.rest) else \
+            np.broadcast_to(scene.cable_rest_lengths[None, None, :, None], (L, every, len(scene.cables), W))
+        self.reel = obs.reel_speed
+        # the commands, handed to the compiled runs as arguments (as constants XLA would fold them, slowly)
+        self.data = (jnp.asarray(self.rest_fixed), jnp.asarray(self.forces), jnp.asarray(obs.rest))
+        # the unknowns: factors on their start values (an unknown starting at 0: its value)
+        # a mass unknown's share of the model's lumped masses and mass blocks (both linear in the masses)
+        self.mass_shares = {}
+        for u in unknowns:
+            if u.kind == "mass":
+                doubled = System(_scaled(scene, u.name.partition(":")[2], 2.0))
+                other = model_arrays(doubled, RigidStruts(doubled))
+                self.mass_shares[u.name] = (other.masses - self.model.masses,
+                                            other.mass_block - self.model.mass_block)
+        self.base = [self._base_value(u) for u in unknowns]
+        self.factor = [bool(b > 0) for b in self.base]
+        self.p0 = np.array([1.0 if f else 0.0 for f in self.factor])
+        self.n_params = len(unknowns)
+        self._jit()
+
+    # ----------------------------------------------------------------- parameters
+    def _base_value(self, u: Unknown) -> float:
+        sc, m = self.scene, self.model
+        if u.kind == "stiffness":
+            return float(np.mean(np.asarray(m.stiffness)[self.ns + np.array(u.cables)]))
+        if u.kind == "damping":
+            values = np.asarray(m.damping)[np.array(u.cables)]
+            return float(np.mean(values)) if np.all(values > 0) else 0.0
         if u.kind == "mass":
-            factor = float(np.asarray(m.masses)[scene.masses > 0][0] / scene.masses[scene.masses > 0][0])
-            for item in d["nodes"] + d["struts"]:
-                if "mass" in item:
-                    item["mass"] = float(item["mass"]) * factor
-            continue
-        for i, value in zip(u.cables, _values(m, u, ns)):
-            d["cables"][i][u.kind] = float(value)
-    return Scene.from_dict(d, source=f"{scene.source} (fitted)")
+            return float(np.sum(u.masses))
+        if u.kind == "reel_speed":
+            return self.obs.reel_speed
+        return float(getattr(sc.ground, u.kind))
+
+    def values(self, p) -> np.ndarray:
+        """Each unknown's value (a group of cables: the mean; a mass: its total) at ``p``."""
+        return np.array([b * v if f else v for b, f, v in zip(self.base, self.factor, np.asarray(p))])
+
+    def model_of(self, p):
+        m, ns = self.model, self.ns
+        masses = m.masses
+        for u, f, value in zip(self.unknowns, self.factor, p):
+            if u.kind == "stiffness":
+                idx = ns + np.array(u.cables)
+                m = m._replace(stiffness=m.stiffness.at[idx].set(self.model.stiffness[idx] * value))
+            elif u.kind == "damping":
+                idx = np.array(u.cables)
+                m = m._replace(damping=m.damping.at[idx].set(self.model.damping[idx] * value if f else value))
+            elif u.kind == "mass":
+                lumped, block = self.mass_shares[u.name]
+                masses = masses + (value - 1.0) * lumped
+                m = m._replace(mass_block=m.mass_block + (value - 1.0) * block)
+            elif u.kind in ("friction", "restitution"):
+                base = getattr(self.model.ground, u.kind)
+                m = m._replace(ground=m.ground._replace(**{u.kind: base * value if f else value}))
+        return m._replace(masses=masses)
+
+    def rest_of(self, p, data):
+        """The rest lengths in effect at every step of every window (L, every, nc, W)."""
+        rest_fixed, _, targets = data
+        if not self.reel > 0:
+            return rest_fixed
+        speed = self.reel
+        for u, value in zip(self.unknowns, p):
+            if u.kind == "reel_speed":
+                speed = self.reel * value
+        reach = speed * self.obs.dt
+
+        def move(applied, target):   # the node's rate limiter (node_logic.step), landing on the target
+            diff = target - applied
+            applied = jnp.where(jnp.abs(diff) <= reach, target, applied + jnp.sign(diff) * reach)
+            return applied, applied
+
+        _, applied = lax.scan(move, jnp.asarray(self.scene.cable_rest_lengths), targets)
+        return jnp.moveaxis(applied[self.step_idx], 2, -1)
+
+    # ----------------------------------------------------------------- the run of the windows
+    def _states(self, state, reps):
+        """Start positions and velocities (N, 3, B) of the windows, each run by ``reps`` consecutive copies,
+        from their unknown states (B, 6 nf)."""
+        nf = self.nf
+        xf = state[:, :3 * nf].reshape(-1, nf, 3)
+        vf = state[:, 3 * nf:].reshape(-1, nf, 3)
+        x = jnp.asarray(np.repeat(self.fixed_x, reps, axis=-1)).at[self.free].set(jnp.moveaxis(xf, 0, -1))
+        v = jnp.zeros_like(x).at[self.free].set(jnp.moveaxis(vf, 0, -1))
+        return x, v
+
+    def run(self, p, state, data, reps=1):
+        """The windows, each run by ``reps`` consecutive copies, from start states ``state`` (B, 6 nf), with
+        ``data`` (the commands, :attr:`data`): positions at each observation (L, N, 3, B), end positions and
+        velocities (N, 3, B)."""
+        model = self.model_of(p)
+        rest, forces = self.rest_of(p, data), data[1]
+        x0, v0 = self._states(state, reps)
+        h = jnp.asarray(self.obs.dt)
+        copies = (lambda a: jnp.repeat(a, reps, axis=-1)) if reps > 1 else (lambda a: a)
+        carry = start_carry(model, x0, v0, copies(rest[0, 0]), copies(forces[0, 0]))
+
+        def step(loop, inputs):
+            carry, r_prev, f_prev = loop
+            r, f = inputs
+            changed = jnp.any(r != r_prev, axis=0) | jnp.any(f != f_prev, axis=(0, 1))   # (W,)
+            rb, fb = copies(r), copies(f)
+
+            def restart():   # a new input: the start forces with it, in the windows where it changed
+                fresh = start_carry(model, carry.x, carry.v, rb, fb)
+                return Carry(*(jnp.where(copies(changed), a, b) for a, b in zip(fresh, carry)))
+
+            carry = lax.cond(jnp.any(changed), restart, lambda: carry)
+            carry = verlet_step(model, carry, rb, fb, h)[0]
+            return (carry, r, f), None
+
+        def interval(loop, inputs):
+            loop, _ = lax.scan(step, loop, inputs)
+            return loop, loop[0].x
+
+        (carry, _, _), xs = lax.scan(interval, (carry, rest[0, 0], forces[0, 0]), (rest, forces))
+        return xs, carry.x, carry.v
+
+    def _jit(self):
+        free, s = self.free, 6 * self.nf
+
+        def pieces(p, state, data, reps=1):
+            xs, xe, ve = self.run(p, state, data, reps)
+            return xs[:, free], xe[free], ve[free]
+
+        self.pieces = jax.jit(pieces)
+        self.simulated = jax.jit(lambda p, state, data: self.run(p, state, data)[0])
+        # a parameter's tangent: every window at once; the start states' tangents: s copies of each window, one
+        # per coordinate, all in one batch (the step's own layout, which a vmap over tangents would put first)
+        self.param_tangent = jax.jit(lambda p, state, data, dp: jax.jvp(lambda q: pieces(q, state, data), (p,),
+                                                                         (dp,))[1])
+        seeds = np.tile(np.eye(s), (self.windows, 1))
+        self.state_tangents = jax.jit(lambda p, state, data: jax.jvp(
+            lambda st: pieces(p, st, data, s), (jnp.repeat(state, s, axis=0),), (jnp.asarray(seeds),))[1])
+
+    def tangents(self, p, state):
+        """Every parameter's and start-state coordinate's tangent: (T, L, nf, 3, W), (T, nf, 3, W) twice."""
+        p, state = jnp.asarray(p), jnp.asarray(state)
+        out = [[np.asarray(a)[None] for a in self.param_tangent(p, state, self.data, jnp.eye(len(p))[i])]
+               for i in range(len(p))]
+        s, w = 6 * self.nf, self.windows
+        out.append([np.moveaxis(np.asarray(a).reshape(*a.shape[:-1], w, s), -1, 0)
+                    for a in self.state_tangents(p, state, self.data)])
+        return [np.concatenate(parts) for parts in zip(*out)]
+
+    # ----------------------------------------------------------------- least squares
+    def split(self, z):
+        return z[:self.n_params], z[self.n_params:].reshape(self.windows, -1)
+
+    def residual(self, z) -> np.ndarray:
+        p, state = self.split(z)
+        xs, xe, ve = (np.asarray(a) for a in self.pieces(jnp.asarray(p), jnp.asarray(state), self.data))
+        return self._assemble(xs, xe, ve, state)
+
+    def _assemble(self, xs, xe, ve, state) -> np.ndarray:
+        nf, w = self.nf, self.windows
+        obs = (xs - self.target) * self.obs_mask[:, None, None, :]                 # (L, nf, 3, W)
+        first = state[0, :3 * nf] - self.target_start()
+        x_next = np.moveaxis(state[1:, :3 * nf].reshape(w - 1, nf, 3), 0, -1)
+        v_next = np.moveaxis(state[1:, 3 * nf:].reshape(w - 1, nf, 3), 0, -1)
+        cx = self.cw * (xe[..., :-1] - x_next)
+        cv = self.cw * self.tau * (ve[..., :-1] - v_next)
+        return np.concatenate([np.moveaxis(obs, -1, 0).ravel(), first,
+                               np.moveaxis(np.stack([cx, cv]), -1, 0).ravel()])
+
+    def target_start(self) -> np.ndarray:
+        return _fill(self.observed)[0][self.free].ravel()
+
+    def n_observed(self) -> int:
+        return int(self.obs_mask.sum()) * 3 * self.nf + 3 * self.nf
+
+    def jacobian(self, z) -> sp.csr_matrix:
+        p, state = self.split(z)
+        P, nf, W, L = self.n_params, self.nf, self.windows, self.window
+        s = 6 * nf
+        T = P + s
+        dxs, dxe, dve = self.tangents(p, state)
+        rows, cols, vals = [], [], []
+        per = L * nf * 3
+        # observation rows of window w: (T, L, nf, 3, W) -> (W, per, T)
+        block = (dxs * self.obs_mask[None, :, None, None, :]).reshape(T, per, W).transpose(2, 1, 0)
+        r = np.arange(W)[:, None, None] * per + np.arange(per)[None, :, None]
+        c = np.concatenate([np.arange(P), P + np.arange(s)])[None, None, :] + \
+            np.concatenate([np.zeros(P, int), np.ones(s, int)])[None, None, :] * (np.arange(W)[:, None, None] * s)
+        rows.append(np.broadcast_to(r, block.shape).ravel())
+        cols.append(np.broadcast_to(c, block.shape).ravel())
+        vals.append(block.ravel())
+        base = W * per
+        # the first window's start positions
+        rows.append(base + np.arange(3 * nf))
+        cols.append(P + np.arange(3 * nf))
+        vals.append(np.ones(3 * nf))
+        base += 3 * nf
+        if W > 1:   # continuity rows of windows w, w + 1: (W - 1, 2, nf, 3) each
+            end = np.stack([self.cw * dxe, self.cw * self.tau * dve], axis=1)[..., :-1]   # (T, 2, nf, 3, W-1)
+            block = end.reshape(T, s, W - 1).transpose(2, 1, 0)                          # (W-1, s, T)
+            r = base + np.arange(W - 1)[:, None, None] * s + np.arange(s)[None, :, None]
+            c = np.concatenate([np.arange(P), P + np.arange(s)])[None, None, :] + \
+                np.concatenate([np.zeros(P, int), np.ones(s, int)])[None, None, :] * \
+                (np.arange(W - 1)[:, None, None] * s)
+            rows.append(np.broadcast_to(r, block.shape).ravel())
+            cols.append(np.broadcast_to(c, block.shape).ravel())
+            vals.append(block.ravel())
+            weight = np.concatenate([np.full(3 * nf, self.cw), np.full(3 * nf, self.cw * self.tau)])
+            k = np.arange(W - 1)[:, None] * s + np.arange(s)[None, :]
+            rows.append((base + k).ravel())
+            cols.append((P + s + k).ravel())
+            vals.append(-np.broadcast_to(weight, k.shape).ravel())
+        n_rows = base + (W - 1) * s
+        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(n_rows, P + W * s))
+
+    def bounds(self):
+        lower = {"stiffness": 1e-9, "mass": 1e-9, "reel_speed": 1e-9}
+        lo = np.array([lower.get(u.kind, 0.0) for u in self.unknowns])
+        hi = np.array([1.0 / b if u.kind == "restitution" and f else (1.0 if u.kind == "restitution" else np.inf)
+                       for u, b, f in zip(self.unknowns, self.base, self.factor)])
+        n = self.windows * 6 * self.nf
+        return np.concatenate([lo, np.full(n, -np.inf)]), np.concatenate([hi, np.full(n, np.inf)])
+
+    def positions(self, z) -> np.ndarray:
+        """The windows' simulated positions on the grid (G, N, 3): each window's start, then its steps."""
+        p, state = self.split(z)
+        xs = np.asarray(self.simulated(jnp.asarray(p), jnp.asarray(state), self.data))   # (L, N, 3, W)
+        x0, _ = self._states(jnp.asarray(state), 1)
+        out = np.concatenate([np.moveaxis(np.asarray(x0)[..., :1], -1, 0),
+                              np.moveaxis(xs, -1, 0).reshape(-1, *xs.shape[1:3])])
+        return out[:len(self.observed)]
+
+
+def _fill(grid: np.ndarray) -> np.ndarray:
+    """``grid`` (G, ...) with each missing (NaN) row taken from the nearest observed one."""
+    have = np.flatnonzero(~np.isnan(grid[:, 0, 0]))
+    nearest = have[np.clip(np.searchsorted(have, np.arange(len(grid))), 0, len(have) - 1)]
+    return grid[nearest]
+
+
+def _fill_at(filled: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    return filled[np.clip(idx, 0, len(filled) - 1)]
+
+
+def _parameter_sigma(jac, n_params: int, noise: float) -> np.ndarray:
+    """Each parameter's standard deviation: the noise times the square root of its diagonal entry of
+    ``(J^T J)^-1``, the window states eliminated by their Schur complement."""
+    jac = sp.csc_matrix(jac)
+    a = jac[:, :n_params]
+    s = jac[:, n_params:]
+    aa = (a.T @ a).toarray()
+    bt = (s.T @ a).toarray()
+    d = (s.T @ s).tocsc()
+    try:
+        lu = splu(d + sp.identity(d.shape[0], format="csc") * 1e-14 * max(d.diagonal().max(), 1.0))
+        schur = aa - bt.T @ lu.solve(bt)
+        cov = np.linalg.pinv(schur)
+    except (RuntimeError, np.linalg.LinAlgError):
+        return np.full(n_params, np.nan)
+    return noise * np.sqrt(np.maximum(np.diag(cov), 0.0))
+
+
+def fit_observed(scene: Scene, obs: Observed, unknowns: list[Unknown], *, window: int | None = None,
+                 loss: str = "linear", loss_scale: float = 3e-3, continuity: float = CONTINUITY,
+                 tolerance: float = 1e-10, max_evaluations: int = 100, verbose: int = 0) -> FitResult:
+    """Fit ``unknowns`` of ``scene`` (their start values) to ``obs`` by multiple shooting (module docstring);
+    ``window``: grid intervals per window (None: :func:`choose_window`); ``verbose``: least_squares' (2: every
+    iteration)."""
+    if loss not in LOSSES:
+        raise ValueError(f"loss must be one of {', '.join(LOSSES)}, got {loss!r}")
+    steps = np.asarray(obs.steps, dtype=np.int64)
+    if steps.ndim != 1 or len(steps) < 3 or np.any(steps < 0) or np.any(np.diff(steps) <= 0):
+        raise ValueError("the observed steps must be at least 3, >= 0 and strictly increasing")
+    if obs.positions.shape != (len(steps), len(scene.nodes), 3):
+        raise ValueError(f"positions: expected shape {(len(steps), len(scene.nodes), 3)}, got "
+                         f"{obs.positions.shape}")
+    if not np.all(np.isfinite(obs.positions)):
+        k = int(np.flatnonzero(~np.all(np.isfinite(obs.positions), axis=(1, 2)))[0])
+        raise ValueError(f"pose {k} (step {int(steps[k])}) is not finite (NaN or inf)")
+    taut, switches = observed_slack(scene, obs)
+    for u in unknowns:
+        if u.kind in ("stiffness", "damping") and not np.any(taut[list(u.cables)]):
+            names = ", ".join(scene.cable_names[i] for i in u.cables)
+            what = "cable" if len(u.cables) == 1 else "cables"
+            raise ValueError(f"--params: {u.name!r}: the log cannot see it: {what} {names} slack at every pose")
+    every = int(np.gcd.reduce(np.diff(steps)))
+    if window is None:
+        window = choose_window(obs, switches, every)
+    if window < 1:
+        raise ValueError(f"window must be at least 1 grid interval, got {window}")
+    problem = _Problem(scene, obs, unknowns, window, continuity)
+    z0 = np.concatenate([problem.p0, problem.state0.ravel()])
+    lo, hi = problem.bounds()
+    z0 = np.clip(z0, lo, hi)
+    r0 = problem.residual(z0)
+    n_obs = problem.n_observed()
+    rms = lambda r: float(np.sqrt(np.sum(r[:n_obs] ** 2) / n_obs))   # noqa: E731
+    sol = least_squares(problem.residual, z0, jac=problem.jacobian, bounds=(lo, hi), method="trf",
+                        x_scale="jac", loss=loss, f_scale=loss_scale, xtol=tolerance, ftol=tolerance,
+                        gtol=tolerance, max_nfev=max_evaluations, tr_solver="lsmr", verbose=verbose)
+    r = problem.residual(sol.x)
+    # the continuity rows act as constraints: each takes one unknown off
+    dof = max(1, n_obs - len(sol.x) + (len(r) - n_obs))
+    noise = float(np.sqrt(np.sum(r[:n_obs] ** 2) / dof))
+    jac = problem.jacobian(sol.x)
+    scale = np.array([b if f else 1.0 for b, f in zip(problem.base, problem.factor)])
+    sigma = _parameter_sigma(jac, problem.n_params, noise) * scale
+    p = sol.x[:problem.n_params]
+    fitted = problem.values(p)
+    reel = problem.reel
+    for u, value in zip(unknowns, fitted):
+        if u.kind == "reel_speed":
+            reel = float(value)
+    return FitResult(unknowns, problem.values(problem.p0), fitted, sigma, rms(r0), rms(r), noise,
+                     _fitted_scene(scene, unknowns, problem, p), problem.window, problem.windows, problem.every,
+                     obs.dt,
+                     problem.grid_steps, problem.observed, problem.positions(z0), problem.positions(sol.x),
+                     int(sol.nfev), sol.message, reel, switches)
+
+
+def _fitted_scene(scene: Scene, unknowns: list[Unknown], problem: _Problem, p) -> Scene:
+    """``scene`` with the fitted values."""
+    d = scene.to_dict()
+    m = problem.model_of(jnp.asarray(p))
+    ns = problem.ns
+    masses = []   # (name, factor) of the fitted masses, applied last
+    for u, value in zip(unknowns, p):
+        if u.kind == "stiffness":
+            for i in u.cables:
+                d["cables"][i]["stiffness"] = float(m.stiffness[ns + i])
+        elif u.kind == "damping":
+            for i in u.cables:
+                d["cables"][i]["damping"] = float(m.damping[i])
+        elif u.kind == "mass":
+            masses.append((u.name.partition(":")[2], float(value)))
+        elif u.kind in ("friction", "restitution"):
+            d["ground"][u.kind] = float(getattr(m.ground, u.kind))
+    fitted = Scene.from_dict(d, source=f"{scene.source} (fitted)")
+    for name, factor in masses:
+        fitted = _scaled(fitted, name, factor)
+    return fitted
