@@ -207,9 +207,9 @@ def test_friction_fixed_point_reports_iterations():
 def test_a_frictional_problem_answered_only_near_the_tolerance_is_answered_and_counted(monkeypatch):
     """Where no Newton start meets the Coulomb law to its tolerance (here made 1e-18 relative, below the
     round-off of the resting icosahedron's statically indeterminate contacts, with the modes and the further
-    starts skipped), the best answer is taken if it meets the law to RELAXED times the tolerance, and
-    counted: the robot stays at rest, its weight on the ground; with RELAXED = 1 the same step is a
-    FrictionError naming the three contacts."""
+    starts skipped), the best answer is taken if it meets the law to ACCEPT_TOL of the momentum in play,
+    and counted: the robot stays at rest, its weight on the ground; with ACCEPT_TOL = 1e-18 the same step is
+    a FrictionError naming the three contacts."""
     from tensegrity_sim.methods.contact import friction
 
     for name, value in (("MAX_MODE_ITER", 0), ("_NSGS_SWEEPS", ()), ("_RESTARTS", 0), ("FIXED_POINT_TOL", 1e-18)):
@@ -223,7 +223,7 @@ def test_a_frictional_problem_answered_only_near_the_tolerance_is_answered_and_c
     assert np.abs(tr.positions - x0).max() < 1e-12
     weight = float(sim.system.masses.sum()) * G
     np.testing.assert_allclose(tr.contact_impulses[:, :, 2].sum(axis=1), weight * 1e-3, rtol=1e-9)
-    monkeypatch.setattr(friction, "RELAXED", 1.0)
+    monkeypatch.setattr(friction, "ACCEPT_TOL", 1e-18)
     with pytest.raises(friction.FrictionError, match=r"\(no solution\): contacts 'n0' on the ground, 'n4' on the "
                                                      r"ground, 'n8' on the ground miss the Coulomb law"):
         sim.step()
