@@ -31,6 +31,19 @@ def case_of(seed: int, index: int, steps: int) -> dict:
     return throw_cases.wide_throw(np.random.default_rng([47, seed, index]), steps=steps)
 
 
+def write(path: Path, groups: dict, args) -> dict:
+    """The counts per method and robot, then their total (returned), to the CSV ``path``."""
+    rows = [groups[k] for k in sorted(groups)]
+    total = {"method": "all", "robot": "all", "steps": args.steps, "seed": args.seed}
+    for key in ("throws", "stopped", "unsound", "set_down", "contact_response"):
+        total[key] = sum(r[key] for r in rows)
+    write_csv(path, rows + [total], FIELDS)
+    return total
+
+
+FIELDS = ["method", "robot", "throws", "stopped", "unsound", "set_down", "contact_response", "steps", "seed"]
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--count", type=int, default=1000)
@@ -55,14 +68,10 @@ def main(argv=None) -> int:
         row["contact_response"] += case.get("response") is not None
         if found:
             print(f"throw {i}: {'; '.join(found)}\n  case: {case}", flush=True)
-        if (i - args.first + 1) % 50 == 0:
+        if (i - args.first + 1) % 25 == 0:   # the counts so far, written as they stand
             print(f"{i - args.first + 1} throws, {time.perf_counter() - start:.0f} s", flush=True)
-    rows = [groups[k] for k in sorted(groups)]
-    total = {"method": "all", "robot": "all", "steps": args.steps, "seed": args.seed}
-    for key in ("throws", "stopped", "unsound", "set_down", "contact_response"):
-        total[key] = sum(r[key] for r in rows)
-    rows.append(total)
-    write_csv(args.out, rows)
+            write(args.out, groups, args)
+    total = write(args.out, groups, args)
     print(f"{total['throws']} throws {args.first}..{args.first + args.count - 1} of {args.steps} steps (seed "
           f"{args.seed}): {total['stopped']} stopped, {total['unsound']} unsound otherwise, "
           f"{time.perf_counter() - start:.0f} s; {args.out}")
