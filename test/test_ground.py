@@ -518,3 +518,21 @@ def test_the_ground_detectors_changes_are_its_steps_events():
         flagged += changed.sum()
         detector._inside = inside
     assert 100 < flagged < 1000   # both kinds of steps were seen
+
+
+def test_the_physical_tolerance_is_a_millionth_of_the_weight_times_the_step_at_rest():
+    """A structure at rest has, over one step, the free velocity g dt on every node: the momentum in play is
+    its weight times the step, and an answer may miss the Coulomb law by ACCEPT_TOL of that (issue 47), not
+    by round-off of one contact's sliver of the load (the 1.8e-15 N*s that stopped a prism dropped 5 cm)."""
+    from tensegrity_sim.methods import contact
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ts.LengthOffsetWarning)
+        sim = simulator(ts.load_scene("icosahedron_ground"), "inextensible")
+    solver = sim._method.solver
+    free = sim.system.masses > 0
+    v0 = np.tile([0.0, 0.0, -G * 1e-3], (int(free.sum()), 1))
+    weight_step = float(sim.system.masses.sum()) * G * 1e-3
+    tol = solver._physical_tol(v0, np.zeros(3))
+    assert tol == pytest.approx(0.5 * contact.friction.ACCEPT_TOL * weight_step, rel=1e-12)
+    assert solver._physical_tol(v0, np.array([10.0 * weight_step])) == pytest.approx(10.0 * tol, rel=1e-12)
