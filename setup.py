@@ -92,6 +92,15 @@ EXTRAS_REQUIRE = {
         ("ros-jazzy-diagnostic-msgs", "5.3.6", "6"),
         ("ros-jazzy-rosgraph-msgs", "2.0.3", "3"),
     )],
+    # Building the ROS package as a ROS user does, without a ROS install (test/test_colcon.py, CI's ROS leg):
+    # colcon build/test/test-result of an ament_python package (colcon-ros reads package.xml; ament_package,
+    # which only ament_cmake packages need, is not required). 0.x: the next minor may break the API.
+    "colcon": [
+        "colcon-core>=0.21.3,<0.22",
+        "colcon-ros>=0.5.0,<0.6",
+        "colcon-python-setup-py>=0.2.9,<0.3",
+        "colcon-test-result>=0.3.8,<0.4",
+    ],
     "bench": [
         "mujoco>=4.0.0,<5",      # the peer in bench/run_all.py (matplotlib is a core dependency)
         "gymnasium>=1.4.0,<2",   # bench/bench_envs.py: Gymnasium's MujocoEnv and SyncVectorEnv, the envs' peers

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from ._kernel_cache import CompileClock
 from .commands import CommandError, CommandSchedule, load_commands
 from .methods import StepError
 from .methods.qp.solvers import SOLVERS, SPARSE_NODES
@@ -52,6 +53,8 @@ class RunSummary:
     energy_end: float = 0.0
     commanded: bool = False  # commands did work: the energy change is not a drift
     energy_lost: float = 0.0  # J: what the model removed at its events (massive cables' plates), not a drift
+    compile_time: float = 0.0  # s getting the kernels ready (compiling or loading them), not in wall_time
+    compiled: bool = False     # numba compiled some (the cache had none): a first run
     extra: dict = field(default_factory=dict)
 
     def lines(self) -> list[str]:
@@ -65,6 +68,8 @@ class RunSummary:
             f"simulated        {self.sim_time:.6g} s in {self.steps} steps",
             f"wall time        {self.wall_time:.3f} s ({rate:,.0f} steps/s, real-time factor "
             f"{self.sim_time / self.wall_time if self.wall_time > 0 else float('inf'):.1f})",
+            "kernels          " + (f"compiling kernels (first run only): {self.compile_time:.1f} s" if self.compiled
+                                    else f"loaded from the cache in {self.compile_time:.2f} s"),
             f"max tension      {self.max_tension:.6g} N ({self.max_tension_cable or '-'})",
             f"slack/taut       {self.switches} switches",
             f"contacts         {self.contacts} events ({self.contact_begins} begin, "
@@ -79,12 +84,14 @@ class RunSummary:
 
 
 def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None, *,
-             progress: bool = False, on_step=None, driver=None) -> RunSummary:
+             progress: bool = False, on_step=None, driver=None, clock: CompileClock | None = None) -> RunSummary:
     """Run ``steps`` steps applying ``commands`` before each step; return the summary.
 
     ``on_step(result)`` sees every step. ``driver``, if given, takes the commands and does the steps
     instead of ``sim`` (same ``set_rest_lengths``/``set_external_forces``/``step``): the node logic's
-    :class:`~tensegrity_sim.ros.offline.CommandDriver`, which logs them.
+    :class:`~tensegrity_sim.ros.offline.CommandDriver`, which logs them. ``clock``, if given, is the
+    :class:`CompileClock` entered since ``sim`` was made: the summary's ``compile_time`` is what it counted,
+    and the time of kernels compiled (or loaded) while stepping is taken out of the ``wall_time``.
     """
     target = sim if driver is None else driver
     base_rest, start_forces = sim.rest_lengths, sim.external_forces
@@ -94,6 +101,7 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
     contacts, begins, pairs = 0, 0, set()
     slack_prev = sim.slack()
     bar = tqdm(total=steps, unit="step", disable=not progress, mininterval=0.5)
+    compile_before = clock.seconds if clock is not None else 0.0
     start = time.perf_counter()
     try:
         def take(traj) -> None:
@@ -142,40 +150,44 @@ def simulate(sim: Simulator, steps: int, commands: CommandSchedule | None = None
     finally:
         bar.close()
     wall = time.perf_counter() - start
+    compile_time = clock.seconds if clock is not None else 0.0
+    wall -= compile_time - compile_before   # the kernels readied while stepping: not the stepping's speed
     return RunSummary(
         scene=sim.scene.name, method=sim.method, method_reason=sim.method_reason, dt=sim.dt,
         steps=steps, sim_time=sim.time, wall_time=wall, max_tension=max_t,
         max_tension_cable=sim.scene.cable_names[max_cable] if max_cable >= 0 else "",
         switches=switches, contacts=contacts, contact_begins=begins, contact_pairs=len(pairs),
         energy_start=energy_start,
-        energy_end=sim.energy()["total"], energy_lost=sim.energy_lost - lost_start,
+        energy_end=sim.energy()["total"], energy_lost=sim.energy_lost - lost_start, compile_time=compile_time,
+        compiled=clock is not None and clock.compiling > 0.0,
     )
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     demo = args.scene is None  # the main job: the default scene with its schedule
     scene = load_scene(DEFAULT_SCENE if demo else args.scene)
-    sim = Simulator(scene, method=args.method, dt=args.dt, contacts=args.contacts, solver=args.solver,
-                    order=args.order)
-    if demo and args.commands is None:
-        with resources.as_file(resources.files("tensegrity_sim.schedules") / DEMO_SCHEDULE) as path:
-            commands = load_commands(path, scene)
-        args.commands = f"the built-in {DEMO_SCHEDULE} (tensegrity_sim/schedules/)"
-    else:
-        commands = load_commands(args.commands, scene) if args.commands else None
-    if (args.plot or args.view) and args.log is None:
-        args.log = DEFAULT_LOG_DIR  # the figures and the page are made from the log
-    steps = int(round(args.duration / sim.dt))
-    print(f"method: {sim.method_reason}")
-    progress = steps >= PROGRESS_MIN_STEPS and not args.quiet
-    if args.log is None:
-        summary = simulate(sim, steps, commands, progress=progress)
-    else:
-        from .ros.offline import logged_run  # only logging needs mcap and rosbags
+    with CompileClock() as clock:   # from the simulator's making to the run's end: every kernel the run needs
+        sim = Simulator(scene, method=args.method, dt=args.dt, contacts=args.contacts, solver=args.solver,
+                        order=args.order)
+        if demo and args.commands is None:
+            with resources.as_file(resources.files("tensegrity_sim.schedules") / DEMO_SCHEDULE) as path:
+                commands = load_commands(path, scene)
+            args.commands = f"the built-in {DEMO_SCHEDULE} (tensegrity_sim/schedules/)"
+        else:
+            commands = load_commands(args.commands, scene) if args.commands else None
+        if (args.plot or args.view) and args.log is None:
+            args.log = DEFAULT_LOG_DIR  # the figures and the page are made from the log
+        steps = int(round(args.duration / sim.dt))
+        print(f"method: {sim.method_reason}")
+        progress = steps >= PROGRESS_MIN_STEPS and not args.quiet
+        if args.log is None:
+            summary = simulate(sim, steps, commands, progress=progress, clock=clock)
+        else:
+            from .ros.offline import logged_run  # only logging needs mcap and rosbags
 
-        with logged_run(sim, args.log) as driver:
-            summary = simulate(sim, steps, commands, progress=progress, driver=driver)
-        summary.extra["log"] = driver.path
+            with logged_run(sim, args.log) as driver:
+                summary = simulate(sim, steps, commands, progress=progress, driver=driver, clock=clock)
+            summary.extra["log"] = driver.path
     if args.commands:
         summary.extra["commands"] = args.commands
         summary.commanded = True

@@ -11,8 +11,8 @@ id per test the same way (``dds_child.random_domain``). Discovery is set to this
 are dropped), so the tests depend neither on the machine's domain or discovery settings nor on multicast,
 and send nothing beyond the loopback.
 
-``TENSEGRITY_SIM_REQUIRE_RCLPY=1`` (CI's ROS leg sets it) makes a missing rclpy an error instead of
-skipping the rclpy tests.
+``TENSEGRITY_SIM_REQUIRE_RCLPY=1`` (CI's ROS leg sets it) makes a missing rclpy or colcon an error instead
+of skipping the rclpy tests and the colcon workspace's (test/test_colcon.py).
 """
 import os
 
@@ -30,6 +30,12 @@ if os.environ.get("TENSEGRITY_SIM_REQUIRE_RCLPY") == "1":
         import rclpy  # noqa: F401
     except ImportError as exc:
         pytest.exit(f"TENSEGRITY_SIM_REQUIRE_RCLPY=1 but rclpy does not import: {exc}", returncode=3)
+    try:
+        import colcon_core  # noqa: F401
+        import colcon_ros  # noqa: F401
+    except ImportError as exc:
+        pytest.exit(f"TENSEGRITY_SIM_REQUIRE_RCLPY=1 but colcon does not import (the colcon extra): {exc}",
+                    returncode=3)
 
 
 def random_velocities(scene: ts.Scene, seed: int, scale: float = 1.0) -> ts.Scene:

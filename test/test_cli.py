@@ -19,8 +19,9 @@ def test_main_job_shows_slack_and_snaps_and_says_where_it_wrote(tmp_path, monkey
     assert main(["run", "--duration", "3.2", "--quiet", "--plot", "--view"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert "scene            prism3" in lines and "simulated        3.2 s in 3200 steps" in lines
-    assert "steps/s" in lines[5] and "max tension" in lines[6] and "the commands' work included" in lines[9]
-    switches = int(lines[7].split()[1])
+    assert "steps/s" in lines[5] and "max tension" in lines[7] and "the commands' work included" in lines[10]
+    assert lines[6].startswith("kernels          ")   # apart from the stepping: compiled, or loaded from the cache
+    switches = int(lines[8].split()[1])
     assert switches >= 2 * 9  # each of the 9 cables went slack, then taut
     [log] = [line.split()[1] for line in lines if line.startswith("log ")]
     assert (tmp_path / log).stat().st_size > 0

@@ -427,3 +427,26 @@ def test_daqp_working_set_answer_matches_its_reference_and_quadprog(case):
             np.testing.assert_allclose(y, multipliers, rtol=1e-8, atol=1e-12 * np.max(np.abs(multipliers)))
             answered += 1
     assert answered or case in ("duplicated members", "duplicated, mass ratio 1e4")
+
+
+@pytest.mark.parametrize("status", [-1, -2, -4])   # infeasible, cycling, iteration limit
+def test_a_daqp_failure_is_answered_by_the_fallbacks_verified(monkeypatch, status):
+    """Where DAQP fails on a feasible problem (issue 47: infeasible on a set-down locked icosahedron's
+    dependent rows, cycling on a spinning prism), the fallback backends answer it, their answer quadprog's;
+    the solve is counted by backend. An infeasible problem still raises DAQP's own error."""
+    v0, mass, rows = random_problem(1, duplicates=4)
+    solver = qp.make_solver("daqp", mass)
+
+    def failing(*args, **kwargs):
+        raise solver._failure(status, 625, len(rows))
+
+    monkeypatch.setattr(solver, "_solve", failing)
+    v, y = solver.solve(v0, rows)
+    reference = quadprog_velocities(v0, mass, rows)
+    assert np.max(np.abs(v - reference)) < 1e-7 * np.max(np.abs(reference))
+    assert solver.fallbacks == {"nnls": 1}
+    one = qp.make_solver("daqp", np.array([1.0]))
+    infeasible = qp.Rows(np.array([[0, -1], [-1, 0]]), np.array([[1.0, 0, 0], [1.0, 0, 0]]), np.array([-1.0, -1.0]), 0)
+    with pytest.raises(qp.QPError, match=r"QP solver 'daqp' failed \(infeasible\): after \d+ iterations on 2 rows"):
+        one.solve(np.zeros((1, 3)), infeasible)
+    assert one.fallbacks == {}

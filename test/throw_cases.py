@@ -45,6 +45,24 @@ def random_throw(rng: np.random.Generator, *, steps: int = 400, robots=ROBOTS, m
             "steps": steps}
 
 
+def wide_throw(rng: np.random.Generator, *, steps: int = 400) -> dict:
+    """One throw of the wider space of ``bench/bench_throws.py`` (issue 47): :func:`random_throw`'s draw, then
+    the drop height spread over 1 um to 0.5 m (a third of the throws set down: 1 um to 1 mm, at rest or
+    nearly), member contacts with a response (friction 0-1) on a third of them, and a second command
+    three quarters of the way through."""
+    case = random_throw(rng, steps=steps)
+    set_down = bool(rng.random() < 1 / 3)
+    case["height"] = float(10.0 ** rng.uniform(-6.0, -3.0)) if set_down else float(rng.uniform(0.0, 0.5))
+    if set_down:
+        case["velocity"] = [float(a) for a in rng.normal(0.0, 0.01, 3)]
+        case["spin"] = [float(a) for a in rng.normal(0.0, 0.05, 3)]
+    case["response"] = float(rng.uniform(0.0, 1.0)) if rng.random() < 1 / 3 else None
+    case["second_step"] = int(rng.integers(3 * steps // 4, steps))
+    case["second_factor"] = float(rng.uniform(1.0, 1.05)) if case["command_factor"] >= 1.0 else \
+        float(rng.uniform(1.0, 1.1))
+    return case
+
+
 def _rigid(scene: ts.Scene) -> bool:
     """Whether every strut of ``scene`` is rigid."""
     return all(s.rigid for s in scene.struts)
@@ -67,6 +85,9 @@ def throw_scene(case: dict) -> ts.Scene:
         node["velocity"] = [float(a) for a in vi]
     raw["gravity"] = [0.0, 0.0, -G]
     raw["ground"] = {"height": 0.0, "friction": case["mu"], "restitution": case["e"]}
+    if case.get("response") is not None:
+        raw["contact"] = {"kinds": ["strut_strut", "strut_cable", "cable_cable"], "response": True,
+                          "friction": case["response"]}
     return ts.Scene.from_dict(raw)
 
 
@@ -89,9 +110,11 @@ def run_throw(case: dict) -> dict:
     energy = sim.energy()["total"]
     try:
         for k in range(case["steps"]):
-            if k == case["command_step"]:
+            factor = {case["command_step"]: case["command_factor"]}.get(k) or \
+                (case.get("second_factor") if k == case.get("second_step") else None)
+            if factor is not None:
                 rest = sim.rest_lengths.copy()
-                rest[case["command_cables"]] *= case["command_factor"]
+                rest[case["command_cables"]] *= factor
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     sim.set_rest_lengths(rest)
@@ -103,7 +126,7 @@ def run_throw(case: dict) -> dict:
                 break
             out["sink"] = max(out["sink"], float(-(x[:, 2] - radii).min()))
             now = sim.energy()["total"]
-            if check_energy and k != case["command_step"]:
+            if check_energy and factor is None:
                 created = max(created, now - energy)
             energy = now
     except ts.StepError as exc:

@@ -63,8 +63,10 @@ point; the first three follow from the alternatives' definitions and were not im
   derivatives, with no line search. The semismooth Newton method on the whole problem is what is
   measured now (``scripts/throws.py --count 200 --seed 3`` and ``--count 400 --seed 4``: every start of
   one of the 600 throws' problems ended 5e-10 N*s from the law against a tolerance of 4e-11, so the best
-  answer found is taken where it meets the law to ``RELAXED`` times the tolerance, and counted in
-  ``FrictionalSolver.relaxed``; beyond that the problem has no solution). Measured cost of the modes: 2 QPs per
+  answer found is taken where it meets the law to ``ACCEPT_TOL`` of the momentum in play (a physical
+  scale: at rest the structure's weight times the step), and counted in ``FrictionalSolver.relaxed``;
+  beyond that the problem has no solution). The modes' answers are accepted the same way, else the Newton
+  method takes the problem. Measured cost of the modes: 2 QPs per
   solve for the sliding strut, 1 for the resting icosahedron (``bench/bench_ground.py`` times them).
 
 **Targets.** A contact is armed when its node can reach the ground by the sub-step's end
@@ -105,10 +107,14 @@ MAX_NEWTON_ITER = 100     # ... and its iterations before the problem is declare
 _LINE_SEARCH = 30         # halvings of the Newton step before the line search gives it up ...
 _NSGS_SWEEPS = (100, 300, 600, 4000)   # NSGS sweeps between Newton's further starts (5000 in all) ...
 _RESTARTS = 64            # Newton's starts from random impulses where it stops at a merit's local minimum
-# Where no start meets the law to FIXED_POINT_TOL, the best answer found is taken if it meets it to this many
-# times that (a problem measured at 14 times, 5e-10 N*s: 6,511 iterations from every start left round-off
-# at that level) and counted in FrictionalSolver.relaxed; beyond it the problem has no solution
-RELAXED = 1e3
+# Where no answer meets the law to FIXED_POINT_TOL of the contacts' own impulse scale, the best one found is
+# taken if it meets it to ACCEPT_TOL of the momentum in play (FrictionalSolver._physical_tol: the free nodes'
+# sum m |v0|, at rest the weight times the step) and counted in FrictionalSolver.relaxed; beyond it the problem
+# has no solution. Measured (issue 47, bench/bench_throws.py): prism3 set down at mu = 1.9, the best of 3292
+# Newton iterations 4.7e-8 N*s from the law, 1.7e-7 of its 0.28 N*s in play; a prism dropped 5 cm, 2.6e-13 N*s
+# against a contact scale of 9e-6 N*s. The old bound, 1e3 times FIXED_POINT_TOL of the contacts' scale, refused
+# both
+ACCEPT_TOL = 1e-6
 _LM_DAMPINGS = 20         # ... for Levenberg–Marquardt steps, their damping raised tenfold up to this many times
 TOUCH_TOL = 1e-9          # m: a node within this of the ground touches it (contact begins/ends here)
 _ANDERSON_DEPTH = 3       # previous iterates the fixed point's acceleration combines
@@ -314,7 +320,7 @@ class FrictionalSolver:
         self._pair_memory: dict[int, tuple[bool, float, np.ndarray]] = {}   # a pair's mode, y_n, slip (3,)
         self.last = None                                       # impulses (k, 3) (tangents, normal) of the last solve
         self.iterations = 0                                    # QPs of the last solve (+ Newton iterations)
-        self.relaxed = 0                                       # solves answered to RELAXED x the tolerance
+        self.relaxed = 0                                       # solves answered to ACCEPT_TOL (physical)
         self._guess = None                                     # the modes' last iterate: multipliers, friction (k, 2)
         self.disarm()
 
@@ -538,7 +544,8 @@ class FrictionalSolver:
             drift = float(np.max(np.abs(target - phi[moving]), initial=0.0))
             if not changed and drift <= tol:
                 self.iterations = it
-                self._verify(yn, friction, vt, mass, tol)
+                if not self._accepted(yn, friction, vt, tol, v0, y):
+                    return None   # beyond the physical tolerance: the Newton method takes the problem
                 # the next solve starts from these modes; a contact at rest starts sticking
                 self._remember(stick | (speed <= slip_tol), yn, slip)
                 impulses = friction.copy()
@@ -807,14 +814,14 @@ class FrictionalSolver:
             self._verify(yn, applied, vt, mass, tol)
         except FrictionError as exc:
             try:
-                self._verify(yn, applied, vt, mass, RELAXED * tol)
+                self._verify(yn, applied, vt, mass, self._physical_tol(v0, r))
             except FrictionError:
                 raise FrictionError(self.name, "no solution",
                                     f"{exc.detail} after {MAX_MODE_ITER} mode QPs and {it} semismooth Newton "
                                     "iterations") from None
             self.relaxed += 1
         v0c, _ = self._with_contacts(v0, rows, applied, every[:0])
-        self.inner._check(v, y, v0c, all_rows.subset(np.arange(n_qp), all_rows.targets[:n_qp], n_eq))
+        self._check_rows(v, y, v0c, all_rows.subset(np.arange(n_qp), all_rows.targets[:n_qp], n_eq), v0, r)
         speed = np.sqrt(np.einsum("ij,ij->i", vt, vt))
         slip_tol = _SLIP_FLOOR + FIXED_POINT_TOL * max(float(np.max(np.abs(v0), initial=0.0)),
                                                        float(np.max(np.abs(v), initial=0.0)))
@@ -837,6 +844,49 @@ class FrictionalSolver:
                 n_members = self.ground.system.n_members
                 names.append(f"{members[key // n_members]!r} on {members[key % n_members]!r}")
         return ", ".join(names)
+
+    def _physical_tol(self, v0, impulses) -> float:
+        """Half the Coulomb residual (N*s) an answer may keep, :data:`ACCEPT_TOL` of the momentum in play:
+        the free nodes' ``sum m_i |v0_i|`` (at rest, the structure's weight times the step), or the largest
+        impulse ``impulses`` if larger. The contacts' own impulse scale, which the fixed point is held to,
+        can be round-off small (a node touching down carries a sliver of the load: 1e-15 N*s tolerances)."""
+        momentum = float(np.sum(self._mass * np.sqrt(np.einsum("ij,ij->i", v0, v0))))
+        return 0.5 * ACCEPT_TOL * max(momentum, float(np.max(np.abs(impulses), initial=0.0)), 1e-300)
+
+    def _check_rows(self, v, y, v0c, rows, v0, impulses) -> None:
+        """The backend's optimality check of the Newton method's answer on the QP rows (the method's and
+        the normal rows, the friction ``v0c`` added), else the same residuals to the physical tolerance:
+        the impulses' balance and signs to :meth:`_physical_tol`, and a violated or not-landed acting row
+        (m/s) times the heaviest node's mass (N*s) too; counted in :attr:`relaxed`. Measured (issue 47,
+        ``bench/bench_throws.py --seed 1``, throw 16): an icosahedron set down at restitution 0.94, its
+        answer's acting row 1.1e-8 m/s short of its target, refused at 1e-7 of its 0.019 m/s."""
+        try:
+            self.inner._check(v, y, v0c, rows)
+            return
+        except QPError as exc:
+            if exc.status != "inaccurate output" and exc.status != "infeasible output":
+                raise
+            _, viol, _, stationarity, smallest, slack = self.inner._residuals_reference(v, y, v0c, rows)
+            tol = 2.0 * self._physical_tol(v0, impulses)
+            heaviest = float(self._mass.max(initial=0.0))
+            if stationarity > tol or smallest < -tol or heaviest * max(viol, slack) > tol:
+                raise
+        self.relaxed += 1
+
+    def _accepted(self, yn, friction, vt, tol, v0, y) -> bool:
+        """Whether the modes' answer meets the Coulomb law: to ``2 tol`` (the fixed point's own scale), or
+        else to the physical tolerance (:meth:`_physical_tol`, counted in :attr:`relaxed`)."""
+        try:
+            self._verify(yn, friction, vt, self._meff, tol)
+            return True
+        except FrictionError:
+            pass
+        try:
+            self._verify(yn, friction, vt, self._meff, self._physical_tol(v0, y))
+        except FrictionError:
+            return False
+        self.relaxed += 1
+        return True
 
     def _verify(self, yn, friction, vt, mass, tol) -> None:
         """The Coulomb law at the answer, as the natural residual of its projection form (Alart–Curnier):

@@ -256,6 +256,8 @@ class DaqpSolver(QPSolver):
         self._hessian = np.eye(len(self.mass))
         # daqp_quadprog itself, for the compiled path: daqp.solve's answer bit for bit (_daqp_kernels.py)
         self._entry, self._raw_settings = daqp_kernels.entry_point(daqp, self.settings)
+        self._fallbacks = None   # the FALLBACKS backends, made when DAQP first fails
+        self.fallbacks: dict[str, int] = {}   # solves answered by a fallback backend, by its name
 
     def _solve(self, v0, rows, warm, unit: float = 1.0):
         """The working set ``warm`` if it is the active set, else DAQP, on the problem divided by ``unit``
@@ -347,7 +349,28 @@ class DaqpSolver(QPSolver):
         relative: a prism moving at 1e-9 m/s (the hard cases' hovering cable) got a warm-started row
         dropped with a multiplier of -4e-13 N*s, inside ``dual_tol`` but 4e-4 of the impulse scale. Not
         every problem is rescaled: tighter effective tolerances made DAQP call the dependent rows of a
-        moving locked icosahedron infeasible (test_inextensible.py)."""
+        moving locked icosahedron infeasible (test_inextensible.py).
+
+        Where DAQP still fails (its exit flag, or an answer the check refuses), the problem goes to the
+        other dense backends in :data:`FALLBACKS` order, each answer verified by the same check, and the
+        first verified answer is returned (counted in :attr:`fallbacks`); only if none answers is DAQP's
+        error raised. Measured (``bench/bench_throws.py``, issue 47): a locked icosahedron set down on
+        the ground, its 30 dependent member rows and a ground row all met by ``v = 0`` (every target 0),
+        which DAQP called infeasible from every start while NNLS and OSQP answer it."""
+        try:
+            return self._solve_checked(v0, rows, warm)
+        except QPError as exc:
+            for backend in self._fallback_backends():
+                try:
+                    answer = backend.solve(v0, rows, warm)
+                except QPError:
+                    continue
+                self.fallbacks[backend.name] = self.fallbacks.get(backend.name, 0) + 1
+                return answer
+            raise exc
+
+    def _solve_checked(self, v0, rows, warm):
+        """DAQP's verified answer, solved again at unit velocity scale where that helps (:meth:`solve`)."""
         try:
             return super().solve(v0, rows, warm)
         except QPError as exc:
@@ -358,6 +381,14 @@ class DaqpSolver(QPSolver):
         v = v.reshape(-1, 3)
         self._check(v, y, v0, rows)
         return v, y
+
+    def _fallback_backends(self):
+        """The backends of :data:`FALLBACKS`, made on first use for this backend's masses."""
+        if self._fallbacks is None:
+            self._fallbacks = [SOLVERS[name](self.mass[::3]) for name in FALLBACKS]
+            for backend in self._fallbacks:
+                backend.compiled = self.compiled
+        return self._fallbacks
 
     def describe(self) -> dict:
         return {"solver": self.name, **self.settings}
@@ -904,6 +935,11 @@ SPARSE_NODES = 100
 # verified answers instead of DAQP's (positions 3e-11 to 5e-10 m apart after 23 steps, DAQP's
 # tolerance). So the sparse backend always has it; a smaller structure that names it does not.
 DUAL_NODES = SPARSE_NODES
+
+
+# What answers where DAQP fails (DaqpSolver.solve), in this order: NNLS on the Delassus problem (its
+# regularisation copes with dependent rows) and OSQP (ADMM); each answer verified by the same check
+FALLBACKS = ("nnls", "osqp")
 
 
 def choose_solver(n_free: int) -> tuple[str, str]:
