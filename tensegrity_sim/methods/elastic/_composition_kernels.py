@@ -52,7 +52,8 @@ def _elongation(x, ends, n_struts, rest, ci):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _flow(x, v, acc, tension, dirs, slack, h, weights, rest, ext, ends, stiffness, floor, strut_rest, damping,
+def _flow(x, v, acc, tension, dirs, slack, h, weights, rest, ext, ends, attach, attach_at, stiffness, floor,
+          strut_rest, damping,
           inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage, impulses):
     """The composed step of ``h`` (s) in place on the workspace ``x``, ``v`` (N, 3, 1), ``acc``,
     ``tension`` (nc, 1), ``dirs`` (nr, 3, 1), ``slack`` (nc,); ``impulses`` (nc,) N*s is set to each
@@ -60,8 +61,8 @@ def _flow(x, v, acc, tension, dirs, slack, h, weights, rest, ext, ends, stiffnes
     for ci in range(impulses.shape[0]):
         impulses[ci] = 0.0
     for w in weights:
-        _step(x, v, rest, ext, w * h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-              rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, dirs, dx, stage, slack, 0)
+        _step(x, v, rest, ext, w * h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+              gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, dirs, dx, stage, slack, 0)
         for ci in range(impulses.shape[0]):
             impulses[ci] += stage[ci]
 
@@ -115,7 +116,8 @@ def _first_switch(x, v, acc, slack0, x1, slack1, span, rest, ends, n_struts, min
 
 
 @njit(cache=True, error_model="numpy")
-def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_split, rest, ext, ends, stiffness,
+def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_split, rest, ext, ends, attach, attach_at,
+                   stiffness,
                    floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w,
                    coupled, work, impulses):
     """One step of ``h`` (s) of a batch-of-one workspace, in place on ``x``, ``v``, ``acc``,
@@ -128,7 +130,8 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
     nc = impulses.shape[0]
     # the trial: the whole (remaining) step from the part's start into the t* arrays
     _states(x, v, acc, tension, dirs, slack, tx, tv, tacc, tten, tdirs, tslack)
-    _flow(tx, tv, tacc, tten, tdirs, tslack, h, weights, rest, ext, ends, stiffness, floor, strut_rest, damping,
+    _flow(tx, tv, tacc, tten, tdirs, tslack, h, weights, rest, ext, ends, attach, attach_at, stiffness, floor,
+          strut_rest, damping,
           inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage, impulses)
     if locate:
         for ci in range(nc):
@@ -148,7 +151,8 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
             converged = False
             for _ in range(_FLOW_ITER):
                 _states(x, v, acc, tension, dirs, slack, tx, tv, tacc, tten, tdirs, tslack)
-                _flow(tx, tv, tacc, tten, tdirs, tslack, s, weights, rest, ext, ends, stiffness, floor, strut_rest,
+                _flow(tx, tv, tacc, tten, tdirs, tslack, s, weights, rest, ext, ends, attach, attach_at, stiffness,
+                      floor, strut_rest,
                       damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage,
                       part_imp)
                 e = _elongation(tx, ends, n_struts, rest, cable)
@@ -169,7 +173,8 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
                 s = s_new if lo < s_new < hi else 0.5 * (lo + hi)
             if not converged:
                 _states(x, v, acc, tension, dirs, slack, tx, tv, tacc, tten, tdirs, tslack)
-                _flow(tx, tv, tacc, tten, tdirs, tslack, s, weights, rest, ext, ends, stiffness, floor, strut_rest,
+                _flow(tx, tv, tacc, tten, tdirs, tslack, s, weights, rest, ext, ends, attach, attach_at, stiffness,
+                      floor, strut_rest,
                       damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage,
                       part_imp)
             # the part up to the switch is done: it is the new start; the rest of the step is the trial
@@ -177,7 +182,8 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
             for ci in range(nc):
                 located[ci] += part_imp[ci]
             remaining -= s
-            _flow(tx, tv, tacc, tten, tdirs, tslack, remaining, weights, rest, ext, ends, stiffness, floor,
+            _flow(tx, tv, tacc, tten, tdirs, tslack, remaining, weights, rest, ext, ends, attach, attach_at,
+                  stiffness, floor,
                   strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx,
                   stage, impulses)
         for ci in range(nc):
@@ -186,7 +192,8 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
 
 
 @njit(cache=True, error_model="numpy")
-def composed_steps(x, v, rest, ext, h, n_steps, every, weights, locate, min_split, ends, stiffness, floor,
+def composed_steps(x, v, rest, ext, h, n_steps, every, weights, locate, min_split, ends, attach, attach_at, stiffness,
+                   floor,
                    strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled,
                    acc, tension, rigid_dirs, slack, out_x, out_v, out_impulses, out_slack):
     """``n_steps`` steps of ``h`` (s) of every copy, each composed with ``weights`` (stage fractions of
