@@ -269,3 +269,49 @@ def test_paths_that_join_two_nodes_refuse_a_cable_along_a_strut_clearly():
     detector = ContactDetector(system, CONTACT_KINDS)
     cables = detector.members[detector.members >= system.n_struts] - system.n_struts
     np.testing.assert_array_equal(cables, np.arange(8, system.n_cables))
+
+
+# ------------------------------------------------------------------ what shows them
+def test_the_node_the_log_and_the_page_show_a_cable_where_it_is_attached(tmp_path):
+    """The markers draw each cable from its real end points, the published (and logged) cable states measure it
+    there, and the 3-D page's frames draw the logged run the same way."""
+    from ros_helpers import make_logic
+    from tensegrity_sim.cli import simulate as run_logged
+    from tensegrity_sim.ros.offline import logged_run
+    from tensegrity_sim.ros.record import read_log
+    from tensegrity_sim.viz.page import build_figure, frame_indices
+
+    scene = attached_icosahedron()
+    system = System(scene)
+    logic, sent, _ = make_logic(scene, publish_rate=1000.0)
+    for _ in range(3):
+        r = logic.step()
+    logic.publish()
+    messages = {key: msg for key, msg in sent}
+    ends = system.cable_points(r.positions)
+    assert not r.slack.any()
+    drawn = np.array([[p.x, p.y, p.z] for p in next(m for m in messages["markers"].markers if m.ns == "cables").points])
+    np.testing.assert_array_equal(drawn, ends.reshape(-1, 3))
+    states = messages["cable_states"]
+    length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
+    velocity_ends = system.cable_points(r.velocities)
+    rate = np.einsum("ij,ij->i", velocity_ends[:, 1] - velocity_ends[:, 0], (ends[:, 1] - ends[:, 0]) / length[:, None])
+    np.testing.assert_allclose(states.position, length, rtol=1e-14)
+    np.testing.assert_allclose(states.velocity, rate, rtol=0, atol=1e-13)
+    assert np.all(length[:8] < 0.95 * length[8:].min())   # the attached cables are shorter than their nodes' span
+
+    path = tmp_path / "attached.mcap"
+    sim = ts.Simulator(scene, method="elastic", dt=1e-3)
+    with logged_run(sim, str(path)) as driver:
+        run_logged(sim, 50, None, driver=driver)
+    record = read_log(path)
+    for k in range(len(record.times)):
+        ends = system.cable_points(record.positions[k])
+        np.testing.assert_allclose(record.lengths[k], np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1), rtol=1e-14)
+    picked = frame_indices(record, max_frames=5)
+    fig = build_figure(record, picked)
+    for frame, k in zip(fig.frames, picked):
+        taut = frame.data[1]
+        pts = np.column_stack([taut.x, taut.y, taut.z]).reshape(-1, 3, 3)[:, :2]
+        expected = system.cable_points(record.positions[k])[~record.slack[k]]
+        np.testing.assert_array_equal(pts, expected.astype(np.float32))

@@ -8,6 +8,7 @@ import pytest
 import tensegrity_sim as ts
 from bench.cases import icosahedron_thrown, tower_kicked
 from conftest import bungee_dict, class_k_dict, deadband_dict, random_velocities, record_advances
+from test_attachments import attached_icosahedron
 from test_contact import crossing_dict
 from tensegrity_sim.methods.qp import _qp_kernels as kernels
 from tensegrity_sim.methods.inextensible import _self_stress_kernels as self_stress_kernels
@@ -587,22 +588,24 @@ def test_self_stress_rule_matches_reference(name):
     assert calls["refined"] > 0 or name == "tower"
 
 
-@pytest.mark.parametrize("name", ["prism3", "icosahedron", "tower"])
+@pytest.mark.parametrize("name", ["prism3", "icosahedron", "tower", "attached"])
 def test_member_kinematics_matches_reference(name):
     """The cable lengths and elongation rates the node publishes (compiled) against ``System.geometry`` and
-    ``System.member_rates`` (numpy), over configurations and velocities from tiny to large scales."""
+    ``System.cable_rates`` (numpy), over configurations and velocities from tiny to large scales; ``attached``:
+    cables attached along the struts (test_attachments.py), measured at their real ends."""
     from tensegrity_sim._system_kernels import member_kinematics
-    sim = ts.Simulator(ts.load_scene(name), method="elastic")
+    sim = ts.Simulator(attached_icosahedron() if name == "attached" else ts.load_scene(name), method="elastic")
     system = sim.system
-    ends = np.ascontiguousarray(system.cable_ends, dtype=np.int64)
+    nodes, weights = system.cable_nodes.astype(np.int64), system.cable_weights
     rng = np.random.default_rng(7)
-    length, rate = np.empty(len(ends)), np.empty(len(ends))
+    length, rate = np.empty(len(nodes)), np.empty(len(nodes))
     for scale in (1e-3, 1.0, 1e3):
         x = sim.positions + scale * rng.normal(size=sim.positions.shape)
         v = scale * rng.normal(size=x.shape)
-        member_kinematics(x, v, ends, length, rate)
-        _, ref_length, n = system.geometry(x, system.cable_ends)
-        ref_rate = system.member_rates(v, n, system.cable_ends)
+        member_kinematics(x, v, nodes, weights, length, rate)
+        _, ref_length, n = system.geometry(x)
+        ref_length, n = ref_length[system.n_struts:], n[system.n_struts:]
+        ref_rate = system.cable_rates(v, n)
         np.testing.assert_allclose(length, ref_length, rtol=TOL, atol=0.0)
         # a rate is a sum of terms of either sign: agreement relative to the speeds
         np.testing.assert_allclose(rate, ref_rate, rtol=0.0, atol=TOL * np.abs(v).max())
