@@ -7,28 +7,19 @@ would not), the conservation of linear and angular momentum (a force at a point 
 weights has that point's torque), naming a strut's end either way (the same numbers, bit for bit), and the
 fast paths (compiled step, compiled loop, batch, ground loop, JAX) against the numpy reference.
 """
-import math
-import os
 import warnings
 
 import numpy as np
 import pytest
 
 import tensegrity_sim as ts
-from tensegrity_sim.batch import BatchSimulator
 from tensegrity_sim.methods.base import State
 from tensegrity_sim.methods.contact.detection import ContactDetector
 from tensegrity_sim.methods.elastic import _kernels as kernels
 from tensegrity_sim.scene import CONTACT_KINDS, Attachment, LumpedMassWarning, SceneError
 from tensegrity_sim.system import System
+from test_rods import HAVE_JAX, simulate
 
-HAVE_JAX = os.environ.get("TENSEGRITY_SIM_REQUIRE_JAX") == "1"
-if not HAVE_JAX:
-    try:
-        import jax  # noqa: F401
-        HAVE_JAX = True
-    except ImportError:
-        pass
 
 L, M, G = 1.2, 2.0, 9.81   # m, kg, m/s^2
 
@@ -56,25 +47,11 @@ def attached_icosahedron(ground=False):
     return ts.Scene.from_dict(d)
 
 
-def simulate(scene, path, steps, dt=1e-3):
-    """Positions and velocities (K, N, 3) after each step along ``path``, and the simulator."""
-    if path == "batch":
-        traj = BatchSimulator(scene, 2, method="elastic", dt=dt).run(steps=steps)
-        return traj.positions[1], traj.velocities[1], None
-    sim = ts.Simulator(scene, method="elastic", dt=dt, backend="jax" if path == "jax" else "numba")
-    if path == "reference":
-        sim._method.compiled = False
-    if path in ("run", "jax"):
-        traj = sim.run(steps=steps)
-        return traj.positions, traj.velocities, sim
-    rows = [sim.step() for _ in range(steps)]
-    return np.array([r.positions for r in rows]), np.array([r.velocities for r in rows]), sim
-
-
 # ------------------------------------------------------------------ the scene format
 def test_a_cable_end_on_a_strut_reads_writes_and_places_itself():
     scene = attached_icosahedron()
-    assert Attachment("s0", 0.88) in scene.cables[0].nodes or isinstance(scene.cables[0].nodes[0], Attachment)
+    assert scene.cables[0].nodes == (Attachment("s0", 0.12), Attachment("s2", 0.12))
+    assert scene.cables[1].nodes == ("n0", Attachment("s2", 0.86))
     assert ts.Scene.from_dict(scene.to_dict()) == scene
     assert ts.Scene.from_dict(ts.Scene.from_dict(scene.to_dict()).to_dict()).to_dict() == scene.to_dict()
     system = System(scene)
@@ -154,8 +131,8 @@ def test_an_end_at_a_struts_end_steps_the_numbers_of_naming_its_node(at):
     moved = ts.Scene.from_dict(d)
     assert isinstance(moved.cables[0].nodes[1], Attachment) and not len(System(moved).attached)
     for path in ("reference", "run"):
-        x0, v0, _ = simulate(named, path, 60)
-        x1, v1, _ = simulate(moved, path, 60)
+        x0, v0, _ = simulate(named, path, 60, 1e-3)
+        x1, v1, _ = simulate(moved, path, 60, 1e-3)
         np.testing.assert_array_equal(x1, x0)
         np.testing.assert_array_equal(v1, v0)
 
@@ -228,8 +205,8 @@ PATHS = ["compiled", "run", "batch"] + (["jax"] if HAVE_JAX else [])
 @pytest.mark.parametrize("path", PATHS)
 def test_the_fast_paths_step_cables_along_rods_as_the_numpy_reference_does(path):
     scene = attached_icosahedron()
-    x_ref, v_ref, ref = simulate(scene, "reference", 200)
-    x, v, _ = simulate(scene, path, 200)
+    x_ref, v_ref, ref = simulate(scene, "reference", 200, 1e-3)
+    x, v, _ = simulate(scene, path, 200, 1e-3)
     assert np.max(np.abs(x - x_ref)) <= 1e-12 * max(1.0, float(np.max(np.abs(x_ref))))
     assert np.max(np.abs(v - v_ref)) <= 1e-12 * max(1.0, float(np.max(np.abs(v_ref))))
     # momentum through 200 steps of cables pulling at points along the rods (with their mass blocks), to round-off
@@ -239,13 +216,25 @@ def test_the_fast_paths_step_cables_along_rods_as_the_numpy_reference_does(path)
     np.testing.assert_allclose(end[1], start[1], rtol=0, atol=1e-12)
 
 
+def test_the_composed_fourth_order_step_takes_cables_along_rods():
+    """Order 4 without located switches composes the same primitive (``_composition_kernels``): against its
+    numpy reference."""
+    scene = attached_icosahedron()
+    out = []
+    for compiled in (False, True):
+        sim = ts.Simulator(scene, method="elastic", dt=1e-3, order=4, locate_switches=False)
+        sim._method.compiled = compiled
+        out.append(np.array([sim.step().positions for _ in range(100)]))
+    np.testing.assert_allclose(out[1], out[0], rtol=0, atol=1e-12)
+
+
 def test_the_ground_loop_takes_cables_along_rods():
     """The elastic method's compiled ground loop calls the same force kernel: against the reference's ground step."""
     scene = attached_icosahedron(ground=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LumpedMassWarning)   # the ground path lumps the rods' mass (test_rods.py)
-        x_ref, v_ref, _ = simulate(scene, "reference", 300)
-        x, v, _ = simulate(scene, "run", 300)
+        x_ref, v_ref, _ = simulate(scene, "reference", 300, 1e-3)
+        x, v, _ = simulate(scene, "run", 300, 1e-3)
     assert np.max(np.abs(x[-1] - x[0])) > 1e-3
     np.testing.assert_allclose(x, x_ref, rtol=0, atol=1e-9)
     np.testing.assert_allclose(v, v_ref, rtol=0, atol=1e-7)

@@ -145,7 +145,7 @@ def test_composed_kernel_steps_a_batch():
         x, v = np.repeat(x0, b, axis=2), np.repeat(v0, b, axis=2)
         rest, ext = np.array([rests]), np.zeros_like(x)
         acc, ten, dirs = np.empty_like(x), np.empty((1, b)), np.empty((0, 3, b))
-        slack = kernels.elastic_forces(x, v, rest, ext, *model[:8], acc, ten, dirs)
+        slack = kernels.elastic_forces(x, v, rest, ext, *model[:10], acc, ten, dirs)
         out = (np.empty((1, 2, 3, b)), np.empty((1, 2, 3, b)), np.empty((1, 1, b)), np.empty((1, 1, b), dtype=bool))
         composed.composed_steps(x, v, rest, ext, 1e-3, 900, 900, np.array(WEIGHTS[4]), True, MIN_SPLIT * 1e-3,
                                 *model, acc, ten, dirs, slack, *out)
@@ -331,7 +331,7 @@ def test_copies_innermost_kernel_is_the_same_step(name):
     for kernel, extra in ((ek.elastic_steps, (no_detection(),)), (ek.elastic_steps_copies, ())):
         xk, vk = x.copy(), v.copy()
         carry = (np.empty_like(x), np.empty((nc, copies)), np.empty((nr, 3, copies)))
-        ek.elastic_forces(xk, vk, rest, ext, *model[:8], *carry)
+        ek.elastic_forces(xk, vk, rest, ext, *model[:10], *carry)
         k = -(-steps // 3)
         out = (np.empty((k, n, 3, copies)), np.empty((k, n, 3, copies)), np.empty((k, nc, copies)),
                np.empty((k, nc, copies), dtype=bool))

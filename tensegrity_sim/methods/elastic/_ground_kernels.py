@@ -515,8 +515,8 @@ def pair_scratch(n_nodes, n_rigid, n_pairs):
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                 gravity_force,
-                 rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu, restitution, radii,
+                 gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu,
+                 restitution, radii,
                  node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, dx, impulses, slack,
                  contact, armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5,
                  t5, pairs, b):
@@ -596,8 +596,8 @@ def _take_inputs(rest_seq, ext_seq, s, bs, rest, ext) -> bool:
 
 
 def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest, damping,
-                  inv_mass,
-                  gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, height,
+                  inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
+                  height,
                   mu, restitution, radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu,
                   pair_restitution, warm, rest_seq, ext_seq, out_x, out_v, out_impulses, out_slack, out_contact,
                   out_pairs, n_records, failed, reason, blocks):
@@ -620,8 +620,8 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
     the contact warm starts kept): a run with a schedule here is the very arithmetic of commanding each step."""
     for blk in prange(blocks):
         _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest,
-               damping,
-               inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu,
+               damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs,
+               height, mu,
                restitution, radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm,
                rest_seq, ext_seq, out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed,
                reason)
@@ -629,8 +629,8 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _copy_steps(b, bs, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
-                damping_b, inv_mass_b, gravity_b,
-                rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu, restitution, radii_b, node_strut_b,
+                damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu,
+                restitution, radii_b, node_strut_b,
                 touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb, extb, accb, tensionb,
                 dirsb, warmb, rest_seq, ext_seq, dx, imp, total, sl, contact, total_contact, armed, target, landing, x0,
                 v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, out_x, out_v,
@@ -693,8 +693,8 @@ def _copy_steps(b, bs, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffne
 
 @njit(cache=True, error_model="numpy")
 def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest,
-           damping, inv_mass,
-           gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu, restitution,
+           damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height,
+           mu, restitution,
            radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, rest_seq, ext_seq,
            out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason):
     """Block ``blk`` of ``blocks`` of :func:`_ground_steps`' copies (its arguments): one function that the
@@ -762,8 +762,8 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
         n_records[b] = 0
         bs = b if rest_seq.shape[2] > 1 else 0   # the copy's column of the inputs (or the one of every copy's)
         _copy_steps(b, bs, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
-                    damping_b, inv_mass_b,
-                    gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu, restitution, radii_b,
+                    damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu,
+                    restitution, radii_b,
                     node_strut_b, touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb,
                     extb, accb, tensionb, dirsb, warmb, rest_seq, ext_seq, dx, imp, total, sl, contact,
                     total_contact, armed, target, landing, x0, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3,

@@ -419,8 +419,8 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
                     for j in range(3):
                         before[i, j, 0] = x[i, j, b]
             _step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                  gravity_force,
-                  rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, imp, sl, b)
+                  gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, imp,
+                  sl, b)
             if detecting and moved_on(before, 0, x, b, b, detection):
                 p = measure(x, b, b, detection, work, 0)
                 if p >= 0:
@@ -529,8 +529,8 @@ def _pushes_copies(ends, inv_mass, rigid_members, strengths, dirs, out):
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _step_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                 gravity_force,
-                 rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength, impulses, slack):
+                 gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength,
+                 impulses, slack):
     """:func:`_step` of every copy; ``dx`` (N, 3, B) and ``strength`` (nr, B) are scratch, ``impulses``
     and ``slack`` (nc, B) the step's."""
     n_nodes, _, n_copies = x.shape
@@ -592,8 +592,8 @@ def _step_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, 
 
 @njit(cache=True, error_model="numpy", nogil=True)   # nogil: blocks of copies on threads (methods/_copy_blocks.py)
 def elastic_steps_copies(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest,
-                         damping, inv_mass,
-                         gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
+                         damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc,
+                         tension, rigid_dirs,
                          out_x, out_v, out_impulses, out_slack):
     """:func:`elastic_steps` (same arguments, same numbers) with the copies innermost: faster for a
     large batch, where stepping one copy at a time walks numbers ``B`` apart."""
@@ -606,8 +606,8 @@ def elastic_steps_copies(x, v, rest, ext, h, n_steps, every, ends, attach, attac
     total = np.zeros((nc, n_copies))
     for s in range(n_steps):
         _step_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                     gravity_force,
-                     rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength, imp, sl)
+                     gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength,
+                     imp, sl)
         for ci in range(nc):
             for b in range(n_copies):
                 total[ci, b] += imp[ci, b]
