@@ -708,7 +708,7 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
     # scene-steps/s sharing them, 233-243k with copies); since _copy_steps counts none per step, only the
     # counts of this function's calls, once a copy, remain
     ends_b, stiffness_b, strut_rest_b, damping_b = ends.copy(), stiffness.copy(), strut_rest.copy(), damping.copy()
-    attach_b, attach_at_b = attach.copy(), attach_at.copy()
+    attach_b, attach_at_b = attach, attach_at   # read only where the scene has them (None otherwise)
     inv_mass_b, gravity_b, rigid_members_b = inv_mass.copy(), gravity_force.copy(), rigid_members.copy()
     rigid_length_sq_b, rigid_w_b, radii_b, node_strut_b = (rigid_length_sq.copy(), rigid_w.copy(), radii.copy(),
                                                            node_strut.copy())

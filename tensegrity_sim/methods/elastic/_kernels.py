@@ -12,7 +12,9 @@ The system (never changes during a run; :func:`model_arrays` builds it from a ``
     attach (k, 5) int64         the cables with an end along a strut (physics.md section 4c), in member order:
                                 their member row, then the node pairs (a0, a1, b0, b1) of their two ends
     attach_at (k, 2)            the weights (wa, wb) of a1 and b1: end a at (1 - wa) x_a0 + wa x_a1, and so b
-                                (a node end is (node, node) with weight 0); the main loop skips these rows
+                                (a node end is (node, node) with weight 0); the main loop skips these rows.
+                                Both None for a scene without such cables: the kernels then compile without
+                                them (two more array arguments through the step cost its run() ~10 %)
     stiffness (m,) N/m          zero for rigid struts
     floor (m,)                  -inf for struts, 0 for cables: tension ``k max(floor, l - rest)``
     strut_rest (n_struts,) m
@@ -61,8 +63,8 @@ class ElasticModel(NamedTuple):
     """The system arrays of the kernels (module docstring), in the kernels' argument order."""
 
     ends: np.ndarray
-    attach: np.ndarray
-    attach_at: np.ndarray
+    attach: np.ndarray | None
+    attach_at: np.ndarray | None
     stiffness: np.ndarray
     floor: np.ndarray
     strut_rest: np.ndarray
@@ -78,10 +80,13 @@ class ElasticModel(NamedTuple):
 def model_arrays(system, rigid) -> ElasticModel:
     """The kernels' system arrays for a ``System`` and its ``RigidStruts``."""
     c = system.attached
-    attach = np.concatenate([(system.n_struts + c)[:, None], system.cable_nodes[c].reshape(-1, 4)], axis=1)
+    attach = attach_at = None
+    if len(c):
+        attach = np.concatenate([(system.n_struts + c)[:, None], system.cable_nodes[c].reshape(-1, 4)], axis=1)
+        attach, attach_at = np.ascontiguousarray(attach, dtype=np.int64), np.ascontiguousarray(system.cable_weights[c])
     return ElasticModel(
-        np.ascontiguousarray(system.ends, dtype=np.int64), np.ascontiguousarray(attach, dtype=np.int64),
-        np.ascontiguousarray(system.cable_weights[c], dtype=float), np.ascontiguousarray(system.stiffness, dtype=float),
+        np.ascontiguousarray(system.ends, dtype=np.int64), attach, attach_at,
+        np.ascontiguousarray(system.stiffness, dtype=float),
         np.ascontiguousarray(system.floor, dtype=float), np.ascontiguousarray(system.strut_rest, dtype=float),
         np.ascontiguousarray(system.cable_damping, dtype=float), system.mass.kernel_array,
         np.ascontiguousarray(system.gravity_force, dtype=float),
@@ -102,10 +107,11 @@ def _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_re
     rigid_k = 0
     n_rigid = rigid_members.shape[0]
     attach_k = 0
-    n_attach = attach.shape[0]
+    next_attach = _attached_row(attach, 0)   # the next cable along a strut: _attached_force takes it
     for i in range(ends.shape[0]):
-        if attach_k < n_attach and attach[attach_k, 0] == i:   # a cable along a strut: _attached_forces
+        if i == next_attach:
             attach_k += 1
+            next_attach = _attached_row(attach, attach_k)
             continue
         a = ends[i, 0]
         c = ends[i, 1]
@@ -143,13 +149,22 @@ def _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_re
         acc[c, 0, b] -= t * n0
         acc[c, 1, b] -= t * n1
         acc[c, 2, b] -= t * n2
-    for k in range(n_attach):
-        slack[attach[k, 0] - n_struts] = _attached_force(x, v, rest, attach, attach_at, stiffness, floor, damping,
-                                                         n_struts, acc, tension, k, b)
+    if attach is not None:   # a scene without cables along a strut compiles without this (attach None)
+        for k in range(attach.shape[0]):
+            slack[attach[k, 0] - n_struts] = _attached_force(x, v, rest, attach, attach_at, stiffness, floor,
+                                                             damping, n_struts, acc, tension, k, b)
     solve_forces(acc, inv_mass, ends, rigid_members, b)
 
 
-@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _attached_row(attach, k):
+    """The member row of the ``k``-th cable along a strut, or -1 past the last (or with none: ``attach`` None)."""
+    if attach is None:
+        return -1
+    return attach[k, 0] if k < attach.shape[0] else -1
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _attached_force(x, v, rest, attach, attach_at, stiffness, floor, damping, n_struts, acc, tension, k, b):
     """Copy ``b``'s force of cable ``attach[k]``, whose end lies along a strut (module docstring): each end at
     its weighted point, the force there shared by the same weights, added to ``acc``; its tension written
@@ -452,10 +467,11 @@ def _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, s
     rigid_k = 0
     n_rigid = rigid_members.shape[0]
     attach_k = 0
-    n_attach = attach.shape[0]
+    next_attach = _attached_row(attach, 0)   # the next cable along a strut: _attached_force takes it
     for i in range(ends.shape[0]):
-        if attach_k < n_attach and attach[attach_k, 0] == i:   # a cable along a strut: _attached_forces
+        if i == next_attach:
             attach_k += 1
+            next_attach = _attached_row(attach, attach_k)
             continue
         a = ends[i, 0]
         c = ends[i, 1]
@@ -498,10 +514,11 @@ def _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, s
             acc[c, 2, b] -= t * n2
         if is_rigid:
             rigid_k += 1
-    for k in range(n_attach):   # the same arithmetic as _forces' (the copies' numbers bit for bit)
-        for b in range(n_copies):
-            slack[attach[k, 0] - n_struts, b] = _attached_force(x, v, rest, attach, attach_at, stiffness, floor,
-                                                                damping, n_struts, acc, tension, k, b)
+    if attach is not None:   # the same arithmetic as _forces' (the copies' numbers bit for bit)
+        for k in range(attach.shape[0]):
+            for b in range(n_copies):
+                slack[attach[k, 0] - n_struts, b] = _attached_force(x, v, rest, attach, attach_at, stiffness, floor,
+                                                                    damping, n_struts, acc, tension, k, b)
     solve_forces_copies(acc, inv_mass, ends, rigid_members)
 
 
