@@ -164,7 +164,7 @@ def _attached_row(attach, k):
     return attach[k, 0] if k < attach.shape[0] else -1
 
 
-@njit(cache=True, error_model="numpy", _nrt=False)
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
 def _attached_force(x, v, rest, attach, attach_at, stiffness, floor, damping, n_struts, acc, tension, k, b):
     """Copy ``b``'s force of cable ``attach[k]``, whose end lies along a strut (module docstring): each end at
     its weighted point, the force there shared by the same weights, added to ``acc``; its tension written
