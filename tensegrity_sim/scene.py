@@ -30,6 +30,7 @@ __all__ = [
     "Node",
     "Strut",
     "Cable",
+    "Attachment",
     "Ground",
     "ContactResponse",
     "Scene",
@@ -101,9 +102,19 @@ class Strut:
 
 
 @dataclass(frozen=True)
+class Attachment:
+    """A cable end on a strut (physics.md section 4c): the point ``(1 - at) x_a + at x_b`` of strut ``strut``
+    (``x_a`` its first node, ``x_b`` its second), ``at`` in [0, 1]; the cable's force there is shared
+    ``(1 - at, at)`` between the strut's ends."""
+
+    strut: str
+    at: float
+
+
+@dataclass(frozen=True)
 class Cable:
     name: str
-    nodes: tuple[str, str]
+    nodes: tuple[str | Attachment, str | Attachment]  # a node's name, or a point on a strut
     stiffness: float | None  # N/m; None when the scene only serves the inextensible method
     rest_length: float  # m
     damping: float = 0.0  # N*s/m, acts only while taut
@@ -236,6 +247,7 @@ _STRUT_KEYS = {"name", "nodes", "stiffness", "rest_length", "mass", "radius", "m
 _PAYLOAD_KEYS = {"at", "mass"}
 MASS_DISTRIBUTIONS = ("uniform", "ends")
 _CABLE_KEYS = {"name", "nodes", "stiffness", "rest_length", "damping", "radius", "mass"}
+_ATTACHMENT_KEYS = {"strut", "at"}
 
 
 @dataclass(frozen=True)
@@ -318,16 +330,41 @@ class Scene:
         r = np.zeros(len(self.nodes))
         for m in self.struts + self.cables:
             for end in m.nodes:
-                r[index[end]] = max(r[index[end]], m.radius)
+                if isinstance(end, str):   # a cable attached along a strut gives that strut's nodes no radius
+                    r[index[end]] = max(r[index[end]], m.radius)
         own = [(i, n.radius) for i, n in enumerate(self.nodes) if n.radius is not None]
         for i, radius in own:
             r[i] = radius
         return r
 
     def member_index(self, members: tuple[Strut, ...] | tuple[Cable, ...]) -> np.ndarray:
-        """(n, 2) int node indices of the members' ends (a, b)."""
+        """(n, 2) int node indices of the members' ends (a, b): struts, or cables whose ends are all nodes
+        (:meth:`cable_points` places every cable end)."""
         index = {n.name: i for i, n in enumerate(self.nodes)}
         return np.array([[index[m.nodes[0]], index[m.nodes[1]]] for m in members], dtype=np.intp).reshape(-1, 2)
+
+    def cable_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """Where each cable end lies: nodes (n_cables, 2, 2) int and weights (n_cables, 2), end ``j`` of
+        cable ``c`` at ``(1 - w) x[nodes[c, j, 0]] + w x[nodes[c, j, 1]]`` with ``w = weights[c, j]``. A node
+        end is ``(node, node)`` with ``w = 0``; an end ``{strut, at}`` is the strut's ``(a, b)`` with
+        ``w = at``, except at ``at = 0`` or ``1``, which is the node itself (``w = 0``), so that a scene that
+        names a strut's end either way steps the same numbers."""
+        index = {n.name: i for i, n in enumerate(self.nodes)}
+        struts = {s.name: s for s in self.struts}
+        nodes = np.zeros((len(self.cables), 2, 2), dtype=np.intp)
+        weights = np.zeros((len(self.cables), 2))
+        for c, cable in enumerate(self.cables):
+            for j, end in enumerate(cable.nodes):
+                if isinstance(end, str):
+                    nodes[c, j] = index[end]
+                    continue
+                a, b = (index[name] for name in struts[end.strut].nodes)
+                if end.at == 0.0 or end.at == 1.0:
+                    nodes[c, j] = a if end.at == 0.0 else b
+                else:
+                    nodes[c, j] = a, b
+                    weights[c, j] = end.at
+        return nodes, weights
 
     # ----------------------------------------------------------------- (de)serialisation
     @classmethod
@@ -347,7 +384,7 @@ class Scene:
         node_names = {n.name: n for n in nodes}
         member_names: set[str] = set(node_names)
         struts = cls._parse_members(ctx, "struts", mapping.get("struts", []), nodes, member_names)
-        cables = cls._parse_members(ctx, "cables", mapping.get("cables", []), nodes, member_names)
+        cables = cls._parse_members(ctx, "cables", mapping.get("cables", []), nodes, member_names, struts)
 
         kinds, response = cls._parse_contact(ctx, mapping.get("contact", {}))
         ground = cls._parse_ground(ctx, mapping["ground"]) if "ground" in mapping else None
@@ -405,12 +442,13 @@ class Scene:
 
     @staticmethod
     def _parse_members(ctx: _Context, kind: str, raw_members: Any, nodes: list[Node],
-                       seen: set[str]) -> list:
+                       seen: set[str], struts: list[Strut] = ()) -> list:
         if raw_members is None:
             raw_members = []
         if not isinstance(raw_members, list):
             raise ctx.error(kind, f"must be a list, got {type(raw_members).__name__}")
         by_name = {n.name: n for n in nodes}
+        struts = {s.name: s for s in struts}
         keys = _STRUT_KEYS if kind == "struts" else _CABLE_KEYS
         required = {"name", "nodes", "stiffness"} if kind == "struts" else {"name", "nodes"}
         out = []
@@ -419,21 +457,27 @@ class Scene:
             _check_keys(ctx, where, raw, keys, required)
             name = _name(ctx, where, raw["name"], seen)
             ends = raw["nodes"]
-            if not isinstance(ends, (list, tuple)) or len(ends) != 2 or not all(isinstance(e, str) for e in ends):
-                raise ctx.error(where, f"nodes must be a list of two node names, got {describe(ends)}")
-            for e in ends:
-                if e not in by_name:
-                    raise ctx.error(where, f"nodes: unknown node {describe(e)}")
-            if ends[0] == ends[1]:
-                raise ctx.error(where, f"nodes: a member cannot join node {ends[0]!r} to itself")
-            pa = np.array(by_name[ends[0]].position)
-            pb = np.array(by_name[ends[1]].position)
+            if kind == "cables":
+                ends = Scene._parse_cable_ends(ctx, where, ends, by_name, struts)
+                points = [Scene._end_position(e, by_name, struts) for e in ends]
+                labels = [describe(e) if isinstance(e, str) else f"{e.strut!r} at {e.at!r}" for e in ends]
+            else:
+                if not isinstance(ends, (list, tuple)) or len(ends) != 2 or not all(isinstance(e, str) for e in ends):
+                    raise ctx.error(where, f"nodes must be a list of two node names, got {describe(ends)}")
+                for e in ends:
+                    if e not in by_name:
+                        raise ctx.error(where, f"nodes: unknown node {describe(e)}")
+                if ends[0] == ends[1]:
+                    raise ctx.error(where, f"nodes: a member cannot join node {ends[0]!r} to itself")
+                points = [np.array(by_name[e].position) for e in ends]
+                labels = [repr(e) for e in ends]
+            pa, pb = points
             with np.errstate(over="ignore"):  # an overflowing distance is refused below
                 length = float(np.linalg.norm(pb - pa))
             if length == 0.0:
-                raise ctx.error(where, f"nodes: zero-length member ({ends[0]!r} and {ends[1]!r} coincide)")
+                raise ctx.error(where, f"nodes: zero-length member ({labels[0]} and {labels[1]} coincide)")
             if not math.isfinite(length):  # the ends' coordinates are finite, their distance overflows
-                raise ctx.error(where, f"nodes: the distance from {ends[0]!r} to {ends[1]!r} overflows the float "
+                raise ctx.error(where, f"nodes: the distance from {labels[0]} to {labels[1]} overflows the float "
                                        f"range (ends at {pa.tolist()} and {pb.tolist()} m)")
             stiffness_raw = raw.get("stiffness")
             if kind == "struts" and isinstance(stiffness_raw, str) and stiffness_raw == RIGID:
@@ -460,8 +504,46 @@ class Scene:
             else:
                 damping = _non_negative(ctx, where, "damping", raw.get("damping", 0.0))
                 mass = _non_negative(ctx, where, "mass", raw.get("mass", 0.0))
-                out.append(Cable(name, (ends[0], ends[1]), stiffness, rest, damping, radius, mass))
+                out.append(Cable(name, tuple(ends), stiffness, rest, damping, radius, mass))
         return out
+
+    @staticmethod
+    def _parse_cable_ends(ctx: _Context, where: str, raw: Any, by_name: Mapping[str, Node],
+                          struts: Mapping[str, Strut]) -> tuple:
+        """A cable's two ends: node names or :class:`Attachment` points ``{strut: NAME, at: 0..1}``."""
+        if not isinstance(raw, (list, tuple)) or len(raw) != 2:
+            raise ctx.error(where, f"nodes must be a list of two ends (a node name or {{strut, at}}), "
+                                   f"got {describe(raw)}")
+        ends = []
+        for j, e in enumerate(raw):
+            if isinstance(e, str):
+                if e not in by_name:
+                    raise ctx.error(where, f"nodes: unknown node {describe(e)}")
+                ends.append(e)
+                continue
+            label = f"{where} nodes[{j}]"
+            if not isinstance(e, Mapping):
+                raise ctx.error(where, f"nodes: an end is a node name or {{strut, at}}, got {describe(e)}")
+            _check_keys(ctx, label, e, _ATTACHMENT_KEYS, _ATTACHMENT_KEYS)
+            if not isinstance(e["strut"], str) or e["strut"] not in struts:
+                raise ctx.error(label, f"strut: unknown strut {describe(e['strut'])}")
+            ends.append(Attachment(e["strut"], _fraction(ctx, label, "at", e["at"])))
+        for j, e in enumerate(ends):
+            other = ends[1 - j]
+            if isinstance(e, Attachment) and (other in struts[e.strut].nodes
+                                              or isinstance(other, Attachment) and other.strut == e.strut):
+                raise ctx.error(where, f"nodes: a cable cannot join strut {e.strut!r} to itself (both ends on it)")
+        if ends[0] == ends[1]:
+            raise ctx.error(where, f"nodes: a member cannot join node {ends[0]!r} to itself")
+        return tuple(ends)
+
+    @staticmethod
+    def _end_position(end: str | Attachment, by_name: Mapping[str, Node], struts: Mapping[str, Strut]) -> np.ndarray:
+        """Where a cable end is in the scene's initial positions, (3,) m."""
+        if isinstance(end, str):
+            return np.array(by_name[end].position)
+        a, b = (np.array(by_name[n].position) for n in struts[end.strut].nodes)
+        return (1.0 - end.at) * a + end.at * b
 
     @staticmethod
     def _parse_payloads(ctx: _Context, where: str, raw: Any) -> tuple[tuple[float, float], ...]:
@@ -520,7 +602,8 @@ class Scene:
             "gravity": list(self.gravity),
             "nodes": [node(n) for n in self.nodes],
             "struts": [strut(s) for s in self.struts],
-            "cables": [{"name": c.name, "nodes": list(c.nodes),
+            "cables": [{"name": c.name, "nodes": [e if isinstance(e, str) else {"strut": e.strut, "at": e.at}
+                                                  for e in c.nodes],
                         **({"stiffness": c.stiffness} if c.stiffness is not None else {}),
                         "rest_length": c.rest_length, "damping": c.damping, "radius": c.radius,
                         **({"mass": c.mass} if c.mass > 0 else {})}   # massless: written as before

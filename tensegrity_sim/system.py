@@ -5,6 +5,11 @@ stored struts first, then cables, so ``m = n_struts + n_cables``. A member force
 positive) pulls node ``a_i`` by ``+t_i n_i`` and node ``b_i`` by ``-t_i n_i`` where ``n_i`` is the unit
 vector from ``a_i`` to ``b_i``: equal and opposite, along the member, so it conserves linear and angular
 momentum.
+
+A cable end may lie on a strut (physics.md section 4c): its position and velocity interpolate the strut's two
+nodes, ``(1 - w) x_p + w x_q``, and its force is shared ``(1 - w, w)`` between them, which keeps the total
+force and the torque of the pair about any point (``(1 - w) x_p x F + w x_q x F = X x F``): the momenta are
+still conserved. ``cable_nodes`` and ``cable_weights`` say where every cable end lies.
 """
 from __future__ import annotations
 
@@ -35,7 +40,12 @@ class System:
             of ``M^-1`` (``1 / masses`` where ``M`` has no block), zero for fixed nodes (they never move).
         free: (N,) bool. gravity_force: (N, 3) N, ``m g`` on free nodes (``m`` the lumped masses).
         ends: (m, 2) int node indices of every member, struts first.
-        strut_ends, cable_ends: views into ``ends``.
+        strut_ends, cable_ends: views into ``ends``; a cable end on a strut has the strut's first node there
+            (``cable_nodes`` places it).
+        cable_nodes: (n_cables, 2, 2) int, cable_weights: (n_cables, 2): end ``j`` of cable ``c`` lies at
+            ``(1 - w) x[cable_nodes[c, j, 0]] + w x[cable_nodes[c, j, 1]]``, ``w = cable_weights[c, j]``
+            (``Scene.cable_points``: a node end is ``(node, node)`` with ``w = 0``).
+        attached: (k,) int, the cables with an end strictly inside a strut (``0 < w``), in cable order.
         stiffness: (m,) N/m; zero for rigid struts (their force is a constraint force).
         floor: (m,) elongation floor: -inf for struts, 0 for cables (tension only), so that an elastic
             member's tension is ``stiffness * max(floor, e)``.
@@ -54,7 +64,9 @@ class System:
         self.mass = MassOperator(scene, self.free, consistent_mass)
         self.inv_mass = self.mass.inv_diagonal
         self.gravity_force = (self.masses * self.free)[:, None] * np.asarray(scene.gravity)[None, :]
-        self.ends = np.vstack([scene.member_index(scene.struts), scene.member_index(scene.cables)])
+        self.cable_nodes, self.cable_weights = scene.cable_points()
+        self.attached = np.flatnonzero((self.cable_weights > 0).any(axis=1))
+        self.ends = np.vstack([scene.member_index(scene.struts), self.cable_nodes[:, :, 0]])
         self.strut_ends = self.ends[: self.n_struts]
         self.cable_ends = self.ends[self.n_struts:]
         self.rigid = np.array([s.rigid for s in scene.struts], dtype=bool)
@@ -65,7 +77,7 @@ class System:
         self.strut_rest = np.array([s.rest_length for s in scene.struts], dtype=float)
         self.cable_damping = np.array([c.damping for c in scene.cables], dtype=float)
         self.sparse = self.n_nodes * max(self.n_members, 1) > SPARSE_THRESHOLD
-        self._incidence = self.incidence_matrix(self.ends)
+        self._incidence = self.incidence_matrix()
 
     def lumped(self) -> "System":
         """This system with every strut's mass lumped at its ends by row sums (itself if it has no mass block):
@@ -73,12 +85,20 @@ class System:
         return System(self.scene, consistent_mass=False) if self.mass.consistent else self
 
     # ------------------------------------------------------------------ algebra
-    def incidence_matrix(self, ends: np.ndarray):
-        """(N, k) matrix ``A`` with ``+1`` at ``(a_i, i)`` and ``-1`` at ``(b_i, i)``.
+    def incidence_matrix(self, ends: np.ndarray | None = None):
+        """(N, k) matrix ``A`` with ``+1`` at ``(a_i, i)`` and ``-1`` at ``(b_i, i)`` of members ``ends``
+        (k, 2), or of every member (``ends`` None), a cable end on a strut shared by its weights.
 
         ``A @ (t[:, None] * n)`` are the node forces of member tensions ``t`` along directions ``n``;
         ``A.T @ x`` is ``-(x_b - x_a)``. Sparse when the structure is large (``self.sparse``).
         """
+        if ends is None and len(self.attached):
+            nodes, shares = self._member_points()
+            vals = shares * np.array([1.0, -1.0])[None, :, None]
+            cols = np.repeat(np.arange(self.n_members), 4)
+            mat = sp.csr_matrix((vals.reshape(-1), (nodes.reshape(-1), cols)), shape=(self.n_nodes, self.n_members))
+            return mat if self.sparse else mat.toarray()
+        ends = self.ends if ends is None else ends
         k = len(ends)
         cols = np.repeat(np.arange(k), 2)
         rows = ends.reshape(-1)
@@ -86,20 +106,55 @@ class System:
         mat = sp.csr_matrix((vals, (rows, cols)), shape=(self.n_nodes, k))
         return mat if self.sparse else mat.toarray()
 
+    def _member_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every member's ends as node pairs (m, 2, 2) int and their shares ``(1 - w, w)`` (m, 2, 2): a strut's
+        end is ``(node, node)`` with shares ``(1, 0)``."""
+        nodes = np.concatenate([np.repeat(self.strut_ends[:, :, None], 2, axis=2), self.cable_nodes])
+        w = np.concatenate([np.zeros((self.n_struts, 2)), self.cable_weights])
+        return nodes, np.stack([1.0 - w, w], axis=2)
+
     def assemble(self, member_forces: np.ndarray) -> np.ndarray:
         """Node forces (N, 3) N from member force vectors (m, 3) N (``t_i n_i``, pulling ``a_i`` to ``b_i``)."""
         return self._incidence @ member_forces
 
+    def cable_points(self, x: np.ndarray) -> np.ndarray:
+        """Where the cables' ends are, (n_cables, 2, 3) m (or (n_cables, 2, 3, B) of ``x`` (N, 3, B)); the same
+        of velocities gives the ends' velocities."""
+        p = x[self.cable_ends]
+        if len(self.attached):
+            c = self.attached
+            w = self.cable_weights[c].reshape(c.shape + (2,) + (1,) * (x.ndim - 1))
+            p[c] = (1.0 - w) * x[self.cable_nodes[c, :, 0]] + w * x[self.cable_nodes[c, :, 1]]
+        return p
+
+    def cable_vectors(self, x: np.ndarray) -> np.ndarray:
+        """``X_b - X_a`` of every cable at its real ends, (n_cables, 3) (or (n_cables, 3, B))."""
+        if not len(self.attached):
+            return x[self.cable_ends[:, 1]] - x[self.cable_ends[:, 0]]
+        p = self.cable_points(x)
+        return p[:, 1] - p[:, 0]
+
+    def member_vectors(self, x: np.ndarray) -> np.ndarray:
+        """``X_b - X_a`` of every member (m, 3) (or (m, 3, B)), struts first; cables at their real ends."""
+        d = x[self.ends[:, 1]] - x[self.ends[:, 0]]
+        if len(self.attached):
+            d[self.n_struts:] = self.cable_vectors(x)
+        return d
+
     def geometry(self, x: np.ndarray, ends: np.ndarray | None = None):
-        """Member vectors ``d = x_b - x_a`` (k, 3), lengths ``l`` (k,) m and unit vectors ``n`` (k, 3)."""
-        ends = self.ends if ends is None else ends
-        d = x[ends[:, 1]] - x[ends[:, 0]]
+        """Member vectors ``d = x_b - x_a`` (k, 3), lengths ``l`` (k,) m and unit vectors ``n`` (k, 3) of the
+        members ``ends`` (k, 2) (node ends), or of every member at its real ends (``ends`` None)."""
+        d = self.member_vectors(x) if ends is None else x[ends[:, 1]] - x[ends[:, 0]]
         length = np.sqrt(np.einsum("ij,ij->i", d, d))
         return d, length, d / length[:, None]
 
-    def member_rates(self, v: np.ndarray, n: np.ndarray, ends: np.ndarray | None = None) -> np.ndarray:
-        """Elongation rates ``de/dt = b_i^T v = n_i . (v_b - v_a)`` (k,) m/s."""
-        ends = self.ends if ends is None else ends
+    def cable_rates(self, v: np.ndarray, n: np.ndarray) -> np.ndarray:
+        """The cables' elongation rates ``n_c . (V_b - V_a)`` (n_cables,) m/s at their real ends, ``n``
+        (n_cables, 3) their unit vectors."""
+        return np.einsum("ij,ij->i", self.cable_vectors(v), n)
+
+    def member_rates(self, v: np.ndarray, n: np.ndarray, ends: np.ndarray) -> np.ndarray:
+        """Elongation rates ``de/dt = b_i^T v = n_i . (v_b - v_a)`` (k,) m/s of the members ``ends`` (k, 2)."""
         return np.einsum("ij,ij->i", v[ends[:, 1]] - v[ends[:, 0]], n)
 
     # ------------------------------------------------------------------ stability
@@ -120,16 +175,20 @@ class System:
         keep = k > 0
         if not keep.any():
             return 0.0
-        ends = self.ends[keep]
-        _, _, n = self.geometry(x, ends)
-        # b_i (3N,) for each kept member: -n at a, +n at b, scaled by sqrt(k_i / m) per node.
+        _, _, n = self.geometry(x)
+        n = n[keep]
+        # b_i (3N,) for each kept member: -n at a, +n at b (a cable end on a strut: shared by its weights),
+        # scaled by sqrt(k_i / m) per node.
+        nodes, shares = self._member_points()
+        nodes = nodes[keep].reshape(-1, 4)
+        shares = (shares[keep] * np.array([-1.0, 1.0])[None, :, None]).reshape(-1, 4)
         scale = np.sqrt(self.inv_mass)
-        rows = np.concatenate([3 * ends[:, 0:1] + np.arange(3), 3 * ends[:, 1:2] + np.arange(3)], axis=1)
+        rows = (3 * nodes[:, :, None] + np.arange(3)).reshape(-1, 12)
         with np.errstate(over="ignore", invalid="ignore"):  # checked below
-            vals = np.concatenate([-n * scale[ends[:, 0], None], n * scale[ends[:, 1], None]], axis=1)
+            vals = (shares[:, :, None] * scale[nodes][:, :, None] * n[:, None, :]).reshape(-1, 12)
             vals *= np.sqrt(k[keep])[:, None]
-        cols = np.repeat(np.arange(len(ends)), 6)
-        b = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols)), shape=(3 * self.n_nodes, len(ends)))
+        cols = np.repeat(np.arange(len(nodes)), 12)
+        b = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols)), shape=(3 * self.n_nodes, len(nodes)))
         with np.errstate(over="ignore", invalid="ignore"):
             kmat = (b @ b.T).tocsr()
         try:

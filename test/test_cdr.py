@@ -308,7 +308,10 @@ def test_publication_in_one_pass_is_the_templates_bytes(frame, n_nodes, n_cables
     names = [f"c{i}" + "x" * (i % 8) for i in range(n_cables)]
     ends = rng.integers(0, n_nodes, size=(n_cables, 2))
     ends[:, 1] = (ends[:, 0] + 1 + rng.integers(0, n_nodes - 1, size=n_cables)) % n_nodes  # two distinct nodes
-    reference = PublicationTemplates(frame, n_nodes, names, ends)
+    weights = np.where(rng.random((n_cables, 2)) < 0.5, 0.0, rng.random((n_cables, 2)))   # some along a "strut"
+    nodes = np.stack([ends, (ends + 1) % n_nodes], axis=2)
+    nodes[..., 1] = np.where(weights > 0, nodes[..., 1], nodes[..., 0])
+    reference = PublicationTemplates(frame, n_nodes, names, nodes, weights)
     fast = PublicationCdr(reference)
     for ns in (0, 1_234_567_891, (2**31 - 1) * 10**9 + 999_999_999):
         x, v = rng.normal(size=(n_nodes, 3)), rng.normal(size=(n_nodes, 3))

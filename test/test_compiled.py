@@ -8,6 +8,7 @@ import pytest
 import tensegrity_sim as ts
 from bench.cases import icosahedron_thrown, tower_kicked
 from conftest import bungee_dict, class_k_dict, deadband_dict, random_velocities, record_advances
+from test_attachments import attached_icosahedron
 from test_contact import crossing_dict
 from tensegrity_sim.methods.qp import _qp_kernels as kernels
 from tensegrity_sim.methods.inextensible import _self_stress_kernels as self_stress_kernels
@@ -144,7 +145,7 @@ def test_composed_kernel_steps_a_batch():
         x, v = np.repeat(x0, b, axis=2), np.repeat(v0, b, axis=2)
         rest, ext = np.array([rests]), np.zeros_like(x)
         acc, ten, dirs = np.empty_like(x), np.empty((1, b)), np.empty((0, 3, b))
-        slack = kernels.elastic_forces(x, v, rest, ext, *model[:8], acc, ten, dirs)
+        slack = kernels.elastic_forces(x, v, rest, ext, *model[:10], acc, ten, dirs)
         out = (np.empty((1, 2, 3, b)), np.empty((1, 2, 3, b)), np.empty((1, 1, b)), np.empty((1, 1, b), dtype=bool))
         composed.composed_steps(x, v, rest, ext, 1e-3, 900, 900, np.array(WEIGHTS[4]), True, MIN_SPLIT * 1e-3,
                                 *model, acc, ten, dirs, slack, *out)
@@ -330,7 +331,7 @@ def test_copies_innermost_kernel_is_the_same_step(name):
     for kernel, extra in ((ek.elastic_steps, (no_detection(),)), (ek.elastic_steps_copies, ())):
         xk, vk = x.copy(), v.copy()
         carry = (np.empty_like(x), np.empty((nc, copies)), np.empty((nr, 3, copies)))
-        ek.elastic_forces(xk, vk, rest, ext, *model[:8], *carry)
+        ek.elastic_forces(xk, vk, rest, ext, *model[:10], *carry)
         k = -(-steps // 3)
         out = (np.empty((k, n, 3, copies)), np.empty((k, n, 3, copies)), np.empty((k, nc, copies)),
                np.empty((k, nc, copies), dtype=bool))
@@ -587,22 +588,24 @@ def test_self_stress_rule_matches_reference(name):
     assert calls["refined"] > 0 or name == "tower"
 
 
-@pytest.mark.parametrize("name", ["prism3", "icosahedron", "tower"])
+@pytest.mark.parametrize("name", ["prism3", "icosahedron", "tower", "attached"])
 def test_member_kinematics_matches_reference(name):
     """The cable lengths and elongation rates the node publishes (compiled) against ``System.geometry`` and
-    ``System.member_rates`` (numpy), over configurations and velocities from tiny to large scales."""
+    ``System.cable_rates`` (numpy), over configurations and velocities from tiny to large scales; ``attached``:
+    cables attached along the struts (test_attachments.py), measured at their real ends."""
     from tensegrity_sim._system_kernels import member_kinematics
-    sim = ts.Simulator(ts.load_scene(name), method="elastic")
+    sim = ts.Simulator(attached_icosahedron() if name == "attached" else ts.load_scene(name), method="elastic")
     system = sim.system
-    ends = np.ascontiguousarray(system.cable_ends, dtype=np.int64)
+    nodes, weights = system.cable_nodes.astype(np.int64), system.cable_weights
     rng = np.random.default_rng(7)
-    length, rate = np.empty(len(ends)), np.empty(len(ends))
+    length, rate = np.empty(len(nodes)), np.empty(len(nodes))
     for scale in (1e-3, 1.0, 1e3):
         x = sim.positions + scale * rng.normal(size=sim.positions.shape)
         v = scale * rng.normal(size=x.shape)
-        member_kinematics(x, v, ends, length, rate)
-        _, ref_length, n = system.geometry(x, system.cable_ends)
-        ref_rate = system.member_rates(v, n, system.cable_ends)
+        member_kinematics(x, v, nodes, weights, length, rate)
+        _, ref_length, n = system.geometry(x)
+        ref_length, n = ref_length[system.n_struts:], n[system.n_struts:]
+        ref_rate = system.cable_rates(v, n)
         np.testing.assert_allclose(length, ref_length, rtol=TOL, atol=0.0)
         # a rate is a sum of terms of either sign: agreement relative to the speeds
         np.testing.assert_allclose(rate, ref_rate, rtol=0.0, atol=TOL * np.abs(v).max())

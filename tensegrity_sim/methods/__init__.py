@@ -90,7 +90,8 @@ def choose_method(system: System, dt: float) -> tuple[str, str]:
     method makes). With ``omega_c`` the highest axial frequency of the cables (all taut, struts ignored) and
     ``omega_s`` the scene's fastest other time scale (:func:`scene_frequency`):
 
-    1. a cable without a stiffness can only be inextensible;
+    1. a cable without a stiffness can only be inextensible; a cable attached along a strut only elastic
+       (the inextensible method's rows join two nodes);
     2. if the elastic method would be unstable (``omega_max dt >= 2``), inextensible;
     3. if the step resolves the cables' vibration (``omega_c dt <= RESOLVED``), elastic: it represents
        the scene exactly and needs no QP;
@@ -106,6 +107,9 @@ def choose_method(system: System, dt: float) -> tuple[str, str]:
     missing = [c.name for c in system.scene.cables if c.stiffness is None]
     if missing:
         return "inextensible", f"inextensible: cables without a stiffness ({', '.join(missing)})"
+    if len(system.attached):
+        names = ", ".join(system.scene.cable_names[c] for c in system.attached)
+        return "elastic", f"elastic: cables attached along a strut ({names}) are the elastic method's only"
     x = system.scene.positions
     omega_max = system.max_frequency(x, include_cables=True)
     if omega_max * dt >= 2.0:

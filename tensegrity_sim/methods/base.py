@@ -170,8 +170,8 @@ class StepMethod:
 
     def slack(self, positions: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
         """(n_cables,) bool: the cables that are slack at ``positions`` (m) for ``rest_lengths`` (m)."""
-        _, length, _ = self.system.geometry(positions, self.system.cable_ends)
-        return length < rest_lengths
+        d = self.system.cable_vectors(positions)
+        return np.sqrt(np.einsum("ij,ij->i", d, d)) < rest_lengths
 
     def plate_energy(self, positions: np.ndarray, velocities: np.ndarray, rest_lengths: np.ndarray) -> float:
         """Kinetic energy (J) the model keeps beyond the nodes' (rule 5): none unless the cables carry mass."""

@@ -111,6 +111,9 @@ class Markers:
         # node indices of the points of each line list, flattened once (x.take(...) is one gather)
         self._strut_points = system.strut_ends.reshape(-1)
         self._cable_ends = system.cable_ends
+        # a cable attached along a strut is drawn from where it is attached (System.cable_points), the others
+        # by a gather of their nodes
+        self._cable_points = system.cable_points if len(system.attached) else None
         self._supports = np.flatnonzero(~system.free)
         self._ground_grid = _ground_grid(scene, size)
         self._scene_size = size
@@ -151,14 +154,18 @@ class Markers:
         x = r.positions
         slack = r.slack
         self._tension_scale = max(self._tension_scale, float(r.tensions.max(initial=0.0)))
+        ends = None if self._cable_points is None else self._cable_points(x)   # (n_cables, 2, 3) m
         if slack.any():
             taut = ~slack
             tensions = r.tensions[taut]
-            cables = x.take(self._cable_ends[taut].reshape(-1), axis=0)
-            slack_cables = x.take(self._cable_ends[slack].reshape(-1), axis=0)
+            if ends is None:
+                cables = x.take(self._cable_ends[taut].reshape(-1), axis=0)
+                slack_cables = x.take(self._cable_ends[slack].reshape(-1), axis=0)
+            else:
+                cables, slack_cables = ends[taut].reshape(-1, 3), ends[slack].reshape(-1, 3)
         else:  # the usual case: every cable taut, no mask to apply
             tensions = r.tensions
-            cables = x.take(self._cable_ends.reshape(-1), axis=0)
+            cables = x.take(self._cable_ends.reshape(-1), axis=0) if ends is None else ends.reshape(-1, 3)
             slack_cables = _NO_POINTS
         level = np.repeat(tensions / self._tension_scale if self._tension_scale > 0 else tensions, 2)
         colors = np.empty((len(level), 4))

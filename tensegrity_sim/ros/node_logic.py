@@ -160,9 +160,11 @@ class SimNodeLogic:
                                           np.zeros(n_cables), sim.slack(), (), None))
         # the bytes of every publication's outputs, in one compiled pass
         self._cdr = PublicationCdr(PublicationTemplates(settings.frame_id, len(scene.node_names), self._cable_names,
-                                                        sim.system.cable_ends))
+                                                        sim.system.cable_nodes, sim.system.cable_weights))
         # the cable lengths (m) and elongation rates (m/s) of a publication's message objects, worked out in place
-        self._cable_ends = np.ascontiguousarray(sim.system.cable_ends, dtype=np.int64)
+        # (at the cables' real ends: a cable attached along a strut is measured there)
+        self._cable_nodes = np.ascontiguousarray(sim.system.cable_nodes, dtype=np.int64)
+        self._cable_weights = np.ascontiguousarray(sim.system.cable_weights, dtype=float)
         self._length = np.empty(len(self._cable_names))
         self._rate = np.empty(len(self._cable_names))
         # counters for diagnostics and the summary
@@ -627,7 +629,7 @@ class SimNodeLogic:
             data = [None] * len(PUBLISHED)
         if takes_objects:
             length, rate = self._length, self._rate
-            member_kinematics(r.positions, r.velocities, self._cable_ends, length, rate)
+            member_kinematics(r.positions, r.velocities, self._cable_nodes, self._cable_weights, length, rate)
             messages = self._messages(ns, M.header(ns, self.settings.frame_id), r.positions, length, rate,
                                       r.tensions, self._impulse_sum)
         else:

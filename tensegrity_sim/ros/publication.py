@@ -32,8 +32,9 @@ _STAMP = ("header.stamp.sec", "header.stamp.nanosec")
 
 class PublicationTemplates:
     """The plain reference: one :class:`~.cdr.CdrTemplate` per output of :data:`PUBLISHED`, filled in
-    turn. ``frame_id`` of the poses and cable states, ``n_nodes``, ``cable_names`` (n_cables,) and
-    ``cable_ends`` (n_cables, 2) node indices of the cables.
+    turn. ``frame_id`` of the poses and cable states, ``n_nodes``, ``cable_names`` (n_cables,), and where the
+    cables' ends lie: ``cable_nodes`` (n_cables, 2, 2) node indices and ``cable_weights`` (n_cables, 2)
+    (``System.cable_nodes``, ``cable_weights``: a cable attached along a strut is measured there).
 
     What never changes in the templates is fixed here (the frame id, which is not a runtime parameter, the
     cable names, the number of nodes and cables, the identity orientation of the poses); the slots take
@@ -43,10 +44,11 @@ class PublicationTemplates:
     byte for byte (the tests check it).
     """
 
-    def __init__(self, frame_id: str, n_nodes: int, cable_names, cable_ends: np.ndarray):
+    def __init__(self, frame_id: str, n_nodes: int, cable_names, cable_nodes: np.ndarray, cable_weights: np.ndarray):
         header = {"frame_id": frame_id}
         zeros = np.zeros(len(cable_names))
-        self.cable_ends = np.ascontiguousarray(cable_ends, dtype=np.int64)
+        self.cable_nodes = np.ascontiguousarray(cable_nodes, dtype=np.int64).reshape(-1, 2, 2)
+        self.cable_weights = np.ascontiguousarray(cable_weights, dtype=float).reshape(-1, 2)
         self.templates = {
             "clock": CdrTemplate(TOPICS["clock"].typename, {}, ("clock.sec", "clock.nanosec")),
             "node_poses": CdrTemplate(TOPICS["node_poses"].typename, {
@@ -64,8 +66,8 @@ class PublicationTemplates:
         cable lengths and rates from them, :func:`~tensegrity_sim._system_kernels.member_kinematics`),
         tensions and impulse sums (n_cables,) N, N*s."""
         sec, nanosec = divmod(ns, 1_000_000_000)
-        length, rate = np.empty(len(self.cable_ends)), np.empty(len(self.cable_ends))
-        member_kinematics(positions, velocities, self.cable_ends, length, rate)
+        length, rate = np.empty(len(self.cable_nodes)), np.empty(len(self.cable_nodes))
+        member_kinematics(positions, velocities, self.cable_nodes, self.cable_weights, length, rate)
         t = self.templates
         return [t["clock"].encode(sec, nanosec),
                 t["node_poses"].encode(sec, nanosec, positions),
@@ -82,7 +84,7 @@ class PublicationCdr:
 
     def __init__(self, reference: PublicationTemplates):
         templates = reference.templates
-        self._ends = reference.cable_ends
+        self._nodes, self._weights = reference.cable_nodes, reference.cable_weights
         pieces = [templates[key].encode(*[0] * len(templates[key].slots)) for key in PUBLISHED]
         # message k starts at 4 mod 8, so its body (after the 4-byte encapsulation header), to which CDR
         # aligns, starts at 0 mod 8 in the buffer, and so does every float64 of it
@@ -113,7 +115,7 @@ class PublicationCdr:
                 raise ValueError(f"{key}: slot {slot!r} is not where the compiled pass writes it")
             return at // size
 
-        n_nodes, n_cables = templates["node_poses"].place("poses[].position")[1][0], len(self._ends)
+        n_nodes, n_cables = templates["node_poses"].place("poses[].position")[1][0], len(self._nodes)
         layout = {"n_nodes": n_nodes}
         for key in PUBLISHED:
             sec, nanosec = ("clock.sec", "clock.nanosec") if key == "clock" else _STAMP
@@ -133,7 +135,7 @@ class PublicationCdr:
         sec, nanosec = divmod(ns, 1_000_000_000)
         if not 0 <= sec < 2**31:
             raise ValueError(f"stamp {ns} ns: the seconds do not fit a builtin_interfaces/Time (int32)")
-        write_publication(self._f64, self._u32, self._layout, positions, velocities, self._ends, tensions,
-                          impulses, sec, nanosec)
+        write_publication(self._f64, self._u32, self._layout, positions, velocities, self._nodes, self._weights,
+                          tensions, impulses, sec, nanosec)
         data = self._bytes
         return [bytes(data[a:b]) for a, b in self._spans]

@@ -38,21 +38,23 @@ def frame_indices(record: RunRecord, max_frames: int = MAX_FRAMES, max_values: i
     return picked if picked[-1] == count - 1 else np.append(picked, count - 1)
 
 
-def _segments(x: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """(3k, 3) float32 points of the line segments ``ends`` (k, 2) of positions ``x`` (N, 3), a NaN
-    point after each so that the segments are not joined."""
+def _segments(ends: np.ndarray) -> np.ndarray:
+    """(3k, 3) float32 points of the line segments whose end points are ``ends`` (k, 2, 3), a NaN point after
+    each so that the segments are not joined."""
     pts = np.full((len(ends), 3, 3), np.nan, dtype=np.float32)
-    pts[:, :2] = x[ends]
+    pts[:, :2] = ends
     return pts.reshape(-1, 3)
 
 
-def _frame_traces(record: RunRecord, k: int, ends_s: np.ndarray, ends_c: np.ndarray, active: list) -> list:
-    """The four animated traces at publication ``k``: struts, taut cables, slack cables, contacts."""
+def _frame_traces(record: RunRecord, k: int, system, active: list) -> list:
+    """The four animated traces at publication ``k``: struts, taut cables, slack cables (a cable attached along
+    a strut drawn from there: ``System.cable_points``), contacts."""
     x = record.positions[k]
     slack = record.slack[k]
-    struts = _segments(x, ends_s)
-    taut = _segments(x, ends_c[~slack])
-    loose = _segments(x, ends_c[slack])
+    cables = system.cable_points(x)
+    struts = _segments(x[system.strut_ends])
+    taut = _segments(cables[~slack])
+    loose = _segments(cables[slack])
     color = np.repeat(record.tensions[k][~slack].astype(np.float32), 3)
     points = np.array([p for e in active for p in (e.point_a, e.point_b)], dtype=np.float32).reshape(-1, 3)
     return [go.Scatter3d(x=struts[:, 0], y=struts[:, 1], z=struts[:, 2]),
@@ -104,7 +106,6 @@ window.addEventListener('hashchange', tsimGoTo);
 def build_figure(record: RunRecord, picked: np.ndarray) -> go.Figure:
     """The animated figure of ``record`` at the publications ``picked``."""
     system = record.system
-    ends_s, ends_c = system.strut_ends, system.cable_ends
     active = _active_contacts(record, picked)
     t_max = float(max(record.tensions.max(initial=0.0), 1e-12))
     lo, hi = record.positions.min(axis=(0, 1)), record.positions.max(axis=(0, 1))
@@ -112,7 +113,7 @@ def build_figure(record: RunRecord, picked: np.ndarray) -> go.Figure:
     lo, hi = lo - pad, hi + pad
     if record.ground is not None:
         lo[2], hi[2] = min(lo[2], record.ground), max(hi[2], record.ground)
-    first = _frame_traces(record, int(picked[0]), ends_s, ends_c, active[0])
+    first = _frame_traces(record, int(picked[0]), system, active[0])
     first[0].update(mode="lines", name="struts", line={"color": "#303030", "width": 9}, hoverinfo="skip")
     first[1].update(mode="lines", name="taut cables (tension)", hoverinfo="skip",
                     line={"width": 5, "colorscale": "Plasma", "cmin": 0.0, "cmax": t_max, "showscale": True,
@@ -128,7 +129,7 @@ def build_figure(record: RunRecord, picked: np.ndarray) -> go.Figure:
                                  showscale=False, opacity=0.35, colorscale=[[0, "#8c7b5a"], [1, "#8c7b5a"]],
                                  hoverinfo="skip", showlegend=True))
     names = [f"{record.times[k]:.3f}" for k in picked]
-    frames = [go.Frame(name=name, data=_frame_traces(record, int(k), ends_s, ends_c, a), traces=[0, 1, 2, 3])
+    frames = [go.Frame(name=name, data=_frame_traces(record, int(k), system, a), traces=[0, 1, 2, 3])
               for name, k, a in zip(names, picked, active)]
     frame_s = float(record.times[picked[1]] - record.times[picked[0]]) if len(picked) > 1 else 0.1
     buttons = [{"label": "Pause", "method": "animate", "args": [[None], {"frame": {"duration": 0, "redraw": False},

@@ -50,7 +50,9 @@ basis (``d_b`` minus its component along ``d_a``) so that nearly parallel segmen
 accuracy, where the textbook ``ac - b²`` determinant cancels to noise.
 
 **Broad phase and what is skipped.** Only the member kinds a scene asks for (``Scene.contact_kinds``),
-only members with a radius > 0, and never two members that share a node or whose four nodes are all fixed.
+only members with a radius > 0, never a cable attached along a strut (physics.md section 4c: its end is not a
+node, and the detection's segments, events and the contact response's rows are node-to-node), and never two
+members that share a node or whose four nodes are all fixed.
 The remaining pairs go through a sort-and-sweep of axis-aligned boxes (along the axis of widest spread)
 inflated by the radii and by a *skin* (by default 10 % of the median checked member length); that list is
 valid until some node has moved by more than the skin, and is rebuilt then, so its cost is paid rarely and
@@ -476,6 +478,7 @@ class ContactDetector:
         for name, (u, v) in zip(CONTACT_KINDS, ((0, 0), (0, 1), (1, 1))):
             kind_ok[u, v] = kind_ok[v, u] = name in self.kinds
         takes_part = kind_ok[is_cable.astype(int)].any(axis=1)
+        takes_part[system.n_struts + system.attached] = False   # a cable along a strut: not a node-to-node segment
         self.members = np.flatnonzero((radius > 0) & takes_part)   # checked members (system order)
         self._kind = is_cable.astype(int)
         self._kind_ok = kind_ok

@@ -52,16 +52,17 @@ def _elongation(x, ends, n_struts, rest, ci):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _flow(x, v, acc, tension, dirs, slack, h, weights, rest, ext, ends, stiffness, floor, strut_rest, damping,
-          inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage, impulses):
+def _flow(x, v, acc, tension, dirs, slack, h, weights, rest, ext, ends, attach, attach_at, stiffness, floor,
+          strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage,
+          impulses):
     """The composed step of ``h`` (s) in place on the workspace ``x``, ``v`` (N, 3, 1), ``acc``,
     ``tension`` (nc, 1), ``dirs`` (nr, 3, 1), ``slack`` (nc,); ``impulses`` (nc,) N*s is set to each
     cable's impulse over it (Stepper.flow)."""
     for ci in range(impulses.shape[0]):
         impulses[ci] = 0.0
     for w in weights:
-        _step(x, v, rest, ext, w * h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-              rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, dirs, dx, stage, slack, 0)
+        _step(x, v, rest, ext, w * h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+              gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, dirs, dx, stage, slack, 0)
         for ci in range(impulses.shape[0]):
             impulses[ci] += stage[ci]
 
@@ -129,8 +130,9 @@ def newton_in_bracket(s, e, e0, rate, lo, hi):
 
 
 @njit(cache=True, error_model="numpy")
-def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_split, rest, ext, ends, stiffness,
-                   floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w,
+def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_split, rest, ext, ends, attach, attach_at,
+                   stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq,
+                   rigid_w,
                    coupled, work, impulses):
     """One step of ``h`` (s) of a batch-of-one workspace, in place on ``x``, ``v``, ``acc``,
     ``tension``, ``dirs``, ``slack`` (see :func:`_flow`), split at the switches inside it when
@@ -142,8 +144,9 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
     nc = impulses.shape[0]
     # the trial: the whole (remaining) step from the part's start into the t* arrays
     _states(x, v, acc, tension, dirs, slack, tx, tv, tacc, tten, tdirs, tslack)
-    _flow(tx, tv, tacc, tten, tdirs, tslack, h, weights, rest, ext, ends, stiffness, floor, strut_rest, damping,
-          inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage, impulses)
+    _flow(tx, tv, tacc, tten, tdirs, tslack, h, weights, rest, ext, ends, attach, attach_at, stiffness, floor,
+          strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage,
+          impulses)
     if locate:
         for ci in range(nc):
             located[ci] = 0.0
@@ -162,8 +165,9 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
             converged = False
             for _ in range(_FLOW_ITER):
                 _states(x, v, acc, tension, dirs, slack, tx, tv, tacc, tten, tdirs, tslack)
-                _flow(tx, tv, tacc, tten, tdirs, tslack, s, weights, rest, ext, ends, stiffness, floor, strut_rest,
-                      damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage,
+                _flow(tx, tv, tacc, tten, tdirs, tslack, s, weights, rest, ext, ends, attach, attach_at, stiffness,
+                      floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w,
+                      coupled, dx, stage,
                       part_imp)
                 e = _elongation(tx, ends, n_struts, rest, cable)
                 if abs(e) <= tol:
@@ -178,16 +182,18 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
                 s, lo, hi = newton_in_bracket(s, e, e0, rate, lo, hi)
             if not converged:
                 _states(x, v, acc, tension, dirs, slack, tx, tv, tacc, tten, tdirs, tslack)
-                _flow(tx, tv, tacc, tten, tdirs, tslack, s, weights, rest, ext, ends, stiffness, floor, strut_rest,
-                      damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx, stage,
+                _flow(tx, tv, tacc, tten, tdirs, tslack, s, weights, rest, ext, ends, attach, attach_at, stiffness,
+                      floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w,
+                      coupled, dx, stage,
                       part_imp)
             # the part up to the switch is done: it is the new start; the rest of the step is the trial
             _states(tx, tv, tacc, tten, tdirs, tslack, x, v, acc, tension, dirs, slack)
             for ci in range(nc):
                 located[ci] += part_imp[ci]
             remaining -= s
-            _flow(tx, tv, tacc, tten, tdirs, tslack, remaining, weights, rest, ext, ends, stiffness, floor,
-                  strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, dx,
+            _flow(tx, tv, tacc, tten, tdirs, tslack, remaining, weights, rest, ext, ends, attach, attach_at,
+                  stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq,
+                  rigid_w, coupled, dx,
                   stage, impulses)
         for ci in range(nc):
             impulses[ci] += located[ci]
@@ -195,8 +201,9 @@ def _composed_step(x, v, acc, tension, dirs, slack, h, weights, locate, min_spli
 
 
 @njit(cache=True, error_model="numpy")
-def composed_steps(x, v, rest, ext, h, n_steps, every, weights, locate, min_split, ends, stiffness, floor,
-                   strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled,
+def composed_steps(x, v, rest, ext, h, n_steps, every, weights, locate, min_split, ends, attach, attach_at, stiffness,
+                   floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w,
+                   coupled,
                    acc, tension, rigid_dirs, slack, out_x, out_v, out_impulses, out_slack):
     """``n_steps`` steps of ``h`` (s) of every copy, each composed with ``weights`` (stage fractions of
     the step) and split at its slack/taut switches if ``locate`` (none closer than ``min_split`` s to
@@ -223,8 +230,8 @@ def composed_steps(x, v, rest, ext, h, n_steps, every, weights, locate, min_spli
             total[ci] = 0.0
         for s in range(n_steps):
             _composed_step(wx, wv, wacc, wten, wdirs, wslack, h, weights, locate, min_split, wrest, wext, ends,
-                           stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
-                           rigid_length_sq, rigid_w, coupled, work, imp)
+                           attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+                           rigid_members, rigid_length_sq, rigid_w, coupled, work, imp)
             for ci in range(nc):
                 total[ci] += imp[ci]
             if (s + 1) % every == 0 or s == n_steps - 1:

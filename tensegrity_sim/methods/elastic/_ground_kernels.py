@@ -514,8 +514,9 @@ def pair_scratch(n_nodes, n_rigid, n_pairs):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                 rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu, restitution, radii,
+def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                 gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu,
+                 restitution, radii,
                  node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, dx, impulses, slack,
                  contact, armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5,
                  t5, pairs, b):
@@ -559,7 +560,7 @@ def _ground_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
         if why:
             return why
     _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
-    _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+    _close(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
            rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b)
     if n_pairs:
         n_armed = _arm_pairs_for(x, v, v0, 0.0, pair_nodes, pair_radii, touch_tol, pair_restitution, warm[1], ends4,
@@ -594,8 +595,9 @@ def _take_inputs(rest_seq, ext_seq, s, bs, rest, ext) -> bool:
     return changed
 
 
-def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
-                  gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, height,
+def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest, damping,
+                  inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
+                  height,
                   mu, restitution, radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu,
                   pair_restitution, warm, rest_seq, ext_seq, out_x, out_v, out_impulses, out_slack, out_contact,
                   out_pairs, n_records, failed, reason, blocks):
@@ -617,16 +619,18 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
     at its start (as ``Simulator`` does after a new input: the carry dropped, ``elastic_forces`` at the state;
     the contact warm starts kept): a run with a schedule here is the very arithmetic of commanding each step."""
     for blk in prange(blocks):
-        _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping,
-               inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu,
+        _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest,
+               damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs,
+               height, mu,
                restitution, radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm,
                rest_seq, ext_seq, out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed,
                reason)
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _copy_steps(b, bs, h, n_steps, every, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b, inv_mass_b, gravity_b,
-                rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu, restitution, radii_b, node_strut_b,
+def _copy_steps(b, bs, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
+                damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu,
+                restitution, radii_b, node_strut_b,
                 touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb, extb, accb, tensionb,
                 dirsb, warmb, rest_seq, ext_seq, dx, imp, total, sl, contact, total_contact, armed, target, landing, x0,
                 v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, out_x, out_v,
@@ -647,10 +651,10 @@ def _copy_steps(b, bs, h, n_steps, every, ends_b, stiffness_b, floor_b, strut_re
                 x0[i, j] = xb[i, j, 0]
                 v0[i, j] = vb[i, j, 0]
         if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, restb, extb):
-            _forces(xb, vb, restb, extb, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b, inv_mass_b,
-                    gravity_b, rigid_members_b, accb, tensionb, dirsb, sl, 0)
-        why = _ground_step(xb, vb, restb, extb, h, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b,
-                           inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb,
+            _forces(xb, vb, restb, extb, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b, damping_b,
+                    inv_mass_b, gravity_b, rigid_members_b, accb, tensionb, dirsb, sl, 0)
+        why = _ground_step(xb, vb, restb, extb, h, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
+                           damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb,
                            tensionb, dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol,
                            pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, warmb, dx, imp, sl, contact,
                            armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4,
@@ -688,8 +692,9 @@ def _copy_steps(b, bs, h, n_steps, every, ends_b, stiffness_b, floor_b, strut_re
 
 
 @njit(cache=True, error_model="numpy")
-def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
-           gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu, restitution,
+def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest,
+           damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height,
+           mu, restitution,
            radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, rest_seq, ext_seq,
            out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason):
     """Block ``blk`` of ``blocks`` of :func:`_ground_steps`' copies (its arguments): one function that the
@@ -703,6 +708,7 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, stiffness, flo
     # scene-steps/s sharing them, 233-243k with copies); since _copy_steps counts none per step, only the
     # counts of this function's calls, once a copy, remain
     ends_b, stiffness_b, strut_rest_b, damping_b = ends.copy(), stiffness.copy(), strut_rest.copy(), damping.copy()
+    attach_b, attach_at_b = attach, attach_at   # read only where the scene has them (None otherwise)
     inv_mass_b, gravity_b, rigid_members_b = inv_mass.copy(), gravity_force.copy(), rigid_members.copy()
     rigid_length_sq_b, rigid_w_b, radii_b, node_strut_b = (rigid_length_sq.copy(), rigid_w.copy(), radii.copy(),
                                                            node_strut.copy())
@@ -755,8 +761,9 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, stiffness, flo
         reason[b] = 0
         n_records[b] = 0
         bs = b if rest_seq.shape[2] > 1 else 0   # the copy's column of the inputs (or the one of every copy's)
-        _copy_steps(b, bs, h, n_steps, every, ends_b, stiffness_b, floor_b, strut_rest_b, damping_b, inv_mass_b,
-                    gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu, restitution, radii_b,
+        _copy_steps(b, bs, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
+                    damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu,
+                    restitution, radii_b,
                     node_strut_b, touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb,
                     extb, accb, tensionb, dirsb, warmb, rest_seq, ext_seq, dx, imp, total, sl, contact,
                     total_contact, armed, target, landing, x0, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3,

@@ -9,6 +9,12 @@ drives it with ``B = 1``; a batch simulator drives it with ``B`` copies. Shapes 
 The system (never changes during a run; :func:`model_arrays` builds it from a ``System``):
 
     ends (m, 2) int64           node indices of each member (a, b)
+    attach (k, 5) int64         the cables with an end along a strut (physics.md section 4c), in member order:
+                                their member row, then the node pairs (a0, a1, b0, b1) of their two ends
+    attach_at (k, 2)            the weights (wa, wb) of a1 and b1: end a at (1 - wa) x_a0 + wa x_a1, and so b
+                                (a node end is (node, node) with weight 0); the main loop skips these rows.
+                                Both None for a scene without such cables: the kernels then compile without
+                                them (two more array arguments through the step cost its run() ~10 %)
     stiffness (m,) N/m          zero for rigid struts
     floor (m,)                  -inf for struts, 0 for cables: tension ``k max(floor, l - rest)``
     strut_rest (n_struts,) m
@@ -57,6 +63,8 @@ class ElasticModel(NamedTuple):
     """The system arrays of the kernels (module docstring), in the kernels' argument order."""
 
     ends: np.ndarray
+    attach: np.ndarray | None
+    attach_at: np.ndarray | None
     stiffness: np.ndarray
     floor: np.ndarray
     strut_rest: np.ndarray
@@ -71,8 +79,14 @@ class ElasticModel(NamedTuple):
 
 def model_arrays(system, rigid) -> ElasticModel:
     """The kernels' system arrays for a ``System`` and its ``RigidStruts``."""
+    c = system.attached
+    attach = attach_at = None
+    if len(c):
+        attach = np.concatenate([(system.n_struts + c)[:, None], system.cable_nodes[c].reshape(-1, 4)], axis=1)
+        attach, attach_at = np.ascontiguousarray(attach, dtype=np.int64), np.ascontiguousarray(system.cable_weights[c])
     return ElasticModel(
-        np.ascontiguousarray(system.ends, dtype=np.int64), np.ascontiguousarray(system.stiffness, dtype=float),
+        np.ascontiguousarray(system.ends, dtype=np.int64), attach, attach_at,
+        np.ascontiguousarray(system.stiffness, dtype=float),
         np.ascontiguousarray(system.floor, dtype=float), np.ascontiguousarray(system.strut_rest, dtype=float),
         np.ascontiguousarray(system.cable_damping, dtype=float), system.mass.kernel_array,
         np.ascontiguousarray(system.gravity_force, dtype=float),
@@ -81,7 +95,7 @@ def model_arrays(system, rigid) -> ElasticModel:
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+def _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
             rigid_members, acc, tension, rigid_dirs, slack, b):
     """Copy ``b``: accelerations, cable tensions, rigid strut directions and slack cables at ``x``
     (damping from ``v``), written into ``acc``, ``tension``, ``rigid_dirs`` and ``slack``."""
@@ -92,7 +106,13 @@ def _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_ma
             acc[i, j, b] = gravity_force[i, j] + ext[i, j, b]
     rigid_k = 0
     n_rigid = rigid_members.shape[0]
+    attach_k = 0
+    next_attach = _attached_row(attach, 0)   # the next cable along a strut: _attached_force takes it
     for i in range(ends.shape[0]):
+        if i == next_attach:
+            attach_k += 1
+            next_attach = _attached_row(attach, attach_k)
+            continue
         a = ends[i, 0]
         c = ends[i, 1]
         d0 = x[c, 0, b] - x[a, 0, b]
@@ -129,19 +149,79 @@ def _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_ma
         acc[c, 0, b] -= t * n0
         acc[c, 1, b] -= t * n1
         acc[c, 2, b] -= t * n2
+    if attach is not None:   # a scene without cables along a strut compiles without this (attach None)
+        for k in range(attach.shape[0]):
+            slack[attach[k, 0] - n_struts] = _attached_force(x, v, rest, attach, attach_at, stiffness, floor,
+                                                             damping, n_struts, acc, tension, k, b)
     solve_forces(acc, inv_mass, ends, rigid_members, b)
 
 
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _attached_row(attach, k):
+    """The member row of the ``k``-th cable along a strut, or -1 past the last (or with none: ``attach`` None)."""
+    if attach is None:
+        return -1
+    return attach[k, 0] if k < attach.shape[0] else -1
+
+
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _attached_force(x, v, rest, attach, attach_at, stiffness, floor, damping, n_struts, acc, tension, k, b):
+    """Copy ``b``'s force of cable ``attach[k]``, whose end lies along a strut (module docstring): each end at
+    its weighted point, the force there shared by the same weights, added to ``acc``; its tension written
+    into ``tension``; returns whether it is slack."""
+    i = attach[k, 0]
+    a0 = attach[k, 1]
+    a1 = attach[k, 2]
+    c0 = attach[k, 3]
+    c1 = attach[k, 4]
+    wa = attach_at[k, 0]
+    wc = attach_at[k, 1]
+    ua = 1.0 - wa
+    uc = 1.0 - wc
+    d0 = (uc * x[c0, 0, b] + wc * x[c1, 0, b]) - (ua * x[a0, 0, b] + wa * x[a1, 0, b])
+    d1 = (uc * x[c0, 1, b] + wc * x[c1, 1, b]) - (ua * x[a0, 1, b] + wa * x[a1, 1, b])
+    d2 = (uc * x[c0, 2, b] + wc * x[c1, 2, b]) - (ua * x[a0, 2, b] + wa * x[a1, 2, b])
+    length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    n0 = d0 / length
+    n1 = d1 / length
+    n2 = d2 / length
+    ci = i - n_struts
+    r = rest[ci, b]
+    t = stiffness[i] * max(length - r, floor[i])
+    cd = damping[ci]
+    if cd > 0.0:
+        rate = (((uc * v[c0, 0, b] + wc * v[c1, 0, b]) - (ua * v[a0, 0, b] + wa * v[a1, 0, b])) * n0
+                + ((uc * v[c0, 1, b] + wc * v[c1, 1, b]) - (ua * v[a0, 1, b] + wa * v[a1, 1, b])) * n1
+                + ((uc * v[c0, 2, b] + wc * v[c1, 2, b]) - (ua * v[a0, 2, b] + wa * v[a1, 2, b])) * n2)
+        if t > 0.0:
+            t += cd * rate
+        t = max(t, 0.0)   # a damped cable never pushes
+    tension[ci, b] = t
+    acc[a0, 0, b] += ua * (t * n0)
+    acc[a0, 1, b] += ua * (t * n1)
+    acc[a0, 2, b] += ua * (t * n2)
+    acc[a1, 0, b] += wa * (t * n0)
+    acc[a1, 1, b] += wa * (t * n1)
+    acc[a1, 2, b] += wa * (t * n2)
+    acc[c0, 0, b] -= uc * (t * n0)
+    acc[c0, 1, b] -= uc * (t * n1)
+    acc[c0, 2, b] -= uc * (t * n2)
+    acc[c1, 0, b] -= wc * (t * n0)
+    acc[c1, 1, b] -= wc * (t * n1)
+    acc[c1, 2, b] -= wc * (t * n2)
+    return length < r
+
+
 @njit(cache=True, error_model="numpy")
-def elastic_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                   rigid_members, acc, tension, rigid_dirs):
+def elastic_forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                   gravity_force, rigid_members, acc, tension, rigid_dirs):
     """Fill ``acc`` (N, 3, B), ``tension`` (nc, B) and ``rigid_dirs`` (nr, 3, B) at ``x`` for every copy;
     returns the slack cables (nc, B) bool."""
     slack = np.empty((rest.shape[0], x.shape[2]), dtype=np.bool_)
     row = np.empty(rest.shape[0], dtype=np.bool_)
     for b in range(x.shape[2]):
-        _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                rigid_members, acc, tension, rigid_dirs, row, b)
+        _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                gravity_force, rigid_members, acc, tension, rigid_dirs, row, b)
         for ci in range(row.shape[0]):   # element loops: a slice assignment costs seconds of compile time
             slack[ci, b] = row[ci]
     return slack
@@ -217,7 +297,7 @@ def _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rig
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+def _close(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
            rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b):
     """Copy ``b``'s end of a step: the forces at the drifted ``x``, the cables' impulses, the closing
     half-kick and RATTLE."""
@@ -226,7 +306,7 @@ def _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_
     half = 0.5 * h
     for ci in range(nc):
         impulses[ci] = tension[ci, b]
-    _forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+    _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
             rigid_members, acc, tension, rigid_dirs, slack, b)
     for ci in range(nc):
         impulses[ci] = half * (impulses[ci] + tension[ci, b])
@@ -238,7 +318,7 @@ def _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+def _step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
           rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, impulses, slack, b):
     """One velocity Verlet (+ SHAKE/RATTLE) step of ``h`` of copy ``b``, in place on ``x``, ``v`` and the
     carried ``acc``, ``tension``, ``rigid_dirs``; ``impulses`` (nc,) and ``slack`` (nc,) of the step;
@@ -248,13 +328,13 @@ def _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_m
         for j in range(3):
             v[i, j, b] += half * acc[i, j, b]
     _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
-    _close(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+    _close(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
            rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b)
 
 
 @njit(cache=True, error_model="numpy")
-def verlet_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs):
+def verlet_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs):
     """One step of any size ``h`` (s) of every copy, in place on ``x``, ``v``, ``acc``, ``tension`` and
     ``rigid_dirs`` (module docstring). Returns the cable impulses (nc, B) N*s and the slack cables
     (nc, B) bool at the step's end."""
@@ -265,8 +345,8 @@ def verlet_step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping,
     imp = np.empty(nc)
     sl = np.empty(nc, dtype=np.bool_)
     for b in range(n_copies):
-        _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-              rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, imp, sl, b)
+        _step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+              gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, imp, sl, b)
         for ci in range(nc):
             impulses[ci, b] = imp[ci]
             slack[ci, b] = sl[ci]
@@ -322,8 +402,8 @@ def keep(x, v, c, total, slack, k, b, out_x, out_v, out_impulses, out_slack):
 
 
 @njit(cache=True, error_model="numpy")
-def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
-                  gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
+def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest, damping,
+                  inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
                   out_x, out_v, out_impulses, out_slack, detection):
     """``n_steps`` steps of ``h`` (s) of every copy, in place on ``x``, ``v``, ``acc``, ``tension``,
     ``rigid_dirs``; keeps steps ``every``, ``2 every``, ... and the last one in the outputs:
@@ -353,8 +433,9 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
                 for i in range(n_nodes):
                     for j in range(3):
                         before[i, j, 0] = x[i, j, b]
-            _step(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                  rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, imp, sl, b)
+            _step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                  gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs, dx, imp,
+                  sl, b)
             if detecting and moved_on(before, 0, x, b, b, detection):
                 p = measure(x, b, b, detection, work, 0)
                 if p >= 0:
@@ -374,8 +455,8 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, st
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _forces_copies(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                   rigid_members, acc, tension, rigid_dirs, slack):
+def _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                   gravity_force, rigid_members, acc, tension, rigid_dirs, slack):
     """:func:`_forces` of every copy: ``slack`` (nc, B)."""
     n_nodes, _, n_copies = x.shape
     n_struts = strut_rest.shape[0]
@@ -385,7 +466,13 @@ def _forces_copies(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping,
                 acc[i, j, b] = gravity_force[i, j] + ext[i, j, b]
     rigid_k = 0
     n_rigid = rigid_members.shape[0]
+    attach_k = 0
+    next_attach = _attached_row(attach, 0)   # the next cable along a strut: _attached_force takes it
     for i in range(ends.shape[0]):
+        if i == next_attach:
+            attach_k += 1
+            next_attach = _attached_row(attach, attach_k)
+            continue
         a = ends[i, 0]
         c = ends[i, 1]
         is_rigid = rigid_k < n_rigid and rigid_members[rigid_k] == i
@@ -427,6 +514,11 @@ def _forces_copies(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping,
             acc[c, 2, b] -= t * n2
         if is_rigid:
             rigid_k += 1
+    if attach is not None:   # the same arithmetic as _forces' (the copies' numbers bit for bit)
+        for k in range(attach.shape[0]):
+            for b in range(n_copies):
+                slack[attach[k, 0] - n_struts, b] = _attached_force(x, v, rest, attach, attach_at, stiffness, floor,
+                                                                    damping, n_struts, acc, tension, k, b)
     solve_forces_copies(acc, inv_mass, ends, rigid_members)
 
 
@@ -453,8 +545,9 @@ def _pushes_copies(ends, inv_mass, rigid_members, strengths, dirs, out):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _step_copies(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                 rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength, impulses, slack):
+def _step_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                 gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength,
+                 impulses, slack):
     """:func:`_step` of every copy; ``dx`` (N, 3, B) and ``strength`` (nr, B) are scratch, ``impulses``
     and ``slack`` (nc, B) the step's."""
     n_nodes, _, n_copies = x.shape
@@ -488,8 +581,8 @@ def _step_copies(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
     for ci in range(nc):
         for b in range(n_copies):
             impulses[ci, b] = tension[ci, b]
-    _forces_copies(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                   rigid_members, acc, tension, rigid_dirs, slack)
+    _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                   gravity_force, rigid_members, acc, tension, rigid_dirs, slack)
     for ci in range(nc):
         for b in range(n_copies):
             impulses[ci, b] = half * (impulses[ci, b] + tension[ci, b])
@@ -515,8 +608,9 @@ def _step_copies(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping
 
 
 @njit(cache=True, error_model="numpy", nogil=True)   # nogil: blocks of copies on threads (methods/_copy_blocks.py)
-def elastic_steps_copies(x, v, rest, ext, h, n_steps, every, ends, stiffness, floor, strut_rest, damping, inv_mass,
-                         gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc, tension, rigid_dirs,
+def elastic_steps_copies(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest,
+                         damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, coupled, acc,
+                         tension, rigid_dirs,
                          out_x, out_v, out_impulses, out_slack):
     """:func:`elastic_steps` (same arguments, same numbers) with the copies innermost: faster for a
     large batch, where stepping one copy at a time walks numbers ``B`` apart."""
@@ -528,8 +622,9 @@ def elastic_steps_copies(x, v, rest, ext, h, n_steps, every, ends, stiffness, fl
     sl = np.empty((nc, n_copies), dtype=np.bool_)
     total = np.zeros((nc, n_copies))
     for s in range(n_steps):
-        _step_copies(x, v, rest, ext, h, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                     rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength, imp, sl)
+        _step_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                     gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength,
+                     imp, sl)
         for ci in range(nc):
             for b in range(n_copies):
                 total[ci, b] += imp[ci, b]

@@ -68,7 +68,7 @@ class ElasticBatch:
         self._floor = system.floor[:, None]
         # sparse incidences whatever the size: a dense (N, m) @ (m, 3 B) product multiplies mostly zeros
         # (and hands a tiny product to a multi-threaded BLAS); the sparse one does 2 m 3 B multiplications
-        self._incidence = sp.csr_matrix(system.incidence_matrix(system.ends))
+        self._incidence = sp.csr_matrix(system.incidence_matrix())
         self._rigid_incidence = sp.csr_matrix(system.incidence_matrix(self.rigid.ends))
         self._model = kernels.model_arrays(system, self.rigid)
         # the forces at the last step's end: the numpy path's (acc, tensions, directions, slack), or the
@@ -110,16 +110,14 @@ class ElasticBatch:
     def _forces(self, x, v, rest_lengths, f_ext):
         """Accelerations (N, 3, B), cable tensions (n_cables, B), unit vectors (m, 3, B), slack (n_cables, B)."""
         sys = self.system
-        ends = sys.ends
-        d = x[ends[:, 1]] - x[ends[:, 0]]
+        d = sys.member_vectors(x)
         length = np.sqrt(np.einsum("ijb,ijb->ib", d, d))
         n = d / length[:, None, :]
         rest = np.concatenate([np.broadcast_to(self._rest_struts, (sys.n_struts, x.shape[2])), rest_lengths])
         t = self._k * np.maximum(length - rest, self._floor)
         if self._damped:
             cables = t[sys.n_struts:]
-            ce = sys.cable_ends
-            rate = np.einsum("ijb,ijb->ib", v[ce[:, 1]] - v[ce[:, 0]], n[sys.n_struts:])
+            rate = np.einsum("ijb,ijb->ib", sys.cable_vectors(v), n[sys.n_struts:])
             cables += np.where(cables > 0, sys.cable_damping[:, None] * rate, 0.0)
             np.maximum(cables, 0.0, out=cables)   # a damped cable never pushes
         f = self._assemble(self._incidence, t[:, None, :] * n) + sys.gravity_force[:, :, None] + f_ext
@@ -213,7 +211,7 @@ class ElasticBatch:
                                          np.empty((steps, nc, b)), np.empty((steps, nc, b), dtype=bool)))
         if self._cache is None:
             self._cache = (np.empty_like(x), np.empty((nc, b)), np.empty((self.rigid.count, 3, b)))
-            kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._cache)
+            kernels.elastic_forces(x, v, rest, ext, *self._model[:10], *self._cache)
         blocks = copy_blocks(b)
         if len(blocks) == 1:
             kernels.elastic_steps_copies(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache,
@@ -280,7 +278,7 @@ class ElasticBatch:
         x, v, rest, ext = (np.array(a, dtype=float, order="C") for a in (x, v, rest_lengths, f_ext))
         if self._cache is None:
             self._cache = (np.empty_like(x), np.empty((nc, b)), np.empty((self.rigid.count, 3, b)))
-            kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *self._cache)
+            kernels.elastic_forces(x, v, rest, ext, *self._model[:10], *self._cache)
             # each node's and member pair's last contact impulses (drift, closing)
             self._cache += (np.zeros((2, n + n_pairs, 3, b)) if self._warm is None else self._warm,)
             self._warm = None
@@ -324,7 +322,7 @@ class ElasticBatch:
                 last = (rest[:, c:c + 1], ext[..., c:c + 1]) if inputs is None else (inputs[0][-1][:, None],
                                                                                      inputs[1][-1][..., None])
                 forces = (np.empty_like(xc), np.empty((nc, 1)), np.empty((self.rigid.count, 3, 1)))
-                kernels.elastic_forces(xc, vc, *(np.ascontiguousarray(a) for a in last), *self._model[:8], *forces)
+                kernels.elastic_forces(xc, vc, *(np.ascontiguousarray(a) for a in last), *self._model[:10], *forces)
                 carry = forces + (None, np.zeros((2, n + n_pairs, 3, 1)))   # and no warm start, as ElasticMethod's
             for mine, its in zip(self._cache, carry[:3] + carry[4:]):
                 mine[..., c] = its[..., 0]
@@ -332,14 +330,13 @@ class ElasticBatch:
 
     def slack(self, x, rest_lengths) -> np.ndarray:
         """(n_cables, B) bool: the cables shorter than their rest lengths at ``x`` (N, 3, B)."""
-        ce = self.system.cable_ends
-        d = x[ce[:, 1]] - x[ce[:, 0]]
+        d = self.system.cable_vectors(x)
         return np.sqrt(np.einsum("ijb,ijb->ib", d, d)) < rest_lengths
 
     def strain_energy(self, x, rest_lengths) -> np.ndarray:
         """Elastic energy (B,) J of every copy at positions ``x`` (N, 3, B) and rest lengths (n_cables, B)."""
         sys = self.system
-        d = x[sys.ends[:, 1]] - x[sys.ends[:, 0]]
+        d = sys.member_vectors(x)
         length = np.sqrt(np.einsum("ijb,ijb->ib", d, d))
         rest = np.concatenate([np.broadcast_to(self._rest_struts, (sys.n_struts, x.shape[2])), rest_lengths])
         e = np.maximum(length - rest, self._floor)

@@ -153,6 +153,10 @@ class ElasticMethod(StepMethod):
         if locate_switches is None:
             locate_switches = self.order == 4
         self.locate_switches = bool(locate_switches)
+        if self.locate_switches and len(system.attached):
+            raise ValueError(f"method 'elastic' locates slack/taut switches only for cables between two nodes; "
+                             f"cable {system.scene.cable_names[system.attached[0]]!r} is attached along a strut: "
+                             f"use locate_switches=False")
         check_stable("elastic", self.order, self.dt, self.omega_max, "use a smaller dt or rigid struts")
         self.stepper = Stepper(self.verlet, self.order, system, self.dt, self.locate_switches)
         self._damped = bool(np.any(system.cable_damping > 0))
@@ -240,7 +244,7 @@ class ElasticMethod(StepMethod):
         t = sys.stiffness * np.maximum(length - rest, sys.floor)
         if self._damped:
             cables = t[sys.n_struts:]
-            rate = sys.member_rates(v, n[sys.n_struts:], sys.cable_ends)
+            rate = sys.cable_rates(v, n[sys.n_struts:])
             taut = cables > 0
             cables += np.where(taut, sys.cable_damping * rate, 0.0)
             np.maximum(cables, 0.0, out=cables)  # a damped cable never pushes
@@ -273,7 +277,7 @@ class ElasticMethod(StepMethod):
             warm = (np.zeros((2, x.shape[0] + len(self._pair_keys or ()), 3, 1)) if self._warm is None
                     else self._warm)
             self._warm = None
-            self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:8], *forces), warm)
+            self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:10], *forces), warm)
         if self._ground_model is not None:
             failed, reason, count = (np.empty(1, dtype=np.int64) for _ in range(3))
             n_pairs = len(self._pair_keys)

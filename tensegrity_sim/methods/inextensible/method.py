@@ -153,6 +153,10 @@ class InextensibleMethod(StepMethod):
     def __init__(self, system: System, dt: float, *, solver: str | None = None, reel_speed: float = REEL_SPEED,
                  compiled: bool = True):
         super().__init__(system, dt)
+        if len(system.attached):
+            raise ValueError(f"method 'inextensible' does not take a cable attached along a strut (cable "
+                             f"{system.scene.cable_names[system.attached[0]]!r}: its constraint rows join two nodes); "
+                             f"give the cables a stiffness and use method 'elastic'")
         try:
             self.reel_speed = float(reel_speed)
         except (TypeError, ValueError):

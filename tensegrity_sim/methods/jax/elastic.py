@@ -40,6 +40,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.sparse as sp
 from jax import lax
 
 __all__ = ["ElasticModel", "Carry", "Inputs", "model_arrays", "held_inputs", "schedule_inputs", "elastic_forces",
@@ -74,10 +75,10 @@ class ElasticModel:
     damping (nc,) N*s/m, masses (N,) kg (lumped: ``M``'s row sums), mass_block (N,) kg (the off-diagonal entry
     ``B`` of the 2x2 mass block of a node's rigid strut, 0 without one: ``M``'s diagonal is ``masses -
     mass_block``), free (N,) 1.0 for a free node and 0.0 for a fixed one, gravity (3,) m/s^2, incidence (N, m)
-    (+1 at a member's first node, -1 at its second), rigid_incidence (N, nr), rigid_length_sq (nr,) m^2; static:
-    rigid_members (nr rows in the member arrays), rigid_ends (nr pairs of node indices), mass_partner (N: the
-    other end of a node's block where both move, else the node itself); ground: the scene's ground
-    (``ground.GroundModel``) or None."""
+    (+1 at a member's first node, -1 at its second; a cable end along a strut shared by its weights),
+    rigid_incidence (N, nr), rigid_length_sq (nr,) m^2; static: rigid_members (nr rows in the member arrays),
+    rigid_ends (nr pairs of node indices), mass_partner (N: the other end of a node's block where both move, else
+    the node itself); ground: the scene's ground (``ground.GroundModel``) or None."""
 
     stiffness: jax.Array
     floor: jax.Array
@@ -139,18 +140,16 @@ def model_arrays(system, rigid, dtype=jnp.float64) -> ElasticModel:
     return ElasticModel(
         f(system.stiffness), f(system.floor), f(system.strut_rest), f(system.cable_damping), f(system.masses),
         f(system.free.astype(float)), f(np.asarray(system.scene.gravity, dtype=float)),
-        f(_incidence(system.ends, len(system.masses))), f(_incidence(rigid_ends, len(system.masses))),
+        f(_dense(system.incidence_matrix())), f(_dense(system.incidence_matrix(rigid_ends))),
         f(rigid.length_sq), _index(rigid.members), _index(rigid_ends), f(mass.lumped - mass.diagonal),
         _index(partner), ground_model(system, rigid, dtype))
 
 
-def _incidence(ends: np.ndarray, n_nodes: int) -> np.ndarray:
-    """(N, m): +1 at each member's first node, -1 at its second (a tension t along the unit vector first ->
-    second pulls the first node by +t n)."""
-    out = np.zeros((n_nodes, len(ends)))
-    out[ends[:, 0], np.arange(len(ends))] = 1.0
-    out[ends[:, 1], np.arange(len(ends))] = -1.0
-    return out
+def _dense(incidence) -> np.ndarray:
+    """``System.incidence_matrix``'s (N, k) as a dense array (it is sparse for a large structure): +1 at each
+    member's first node, -1 at its second (a tension t along the unit vector first -> second pulls the first
+    node by +t n); a cable end along a strut shared ``(1 - w, w)`` between the strut's nodes."""
+    return incidence.toarray() if sp.issparse(incidence) else np.asarray(incidence)
 
 
 def held_inputs(rest, ext, dtype=jnp.float64) -> Inputs:
@@ -234,8 +233,9 @@ def _through(spec: str, incidence, a):
 
 
 def _differences(incidence, x):
-    """Each member's second node minus its first, (m, 3, B), from nodes ``x`` (N, 3, B): a product with the
-    incidence (exact: one +1 and one -1 per member), which XLA runs faster than two gathers."""
+    """Each member's second end minus its first, (m, 3, B), from nodes ``x`` (N, 3, B): a product with the
+    incidence (exact for a member between two nodes: one +1 and one -1; a cable end along a strut interpolates
+    its nodes by its weights), which XLA runs faster than two gathers."""
     return -_through("nm,njb->mjb", incidence, x)
 
 
