@@ -248,6 +248,15 @@ def test_paths_that_join_two_nodes_refuse_a_cable_along_a_strut_clearly():
                                          r"\(cable 'c0': its constraint rows join two nodes\); give the cables a "
                                          r"stiffness and use method 'elastic'$"):
         ts.Simulator(scene, method="inextensible", dt=1e-3)
+    prism = ts.load_scene("prism3").to_dict()   # elastic struts: what the massive method takes
+    prism["cables"][0]["nodes"] = [{"strut": prism["struts"][0]["name"], "at": 0.5}, prism["cables"][0]["nodes"][1]]
+    del prism["cables"][0]["rest_length"]
+    for cable in prism["cables"]:
+        cable["mass"] = 0.05
+    with pytest.raises(ValueError, match=r"^method 'massive' does not take a cable attached along a strut yet "
+                                         r"\(cable 'c0'\); use method 'elastic'$"):
+        ts.Simulator(ts.Scene.from_dict(prism), method="massive", dt=1e-4)
+    assert ts.Simulator(ts.Scene.from_dict(prism), method="auto", dt=1e-4).method != "massive"
     with pytest.raises(ValueError, match=r"locates slack/taut switches only for cables between two nodes; cable "
                                          r"'c0' is attached along a strut: use locate_switches=False$"):
         ts.Simulator(scene, method="elastic", dt=1e-3, locate_switches=True)

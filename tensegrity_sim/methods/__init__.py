@@ -134,7 +134,8 @@ def _massive_choice(system: System) -> str | None:
     scene = system.scene
     if not np.any(scene.cable_masses > 0) or any(c.stiffness is None for c in scene.cables):
         return None
-    if any(s.rigid for s in scene.struts) or scene.ground is not None or scene.contact_response.response:
+    if (any(s.rigid for s in scene.struts) or scene.ground is not None or scene.contact_response.response
+            or len(system.attached)):
         return None
     e = restitutions(system)
     between = (e > RESTITUTION_TOL) & (e < 1.0 - RESTITUTION_TOL)

@@ -138,6 +138,9 @@ class MassiveMethod(StepMethod):
         if scene.ground is not None or scene.contact_response.response:
             raise ValueError("method 'massive' does not take a ground or a member contact response yet; use method "
                              "'elastic' or 'inextensible'")
+        if len(system.attached):
+            raise ValueError(f"method 'massive' does not take a cable attached along a strut yet (cable "
+                             f"{scene.cable_names[system.attached[0]]!r}); use method 'elastic'")
         if isinstance(order, bool) or order not in STABILITY:
             raise ValueError(f"order must be one of {sorted(STABILITY)}, got {order!r}")
         if not (locate_switches is None or isinstance(locate_switches, (bool, np.bool_))):
