@@ -170,7 +170,7 @@ FS_ERRORS = [
     (["recover", "{log}", "{d}/dir.mcap"], "tensegrity-sim recover: error: {d}/dir.mcap: cannot write the log: Is a directory"),
     (["recover", "{log}", "{log}"], "tensegrity-sim recover: error: {log}: the copy must go to another file than the log itself"),
     (["run", "{d}/dir.mcap"], "tensegrity-sim run: error: {d}/dir.mcap: no such scene file, and not a built-in scene "
-                              "(built-ins: icosahedron, icosahedron_ground, prism3, tower)"),
+                              "(built-ins: icosahedron, icosahedron_ground, prism3, superball, three_bar, tower)"),
     (["run", "--commands", "{d}/dir.mcap", "--duration", "0.01"],
      "tensegrity-sim run: error: {d}/dir.mcap: cannot read: Is a directory"),
     # found by scripts/fuzz.py: reading /dev/full as a schedule filled the memory

@@ -360,6 +360,9 @@ class DaqpSolver(QPSolver):
         try:
             return self._solve_checked(v0, rows, warm)
         except QPError as exc:
+            if not (np.all(np.isfinite(v0)) and np.all(np.isfinite(rows.targets))
+                    and np.all(np.isfinite(rows.directions))):
+                raise   # not a problem another backend could answer: a state gone non-finite
             for backend in self._fallback_backends():
                 try:
                     answer = backend.solve(v0, rows, warm)
