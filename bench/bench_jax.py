@@ -150,7 +150,7 @@ def _numba_case(scene, copies, steps):
     def run():
         x, v = x0.copy(), v0.copy()
         carry = (np.empty_like(x), np.empty((nc, copies)), np.empty((len(model.rigid_members), 3, copies)))
-        kernels.elastic_forces(x, v, rest, ext, *model[:8], *carry)
+        kernels.elastic_forces(x, v, rest, ext, *model[:10], *carry)
         kernels.elastic_steps_copies(x, v, rest, ext, DT, steps, steps, *model, *carry, *outs)
 
     return run

@@ -168,8 +168,9 @@ class MassiveMethod(StepMethod):
         first step."""
         sys = self.system
         n, nc, m = sys.n_nodes, sys.n_cables, sys.n_members
-        self._model = (*elastic_kernels.model_arrays(sys, RigidStruts(sys))[:8], np.ascontiguousarray(self.plates),
-                       BAND, self._damped)
+        em = elastic_kernels.model_arrays(sys, RigidStruts(sys))   # by name: the elastic model has more fields
+        self._model = (em.ends, em.stiffness, em.floor, em.strut_rest, em.damping, em.inv_mass, em.gravity_force,
+                       em.rigid_members, np.ascontiguousarray(self.plates), BAND, self._damped)
 
         def workspace():
             return (np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(nc), np.empty((m, 3)),
