@@ -78,11 +78,12 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
 @pytest.mark.parametrize("page", [p for p in PAGES if blocks(p, "python")], ids=lambda p: str(p.relative_to(ROOT)))
 def test_page_python_examples_run(page, tmp_path, monkeypatch):
     """Every Python block of a page runs as written, one namespace per page (blocks build on each other). The
-    JAX page's needs the ``jax`` extra: skipped only where JAX is not installed (CI's ROS leg), unless
-    ``TENSEGRITY_SIM_REQUIRE_JAX=1`` (CI's no-ROS leg), which makes a missing JAX fail it."""
-    if (page.name == "jax.md" and os.environ.get("TENSEGRITY_SIM_REQUIRE_JAX") != "1"
+    pages whose examples use JAX (the JAX page, the learning page's functional environment) need the ``jax``
+    extra: skipped only where JAX is not installed (CI's ROS leg), unless ``TENSEGRITY_SIM_REQUIRE_JAX=1`` (CI's
+    no-ROS leg), which makes a missing JAX fail them."""
+    if (page.name in ("jax.md", "learning.md") and os.environ.get("TENSEGRITY_SIM_REQUIRE_JAX") != "1"
             and importlib.util.find_spec("jax") is None):
-        pytest.skip("the JAX page's examples need the jax extra")
+        pytest.skip(f"{page.name}'s examples need the jax extra")
     monkeypatch.chdir(tmp_path)
     namespace = {}
     for example in blocks(page, "python"):
