@@ -253,6 +253,7 @@ class BatchSimulator:
                              else [GroundDetector(self.system) for _ in range(self.batch)])
             for b, d in enumerate(self._grounds or ()):
                 d.reset(self._x[..., b])
+            self._grounds_known = True   # False after a run without ground events: the detectors start again
             # copies stopped by a non-finite step: {copy: (steps done, positions, velocities)}
             self._frozen: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
             # a copy starting at speeds no step resolves fails at its first step, as Simulator.step does
@@ -428,7 +429,7 @@ class BatchSimulator:
                 self._frozen[b] = (self._step_count, self._x[..., b].copy(), self._v[..., b].copy())
 
     # ------------------------------------------------------------------ stepping
-    def _advance(self, steps: int, commands=None):
+    def _advance(self, steps: int, commands=None, ground_events: bool = True):
         """``steps`` steps of every running copy, inputs held (or ``commands`` evaluated inside the engine's
         compiled run, where it ``runs_commands``): positions, velocities (steps, B, N, 3), impulses
         (steps, B, n_cables), slack (steps, B, n_cables) (views, valid until the next call) and the contacts of
@@ -469,7 +470,13 @@ class BatchSimulator:
                 rows.setdefault(k, [()] * self.batch)[b] = events
             for k, row in rows.items():
                 contacts[k] = tuple(row)
-        if self._grounds is not None:
+        if self._grounds is not None and not ground_events:
+            self._grounds_known = False
+        elif self._grounds is not None:
+            if not self._grounds_known:   # contacts known again from here: those touching begin at this chunk's start
+                for b, d in enumerate(self._grounds):
+                    d.reset(previous[..., b])
+                self._grounds_known = True
             landed = walk_copies(self._grounds, previous, previous_v, x_seq, v_seq, self._engine.contact,
                                  start * self.dt, self.dt)
             for k, ground in landed.items():   # the steps with ground events only: a batch's step is B rows
@@ -539,7 +546,7 @@ class BatchSimulator:
         return self._engine.slack(self._x, self._rest).T.copy()
 
     def run(self, duration: float | None = None, *, steps: int | None = None, every: int = 1,
-            commands=None, dtype="float64", fields=TRAJECTORY_FIELDS) -> BatchTrajectory:
+            commands=None, dtype="float64", fields=TRAJECTORY_FIELDS, ground_events: bool = True) -> BatchTrajectory:
         """Run ``steps`` steps, or ``round(duration / dt)``, inputs held, as ``Simulator.run``: keeps steps
         ``every``, ``2 every``, ... and the last (K of them) as (B, K, ...) arrays, a kept step's impulses
         summed over the steps since the previous kept one and its tensions their mean; over all steps
@@ -556,7 +563,11 @@ class BatchSimulator:
         stay in the batch's own precision); ``fields``: the per-step arrays kept, any of :data:`TRAJECTORY_FIELDS`
         ("impulses" brings the tensions), the others None. The arrays have the batch first in their shape and
         are laid out in memory as the engine steps them (the elastic batch's free flight: copies last), so that
-        a kept step is one contiguous copy; ``np.ascontiguousarray`` gives the copy-major order."""
+        a kept step is one contiguous copy; ``np.ascontiguousarray`` gives the copy-major order.
+
+        ``ground_events``: False leaves the ground's contact events out of ``contacts`` (an environment's control
+        period, which reads none: finding them costs a Python event per landing); the ground contacts known at a
+        later run that finds them again are those that begin from its start."""
         store, fields = _storage(dtype, fields)
         self._check_commands(commands)
         b, n, nc = self.batch, len(self.scene.nodes), self._nc
@@ -579,7 +590,7 @@ class BatchSimulator:
             m = min(chunk, steps - done)
             if commands is not None and not inside:
                 self._apply_commands(commands, base_rest)
-            x, v, i, sl, events = self._advance(m, commands if inside else None)
+            x, v, i, sl, events = self._advance(m, commands if inside else None, ground_events)
             np.fmax(peak, np.fmax.reduce(i, axis=0), out=peak)   # fmax: a failed copy's NaN is no peak
             snaps += (np.concatenate([was_slack[None], sl[:-1]]) & ~sl).sum(axis=0)
             was_slack = sl[-1].copy()
