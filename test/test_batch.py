@@ -434,3 +434,19 @@ def test_a_lighter_trajectory_holds_the_full_ones_numbers(monkeypatch, ground):
         BatchSimulator.from_scenes(scenes, method="elastic").run(steps=2, dtype="int8")
     with pytest.raises(ValueError, match="fields: unknown field 'forces'"):
         BatchSimulator.from_scenes(scenes, method="elastic").run(steps=2, fields=["forces"])
+
+
+def test_a_run_without_ground_events_steps_the_same():
+    """ground_events=False finds no events and changes no number; a later run finds them again, those touching at
+    its start beginning there (a fresh detector's rule)."""
+    scene = ts.load_scene("icosahedron_ground")
+    with_events, without = (BatchSimulator(scene, 2, method="elastic", contacts=()) for _ in range(2))
+    full, bare = with_events.run(steps=150, every=50), without.run(steps=150, every=50, ground_events=False)
+    assert sum(map(len, full.contacts)) > 0 and bare.contacts == [[], []]
+    for field in ("positions", "velocities", "impulses", "slack"):
+        np.testing.assert_array_equal(getattr(bare, field), getattr(full, field))
+    again = without.run(steps=1)
+    touching = {e.members for e in again.contacts[0] if e.kind == "begin"}
+    fresh = BatchSimulator(scene, 2, method="elastic", contacts=(), positions=with_events.positions,
+                           velocities=with_events.velocities)
+    assert touching and touching == {e.members for e in fresh.run(steps=1).contacts[0] if e.kind == "begin"}
