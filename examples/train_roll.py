@@ -130,11 +130,11 @@ def plot_curve(path: str, rows: list[dict], title: str) -> None:
     steps = np.array([r["steps"] for r in rows]) / 1e6
     mean = np.array([r["mean_m"] for r in rows])
     fig, ax = plt.subplots(figsize=(6, 3.6), dpi=100)
-    ax.plot(steps, mean, "o-", color="C0", label="policy (mean of 4 robots)")
-    ax.fill_between(steps, [r["min_m"] for r in rows], [r["max_m"] for r in rows], color="C0", alpha=0.2)
-    for key, label, style in (("baseline_m", "examples/roll_controller.py", "--"),):
-        if rows and rows[0].get(key) is not None:
-            ax.axhline(rows[0][key], color="C3", ls=style, label=label)
+    ax.plot(steps, mean, "o-", color="C0", label="policy's mean action, mean of 4 robots")
+    ax.fill_between(steps, [r["min_m"] for r in rows], [r["max_m"] for r in rows], color="C0", alpha=0.2,
+                    label="their least and most")
+    if rows and rows[0].get("baseline_m") is not None:
+        ax.axhline(rows[0]["baseline_m"], color="C3", ls="--", label="examples/roll_controller.py")
     ax.set_xlabel("environment steps (millions of 20 ms control periods)")
     ax.set_ylabel("distance along the goal (m)")
     ax.set_title(title, fontsize=10)
@@ -162,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--hidden", type=int, nargs="+", default=[64, 64], help="the MLPs' hidden layer sizes")
     parser.add_argument("--lr", type=float, default=3e-4, help="Adam's learning rate")
     parser.add_argument("--baseline", type=float, default=None,
-                        help="a distance (m) to draw as roll_controller.py's (scripts/compare_roll.py prints it)")
+                        help="a distance (m) to draw as roll_controller.py's (bench/compare_roll.py measures it)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     stem = os.path.splitext(args.out)[0]
