@@ -2,13 +2,17 @@
 writes a policy file that examples/policy_controller.py plays, its learning curve (CSV and PNG), and the file's
 own check: the controller's numpy MLP gives the actions rejax's flax actor gave."""
 import csv
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-pytest.importorskip("rejax")   # the "train" extra
+# the "train" extra: skipped where it is not installed (CI's ROS leg), unless TENSEGRITY_SIM_REQUIRE_TRAIN=1 (CI's
+# no-ROS leg installs it), which makes a missing rejax fail the module
+if os.environ.get("TENSEGRITY_SIM_REQUIRE_TRAIN") != "1":
+    pytest.importorskip("rejax")
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "examples"))
