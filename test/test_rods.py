@@ -270,14 +270,16 @@ def blocked_icosahedron_on_the_ground():
 @pytest.mark.parametrize("path", ["compiled", "run", "batch"])
 def test_the_fast_ground_paths_apply_the_blocks_as_the_numpy_reference_does(path):
     """Thrown, spun and landing on rough ground: the compiled step, loop and batch follow the reference (its QPs
-    in ``BlockMassSolver``'s coordinates) to 1e-12 wherever the blocks' Newton answers, through 300 steps."""
+    in ``BlockMassSolver``'s coordinates) through 300 steps to the reference's own tolerance (its QP fixed point
+    answers to FIXED_POINT_TOL = 1e-10 of the impulse scale, the blocks' Newton to 1e-13; the blocks' numpy twin is
+    held to 1e-12 in test_friction_blocks.py). Measured: 1.6e-12 m and 2.4e-11 of the speed scale."""
     scene = blocked_icosahedron_on_the_ground()
     x_ref, v_ref, _ = simulate(scene, "reference", 300, 1e-3)
     x, v, sim = simulate(scene, path, 300, 1e-3)
     assert path == "batch" or sim._method.system.mass.consistent
     scale = max(1.0, float(np.max(np.abs(v_ref))))
-    assert np.max(np.abs(x - x_ref)) <= 1e-9 * max(1.0, float(np.max(np.abs(x_ref))))
-    assert np.max(np.abs(v - v_ref)) <= 1e-9 * scale
+    assert np.max(np.abs(x - x_ref)) <= 1e-11 * max(1.0, float(np.max(np.abs(x_ref))))
+    assert np.max(np.abs(v - v_ref)) <= 1e-10 * scale
 
 
 def test_a_class_k_joint_lumps_the_struts_that_share_it():
