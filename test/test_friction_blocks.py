@@ -114,8 +114,8 @@ def test_block_kernel_matches_its_numpy_twin_and_meets_the_coulomb_law():
         impulse = scale / inv[:2][inv[:2] > 0].min()
         if len(ends) < 2 or direction[2] != 0.0:   # a strut lying on both ends: its friction along it is shared
             np.testing.assert_allclose(z_k[: len(z_ref)], z_ref, rtol=0, atol=1e-12 * impulse)   # indeterminately
-        np.testing.assert_allclose(resultant(strut_row, direction, ends, z_k), resultant(strut_row, direction, ends,
-                                                                                         z_ref), rtol=0, atol=1e-12 * impulse)
+        np.testing.assert_allclose(resultant(strut_row, direction, ends, z_k),
+                                   resultant(strut_row, direction, ends, z_ref), rtol=0, atol=1e-12 * impulse)
         rate, law, balance = coulomb_residual(inv, strut_row, direction, ends, target, mu, v, v_k, z_k)
         assert abs(rate) <= 1e-12 * scale
         assert law <= 1e-11 * impulse
