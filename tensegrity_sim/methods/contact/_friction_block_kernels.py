@@ -381,16 +381,16 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def solve_coupled(inv, g, nb, s, k, target, mu, v, z, work):
-    """A coupled block, in place: the rigid struts and lone nodes that member contacts join, with their
-    ground and member contacts (``elastic/_ground_kernels.py``). ``nb`` nodes, ``inv`` (nb, 2) 1/kg ``M^-1``'s
-    kernel form (``_mass_kernels.py``: the diagonal, and the cross entry with the strut's other end, node
-    ``i ^ 1``, for the ``2 s`` struts' ends first; 0 for the lone nodes), ``v`` (nb, 3) m/s their velocities;
-    ``g`` (q, 3 nb) the rows, ``u = g v`` with the node's component ``j`` in column ``3 i + j``: ``s`` strut
-    length rows first (equalities, target 0; no two struts share a node), then ``k`` contacts of three rows
-    each (two tangents, then the normal; a ground contact's are the unit vectors at its node, a member contact's its frame times the four nodes' weights); ``target`` (k,) m/s the
-    normal targets, ``mu`` (k,) the Coulomb coefficients. ``z`` (q,) N*s the unknowns (in: the contacts' warm
-    starts; the struts' are recomputed). Each row is scaled by its effective mass ``1 / W_ii`` (a contact's
-    rows by its normal's: the node's mass on the ground). Returns the iterations taken, or -1 as
+    """A coupled block, in place: the rigid struts and lone nodes that member contacts join, with their ground and
+    member contacts (``elastic/_ground_kernels.py``). ``nb`` nodes, ``inv`` (nb, 2) 1/kg ``M^-1``'s kernel form
+    (``_mass_kernels.py``: the diagonal, and the cross entry with the strut's other end, node ``i ^ 1``, for the ``2
+    s`` struts' ends first; 0 for the lone nodes), ``v`` (nb, 3) m/s their velocities; ``g`` (q, 3 nb) the rows, ``u
+    = g v`` with the node's component ``j`` in column ``3 i + j``: ``s`` strut length rows first (equalities, target
+    0; no two struts share a node), then ``k`` contacts of three rows each (two tangents, then the normal; a ground
+    contact's are the unit vectors at its node, a member contact's its frame times the four nodes' weights);
+    ``target`` (k,) m/s the normal targets, ``mu`` (k,) the Coulomb coefficients. ``z`` (q,) N*s the unknowns (in:
+    the contacts' warm starts; the struts' are recomputed). Each row is scaled by its effective mass ``1 / W_ii`` (a
+    contact's rows by its normal's: the node's mass on the ground). Returns the iterations taken, or -1 as
     :func:`solve_block` (``v`` then unchanged). ``work`` (6, M, M): :func:`_newton`'s."""
     q = s + 3 * k
     cols = 3 * nb
