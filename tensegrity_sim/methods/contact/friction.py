@@ -642,9 +642,15 @@ class FrictionalSolver:
         else:   # general rows: the method's as (-1, 1, 0, 0), each contact's on its four nodes
             c_nodes, weights, normals, tang = self._frames
             impulse = np.einsum("ki,kid->kd", friction[:, :2], tang)   # the friction in space, (k, 3)
-            push = np.zeros((len(v0) + 1, 3))
-            np.add.at(push, c_nodes, weights[:, :, None] * impulse[:, None, :])
-            v0c = v0 + self.inner.inverse(push[:-1].reshape(-1)).reshape(-1, 3)
+            if isinstance(self.inner, BlockMassSolver):   # M^-1 has the rods' cross entries
+                push = np.zeros((len(v0) + 1, 3))
+                np.add.at(push, c_nodes, weights[:, :, None] * impulse[:, None, :])
+                v0c = v0 + self.inner.inverse(push[:-1].reshape(-1)).reshape(-1, 3)
+            else:
+                scaled = np.append(1.0 / self._mass, 0.0)[c_nodes] * weights
+                change = np.zeros((len(v0) + 1, 3))
+                np.add.at(change, c_nodes, scaled[:, :, None] * impulse[:, None, :])
+                v0c = v0 + change[:-1]
             sides = np.concatenate([tang, -tang], axis=1)[s].reshape(-1, 3)   # t1, t2, -t1, -t2 per contact
             nodes4 = np.vstack([np.pad(rows.nodes, ((0, 0), (0, 2)), constant_values=-1), c_nodes,
                                 np.repeat(c_nodes[s], 4, axis=0)])

@@ -185,7 +185,7 @@ class QPSolver:
 
     def inverse(self, p: np.ndarray) -> np.ndarray:
         """``M^-1 p`` for impulses ``p`` (3 n_free, ...) N*s (a node's components together): velocities, m/s."""
-        return p / self.mass.reshape((-1,) + (1,) * (p.ndim - 1))
+        return self.inv_mass.reshape((-1,) + (1,) * (p.ndim - 1)) * p
 
     def _check(self, v, y, v0, rows: Rows) -> None:
         """Refuse non-finite output, and (if ``verify``) output that is not a solution: infeasible
