@@ -4,12 +4,18 @@ reference, which tests require this to match to 1e-12), with numba.
 A batch of one (``Simulator``'s; ``BatchSimulator`` steps one simulator per copy for this method). Shapes: ``N``
 nodes, ``m`` members (struts first), ``nc`` cables. The system arrays are those of the elastic kernels
 (``elastic/_kernels.model_arrays``: ``ends``, ``stiffness``, ``floor``, ``strut_rest``, ``damping``,
-``inv_mass`` (N, 2), ``gravity_force``, ``rigid_members``: none, the method takes no rigid strut yet) and
-``plates`` (nc,) kg. A step's record at a configuration (``_Forces`` of the
-reference) is the tuple ``(acc (N, 3), tension (nc,), dirs (m, 3), slack (nc,) bool, elong (nc,), rates (nc,),
-held (nc,) bool)``; a workspace is ``(x (N, 3), v (N, 3)) + record``, stepped in place.
+``inv_mass`` (N, 2), ``gravity_force``, ``rigid_members``: none, the method takes no rigid strut yet),
+``plates`` (nc,) kg, ``pairs`` (P, 3) and ``order`` (nc,) (``MassiveMethod._couplings``). A step's record at a
+configuration (``_Forces`` of the reference) is the tuple ``(acc (N, 3), tension (nc,), dirs (m, 3), slack (nc,)
+bool, elong (nc,), rates (nc,), held (nc,) bool)``; a workspace is ``(x (N, 3), v (N, 3)) + record``, stepped in place.
 
 The structure's inverse mass is applied by :func:`inverse_mass` only (``_mass_kernels.solve_forces``).
+
+Cost: the plates' ``G`` is built node by node (:func:`_delassus`: two cables couple only at a shared node) and
+factored once per step, in an envelope that the cables' reverse Cuthill-McKee order keeps narrow
+(:func:`_factor`); the closing kick's correction (:func:`forces` with ``factored``) reuses the factor and the
+structure's forces, recomputing only what the velocity moves. The functions the step loop calls take no
+reference counts (``_nrt=False``); only a snap's impact allocates (:func:`_impact`).
 """
 from __future__ import annotations
 
@@ -340,7 +346,7 @@ def _flow(ws, h, weights, rest, ext, model, scratch, impulses):
     (ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, pairs, order,
      band, damped) = model
     f, cables, g, at, y, v_half, acc0, pulled = scratch[:8]
-    first, rdiag = scratch[11:]
+    first, rdiag = scratch[11:13]
     impulses[:] = 0.0
     for w in weights:
         hw = w * h
@@ -352,16 +358,16 @@ def _flow(ws, h, weights, rest, ext, model, scratch, impulses):
                 x[i, j] = x[i, j] + hw * v_half[i, j]
         # the taut set of the step's start (the record's held, kept): a switch at its end comes after the kick
         forces(x, v_half, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-               rigid_members, plates, pairs, order, band, damped, True, False, rec, f, cables, g, at, y, acc0, pulled,
-               first, rdiag)
+               rigid_members, plates, pairs, order, band, damped, True, False, rec, f, cables, g, at, y, acc0,
+               pulled, first, rdiag)
         for i in range(x.shape[0]):
             for j in range(3):
                 v[i, j] = v_half[i, j] + (0.5 * hw) * rec[0][i, j]
         if damped or _any_plate(rec[6], plates):
             # the same positions and held set: G's factor is kept
             forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                   rigid_members, plates, pairs, order, band, damped, True, True, rec, f, cables, g, at, y, acc0, pulled,
-               first, rdiag)
+                   rigid_members, plates, pairs, order, band, damped, True, True, rec, f, cables, g, at, y, acc0,
+                   pulled, first, rdiag)
             for i in range(x.shape[0]):
                 for j in range(3):
                     v[i, j] = v_half[i, j] + (0.5 * hw) * rec[0][i, j]
@@ -399,9 +405,8 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
     (ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, pairs, order,
      band, damped) = model
     f, cables, g, at, y, dv, acc0, pulled = scratch[:8]
-    first, rdiag = scratch[11:]
+    first, rdiag = scratch[11:13]
     nc = rest.shape[0]
-    n_struts = strut_rest.shape[0]
     kicks[:] = 0.0
     changed, snaps = False, False
     loss = 0.0
@@ -415,11 +420,26 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
                     snaps = True
     if not changed:
         return loss
-    if not snaps:
-        forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
-               plates, pairs, order, band, damped, False, False, rec, f, cables, g, at, y, acc0, pulled,
-               first, rdiag)
-        return loss
+    if snaps:
+        return loss + _impact(ws, rest, ext, model, masses, free, scratch, kicks)
+    forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
+           plates, pairs, order, band, damped, False, False, rec, f, cables, g, at, y, acc0, pulled, first, rdiag)
+    return loss
+
+
+@njit(cache=True, error_model="numpy")
+def _impact(ws, rest, ext, model, masses, free, scratch, kicks):
+    """The snap part of :func:`_events` (its own function: it allocates, the step loop does not): the plates'
+    plastic impact, ``kicks`` its impulses. Returns the energy it removed (J)."""
+    x, v = ws[0], ws[1]
+    rec = ws[2:]
+    acc, tension, dirs, slack, elong, rates, held = rec
+    (ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, pairs, order,
+     band, damped) = model
+    f, cables, g, at, y, dv, acc0, pulled = scratch[:8]
+    first, rdiag = scratch[11:13]
+    nc = rest.shape[0]
+    n_struts = strut_rest.shape[0]
     involved = np.empty(nc, dtype=np.int64)
     count = 0
     for ci in range(nc):
@@ -448,16 +468,14 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
         for j in range(3):
             v[i, j] += dv[i, j]
     forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
-           plates, pairs, order, band, damped, False, False, rec, f, cables, g, at, y, acc0, pulled,
-               first, rdiag)
+           plates, pairs, order, band, damped, False, False, rec, f, cables, g, at, y, acc0, pulled, first, rdiag)
     kept = 0.0
     for ci in range(nc):
         if held[ci] and plates[ci] > 0:
             kept += 0.5 * plates[ci] * rates[ci] ** 2
-    loss += kinetic_before + before - _kinetic(v, masses, free) - kept
     for k in range(count):
         kicks[involved[k]] = p[k]
-    return loss
+    return kinetic_before + before - _kinetic(v, masses, free) - kept
 
 
 @njit(cache=True, error_model="numpy")
@@ -531,8 +549,8 @@ def massive_steps(start, trial, h, n_steps, every, weights, locate, min_split, r
     kept one) and ``out_slack`` (K, nc: shorter than the rest length), ``K = ceil(n_steps / every)``. Returns the
     energy the plates lost (J)."""
     nc = rest.shape[0]
-    imp = np.empty(nc)
-    total = np.zeros(nc)
+    imp, total = scratch[13:]
+    total[:] = 0.0
     loss = 0.0
     for s in range(n_steps):
         loss += massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, masses, free, scratch,
@@ -541,8 +559,8 @@ def massive_steps(start, trial, h, n_steps, every, weights, locate, min_split, r
             total[ci] += imp[ci]
         if (s + 1) % every == 0 or s == n_steps - 1:
             k = s // every
-            out_x[k] = start[0]
-            out_v[k] = start[1]
+            _copy_rows(start[0], out_x[k])
+            _copy_rows(start[1], out_v[k])
             for ci in range(nc):
                 out_impulses[k, ci] = total[ci]
                 out_slack[k, ci] = start[6][ci] < 0

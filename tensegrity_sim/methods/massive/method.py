@@ -39,7 +39,8 @@ error; ``energy()["kinetic"]`` includes the moving plates' (:meth:`plate_energy`
 Two implementations of the same arithmetic: the numba kernel ``massive/_kernels.py`` (one step per call; used
 unless ``compiled`` is False) and the numpy code below, the plain reference it must match to 1e-12 in tests.
 The structure's inverse mass is applied in one place in each, :meth:`MassiveMethod.inverse_mass` and
-``_kernels.inverse_mass`` (lumped, diagonal, now). Not available yet (refused at construction with a message):
+``_kernels.inverse_mass`` (lumped, diagonal, now; the kernel builds the plates' ``G`` node by node and factors it
+once a step, see its docstring). Not available yet (refused at construction with a message):
 rigid struts (RATTLE's projections would need the plate-augmented mass), a ground and a member contact
 response.
 
@@ -182,7 +183,7 @@ class MassiveMethod(StepMethod):
         self._scratch = (np.empty((n, 3)), np.empty(nc, dtype=np.int64), np.empty(nc * nc),
                          np.empty(nc, dtype=np.int64), np.empty(nc), np.empty((n, 3)), np.empty((n, 3)),
                          np.empty((n, 3)), np.empty(nc), np.empty(nc), np.empty(nc),
-                         np.empty(nc, dtype=np.int64), np.empty(nc))
+                         np.empty(nc, dtype=np.int64), np.empty(nc), np.empty(nc), np.empty(nc))
         self._weights = np.array(WEIGHTS[self.order])
         self._fresh = True   # the start workspace's record is not the state's: compute it
         scene = sys.scene
@@ -213,7 +214,7 @@ class MassiveMethod(StepMethod):
         ext = np.ascontiguousarray(state.external_forces, dtype=float)
         if self._fresh:
             kernels.forces(ws[0], ws[1], rest, ext, *self._model, False, False, ws[2:], *self._scratch[:5],
-                           *self._scratch[6:8], *self._scratch[11:])
+                           *self._scratch[6:8], *self._scratch[11:13])
             self._fresh = False
         return ws, rest, ext
 
