@@ -12,7 +12,8 @@
   wall time per simulated second.
 * ``speed``: the icosahedron thrown (spin and random node velocities; struts elastic at 1e5 N/m, since the
   massive method takes no rigid struts yet) with cable plates of 0.05 kg, 1 ms: the massive method's ``run()``
-  (compiled) and numpy reference against the elastic method's, all with located switches (CPU time, best of 3).
+  (compiled) and numpy reference against the elastic method's, all with located switches (CPU time, best of 7
+  taken in turns; the references best of 2).
 
 ``python3 bench/massive.py [--quick]``.
 """
@@ -40,36 +41,41 @@ def drop_scene(plate: float, slack: float = 0.03) -> ts.Scene:
     return ts.Scene.from_dict(d)
 
 
+def first_snap(sim: ts.Simulator, plate: float) -> dict:
+    """Step ``sim`` (a :func:`drop_scene`) up to the step of the first snap: the kinetic energy before it, the
+    energy lost in it (measured: the total's change, the plates' energy included), and the closed form's loss
+    for the simulator's method from the cables' rate before it."""
+    slack0 = sim.slack()
+    top = np.array([3, 4, 5])   # c3, c4, c5: the top triangle
+    m = float(sim.system.masses[3])
+    for k in range(100_000):
+        before = sim.energy()
+        x, v = sim.positions, sim.velocities
+        r = sim.step()
+        if (~r.slack & slack0).any():
+            break
+    snapped = np.flatnonzero(~r.slack & slack0)
+    ends = sim.system.cable_ends[top]
+    d = x[ends[:, 1]] - x[ends[:, 0]]
+    unit = d / np.linalg.norm(d, axis=1)[:, None]
+    rate = float(np.mean(np.einsum("ij,ij->i", v[ends[:, 1]] - v[ends[:, 0]], unit)))
+    plastic = 0.5 * m * rate ** 2
+    predicted = {"elastic": 0.0, "inextensible": plastic, "massive": plastic * plate / (m / 3 + plate)}[sim.method]
+    lost = before["total"] - sim.energy()["total"]
+    return {"method": sim.method, "plate_kg": plate, "dt": sim.dt, "snap_step": k + 1,
+            "cables": " ".join(sim.scene.cable_names[i] for i in snapped),
+            "kinetic_before_J": before["kinetic"], "lost_J": lost, "closed_form_lost_J": predicted,
+            "kept": 1.0 - lost / before["kinetic"], "closed_form_kept": 1.0 - predicted / before["kinetic"],
+            "plates_lost_J": sim.energy_lost}
+
+
 def drop_rows(plate: float = 0.2, dt: float = 1e-4) -> list[dict]:
-    """Each method up to the step of the first snap: kinetic energy before it, the energy lost in it (measured:
-    the total's change, the plates' energy included), and the closed form's loss from the rates before it."""
+    """:func:`first_snap` of each method."""
     rows = []
     for method in ("elastic", "inextensible", "massive"):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ts.LengthOffsetWarning)
-            sim = ts.Simulator(drop_scene(plate), method=method, dt=dt)
-        slack0 = sim.slack()
-        top = np.array([3, 4, 5])   # c3, c4, c5: the top triangle
-        m = float(sim.system.masses[3])
-        for k in range(100_000):
-            before = sim.energy()
-            x, v = sim.positions, sim.velocities
-            r = sim.step()
-            if (~r.slack & slack0).any():
-                break
-        snapped = np.flatnonzero(~r.slack & slack0)
-        ends = sim.system.cable_ends[top]
-        d = x[ends[:, 1]] - x[ends[:, 0]]
-        unit = d / np.linalg.norm(d, axis=1)[:, None]
-        rate = float(np.mean(np.einsum("ij,ij->i", v[ends[:, 1]] - v[ends[:, 0]], unit)))
-        plastic = 0.5 * m * rate ** 2
-        predicted = {"elastic": 0.0, "inextensible": plastic, "massive": plastic * plate / (m / 3 + plate)}[method]
-        lost = before["total"] - sim.energy()["total"]
-        rows.append({"method": method, "plate_kg": plate, "dt": dt, "snap_step": k + 1,
-                     "cables": " ".join(sim.scene.cable_names[i] for i in snapped),
-                     "kinetic_before_J": before["kinetic"], "lost_J": lost, "closed_form_lost_J": predicted,
-                     "kept": 1.0 - lost / before["kinetic"], "closed_form_kept": 1.0 - predicted / before["kinetic"],
-                     "plates_lost_J": sim.energy_lost})
+            rows.append(first_snap(ts.Simulator(drop_scene(plate), method=method, dt=dt), plate))
     return rows
 
 
@@ -120,9 +126,11 @@ def thrown_icosahedron(plate: float) -> ts.Scene:
     return ts.Scene.from_dict(raw)
 
 
-def speed_rows(quick: bool) -> list[dict]:
+def speed_rows(quick: bool, repeats: int = 7) -> list[dict]:
+    """CPU time per step of each run, best of ``repeats`` taken in turns (one of each per round), so that a
+    change in the machine's load falls on all of them alike."""
     steps = 300 if quick else 1000
-    rows = []
+    runs = []
     for label, method, plate, compiled in (("massive run() (compiled)", "massive", 0.05, True),
                                            ("massive (numpy reference)", "massive", 0.05, False),
                                            ("elastic run() (compiled)", "elastic", 0.0, True),
@@ -131,13 +139,16 @@ def speed_rows(quick: bool) -> list[dict]:
         if compiled is False:
             sim._method.compiled = False
         sim.run(steps=20)   # warm: kernels loaded, caches filled
-        best = math.inf
-        for _ in range(3):
-            sim.reset()
-            start = time.process_time()
-            sim.run(steps=steps, every=steps)
-            best = min(best, time.process_time() - start)
-        rows.append({"run": label, "steps": steps, "us_per_step": 1e6 * best / steps})
+        runs.append((label, sim, compiled))
+    best = {label: math.inf for label, _, _ in runs}
+    for k in range(repeats):
+        for label, sim, compiled in runs:
+            if compiled or k < 2:   # the references are slow: two rounds
+                sim.reset()
+                start = time.process_time()
+                sim.run(steps=steps, every=steps)
+                best[label] = min(best[label], time.process_time() - start)
+    rows = [{"run": label, "steps": steps, "us_per_step": 1e6 * best[label] / steps} for label, _, _ in runs]
     base = next(r["us_per_step"] for r in rows if r["run"].startswith("elastic run()"))
     for r in rows:
         r["over_elastic_run"] = r["us_per_step"] / base
