@@ -13,7 +13,8 @@
 * ``speed``: the icosahedron thrown (spin and random node velocities; struts elastic at 1e5 N/m, since the
   massive method takes no rigid struts yet) with cable plates of 0.05 kg, 1 ms: the massive method's ``run()``
   (compiled) and numpy reference against the elastic method's, all with located switches (CPU time, best of 7
-  taken in turns; the references best of 2).
+  taken in turns; the references best of 2), and MuJoCo's Euler on the same structure with spring tendons
+  (massless cables), where ``mujoco`` is installed.
 
 ``python3 bench/massive.py [--quick]``.
 """
@@ -128,9 +129,10 @@ def thrown_icosahedron(plate: float) -> ts.Scene:
 
 def speed_rows(quick: bool, repeats: int = 7) -> list[dict]:
     """CPU time per step of each run, best of ``repeats`` taken in turns (one of each per round), so that a
-    change in the machine's load falls on all of them alike."""
+    change in the machine's load falls on all of them alike; with ``mujoco`` installed, MuJoCo's Euler on the
+    same structure beside them (spring tendons: its cables have no mass)."""
     steps = 300 if quick else 1000
-    runs = []
+    runs = []   # (label, reset, run n steps, rounds)
     for label, method, plate, compiled in (("massive run() (compiled)", "massive", 0.05, True),
                                            ("massive (numpy reference)", "massive", 0.05, False),
                                            ("elastic run() (compiled)", "elastic", 0.0, True),
@@ -139,16 +141,22 @@ def speed_rows(quick: bool, repeats: int = 7) -> list[dict]:
         if compiled is False:
             sim._method.compiled = False
         sim.run(steps=20)   # warm: kernels loaded, caches filled
-        runs.append((label, sim, compiled))
-    best = {label: math.inf for label, _, _ in runs}
+        runs.append((label, sim.reset, lambda n, sim=sim: sim.run(steps=n, every=n), repeats if compiled else 2))
+    try:
+        from bench.mujoco_peer import MujocoPeer
+        peer = MujocoPeer(thrown_icosahedron(0.0), model="elastic", dt=1e-3, integrator="Euler")
+        runs.append(("MuJoCo mj_step(nstep) (spring tendons)", peer.reset, peer.advance, repeats))
+    except ImportError:   # mujoco is a benchmark extra
+        pass
+    best = {label: math.inf for label, *_ in runs}
     for k in range(repeats):
-        for label, sim, compiled in runs:
-            if compiled or k < 2:   # the references are slow: two rounds
-                sim.reset()
+        for label, reset, run, rounds in runs:
+            if k < rounds:   # the references are slow: two rounds
+                reset()
                 start = time.process_time()
-                sim.run(steps=steps, every=steps)
+                run(steps)
                 best[label] = min(best[label], time.process_time() - start)
-    rows = [{"run": label, "steps": steps, "us_per_step": 1e6 * best[label] / steps} for label, _, _ in runs]
+    rows = [{"run": label, "steps": steps, "us_per_step": 1e6 * best[label] / steps} for label, *_ in runs]
     base = next(r["us_per_step"] for r in rows if r["run"].startswith("elastic run()"))
     for r in rows:
         r["over_elastic_run"] = r["us_per_step"] / base
