@@ -338,25 +338,27 @@ def _copy_rows(src, dst):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _flow(ws, h, weights, rest, ext, model, scratch, impulses):
-    """The composed Verlet step of ``h`` (s) in place on the workspace ``ws``; ``impulses`` (nc,) set to each
-    cable's impulse over it (MassiveMethod.verlet, Stepper.flow)."""
-    x, v = ws[0], ws[1]
-    rec = ws[2:]
+def _flow(src, dst, h, weights, rest, ext, model, scratch, impulses):
+    """The composed Verlet step of ``h`` (s) from the workspace ``src`` into ``dst`` (the two may be one);
+    ``impulses`` (nc,) set to each cable's impulse over it (MassiveMethod.verlet, Stepper.flow)."""
+    x, v = dst[0], dst[1]
+    rec = dst[2:]
     (ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, pairs, order,
      band, damped) = model
     f, cables, g, at, y, v_half, acc0, pulled = scratch[:8]
     first, rdiag = scratch[11:13]
-    impulses[:] = 0.0
-    for w in weights:
-        hw = w * h
+    for ci in range(impulses.shape[0]):
+        impulses[ci] = 0.0
+        rec[6][ci] = src[8][ci]   # the taut set of the step's start, kept: a switch at its end comes after the kick
+    for k in range(weights.shape[0]):
+        hw = weights[k] * h
+        start = src if k == 0 else dst
         for ci in range(impulses.shape[0]):
-            impulses[ci] += (0.5 * hw) * rec[1][ci]
+            impulses[ci] += (0.5 * hw) * start[3][ci]
         for i in range(x.shape[0]):
             for j in range(3):
-                v_half[i, j] = v[i, j] + (0.5 * hw) * rec[0][i, j]
-                x[i, j] = x[i, j] + hw * v_half[i, j]
-        # the taut set of the step's start (the record's held, kept): a switch at its end comes after the kick
+                v_half[i, j] = start[1][i, j] + (0.5 * hw) * start[2][i, j]
+                x[i, j] = start[0][i, j] + hw * v_half[i, j]
         forces(x, v_half, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
                rigid_members, plates, pairs, order, band, damped, True, False, rec, f, cables, g, at, y, acc0,
                pulled, first, rdiag)
@@ -373,6 +375,16 @@ def _flow(ws, h, weights, rest, ext, model, scratch, impulses):
                     v[i, j] = v_half[i, j] + (0.5 * hw) * rec[0][i, j]
         for ci in range(impulses.shape[0]):
             impulses[ci] += (0.5 * hw) * rec[1][ci]
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _switched(rec):
+    """Whether a cable's switch state differs from the set the part was stepped with (the record's)."""
+    slack, held = rec[3], rec[6]
+    for ci in range(held.shape[0]):
+        if held[ci] == slack[ci]:
+            return True
+    return False
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -480,10 +492,10 @@ def _impact(ws, rest, ext, model, masses, free, scratch, kicks):
 
 @njit(cache=True, error_model="numpy")
 def massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, masses, free, scratch, impulses):
-    """One step of ``h`` (s) in place on the workspace ``start`` (its record: the forces at its state), split at
-    the switches inside it when ``locate``, the events resolved where each part ends (_PlateStepper.step);
-    ``trial`` is a second workspace (scratch). ``impulses`` (nc,) set to each cable's impulse over the step.
-    Returns the energy the plates lost in it (J)."""
+    """One step of ``h`` (s) from the workspace ``start`` (its record: the forces at its state) into ``trial``,
+    split at the switches inside it when ``locate``, the events resolved where each part ends
+    (_PlateStepper.step); ``start`` is scratch after it. ``impulses`` (nc,) set to each cable's impulse over the
+    step. Returns the energy the plates lost in it (J)."""
     ends = model[0]
     n_struts = model[3].shape[0]
     nc = rest.shape[0]
@@ -492,8 +504,7 @@ def massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, 
     rest3 = rest.reshape((nc, 1))
     loss = 0.0
     impulses[:] = 0.0
-    _copy(start, trial)
-    _flow(trial, h, weights, rest, ext, model, scratch, trial_imp)
+    _flow(start, trial, h, weights, rest, ext, model, scratch, trial_imp)
     remaining = h
     for _ in range(MAX_SWITCHES if locate else 0):
         changed = False
@@ -513,8 +524,7 @@ def massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, 
         lo, hi = 0.0, remaining
         converged = False
         for _ in range(_FLOW_ITER):
-            _copy(start, trial)
-            _flow(trial, s, weights, rest, ext, model, scratch, part_imp)
+            _flow(start, trial, s, weights, rest, ext, model, scratch, part_imp)
             e = trial[6][cable]
             if abs(e) <= tol:
                 converged = True
@@ -525,44 +535,50 @@ def massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, 
                 rate += dirs[n_struts + cable, j] * (tv[c, j] - tv[a, j])
             s, lo, hi = newton_in_bracket(s, e, e0, rate, lo, hi)
         if not converged:
-            _copy(start, trial)
-            _flow(trial, s, weights, rest, ext, model, scratch, part_imp)
+            _flow(start, trial, s, weights, rest, ext, model, scratch, part_imp)
         loss += _events(trial, rest, ext, model, masses, free, scratch, kicks)
         _copy(trial, start)
         for ci in range(nc):
             impulses[ci] = impulses[ci] + part_imp[ci] + kicks[ci]
         remaining -= s
-        _flow(trial, remaining, weights, rest, ext, model, scratch, trial_imp)
+        _flow(start, trial, remaining, weights, rest, ext, model, scratch, trial_imp)
     # a switch not located (none, a graze, one at a part's very end) is resolved at the step's end
-    loss += _events(trial, rest, ext, model, masses, free, scratch, kicks)
-    for ci in range(nc):
-        impulses[ci] = impulses[ci] + trial_imp[ci] + kicks[ci]
-    _copy(trial, start)
+    if _switched(trial[2:]):
+        loss += _events(trial, rest, ext, model, masses, free, scratch, kicks)
+        for ci in range(nc):
+            impulses[ci] = impulses[ci] + trial_imp[ci] + kicks[ci]
+    else:
+        for ci in range(nc):
+            impulses[ci] = impulses[ci] + trial_imp[ci]
     return loss
 
 
 @njit(cache=True, error_model="numpy")
 def massive_steps(start, trial, h, n_steps, every, weights, locate, min_split, rest, ext, model, masses, free,
                   scratch, out_x, out_v, out_impulses, out_slack):
-    """``n_steps`` steps of :func:`massive_step` in place on ``start``, keeping steps ``every``, ``2 every``, ...
-    and the last in ``out_x``, ``out_v`` (K, N, 3), ``out_impulses`` (K, nc; summed over the steps since the last
-    kept one) and ``out_slack`` (K, nc: shorter than the rest length), ``K = ceil(n_steps / every)``. Returns the
-    energy the plates lost (J)."""
+    """``n_steps`` steps of :func:`massive_step` in place on ``start`` (``trial`` and it take turns), keeping
+    steps ``every``, ``2 every``, ... and the last in ``out_x``, ``out_v`` (K, N, 3), ``out_impulses`` (K, nc;
+    summed over the steps since the last kept one) and ``out_slack`` (K, nc: shorter than the rest length),
+    ``K = ceil(n_steps / every)``. Returns the energy the plates lost (J)."""
     nc = rest.shape[0]
     imp, total = scratch[13:]
     total[:] = 0.0
     loss = 0.0
+    now, spare = start, trial
     for s in range(n_steps):
-        loss += massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, masses, free, scratch,
+        loss += massive_step(now, spare, h, weights, locate, min_split, rest, ext, model, masses, free, scratch,
                              imp)
+        now, spare = spare, now
         for ci in range(nc):
             total[ci] += imp[ci]
         if (s + 1) % every == 0 or s == n_steps - 1:
             k = s // every
-            _copy_rows(start[0], out_x[k])
-            _copy_rows(start[1], out_v[k])
+            _copy_rows(now[0], out_x[k])
+            _copy_rows(now[1], out_v[k])
             for ci in range(nc):
                 out_impulses[k, ci] = total[ci]
-                out_slack[k, ci] = start[6][ci] < 0
+                out_slack[k, ci] = now[6][ci] < 0
                 total[ci] = 0.0
+    if n_steps % 2:
+        _copy(now, start)
     return loss

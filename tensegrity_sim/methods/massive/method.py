@@ -224,6 +224,8 @@ class MassiveMethod(StepMethod):
         loss = kernels.massive_step(ws, self._trial, self.dt, self._weights, self.locate_switches, MIN_SPLIT * self.dt,
                                     rest, ext, self._model, self.system.masses, self.system.free, self._scratch,
                                     impulses)
+        self._start, self._trial = self._trial, ws   # the step's end is the next one's start
+        ws = self._start
         return MethodStep(ws[0].copy(), ws[1].copy(), impulses, ws[6] < 0), loss
 
     # ------------------------------------------------------------------ the mass
