@@ -7,9 +7,9 @@
   has the effective mass ``m/3`` per cable (top nodes of mass ``m``; the elastic struts take no part in an
   impact), so a plastic snap (inextensible) loses ``1/2 m de^2`` and the plates' (massive) that times
   ``m_c/(m/3 + m_c)``, with ``de`` the cables' rate at the snap; the elastic method loses nothing.
-* ``order``: the 1-D snap (a body of 1 kg at 1 m/s on an anchored cable, plate 0.5 kg, taut at 10 rad/s) against
-  its closed form after the rebound, over steps: located snaps (the default) and not located; error against
-  wall time per simulated second.
+* ``order``: the 1-D snap (``analytic.plate_snap_dict``: 1 kg at 1 m/s on an anchored cable, plate 0.5 kg,
+  10 rad/s) against its closed form after the rebound, over steps: located snaps (the default) and not
+  located; error against wall time per simulated second.
 * ``speed``: the icosahedron thrown (spin and random node velocities; struts elastic at 1e5 N/m, since the
   massive method takes no rigid struts yet) with cable plates of 0.05 kg, 1 ms: the massive method's ``run()``
   (compiled) and numpy reference against the elastic method's, all with located switches (CPU time, best of 7
@@ -80,29 +80,22 @@ def drop_rows(plate: float = 0.2, dt: float = 1e-4) -> list[dict]:
     return rows
 
 
-def bungee(plate: float, omega: float = 10.0) -> ts.Scene:
-    return ts.Scene.from_dict({
-        "name": "bungee", "nodes": [{"name": "a", "position": [0, 0, 0], "fixed": True},
-                                    {"name": "b", "position": [0.95, 0, 0], "mass": 1.0, "velocity": [1.0, 0, 0]}],
-        "cables": [{"name": "c", "nodes": ["a", "b"], "stiffness": omega ** 2 * (1 + plate), "rest_length": 1.0,
-                    "mass": plate}]})
-
-
 def order_rows(quick: bool) -> list[dict]:
+    """The 1-D snap (``analytic.plate_snap_dict``) against its closed form after the rebound, over steps."""
+    from bench.analytic import plate_snap_dict, plate_snap_exact
     plate, omega, duration = 0.5, 10.0, 0.45
-    rebound = 1.0 / (1 + plate)
-    exact = 1.0 - rebound * (duration - 0.05 - math.pi / omega)
+    scene = ts.Scene.from_dict(plate_snap_dict(plate, omega))
     rows = []
     for locate in (True, False):
         for dt in (4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4) if not quick else (2e-3, 1e-3, 5e-4):
             dt *= 1.0 + 1 / 7   # the snap inside a step
-            sim = ts.Simulator(bungee(plate, omega), method="massive", dt=dt, locate_switches=locate)
+            sim = ts.Simulator(scene, method="massive", dt=dt, locate_switches=locate)
             steps = round(duration / dt)
             start = time.perf_counter()
             sim.run(steps=steps)
             wall = time.perf_counter() - start
-            exact_x = exact - rebound * (sim.time - duration)
-            rows.append({"locate_switches": locate, "dt": dt, "pos_err_m": abs(sim.positions[1, 0] - exact_x),
+            exact = plate_snap_exact(sim.time, plate, omega)[0]
+            rows.append({"locate_switches": locate, "dt": dt, "pos_err_m": abs(sim.positions[1, 0] - exact[1, 0]),
                          "wall_per_sim_s": wall / sim.time})
     for a, b in zip(rows, rows[1:]):
         if a["locate_switches"] == b["locate_switches"]:

@@ -328,3 +328,20 @@ def test_batch_copies_step_the_massive_method():
     traj = batch.run(steps=600)
     assert batch.method_reason == "massive: requested"
     assert traj.velocities[:, -1, 1, 0] == pytest.approx(-M * speeds / (M + 0.5), rel=1e-6)
+
+
+def test_work_precision_case_is_its_closed_form_at_order_two():
+    """bench's plate_snap case (the work-precision study's for this method): its closed form (position,
+    velocity, the cable's impulse: the body's momentum change) is what the method converges to at order 2."""
+    from bench.cases import work_precision_cases
+    case = next(c for c in work_precision_cases() if c.name == "plate_snap")
+    want = case.exact("massive")
+    errors = []
+    for dt in (2e-3, 1e-3):
+        sim = ts.Simulator(case.scene, method="massive", dt=dt)
+        traj = sim.run(steps=round(case.duration / dt), every=round(case.duration / dt))
+        assert sim.time == pytest.approx(case.duration, rel=1e-12)
+        assert traj.impulses[0] == pytest.approx(want.impulses, rel=1e-9)
+        assert sim.velocities[1] == pytest.approx(want.velocities[1], abs=1e-8)
+        errors.append(np.abs(sim.positions - want.positions).max())
+    assert errors[1] < 1e-6 and 3.5 < errors[0] / errors[1] < 4.5, errors

@@ -14,8 +14,8 @@ The structure's inverse mass is applied by :func:`inverse_mass` only (``_mass_ke
 Cost: the plates' ``G`` is built node by node (:func:`_delassus`: two cables couple only at a shared node) and
 factored once per step, in an envelope that the cables' reverse Cuthill-McKee order keeps narrow
 (:func:`_factor`); the closing kick's correction (:func:`forces` with ``factored``) reuses the factor and the
-structure's forces, recomputing only what the velocity moves. The functions the step loop calls take no
-reference counts (``_nrt=False``); only a snap's impact allocates (:func:`_impact`).
+structure's forces, recomputing only what the velocity moves. The functions a step calls take no reference
+counts (``_nrt=False``) and the loop allocates nothing but at a snap's impact (:func:`_events`).
 """
 from __future__ import annotations
 
@@ -432,25 +432,11 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
                     snaps = True
     if not changed:
         return loss
-    if snaps:
-        return loss + _impact(ws, rest, ext, model, masses, free, scratch, kicks)
-    forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
-           plates, pairs, order, band, damped, False, False, rec, f, cables, g, at, y, acc0, pulled, first, rdiag)
-    return loss
-
-
-@njit(cache=True, error_model="numpy")
-def _impact(ws, rest, ext, model, masses, free, scratch, kicks):
-    """The snap part of :func:`_events` (its own function: it allocates, the step loop does not): the plates'
-    plastic impact, ``kicks`` its impulses. Returns the energy it removed (J)."""
-    x, v = ws[0], ws[1]
-    rec = ws[2:]
-    acc, tension, dirs, slack, elong, rates, held = rec
-    (ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, pairs, order,
-     band, damped) = model
-    f, cables, g, at, y, dv, acc0, pulled = scratch[:8]
-    first, rdiag = scratch[11:13]
-    nc = rest.shape[0]
+    if not snaps:
+        forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
+               plates, pairs, order, band, damped, False, False, rec, f, cables, g, at, y, acc0, pulled, first, rdiag)
+        return loss
+    # the plates' plastic impact (the step loop's only allocations)
     n_struts = strut_rest.shape[0]
     involved = np.empty(nc, dtype=np.int64)
     count = 0
@@ -487,7 +473,7 @@ def _impact(ws, rest, ext, model, masses, free, scratch, kicks):
             kept += 0.5 * plates[ci] * rates[ci] ** 2
     for k in range(count):
         kicks[involved[k]] = p[k]
-    return kinetic_before + before - _kinetic(v, masses, free) - kept
+    return loss + kinetic_before + before - _kinetic(v, masses, free) - kept
 
 
 @njit(cache=True, error_model="numpy")
