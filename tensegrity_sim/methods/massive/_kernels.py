@@ -109,20 +109,25 @@ def _delassus(cables, count, dirs, n_struts, ends, inv_mass, pairs, plates, at, 
 @njit(cache=True, error_model="numpy", _nrt=False, fastmath=_REASSOCIATE)
 def _factor(g, first, rdiag):
     """The Cholesky factor ``L`` (``G = L L^T``) of the lower envelope of :func:`_delassus` in place (the
-    envelope keeps its fill), ``rdiag`` (count,) its diagonal's reciprocals. The cables come in an order of
-    small bandwidth (``MassiveMethod._order``), so this costs a fraction of the dense factor."""
-    for i in range(g.shape[0]):
-        fi = first[i]
-        for j in range(fi, i):
-            s = g[i, j]
-            for p in range(max(fi, first[j]), j):
-                s -= g[i, p] * g[j, p]
-            g[i, j] = s * rdiag[j]
-        s = g[i, i]
-        for p in range(fi, i):
-            s -= g[i, p] * g[i, p]
-        g[i, i] = np.sqrt(s)
-        rdiag[i] = 1.0 / g[i, i]
+    envelope keeps its fill), ``rdiag`` (count,) its diagonal's reciprocals. Column by column, so that a
+    column's rows are independent of each other; the cables come in an order of small bandwidth
+    (``MassiveMethod._couplings``), so this costs a fraction of the dense factor."""
+    n = g.shape[0]
+    for j in range(n):
+        fj = first[j]
+        s = g[j, j]
+        for p in range(fj, j):
+            s -= g[j, p] * g[j, p]
+        g[j, j] = np.sqrt(s)
+        r = 1.0 / g[j, j]
+        rdiag[j] = r
+        for i in range(j + 1, n):
+            fi = first[i]
+            if fi <= j:
+                s = g[i, j]
+                for p in range(max(fi, fj), j):
+                    s -= g[i, p] * g[j, p]
+                g[i, j] = s * r
 
 
 @njit(cache=True, error_model="numpy", _nrt=False, fastmath=_REASSOCIATE)
