@@ -139,6 +139,7 @@ def test_fit_refuses_bad_input(logged, capsys, tmp_path):
     slack.write_text(ts.Scene.from_dict(d).to_yaml())
     assert "not the log's" in refused("--params", "stiffness", "--scene", str(slack))
     assert "--loss" in refused("--params", "stiffness", "--loss", "l7")
+    assert "prior must be >= 0" in refused("--params", "stiffness", "--prior", "-1")
 
 
 def test_fit_refuses_a_log_without_poses_or_with_a_nan(logged, capsys, tmp_path):
