@@ -3,10 +3,12 @@
 
 Cases: ``prism`` (prism3 thrown, cables slackening and snapping, damped, 2 s free; stiffness and damping) and
 ``roll`` (icosahedron_ground rolling under ``examples/roll.yaml``, damped, 10 s commanded; stiffness, damping and
-the ground's friction). Each fit's wall time, CPU time and the load average of the machine are recorded.
+the ground's friction; with ``chord``, the start states' Jacobian reused). Each fit's wall time, CPU time and
+the load average of the machine are recorded.
 
-Run: ``python3 bench/bench_fit.py [--cases prism,roll] [--factors 1.3,0.7] [--noise 0,0.001]``; writes
-``bench/results/fit.csv`` and prints each row.
+Run: ``python3 bench/bench_fit.py [--cases prism,roll] [--factors 1.3,0.7] [--noise 0,0.001] [--duration S]``
+(``--duration``: every case's log that long instead); writes ``bench/results/fit.csv`` (``--out``: another file;
+the roll's rows are in ``fit_roll.csv``) and prints each row.
 """
 from __future__ import annotations
 
@@ -74,6 +76,7 @@ def main_() -> int:
     parser.add_argument("--cases", default="prism,roll")
     parser.add_argument("--factors", default="1.3,0.7")
     parser.add_argument("--noise", default="0,0.001")
+    parser.add_argument("--duration", type=float, help="s: every case's log this long (default: the case's)")
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "fit.csv")
     args = parser.parse_args()
     rows = []
@@ -81,6 +84,7 @@ def main_() -> int:
         tmp = Path(tmp)
         for case in args.cases.split(","):
             make, duration, commands, params = CASES[case]
+            duration = args.duration or duration
             truth = make()
             (tmp / "truth.yaml").write_text(truth.to_yaml())
             log = tmp / f"{case}.mcap"
@@ -96,12 +100,12 @@ def main_() -> int:
                     rewrite_poses(log, source, lambda x: x + rng.normal(scale=sigma, size=x.shape))
                 for factor in (float(f) for f in args.factors.split(",")):
                     start_wall, start_cpu = time.perf_counter(), time.process_time()
-                    result = ts.fit(source, params, scene=nominal(truth, factor))
+                    result = ts.fit(source, params, scene=nominal(truth, factor), chord=case == "roll")
                     wall, cpu = time.perf_counter() - start_wall, time.process_time() - start_cpu
                     row = {"case": case, "duration_s": duration, "noise_m": sigma, "start_factor": factor,
                            "params": params, "windows": result.windows, "window_steps": result.window * result.every,
-                           "evaluations": result.evaluations, "wall_s": wall, "cpu_s": cpu,
-                           "load_1min": os.getloadavg()[0], "noise_estimate_m": result.noise,
+                           "evaluations": result.evaluations, "jacobians": result.jacobians, "wall_s": wall,
+                           "cpu_s": cpu, "load_1min": os.getloadavg()[0], "noise_estimate_m": result.noise,
                            "rms_start_m": result.rms_start, "rms_fitted_m": result.rms_fitted}
                     for u, value, sigma_u in zip(result.unknowns, result.fitted, result.sigma):
                         row[f"{u.kind}_rel_error"] = value / expected[u.kind] - 1.0

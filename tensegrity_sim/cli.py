@@ -339,7 +339,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path(args.log).with_name(Path(args.log).stem + "_fit.yaml")
     plot = None if args.plot is None else Path(args.plot or Path(DEFAULT_PLOT_DIR) / (Path(args.log).stem + "_fit"))
     result = fit_log(args.log, args.params, scene=args.scene, window=args.window, loss=args.loss,
-                     loss_scale=args.loss_scale, out=out, plot=plot)
+                     loss_scale=args.loss_scale, prior=args.prior, chord=args.chord, out=out, plot=plot)
     print(f"log              {args.log} ({len(result.grid_steps)} poses on a grid of {result.every} steps)")
     print("\n".join(table(result)))
     print(f"fitted scene     {out}")
@@ -494,6 +494,12 @@ def _add_fit(verbs) -> None:
                      help="least squares loss: linear (default), or robust: soft_l1, huber, cauchy, arctan")
     fit.add_argument("--loss-scale", type=float, default=3e-3, metavar="M",
                      help="a robust loss's residual scale, m (default 0.003): larger residuals count less")
+    fit.add_argument("--prior", type=float, default=0.0, metavar="SD",
+                     help="a prior on each parameter about the scene's value, its relative standard deviation "
+                          "(default 0: none), in --loss-scale metres of residual per standard deviation")
+    fit.add_argument("--chord", action="store_true",
+                     help="reuse the start states' Jacobian between iterations (faster from a close start; it can "
+                          "stall from a far one)")
     fit.add_argument("--plot", nargs="?", const="", metavar="DIR",
                      help=f"write the before/after figures into DIR (default {DEFAULT_PLOT_DIR}/<log name>_fit)")
     fit.set_defaults(func=_cmd_fit)

@@ -71,7 +71,7 @@ def test_sparse_jacobian_is_the_dense_one(logged):
     import jax
     import jax.numpy as jnp
 
-    from tensegrity_sim.methods.jax.fit import Observed, _Problem, parse_parameters
+    from tensegrity_sim.methods.jax.fit import CHORD, Observed, _Problem, parse_parameters
     from tensegrity_sim.ros.fit_log import read_observed
 
     scene = ts.load_scene(logged / "nominal.yaml")
@@ -79,8 +79,8 @@ def test_sparse_jacobian_is_the_dense_one(logged):
     k = 23   # 0.23 s: a reel-in and the force in three windows
     obs = Observed(obs.dt, obs.steps[:k], obs.positions[:k], obs.rest[:obs.steps[k - 1]],
                    obs.forces[:obs.steps[k - 1]])
-    problem = _Problem(scene, obs, parse_parameters("stiffness,damping", scene), 8, 10.0)
-    assert problem.windows == 3
+    problem = _Problem(scene, obs, parse_parameters("stiffness,damping", scene), 8, 10.0, prior=0.5)
+    assert problem.windows == 3 and len(problem.prior_rows) == 2
     z = np.concatenate([problem.p0, problem.state0.ravel()]) * 1.001
 
     def residual(z):
@@ -92,11 +92,20 @@ def test_sparse_jacobian_is_the_dense_one(logged):
         v_next = jnp.moveaxis(state[1:, 3 * nf:].reshape(-1, nf, 3), 0, -1)
         cont = jnp.stack([problem.cw * (xe[..., :-1] - x_next), problem.cw * problem.tau * (ve[..., :-1] - v_next)])
         return jnp.concatenate([jnp.moveaxis(obs_rows, -1, 0).ravel(), state[0, :3 * nf] - problem.target_start(),
-                                jnp.moveaxis(cont, -1, 0).ravel()])
+                                jnp.moveaxis(cont, -1, 0).ravel(), problem.prior_weight * (p - 1.0)])
 
     np.testing.assert_allclose(np.asarray(residual(jnp.asarray(z))), problem.residual(z), rtol=0, atol=1e-15)
     dense = np.asarray(jax.jacfwd(residual)(jnp.asarray(z)))
     np.testing.assert_allclose(problem.jacobian(z).toarray(), dense, rtol=1e-12, atol=1e-12 * np.abs(dense).max())
+    # the chord: at parameters moved less than CHORD the start states' columns are those at z, the parameters' new
+    moved = z.copy()
+    moved[:problem.n_params] *= 1.0 + 0.5 * CHORD
+    chord = problem.jacobian(moved, exact=False).toarray()
+    exact = np.asarray(jax.jacfwd(residual)(jnp.asarray(moved)))
+    np.testing.assert_array_equal(chord[:, problem.n_params:], problem.jacobian(z).toarray()[:, problem.n_params:])
+    np.testing.assert_allclose(chord[:, :problem.n_params], exact[:, :problem.n_params], rtol=1e-12,
+                               atol=1e-12 * np.abs(exact).max())
+    assert np.abs(chord - exact).max() > 1e-9 * np.abs(exact).max()   # the states' columns did move
 
 
 def test_fit_refuses_bad_input(logged, capsys, tmp_path):
@@ -130,6 +139,7 @@ def test_fit_refuses_bad_input(logged, capsys, tmp_path):
     slack.write_text(ts.Scene.from_dict(d).to_yaml())
     assert "not the log's" in refused("--params", "stiffness", "--scene", str(slack))
     assert "--loss" in refused("--params", "stiffness", "--loss", "l7")
+    assert "prior must be >= 0" in refused("--params", "stiffness", "--prior", "-1")
 
 
 def test_fit_refuses_a_log_without_poses_or_with_a_nan(logged, capsys, tmp_path):

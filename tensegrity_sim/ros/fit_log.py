@@ -101,8 +101,8 @@ def _commands(path: Path, scene: Scene, inputs: list, n_steps: int, dt: float):
 
 
 def fit_log(log: str | Path, params: str, *, scene: str | Path | Scene | None = None, window: int | None = None,
-            loss: str = "linear", loss_scale: float = 3e-3, out: str | Path | None = None,
-            plot: str | Path | None = None):
+            loss: str = "linear", loss_scale: float = 3e-3, prior: float = 0.0, chord: bool = False,
+            out: str | Path | None = None, plot: str | Path | None = None):
     """Fit ``params`` (``methods/jax/fit.py``'s ``parse_parameters``) to the log at ``log``, starting from
     ``scene`` (a scene or its file: the nominal model; default the log's own); writes the fitted scene to ``out``
     and the before/after figures into the directory ``plot`` when given. Returns the ``FitResult``."""
@@ -112,7 +112,8 @@ def fit_log(log: str | Path, params: str, *, scene: str | Path | Scene | None = 
     logged, observed = read_observed(log, nominal)
     nominal = logged if nominal is None else nominal
     unknowns = parse_parameters(params, nominal, reel_speed=observed.reel_speed)
-    result = fit_observed(nominal, observed, unknowns, window=window, loss=loss, loss_scale=loss_scale)
+    result = fit_observed(nominal, observed, unknowns, window=window, loss=loss, loss_scale=loss_scale,
+                          prior=prior, chord=chord)
     if out is not None:
         Path(out).write_text(result.scene.to_yaml())
     if plot is not None:
@@ -134,5 +135,6 @@ def table(result) -> list[str]:
             f"({result.evaluations} runs; {result.message})",
             f"pose noise       {result.noise:.3g} m (estimated from the residual)",
             f"windows          {result.windows} of {result.window} x {result.every} steps "
-            f"({result.switches} slack/taut switches seen in the poses)"]
+            f"({result.switches} slack/taut switches seen in the poses; {result.jacobians} Jacobians of the "
+            f"start states)"]
     return out

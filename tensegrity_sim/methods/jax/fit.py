@@ -23,12 +23,20 @@ together), with the commands in effect at every step of each (rest lengths, forc
 follows its targets at ``reel_speed``, differentiable in it).
 
 **The Jacobian** is exact (forward mode) and sparse: a window's residuals depend on the parameters and its own
-start state only (a continuity row also on the next window's start, linearly). One ``jax.jvp`` per parameter
-and per start-state coordinate, seeded in every window at once, gives every window's block together (6 N + P
-tangents whatever the number of windows). ``scipy.optimize.least_squares`` (trust region reflective, bounds
-from physics: stiffness, mass and reel speed > 0, damping and friction >= 0, restitution in [0, 1]) minimises
-the sum of squares, or a robust loss (``loss``: ``soft_l1``, ``huber``, ``cauchy``, ``arctan``, with
-``loss_scale`` in m).
+start state only (a continuity row also on the next window's start, linearly). One ``jax.jvp`` per parameter and
+per start-state coordinate, seeded in every window at once, gives every window's block together (6 N + P tangents
+whatever the number of windows). The start states' tangents (6 N of them) are reused between iterations (a chord
+method: ``exact`` False) until a parameter factor moves by ``CHORD`` or a start state by ``CHORD_STATE`` since they
+were computed; the parameters' are computed every time. It is an option (``chord``): it saves most of the
+Jacobians' cost where they dominate (the rolling icosahedron: 3x less CPU). ``scipy.optimize.least_squares`` (trust
+region reflective) minimises the sum of squares, or a robust loss (``loss``: ``soft_l1``, ``huber``, ``cauchy``,
+``arctan``, with ``loss_scale`` in m).
+
+**Bounds and prior.** Bounds are physical (stiffness, mass and reel speed > 0, damping and friction >= 0,
+restitution in [0, 1]); an unknown with a positive scene value is fitted as a factor on it, one that is 0 in the
+scene as its value. ``prior`` > 0
+adds one row per factor, ``loss_scale (factor - 1) / prior``: a Gaussian prior of relative standard deviation
+``prior`` about the scene's value, weighed against poses of noise ``loss_scale``.
 
 **Uncertainty and noise.** The pose noise is estimated from the observation residual at the optimum (its root
 mean square with the degrees of freedom taken off); each parameter's standard deviation is that noise times
@@ -66,6 +74,9 @@ LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 SWITCHES_PER_WINDOW = 4.0
 MIN_WINDOW, MAX_WINDOW = 5, 40   # grid intervals
 CONTINUITY = 10.0                # weight of the continuity rows against the observations'
+PRIOR = 0.0                      # the prior's relative standard deviation about the scene's values (0: none)
+CHORD = 0.05                     # the start states' Jacobian is reused until a parameter (a factor) moves this
+CHORD_STATE = 1e-3               # much, or a start position (m) or velocity times the pose interval (m) this much
 
 
 @dataclass(frozen=True)
@@ -160,7 +171,9 @@ class FitResult:
     square, m; noise: the pose noise estimated from it, m; scene: the scene with the fitted values; window: grid
     intervals per window, windows, every: steps of ``dt`` s per grid interval; grid_steps (G,), observed
     (G, N, 3) (NaN where no pose), before, after (G, N, 3): the windows' simulated positions at the start and at
-    the optimum; evaluations: runs of the model; message: the solver's; reel_speed: the fitted one (m/s, 0: none)."""
+    the optimum; evaluations: runs of the model; message: the solver's; reel_speed: the fitted one (m/s, 0: none);
+    switches: the slack/taut switches seen in the poses; jacobians: the start states' Jacobians computed (the
+    rest of the runs reused one)."""
 
     unknowns: list[Unknown]
     start: np.ndarray
@@ -182,6 +195,7 @@ class FitResult:
     message: str
     reel_speed: float = 0.0
     switches: int = field(default=0)
+    jacobians: int = field(default=0)
 
 
 def observed_slack(scene: Scene, obs: Observed) -> tuple[np.ndarray, int]:
@@ -207,7 +221,8 @@ def choose_window(obs: Observed, switches: int, every: int) -> int:
 class _Problem:
     """The windows, their data and the residual and Jacobian of the least squares (module docstring)."""
 
-    def __init__(self, scene: Scene, obs: Observed, unknowns: list[Unknown], window: int, continuity: float):
+    def __init__(self, scene: Scene, obs: Observed, unknowns: list[Unknown], window: int, continuity: float,
+                 prior: float = PRIOR, prior_scale: float = 1e-3):
         self.scene, self.obs, self.unknowns = scene, obs, unknowns
         system = System(scene)
         rigid = RigidStruts(system)
@@ -264,6 +279,10 @@ class _Problem:
         self.factor = [bool(b > 0) for b in self.base]
         self.p0 = np.array([1.0 if f else 0.0 for f in self.factor])
         self.n_params = len(unknowns)
+        # the prior rows: prior_scale (m) times each factor's distance from 1 in prior standard deviations
+        self.prior_rows = np.flatnonzero(self.factor) if prior > 0 else np.zeros(0, int)
+        self.prior_weight = prior_scale / prior if prior > 0 else 0.0
+        self._chord, self.state_jacobians = None, 0
         self._jit()
 
     # ----------------------------------------------------------------- parameters
@@ -382,14 +401,21 @@ class _Problem:
         self.state_tangents = jax.jit(lambda p, state, data: jax.jvp(
             lambda st: pieces(p, st, data, s), (jnp.repeat(state, s, axis=0),), (jnp.asarray(seeds),))[1])
 
-    def tangents(self, p, state):
-        """Every parameter's and start-state coordinate's tangent: (T, L, nf, 3, W), (T, nf, 3, W) twice."""
-        p, state = jnp.asarray(p), jnp.asarray(state)
-        out = [[np.asarray(a)[None] for a in self.param_tangent(p, state, self.data, jnp.eye(len(p))[i])]
+    def tangents(self, p, state, exact: bool = True):
+        """Every parameter's and start-state coordinate's tangent: (T, L, nf, 3, W), (T, nf, 3, W) twice; with
+        ``exact`` False the start states' are those last computed unless a parameter moved by more than ``CHORD``
+        (a factor) or a start state by more than ``CHORD_STATE`` since (module docstring)."""
+        out = [[np.asarray(a)[None] for a in self.param_tangent(jnp.asarray(p), jnp.asarray(state), self.data,
+                                                                 jnp.eye(len(p))[i])]
                for i in range(len(p))]
-        s, w = 6 * self.nf, self.windows
-        out.append([np.moveaxis(np.asarray(a).reshape(*a.shape[:-1], w, s), -1, 0)
-                    for a in self.state_tangents(p, state, self.data)])
+        scaled = np.asarray(state) * np.repeat([1.0, self.tau], 3 * self.nf)
+        if exact or self._chord is None or np.max(np.abs(np.asarray(p) - self._chord[0])) > CHORD or \
+                np.max(np.abs(scaled - self._chord[1])) > CHORD_STATE:
+            s, w = 6 * self.nf, self.windows
+            self._chord = (np.array(p), scaled, [np.moveaxis(np.asarray(a).reshape(*a.shape[:-1], w, s), -1, 0)
+                                         for a in self.state_tangents(jnp.asarray(p), jnp.asarray(state), self.data)])
+            self.state_jacobians += 1
+        out.append(self._chord[2])
         return [np.concatenate(parts) for parts in zip(*out)]
 
     # ----------------------------------------------------------------- least squares
@@ -399,9 +425,9 @@ class _Problem:
     def residual(self, z) -> np.ndarray:
         p, state = self.split(z)
         xs, xe, ve = (np.asarray(a) for a in self.pieces(jnp.asarray(p), jnp.asarray(state), self.data))
-        return self._assemble(xs, xe, ve, state)
+        return self._assemble(xs, xe, ve, p, state)
 
-    def _assemble(self, xs, xe, ve, state) -> np.ndarray:
+    def _assemble(self, xs, xe, ve, p, state) -> np.ndarray:
         nf, w = self.nf, self.windows
         obs = (xs - self.target) * self.obs_mask[:, None, None, :]                 # (L, nf, 3, W)
         first = state[0, :3 * nf] - self.target_start()
@@ -409,8 +435,10 @@ class _Problem:
         v_next = np.moveaxis(state[1:, 3 * nf:].reshape(w - 1, nf, 3), 0, -1)
         cx = self.cw * (xe[..., :-1] - x_next)
         cv = self.cw * self.tau * (ve[..., :-1] - v_next)
+        p = np.asarray(p)
         return np.concatenate([np.moveaxis(obs, -1, 0).ravel(), first,
-                               np.moveaxis(np.stack([cx, cv]), -1, 0).ravel()])
+                               np.moveaxis(np.stack([cx, cv]), -1, 0).ravel(),
+                               self.prior_weight * (p[self.prior_rows] - 1.0)])
 
     def target_start(self) -> np.ndarray:
         return _fill(self.observed)[0][self.free].ravel()
@@ -418,12 +446,13 @@ class _Problem:
     def n_observed(self) -> int:
         return int(self.obs_mask.sum()) * 3 * self.nf + 3 * self.nf
 
-    def jacobian(self, z) -> sp.csr_matrix:
+    def jacobian(self, z, exact: bool = True) -> sp.csr_matrix:
+        """The sparse Jacobian at ``z``; ``exact`` False: the start states' tangents reused (:meth:`tangents`)."""
         p, state = self.split(z)
         P, nf, W, L = self.n_params, self.nf, self.windows, self.window
         s = 6 * nf
         T = P + s
-        dxs, dxe, dve = self.tangents(p, state)
+        dxs, dxe, dve = self.tangents(p, state, exact)
         rows, cols, vals = [], [], []
         per = L * nf * 3
         # observation rows of window w: (T, L, nf, 3, W) -> (W, per, T)
@@ -455,11 +484,16 @@ class _Problem:
             rows.append((base + k).ravel())
             cols.append((P + s + k).ravel())
             vals.append(-np.broadcast_to(weight, k.shape).ravel())
-        n_rows = base + (W - 1) * s
+        base += (W - 1) * s
+        rows.append(base + np.arange(len(self.prior_rows)))
+        cols.append(self.prior_rows)
+        vals.append(np.full(len(self.prior_rows), self.prior_weight))
+        n_rows = base + len(self.prior_rows)
         return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                              shape=(n_rows, P + W * s))
 
     def bounds(self):
+        """Physical: stiffness, mass and reel speed > 0, damping and friction >= 0, restitution in [0, 1]."""
         lower = {"stiffness": 1e-9, "mass": 1e-9, "reel_speed": 1e-9}
         lo = np.array([lower.get(u.kind, 0.0) for u in self.unknowns])
         hi = np.array([1.0 / b if u.kind == "restitution" and f else (1.0 if u.kind == "restitution" else np.inf)
@@ -508,10 +542,14 @@ def _parameter_sigma(jac, n_params: int, noise: float) -> np.ndarray:
 
 def fit_observed(scene: Scene, obs: Observed, unknowns: list[Unknown], *, window: int | None = None,
                  loss: str = "linear", loss_scale: float = 3e-3, continuity: float = CONTINUITY,
-                 tolerance: float = 1e-10, max_evaluations: int = 100, verbose: int = 0) -> FitResult:
+                 prior: float = PRIOR, chord: bool = False, tolerance: float = 1e-10, max_evaluations: int = 100,
+                 verbose: int = 0) -> FitResult:
     """Fit ``unknowns`` of ``scene`` (their start values) to ``obs`` by multiple shooting (module docstring);
-    ``window``: grid intervals per window (None: :func:`choose_window`); ``verbose``: least_squares' (2: every
-    iteration)."""
+    ``window``: grid intervals per window (None: :func:`choose_window`); ``prior``: the prior's relative standard
+    deviation about the scene's values (0: none); ``chord``: reuse the start states' Jacobian (module
+    docstring); ``verbose``: least_squares' (2: every iteration)."""
+    if not prior >= 0:
+        raise ValueError(f"prior must be >= 0 (a relative standard deviation; 0: none), got {prior}")
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {', '.join(LOSSES)}, got {loss!r}")
     steps = np.asarray(obs.steps, dtype=np.int64)
@@ -534,21 +572,22 @@ def fit_observed(scene: Scene, obs: Observed, unknowns: list[Unknown], *, window
         window = choose_window(obs, switches, every)
     if window < 1:
         raise ValueError(f"window must be at least 1 grid interval, got {window}")
-    problem = _Problem(scene, obs, unknowns, window, continuity)
+    problem = _Problem(scene, obs, unknowns, window, continuity, prior, loss_scale)
     z0 = np.concatenate([problem.p0, problem.state0.ravel()])
     lo, hi = problem.bounds()
     z0 = np.clip(z0, lo, hi)
     r0 = problem.residual(z0)
     n_obs = problem.n_observed()
     rms = lambda r: float(np.sqrt(np.sum(r[:n_obs] ** 2) / n_obs))   # noqa: E731
-    sol = least_squares(problem.residual, z0, jac=problem.jacobian, bounds=(lo, hi), method="trf",
-                        x_scale="jac", loss=loss, f_scale=loss_scale, xtol=tolerance, ftol=tolerance,
-                        gtol=tolerance, max_nfev=max_evaluations, tr_solver="lsmr", verbose=verbose)
+    options = dict(bounds=(lo, hi), method="trf", x_scale="jac", loss=loss, f_scale=loss_scale, xtol=tolerance,
+                   ftol=tolerance, gtol=tolerance, tr_solver="lsmr", verbose=verbose)
+    sol = least_squares(problem.residual, z0, jac=lambda z: problem.jacobian(z, exact=not chord),
+                        max_nfev=max_evaluations, **options)
     r = problem.residual(sol.x)
-    # the continuity rows act as constraints: each takes one unknown off
-    dof = max(1, n_obs - len(sol.x) + (len(r) - n_obs))
+    # the continuity rows act as constraints: each takes one unknown off (the prior rows do not)
+    dof = max(1, n_obs - len(sol.x) + (len(r) - n_obs - len(problem.prior_rows)))
     noise = float(np.sqrt(np.sum(r[:n_obs] ** 2) / dof))
-    jac = problem.jacobian(sol.x)
+    jac = problem.jacobian(sol.x, exact=not chord)
     scale = np.array([b if f else 1.0 for b, f in zip(problem.base, problem.factor)])
     sigma = _parameter_sigma(jac, problem.n_params, noise) * scale
     p = sol.x[:problem.n_params]
@@ -561,7 +600,7 @@ def fit_observed(scene: Scene, obs: Observed, unknowns: list[Unknown], *, window
                      _fitted_scene(scene, unknowns, problem, p), problem.window, problem.windows, problem.every,
                      obs.dt,
                      problem.grid_steps, problem.observed, problem.positions(z0), problem.positions(sol.x),
-                     int(sol.nfev), sol.message, reel, switches)
+                     int(sol.nfev), sol.message, reel, switches, problem.state_jacobians)
 
 
 def _fitted_scene(scene: Scene, unknowns: list[Unknown], problem: _Problem, p) -> Scene:
