@@ -227,12 +227,14 @@ class BatchSimulator:
         if method == "elastic":
             if solver is not None and requested:
                 raise ValueError(f"solver={solver!r} is an option of a method with a QP; method 'elastic' has none")
-            self.system = mass_model(self.system, ElasticMethod)   # both engines apply its blocks in free flight
             if backend == "jax":
-                from .methods.jax.engine import ElasticBatchJax   # imports JAX: only here
+                from .methods.jax.engine import ElasticBatchJax, ElasticMethodJax   # imports JAX: only here
 
+                # the JAX engine applies the blocks in free flight, the numba engine everywhere
+                self.system = mass_model(self.system, ElasticMethodJax)
                 self._engine = ElasticBatchJax(self.system, dt, dtype=dtype or "float64")
             else:
+                self.system = mass_model(self.system, ElasticMethod)
                 self._engine = ElasticBatch(self.system, dt)
             self.dt = self._engine.dt
             self._copies = None

@@ -53,7 +53,7 @@ def test_builtin_robots_roll_under_their_schedules(name, duration, distance):
     from tensegrity_sim.commands import load_commands
     scene = ts.load_scene(name)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", LumpedMassWarning)   # with a ground the rods are lumped (for now)
+        warnings.simplefilter("error", LumpedMassWarning)   # the rods keep their blocks on the ground
         sim = ts.Simulator(scene, method="elastic", dt=1e-3)
     with resources.as_file(resources.files("tensegrity_sim.schedules") / f"{name}_roll.yaml") as path:
         commands = load_commands(path, scene)

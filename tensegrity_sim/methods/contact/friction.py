@@ -97,7 +97,7 @@ import numpy as np
 from ...system import System
 from .member import Armed, MemberContacts, tangents
 from . import _friction_kernels as kernels
-from ..qp.solvers import _FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, QPError, QPSolver, Rows
+from ..qp.solvers import _FEASIBILITY_TOL, _VELOCITY_FLOOR, BlockMassSolver, DaqpSolver, QPError, QPSolver, Rows
 
 __all__ = ["ContactSet", "FrictionalSolver", "FrictionError", "FIXED_POINT_TOL", "TOUCH_TOL"]
 
@@ -152,8 +152,9 @@ class ContactSet:
         # the nodes that can touch the ground (none without one)
         self._grounded = self.free if ground is not None else np.zeros(0, dtype=int)
         self.members = MemberContacts(system) if system.scene.contact_response.response else None
-        if isinstance(inner, DaqpSolver):
-            inner.working_set = False   # DAQP alone: see DaqpSolver.working_set
+        daqp = inner.inner if isinstance(inner, BlockMassSolver) else inner
+        if isinstance(daqp, DaqpSolver):
+            daqp.working_set = False   # DAQP alone: see DaqpSolver.working_set
         self.solver = FrictionalSolver(inner, self)
         self.impulses = np.zeros((system.n_nodes, 3))
         self.pair_impulses: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
@@ -602,8 +603,13 @@ class FrictionalSolver:
         c_targets = np.concatenate([-self._targets, np.zeros(4 * len(s))])
         if self._frames is None:   # ground contacts only: member rows, a fixed end and the node
             fi = self._fi
-            v0c = v0.copy()
-            np.add.at(v0c, fi, friction / self._meff[:, None])
+            if isinstance(self.inner, BlockMassSolver):   # M^-1 has the rods' cross entries
+                push = np.zeros_like(v0)
+                np.add.at(push, fi, friction)
+                v0c = v0 + self.inner.inverse(push.reshape(-1)).reshape(-1, 3)
+            else:
+                v0c = v0.copy()
+                np.add.at(v0c, fi, friction / self._meff[:, None])
             tang_nodes = np.repeat(fi[s], 4)
             tang_dirs = np.tile(np.vstack([_TANGENTS, -_TANGENTS]), (len(s), 1))
             c_nodes = np.concatenate([fi, tang_nodes])
@@ -613,10 +619,9 @@ class FrictionalSolver:
         else:   # general rows: the method's as (-1, 1, 0, 0), each contact's on its four nodes
             c_nodes, weights, normals, tang = self._frames
             impulse = np.einsum("ki,kid->kd", friction[:, :2], tang)   # the friction in space, (k, 3)
-            scaled = np.append(1.0 / self._mass, 0.0)[c_nodes] * weights
-            change = np.zeros((len(v0) + 1, 3))
-            np.add.at(change, c_nodes, scaled[:, :, None] * impulse[:, None, :])
-            v0c = v0 + change[:-1]
+            push = np.zeros((len(v0) + 1, 3))
+            np.add.at(push, c_nodes, weights[:, :, None] * impulse[:, None, :])
+            v0c = v0 + self.inner.inverse(push[:-1].reshape(-1)).reshape(-1, 3)
             sides = np.concatenate([tang, -tang], axis=1)[s].reshape(-1, 3)   # t1, t2, -t1, -t2 per contact
             nodes4 = np.vstack([np.pad(rows.nodes, ((0, 0), (0, 2)), constant_values=-1), c_nodes,
                                 np.repeat(c_nodes[s], 4, axis=0)])
@@ -656,10 +661,9 @@ class FrictionalSolver:
         dense = all_rows.dense(self.inner.n_free)
         qp_rows = dense[:n_qp]
         tang = dense[n_qp:].reshape(k, 4, -1)[:, :2].reshape(2 * k, -1)   # t1, t2 of each contact
-        inv_mass = self.inner.inv_mass
         rates = np.vstack([qp_rows, tang])                  # u = rates @ v
         push = np.vstack([-qp_rows, tang])                  # v = v0 + M^-1 push^T r
-        delassus = rates @ (inv_mass[:, None] * push.T)
+        delassus = rates @ self.inner.inverse(push.T)
         rho = 1.0 / np.maximum(np.abs(np.diag(delassus)), 1e-300)
         targets = np.concatenate([all_rows.targets[:n_qp], np.zeros(2 * k)])
         free_rates = rates @ v0_free.ravel() - targets      # u - r at r = 0
@@ -804,7 +808,7 @@ class FrictionalSolver:
         f = r[n_qp:].reshape(k, 2)
         applied = np.zeros((k, 3))
         applied[:, :2] = f
-        v = (v0_free.ravel() + inv_mass * (push.T @ np.concatenate([y, f.ravel()]))).reshape(-1, 3)
+        v = (v0_free.ravel() + self.inner.inverse(push.T @ np.concatenate([y, f.ravel()]))).reshape(-1, 3)
         vt = self._tangential(self._velocity(v))
         impulse = max(impulse_scale, float(np.max(np.abs(r), initial=0.0)))
         tol = FIXED_POINT_TOL * impulse
