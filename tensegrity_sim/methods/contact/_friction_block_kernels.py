@@ -142,10 +142,7 @@ def _jacobian(q, s, k, target, work, z):
     """The generalised Jacobian (q, q) of ``phi`` at ``z`` into ``work[2]``, from its ``u`` in ``work[4, 1]``
     (:func:`_residual`'s, same arithmetic): computed only where the Newton takes a step from ``z``, not at
     every trial of its line search nor at the answer."""
-    for i in range(q):
-        for j in range(q):
-            work[2, i, j] = 0.0
-    for i in range(s):
+    for i in range(s):   # every row is written whole (a normal's row is zeroed only where it is e_n)
         r0 = work[4, 6, i]
         for j in range(q):
             work[2, i, j] = r0 * work[1, i, j]
@@ -161,6 +158,8 @@ def _jacobian(q, s, k, target, work, z):
             for j in range(q):
                 work[2, n, j] = r * work[1, n, j]
         else:
+            for j in range(q):
+                work[2, n, j] = 0.0
             work[2, n, n] = 1.0
         t0 = z[o] - r * work[4, 1, o]
         t1 = z[o + 1] - r * work[4, 1, o + 1]
@@ -251,11 +250,12 @@ def _newton(q, s, k, target, work, z, scale):
             for p in range(q):
                 acc += work[2, p, i] * work[4, 2, p]
             work[4, 3, i] = -acc
-            for j in range(q):
+            for j in range(i + 1):   # J^T J is symmetric: each entry's sum once, mirrored
                 acc = 0.0
                 for p in range(q):
                     acc += work[2, p, i] * work[2, p, j]
                 work[3, i, j] = acc
+                work[3, j, i] = acc
             work[5, 3, i] = work[3, i, i]
             work[3, i, i] += nu
         definite = _cholesky_solve(q, work)
@@ -341,10 +341,9 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
                     work[1, s + 3 * d + j, s + 3 * c + j] = cross
     # the impulse scale: each end's momentum, each contact's target momentum and warm start
     scale = 1e-300
-    for e in range(2):
+    for e in range(2):   # max |v| / inv: one division an end (dividing by inv > 0 keeps the order)
         if inv[e] > 0.0:
-            for j in range(3):
-                scale = max(scale, abs(v[e, j]) / inv[e])
+            scale = max(scale, max(abs(v[e, 0]), abs(v[e, 1]), abs(v[e, 2])) / inv[e])
     for c in range(k):
         r = 1.0 / inv[ends[c]]
         work[4, 6, s + 3 * c] = r
