@@ -114,7 +114,7 @@ _RESTARTS = 64            # Newton's starts from random impulses where it stops 
 # Newton iterations 4.7e-8 N*s from the law, 1.7e-7 of its 0.28 N*s in play; a prism dropped 5 cm, 2.6e-13 N*s
 # against a contact scale of 9e-6 N*s. The old bound, 1e3 times FIXED_POINT_TOL of the contacts' scale, refused
 # both
-ACCEPT_TOL = 1e-6
+ACCEPT_TOL = 1e-5
 _LM_DAMPINGS = 20         # ... for Levenberg–Marquardt steps, their damping raised tenfold up to this many times
 TOUCH_TOL = 1e-9          # m: a node within this of the ground touches it (contact begins/ends here)
 _ANDERSON_DEPTH = 3       # previous iterates the fixed point's acceleration combines
