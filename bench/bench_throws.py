@@ -14,7 +14,7 @@ Throw ``i`` of ``--seed S`` is drawn from ``numpy.random.default_rng([47, S, i])
 ``default_rng([47, S, i, 1])`` (``fuzz``): any one replays alone (``--first i --count 1``). Prints every
 failing case (a dict for ``throw_cases.run_throw``) and writes the counts per method and robot to
 ``bench/results/throws.csv`` (``--out``), the last row the total, with the seed, the throws' index range and the
-space in every row.
+space in every row (written every 25 throws as they stand).
 
 The answers checked: every solve of the ground contacts' frictional problem (``FrictionalSolver.solve``, both
 methods' reference path; the elastic method's compiled contact kernels check their own answers and are not
@@ -28,7 +28,8 @@ tolerance the solver accepts answers to. ``violations`` counts the answers that 
 stopped run, not a completed one).
 
 Run: ``python3 bench/bench_throws.py [--count N] [--seed S] [--first I] [--steps K] [--space fuzz|wide]
-[--budget T] [--out PATH]``
+[--budget T] [--out PATH]``; ``--merge A.csv B.csv ... --out PATH`` sums runs over disjoint ranges (chunks run
+side by side) into one CSV.
 """
 from __future__ import annotations
 
@@ -44,7 +45,7 @@ sys.path[:0] = [str(ROOT), str(ROOT / "test")]
 
 import throw_cases  # noqa: E402
 
-from bench.tables import RESULTS, write_csv  # noqa: E402
+from bench.tables import RESULTS, read_csv, write_csv  # noqa: E402
 from tensegrity_sim.methods.contact import friction  # noqa: E402
 
 SPACES = {"wide": (throw_cases.wide_throw, ()), "fuzz": (throw_cases.fuzz_throw, (1,))}
@@ -131,22 +132,40 @@ class AnswerChecks:
 
 
 FIELDS = ["method", "robot", "throws", "stopped", "unsound", "cut", "answers_checked", "violations", "set_down",
-          "contact_response", "batches", "steps", "seed", "first", "last", "space", "wall_s"]
+          "contact_response", "batches", "steps", "seed", "throw_range", "space", "wall_s"]
 COUNTS = ("throws", "stopped", "unsound", "cut", "answers_checked", "violations", "set_down", "contact_response",
           "batches", "wall_s")
 
 
-def write(path: Path, groups: dict, args, last: int) -> dict:
-    """The counts per method and robot, then their total (returned), to the CSV ``path``."""
-    rows = [groups[k] for k in sorted(groups)]
+def write(path: Path, rows: list[dict], *, steps: int, seed: int, ranges: str, space: str) -> dict:
+    """The counts ``rows`` per method and robot, then their total (returned), to the CSV ``path``; the throws'
+    index ``ranges`` ("first-last", several joined by ";") in every row."""
+    rows = sorted(rows, key=lambda r: (r["method"], r["robot"]))
     for r in rows:
-        r["last"] = last
-    total = {"method": "all", "robot": "all", "steps": args.steps, "seed": args.seed, "first": args.first,
-             "last": last, "space": args.space}
+        r["throw_range"] = ranges
+    total = {"method": "all", "robot": "all", "steps": steps, "seed": seed, "throw_range": ranges, "space": space}
     for key in COUNTS:
         total[key] = sum(r[key] for r in rows)
     write_csv(path, rows + [total], FIELDS)
     return total
+
+
+def merge(paths: list[Path], out: Path) -> dict:
+    """The CSVs ``paths`` of runs over disjoint throw ranges (the same seed, steps and space) summed into ``out``."""
+    groups: dict[tuple, dict] = {}
+    ranges, kinds = [], set()
+    for path in paths:
+        rows = read_csv(path)
+        ranges.append(rows[-1]["throw_range"])
+        kinds.add((rows[-1]["seed"], rows[-1]["steps"], rows[-1]["space"]))
+        for r in rows[:-1]:
+            row = groups.setdefault((r["method"], r["robot"]), dict(r, **{key: 0 for key in COUNTS}))
+            for key in COUNTS:
+                row[key] += r[key]
+    if len(kinds) != 1:
+        raise SystemExit(f"cannot merge runs of different seeds, steps or spaces: {sorted(kinds)}")
+    seed, steps, space = kinds.pop()
+    return write(out, list(groups.values()), steps=steps, seed=seed, ranges=";".join(ranges), space=space)
 
 
 def main(argv=None) -> int:
@@ -158,10 +177,16 @@ def main(argv=None) -> int:
     parser.add_argument("--space", choices=sorted(SPACES), default="fuzz")
     parser.add_argument("--budget", type=float, default=None, help="wall-clock seconds per throw (none: no limit)")
     parser.add_argument("--out", type=Path, default=RESULTS / "throws.csv")
+    parser.add_argument("--merge", type=Path, nargs="+", help="sum these CSVs (disjoint ranges) into --out; no throws")
     args = parser.parse_args(argv)
+    if args.merge:
+        total = merge(args.merge, args.out)
+        print(f"{total['throws']} throws ({total['throw_range']}): {total['stopped']} stopped, {total['unsound']} "
+              f"unsound otherwise, {total['cut']} cut, {total['violations']} of {total['answers_checked']} answers "
+              f"violating; {args.out}")
+        return 0
     groups: dict[tuple, dict] = {}
     start = time.perf_counter()
-    total = None
     for i in range(args.first, args.first + args.count):
         case = case_of(args.seed, i, args.steps, args.space)
         began = time.perf_counter()
@@ -170,7 +195,7 @@ def main(argv=None) -> int:
         found = throw_cases.problems(case, out)
         row = groups.setdefault((case["method"], case["robot"]), {
             "method": case["method"], "robot": case["robot"], "steps": args.steps, "seed": args.seed,
-            "first": args.first, "space": args.space, **{key: 0 for key in COUNTS}})
+            "space": args.space, **{key: 0 for key in COUNTS}})
         row["throws"] += 1
         row["stopped"] += out["error"] is not None
         row["unsound"] += bool(found) and out["error"] is None
@@ -187,8 +212,10 @@ def main(argv=None) -> int:
                   f"\n  case: {case}", flush=True)
         if (i - args.first + 1) % 25 == 0:   # the counts so far, written as they stand
             print(f"{i - args.first + 1} throws, {time.perf_counter() - start:.0f} s", flush=True)
-            total = write(args.out, groups, args, i)
-    total = write(args.out, groups, args, args.first + args.count - 1)
+            total = write(args.out, list(groups.values()), steps=args.steps, seed=args.seed,
+                          ranges=f"{args.first}-{i}", space=args.space)
+    total = write(args.out, list(groups.values()), steps=args.steps, seed=args.seed,
+                  ranges=f"{args.first}-{args.first + args.count - 1}", space=args.space)
     print(f"{total['throws']} throws {args.first}..{args.first + args.count - 1} of {args.steps} steps (seed "
           f"{args.seed}, space {args.space}): {total['stopped']} stopped, {total['unsound']} unsound otherwise, "
           f"{total['cut']} cut, {total['violations']} of {total['answers_checked']} answers violating, "
