@@ -10,6 +10,7 @@ between commands.
 """
 from __future__ import annotations
 
+import time
 import warnings
 
 import numpy as np
@@ -17,6 +18,7 @@ import numpy as np
 import tensegrity_sim as ts
 
 ROBOTS = ("icosahedron", "prism3", "icosahedron_ground")   # the free robots (the tower is anchored)
+BUILT_IN = ROBOTS + ("superball", "three_bar")              # ... and the two robots modelled on real ones
 METHODS = ("inextensible", "elastic")
 G = 9.81
 
@@ -45,12 +47,12 @@ def random_throw(rng: np.random.Generator, *, steps: int = 400, robots=ROBOTS, m
             "steps": steps}
 
 
-def wide_throw(rng: np.random.Generator, *, steps: int = 400) -> dict:
+def wide_throw(rng: np.random.Generator, *, steps: int = 400, robots=ROBOTS) -> dict:
     """One throw of the wider space of ``bench/bench_throws.py`` (issue 47): :func:`random_throw`'s draw, then
     the drop height spread over 1 um to 0.5 m (a third of the throws set down: 1 um to 1 mm, at rest or
     nearly), member contacts with a response (friction 0-1) on a third of them, and a second command
     three quarters of the way through."""
-    case = random_throw(rng, steps=steps)
+    case = random_throw(rng, steps=steps, robots=robots)
     set_down = bool(rng.random() < 1 / 3)
     case["height"] = float(10.0 ** rng.uniform(-6.0, -3.0)) if set_down else float(rng.uniform(0.0, 0.5))
     if set_down:
@@ -69,6 +71,15 @@ def rod_throw(rng: np.random.Generator, *, steps: int = 400) -> dict:
     case = wide_throw(rng, steps=steps)
     case["method"] = "elastic"
     case["rods"] = [float(a) for a in rng.uniform(0.0, 1.0, len(ts.load_scene(case["robot"]).struts))]
+    return case
+
+
+def fuzz_throw(rng: np.random.Generator, *, steps: int = 200) -> dict:
+    """One throw of ``bench/bench_throws.py --space fuzz`` (issue 47): :func:`wide_throw` over all the
+    built-in free robots (:data:`BUILT_IN`: superball and three_bar too), and on a sixth of them a
+    ``batch`` of 2-4 copies stepped together by ``BatchSimulator``, copy ``b`` dropped ``b`` cm higher."""
+    case = wide_throw(rng, steps=steps, robots=BUILT_IN)
+    case["batch"] = int(rng.integers(2, 5)) if rng.random() < 1 / 6 else 1
     return case
 
 
@@ -113,44 +124,60 @@ def throw_scene(case: dict) -> ts.Scene:
     return ts.Scene.from_dict(raw)
 
 
-def run_throw(case: dict) -> dict:
+def run_throw(case: dict, *, budget: float | None = None) -> dict:
     """Step the case; returns ``error`` (the exception's text, or None), ``steps`` taken, ``finite`` (every
     state finite), ``sink`` (m, the deepest any node went below the ground, radius included) and
     ``energy_created`` (J, the largest rise of the total energy over one step without a command; NaN
-    where it is not a law: elastic members store energy, a bouncing ground gives it back) beside
-    ``energy_scale`` (J: the initial kinetic energy plus the weight times 1 m)."""
+    where it is not a law: elastic members store energy, a bouncing ground gives it back, or a batch)
+    beside ``energy_scale`` (J: the initial kinetic energy plus the weight times 1 m), and ``cut``: the
+    run stopped by the wall-clock ``budget`` (s; None: no limit) before its last step. A case with a
+    ``batch`` of B > 1 copies is stepped by ``BatchSimulator`` (copy ``b`` dropped ``b`` cm higher); a
+    copy's failure is the throw's ``error``."""
+    batch = case.get("batch", 1)
     scene = throw_scene(case)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")   # length offsets, class-k
-        sim = ts.Simulator(scene, method=case["method"], dt=1e-3)
+        sim = ts.Simulator(scene, method=case["method"], dt=1e-3) if batch == 1 else \
+            ts.BatchSimulator(scene, batch, method=case["method"], dt=1e-3,
+                              positions=scene.positions + 0.01 * np.arange(batch)[:, None, None] * [0.0, 0.0, 1.0])
     radii = scene.node_radii
     # the law: inextensible cables, rigid struts and a plastic ground only take energy away
-    check_energy = case["method"] == "inextensible" and case["e"] == 0.0 and _rigid(scene)
+    check_energy = batch == 1 and case["method"] == "inextensible" and case["e"] == 0.0 and _rigid(scene)
     out = {"error": None, "steps": 0, "finite": True, "sink": 0.0, "energy_created": float("nan"),
-           "energy_scale": sim.energy()["kinetic"] + G * float(scene.masses.sum())}
+           "energy_scale": G * float(scene.masses.sum()), "cut": False}
+    if batch == 1:
+        out["energy_scale"] += sim.energy()["kinetic"]
+        energy = sim.energy()["total"]
     created = 0.0
-    energy = sim.energy()["total"]
+    start = time.perf_counter()
     try:
         for k in range(case["steps"]):
+            if budget is not None and time.perf_counter() - start > budget:
+                out["cut"] = True
+                break
             factor = {case["command_step"]: case["command_factor"]}.get(k) or \
                 (case.get("second_factor") if k == case.get("second_step") else None)
             if factor is not None:
                 rest = sim.rest_lengths.copy()
-                rest[case["command_cables"]] *= factor
+                rest[..., case["command_cables"]] *= factor
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     sim.set_rest_lengths(rest)
             sim.step()
+            if batch > 1 and sim.failed.any():
+                out["error"] = "copy " + "; copy ".join(f"{b}: {why}" for b, why in sorted(sim.failures.items()))
+                break
             out["steps"] = k + 1
             x, v = sim.positions, sim.velocities
             if not (np.isfinite(x).all() and np.isfinite(v).all()):
                 out["finite"] = False
                 break
-            out["sink"] = max(out["sink"], float(-(x[:, 2] - radii).min()))
-            now = sim.energy()["total"]
-            if check_energy and factor is None:
-                created = max(created, now - energy)
-            energy = now
+            out["sink"] = max(out["sink"], float(-(x[..., 2] - radii).min()))
+            if check_energy:
+                now = sim.energy()["total"]
+                if factor is None:
+                    created = max(created, now - energy)
+                energy = now
     except ts.StepError as exc:
         out["error"] = f"{type(exc).__name__}: {exc}"
     if check_energy:
