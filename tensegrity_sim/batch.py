@@ -32,6 +32,7 @@ from .methods.contact.ground import GroundDetector, walk_copies
 from .methods import StepError, check_backend, choose_method, mass_model
 from .methods.elastic.method import ElasticMethod
 from .methods.elastic.batch import ElasticBatch
+from .methods.inextensible.method import InextensibleMethod
 from .results import ContactEvent
 from .scene import Scene, contact_kinds
 from .methods.base import State
@@ -403,6 +404,9 @@ class BatchSimulator:
         (steps, B, n_cables), slack (steps, B, n_cables) (views, valid until the next call) and the contacts of
         each step (steps tuples of B tuples)."""
         if self._copies is not None:
+            compiled = self._compiled_copies()
+            if compiled:
+                return self._advance_compiled_copies(steps, compiled)
             out = [self._step_copies() for _ in range(steps)]
             return (*(np.stack([o[i] for o in out]) for i in range(4)), [o[4] for o in out])
         if commands is None:
@@ -479,6 +483,84 @@ class BatchSimulator:
         imp = imp[0].copy()
         return BatchStepResult(self.time, x[0].copy(), v[0].copy(), imp, imp / self.dt, slack[0].copy(),
                                contacts[0], self.failed)
+
+    def _compiled_copies(self) -> list[int]:
+        """The running copies, where the steps of all of them go through the inextensible method's loop over the
+        copies (``InextensibleMethod.advance_copies``): each copy's method has a compiled loop (on its ground
+        too), the same tables as the others, and no member-contact detection to walk; else none. A copy whose
+        first step's speeds are absurd fails here, as its first ``Simulator.step`` would."""
+        running = [i for i in range(self.batch) if i not in self.failures]
+        sims = [self._copies[i] for i in running]
+        if not sims or not all(isinstance(c._method, InextensibleMethod) and c._method.has_loop()
+                               and (c._ground is None or c._method.has_ground_loop()) and c._contacts is None
+                               for c in sims):
+            return []
+        first = sims[0]._method
+        if not all(c._method is first or first.same_tables(c._method) for c in sims):
+            return []
+        for i, c in zip(running, sims):
+            if c._speeds_unchecked:
+                try:
+                    c._check_speeds()
+                except StepError as exc:
+                    self.failures[i] = f"step {c.step_count + 1} (t = {c.time + c.dt:.6g} s): {exc}"
+        return [i for i in running if i not in self.failures]
+
+    def _advance_compiled_copies(self, steps: int, running: list[int]):
+        """:meth:`_advance` of the ``running`` copies by ``InextensibleMethod.advance_copies`` (each copy's own
+        numbers, the copies on every core), committed to each copy's ``Simulator`` as its ``run`` commits a
+        compiled part; a copy whose part has a step that is not finite is put back and stepped one step at a
+        time (:meth:`_step_copies`' way: it fails at that very step, with the message ``Simulator.step`` gives)."""
+        b_all, n, nc = self.batch, len(self.scene.nodes), self._nc
+        sims = [self._copies[i] for i in running]
+        for c in sims:
+            c._rewind()
+        methods = [c._method for c in sims]
+        carries = [m.carry() for m in methods]
+        states = [c._state for c in sims]
+        k = len(sims)
+        pos, vel = np.empty((k, steps, n, 3)), np.empty((k, steps, n, 3))
+        imp, sl = np.empty((k, steps, nc)), np.empty((k, steps, nc), dtype=bool)
+        ground = None if sims[0]._ground is None else np.empty((k, steps, n, 3))
+        start = np.stack([st.positions for st in states], axis=-1)
+        start_v = np.stack([st.velocities for st in states], axis=-1)
+        x, v = InextensibleMethod.advance_copies(methods, states, steps, pos, vel, imp, sl, ground)
+        add = np.add.reduce
+        finite = np.isfinite(add(pos.reshape(k, steps, -1), 2) + add(vel.reshape(k, steps, -1), 2) + add(imp, 2))
+        t0 = states[0].step_count * self.dt
+        good = [j for j in range(k) if finite[j].all()]
+        contacts = [[()] * b_all for _ in range(steps)]
+        if ground is not None and good:
+            found = walk_copies([sims[j]._ground for j in good], start[..., good], start_v[..., good],
+                                np.moveaxis(pos[good], 0, -1), np.moveaxis(vel[good], 0, -1),
+                                np.moveaxis(ground[good], 0, -1), t0, self.dt)
+            for step, row in found.items():
+                for j, events in zip(good, row):
+                    contacts[step][running[j]] = events
+        for j in good:
+            st = states[j]
+            st.positions, st.velocities = x[j].copy(), v[j].copy()
+            st.step_count += steps
+        out_x, out_v = np.full((b_all, steps, n, 3), np.nan), np.full((b_all, steps, n, 3), np.nan)
+        out_imp, out_sl = np.full((b_all, steps, nc), np.nan), np.zeros((b_all, steps, nc), dtype=bool)
+        out_x[running], out_v[running], out_imp[running], out_sl[running] = pos, vel, imp, sl
+        for j in set(range(k)) - set(good):   # a failure inside: the copy again, one step at a time
+            i, c = running[j], sims[j]
+            methods[j].restore(carries[j])
+            out_x[i], out_v[i], out_imp[i], out_sl[i] = np.nan, np.nan, np.nan, False
+            for step in range(steps):
+                try:
+                    r = c.step()
+                except StepError as exc:
+                    self.failures[i] = f"step {c.step_count + 1} (t = {c.time + c.dt:.6g} s): {exc}"
+                    break
+                out_x[i, step], out_v[i, step], out_imp[i, step], out_sl[i, step] = (r.positions, r.velocities,
+                                                                                     r.impulses, r.slack)
+                contacts[step][i] = r.contacts
+        self._step_count = max(c.step_count for c in self._copies)
+        events = [tuple(row) if any(row) else self._no_events for row in contacts]
+        return (np.moveaxis(out_x, 0, 1), np.moveaxis(out_v, 0, 1), np.moveaxis(out_imp, 0, 1),
+                np.moveaxis(out_sl, 0, 1), events)
 
     def _step_copies(self):
         b, n, nc = self.batch, len(self.scene.nodes), self._nc

@@ -8,7 +8,7 @@ Members are the method's row table: the ``n_eq`` moving rigid struts first, then
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .._c_calls import ddot_at, dgemv_at
 from ..qp._daqp_kernels import solve_rows
@@ -18,7 +18,7 @@ from ._self_stress_kernels import locked_space
 from ..contact._friction_kernels import arm_step, contact_solve, first_impact, landing, missed
 
 __all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed", "midpoint", "cable_geometry",
-           "fit_one", "step", "steps"]
+           "fit_one", "step", "steps", "copies_steps"]
 
 
 @njit(cache=True)
@@ -564,3 +564,35 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
             keep(x.reshape((n, 3, 1)), v.reshape((n, 3, 1)), 0, total, slack, i // every, 0, out_x, out_v,
                  out_impulses, out_slack)
     return n_steps, x, v, applied, holding, hint, residual
+
+
+@njit(cache=True, parallel=True)
+def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, out_v, out_impulses, out_slack, f_ext,
+                 commanded, most, dt, offsets, limit_tol, taut_tol, inv_mass, ends, n_eq, rigid_lengths, cables_move,
+                 row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass,
+                 feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis, load_cables,
+                 load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference, ground, stick,
+                 normal, slip, contact_total, out_contact, done):
+    """:func:`steps` of B copies of one structure on every core (``prange`` over the copies), each in arrays of
+    its own: the leading axis of ``x``, ``v`` (B, N, 3), the carry ``applied``, ``holding``, ``hint`` (B, nc),
+    ``residual`` (B,), the inputs ``f_ext`` (B, N, 3), ``commanded`` and ``offsets`` (B, nc), the friction
+    memory ``stick``, ``normal`` (B, N), ``slip`` (B, N, 2), the sums ``total`` (B, nc), ``contact_total``
+    (B, N, 3) and the outputs (``out_x`` (B, K, N, 3, 1) ..., every step kept); the tables after ``offsets`` are
+    the structure's, shared. A copy's steps are the very arithmetic of its own :func:`steps` call from step 0;
+    each stops where its :func:`steps` stops (a step for the Python path): ``done`` (B,) gets that step, the
+    carry arrays the copy's carry before it."""
+    for b in prange(x.shape[0]):
+        i, xb, vb, ab, hb, hib, rb = steps(
+            0, n_steps, 1, x[b], v[b], applied[b], holding[b], hint[b], residual[b], total[b], out_x[b], out_v[b],
+            out_impulses[b], out_slack[b], f_ext[b], commanded[b], most, dt, offsets[b], limit_tol, taut_tol,
+            inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event,
+            newton_iter, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol,
+            landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared,
+            ddot, dgemv, wide, reference, ground, (stick[b], normal[b], slip[b]), contact_total[b], out_contact[b])
+        done[b] = i
+        x[b] = xb
+        v[b] = vb
+        applied[b] = ab
+        holding[b] = hb
+        hint[b] = hib
+        residual[b] = rb

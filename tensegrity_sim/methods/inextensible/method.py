@@ -125,6 +125,16 @@ _NO_GROUND = (False, np.zeros(0, dtype=np.int64), np.zeros(0), 0.0, 0.0, 0.0, np
 _NO_MEMORY = (np.zeros(0, dtype=bool), np.zeros(0), np.zeros((0, 2)))
 
 
+def _same(a, b) -> bool:
+    """Whether two step-kernel arguments (arrays, numbers, nested tuples) are equal, arrays in dtype, shape and
+    values (``InextensibleMethod.same_tables``)."""
+    if isinstance(a, tuple):
+        return isinstance(b, tuple) and len(a) == len(b) and all(_same(p, q) for p, q in zip(a, b))
+    if isinstance(a, np.ndarray):
+        return isinstance(b, np.ndarray) and a.dtype == b.dtype and np.array_equal(a, b)
+    return type(a) is type(b) and a == b
+
+
 class LengthOffsetWarning(UserWarning):
     """The inextensible method lengthened cable limits by their prestress stretch at load time."""
 
@@ -514,6 +524,61 @@ class InextensibleMethod(StepMethod):
                 break
         self._end_geometry = None
         return x.copy(), v.copy()
+
+    def same_tables(self, other: "InextensibleMethod") -> bool:
+        """Whether ``other`` (a method of another copy of the structure) steps with this one's tables and
+        constants (:meth:`_step_constants`, :meth:`_motors` but the length offsets, which
+        :meth:`advance_copies` takes per copy): copies built from scenes whose prestress differs do not."""
+        mine, theirs = self._step_constants() + self._motors(), other._step_constants() + other._motors()
+        mine, theirs = mine[:-3] + mine[-2:], theirs[:-3] + theirs[-2:]   # without the offsets
+        return _same(mine, theirs)
+
+    @staticmethod
+    def advance_copies(methods: list, states: list, steps: int, positions: np.ndarray, velocities: np.ndarray,
+                       impulses: np.ndarray, slack: np.ndarray, contact: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`advance` of B copies of one structure, every step kept: ``methods`` (B,) each
+        :meth:`has_loop` and :meth:`same_tables` as the first, from ``states`` (B,); the outputs
+        ``positions``, ``velocities`` (B, steps, N, 3), ``impulses``, ``slack`` (B, steps, n_cables),
+        ``contact`` (B, steps, N, 3) on a ground. The copies' compiled steps run on every core
+        (``_inextensible_kernels.copies_steps``), each copy's steps from the first one its kernel leaves to
+        Python by that copy's own :meth:`advance`: each copy's numbers are those of its :meth:`advance`
+        alone (a failed step and what follows NaN). Returns the positions and velocities (B, N, 3) after
+        them."""
+        first = methods[0]
+        x = np.stack([s.positions for s in states])
+        v = np.stack([s.velocities for s in states])
+        applied = np.stack([m._applied for m in methods])
+        holding = np.stack([m._holding for m in methods])
+        hint = np.stack([m._hint for m in methods])
+        residual = np.array([m.self_stress.residual for m in methods], dtype=float)
+        f_ext = np.stack([m._step_inputs(s)[0] for m, s in zip(methods, states)])
+        commanded = np.stack([s.rest_lengths for s in states])
+        offsets = np.stack([m.length_offsets for m in methods])
+        memory = [np.stack(kept) for kept in zip(*(m._memory() for m in methods))]
+        n = x.shape[1]
+        on_ground = np.zeros((len(methods), n, 3))
+        out_contact = np.empty((len(methods), 0, n, 3)) if contact is None else contact
+        done = np.empty(len(methods), dtype=np.int64)
+        most, dt, _, limit_tol, taut_tol = first._motors()
+        kernels.copies_steps(steps, x, v, applied, holding, hint, residual, np.zeros(applied.shape),
+                             positions[..., None], velocities[..., None], impulses[..., None], slack[..., None], f_ext,
+                             commanded, most, dt, offsets, limit_tol, taut_tol, *first._step_constants(), *memory,
+                             on_ground, out_contact, done)
+        for b, method in enumerate(methods):
+            method._applied, method._holding, method._hint = applied[b].copy(), holding[b].copy(), hint[b].copy()
+            method.self_stress.residual = float(residual[b])
+            for kept, new in zip(method._memory(), memory):
+                kept[:] = new[b]
+            method._end_geometry = None
+            i = int(done[b])
+            if i < steps:   # the rest of the copy's steps by its own advance (the Python path's steps in it)
+                state = states[b]
+                x[b], v[b] = method.advance(
+                    State(x[b].copy(), v[b].copy(), state.rest_lengths, state.external_forces, state.step_count + i),
+                    steps - i, 1, positions[b, i:], velocities[b, i:], impulses[b, i:], slack[b, i:],
+                    None if contact is None else contact[b, i:])
+        return x, v
 
     def _motor_limits_reference(self, commanded):
         """The numpy reference of ``_inextensible_kernels.motor_limits`` for the ``commanded`` rest
