@@ -268,20 +268,26 @@ def _thrown_on_ground(batch_size, seed=28):
     return scene, x, v
 
 
-def test_a_scene_with_a_ground_steps_in_the_compiled_batch_as_single_runs_do():
+@pytest.mark.parametrize("method", ["elastic", "inextensible"])
+def test_a_scene_with_a_ground_steps_in_the_compiled_batch_as_single_runs_do(method):
     """The batched elastic engine steps the ground (``_elastic_ground_kernels.ground_steps``, the copies
-    spread over the cores): every copy equals a Simulator run from its state to 1e-12 (the same arithmetic), with the same ground contact events, through a
-    rest-length command mid-run."""
+    spread over the cores), the inextensible copies their compiled steps likewise
+    (``InextensibleMethod.advance_copies``, each landing's step by its copy's Python path): every copy
+    equals a Simulator run from its state to 1e-12 (the same arithmetic), with the same ground contact
+    events, through a rest-length command mid-run."""
     scene, x, v = _thrown_on_ground(6)
-    batch = _quiet(lambda: BatchSimulator(scene, 6, method="elastic", dt=1e-3, positions=x, velocities=v,
+    batch = _quiet(lambda: BatchSimulator(scene, 6, method=method, dt=1e-3, positions=x, velocities=v,
                                           contacts=()))
-    assert isinstance(batch._engine, ElasticBatch) and batch._copies is None
+    if method == "elastic":
+        assert isinstance(batch._engine, ElasticBatch) and batch._copies is None
+    else:
+        assert batch._compiled_copies() == list(range(6))
     first = batch.run(steps=250, every=10)
     batch.set_rest_lengths({"c4": 0.6})
     second = batch.run(steps=250, every=10)
     events = 0
     for b in range(6):
-        sim = _quiet(lambda: ts.Simulator(batch._with_state(scene, x[b], v[b], b), method="elastic", dt=1e-3,
+        sim = _quiet(lambda: ts.Simulator(batch._with_state(scene, x[b], v[b], b), method=method, dt=1e-3,
                                           contacts=()))
         want = [sim.run(steps=250, every=10)]
         sim.set_rest_lengths({"c4": 0.6})
