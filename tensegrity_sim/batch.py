@@ -26,7 +26,7 @@ import numpy as np
 
 from .checks import float_array, time_step
 from .commands import CommandSchedule
-from .methods.contact.detection import make_detector
+from .methods.contact.detection import CompiledDetector, make_detector
 from .methods.contact.friction import TOUCH_TOL
 from .methods.contact.ground import GroundDetector, walk_copies
 from .methods import StepError, check_backend, choose_method, mass_model
@@ -36,7 +36,7 @@ from .methods.inextensible.method import InextensibleMethod
 from .results import ContactEvent
 from .scene import Scene, contact_kinds
 from .methods.base import State
-from .simulator import Simulator, absurd_speed, non_finite_report, run_plan
+from .simulator import Simulator, _walk, absurd_speed, non_finite_report, run_plan
 from .system import System
 
 __all__ = ["BatchSimulator", "BatchStepResult", "BatchTrajectory", "structure_of"]
@@ -492,8 +492,8 @@ class BatchSimulator:
         running = [i for i in range(self.batch) if i not in self.failures]
         sims = [self._copies[i] for i in running]
         if not sims or not all(isinstance(c._method, InextensibleMethod) and c._method.has_loop()
-                               and (c._ground is None or c._method.has_ground_loop()) and c._contacts is None
-                               for c in sims):
+                               and (c._ground is None or c._method.has_ground_loop())
+                               and (c._contacts is None or isinstance(c._contacts, CompiledDetector)) for c in sims):
             return []
         first = sims[0]._method
         if not all(c._method is first or first.same_tables(c._method) for c in sims):
@@ -527,7 +527,8 @@ class BatchSimulator:
         x, v = InextensibleMethod.advance_copies(methods, states, steps, pos, vel, imp, sl, ground)
         add = np.add.reduce
         finite = np.isfinite(add(pos.reshape(k, steps, -1), 2) + add(vel.reshape(k, steps, -1), 2) + add(imp, 2))
-        t0 = states[0].step_count * self.dt
+        count = states[0].step_count
+        t0 = count * self.dt
         good = [j for j in range(k) if finite[j].all()]
         contacts = [[()] * b_all for _ in range(steps)]
         if ground is not None and good:
@@ -537,6 +538,15 @@ class BatchSimulator:
             for step, row in found.items():
                 for j, events in zip(good, row):
                     contacts[step][running[j]] = events
+        for j in good:   # the member contacts' events, each copy's detector walked through its steps
+            detector = sims[j]._contacts
+            if detector is None:
+                continue
+            xs = np.concatenate([start[None, ..., j], pos[j]])
+            for (step, _), events in _walk(detector, xs[..., None], lambda s: (count + s) * self.dt, self.dt,
+                                           {}).items():
+                events, landed = tuple(events), contacts[step][running[j]]
+                contacts[step][running[j]] = tuple(sorted(events + landed, key=lambda e: e.time)) if landed else events
         for j in good:
             st = states[j]
             st.positions, st.velocities = x[j].copy(), v[j].copy()

@@ -398,3 +398,36 @@ def test_blocks_of_copies_on_threads_give_the_numbers_of_one_block(monkeypatch):
     events = [[(e.kind, e.members, e.time) for e in c] for c in one.contacts]
     assert len({b // 4 for b, c in enumerate(events) if c}) >= 2   # events in more than one block
     assert [[(e.kind, e.members, e.time) for e in c] for c in three.contacts] == events
+
+
+def test_inextensible_copies_walk_their_member_contacts_as_single_runs_do():
+    """Rigid strut B thrown through rigid strut A on the ground (a slack inextensible cable between them,
+    strut-strut detection without a response): each copy, its own throw, steps in the compiled copies' run
+    and its detector walks those steps after it, giving the member and ground events and states of a single
+    run from the same state, to the bit."""
+    r = 0.01
+    scene = ts.Scene.from_dict({
+        "gravity": [0, 0, -9.81], "ground": {"height": 0.0, "friction": 0.5, "restitution": 0.0},
+        "contact": {"kinds": ["strut_strut"]},
+        "nodes": [{"name": "a0", "position": [-0.5, 0, r], "mass": 1.0},
+                  {"name": "a1", "position": [0.5, 0, r], "mass": 1.0},
+                  {"name": "b0", "position": [0.2, -0.5, 0.3], "mass": 1.0},
+                  {"name": "b1", "position": [0.2, 0.5, 0.3], "mass": 1.0}],
+        "struts": [{"name": "A", "nodes": ["a0", "a1"], "stiffness": "rigid", "radius": r},
+                   {"name": "B", "nodes": ["b0", "b1"], "stiffness": "rigid", "radius": r}],
+        "cables": [{"name": "c", "nodes": ["a1", "b1"], "rest_length": 1.2, "radius": 0.0}]})
+    x = np.repeat(scene.positions[None], 3, axis=0)
+    v = np.zeros((3, 4, 3))
+    v[:, 2:] = [[0.3, 0.0, -1.5]]
+    v[:, 2:, 0] += np.arange(3)[:, None] * 0.2   # each copy crosses A at its own place and time
+    batch = BatchSimulator(scene, 3, method="inextensible", dt=1e-3, positions=x, velocities=v)
+    assert batch._compiled_copies() == [0, 1, 2]
+    got = batch.run(steps=300, every=7)
+    for b in range(3):
+        sim = ts.Simulator(batch._with_state(scene, x[b], v[b], b), method="inextensible", dt=1e-3)
+        want = sim.run(steps=300, every=7)
+        np.testing.assert_array_equal(got.positions[b], want.positions)
+        np.testing.assert_array_equal(got.impulses[b], want.impulses)
+        kinds = [(e.kind, e.members, e.time) for e in want.contacts]
+        assert [(e.kind, e.members, e.time) for e in got.contacts[b]] == kinds
+        assert {e.members for e in want.contacts} >= {("A", "B"), ("b0", "ground")}   # members and ground
