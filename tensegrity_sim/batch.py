@@ -241,6 +241,7 @@ class BatchSimulator:
             for w in {str(w.message): w for w in caught}.values():
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
             self.dt = self._copies[0].dt
+            self._shared_tables = None   # whether every copy's method steps with the same tables (_compiled_copies)
         self._nc = nc
 
     # ------------------------------------------------------------------ state
@@ -495,8 +496,10 @@ class BatchSimulator:
                                and (c._ground is None or c._method.has_ground_loop())
                                and (c._contacts is None or isinstance(c._contacts, CompiledDetector)) for c in sims):
             return []
-        first = sims[0]._method
-        if not all(c._method is first or first.same_tables(c._method) for c in sims):
+        if self._shared_tables is None:   # the tables are the structure's and the scenes': fixed at the build
+            first = self._copies[0]._method
+            self._shared_tables = all(first.same_tables(c._method) for c in self._copies[1:])
+        if not self._shared_tables:
             return []
         for i, c in zip(running, sims):
             if c._speeds_unchecked:
