@@ -619,7 +619,7 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
           cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian,
           sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
           load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference, ground,
-          memory, contact_total, out_contact):
+          memory, contact_total, out_contact, rest_seq, ext_seq, gravity, ext):
     """Steps ``first``, ``first + 1``, ... of ``n_steps`` from ``x``, ``v`` (N, 3), the inputs held, each
     :func:`step` from the cables known to hold ``holding`` and the warm start ``hint`` (nc,) bool (after a
     step both are the cables that held, as in ``InextensibleMethod._step_impl``), until one needs the
@@ -629,10 +629,30 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
     summed into ``contact_total`` (N, 3) and kept likewise in ``out_contact`` (K, N, 3), and the friction
     ``memory`` moves on in place with the steps taken.
     Returns the first step not taken (``n_steps``: all), the positions and velocities before it, the
-    rest lengths in effect, ``holding`` and ``hint`` then and the rule's largest dropped node impulse, N*s."""
+    rest lengths in effect, ``holding`` and ``hint`` then and the rule's largest dropped node impulse, N*s.
+
+    ``rest_seq`` (n_steps, nc), ``ext_seq`` (n_steps, N, 3): each step's commanded rest lengths and external
+    forces (a command schedule evaluated ahead; empty: ``commanded`` and the force ``f_ext`` held), the
+    force being ``gravity`` (N, 3) N plus the step's; ``commanded`` and ``ext`` are then the inputs in effect
+    before step ``first``. A step whose inputs differ from the last step's starts as after
+    ``InextensibleMethod.invalidate`` (no cable known to hold, the warm start kept): the very arithmetic of
+    setting them before stepping it, as ``Simulator`` does. The cables that hold are returned after that."""
     n = x.shape[0]
     nc = cable_ends.shape[0]
+    scheduled = rest_seq.shape[0] > 0
     for i in range(first, n_steps):
+        if scheduled:
+            changed = False
+            for c in range(nc):
+                changed |= rest_seq[i, c] != commanded[c]
+            for p in range(n):
+                for j in range(3):
+                    changed |= ext_seq[i, p, j] != ext[p, j]
+            commanded = rest_seq[i]
+            ext = ext_seq[i]
+            f_ext = gravity + ext
+            if changed:
+                holding = np.zeros(nc, dtype=np.bool_)
         (ok, x_f, v_f, new_holding, new_applied, _, fitted, impulses, slack, node, _, _, _, _, _, _, _,
          _, contact, modes) = step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding,
                                    hint, inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes,
@@ -678,6 +698,8 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
     the structure's, shared. A copy's steps are the very arithmetic of its own :func:`steps` call from step 0;
     each stops where its :func:`steps` stops (a step for the Python path): ``done`` (B,) gets that step, the
     carry arrays the copy's carry before it."""
+    no_rest = np.empty((0, commanded.shape[1]))   # the inputs held: no schedule
+    no_ext = np.empty((0, x.shape[1], 3))
     for b in prange(x.shape[0]):
         i, xb, vb, ab, hb, hib, rb = steps(
             0, n_steps, 1, x[b], v[b], applied[b], holding[b], hint[b], residual[b], total[b], out_x[b], out_v[b],
@@ -685,7 +707,8 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
             inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event,
             newton_iter, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol,
             landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared,
-            ddot, dgemv, wide, reference, ground, (stick[b], normal[b], slip[b]), contact_total[b], out_contact[b])
+            ddot, dgemv, wide, reference, ground, (stick[b], normal[b], slip[b]), contact_total[b], out_contact[b],
+            no_rest, no_ext, f_ext[b], f_ext[b])
         done[b] = i
         x[b] = xb
         v[b] = vb

@@ -464,6 +464,10 @@ class InextensibleMethod(StepMethod):
     def has_ground_loop(self) -> bool:
         return self.ground is not None and self.has_loop()
 
+    def runs_commands(self) -> bool:
+        """:meth:`advance` takes each step's inputs (a command schedule evaluated ahead) where it has a loop."""
+        return self.has_loop()
+
     def carry(self):
         """What a step leaves to the next (a motor's position, the cables that hold, the warm start, the
         rule's largest dropped impulse, on a ground each node's friction mode): a command or a reset does not
@@ -481,30 +485,42 @@ class InextensibleMethod(StepMethod):
         self._end_geometry = None
 
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
-                impulses: np.ndarray, slack: np.ndarray, contact: np.ndarray | None = None
+                impulses: np.ndarray, slack: np.ndarray, contact: np.ndarray | None = None, inputs=None
                 ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`StepMethod.advance` in ``_inextensible_kernels.steps``, with each step the kernel leaves
         to Python taken by :meth:`step`'s own path (the same bits as stepping one at a time). A step that
         fails (:class:`QPError`, an answer that is not finite) ends the loop: it and what would follow are
         NaN, which the simulator takes for a step it must retake alone (and raise at). On a ground,
-        ``contact`` (K, N, 3) N*s gets its impulses, summed like the cables' (None: not kept)."""
+        ``contact`` (K, N, 3) N*s gets its impulses, summed like the cables' (None: not kept). ``inputs``
+        (:meth:`runs_commands`): each step's rest lengths (steps, nc) and external forces (steps, N, 3),
+        ``state``'s being those in effect before them (not changed), each step the very arithmetic of setting
+        its inputs (a change is an :meth:`invalidate`) and stepping it."""
         x, v = state.positions, state.velocities
-        inputs, motors, constants = self._step_inputs(state), self._motors(), self._step_constants()
+        rest_now, ext_now = state.rest_lengths, state.external_forces
+        n, nc = x.shape[0], self.system.n_cables
+        if inputs is None:
+            rest_seq, ext_seq = np.empty((0, nc)), np.empty((0, n, 3))
+        else:
+            rest_seq, ext_seq = (np.ascontiguousarray(a, dtype=float) for a in inputs)
+        motors, constants = self._motors(), self._step_constants()
         out = positions[..., None], velocities[..., None], impulses[..., None], slack[..., None]
-        total = np.zeros(self.system.n_cables)
-        n = x.shape[0]
+        total = np.zeros(nc)
         if contact is None:
             contact = np.empty((0 if self.ground is None else len(positions), n, 3))
         on_ground = np.zeros((n, 3))   # the ground's impulses since the last kept step
+        gravity = self.system.gravity_force
         rule, i = self.self_stress, 0
         while True:
             i, x, v, self._applied, self._holding, self._hint, rule.residual = kernels.steps(
                 i, steps, every, x, v, self._applied, self._holding, self._hint, rule.residual, total, *out,
-                *inputs, *motors, *constants, self._memory(), on_ground, contact)
+                gravity + ext_now, rest_now, *motors, *constants, self._memory(), on_ground, contact, rest_seq,
+                ext_seq, gravity, ext_now)
             if i == steps:
                 break
+            if len(rest_seq):   # the step's inputs (the kernel invalidated the method if they changed)
+                rest_now, ext_now = rest_seq[i], ext_seq[i]
             try:
-                r = self._step_impl(State(x, v, state.rest_lengths, state.external_forces, state.step_count + i))
+                r = self._step_impl(State(x, v, rest_now, ext_now, state.step_count + i))
             except QPError:
                 r = None
             if r is None or not np.isfinite(r.positions).all():
