@@ -8,7 +8,9 @@ the batch as the *last* axis (:mod:`.methods.elastic_batch`) so that one step of
 array operations, and with a ground steps every copy in the compiled ground loop, the copies spread over
 all cores (with a member contact response too: a copy's steps with an armed member pair are taken by the
 reference, as in a ``Simulator``); the inextensible method solves one QP per copy and so steps a
-:class:`~tensegrity_sim.simulator.Simulator` per copy (style rule 8: a ``Simulator`` is a batch of one).
+:class:`~tensegrity_sim.simulator.Simulator` per copy (style rule 8: a ``Simulator`` is a batch of one), the
+copies' compiled steps run together on every core (``InextensibleMethod.advance_copies``: each copy's own
+numbers; a step its kernel leaves to Python is taken by that copy's method after it).
 
 Each copy equals a single ``Simulator`` run from the same state with the same inputs (to round-off;
 ``test/test_batch.py`` requires 1e-10). A step that fails in one copy (a QP without a solution, a

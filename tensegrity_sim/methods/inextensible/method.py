@@ -154,7 +154,9 @@ class InextensibleMethod(StepMethod):
     takes it always. On a ground (no member contact response) the step kernel also arms the ground's
     contacts and solves them by the compiled friction modes (``_friction_kernels.contact_solve``); a step
     with a landing inside it or at its start, or whose modes the kernel leaves to the reference, is
-    Python's."""
+    Python's. A snap's impact at a step's start is the kernel's too (``_inextensible_kernels.impact``) where no
+    node touches the ground and the rule's fit is one-dimensional; a command schedule runs inside the loop
+    (:meth:`runs_commands`), and a batch's copies step in it together on every core (:meth:`advance_copies`)."""
 
     name = "inextensible"
     options = ("solver", "reel_speed")
