@@ -69,6 +69,13 @@ EXTRAS_REQUIRE = {
         "gymnasium>=1.4.0,<2",
         "cma>=4.5.0,<5",
     ],
+    # Training a policy on the JAX environment (examples/train_roll.py): rejax's PPO, which takes gymnax's
+    # environment class; gymnax 0.0.9 is the one that keeps Gymnasium 1.4 (1.0 asks for Gymnasium < 1.4).
+    # Takes the "jax" extra too. 0.x: the next minor may break the API.
+    "train": [
+        "rejax>=0.1.3,<0.2",
+        "gymnax>=0.0.9,<0.1",
+    ],
     # Live to Foxglove without ROS (tensegrity-sim serve --foxglove).
     "foxglove": [
         "foxglove-sdk>=0.30.3,<0.31",

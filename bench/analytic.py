@@ -14,6 +14,7 @@ __all__ = [
     "deadband_dict", "deadband_exact",
     "snap_pair_dict", "snap_pair_exact",
     "drop_slide_dict", "drop_slide_exact",
+    "plate_snap_dict", "plate_snap_exact",
 ]
 
 
@@ -215,3 +216,31 @@ def sling_exact(t, x0=0.5, speed=2.0, length=1.0, m=1.0):
     angle = math.atan2(0.6, x_snap) - (u / length) * (t - t_snap)
     x = np.array([[0.0, 0.0, 0.0], [length * math.cos(angle), length * math.sin(angle), 0.0]])
     return x, np.array([m * radial + m * u * u / length * (t - t_snap)])
+
+
+# ---------------------------------------------------------------------------------------------- plate snap
+def plate_snap_dict(plate=0.5, omega=10.0, m=1.0, rest=1.0, gap=0.05, v0=1.0):
+    """A body of ``m`` kg ``gap`` m short of an anchored cable's rest length, moving out along it at ``v0``
+    m/s; the cable carries a plate of ``plate`` kg (method "massive", physics §4b) and its stiffness makes
+    the taut phase's angular frequency ``omega``; no gravity."""
+    return {
+        "name": "plate_snap",
+        "nodes": [{"name": "a", "position": [0.0, 0.0, 0.0], "fixed": True},
+                  {"name": "b", "position": [rest - gap, 0.0, 0.0], "mass": m, "velocity": [v0, 0.0, 0.0]}],
+        "cables": [{"name": "c", "nodes": ["a", "b"], "stiffness": omega ** 2 * (m + plate), "rest_length": rest,
+                    "mass": plate}],
+    }
+
+
+def plate_snap_exact(t, plate=0.5, omega=10.0, m=1.0, rest=1.0, gap=0.05, v0=1.0):
+    """Positions (2, 3) m, velocities (2, 3) m/s and the cable's impulse (1,) N*s over [0, t] of
+    :func:`plate_snap_dict` once the cable has let go (``t`` after ``gap/v0 + pi/omega``): the snap keeps
+    ``m v0/(m + plate)`` of the speed, the body and plate swing half a period together, and the body leaves
+    back out at that speed; the impulse is the body's momentum change."""
+    release = gap / v0 + math.pi / omega
+    if t < release:
+        raise ValueError(f"plate_snap_exact: t = {t} s is before the release at {release:.6g} s")
+    back = m * v0 / (m + plate)
+    x = np.array([[0.0, 0.0, 0.0], [rest - back * (t - release), 0.0, 0.0]])
+    v = np.array([[0.0, 0.0, 0.0], [-back, 0.0, 0.0]])
+    return x, v, np.array([m * (v0 + back)])

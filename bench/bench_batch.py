@@ -23,9 +23,14 @@ the MuJoCo row without contacts, or with them for a row with contacts).
   strut-strut detection (the peer's struts touch the plane only); MuJoCo with its plane contacts
   (elliptic cones, impratio 100) and implicitfast (its Euler goes unstable in the roll), as many threads
   as cores. Each contender does ``STEPS`` steps of the
-whole batch per timed call (MuJoCo's rollout also writes every step's state: with the batch that is what
-it is for); the rate is the best of ``REPEATS`` turns (a shared machine only ever adds time), scene-steps
-per second = batch x steps / wall time.
+whole batch per timed call; the rate is the best of ``REPEATS`` turns (a shared machine only ever adds time),
+scene-steps per second = batch x steps / wall time.
+
+Like for like (issue 47): MuJoCo's rollout writes every step's state (time, qpos, qvel, ...: float64, into an
+array allocated once), and so every row of ours keeps every step's state, positions and velocities in float64
+(``run(steps, every=1, fields=("positions", "velocities"))``, into arrays the run allocates), unless its
+``keeps`` column says otherwise: the elastic case adds rows keeping the state in float32, every field (also
+impulses, tensions, slack) and only the last step (``every=steps``: not like for like, rollout cannot keep less).
 
 * ``--response`` (issue 28): ``icosahedron_ground`` rolled as above with a strut-strut contact response
   (``contact: response: true``), 64 copies, against what such a batch did before it stepped in the compiled
@@ -49,7 +54,7 @@ from bench.mujoco_peer import MujocoPeer  # noqa: E402
 from bench.tables import write_csv  # noqa: E402
 from bench.timing import time_runs  # noqa: E402
 from tensegrity_sim import load_scene  # noqa: E402
-from tensegrity_sim.batch import BatchSimulator  # noqa: E402
+from tensegrity_sim.batch import TRAJECTORY_FIELDS, BatchSimulator  # noqa: E402
 from tensegrity_sim.methods._copy_blocks import copy_blocks  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -83,11 +88,20 @@ def _mujoco(scene, model: str, batch: int, steps: int, threads: int, integrator:
     return lambda: pool.rollout(m, datas, initial, nstep=steps, state=out), pool
 
 
-def _ours(scene, method: str, batch: int, steps: int, contacts):
+# what a run keeps: (every, dtype, fields) by name; rollout writes every step's state (time, qpos, qvel, ...)
+# in float64, and "state" is its like: every step's positions and velocities in float64
+KEEPS = {"state": (1, "float64", ("positions", "velocities")),
+         "state float32": (1, "float32", ("positions", "velocities")),
+         "every field": (1, "float64", TRAJECTORY_FIELDS),
+         "last step only": (None, "float64", TRAJECTORY_FIELDS)}
+
+
+def _ours(scene, method: str, batch: int, steps: int, contacts, keeps: str = "state"):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")   # the inextensible method's prestress warning
         sim = BatchSimulator(scene, batch, method=method, dt=1e-3, contacts=contacts)
-    return lambda: sim.run(steps=steps, every=steps)
+    every, dtype, fields = KEEPS[keeps]
+    return lambda: sim.run(steps=steps, every=every or steps, dtype=dtype, fields=fields)
 
 
 def _rolled(scene):
@@ -111,8 +125,10 @@ def measure_ground(batch: int = 1024, steps: int = 500) -> list[dict]:
             fresh["sim"] = BatchSimulator(scene, batch, method="elastic", dt=1e-3, contacts=())
         fresh["sim"].set_rest_lengths(_rolled(scene))
 
+    every, dtype, fields = KEEPS["state"]
     contenders = {"mujoco rollout": (mujoco_run, None),
-                  "BatchSimulator": (lambda: fresh["sim"].run(steps=steps, every=steps), setup)}
+                  "BatchSimulator": (lambda: fresh["sim"].run(steps=steps, every=every, dtype=dtype, fields=fields),
+                                     setup)}
     best = {name: float("inf") for name in contenders}
     for name, (run, prepare) in contenders.items():   # warm-up: compile, allocate
         if prepare:
@@ -128,7 +144,7 @@ def measure_ground(batch: int = 1024, steps: int = 500) -> list[dict]:
     ref = batch * steps / best["mujoco rollout"]
     load = " ".join(f"{x:.2f}" for x in os.getloadavg())
     return [{"case": "icosahedron_ground rolling elastic", "batch": batch, "steps": steps, "contender": name,
-             "threads": threads, "scene_steps_per_s": round(batch * steps / t),
+             "threads": threads, "keeps": "every step's state", "scene_steps_per_s": round(batch * steps / t),
              "ratio_to_mujoco": round(batch * steps / t / ref, 3),
              "note": f"ours rolled {moved:.3f} m in {steps} ms; load {load}"} for name, t in best.items()]
 
@@ -209,6 +225,9 @@ def measure() -> list[dict]:
                       "mujoco rollout + strut capsule contacts": mujoco_contacts,
                       "BatchSimulator": _ours(scene, model, batch, steps, ()),
                       "BatchSimulator + contacts": _ours(scene, model, batch, steps, None)}
+        if model == "elastic":   # the trajectory's storage: lighter, heavier, none
+            contenders.update({f"BatchSimulator, {keeps}": _ours(scene, model, batch, steps, (), keeps)
+                               for keeps in KEEPS if keeps != "state"})
         best = {name: float("inf") for name in contenders}
         for name, run in contenders.items():   # warm-up: compile, allocate
             run()
@@ -221,12 +240,15 @@ def measure() -> list[dict]:
             # like for like: detection on against MuJoCo's contacts on, off against off
             peer = "mujoco rollout + strut capsule contacts" if "contacts" in name else "mujoco rollout"
             rate = batch * steps / t
+            keeps = name.partition(", ")[2] or "state"
             rows.append({"case": f"icosahedron_thrown {model}", "batch": batch, "steps": steps,
                          "contender": name, "threads": threads if name.startswith("mujoco") else
                          # the elastic batch: blocks on threads; the inextensible copies: numba's threads
                          len(copy_blocks(batch)) if model == "elastic" else numba.get_num_threads(),
+                         "keeps": "every step's state" if keeps == "state" else keeps,
                          "scene_steps_per_s": round(rate),
-                         "ratio_to_mujoco": round(best[peer] / t, 3), "load": os.getloadavg()[0], "note": ""})
+                         "ratio_to_mujoco": round(best[peer] / t, 3), "load": os.getloadavg()[0],
+                         "note": "not like for like: rollout keeps every step" if keeps == "last step only" else ""})
     return rows + measure_ground() + measure_inextensible()
 
 
@@ -238,11 +260,14 @@ def write(rows: list[dict]) -> str:
              f"{REPEATS} turns in one process), against `mujoco.rollout` with as many threads as cores "
              "(Euler, sensors off; limited tendons for the inextensible case), the rows with contacts against "
              "MuJoCo with the struts' capsules colliding, the others against MuJoCo with contacts off; the ground "
-             "rows against MuJoCo's plane contacts (implicitfast). "
+             "rows against MuJoCo's plane contacts (implicitfast). Like for like, every row keeps every step's "
+             "state as rollout does (positions and velocities, float64), but those whose \"keeps\" says otherwise: "
+             "float32 state, every field (also impulses, tensions, slack), or only the last step (not like for like). "
              f"Load average {os.getloadavg()[0]:.2f} at the end.\n",
-             "| case | batch | contender | threads | scene-steps/s | ratio to MuJoCo | note |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
-    lines += [f"| {r['case']} | {r['batch']} | {r['contender']} | {r['threads']} | {r['scene_steps_per_s']:,} | "
+             "| case | batch | contender | threads | keeps | scene-steps/s | ratio to MuJoCo | note |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines += [f"| {r['case']} | {r['batch']} | {r['contender']} | {r['threads']} | {r['keeps']} | "
+              f"{r['scene_steps_per_s']:,} | "
               f"{r['ratio_to_mujoco']:.2f} | {r['note']} |" for r in rows]
     text = "\n".join(lines) + "\n"
     (RESULTS / "batch.md").write_text(text)

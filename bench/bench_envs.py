@@ -12,7 +12,7 @@ Contenders, each stepping random actions in [-1, 1] (one control period of 20 ms
 * ``mujoco_sync``: Gymnasium's ``SyncVectorEnv`` of ``--copies`` of them.
 
 Rates are environment steps (control periods) per second of wall time, best of ``--repeats`` turns after a
-warm-up; ``ratio``: the vector environment's rate over each contender's. CSV: ``bench/results/envs.csv``.
+warm-up, the contenders taking turns in one process; ``ratio``: the vector environment's rate over each contender's. CSV: ``bench/results/envs.csv``.
 
     python3 bench/bench_envs.py --copies 256 --periods 20
 """
@@ -76,16 +76,20 @@ class MujocoRoll(MujocoEnv):
         return np.concatenate([self.data.qpos, self.data.qvel])
 
 
-def _rate(step, periods: int, copies: int, repeats: int) -> float:
-    """Environment steps per second: ``step()`` (``copies`` environment steps each) ``periods`` times."""
-    step()   # warm-up (compiling)
-    best = np.inf
+def _rates(contenders: dict, repeats: int) -> dict:
+    """Environment steps per second of each contender ``name: (step, periods, copies)``: ``step()`` (``copies``
+    environment steps each) ``periods`` times, the best of ``repeats`` turns taken in rotation (a shared
+    machine's load then falls on every contender alike, and only ever adds time)."""
+    best = {name: np.inf for name in contenders}
+    for step, _, _ in contenders.values():
+        step()   # warm-up (compiling)
     for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(periods):
-            step()
-        best = min(best, time.perf_counter() - start)
-    return periods * copies / best
+        for name, (step, periods, _) in contenders.items():
+            start = time.perf_counter()
+            for _ in range(periods):
+                step()
+            best[name] = min(best[name], time.perf_counter() - start)
+    return {name: periods * copies / best[name] for name, (_, periods, copies) in contenders.items()}
 
 
 def main(argv=None) -> None:
@@ -97,15 +101,10 @@ def main(argv=None) -> None:
     scene = ts.load_scene("icosahedron_ground")
     rng = np.random.default_rng(0)
     na = len(scene.cables)
-    rows = []
-
     vec = RollVectorEnv(args.copies)
     vec.reset(seed=0)
-    rows.append(("vector", args.copies, _rate(lambda: vec.step(rng.uniform(-1, 1, (args.copies, na))),
-                                              args.periods, args.copies, args.repeats)))
     single = RollEnv()
     single.reset(seed=0)
-    rows.append(("single", 1, _rate(lambda: single.step(rng.uniform(-1, 1, na)), args.periods, 1, args.repeats)))
 
     peer = MujocoPeer(scene, model="elastic", dt=1e-3, integrator="Euler")
     with tempfile.TemporaryDirectory() as tmp:
@@ -114,15 +113,18 @@ def main(argv=None) -> None:
         rest = scene.cable_rest_lengths
         env = MujocoRoll(str(xml), rest)
         env.reset(seed=0)
-        rows.append(("mujoco", 1, _rate(lambda: env.step(rng.uniform(-1, 1, na)), args.periods, 1, args.repeats)))
         sync = gym.vector.SyncVectorEnv([lambda: MujocoRoll(str(xml), rest) for _ in range(args.copies)])
         sync.reset(seed=0)
-        rows.append(("mujoco_sync", args.copies,
-                     _rate(lambda: sync.step(rng.uniform(-1, 1, (args.copies, na))), max(1, args.periods // 4),
-                           args.copies, args.repeats)))
-    ours = rows[0][2]
-    out = [{"contender": name, "copies": copies, "env_steps_per_s": float(rate), "ratio": float(ours / rate)}
-           for name, copies, rate in rows]
+        contenders = {
+            "vector": (lambda: vec.step(rng.uniform(-1, 1, (args.copies, na))), args.periods, args.copies),
+            "single": (lambda: single.step(rng.uniform(-1, 1, na)), args.periods, 1),
+            "mujoco": (lambda: env.step(rng.uniform(-1, 1, na)), args.periods, 1),
+            "mujoco_sync": (lambda: sync.step(rng.uniform(-1, 1, (args.copies, na))), max(1, args.periods // 4),
+                            args.copies)}
+        rates = _rates(contenders, args.repeats)
+    ours = rates["vector"]
+    out = [{"contender": name, "copies": contenders[name][2], "env_steps_per_s": float(rate),
+            "ratio": float(ours / rate)} for name, rate in rates.items()]
     for row in out:
         print(f"{row['contender']:<12} {row['copies']:>5} copies {row['env_steps_per_s']:>12.1f} env-steps/s   "
               f"vector / this: {row['ratio']:.2f}")

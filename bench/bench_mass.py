@@ -4,9 +4,11 @@ consistent 2x2 block per strut that ``methods/_mass_kernels.py`` applies) beside
 at its ends (``ends``: the diagonal mass matrix every path took before), elastic method, dt = 1 ms, in one process
 taking turns (``bench.timing.time_alternating``): ``run()`` (the compiled loop), ``step()`` one at a time, and a
 batch of 1,024 copies. Prints the per-step times and their ratios, writes ``bench/results/mass.csv``. Never asserts
-a time.
+a time. ``--ground``: the same icosahedron dropped from 5 cm onto ground with friction 0.6 under gravity (the
+contact blocks with the rods' cross entries, issue 46), ``run()`` and ``step()``; writes
+``bench/results/mass_ground.csv``.
 
-    python3 bench/bench_mass.py [--repeats 5]
+    python3 bench/bench_mass.py [--repeats 5] [--ground]
 """
 from __future__ import annotations
 
@@ -26,19 +28,25 @@ STRUT_MASS = 3.5   # kg: the built-in icosahedron's struts, which it carries as 
 BATCH = 1024
 
 
-def scene(distribution: str) -> ts.Scene:
-    """The thrown icosahedron with its strut mass on the struts (``distribution``) and 0.05 kg end caps."""
+def scene(distribution: str, ground: bool = False) -> ts.Scene:
+    """The thrown icosahedron with its strut mass on the struts (``distribution``) and 0.05 kg end caps; with
+    ``ground``, its lowest node 5 cm above ground with friction 0.6, under gravity."""
     d = icosahedron_thrown(scale=2.0, seed=1).to_dict()
     for node in d["nodes"]:
         node["mass"] = 0.05
     for strut in d["struts"]:
         strut["mass"], strut["mass_distribution"] = STRUT_MASS, distribution
+    if ground:
+        low = min(node["position"][2] for node in d["nodes"])
+        for node in d["nodes"]:
+            node["position"][2] += 0.05 - low
+        d["gravity"], d["ground"] = [0.0, 0.0, -9.81], {"friction": 0.6, "restitution": 0.0}
     return ts.Scene.from_dict(d)
 
 
-def contenders(kind: str, distribution: str):
+def contenders(kind: str, distribution: str, ground: bool = False):
     """``(run(n), reset())`` of one way of stepping the scene."""
-    sc = scene(distribution)
+    sc = scene(distribution, ground)
     if kind == "batch":
         holder = {}
 
@@ -65,18 +73,20 @@ def contenders(kind: str, distribution: str):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--ground", action="store_true", help="the icosahedron dropped on rough ground")
     args = parser.parse_args(argv)
     rows = []
-    for kind in ("run", "step", "batch"):
-        timings = time_alternating({dist: contenders(kind, dist) for dist in ("ends", "uniform")},
+    case = "icosahedron_ground" if args.ground else "icosahedron_thrown"
+    for kind in ("run", "step") if args.ground else ("run", "step", "batch"):
+        timings = time_alternating({dist: contenders(kind, dist, args.ground) for dist in ("ends", "uniform")},
                                    repeats=args.repeats, settle=SETTLE)
         per_copy = BATCH if kind == "batch" else 1
         lumped, block = timings["ends"].best / per_copy, timings["uniform"].best / per_copy
-        rows.append({"case": "icosahedron_thrown", "path": kind, "copies": per_copy,
+        rows.append({"case": case, "path": kind, "copies": per_copy,
                      "lumped_us": lumped * 1e6, "consistent_us": block * 1e6, "ratio": block / lumped})
         print(f"{kind:>5}: lumped (ends) {lumped * 1e6:8.3f} us/step, consistent (uniform) {block * 1e6:8.3f} "
               f"us/step{' per copy' if per_copy > 1 else ''}: {block / lumped:.3f}x")
-    write_csv(RESULTS / "mass.csv", rows)
+    write_csv(RESULTS / ("mass_ground.csv" if args.ground else "mass.csv"), rows)
     return 0
 
 

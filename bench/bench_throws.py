@@ -8,7 +8,10 @@ Throw ``i`` of ``--seed S`` is drawn from ``numpy.random.default_rng([47, S, i])
 (``--first i --count 1``). Prints every failing case (a dict for ``throw_cases.run_throw``) and writes the
 counts per method and robot to ``bench/results/throws.csv`` (``--out``), the last row the total.
 
-Run: ``python3 bench/bench_throws.py [--count N] [--seed S] [--first I] [--steps K] [--out PATH]``
+``--rods``: elastic throws of the same space with the robots' rigid struts carrying their mass as rods (the
+consistent mass blocks and a payload each, ``throw_cases.rod_throw``), to ``bench/results/throws_rods.csv``.
+
+Run: ``python3 bench/bench_throws.py [--count N] [--seed S] [--first I] [--steps K] [--out PATH] [--rods]``
 """
 from __future__ import annotations
 
@@ -27,8 +30,9 @@ import throw_cases  # noqa: E402
 from bench.tables import RESULTS, write_csv  # noqa: E402
 
 
-def case_of(seed: int, index: int, steps: int) -> dict:
-    return throw_cases.wide_throw(np.random.default_rng([47, seed, index]), steps=steps)
+def case_of(seed: int, index: int, steps: int, rods: bool = False) -> dict:
+    draw = throw_cases.rod_throw if rods else throw_cases.wide_throw
+    return draw(np.random.default_rng([47 if not rods else 46, seed, index]), steps=steps)
 
 
 def write(path: Path, groups: dict, args) -> dict:
@@ -50,12 +54,17 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--first", type=int, default=0, help="index of the first throw")
     parser.add_argument("--steps", type=int, default=400)
-    parser.add_argument("--out", type=Path, default=RESULTS / "throws.csv")
+    parser.add_argument("--out", type=Path, default=None, help="default bench/results/throws.csv "
+                        "(throws_rods.csv with --rods)")
+    parser.add_argument("--rods", action="store_true", help="elastic throws with the robots' rods carrying their "
+                        "mass (consistent blocks, payloads; throw_cases.rod_throw, drawn from [46, S, i])")
     args = parser.parse_args(argv)
+    if args.out is None:
+        args.out = RESULTS / ("throws_rods.csv" if args.rods else "throws.csv")
     groups: dict[tuple, dict] = {}
     start = time.perf_counter()
     for i in range(args.first, args.first + args.count):
-        case = case_of(args.seed, i, args.steps)
+        case = case_of(args.seed, i, args.steps, args.rods)
         out = throw_cases.run_throw(case)
         found = throw_cases.problems(case, out)
         row = groups.setdefault((case["method"], case["robot"]), {

@@ -7,12 +7,14 @@
   has the effective mass ``m/3`` per cable (top nodes of mass ``m``; the elastic struts take no part in an
   impact), so a plastic snap (inextensible) loses ``1/2 m de^2`` and the plates' (massive) that times
   ``m_c/(m/3 + m_c)``, with ``de`` the cables' rate at the snap; the elastic method loses nothing.
-* ``order``: the 1-D snap (a body of 1 kg at 1 m/s on an anchored cable, plate 0.5 kg, taut at 10 rad/s) against
-  its closed form after the rebound, over steps: located snaps (the default) and not located; error against
-  wall time per simulated second.
+* ``order``: the 1-D snap (``analytic.plate_snap_dict``: 1 kg at 1 m/s on an anchored cable, plate 0.5 kg,
+  10 rad/s) against its closed form after the rebound, over steps: located snaps (the default) and not
+  located; error against wall time per simulated second.
 * ``speed``: the icosahedron thrown (spin and random node velocities; struts elastic at 1e5 N/m, since the
   massive method takes no rigid struts yet) with cable plates of 0.05 kg, 1 ms: the massive method's ``run()``
-  (compiled) and numpy reference against the elastic method's, all with located switches (CPU time, best of 3).
+  (compiled) and numpy reference against the elastic method's, all with located switches (CPU time, best of 7
+  taken in turns; the references best of 2), and MuJoCo's Euler on the same structure with spring tendons
+  (massless cables), where ``mujoco`` is installed.
 
 ``python3 bench/massive.py [--quick]``.
 """
@@ -40,62 +42,60 @@ def drop_scene(plate: float, slack: float = 0.03) -> ts.Scene:
     return ts.Scene.from_dict(d)
 
 
+def first_snap(sim: ts.Simulator, plate: float) -> dict:
+    """Step ``sim`` (a :func:`drop_scene`) up to the step of the first snap: the kinetic energy before it, the
+    energy lost in it (measured: the total's change, the plates' energy included), and the closed form's loss
+    for the simulator's method from the cables' rate before it."""
+    slack0 = sim.slack()
+    top = np.array([3, 4, 5])   # c3, c4, c5: the top triangle
+    m = float(sim.system.masses[3])
+    for k in range(100_000):
+        before = sim.energy()
+        x, v = sim.positions, sim.velocities
+        r = sim.step()
+        if (~r.slack & slack0).any():
+            break
+    snapped = np.flatnonzero(~r.slack & slack0)
+    ends = sim.system.cable_ends[top]
+    d = x[ends[:, 1]] - x[ends[:, 0]]
+    unit = d / np.linalg.norm(d, axis=1)[:, None]
+    rate = float(np.mean(np.einsum("ij,ij->i", v[ends[:, 1]] - v[ends[:, 0]], unit)))
+    plastic = 0.5 * m * rate ** 2
+    predicted = {"elastic": 0.0, "inextensible": plastic, "massive": plastic * plate / (m / 3 + plate)}[sim.method]
+    lost = before["total"] - sim.energy()["total"]
+    return {"method": sim.method, "plate_kg": plate, "dt": sim.dt, "snap_step": k + 1,
+            "cables": " ".join(sim.scene.cable_names[i] for i in snapped),
+            "kinetic_before_J": before["kinetic"], "lost_J": lost, "closed_form_lost_J": predicted,
+            "kept": 1.0 - lost / before["kinetic"], "closed_form_kept": 1.0 - predicted / before["kinetic"],
+            "plates_lost_J": sim.energy_lost}
+
+
 def drop_rows(plate: float = 0.2, dt: float = 1e-4) -> list[dict]:
-    """Each method up to the step of the first snap: kinetic energy before it, the energy lost in it (measured:
-    the total's change, the plates' energy included), and the closed form's loss from the rates before it."""
+    """:func:`first_snap` of each method."""
     rows = []
     for method in ("elastic", "inextensible", "massive"):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ts.LengthOffsetWarning)
-            sim = ts.Simulator(drop_scene(plate), method=method, dt=dt)
-        slack0 = sim.slack()
-        top = np.array([3, 4, 5])   # c3, c4, c5: the top triangle
-        m = float(sim.system.masses[3])
-        for k in range(100_000):
-            before = sim.energy()
-            x, v = sim.positions, sim.velocities
-            r = sim.step()
-            if (~r.slack & slack0).any():
-                break
-        snapped = np.flatnonzero(~r.slack & slack0)
-        ends = sim.system.cable_ends[top]
-        d = x[ends[:, 1]] - x[ends[:, 0]]
-        unit = d / np.linalg.norm(d, axis=1)[:, None]
-        rate = float(np.mean(np.einsum("ij,ij->i", v[ends[:, 1]] - v[ends[:, 0]], unit)))
-        plastic = 0.5 * m * rate ** 2
-        predicted = {"elastic": 0.0, "inextensible": plastic, "massive": plastic * plate / (m / 3 + plate)}[method]
-        lost = before["total"] - sim.energy()["total"]
-        rows.append({"method": method, "plate_kg": plate, "dt": dt, "snap_step": k + 1,
-                     "cables": " ".join(sim.scene.cable_names[i] for i in snapped),
-                     "kinetic_before_J": before["kinetic"], "lost_J": lost, "closed_form_lost_J": predicted,
-                     "kept": 1.0 - lost / before["kinetic"], "closed_form_kept": 1.0 - predicted / before["kinetic"],
-                     "plates_lost_J": sim.energy_lost})
+            rows.append(first_snap(ts.Simulator(drop_scene(plate), method=method, dt=dt), plate))
     return rows
 
 
-def bungee(plate: float, omega: float = 10.0) -> ts.Scene:
-    return ts.Scene.from_dict({
-        "name": "bungee", "nodes": [{"name": "a", "position": [0, 0, 0], "fixed": True},
-                                    {"name": "b", "position": [0.95, 0, 0], "mass": 1.0, "velocity": [1.0, 0, 0]}],
-        "cables": [{"name": "c", "nodes": ["a", "b"], "stiffness": omega ** 2 * (1 + plate), "rest_length": 1.0,
-                    "mass": plate}]})
-
-
 def order_rows(quick: bool) -> list[dict]:
+    """The 1-D snap (``analytic.plate_snap_dict``) against its closed form after the rebound, over steps."""
+    from bench.analytic import plate_snap_dict, plate_snap_exact
     plate, omega, duration = 0.5, 10.0, 0.45
-    rebound = 1.0 / (1 + plate)
-    exact = 1.0 - rebound * (duration - 0.05 - math.pi / omega)
+    scene = ts.Scene.from_dict(plate_snap_dict(plate, omega))
     rows = []
     for locate in (True, False):
         for dt in (4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4) if not quick else (2e-3, 1e-3, 5e-4):
             dt *= 1.0 + 1 / 7   # the snap inside a step
-            sim = ts.Simulator(bungee(plate, omega), method="massive", dt=dt, locate_switches=locate)
+            sim = ts.Simulator(scene, method="massive", dt=dt, locate_switches=locate)
             steps = round(duration / dt)
             start = time.perf_counter()
             sim.run(steps=steps)
             wall = time.perf_counter() - start
-            exact_x = exact - rebound * (sim.time - duration)
-            rows.append({"locate_switches": locate, "dt": dt, "pos_err_m": abs(sim.positions[1, 0] - exact_x),
+            exact = plate_snap_exact(sim.time, plate, omega)[0]
+            rows.append({"locate_switches": locate, "dt": dt, "pos_err_m": abs(sim.positions[1, 0] - exact[1, 0]),
                          "wall_per_sim_s": wall / sim.time})
     for a, b in zip(rows, rows[1:]):
         if a["locate_switches"] == b["locate_switches"]:
@@ -120,9 +120,12 @@ def thrown_icosahedron(plate: float) -> ts.Scene:
     return ts.Scene.from_dict(raw)
 
 
-def speed_rows(quick: bool) -> list[dict]:
+def speed_rows(quick: bool, repeats: int = 7) -> list[dict]:
+    """CPU time per step of each run, best of ``repeats`` taken in turns (one of each per round), so that a
+    change in the machine's load falls on all of them alike; with ``mujoco`` installed, MuJoCo's Euler on the
+    same structure beside them (spring tendons: its cables have no mass)."""
     steps = 300 if quick else 1000
-    rows = []
+    runs = []   # (label, reset, run n steps, rounds)
     for label, method, plate, compiled in (("massive run() (compiled)", "massive", 0.05, True),
                                            ("massive (numpy reference)", "massive", 0.05, False),
                                            ("elastic run() (compiled)", "elastic", 0.0, True),
@@ -131,13 +134,22 @@ def speed_rows(quick: bool) -> list[dict]:
         if compiled is False:
             sim._method.compiled = False
         sim.run(steps=20)   # warm: kernels loaded, caches filled
-        best = math.inf
-        for _ in range(3):
-            sim.reset()
-            start = time.process_time()
-            sim.run(steps=steps, every=steps)
-            best = min(best, time.process_time() - start)
-        rows.append({"run": label, "steps": steps, "us_per_step": 1e6 * best / steps})
+        runs.append((label, sim.reset, lambda n, sim=sim: sim.run(steps=n, every=n), repeats if compiled else 2))
+    try:
+        from bench.mujoco_peer import MujocoPeer
+        peer = MujocoPeer(thrown_icosahedron(0.0), model="elastic", dt=1e-3, integrator="Euler")
+        runs.append(("MuJoCo mj_step(nstep) (spring tendons)", peer.reset, peer.advance, repeats))
+    except ImportError:   # mujoco is a benchmark extra
+        pass
+    best = {label: math.inf for label, *_ in runs}
+    for k in range(repeats):
+        for label, reset, run, rounds in runs:
+            if k < rounds:   # the references are slow: two rounds
+                reset()
+                start = time.process_time()
+                run(steps)
+                best[label] = min(best[label], time.process_time() - start)
+    rows = [{"run": label, "steps": steps, "us_per_step": 1e6 * best[label] / steps} for label, *_ in runs]
     base = next(r["us_per_step"] for r in rows if r["run"].startswith("elastic run()"))
     for r in rows:
         r["over_elastic_run"] = r["us_per_step"] / base

@@ -26,7 +26,7 @@ import tensegrity_sim as ts  # noqa: E402
 from bench import hard_cases, report, scale, work_precision  # noqa: E402
 from bench.cases import work_precision_cases  # noqa: E402
 from bench.mujoco_peer import axial_inertia_effect  # noqa: E402
-from bench.runners import (default_runners, mujoco_available, mujoco_runners, scale_runners,  # noqa: E402
+from bench.runners import (mujoco_available, mujoco_runners, scale_runners,  # noqa: E402
                            tensegrity_runners)
 from bench.tables import read_csv, write_csv  # noqa: E402
 
@@ -149,7 +149,8 @@ def _run(args, out: Path) -> dict:
 
     bar.set_description("hard cases")
     bar.set_postfix_str("")
-    write_csv(out / "hard_cases.csv", hard_cases.hard_case_rows(default_runners(), quick=args.quick, progress=bar))
+    write_csv(out / "hard_cases.csv", hard_cases.hard_case_rows(hard_cases.hard_case_runners(), quick=args.quick,
+                                                                progress=bar))
 
     bar.set_description("MuJoCo checks")
     bar.set_postfix_str("")

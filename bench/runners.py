@@ -156,12 +156,15 @@ ALL_CONTACTS = {"contacts": CONTACT_KINDS}
 def tensegrity_runners() -> list[TensegrityRunner]:
     """The tensegrity_sim configurations of the work-precision sweep: every method, the elastic one as
     plain Verlet (the default, compiled), with located switches and at order 4, the inextensible one with
-    every QP backend, all without contact detection (MuJoCo's contacts are off too)."""
+    every QP backend, the massive one with its snaps located (the default) and not, all without contact
+    detection (MuJoCo's contacts are off too)."""
     runners = [TensegrityRunner("elastic", "elastic", NO_CONTACTS),
                TensegrityRunner("elastic", "elastic located", {**NO_CONTACTS, "locate_switches": True}),
                TensegrityRunner("elastic", "elastic order 4", {**NO_CONTACTS, "order": 4})]
     runners += [TensegrityRunner("inextensible", f"inextensible {name}", {**NO_CONTACTS, "solver": name})
                 for name in ts.SOLVERS]
+    runners += [TensegrityRunner("massive", "massive", NO_CONTACTS),
+                TensegrityRunner("massive", "massive not located", {**NO_CONTACTS, "locate_switches": False})]
     return runners
 
 

@@ -1,16 +1,24 @@
 #!/usr/bin/env python3
-"""Plays a gait (a command schedule from ``tensegrity-sim optimize-gait``) on the node, over DDS, with no ROS install.
+"""Plays a trained policy or a gait on the node, over DDS, with no ROS install.
 
-At the control rate (``--rate`` Hz, default 50: the environments' 20 ms) it reads the node's clock from
-``node_poses`` and publishes ``cable_rest_lengths``: each of the gait's cables at the gait's rest length for that
-time since the first pose it saw (the schedule's ramps, repeated as the file gives them; held after its end).
+At every ``node_poses`` message it reads the node's clock and the node positions and publishes
+``cable_rest_lengths``:
+
+* ``--policy FILE.npz`` (``examples/train_roll.py``'s file): every control period (the file's, 20 ms) the policy's
+  mean action from the observation ``tensegrity_sim/Roll-v0`` defines (cable lengths, the motors' rest lengths,
+  positions relative to the centre of mass, velocities: the positions' difference over the last message's
+  interval, goal), and, at every message, the rest lengths the motors reach toward its targets at the file's reel
+  speed, as the environment reels them;
+* ``--gait FILE.yaml`` (a command schedule from ``tensegrity-sim optimize-gait``): at ``--rate`` Hz (default 50)
+  the gait's rest lengths at the time since the first pose it saw (its ramps repeated as the file gives them).
 
     tensegrity-sim serve icosahedron_ground --transport dds &
+    python3 examples/policy_controller.py --policy examples/policies/roll_icosahedron.npz --seconds 10
     python3 examples/policy_controller.py --gait examples/gait.yaml --seconds 6
 
 ``examples/gait.yaml`` is ``tensegrity-sim optimize-gait icosahedron_ground --out examples/gait.yaml`` (CMA-ES,
 5.15 m along +x in 6 s offline). Needs the "dds" extra: ``pip install -e ".[dds]"``. ``--offline`` drives the
-node's logic in this process instead (``test/test_policy_controller.py``).
+node's logic in this process instead (``test/test_policy_controller.py``, ``bench/compare_roll.py``).
 """
 from __future__ import annotations
 
@@ -31,72 +39,162 @@ class GaitPlayer:
         self.base = scene.cable_rest_lengths
         self.names = [scene.cable_names[i] for i in schedule.rest_cables]
 
-    def update(self, t: float) -> dict[str, float]:
+    def update(self, t: float, positions: np.ndarray | None = None) -> dict[str, float]:
         rest = self.schedule.rest_lengths_at(t, self.base)[self.schedule.rest_cables]
         return dict(zip(self.names, map(float, rest)))
+
+
+class MlpPolicy:
+    """The mean action of a policy file (``examples/train_roll.py``): ``obs`` normalised by the file's running
+    statistics, dense layers ``w0, b0, w1, b1, ...`` with swish (x sigmoid(x)) between them, clipped to [-1, 1]."""
+
+    def __init__(self, path: str):
+        with np.load(path) as f:
+            data = {k: f[k] for k in f.files}
+        count = sum(1 for k in data if k.startswith("w") and k[1:].isdigit())
+        if count == 0 or "obs_mean" not in data:
+            raise ValueError(f"{path}: not a policy file (no layers w0, b0, ... and obs_mean, obs_var)")
+        self.layers = [(data[f"w{i}"].astype(float), data[f"b{i}"].astype(float)) for i in range(count)]
+        self.mean, self.var = data["obs_mean"], data["obs_var"]
+        self.meta = {k: v for k, v in data.items() if not (k[0] in "wb" and k[1:].isdigit()) and
+                     not k.startswith("obs_")}
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        h = (np.asarray(obs, dtype=float) - self.mean) / np.sqrt(self.var + 1e-8)
+        for w, b in self.layers[:-1]:
+            h = h @ w + b
+            h = h / (1.0 + np.exp(-h))
+        w, b = self.layers[-1]
+        return np.clip(h @ w + b, -1.0, 1.0)
+
+
+class PolicyPlayer:
+    """A policy file's commands: :meth:`update` (time s, node positions (N, 3) m) -> rest lengths (name -> m) of
+    the actuated cables. A new action every ``control_dt`` s from ``tensegrity_sim/Roll-v0``'s observation
+    (velocities: the positions' change since the previous call over its time), and at every call the motors'
+    positions reeled toward its targets at ``reel_speed`` m/s since the period began, up to the next call's time
+    (the interval since the previous call assumed)."""
+
+    def __init__(self, policy: MlpPolicy, scene):
+        m = policy.meta
+        self.policy, self.scene = policy, scene
+        self.names = [str(n) for n in m["cables"]]
+        index = {n: i for i, n in enumerate(scene.cable_names)}
+        self.actuated = np.array([index[n] for n in self.names])
+        rest0 = scene.cable_rest_lengths[self.actuated]
+        low, high = (float(v) for v in m["rest_range"])
+        self.low, self.high = low * rest0, high * rest0
+        self.control_dt, self.reel_speed = float(m["control_dt"]), float(m["reel_speed"])
+        self.goal = np.asarray(m["goal"], dtype=float)
+        self.ends = np.array([[scene.node_names.index(a) for a in c.nodes] for c in scene.cables])
+        self.rest = rest0.copy()        # the motors' positions (m) at the end of the current period
+        self.start = rest0.copy()       # ... at its start
+        self.target = rest0.copy()
+        self.began = self.previous = None   # the current period's start time; the previous call's (t, x)
+
+    def observe(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        lengths = np.linalg.norm(x[self.ends[:, 1]] - x[self.ends[:, 0]], axis=1)
+        return np.concatenate([lengths, self.rest, (x - _centre(self.scene, x)).ravel(), v.ravel(), self.goal])
+
+    def update(self, t: float, positions: np.ndarray) -> dict[str, float]:
+        x = np.asarray(positions, dtype=float)
+        step = t - self.previous[0] if self.previous is not None else 0.0
+        if self.began is None or t - self.began >= self.control_dt - 1e-9:
+            v = (x - self.previous[1]) / step if step > 0 else np.zeros_like(x)
+            self.start = self.rest
+            self.target = self.low + 0.5 * (self.policy(self.observe(x, v)) + 1.0) * (self.high - self.low)
+            reach = self.reel_speed * self.control_dt
+            self.rest = self.start + np.clip(self.target - self.start, -reach, reach)
+            self.began = t if self.began is None else self.began + self.control_dt
+        self.previous = (t, x)
+        reach = self.reel_speed * min(t - self.began + step, self.control_dt)
+        now = self.start + np.clip(self.target - self.start, -reach, reach)
+        return dict(zip(self.names, map(float, now)))
 
 
 def _centre(scene, x: np.ndarray) -> np.ndarray:
     return scene.masses @ x / scene.masses.sum()
 
 
-def drive_offline(gait: str, seconds: float, rate: float = 50.0, scene: str = "icosahedron_ground") -> np.ndarray:
-    """Play ``gait`` for ``seconds`` s through the node's logic in this process (no DDS): the commands go in as
-    ``cable_rest_lengths`` messages at ``rate`` Hz, as over DDS. Returns the centre of mass's displacement (3,) m."""
-    from tensegrity_sim import Simulator, load_scene
+def load_player(scene, gait: str | None = None, policy: str | None = None):
+    """A :class:`GaitPlayer` of ``gait`` or a :class:`PolicyPlayer` of ``policy`` on ``scene``."""
+    if policy is not None:
+        return PolicyPlayer(MlpPolicy(policy), scene)
     from tensegrity_sim.commands import load_commands
-    from tensegrity_sim.ros import messages as M
-    from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic
+    return GaitPlayer(load_commands(gait, scene), scene)
 
-    loaded = load_scene(scene)
-    player = GaitPlayer(load_commands(gait, loaded), loaded)
-    sim = Simulator(loaded, method="elastic", dt=1e-3)
-    logic = SimNodeLogic(sim, NodeSettings(scene=scene, method="elastic", dt=sim.dt, log_path=""),
-                         transport=lambda key, msg: None, clock=lambda: 0.0)
+
+def drive_offline(player, seconds: float, rate: float | None = 50.0, scene: str = "icosahedron_ground",
+                  method: str = "elastic") -> np.ndarray:
+    """Drive the node's logic in this process (no DDS) for ``seconds`` s of its time as the DDS loop of
+    :func:`main` does: at every ``node_poses`` publication the ``player``'s ``update(t, positions)`` (``t`` s since
+    the first; every ``1/rate`` s, or at every publication with ``rate`` None) goes in as a ``cable_rest_lengths``
+    message. ``player``: a :class:`GaitPlayer`, :class:`PolicyPlayer`, or anything with that ``update``. Returns
+    the centre of mass's displacement (3,) m."""
+    from roll_controller import offline_node   # beside this file
+    from tensegrity_sim.ros import messages as M
+
+    loaded, sim, logic, poses = offline_node(scene, method)
     start = _centre(loaded, sim.positions)
-    period = round(1.0 / (rate * sim.dt))   # steps between commands
-    for k in range(round(seconds / sim.dt)):
-        if k % period == 0:
-            command = player.update(k * sim.dt)
+    next_command = 0.0
+    while sim.time < seconds - 1e-9:
+        if logic.step() is None:
+            raise RuntimeError("the node paused after a failed step")
+        if not logic.publication_due:
+            continue
+        logic.publish()
+        msg = poses[-1]
+        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        if rate is not None and t < next_command - 1e-9:
+            continue
+        next_command += 1.0 / rate if rate is not None else 0.0
+        x = np.array([[p.position.x, p.position.y, p.position.z] for p in msg.poses])
+        command = player.update(t, x)
+        if command:
             reason = logic.receive("cable_rest_lengths", M.joint_state(M.header(0, ""), list(command),
                                                                         position=list(command.values())))
             if reason is not None:
                 raise RuntimeError(f"the node refused the command: {reason}")
-        if logic.step() is None:
-            raise RuntimeError("the node paused after a failed step")
     return _centre(loaded, sim.positions) - start
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--gait", required=True, help="a command schedule (tensegrity-sim optimize-gait --out)")
+    which = parser.add_mutually_exclusive_group(required=True)
+    which.add_argument("--policy", help="a policy file (.npz, examples/train_roll.py --out)")
+    which.add_argument("--gait", help="a command schedule (tensegrity-sim optimize-gait --out)")
     parser.add_argument("--seconds", type=float, default=6.0, help="s of the node's time to play it")
-    parser.add_argument("--rate", type=float, default=50.0, help="commands per second (default 50)")
+    parser.add_argument("--rate", type=float, default=50.0, help="a gait's commands per second (default 50)")
     parser.add_argument("--domain-id", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0")))
     parser.add_argument("--interface", default="lo", help="network interface (default: lo)")
     parser.add_argument("--node", default="/tensegrity_sim", help="the simulator node's name")
     parser.add_argument("--scene", default="icosahedron_ground", help="the scene the node runs")
     parser.add_argument("--offline", action="store_true", help="drive the node's logic in this process (no DDS)")
     args = parser.parse_args(argv)
+    from tensegrity_sim import load_scene
+
+    scene = load_scene(args.scene)
+    try:
+        player = load_player(scene, args.gait, args.policy)
+    except (OSError, ValueError, KeyError) as e:
+        print(f"policy_controller: {e}", file=sys.stderr)
+        return 2
+    rate = None if args.policy else args.rate   # a policy sees every pose (its reel), a gait is sampled
     if args.offline:
-        moved = drive_offline(args.gait, args.seconds, args.rate, args.scene)
+        moved = drive_offline(player, args.seconds, rate, args.scene)
         print(f"centre of mass moved {np.round(moved, 4).tolist()} m in {args.seconds:g} s")
         return 0
     from roll_controller import latest_pose   # beside this file
-    from tensegrity_sim import load_scene
-    from tensegrity_sim.commands import load_commands
     from tensegrity_sim.ros import messages as M
     from tensegrity_sim.ros.dds import Participant
 
-    scene = load_scene(args.scene)
-    player = GaitPlayer(load_commands(args.gait, scene), scene)
     with Participant(domain_id=args.domain_id, interface=args.interface, node_name="policy_controller") as dds:
         poses = dds.reader(f"{args.node}/node_poses", "geometry_msgs/msg/PoseArray")
         rest = dds.writer(f"{args.node}/cable_rest_lengths", "sensor_msgs/msg/JointState")
         t0 = start = x = None
         next_command = 0.0
         while True:
-            dds.wait(0.2 / args.rate)
+            dds.wait(0.002)
             latest = latest_pose(poses)
             if latest is None:
                 continue
@@ -105,10 +203,11 @@ def main(argv: list[str] | None = None) -> int:
                 t0, start = t, _centre(scene, x)
             if t - t0 >= args.seconds:
                 break
-            if t - t0 >= next_command:
-                command = player.update(t - t0)
-                rest.write(M.joint_state(M.header(time.time_ns(), ""), list(command), position=list(command.values())))
-                next_command += 1.0 / args.rate
+            if rate is not None and t - t0 < next_command:
+                continue
+            next_command += 1.0 / rate if rate is not None else 0.0
+            command = player.update(t - t0, x)
+            rest.write(M.joint_state(M.header(time.time_ns(), ""), list(command), position=list(command.values())))
         print(f"centre of mass moved {np.round(_centre(scene, x) - start, 4).tolist()} m in {args.seconds:g} s")
     return 0
 

@@ -182,16 +182,12 @@ def planner_for(scene) -> RollPlanner:
                        [(c.name, *c.nodes) for c in scene.cables])
 
 
-def drive_offline(cycles: int, heading=(1.0, 0.0), method: str = "auto", scene: str = "icosahedron_ground"):
-    """Roll through the node's logic in this process (no ROS, no DDS): the controller reads each published
-    ``node_poses`` message and sends ``cable_rest_lengths`` messages, as over DDS. Returns the controller
-    and, per cycle, (edge tipped over, cables reeled, planned landing triangle, triangle stood on at the
-    cycle's end, centre of mass (3,) m and time s at its end, when the next starts); the first entry is the
-    start."""
+def offline_node(scene: str, method: str):
+    """The node's logic on ``scene`` in this process, 1 ms steps, no transport: (the loaded scene, its simulator,
+    the logic, the list its ``node_poses`` messages are appended to as it publishes)."""
     import warnings
 
     from tensegrity_sim import Simulator, load_scene
-    from tensegrity_sim.ros import messages as M
     from tensegrity_sim.ros.node_logic import NodeSettings, SimNodeLogic
 
     loaded = load_scene(scene)
@@ -202,6 +198,18 @@ def drive_offline(cycles: int, heading=(1.0, 0.0), method: str = "auto", scene: 
     logic = SimNodeLogic(sim, NodeSettings(scene=scene, method=method, dt=sim.dt, log_path=""),
                          transport=lambda key, msg: poses.append(msg) if key == "node_poses" else None,
                          clock=lambda: 0.0)
+    return loaded, sim, logic, poses
+
+
+def drive_offline(cycles: int, heading=(1.0, 0.0), method: str = "auto", scene: str = "icosahedron_ground"):
+    """Roll through the node's logic in this process (no ROS, no DDS): the controller reads each published
+    ``node_poses`` message and sends ``cable_rest_lengths`` messages, as over DDS. Returns the controller
+    and, per cycle, (edge tipped over, cables reeled, planned landing triangle, triangle stood on at the
+    cycle's end, centre of mass (3,) m and time s at its end, when the next starts); the first entry is the
+    start."""
+    from tensegrity_sim.ros import messages as M
+
+    loaded, sim, logic, poses = offline_node(scene, method)
     planner = planner_for(loaded)
     controller = RollController(planner, dict(zip(loaded.cable_names, loaded.cable_rest_lengths)), heading)
     history = [(None, [], (), tuple(planner.nodes[i] for i in planner.base(sim.positions)),

@@ -67,7 +67,7 @@ def superball_points(cycles: int = 3, duration: float = 12.0) -> list[dict]:
 def three_bar_points() -> list[dict]:
     scene = ts.load_scene("three_bar")
     rest = dict(zip(scene.cable_names, scene.cable_rest_lengths))
-    pull = {c: float(0.4 * rest[c]) for c in ("c1", "c4", "c5")}
+    pull = {c: float(0.6 * rest[c]) for c in ("c0", "c2")}
     full = {c: float(rest[c]) for c in pull}
     return [{"time": 0.0, "rest_lengths": full}, {"time": 0.4, "rest_lengths": pull},
             {"time": 1.2, "rest_lengths": pull}, {"time": 1.6, "rest_lengths": full}]
@@ -86,10 +86,11 @@ HEADERS = {
         "rest lengths over 0.3 s, holding 0.7 s and letting them out over 0.3 s, the next once the robot sits\n"
         "flat on its new cable triangle (examples/roll_controller.py's rule, run closed loop to find them)."),
     "three_bar_roll.yaml": (
-        "three_bar tipping over an edge of its base triangle and rolling onto its side: the actuated cables c1\n"
-        "(bottom, n1-n2), c4 and c5 (top, n4-n5 and n5-n3) are reeled in to 40 % over 0.4 s, held 0.8 s and\n"
-        "let out over 0.4 s (of the actuated sets of one to three cables at 40, 60 or 80 %, the one that moves\n"
-        "the centre farthest in 3 s; its two mirror images tip it over the other two edges)."),
+        "three_bar tipping over an edge of its base triangle and rolling onto its side: the actuated bottom\n"
+        "cables c0 (n0-n1) and c2 (n2-n0) are reeled in to 60 % over 0.4 s, held 0.8 s and let out over 0.4 s\n"
+        "(of the actuated sets of one to three cables at 40, 60 or 80 %, with the rods' consistent mass, the one\n"
+        "that moves the centre farthest in 3 s and leaves no cable slack: 0.32 m; the same cables at 40 % move\n"
+        "it 1 % farther and leave two slack; its two mirror images tip it over the other two edges)."),
 }
 
 

@@ -41,7 +41,10 @@ from .methods.base import State
 from .simulator import Simulator, _walk, absurd_speed, non_finite_report, run_plan
 from .system import System
 
-__all__ = ["BatchSimulator", "BatchStepResult", "BatchTrajectory", "structure_of"]
+__all__ = ["BatchSimulator", "BatchStepResult", "BatchTrajectory", "TRAJECTORY_FIELDS", "structure_of"]
+
+# the per-step arrays a run may keep (BatchSimulator.run's ``fields``; "impulses" brings the tensions)
+TRAJECTORY_FIELDS = ("positions", "velocities", "impulses", "slack")
 
 # run() steps in chunks whose per-step arrays hold about this many numbers (positions and velocities
 # of every step of the chunk, ~16 MB each): the compiled loop runs a whole chunk, the contact detectors,
@@ -74,7 +77,9 @@ class BatchTrajectory:
     by a failure.
     Over every step, recorded or not: peak_tensions (B, n_cables) N, each cable's largest step tension
     (``impulses / dt``); snaps (B, n_cables), how often each cable went from slack to taut between
-    consecutive step ends (the run's start counts as the first)."""
+    consecutive step ends (the run's start counts as the first).
+    The per-step arrays are in ``run``'s ``dtype``, None where its ``fields`` left them out (tensions with the
+    impulses)."""
 
     time: np.ndarray
     positions: np.ndarray
@@ -86,6 +91,32 @@ class BatchTrajectory:
     failures: dict[int, str]
     peak_tensions: np.ndarray
     snaps: np.ndarray
+
+
+def _storage(dtype, fields) -> tuple[np.dtype, tuple[str, ...]]:
+    """``run``'s ``dtype`` and ``fields`` checked: the storage dtype and the kept fields in their order."""
+    try:
+        store = None if dtype is None else np.dtype(dtype)
+    except TypeError:
+        store = None
+    if store not in (np.dtype(np.float64), np.dtype(np.float32)):
+        raise ValueError(f"dtype must be 'float64' or 'float32' (the kept arrays' storage), got {dtype!r}")
+    if isinstance(fields, str) or not isinstance(fields, (list, tuple, set, frozenset)):
+        raise ValueError(f"fields must be a list of {', '.join(TRAJECTORY_FIELDS)}, got {fields!r}")
+    for f in fields:
+        if f not in TRAJECTORY_FIELDS:
+            raise ValueError(f"fields: unknown field {f!r} (known: {', '.join(TRAJECTORY_FIELDS)})")
+    if len(set(fields)) != len(fields):
+        raise ValueError(f"fields: a field named twice in {fields!r}")
+    return store, tuple(f for f in TRAJECTORY_FIELDS if f in fields)
+
+
+def _kept_arrays(arrays: dict, fields: tuple, kept: int, store: np.dtype) -> dict[str, np.ndarray]:
+    """The kept steps' arrays (kept, B, ...) of ``fields`` (and "tensions" with "impulses") in the memory order of
+    the per-step ``arrays`` (steps, B, ...) the engine gives: a kept step is then one contiguous copy."""
+    names = fields + (("tensions",) if "impulses" in fields else ())
+    return {f: np.empty_like(arrays[f], shape=(kept,) + arrays[f].shape[1:], dtype=bool if f == "slack" else store)
+            for f in names}
 
 
 def structure_of(scene: Scene) -> Scene:
@@ -199,12 +230,14 @@ class BatchSimulator:
         if method == "elastic":
             if solver is not None and requested:
                 raise ValueError(f"solver={solver!r} is an option of a method with a QP; method 'elastic' has none")
-            self.system = mass_model(self.system, ElasticMethod)   # both engines apply its blocks in free flight
             if backend == "jax":
-                from .methods.jax.engine import ElasticBatchJax   # imports JAX: only here
+                from .methods.jax.engine import ElasticBatchJax, ElasticMethodJax   # imports JAX: only here
 
+                # the JAX engine applies the blocks in free flight, the numba engine everywhere
+                self.system = mass_model(self.system, ElasticMethodJax)
                 self._engine = ElasticBatchJax(self.system, dt, dtype=dtype or "float64")
             else:
+                self.system = mass_model(self.system, ElasticMethod)
                 self._engine = ElasticBatch(self.system, dt)
             self.dt = self._engine.dt
             self._copies = None
@@ -225,6 +258,7 @@ class BatchSimulator:
                              else [GroundDetector(self.system) for _ in range(self.batch)])
             for b, d in enumerate(self._grounds or ()):
                 d.reset(self._x[..., b])
+            self._grounds_known = True   # False after a run without ground events: the detectors start again
             # copies stopped by a non-finite step: {copy: (steps done, positions, velocities)}
             self._frozen: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
             # a copy starting at speeds no step resolves fails at its first step, as Simulator.step does
@@ -401,7 +435,7 @@ class BatchSimulator:
                 self._frozen[b] = (self._step_count, self._x[..., b].copy(), self._v[..., b].copy())
 
     # ------------------------------------------------------------------ stepping
-    def _advance(self, steps: int, commands=None):
+    def _advance(self, steps: int, commands=None, ground_events: bool = True):
         """``steps`` steps of every running copy, inputs held (or ``commands`` evaluated inside the engine's
         compiled run, where it ``runs_commands``): positions, velocities (steps, B, N, 3), impulses
         (steps, B, n_cables), slack (steps, B, n_cables) (views, valid until the next call) and the contacts of
@@ -445,7 +479,13 @@ class BatchSimulator:
                 rows.setdefault(k, [()] * self.batch)[b] = events
             for k, row in rows.items():
                 contacts[k] = tuple(row)
-        if self._grounds is not None:
+        if self._grounds is not None and not ground_events:
+            self._grounds_known = False
+        elif self._grounds is not None:
+            if not self._grounds_known:   # contacts known again from here: those touching begin at this chunk's start
+                for b, d in enumerate(self._grounds):
+                    d.reset(previous[..., b])
+                self._grounds_known = True
             landed = walk_copies(self._grounds, previous, previous_v, x_seq, v_seq, self._engine.contact,
                                  start * self.dt, self.dt)
             for k, ground in landed.items():   # the steps with ground events only: a batch's step is B rows
@@ -605,7 +645,7 @@ class BatchSimulator:
         return self._engine.slack(self._x, self._rest).T.copy()
 
     def run(self, duration: float | None = None, *, steps: int | None = None, every: int = 1,
-            commands=None) -> BatchTrajectory:
+            commands=None, dtype="float64", fields=TRAJECTORY_FIELDS, ground_events: bool = True) -> BatchTrajectory:
         """Run ``steps`` steps, or ``round(duration / dt)``, inputs held, as ``Simulator.run``: keeps steps
         ``every``, ``2 every``, ... and the last (K of them) as (B, K, ...) arrays, a kept step's impulses
         summed over the steps since the previous kept one and its tensions their mean; over all steps
@@ -615,17 +655,31 @@ class BatchSimulator:
         (one per copy), applied before each step at its start time as ``tensegrity-sim run --commands`` does
         (a cable it does not name keeps its rest length at the run's start; an input is set only where it
         changed). The JAX backend and the numba batch on a ground evaluate them inside their compiled runs;
-        the others step one at a time."""
+        the others step one at a time.
+
+        The trajectory's storage (what keeping every step costs): ``dtype`` "float64" (default) or "float32",
+        the kept positions, velocities, impulses and tensions rounded to it (the stepping, the peaks and snaps
+        stay in the batch's own precision); ``fields``: the per-step arrays kept, any of :data:`TRAJECTORY_FIELDS`
+        ("impulses" brings the tensions), the others None. The arrays have the batch first in their shape and
+        are laid out in memory as the engine steps them (the elastic batch's free flight: copies last), so that
+        a kept step is one contiguous copy; ``np.ascontiguousarray`` gives the copy-major order.
+
+        ``ground_events``: False leaves the ground's contact events out of ``contacts`` (an environment's control
+        period, which reads none: finding them costs a Python event per landing); the ground contacts known at a
+        later run that finds them again are those that begin from its start."""
+        store, fields = _storage(dtype, fields)
         self._check_commands(commands)
         b, n, nc = self.batch, len(self.scene.nodes), self._nc
-        steps, every, kept, span = run_plan(duration, steps, every, self.dt, b * (48 * n + 17 * nc) + 8)
+        size = {"positions": 3 * n * store.itemsize, "velocities": 3 * n * store.itemsize,
+                "impulses": 2 * nc * store.itemsize, "slack": nc}   # bytes a copy's kept step (impulses: and tensions)
+        steps, every, kept, span = run_plan(duration, steps, every, self.dt, b * sum(size[f] for f in fields) + 8)
         time = (self.step_count + kept) * self.dt
-        pos, vel = np.empty((b, len(kept), n, 3)), np.empty((b, len(kept), n, 3))
-        imp, slack = np.zeros((b, len(kept), nc)), np.empty((b, len(kept), nc), dtype=bool)
+        out: dict[str, np.ndarray] = {}   # (K, B, ...) in the chunks' memory order (made at the first chunk)
         contacts: list[list[ContactEvent]] = [[] for _ in range(b)]
         peak = np.zeros((b, nc))
         snaps = np.zeros((b, nc), dtype=np.int64)
         was_slack = self.slack()
+        carried = None   # the impulses summed so far of a kept step that goes on into the next chunk
         chunk = max(1, min(steps, _CHUNK_NUMBERS // max(1, b * n * 3)))
         inside = commands is not None and self._copies is None and self._engine.runs_commands()
         if commands is not None and not inside:
@@ -635,7 +689,7 @@ class BatchSimulator:
             m = min(chunk, steps - done)
             if commands is not None and not inside:
                 self._apply_commands(commands, base_rest)
-            x, v, i, sl, events = self._advance(m, commands if inside else None)
+            x, v, i, sl, events = self._advance(m, commands if inside else None, ground_events)
             np.fmax(peak, np.fmax.reduce(i, axis=0), out=peak)   # fmax: a failed copy's NaN is no peak
             snaps += (np.concatenate([was_slack[None], sl[:-1]]) & ~sl).sum(axis=0)
             was_slack = sl[-1].copy()
@@ -643,18 +697,37 @@ class BatchSimulator:
                 if per_step is not self._no_events:
                     for c, e in enumerate(per_step):
                         contacts[c].extend(e)
+            arrays = {"positions": x, "velocities": v, "impulses": i, "tensions": i, "slack": sl}
+            if not out:
+                out = _kept_arrays(arrays, fields, len(kept), store)
             g = done + np.arange(m)              # the chunk's steps in the run, from 0
-            j = g // every
-            for jj in np.unique(j):
-                imp[:, jj] += i[j == jj].sum(axis=0)
+            j = g // every                       # the kept step each one counts to
             last = (g + 1) % every == 0
             last[-1] |= done + m == steps
-            pos[:, j[last]] = np.moveaxis(x[last], 0, 1)
-            vel[:, j[last]] = np.moveaxis(v[last], 0, 1)
-            slack[:, j[last]] = np.moveaxis(sl[last], 0, 1)
+            for f in fields:
+                if f == "impulses":              # summed in float64 over each kept step's steps, then stored
+                    sums = i if every == 1 else np.add.reduceat(i, np.flatnonzero(np.diff(j, prepend=-1)), axis=0)
+                    if carried is not None:
+                        sums = sums.copy()
+                        sums[0] += carried
+                    complete = slice(j[0], j[0] + len(sums) - (not last[-1]))
+                    out[f][complete] = sums[:complete.stop - complete.start]
+                    out["tensions"][complete] = sums[:complete.stop - complete.start] / \
+                        (span[complete, None, None] * self.dt)
+                    carried = None if last[-1] else sums[-1]
+                elif every == 1:
+                    out[f][done:done + m] = arrays[f]
+                else:
+                    out[f][j[last]] = arrays[f][last]
             done += m
-        return BatchTrajectory(time, pos, vel, imp, imp / (span[None, :, None] * self.dt), slack, contacts,
-                               dict(self.failures), peak / self.dt, snaps)
+        if not out:   # no step
+            out = _kept_arrays({"positions": np.empty((0, b, n, 3)), "velocities": np.empty((0, b, n, 3)),
+                                "impulses": np.empty((0, b, nc)), "tensions": np.empty((0, b, nc)),
+                                "slack": np.empty((0, b, nc), dtype=bool)}, fields, 0, store)
+        kept_arrays = {f: np.moveaxis(out[f], 0, 1) if f in out else None for f in (*TRAJECTORY_FIELDS, "tensions")}
+        return BatchTrajectory(time, kept_arrays["positions"], kept_arrays["velocities"], kept_arrays["impulses"],
+                               kept_arrays["tensions"], kept_arrays["slack"], contacts, dict(self.failures),
+                               peak / self.dt, snaps)
 
     def _check_commands(self, commands) -> None:
         if commands is None or isinstance(commands, CommandSchedule):

@@ -55,7 +55,8 @@ class ClassKWarning(UserWarning):
 
 class LumpedMassWarning(UserWarning):
     """A rigid strut's distributed mass is lumped at its ends (row sums) because its consistent mass block cannot
-    stand alone: one of its ends is also another rigid strut's (class-k), or the method lumps masses."""
+    stand alone: one of its ends is also another rigid strut's (class-k), or the method takes no blocks (the
+    inextensible method; the JAX backend with a ground). The elastic method takes them everywhere else."""
 
 
 @dataclass(frozen=True)

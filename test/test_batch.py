@@ -431,3 +431,61 @@ def test_inextensible_copies_walk_their_member_contacts_as_single_runs_do():
         kinds = [(e.kind, e.members, e.time) for e in want.contacts]
         assert [(e.kind, e.members, e.time) for e in got.contacts[b]] == kinds
         assert {e.members for e in want.contacts} >= {("A", "B"), ("b0", "ground")}   # members and ground
+
+
+@pytest.mark.parametrize("ground", [False, True])
+def test_a_lighter_trajectory_holds_the_full_ones_numbers(monkeypatch, ground):
+    """run(dtype="float32", fields=...) keeps exactly the float64 run's numbers rounded to float32, None for the
+    fields left out, the same peaks and snaps; chunks that split a kept step (a small chunk) sum its impulses
+    to round-off of one chunk's; every step kept equals those steps' every-1 numbers."""
+    import tensegrity_sim.batch as batch_module
+
+    if ground:
+        scene = ts.load_scene("icosahedron_ground")
+        scenes = [ts.Scene.from_dict({**scene.to_dict(), "nodes": [
+            {**node, "velocity": [0.3 * s, -0.2, 0.1 * s]} for node in scene.to_dict()["nodes"]]}) for s in (1, 2)]
+    else:
+        scenes = _scenes("icosahedron")
+    runs = {}
+    for name, kwargs in {"full": {}, "float32": {"dtype": "float32", "fields": ["impulses", "positions"]},
+                         "every1": {"every": 1}, "none": {"fields": ()}}.items():
+        sim = BatchSimulator.from_scenes(scenes, method="elastic", contacts=())
+        runs[name] = sim.run(steps=23, **{"every": 5, **kwargs})
+    full, light = runs["full"], runs["float32"]
+    assert light.velocities is None and light.slack is None and light.positions.dtype == np.float32
+    for field in ("positions", "impulses", "tensions"):
+        np.testing.assert_array_equal(getattr(light, field), getattr(full, field).astype(np.float32))
+    for run in (light, runs["none"]):
+        np.testing.assert_array_equal(run.peak_tensions, full.peak_tensions)
+        np.testing.assert_array_equal(run.snaps, full.snaps)
+    every1 = runs["every1"]
+    np.testing.assert_array_equal(full.positions, every1.positions[:, [4, 9, 14, 19, 22]])
+    np.testing.assert_array_equal(full.slack, every1.slack[:, [4, 9, 14, 19, 22]])
+    want = np.add.reduceat(every1.impulses, [0, 5, 10, 15, 20], axis=1)
+    np.testing.assert_allclose(full.impulses, want, rtol=1e-14, atol=1e-18)
+    np.testing.assert_allclose(full.tensions, want / (np.array([5, 5, 5, 5, 3])[:, None] * 1e-3), rtol=1e-14)
+    # chunks of 3 steps: kept steps of 5 cross chunk ends
+    monkeypatch.setattr(batch_module, "_CHUNK_NUMBERS", 3 * len(scenes) * len(scenes[0].nodes) * 3)
+    chunked = BatchSimulator.from_scenes(scenes, method="elastic", contacts=()).run(steps=23, every=5)
+    np.testing.assert_array_equal(chunked.positions, full.positions)
+    np.testing.assert_allclose(chunked.impulses, full.impulses, rtol=1e-14, atol=1e-18)
+    with pytest.raises(ValueError, match="dtype must be 'float64' or 'float32'"):
+        BatchSimulator.from_scenes(scenes, method="elastic").run(steps=2, dtype="int8")
+    with pytest.raises(ValueError, match="fields: unknown field 'forces'"):
+        BatchSimulator.from_scenes(scenes, method="elastic").run(steps=2, fields=["forces"])
+
+
+def test_a_run_without_ground_events_steps_the_same():
+    """ground_events=False finds no events and changes no number; a later run finds them again, those touching at
+    its start beginning there (a fresh detector's rule)."""
+    scene = ts.load_scene("icosahedron_ground")
+    with_events, without = (BatchSimulator(scene, 2, method="elastic", contacts=()) for _ in range(2))
+    full, bare = with_events.run(steps=150, every=50), without.run(steps=150, every=50, ground_events=False)
+    assert sum(map(len, full.contacts)) > 0 and bare.contacts == [[], []]
+    for field in ("positions", "velocities", "impulses", "slack"):
+        np.testing.assert_array_equal(getattr(bare, field), getattr(full, field))
+    again = without.run(steps=1)
+    touching = {e.members for e in again.contacts[0] if e.kind == "begin"}
+    fresh = BatchSimulator(scene, 2, method="elastic", contacts=(), positions=with_events.positions,
+                           velocities=with_events.velocities)
+    assert touching and touching == {e.members for e in fresh.run(steps=1).contacts[0] if e.kind == "begin"}

@@ -275,6 +275,32 @@ def test_kernel_matches_the_numpy_reference(case, options):
     assert lost_a == pytest.approx(lost_b, rel=1e-12, abs=1e-14)
 
 
+def test_kernel_solves_the_plates_system_as_a_dense_solve():
+    """The kernel's G (built node by node over shared nodes) and its envelope factor in the cables' RCM order,
+    with some cables left out (a ragged envelope), against the reference's dense G and numpy's solve."""
+    from tensegrity_sim.methods.massive import _kernels as kernels
+    sim = ts.Simulator(_free_scene("icosahedron", 0.05), method="massive", dt=2.5e-4)
+    method = sim._method
+    model, dirs = method._model, method._start[4]
+    order = model[10]
+    nc, n_struts = len(order), sim.system.n_struts
+    assert sorted(order) == list(range(nc))
+    cables = np.ascontiguousarray(order[np.arange(nc) % 5 != 2])   # four in five of them, in the kernel's order
+    count = len(cables)
+    g, first, rdiag = np.zeros((count, count)), np.empty(nc, dtype=np.int64), np.empty(nc)
+    kernels._delassus(cables, count, dirs, n_struts, model[0], model[5], model[9], model[8], np.empty(nc, np.int64),
+                      first, g, False)
+    dense = method._delassus(cables, dirs[n_struts + cables])
+    assert np.array_equal(np.tril(g) != 0, np.tril(dense) != 0)   # the envelope holds every coupling
+    assert np.abs(np.tril(g) - np.tril(dense)).max() < 1e-14 * np.abs(dense).max()
+    assert 0 < first[:count].max() and (first[:count] <= np.arange(count)).all()
+    rhs = np.random.default_rng(3).normal(size=count)
+    y = rhs.copy()
+    kernels._factor(g, first, rdiag)
+    kernels._solve(g, first, rdiag, y)
+    assert np.abs(y - np.linalg.solve(dense, rhs)).max() < 1e-13 * np.abs(y).max()
+
+
 def test_run_loop_equals_single_steps_and_losses_follow_the_present():
     """run() in the kernel's loop, and step() (steps computed ahead in it, rewound when an input changes): the
     same numbers, and energy_lost is the present's, not that of the steps computed ahead."""
@@ -302,3 +328,20 @@ def test_batch_copies_step_the_massive_method():
     traj = batch.run(steps=600)
     assert batch.method_reason == "massive: requested"
     assert traj.velocities[:, -1, 1, 0] == pytest.approx(-M * speeds / (M + 0.5), rel=1e-6)
+
+
+def test_work_precision_case_is_its_closed_form_at_order_two():
+    """bench's plate_snap case (the work-precision study's for this method): its closed form (position,
+    velocity, the cable's impulse: the body's momentum change) is what the method converges to at order 2."""
+    from bench.cases import work_precision_cases
+    case = next(c for c in work_precision_cases() if c.name == "plate_snap")
+    want = case.exact("massive")
+    errors = []
+    for dt in (2e-3, 1e-3):
+        sim = ts.Simulator(case.scene, method="massive", dt=dt)
+        traj = sim.run(steps=round(case.duration / dt), every=round(case.duration / dt))
+        assert sim.time == pytest.approx(case.duration, rel=1e-12)
+        assert traj.impulses[0] == pytest.approx(want.impulses, rel=1e-9)
+        assert sim.velocities[1] == pytest.approx(want.velocities[1], abs=1e-8)
+        errors.append(np.abs(sim.positions - want.positions).max())
+    assert errors[1] < 1e-6 and 3.5 < errors[0] / errors[1] < 4.5, errors

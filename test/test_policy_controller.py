@@ -1,5 +1,6 @@
-"""examples/policy_controller.py (issue 50): the shipped gait (examples/gait.yaml, optimize-gait's CMA-ES) played
-through the node's logic as cable_rest_lengths messages at 50 Hz rolls the robot along the goal (+x)."""
+"""examples/policy_controller.py (issue 50): the shipped gait (examples/gait.yaml, optimize-gait's CMA-ES) and the
+shipped policy (examples/policies/roll_icosahedron.npz, examples/train_roll.py's PPO) played through the node's
+logic, and over DDS to the live node, as cable_rest_lengths messages roll the robot along the goal (+x)."""
 import ast
 import signal
 import sys
@@ -16,6 +17,7 @@ sys.path.insert(0, str(ROOT / "examples"))
 import policy_controller as pc  # noqa: E402
 
 GAIT = ROOT / "examples" / "gait.yaml"
+POLICY = ROOT / "examples" / "policies" / "roll_icosahedron.npz"
 
 
 def test_player_gives_the_schedules_rest_lengths():
@@ -30,16 +32,15 @@ def test_player_gives_the_schedules_rest_lengths():
 def test_gait_through_the_node_rolls_along_the_goal():
     """Offline the gait rolls 5.15 m along +x in 6 s (run --commands: the rest lengths ramped every step); the
     node's 50 Hz commands hold each value for 20 ms, and the robot still rolls over 3 m along +x."""
-    moved = pc.drive_offline(str(GAIT), 6.0)
+    scene = ts.load_scene("icosahedron_ground")
+    moved = pc.drive_offline(pc.load_player(scene, gait=str(GAIT)), 6.0)
     assert moved[0] > 3.0, moved
     assert abs(moved[2]) < 0.3 and np.all(np.isfinite(moved))
 
 
-def test_gait_over_dds_moves_the_live_node(tmp_path):
-    """``serve --transport dds`` and the controller in separate processes: the centre of mass the controller
-    sees moves over 1.5 m along +x in 6 s of the node's time (measured 2.06, 4.94 and 5.08 m in three runs on a
-    loaded 2-core machine: the node runs in real time, commands land late by a varying few ms, and the rolling
-    is chaotic, so the bound is looser than the offline test's)."""
+def over_dds(tmp_path, *controller: str) -> np.ndarray:
+    """``serve --transport dds`` and ``policy_controller.py *controller`` in separate processes: the centre of
+    mass's displacement (3,) m the controller printed."""
     pytest.importorskip("cyclonedds")   # the dds extra (CI's first leg installs it)
     from dds_child import random_domain, spawn
 
@@ -47,11 +48,73 @@ def test_gait_over_dds_moves_the_live_node(tmp_path):
     with spawn("-m", "tensegrity_sim.cli", "serve", "icosahedron_ground", "--method", "elastic", "--transport", "dds",
                "--domain-id", domain, "--log-path", str(tmp_path / "run.mcap"), timeout=30) as server:
         try:
-            with spawn("examples/policy_controller.py", "--gait", str(GAIT), "--seconds", "6",
-                       "--domain-id", domain, timeout=60) as controller:
-                out, err = controller.communicate(timeout=90)
-            assert controller.returncode == 0, err
+            with spawn("examples/policy_controller.py", *controller, "--domain-id", domain, timeout=60) as child:
+                out, err = child.communicate(timeout=90)
+            assert child.returncode == 0, err
         finally:
             server.send_signal(signal.SIGINT)
-    moved = np.array(ast.literal_eval(out.split("moved ")[1].split(" m")[0]))
-    assert moved[0] > 1.5, out
+    return np.array(ast.literal_eval(out.split("moved ")[1].split(" m")[0]))
+
+
+def test_gait_over_dds_moves_the_live_node(tmp_path):
+    """The gait over DDS: the centre of mass the controller sees moves over 1.5 m along +x in 6 s of the node's
+    time (measured 2.06, 4.94 and 5.08 m in three runs on a loaded 2-core machine: the node runs in real time,
+    commands land late by a varying few ms, and the rolling is chaotic, so the bound is looser than the offline
+    test's)."""
+    moved = over_dds(tmp_path, "--gait", str(GAIT), "--seconds", "6")
+    assert moved[0] > 1.5, moved
+
+
+def test_policy_file_gives_the_actions_flax_gave():
+    """The numpy MLP of the controller against the actor (flax, rejax's network) that wrote the file: its mean
+    actions for the 16 observations the file keeps (examples/train_roll.py's check_pairs)."""
+    policy = pc.MlpPolicy(str(POLICY))
+    with np.load(POLICY) as f:
+        obs, actions = f["check_obs"], f["check_actions"]
+    got = np.array([policy(o) for o in obs])
+    assert np.max(np.abs(got - actions)) < 1e-9
+    assert np.ptp(actions) > 0.1   # not a constant policy
+
+
+def test_policy_player_observes_and_reels_as_the_environment():
+    """The player's first observation (a robot at rest) is ``Roll-v0``'s at a reset without noise, and the motors'
+    positions it reaches in a control period are the environment's after the same action (to 1e-12)."""
+    from tensegrity_sim.envs import RollEnv
+
+    scene = ts.load_scene("icosahedron_ground")
+    player = pc.load_player(scene, policy=str(POLICY))
+    env = RollEnv(control_dt=player.control_dt, episode_seconds=1.0)
+    obs, _ = env.reset(seed=0, options={"noise": 0.0})
+    x = env.task.sim.positions[0].copy()
+    assert np.max(np.abs(player.observe(x, np.zeros_like(x)) - obs)) < 1e-12
+    first = player.update(0.0, x)
+    env.step(player.policy(obs))
+    after = env.task.sim.rest_lengths[0, env.task.actuated]
+    assert np.max(np.abs(player.rest - after)) < 1e-12
+    moved = np.abs(after - scene.cable_rest_lengths)
+    assert moved.max() > 0.5 * player.reel_speed * player.control_dt   # some motor reeled at full speed
+    assert first == dict(zip(player.names, scene.cable_rest_lengths.tolist()))   # at t = 0 nothing has moved yet
+
+
+def test_policy_through_the_node_rolls_along_the_goal():
+    """The trained policy through the node's logic (the DDS loop's 100 Hz poses, in one process): its centre of
+    mass moves over 3 m along +x in 10 s (bench/compare_roll.py measured 9.81 m; the roll controller 2.59 m)."""
+    scene = ts.load_scene("icosahedron_ground")
+    moved = pc.drive_offline(pc.load_player(scene, policy=str(POLICY)), 10.0, rate=None)
+    assert moved[0] > 3.0, moved
+
+
+def test_policy_over_dds_moves_the_live_node(tmp_path):
+    """The trained policy over DDS: the centre of mass the controller sees moves over 1.5 m along +x in 10 s of
+    the node's time (measured 6.64, 6.16 and 3.78 m in three runs on the loaded 2-core machine; the node runs in real time and the commands
+    land a few ms late, so the bound is looser than the offline test's)."""
+    moved = over_dds(tmp_path, "--policy", str(POLICY), "--seconds", "10")
+    assert moved[0] > 1.5, moved
+
+
+def test_controller_refuses_a_file_that_is_no_policy(tmp_path, capsys):
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, weights=np.zeros(3))
+    assert pc.main(["--policy", str(bad), "--offline", "--seconds", "0.1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not a policy file" in err and str(bad) in err

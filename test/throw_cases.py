@@ -63,6 +63,15 @@ def wide_throw(rng: np.random.Generator, *, steps: int = 400) -> dict:
     return case
 
 
+def rod_throw(rng: np.random.Generator, *, steps: int = 400) -> dict:
+    """:func:`wide_throw`'s draw for the elastic method with its robot's rods carrying their mass (issue 46):
+    ``rods`` gives each strut's payload position in [0, 1] (:func:`throw_scene`)."""
+    case = wide_throw(rng, steps=steps)
+    case["method"] = "elastic"
+    case["rods"] = [float(a) for a in rng.uniform(0.0, 1.0, len(ts.load_scene(case["robot"]).struts))]
+    return case
+
+
 def _rigid(scene: ts.Scene) -> bool:
     """Whether every strut of ``scene`` is rigid."""
     return all(s.rigid for s in scene.struts)
@@ -71,9 +80,22 @@ def _rigid(scene: ts.Scene) -> bool:
 def throw_scene(case: dict) -> ts.Scene:
     """The case's scene: its robot under gravity -9.81 m/s^2 along z, lowest node ``height`` above the ground
     z = 0 (friction ``mu``, restitution ``e``), every node moving with the centre of mass's ``velocity``
-    plus ``spin`` about it."""
+    plus ``spin`` about it. With ``rods`` (:func:`rod_throw`), 80 % of each rigid strut's end nodes' masses is
+    moved onto it: 70 % of that spread uniformly, 30 % a payload at the strut's ``rods`` position (its consistent
+    mass block; the centre of mass moves with it)."""
     scene = ts.load_scene(case["robot"])
     raw = scene.to_dict()
+    if case.get("rods") is not None:
+        mass = {node["name"]: node for node in raw["nodes"]}
+        for strut, at in zip(raw["struts"], case["rods"]):
+            if strut.get("stiffness") != "rigid":
+                continue
+            moved = 0.8 * sum(mass[n].get("mass", 1.0) for n in strut["nodes"])
+            for n in strut["nodes"]:
+                mass[n]["mass"] = 0.2 * mass[n].get("mass", 1.0)
+            strut["mass"], strut["mass_distribution"] = 0.7 * moved, "uniform"
+            strut["payloads"] = [{"at": at, "mass": 0.3 * moved}]
+        scene = ts.Scene.from_dict(raw)
     x = scene.positions.copy()
     m = scene.masses
     lift = case["height"] - (x[:, 2] - scene.node_radii).min()

@@ -229,7 +229,9 @@ class RollTask:
         current = sim.rest_lengths[:, self.actuated]
         reach = self.reel_speed * self.dt * np.arange(1, s + 1)[:, None, None]          # (S, 1, 1) m
         rest = current + np.clip(self.targets(actions) - current, -reach, reach)        # (S, B, na)
-        sim.run(steps=s, every=s, commands=_Reel(self.actuated, rest, len(self.scene.nodes)))
+        # nothing kept but the state (no trajectory, no ground events): what a period's step reads
+        sim.run(steps=s, every=s, commands=_Reel(self.actuated, rest, len(self.scene.nodes)), fields=(),
+                ground_events=False)
         after = self.com(sim.positions)[:, :2]
         effort = np.abs(rest[-1] - current).sum(axis=1)
         rewards = np.einsum("bk,bk->b", after - before, self.goals) - self.effort_cost * effort

@@ -294,13 +294,16 @@ def _newton(q, s, k, target, work, z, scale):
 def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
     """One block (module docstring), in place: ``v`` (2, 3) m/s the two ends' velocities (the second
     unused without a strut), ``z`` (MAX_ROWS,) N*s the unknowns (in: a warm start for the contacts'; the
-    strut's is recomputed), ``inv`` (2,) 1/kg, ``strut`` whether the block has the strut row along the
+    strut's is recomputed), ``inv`` (3,) 1/kg ``M^-1``'s diagonal at each end and its cross entry (a rigid rod's
+    consistent mass block, ``tensegrity_sim.mass``; 0 where the ends' masses are lumped), ``strut`` whether the
+    block has the strut row along the
     unit ``direction`` (3,) (end 0 to end 1), ``ends`` (k,) which end each contact is at, ``target`` (k,)
     m/s its normal target, ``mu`` its Coulomb coefficient. Returns the iterations taken, or -1 if
     ``phi`` did not reach ``BLOCK_TOL`` or the damped normal matrix is not definite in floating point (``v``
     then unchanged). ``work`` (6, 7, 7): :func:`_newton`'s."""
     s = 1 if strut else 0
     q = s + 3 * k
+    cross = inv[2]
     # u0 = G v and W = G M^-1 G^T written out (G's strut row is (-n, n), a contact's rows the unit vectors at
     # its end): the sums of the general product in its order, less its terms that are exactly zero, so the
     # very same numbers at a fraction of the cost (most blocks are answered by their warm start)
@@ -318,6 +321,9 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
         for e in range(2):
             for j in range(3):
                 acc += direction[j] * inv[e] * direction[j]
+        if cross != 0.0:
+            for j in range(3):
+                acc -= 2.0 * (direction[j] * cross * direction[j])
         work[1, 0, 0] = acc
     for c in range(k):
         e = ends[c]
@@ -326,8 +332,13 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
             row = s + 3 * c + j
             work[4, 0, row] = v[e, j]
             work[1, row, row] = inv[e]
-            if s:
-                work[1, 0, row] = work[1, row, 0] = (direction[j] if e else -direction[j]) * inv[e]
+            if s:   # the strut row (-n, n) through M^-1's column of end e: (inv_e - cross) at its own sign
+                work[1, 0, row] = work[1, row, 0] = (direction[j] if e else -direction[j]) * (inv[e] - cross)
+        for d in range(c):   # the other end's contact: M^-1's cross entry between the same components
+            if ends[d] != e:
+                for j in range(3):
+                    work[1, s + 3 * c + j, s + 3 * d + j] = cross
+                    work[1, s + 3 * d + j, s + 3 * c + j] = cross
     # the impulse scale: each end's momentum, each contact's target momentum and warm start
     scale = 1e-300
     for e in range(2):
@@ -352,29 +363,34 @@ def solve_block(inv, strut, direction, ends, target, k, mu, v, z, work):
     done = _newton(q, s, k, target, work, z, scale)
     if done < 0:
         return -1
-    for e in range(2):   # v += M^-1 G^T z, G^T z's sums as the product's
-        for j in range(3):
-            acc = 0.0
-            if s:
-                acc += (direction[j] if e else -direction[j]) * z[0]
-            for c in range(k):
-                if ends[c] == e:
-                    acc += z[s + 3 * c + j]
-            v[e, j] += inv[e] * acc
+    for j in range(3):   # v += M^-1 G^T z, G^T z's sums as the product's
+        push0 = 0.0
+        push1 = 0.0
+        if s:
+            push0 += -direction[j] * z[0]
+            push1 += direction[j] * z[0]
+        for c in range(k):
+            if ends[c] == 0:
+                push0 += z[s + 3 * c + j]
+            else:
+                push1 += z[s + 3 * c + j]
+        v[0, j] += inv[0] * push0 + cross * push1
+        v[1, j] += inv[1] * push1 + cross * push0
     return done
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def solve_coupled(inv, g, nb, s, k, target, mu, v, z, work):
-    """A coupled block, in place: the rigid struts and lone nodes that member contacts join, with their
-    ground and member contacts (``elastic/_ground_kernels.py``). ``nb`` nodes, ``inv`` (nb,) 1/kg, ``v``
-    (nb, 3) m/s their velocities; ``g`` (q, 3 nb) the rows, ``u = g v`` with the node's component ``j`` in
-    column ``3 i + j``: ``s`` strut length rows first (equalities, target 0; no two struts share a node),
-    then ``k`` contacts of three rows each (two tangents, then the normal; a ground contact's are the unit
-    vectors at its node, a member contact's its frame times the four nodes' weights); ``target`` (k,) m/s the
-    normal targets, ``mu`` (k,) the Coulomb coefficients. ``z`` (q,) N*s the unknowns (in: the contacts' warm
-    starts; the struts' are recomputed). Each row is scaled by its effective mass ``1 / W_ii`` (a contact's
-    rows by its normal's: the node's mass on the ground). Returns the iterations taken, or -1 as
+    """A coupled block, in place: the rigid struts and lone nodes that member contacts join, with their ground and
+    member contacts (``elastic/_ground_kernels.py``). ``nb`` nodes, ``inv`` (nb, 2) 1/kg ``M^-1``'s kernel form
+    (``_mass_kernels.py``: the diagonal, and the cross entry with the strut's other end, node ``i ^ 1``, for the ``2
+    s`` struts' ends first; 0 for the lone nodes), ``v`` (nb, 3) m/s their velocities; ``g`` (q, 3 nb) the rows, ``u
+    = g v`` with the node's component ``j`` in column ``3 i + j``: ``s`` strut length rows first (equalities, target
+    0; no two struts share a node), then ``k`` contacts of three rows each (two tangents, then the normal; a ground
+    contact's are the unit vectors at its node, a member contact's its frame times the four nodes' weights);
+    ``target`` (k,) m/s the normal targets, ``mu`` (k,) the Coulomb coefficients. ``z`` (q,) N*s the unknowns (in:
+    the contacts' warm starts; the struts' are recomputed). Each row is scaled by its effective mass ``1 / W_ii`` (a
+    contact's rows by its normal's: the node's mass on the ground). Returns the iterations taken, or -1 as
     :func:`solve_block` (``v`` then unchanged). ``work`` (6, M, M): :func:`_newton`'s."""
     q = s + 3 * k
     cols = 3 * nb
@@ -386,14 +402,16 @@ def solve_coupled(inv, g, nb, s, k, target, mu, v, z, work):
         for j in range(i + 1):
             acc = 0.0
             for col in range(cols):
-                acc += g[i, col] * inv[col // 3] * g[j, col]
+                acc += g[i, col] * inv[col // 3, 0] * g[j, col]
+            for col in range(6 * s):   # the struts' ends: the cross entry with the other end's same component
+                acc += g[i, col] * inv[col // 3, 1] * g[j, 3 * ((col // 3) ^ 1) + col % 3]
             work[1, i, j] = acc
             work[1, j, i] = acc
     scale = 1e-300
     for i in range(nb):
-        if inv[i] > 0.0:
+        if inv[i, 0] > 0.0:
             for j in range(3):
-                scale = max(scale, abs(v[i, j]) / inv[i])
+                scale = max(scale, abs(v[i, j]) / inv[i, 0])
     for i in range(s):
         work[4, 6, i] = 1.0 / work[1, i, i]
     for c in range(k):
@@ -418,5 +436,12 @@ def solve_coupled(inv, g, nb, s, k, target, mu, v, z, work):
         acc = 0.0
         for i in range(q):
             acc += g[i, col] * z[i]
-        v[col // 3, col % 3] += inv[col // 3] * acc
+        step = inv[col // 3, 0] * acc
+        if col < 6 * s:
+            other = 3 * ((col // 3) ^ 1) + col % 3
+            acc = 0.0
+            for i in range(q):
+                acc += g[i, other] * z[i]
+            step += inv[col // 3, 1] * acc
+        v[col // 3, col % 3] += step
     return done

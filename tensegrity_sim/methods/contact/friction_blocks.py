@@ -123,21 +123,29 @@ def solve_block_reference(inv: np.ndarray, strut: bool, direction: np.ndarray, e
         g[0, :3], g[0, 3:] = -direction, direction
     for c in range(k):
         g[s + 3 * c: s + 3 * c + 3, 3 * ends[c]: 3 * ends[c] + 3] = np.eye(3)
-    # the coupled block's arithmetic is the strut's (a ground row's W_nn is its end's inverse mass exactly)
-    return solve_coupled_reference(inv, g, s, k, target, np.full(k, mu), v, z)
+    # the coupled block's arithmetic is the strut's (a ground row's W_nn is its end's inverse mass exactly);
+    # ``inv`` (3,): the ends' diagonal entries of M^-1 and its cross entry
+    inv = np.asarray(inv, dtype=float)
+    return solve_coupled_reference(np.stack([inv[:2], [inv[2]] * 2], axis=1), g, s, k, target, np.full(k, mu), v, z)
 
 
 def solve_coupled_reference(inv: np.ndarray, g: np.ndarray, s: int, k: int, target: np.ndarray, mu: np.ndarray,
                             v: np.ndarray, z: np.ndarray):
     """``solve_coupled``'s answer, returned instead of written in place: ``(v, z, iterations)`` (``-1``:
-    unsolved, ``v`` unchanged); ``inv`` (nb,), ``g`` (s + 3k, 3 nb), ``v`` (nb, 3), ``z`` (s + 3k,) the warm
-    start, the rest as there."""
+    unsolved, ``v`` unchanged); ``inv`` (nb, 2) (``M^-1``'s diagonal and, for the ``2 s`` struts' ends, the cross
+    entry with the other end), ``g`` (s + 3k, 3 nb), ``v`` (nb, 3), ``z`` (s + 3k,) the warm start, the rest as
+    there."""
     q = s + 3 * k
-    g = g[:q, : 3 * len(inv)]
+    nb = len(inv)
+    g = g[:q, : 3 * nb]
     z = np.array(z[:q], dtype=float)
-    inv3 = np.repeat(inv, 3)
+    inverse = np.diag(np.repeat(inv[:, 0], 3))
+    for i in range(0, 2 * s, 2):
+        inverse[3 * i: 3 * i + 3, 3 * i + 3: 3 * i + 6] = inverse[3 * i + 3: 3 * i + 6, 3 * i: 3 * i + 3] = \
+            inv[i, 1] * np.eye(3)
     u0 = g @ v.ravel()
-    w = (g * inv3) @ g.T
+    w = g @ inverse @ g.T
+    inv = inv[:, 0]
     moving = inv > 0
     scale = max(1e-300, float(np.max(np.abs(v[moving]) / inv[moving, None], initial=0.0)))
     rho = np.empty(q)
@@ -150,4 +158,4 @@ def solve_coupled_reference(inv: np.ndarray, g: np.ndarray, s: int, k: int, targ
     z, it = _newton(s, k, rho, target, np.asarray(mu, dtype=float), w, u0, z, scale)
     if it < 0:
         return v.copy(), z, -1
-    return (v.ravel() + inv3 * (g.T @ z)).reshape(-1, 3), z, it
+    return (v.ravel() + inverse @ (g.T @ z)).reshape(-1, 3), z, it

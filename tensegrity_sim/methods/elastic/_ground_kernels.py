@@ -281,7 +281,8 @@ def _solve_coupled(v, b, root, armed, target, inv_mass, ends, rigid_members, dir
     c = 0
     for i in range(nb):
         p = nodes[i]
-        inv_b[i] = inv_mass[p, 0]
+        inv_b[i, 0] = inv_mass[p, 0]
+        inv_b[i, 1] = inv_mass[p, 1] if i < 2 * s else 0.0   # the struts' ends first, in pairs
         for j in range(3):
             vel_b[i, j] = v[p, j, b]
         if armed[p]:
@@ -408,6 +409,7 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
             continue
         inv2[0] = inv_mass[a, 0]
         inv2[1] = inv_mass[c, 0]
+        inv2[2] = inv_mass[a, 1]   # M^-1's cross entry of the rod's block (0 lumped or with a fixed end)
         vel3[0] = n0
         vel3[1] = n1
         vel3[2] = n2
@@ -509,7 +511,7 @@ def pair_scratch(n_nodes, n_rigid, n_pairs):
             np.zeros(n_pairs), np.zeros((n_pairs, 4)), np.zeros(n_pairs, dtype=np.bool_),
             np.empty(n_rigid + n_nodes, dtype=np.int64), np.empty(n_rigid + n_nodes, dtype=np.bool_),
             np.empty(n_nodes, dtype=np.int64), np.empty(width, dtype=np.int64), np.empty((rows, 3 * width)),
-            np.empty(width), np.empty((width, 3)), np.empty(rows), np.empty(rows // 3), np.empty(rows // 3),
+            np.empty((width, 2)), np.empty((width, 3)), np.empty(rows), np.empty(rows // 3), np.empty(rows // 3),
             np.zeros((6, rows, rows)))
 
 
@@ -735,7 +737,7 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
     x0 = np.empty((n_nodes, 3))
     v0 = np.empty((n_nodes, 3))
     work = np.empty((6, MAX_ROWS, MAX_ROWS))
-    inv2 = np.empty(2)
+    inv2 = np.empty(3)
     vel = np.empty((2, 3))
     z = np.empty(MAX_ROWS)
     ends_k = np.empty(2, dtype=np.int64)

@@ -62,7 +62,10 @@ ground steps plain Verlet (order 2, switches not located): the options are refus
 
 Compiled, the ground's velocity problems are solved block by block (with elastic cables only a rigid
 strut couples nodes: ``_friction_block_kernels.py``, a damped semismooth Newton on the Alart–Curnier form
-with the exact disc, against the Coulomb law's projection form), the same answers as the QP fixed point to
+with the exact disc, against the Coulomb law's projection form; a rod's block couples its ends' rows through
+``M^-1``'s cross entry too, and the reference's QPs take the full block mass matrix in ``BlockMassSolver``'s
+coordinates; a problem neither answers with the blocks is answered with the rods lumped, counted in
+``ground.lumped_solves``), the same answers as the QP fixed point to
 its tolerance (``test/test_friction_blocks.py``) and every closed form of ``test/test_ground.py`` on both
 paths. A block the Newton leaves unsolved (measured: 1 % of random blocks with arbitrary strut directions,
 masses and mu up to 1; none on the test scenes) has its step taken by the reference (``fallbacks`` counts
@@ -129,13 +132,12 @@ class ElasticMethod(StepMethod):
 
     name = "elastic"
     options = ("order", "locate_switches")
-    mass_blocks_missing = "with a ground or a member contact response"
 
     @classmethod
     def takes_mass_blocks(cls, system) -> bool:
-        """In free flight (its kernels and reference apply ``system.mass``); its contact blocks take diagonal
-        masses."""
-        return system.scene.ground is None and not system.scene.contact_response.response
+        """Always: its kernels and reference apply ``system.mass``, its contact blocks (``solve_block``,
+        ``solve_coupled``) and the reference's QPs (``BlockMassSolver``) the rods' blocks too."""
+        return True
 
     def __init__(self, system: System, dt: float, *, order: int = 2, locate_switches: bool | None = None,
                  compiled: bool = True):
@@ -170,7 +172,7 @@ class ElasticMethod(StepMethod):
             if self.order != 2 or self.locate_switches:
                 raise ValueError("a scene with a ground or a contact response is stepped by plain Verlet: order 4 "
                                  "and located switches are not available with contacts")
-            self.ground = ContactSet(system, make_solver(None, system.masses[system.free]))
+            self.ground = ContactSet(system, make_solver(None, system.masses[system.free], system.mass))
         self._contact = None   # the ground's impulses of the last step (N, 3) N*s, or None
         self._pairs = None     # the member contacts' of the last step (ContactSet.pair_impulses), or None
         # the compiled kernels: plain Verlet (elastic/_kernels.py), the options (_composition_kernels.py) and

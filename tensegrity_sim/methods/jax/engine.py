@@ -70,6 +70,12 @@ class ElasticMethodJax(ElasticMethod):
     The checks, ``prepare``, ``slack`` and ``strain_energy`` are :class:`ElasticMethod`'s."""
 
     options = ()
+    mass_blocks_missing = "with a ground"
+
+    @classmethod
+    def takes_mass_blocks(cls, system) -> bool:
+        """In free flight; its ground's block Gauss-Seidel (``jax/ground.py``) takes diagonal masses."""
+        return system.scene.ground is None
 
     def __init__(self, system: System, dt: float, *, dtype: str = "float64"):
         self.dtype = _dtype(dtype)

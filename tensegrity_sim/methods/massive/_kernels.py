@@ -4,12 +4,18 @@ reference, which tests require this to match to 1e-12), with numba.
 A batch of one (``Simulator``'s; ``BatchSimulator`` steps one simulator per copy for this method). Shapes: ``N``
 nodes, ``m`` members (struts first), ``nc`` cables. The system arrays are those of the elastic kernels
 (``elastic/_kernels.model_arrays``: ``ends``, ``stiffness``, ``floor``, ``strut_rest``, ``damping``,
-``inv_mass`` (N, 2), ``gravity_force``, ``rigid_members``: none, the method takes no rigid strut yet) and
-``plates`` (nc,) kg. A step's record at a configuration (``_Forces`` of the
-reference) is the tuple ``(acc (N, 3), tension (nc,), dirs (m, 3), slack (nc,) bool, elong (nc,), rates (nc,),
-held (nc,) bool)``; a workspace is ``(x (N, 3), v (N, 3)) + record``, stepped in place.
+``inv_mass`` (N, 2), ``gravity_force``, ``rigid_members``: none, the method takes no rigid strut yet),
+``plates`` (nc,) kg, ``pairs`` (P, 3) and ``order`` (nc,) (``MassiveMethod._couplings``). A step's record at a
+configuration (``_Forces`` of the reference) is the tuple ``(acc (N, 3), tension (nc,), dirs (m, 3), slack (nc,)
+bool, elong (nc,), rates (nc,), held (nc,) bool)``; a workspace is ``(x (N, 3), v (N, 3)) + record``, stepped in place.
 
 The structure's inverse mass is applied by :func:`inverse_mass` only (``_mass_kernels.solve_forces``).
+
+Cost: the plates' ``G`` is built node by node (:func:`_delassus`: two cables couple only at a shared node) and
+factored once per step, in an envelope that the cables' reverse Cuthill-McKee order keeps narrow
+(:func:`_factor`); the closing kick's correction (:func:`forces` with ``factored``) reuses the factor and the
+structure's forces, recomputing only what the velocity moves. The functions a step calls take no reference
+counts (``_nrt=False``) and the loop allocates nothing but at a snap's impact (:func:`_events`).
 """
 from __future__ import annotations
 
@@ -18,7 +24,7 @@ from numba import njit
 
 from ..elastic._composition_kernels import _first_switch, newton_in_bracket
 from .._mass_kernels import solve_forces
-from ..qp._qp_kernels import cho_solve, cholesky
+from ..qp._qp_kernels import _REASSOCIATE, cho_solve, cholesky
 from ..elastic.composition import _FLOW_ITER, LOCATE_TOL, MAX_SWITCHES
 
 __all__ = ["inverse_mass", "forces", "massive_step", "massive_steps", "plate_impact"]
@@ -26,11 +32,13 @@ __all__ = ["inverse_mass", "forces", "massive_step", "massive_steps", "plate_imp
 _PIVOTS = 64   # principal pivots of the snap's complementarity problem at most (a few in practice)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def inverse_mass(inv_mass, ends, rigid_members, f, out):
     """``out = M^-1 f`` for node vectors ``f`` (N, 3): the one place the kernels apply the structure's inverse
     mass (``_mass_kernels.solve_forces``, ``inv_mass`` (N, 2) its kernel form; fixed nodes: 0)."""
-    out[:] = f
+    for i in range(f.shape[0]):
+        for j in range(3):
+            out[i, j] = f[i, j]
     solve_forces(out.reshape((out.shape[0], 3, 1)), inv_mass, ends, rigid_members, 0)
 
 
@@ -42,49 +50,160 @@ def _solve_spd(a, b):
     cho_solve(a, b)
 
 
-@njit(cache=True, error_model="numpy")
-def _subtract_columns(coef, count, mb, out):
-    """``out -= sum_k coef[k] mb[k]`` over the first ``count`` node vectors ``mb`` (count, N, 3)."""
-    for i in range(out.shape[0]):
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _pull(coef, cables, count, dirs, n_struts, ends, out):
+    """``out -= B^T coef``: each of ``cables[:count]`` pulls its ends together by ``coef[k]`` along its unit
+    vector in ``dirs`` (as a tension would: ``+coef n`` at its first end, ``-coef n`` at its second)."""
+    for k in range(count):
+        ci = n_struts + cables[k]
+        a, c = ends[ci, 0], ends[ci, 1]
         for j in range(3):
-            s = 0.0
-            for k in range(count):
-                s += coef[k] * mb[k, i, j]
-            out[i, j] -= s
+            out[a, j] += coef[k] * dirs[ci, j]
+            out[c, j] -= coef[k] * dirs[ci, j]
 
 
-@njit(cache=True, error_model="numpy")
-def _delassus(cables, count, dirs, n_struts, ends, inv_mass, rigid_members, plates, g, mb):
-    """``G = B M^-1 B^T + diag(1/m_c)`` into ``g[:count, :count]`` over ``cables[:count]`` and ``M^-1 b_c`` into
-    ``mb[:count]`` (count, N, 3), the cables' unit vectors in ``dirs`` (m, 3)."""
-    b = np.zeros(mb.shape[1:])
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _delassus(cables, count, dirs, n_struts, ends, inv_mass, pairs, plates, at, first, g, dense):
+    """``G = B M^-1 B^T + diag(1/m_c)`` into ``g`` (count, count) over ``cables[:count]``, the cables' unit
+    vectors in ``dirs`` (m, 3). ``M^-1`` is lumped (the method takes no rigid strut, so ``inv_mass[:, 1]`` is
+    0): two cables couple only at a node they share, listed once in ``pairs`` (P, 3): cable, cable, node.
+    ``dense``: the whole matrix; else its lower envelope only, row ``k`` from column ``first[k]`` (set here; the
+    rest of ``g`` is not written), for :func:`_factor`. ``at`` (nc,) scratch: each cable's row (-1: not
+    among them)."""
+    at[:] = -1
+    for k in range(count):
+        at[cables[k]] = k
+        first[k] = 0 if dense else k
+    for r in range(pairs.shape[0]):
+        p, q = at[pairs[r, 0]], at[pairs[r, 1]]
+        if p >= 0 and q >= 0:
+            lo, hi = min(p, q), max(p, q)
+            first[hi] = min(first[hi], lo)
     for k in range(count):
         ci = cables[k]
         a, c = ends[n_struts + ci, 0], ends[n_struts + ci, 1]
+        for i in range(first[k], count if dense else k):
+            g[k, i] = 0.0
+        s = 0.0
         for j in range(3):
-            b[a, j] -= dirs[n_struts + ci, j]
-            b[c, j] += dirs[n_struts + ci, j]
-        inverse_mass(inv_mass, ends, rigid_members, b, mb[k])
+            s += dirs[n_struts + ci, j] * dirs[n_struts + ci, j]
+        g[k, k] = s * (inv_mass[a, 0] + inv_mass[c, 0]) + 1.0 / plates[ci]
+    for r in range(pairs.shape[0]):
+        p, q = at[pairs[r, 0]], at[pairs[r, 1]]
+        if p < 0 or q < 0:
+            continue
+        node = pairs[r, 2]
+        i, k = n_struts + pairs[r, 0], n_struts + pairs[r, 1]
+        s = 0.0
         for j in range(3):
-            b[a, j] = 0.0
-            b[c, j] = 0.0
-    for i in range(count):
-        ci = cables[i]
-        a, c = ends[n_struts + ci, 0], ends[n_struts + ci, 1]
-        for k in range(count):
-            s = 0.0
-            for j in range(3):
-                s += dirs[n_struts + ci, j] * (mb[k, c, j] - mb[k, a, j])
-            g[i, k] = s
-        g[i, i] += 1.0 / plates[ci]
+            s += dirs[i, j] * dirs[k, j]
+        # b_c is -n at the cable's first end, +n at its second
+        if (ends[i, 0] == node) != (ends[k, 0] == node):
+            s = -s
+        s *= inv_mass[node, 0]
+        g[max(p, q), min(p, q)] += s
+        if dense:
+            g[min(p, q), max(p, q)] += s
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False, fastmath=_REASSOCIATE)
+def _factor(g, first, rdiag):
+    """The Cholesky factor ``L`` (``G = L L^T``) of the lower envelope of :func:`_delassus` in place (the
+    envelope keeps its fill), ``rdiag`` (count,) its diagonal's reciprocals. Column by column, so that a
+    column's rows are independent of each other; the cables come in an order of small bandwidth
+    (``MassiveMethod._couplings``), so this costs a fraction of the dense factor."""
+    n = g.shape[0]
+    for j in range(n):
+        fj = first[j]
+        s = g[j, j]
+        for p in range(fj, j):
+            s -= g[j, p] * g[j, p]
+        g[j, j] = np.sqrt(s)
+        r = 1.0 / g[j, j]
+        rdiag[j] = r
+        for i in range(j + 1, n):
+            fi = first[i]
+            if fi <= j:
+                s = g[i, j]
+                for p in range(max(fi, fj), j):
+                    s -= g[i, p] * g[j, p]
+                g[i, j] = s * r
+
+
+@njit(cache=True, error_model="numpy", _nrt=False, fastmath=_REASSOCIATE)
+def _solve(g, first, rdiag, b):
+    """``b`` (count,) overwritten by ``G^-1 b`` with :func:`_factor`'s ``L``: forward by rows, back by
+    columns (both inside the envelope)."""
+    for i in range(g.shape[0]):
+        s = b[i]
+        for p in range(first[i], i):
+            s -= g[i, p] * b[p]
+        b[i] = s * rdiag[i]
+    for i in range(g.shape[0] - 1, -1, -1):
+        b[i] *= rdiag[i]
+        for p in range(first[i], i):
+            b[p] -= g[i, p] * b[i]
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
 def forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
-           plates, band, damped, given, rec, f, cables, g, mb, y):
+           plates, pairs, order, band, damped, given, factored, rec, f, cables, g, at, y, acc0, pulled, first, rdiag):
     """The record ``rec`` at ``x``, ``v`` (N, 3) (MassiveMethod.accelerations): the taut cables damped and with
-    their plates, or those of ``rec``'s ``held`` as it is when ``given``. Scratch: ``f`` (N, 3), ``cables`` (nc,),
-    ``g`` (nc, nc), ``mb`` (nc, N, 3), ``y`` (nc,)."""
+    their plates, or those of ``rec``'s ``held`` as it is when ``given``. ``factored``: the record and the
+    scratch hold this ``x`` and held set, ``g`` the Cholesky factor of ``G`` there (the closing kick's
+    correction: only the velocity moved), so only what depends on it is recomputed. Scratch: ``f`` (N, 3) the
+    structure's forces, ``cables`` (nc,), ``g`` (nc * nc,), ``at`` (nc,), ``y`` (nc,), ``acc0`` (N, 3) ``M^-1 f``,
+    ``pulled`` (N, 3), ``first`` (nc,), ``rdiag`` (nc,) (the factor's envelope and diagonal)."""
+    acc, tension, dirs, slack, elong, rates, held = rec
+    n_struts = strut_rest.shape[0]
+    if factored and not damped:   # the forces are those of the positions: only the rates change
+        for ci in range(rest.shape[0]):
+            i = n_struts + ci
+            a, c = ends[i, 0], ends[i, 1]
+            rate = dirs[i, 0] * (v[c, 0] - v[a, 0]) + dirs[i, 1] * (v[c, 1] - v[a, 1]) + dirs[i, 2] * (
+                v[c, 2] - v[a, 2])
+            e, r = elong[ci], rest[ci]
+            slack[ci] = not (e > band * r or (e >= -band * r and rate > 0.0))
+            tension[ci], rates[ci] = stiffness[i] * max(e, floor[i]), rate
+    else:
+        _structure_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+                          rigid_members, band, damped, given, rec, f, acc0)
+    count = 0
+    for ci in order:   # G's rows in the order of small bandwidth
+        if held[ci] and plates[ci] > 0:
+            cables[count] = ci
+            count += 1
+    if count == 0:
+        _copy_rows(acc0, acc)
+        return
+    # the plates' inertial forces y = m_c d2e/dt2: (B M^-1 B^T + diag(1/m_c)) y = B M^-1 f + q
+    gc = g[: count * count].reshape((count, count))   # contiguous: the factor's loops run over rows
+    if not factored:
+        _delassus(cables, count, dirs, n_struts, ends, inv_mass, pairs, plates, at, first, gc, False)
+        _factor(gc, first, rdiag)
+    for k in range(count):
+        ci = cables[k]
+        a, c = ends[n_struts + ci, 0], ends[n_struts + ci, 1]
+        dv0, dv1, dv2 = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+        q = (dv0 * dv0 + dv1 * dv1 + dv2 * dv2 - rates[ci] ** 2) / (elong[ci] + rest[ci])
+        s = 0.0
+        for j in range(3):
+            s += (acc0[c, j] - acc0[a, j]) * dirs[n_struts + ci, j]
+        y[k] = s + q
+    _solve(gc, first, rdiag, y)
+    # a = M^-1 (f - B^T y): the plates pull on the nodes as tensions would
+    _copy_rows(f, pulled)
+    _pull(y, cables, count, dirs, n_struts, ends, pulled)
+    inverse_mass(inv_mass, ends, rigid_members, pulled, acc)
+    for k in range(count):
+        tension[cables[k]] += y[k]
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _structure_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+                      rigid_members, band, damped, given, rec, f, acc0):
+    """The members' part of :func:`forces`: the record's fields but the accelerations, the node forces ``f``
+    (N, 3) and ``acc0 = M^-1 f``."""
     acc, tension, dirs, slack, elong, rates, held = rec
     n_struts = strut_rest.shape[0]
     for i in range(x.shape[0]):
@@ -116,31 +235,7 @@ def forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mas
         f[c, 0] -= t * n0
         f[c, 1] -= t * n1
         f[c, 2] -= t * n2
-    inverse_mass(inv_mass, ends, rigid_members, f, acc)
-    count = 0
-    for ci in range(rest.shape[0]):
-        if held[ci] and plates[ci] > 0:
-            cables[count] = ci
-            count += 1
-    if count == 0:
-        return
-    # the plates' inertial forces y = m_c d2e/dt2: (B M^-1 B^T + diag(1/m_c)) y = B M^-1 f + q
-    _delassus(cables, count, dirs, n_struts, ends, inv_mass, rigid_members, plates, g, mb)
-    for k in range(count):
-        ci = cables[k]
-        a, c = ends[n_struts + ci, 0], ends[n_struts + ci, 1]
-        dv0, dv1, dv2 = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
-        d0, d1, d2 = x[c, 0] - x[a, 0], x[c, 1] - x[a, 1], x[c, 2] - x[a, 2]
-        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        q = (dv0 * dv0 + dv1 * dv1 + dv2 * dv2 - rates[ci] ** 2) / length
-        s = 0.0
-        for j in range(3):
-            s += (acc[c, j] - acc[a, j]) * dirs[n_struts + ci, j]
-        y[k] = s + q
-    _solve_spd(g[:count, :count], y[:count])
-    _subtract_columns(y, count, mb, acc)
-    for k in range(count):
-        tension[cables[k]] += y[k]
+    inverse_mass(inv_mass, ends, rigid_members, f, acc0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -224,46 +319,62 @@ def plate_impact(g, rates, snapping, p):
         p[a_rows[i]] = s
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _copy(src, dst):
     """Workspace ``src`` into ``dst`` ((x, v) + record)."""
-    dst[0][:] = src[0]
-    dst[1][:] = src[1]
-    dst[2][:] = src[2]
-    dst[3][:] = src[3]
-    dst[4][:] = src[4]
-    dst[5][:] = src[5]
-    dst[6][:] = src[6]
-    dst[7][:] = src[7]
-    dst[8][:] = src[8]
+    _copy_rows(src[0], dst[0])
+    _copy_rows(src[1], dst[1])
+    _copy_rows(src[2], dst[2])
+    _copy_rows(src[4], dst[4])
+    for i in range(src[3].shape[0]):   # the cables' fields
+        dst[3][i] = src[3][i]
+        dst[5][i] = src[5][i]
+        dst[6][i] = src[6][i]
+        dst[7][i] = src[7][i]
+        dst[8][i] = src[8][i]
 
 
-@njit(cache=True, error_model="numpy")
-def _flow(ws, h, weights, rest, ext, model, scratch, impulses):
-    """The composed Verlet step of ``h`` (s) in place on the workspace ``ws``; ``impulses`` (nc,) set to each
-    cable's impulse over it (MassiveMethod.verlet, Stepper.flow)."""
-    x, v = ws[0], ws[1]
-    rec = ws[2:]
-    ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, band, damped = model
-    f, cables, g, mb, y, v_half = scratch
-    impulses[:] = 0.0
-    for w in weights:
-        hw = w * h
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _copy_rows(src, dst):
+    """``dst[:] = src`` for (k, 3) arrays."""
+    for i in range(src.shape[0]):
+        for j in range(3):
+            dst[i, j] = src[i, j]
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _flow(src, dst, h, weights, rest, ext, model, scratch, impulses):
+    """The composed Verlet step of ``h`` (s) from the workspace ``src`` into ``dst`` (the two may be one);
+    ``impulses`` (nc,) set to each cable's impulse over it (MassiveMethod.verlet, Stepper.flow)."""
+    x, v = dst[0], dst[1]
+    rec = dst[2:]
+    (ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, pairs, order,
+     band, damped) = model
+    f, cables, g, at, y, v_half, acc0, pulled = scratch[:8]
+    first, rdiag = scratch[11:13]
+    for ci in range(impulses.shape[0]):
+        impulses[ci] = 0.0
+        rec[6][ci] = src[8][ci]   # the taut set of the step's start, kept: a switch at its end comes after the kick
+    for k in range(weights.shape[0]):
+        hw = weights[k] * h
+        start = src if k == 0 else dst
         for ci in range(impulses.shape[0]):
-            impulses[ci] += (0.5 * hw) * rec[1][ci]
+            impulses[ci] += (0.5 * hw) * start[3][ci]
         for i in range(x.shape[0]):
             for j in range(3):
-                v_half[i, j] = v[i, j] + (0.5 * hw) * rec[0][i, j]
-                x[i, j] = x[i, j] + hw * v_half[i, j]
-        # the taut set of the step's start (the record's held, kept): a switch at its end comes after the kick
+                v_half[i, j] = start[1][i, j] + (0.5 * hw) * start[2][i, j]
+                x[i, j] = start[0][i, j] + hw * v_half[i, j]
         forces(x, v_half, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-               rigid_members, plates, band, damped, True, rec, f, cables, g, mb, y)
+               rigid_members, plates, pairs, order, band, damped, True, False, rec, f, cables, g, at, y, acc0,
+               pulled, first, rdiag)
         for i in range(x.shape[0]):
             for j in range(3):
                 v[i, j] = v_half[i, j] + (0.5 * hw) * rec[0][i, j]
         if damped or _any_plate(rec[6], plates):
+            # the same positions and held set: G's factor is kept
             forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                   rigid_members, plates, band, damped, True, rec, f, cables, g, mb, y)
+                   rigid_members, plates, pairs, order, band, damped, True, True, rec, f, cables, g, at, y, acc0,
+                   pulled, first, rdiag)
             for i in range(x.shape[0]):
                 for j in range(3):
                     v[i, j] = v_half[i, j] + (0.5 * hw) * rec[0][i, j]
@@ -271,7 +382,17 @@ def _flow(ws, h, weights, rest, ext, model, scratch, impulses):
             impulses[ci] += (0.5 * hw) * rec[1][ci]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _switched(rec):
+    """Whether a cable's switch state differs from the set the part was stepped with (the record's)."""
+    slack, held = rec[3], rec[6]
+    for ci in range(held.shape[0]):
+        if held[ci] == slack[ci]:
+            return True
+    return False
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _any_plate(held, plates):
     """Whether a cable of ``held`` carries a plate."""
     for ci in range(held.shape[0]):
@@ -280,7 +401,7 @@ def _any_plate(held, plates):
     return False
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _kinetic(v, masses, free):
     s = 0.0
     for i in range(v.shape[0]):
@@ -298,10 +419,11 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
     x, v = ws[0], ws[1]
     rec = ws[2:]
     acc, tension, dirs, slack, elong, rates, held = rec
-    ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, band, damped = model
-    f, cables, g, mb, y, v_half = scratch
+    (ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, pairs, order,
+     band, damped) = model
+    f, cables, g, at, y, dv, acc0, pulled = scratch[:8]
+    first, rdiag = scratch[11:13]
     nc = rest.shape[0]
-    n_struts = strut_rest.shape[0]
     kicks[:] = 0.0
     changed, snaps = False, False
     loss = 0.0
@@ -317,8 +439,10 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
         return loss
     if not snaps:
         forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
-               plates, band, damped, False, rec, f, cables, g, mb, y)
+               plates, pairs, order, band, damped, False, False, rec, f, cables, g, at, y, acc0, pulled, first, rdiag)
         return loss
+    # the plates' plastic impact (the step loop's only allocations)
+    n_struts = strut_rest.shape[0]
     involved = np.empty(nc, dtype=np.int64)
     count = 0
     for ci in range(nc):
@@ -334,39 +458,44 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
         before_rates[k] = rates[ci]
         if not snapping[k]:
             before += 0.5 * plates[ci] * rates[ci] ** 2
-    _delassus(involved, count, dirs, n_struts, ends, inv_mass, rigid_members, plates, g, mb)
+    gc = np.empty((count, count))
+    _delassus(involved, count, dirs, n_struts, ends, inv_mass, pairs, plates, at, scratch[11], gc, True)
     p = np.empty(count)
-    plate_impact(g[:count, :count].copy(), before_rates, snapping, p)
+    plate_impact(gc, before_rates, snapping, p)
     kinetic_before = _kinetic(v, masses, free)
-    _subtract_columns(p, count, mb, v)
+    # v -= M^-1 B^T p
+    f[:] = 0.0
+    _pull(p, involved, count, dirs, n_struts, ends, f)
+    inverse_mass(inv_mass, ends, rigid_members, f, dv)
+    for i in range(v.shape[0]):
+        for j in range(3):
+            v[i, j] += dv[i, j]
     forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
-           plates, band, damped, False, rec, f, cables, g, mb, y)
+           plates, pairs, order, band, damped, False, False, rec, f, cables, g, at, y, acc0, pulled, first, rdiag)
     kept = 0.0
     for ci in range(nc):
         if held[ci] and plates[ci] > 0:
             kept += 0.5 * plates[ci] * rates[ci] ** 2
-    loss += kinetic_before + before - _kinetic(v, masses, free) - kept
     for k in range(count):
         kicks[involved[k]] = p[k]
-    return loss
+    return loss + kinetic_before + before - _kinetic(v, masses, free) - kept
 
 
 @njit(cache=True, error_model="numpy")
 def massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, masses, free, scratch, impulses):
-    """One step of ``h`` (s) in place on the workspace ``start`` (its record: the forces at its state), split at
-    the switches inside it when ``locate``, the events resolved where each part ends (_PlateStepper.step);
-    ``trial`` is a second workspace (scratch). ``impulses`` (nc,) set to each cable's impulse over the step.
-    Returns the energy the plates lost in it (J)."""
+    """One step of ``h`` (s) from the workspace ``start`` (its record: the forces at its state) into ``trial``,
+    split at the switches inside it when ``locate``, the events resolved where each part ends
+    (_PlateStepper.step); ``start`` is scratch after it. ``impulses`` (nc,) set to each cable's impulse over the
+    step. Returns the energy the plates lost in it (J)."""
     ends = model[0]
     n_struts = model[3].shape[0]
     nc = rest.shape[0]
     n = start[0].shape[0]
-    part_imp, trial_imp, kicks = np.empty(nc), np.empty(nc), np.empty(nc)
+    part_imp, trial_imp, kicks = scratch[8:11]
     rest3 = rest.reshape((nc, 1))
     loss = 0.0
     impulses[:] = 0.0
-    _copy(start, trial)
-    _flow(trial, h, weights, rest, ext, model, scratch, trial_imp)
+    _flow(start, trial, h, weights, rest, ext, model, scratch, trial_imp)
     remaining = h
     for _ in range(MAX_SWITCHES if locate else 0):
         changed = False
@@ -386,8 +515,7 @@ def massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, 
         lo, hi = 0.0, remaining
         converged = False
         for _ in range(_FLOW_ITER):
-            _copy(start, trial)
-            _flow(trial, s, weights, rest, ext, model, scratch, part_imp)
+            _flow(start, trial, s, weights, rest, ext, model, scratch, part_imp)
             e = trial[6][cable]
             if abs(e) <= tol:
                 converged = True
@@ -398,44 +526,50 @@ def massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, 
                 rate += dirs[n_struts + cable, j] * (tv[c, j] - tv[a, j])
             s, lo, hi = newton_in_bracket(s, e, e0, rate, lo, hi)
         if not converged:
-            _copy(start, trial)
-            _flow(trial, s, weights, rest, ext, model, scratch, part_imp)
+            _flow(start, trial, s, weights, rest, ext, model, scratch, part_imp)
         loss += _events(trial, rest, ext, model, masses, free, scratch, kicks)
         _copy(trial, start)
         for ci in range(nc):
             impulses[ci] = impulses[ci] + part_imp[ci] + kicks[ci]
         remaining -= s
-        _flow(trial, remaining, weights, rest, ext, model, scratch, trial_imp)
+        _flow(start, trial, remaining, weights, rest, ext, model, scratch, trial_imp)
     # a switch not located (none, a graze, one at a part's very end) is resolved at the step's end
-    loss += _events(trial, rest, ext, model, masses, free, scratch, kicks)
-    for ci in range(nc):
-        impulses[ci] = impulses[ci] + trial_imp[ci] + kicks[ci]
-    _copy(trial, start)
+    if _switched(trial[2:]):
+        loss += _events(trial, rest, ext, model, masses, free, scratch, kicks)
+        for ci in range(nc):
+            impulses[ci] = impulses[ci] + trial_imp[ci] + kicks[ci]
+    else:
+        for ci in range(nc):
+            impulses[ci] = impulses[ci] + trial_imp[ci]
     return loss
 
 
 @njit(cache=True, error_model="numpy")
 def massive_steps(start, trial, h, n_steps, every, weights, locate, min_split, rest, ext, model, masses, free,
                   scratch, out_x, out_v, out_impulses, out_slack):
-    """``n_steps`` steps of :func:`massive_step` in place on ``start``, keeping steps ``every``, ``2 every``, ...
-    and the last in ``out_x``, ``out_v`` (K, N, 3), ``out_impulses`` (K, nc; summed over the steps since the last
-    kept one) and ``out_slack`` (K, nc: shorter than the rest length), ``K = ceil(n_steps / every)``. Returns the
-    energy the plates lost (J)."""
+    """``n_steps`` steps of :func:`massive_step` in place on ``start`` (``trial`` and it take turns), keeping
+    steps ``every``, ``2 every``, ... and the last in ``out_x``, ``out_v`` (K, N, 3), ``out_impulses`` (K, nc;
+    summed over the steps since the last kept one) and ``out_slack`` (K, nc: shorter than the rest length),
+    ``K = ceil(n_steps / every)``. Returns the energy the plates lost (J)."""
     nc = rest.shape[0]
-    imp = np.empty(nc)
-    total = np.zeros(nc)
+    imp, total = scratch[13:]
+    total[:] = 0.0
     loss = 0.0
+    now, spare = start, trial
     for s in range(n_steps):
-        loss += massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, masses, free, scratch,
+        loss += massive_step(now, spare, h, weights, locate, min_split, rest, ext, model, masses, free, scratch,
                              imp)
+        now, spare = spare, now
         for ci in range(nc):
             total[ci] += imp[ci]
         if (s + 1) % every == 0 or s == n_steps - 1:
             k = s // every
-            out_x[k] = start[0]
-            out_v[k] = start[1]
+            _copy_rows(now[0], out_x[k])
+            _copy_rows(now[1], out_v[k])
             for ci in range(nc):
                 out_impulses[k, ci] = total[ci]
-                out_slack[k, ci] = start[6][ci] < 0
+                out_slack[k, ci] = now[6][ci] < 0
                 total[ci] = 0.0
+    if n_steps % 2:
+        _copy(now, start)
     return loss

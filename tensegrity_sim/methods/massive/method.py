@@ -39,7 +39,8 @@ error; ``energy()["kinetic"]`` includes the moving plates' (:meth:`plate_energy`
 Two implementations of the same arithmetic: the numba kernel ``massive/_kernels.py`` (one step per call; used
 unless ``compiled`` is False) and the numpy code below, the plain reference it must match to 1e-12 in tests.
 The structure's inverse mass is applied in one place in each, :meth:`MassiveMethod.inverse_mass` and
-``_kernels.inverse_mass`` (lumped, diagonal, now). Not available yet (refused at construction with a message):
+``_kernels.inverse_mass`` (lumped, diagonal, now; the kernel builds the plates' ``G`` node by node and factors it
+once a step, see its docstring). Not available yet (refused at construction with a message):
 rigid struts (RATTLE's projections would need the plate-augmented mass), a ground and a member contact
 response.
 
@@ -53,6 +54,8 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg as scipy_linalg
+import scipy.sparse as scipy_sparse
+from scipy.sparse.csgraph import reverse_cuthill_mckee
 from scipy.optimize import nnls
 
 from ...system import System
@@ -170,15 +173,17 @@ class MassiveMethod(StepMethod):
         n, nc, m = sys.n_nodes, sys.n_cables, sys.n_members
         em = elastic_kernels.model_arrays(sys, RigidStruts(sys))   # by name: the elastic model has more fields
         self._model = (em.ends, em.stiffness, em.floor, em.strut_rest, em.damping, em.inv_mass, em.gravity_force,
-                       em.rigid_members, np.ascontiguousarray(self.plates), BAND, self._damped)
+                       em.rigid_members, np.ascontiguousarray(self.plates), *self._couplings(), BAND, self._damped)
 
         def workspace():
             return (np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(nc), np.empty((m, 3)),
                     np.empty(nc, dtype=bool), np.empty(nc), np.empty(nc), np.zeros(nc, dtype=bool))
 
         self._start, self._trial = workspace(), workspace()
-        self._scratch = (np.empty((n, 3)), np.empty(nc, dtype=np.int64), np.empty((nc, nc)), np.empty((nc, n, 3)),
-                         np.empty(nc), np.empty((n, 3)))
+        self._scratch = (np.empty((n, 3)), np.empty(nc, dtype=np.int64), np.empty(nc * nc),
+                         np.empty(nc, dtype=np.int64), np.empty(nc), np.empty((n, 3)), np.empty((n, 3)),
+                         np.empty((n, 3)), np.empty(nc), np.empty(nc), np.empty(nc),
+                         np.empty(nc, dtype=np.int64), np.empty(nc), np.empty(nc), np.empty(nc))
         self._weights = np.array(WEIGHTS[self.order])
         self._fresh = True   # the start workspace's record is not the state's: compute it
         scene = sys.scene
@@ -188,6 +193,18 @@ class MassiveMethod(StepMethod):
                      np.empty((1, nc), dtype=bool))
         self._fresh, self.losses = True, 0.0
 
+    def _couplings(self) -> tuple[np.ndarray, np.ndarray]:
+        """The plates' ``G`` couples two cables at a node they share: every such pair once, (P, 3) int64 (cable,
+        cable, node), for the kernel's sparse build of it; and the cables in the reverse Cuthill-McKee order of
+        that graph (nc,) int64, the order of ``G``'s rows that keeps its Cholesky factor in a narrow band."""
+        ends = self.system.cable_ends
+        nc = len(ends)
+        rows = [(i, k, node) for i in range(nc) for k in range(i + 1, nc) for node in set(ends[i]) & set(ends[k])]
+        pairs = np.array(rows, dtype=np.int64).reshape(-1, 3)
+        graph = scipy_sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(nc, nc))
+        order = reverse_cuthill_mckee(graph.tocsr(), symmetric_mode=False)
+        return pairs, np.ascontiguousarray(order, dtype=np.int64)
+
     def _at_state(self, state: State):
         """The start workspace at ``state``'s positions and velocities (its forces recomputed after an input),
         and the rest lengths and external forces as the kernel takes them."""
@@ -196,7 +213,8 @@ class MassiveMethod(StepMethod):
         rest = np.ascontiguousarray(state.rest_lengths, dtype=float)
         ext = np.ascontiguousarray(state.external_forces, dtype=float)
         if self._fresh:
-            kernels.forces(ws[0], ws[1], rest, ext, *self._model, False, ws[2:], *self._scratch[:5])
+            kernels.forces(ws[0], ws[1], rest, ext, *self._model, False, False, ws[2:], *self._scratch[:5],
+                           *self._scratch[6:8], *self._scratch[11:13])
             self._fresh = False
         return ws, rest, ext
 
@@ -206,6 +224,8 @@ class MassiveMethod(StepMethod):
         loss = kernels.massive_step(ws, self._trial, self.dt, self._weights, self.locate_switches, MIN_SPLIT * self.dt,
                                     rest, ext, self._model, self.system.masses, self.system.free, self._scratch,
                                     impulses)
+        self._start, self._trial = self._trial, ws   # the step's end is the next one's start
+        ws = self._start
         return MethodStep(ws[0].copy(), ws[1].copy(), impulses, ws[6] < 0), loss
 
     # ------------------------------------------------------------------ the mass
@@ -216,20 +236,20 @@ class MassiveMethod(StepMethod):
             return self.system.mass.solve(f)
         return np.moveaxis(self.system.mass.solve(np.moveaxis(f, 0, -1)), -1, 0)
 
-    def _rows(self, cables: np.ndarray, n: np.ndarray):
+    def _rows(self, cables: np.ndarray, n: np.ndarray) -> np.ndarray:
         """The compatibility vectors ``b_c`` of ``cables`` (k,) as node vectors (k, N, 3), ``n`` (k, 3) their
-        unit vectors, and ``M^-1 b_c`` (k, N, 3)."""
+        unit vectors."""
         ends = self.system.cable_ends[cables]
         b = np.zeros((len(cables), self.system.n_nodes, 3))
         k = np.arange(len(cables))
         b[k, ends[:, 0]] -= n
         b[k, ends[:, 1]] += n
-        return b, self.inverse_mass(b)
+        return b
 
-    def _delassus(self, cables: np.ndarray, n: np.ndarray):
-        """``G = B M^-1 B^T + diag(1/m_c)`` (k, k) over ``cables`` and ``M^-1 B^T`` (k, N, 3)."""
-        b, mb = self._rows(cables, n)
-        return np.einsum("inj,knj->ik", b, mb) + np.diag(1.0 / self.plates[cables]), mb
+    def _delassus(self, cables: np.ndarray, n: np.ndarray) -> np.ndarray:
+        """``G = B M^-1 B^T + diag(1/m_c)`` (k, k) over ``cables`` (dense: the kernel builds it node by node)."""
+        b = self._rows(cables, n)
+        return np.einsum("inj,knj->ik", b, self.inverse_mass(b)) + np.diag(1.0 / self.plates[cables])
 
     # ------------------------------------------------------------------ forces
     def switch_state(self, e: np.ndarray, rate: np.ndarray, rest: np.ndarray) -> np.ndarray:
@@ -266,10 +286,13 @@ class MassiveMethod(StepMethod):
             ends = sys.cable_ends[plated]
             dv = v[ends[:, 1]] - v[ends[:, 0]]
             q = (np.einsum("ij,ij->i", dv, dv) - rate[plated] ** 2) / length[sys.n_struts + plated]
-            g, mb = self._delassus(plated, nc[plated])
+            g = self._delassus(plated, nc[plated])
             rhs = np.einsum("ij,ij->i", acc[ends[:, 1]] - acc[ends[:, 0]], nc[plated]) + q
             y = np.linalg.solve(g, rhs)
-            acc = acc - np.einsum("k,knj->nj", y, mb)
+            # a = M^-1 (f - B^T y): the plates pull on the nodes as tensions would
+            pull = np.zeros_like(t)
+            pull[sys.n_struts + plated] = y
+            acc = self.inverse_mass(f + sys.assemble(pull[:, None] * n))
             tensions[plated] += y
         return _Forces(acc, tensions, n, ~taut, e, rate, held)
 
@@ -304,10 +327,11 @@ class MassiveMethod(StepMethod):
         if not snapping.any():
             return v, self.accelerations(x, v, state), kicks
         involved = np.flatnonzero(taut_after)
-        g, mb = self._delassus(involved, end.directions[self.system.n_struts + involved])
+        n = end.directions[self.system.n_struts + involved]
+        g = self._delassus(involved, n)
         rates = end.rates[involved]
         p = plate_impact(g, rates, snapping[involved])
-        v = v - np.einsum("k,knj->nj", p, mb)
+        v = v - self.inverse_mass(np.einsum("k,knj->nj", p, self._rows(involved, n)))
         after = self.accelerations(x, v, state)
         kept = np.flatnonzero(~after.slack & self._massive)
         # what the impact took: the nodes' kinetic energy and the involved plates' (moving ones before it)

@@ -60,7 +60,8 @@ from ._qp_kernels import _SETTLED, _SWEEPS
 from ._superlu_kernels import factor_arrays, symmetric_lu
 from ..base import StepError
 
-__all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SparseSolver", "SOLVERS",
+__all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SparseSolver", "BlockMassSolver",
+           "SOLVERS",
            "SPARSE_NODES", "DUAL_NODES", "choose_solver", "make_solver"]
 
 # A returned answer may miss the optimality conditions by at most _FEASIBILITY_TOL relative to the
@@ -181,6 +182,10 @@ class QPSolver:
     def _solve(self, v0: np.ndarray, rows: Rows, warm):
         """Backend-specific: ``v`` (3 n_free,) and ``y`` (k,)."""
         raise NotImplementedError
+
+    def inverse(self, p: np.ndarray) -> np.ndarray:
+        """``M^-1 p`` for impulses ``p`` (3 n_free, ...) N*s (a node's components together): velocities, m/s."""
+        return self.inv_mass.reshape((-1,) + (1,) * (p.ndim - 1)) * p
 
     def _check(self, v, y, v0, rows: Rows) -> None:
         """Refuse non-finite output, and (if ``verify``) output that is not a solution: infeasible
@@ -945,6 +950,103 @@ DUAL_NODES = SPARSE_NODES
 FALLBACKS = ("nnls", "osqp")
 
 
+class BlockMassSolver(QPSolver):
+    """The QP of a mass matrix with 2x2 blocks (rigid rods' consistent mass, ``tensegrity_sim.mass``; its full,
+    non-diagonal Hessian) answered exactly by a diagonal backend, in coordinates where ``M`` is diagonal: for a
+    block ``[[A, B], [B, C]]`` (times I3) on free nodes ``(a, c)``, ``A`` the larger diagonal entry (the pivot),
+    ``u_a = v_a + beta v_c`` and ``u_c = v_c`` with ``beta = B / A`` (``|beta| < 1``), so that ``v^T M v =
+    A |u_a|^2 + (C - B^2 / A) |u_c|^2`` (Schur's complement; ``v = T u``). A row ``sum_j w_j n . v_j`` is the
+    general row on ``u`` with the slot ``(c, -beta w_j)`` beside each slot at a pivot; its multiplier is the
+    same (``T^T M T (u - u0) = -T^T A^T y`` is ``M (v - v0) = -A^T y``), and the inner backend's optimality
+    check on ``u`` is the check on ``v``. ``mass`` and ``inv_mass`` are a node's effective mass ``1 /
+    (M^-1)_pp`` and ``M^-1``'s diagonal (the scales of the contacts' projection form); :meth:`inverse` applies
+    the whole ``M^-1``."""
+
+    def __init__(self, operator, free: np.ndarray, name: str | None = None):
+        fi = np.flatnonzero(free)
+        index = np.full(len(free), -1)
+        index[fi] = np.arange(len(fi))
+        diagonal, partner, cross = operator.diagonal[fi], operator.partner[fi], operator.cross[fi]
+        inv_diagonal, inv_cross = operator.inv_diagonal[fi], operator.inv_cross[fi]
+        partner = np.where(partner >= 0, index[np.maximum(partner, 0)], -1)
+        # the pivot of each block: its end with the larger diagonal entry (the other end on ties: the first)
+        pivot = (partner >= 0) & ((diagonal > diagonal[np.maximum(partner, 0)])
+                                  | ((diagonal == diagonal[np.maximum(partner, 0)])
+                                     & (np.arange(len(fi)) < partner)))
+        self._pivot, self._other = np.flatnonzero(pivot), partner[pivot]
+        self._beta = cross[pivot] / diagonal[pivot]
+        schur = diagonal.copy()
+        schur[self._other] = diagonal[self._other] - cross[pivot] * self._beta
+        self.inner = make_solver(name, schur)
+        self.name = self.inner.name
+        self.n_free = len(fi)
+        self.inv_mass = np.repeat(inv_diagonal, 3)
+        self.mass = 1.0 / self.inv_mass
+        self._inv_cross, self._partner = inv_cross, partner
+
+    @property
+    def compiled(self) -> bool:
+        return self.inner.compiled
+
+    @compiled.setter
+    def compiled(self, value: bool) -> None:
+        self.inner.compiled = bool(value)
+
+    @property
+    def verify(self) -> bool:
+        return self.inner.verify
+
+    def inverse(self, p: np.ndarray) -> np.ndarray:
+        shape = p.shape
+        q = p.reshape((self.n_free, 3) + shape[1:])
+        out = self.inv_mass[::3].reshape((-1, 1) + (1,) * (q.ndim - 2)) * q
+        blocked = np.flatnonzero(self._partner >= 0)
+        out[blocked] += self._inv_cross[blocked].reshape((-1, 1) + (1,) * (q.ndim - 2)) * q[self._partner[blocked]]
+        return out.reshape(shape)
+
+    def to_inner(self, v: np.ndarray) -> np.ndarray:
+        """``u = T^-1 v`` for velocities ``v`` (n_free, 3) m/s."""
+        u = np.array(v, dtype=float).reshape(-1, 3)
+        u[self._pivot] += self._beta[:, None] * u[self._other]
+        return u
+
+    def from_inner(self, u: np.ndarray) -> np.ndarray:
+        """``v = T u`` (n_free, 3) m/s."""
+        v = np.array(u, dtype=float).reshape(-1, 3)
+        v[self._pivot] -= self._beta[:, None] * v[self._other]
+        return v
+
+    def inner_rows(self, rows: Rows) -> Rows:
+        """``rows`` on ``u``: general rows, a pivot's slot followed by its partner's ``-beta`` share."""
+        k = len(rows)
+        if rows.weights is None:
+            nodes, weights = rows.nodes, np.tile([-1.0, 1.0], (k, 1))
+        else:
+            nodes, weights = rows.nodes, rows.weights
+        factor = np.zeros(self.n_free + 1)
+        factor[self._pivot] = -self._beta
+        other = np.full(self.n_free + 1, -1)
+        other[self._pivot] = self._other
+        at = np.where(nodes < 0, self.n_free, nodes)
+        shared = factor[at] != 0.0
+        extra_nodes = np.where(shared, other[at], -1)
+        return Rows(np.concatenate([nodes, extra_nodes], axis=1), rows.directions, rows.targets, rows.n_eq,
+                    np.concatenate([weights, np.where(shared, factor[at] * weights, 0.0)], axis=1))
+
+    def solve(self, v0, rows, warm=None):
+        u, y = self.inner.solve(self.to_inner(v0), self.inner_rows(rows), warm)
+        return self.from_inner(u), y
+
+    def _check(self, v, y, v0, rows: Rows) -> None:
+        self.inner._check(self.to_inner(v), y, self.to_inner(v0), self.inner_rows(rows))
+
+    def _residuals_reference(self, v, y, v0, rows: Rows):
+        return self.inner._residuals_reference(self.to_inner(v), y, self.to_inner(v0), self.inner_rows(rows))
+
+    def describe(self) -> dict:
+        return {**self.inner.describe(), "mass": "2x2 blocks (rigid rods), Schur coordinates"}
+
+
 def choose_solver(n_free: int) -> tuple[str, str]:
     """The default backend for ``n_free`` free nodes, and the reason in one sentence."""
     if n_free >= SPARSE_NODES:
@@ -952,8 +1054,12 @@ def choose_solver(n_free: int) -> tuple[str, str]:
     return DaqpSolver.name, f"{DaqpSolver.name}: {n_free} free nodes < {SPARSE_NODES}"
 
 
-def make_solver(name: str | None, mass: np.ndarray) -> QPSolver:
-    """The backend called ``name`` (default: :func:`choose_solver`) for free-node masses ``mass`` (kg)."""
+def make_solver(name: str | None, mass: np.ndarray, operator=None) -> QPSolver:
+    """The backend called ``name`` (default: :func:`choose_solver`) for free-node masses ``mass`` (kg); given the
+    scene's mass ``operator`` (``tensegrity_sim.mass.MassOperator``) with rigid rods' blocks, that backend in
+    :class:`BlockMassSolver`'s coordinates, for the operator's free nodes."""
+    if operator is not None and operator.consistent:
+        return BlockMassSolver(operator, operator.free, name)
     name = choose_solver(len(mass))[0] if name is None else name
     if name not in SOLVERS:
         raise ValueError(f"solver must be one of {sorted(SOLVERS)}, got {name!r}")
