@@ -295,7 +295,9 @@ def test_a_scene_with_a_ground_steps_in_the_compiled_batch_as_single_runs_do(met
         for got, w in zip((first, second), want):
             np.testing.assert_allclose(got.positions[b], w.positions, rtol=0, atol=1e-12)
             np.testing.assert_allclose(got.velocities[b], w.velocities, rtol=0, atol=1e-12)
-            np.testing.assert_allclose(got.impulses[b], w.impulses, rtol=0, atol=1e-12)
+            # a kept step's impulses summed over its steps in another order: round-off of the locked
+            # structure's large impulses
+            np.testing.assert_allclose(got.impulses[b], w.impulses, rtol=1e-14, atol=1e-12)
             assert [(c.kind, c.members) for c in got.contacts[b]] == [(c.kind, c.members) for c in w.contacts]
             np.testing.assert_allclose([c.time for c in got.contacts[b]], [c.time for c in w.contacts], rtol=0,
                                        atol=1e-12)
