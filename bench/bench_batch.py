@@ -3,6 +3,8 @@
     python3 bench/bench_batch.py            # writes bench/results/batch.csv and batch.md, prints both
     python3 bench/bench_batch.py --ground   # the ground case only: bench/results/batch_ground.csv
     python3 bench/bench_batch.py --response # a member contact response: bench/results/batch_response.csv
+    python3 bench/bench_batch.py --inextensible  # 256 inextensible, free and resting on the ground:
+                                                 # bench/results/batch_inextensible.csv
 
 Cases (icosahedron thrown: rigid struts, 613 N/m cables, random node velocities; dt = 1 ms):
 
@@ -42,6 +44,7 @@ import sys
 import warnings
 from pathlib import Path
 
+import numba
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
@@ -146,6 +149,32 @@ def measure_ground(batch: int = 1024, steps: int = 500) -> list[dict]:
              "note": f"ours rolled {moved:.3f} m in {steps} ms; load {load}"} for name, t in best.items()]
 
 
+def measure_inextensible(batch: int = 256, steps: int = 20) -> list[dict]:
+    """Issue 47's batch targets: ``batch`` inextensible icosahedra thrown (free) and resting on the ground
+    (``icosahedron_ground``), each against ``mujoco.rollout`` of MuJoCo's limited tendons (Euler; on the
+    ground its plane contacts), as many threads as cores, no strut-strut detection on either side, taking
+    turns; ours steps the copies' compiled loops over the cores (``InextensibleMethod.advance_copies``)."""
+    threads = os.cpu_count() or 1
+    rows = []
+    for case, scene in (("icosahedron_thrown inextensible", icosahedron_thrown()),
+                        ("icosahedron_ground resting inextensible", load_scene("icosahedron_ground"))):
+        mujoco_run, pool = _mujoco(scene, "inextensible", batch, steps, threads)
+        contenders = {"mujoco rollout": mujoco_run, "BatchSimulator": _ours(scene, "inextensible", batch, steps, ())}
+        best = {name: float("inf") for name in contenders}
+        for run in contenders.values():   # warm-up: compile, allocate
+            run()
+        for _ in range(REPEATS):
+            for name, run in contenders.items():
+                best[name] = min(best[name], time_runs(run, warmup=lambda: None, repeats=1).best)
+        pool.close()
+        load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+        rows += [{"case": case, "batch": batch, "steps": steps, "contender": name, "threads": threads,
+                  "scene_steps_per_s": round(batch * steps / t),
+                  "ratio_to_mujoco": round(best["mujoco rollout"] / t, 3),
+                  "note": f"load {load}"} for name, t in best.items()]
+    return rows
+
+
 def measure_response(batch: int = 64, steps: int = 1000) -> list[dict]:
     """The compiled batch against a ``Simulator`` per copy on a scene with a member contact response."""
     from tensegrity_sim import Scene, Simulator
@@ -214,12 +243,13 @@ def measure() -> list[dict]:
             keeps = name.partition(", ")[2] or "state"
             rows.append({"case": f"icosahedron_thrown {model}", "batch": batch, "steps": steps,
                          "contender": name, "threads": threads if name.startswith("mujoco") else
-                         len(copy_blocks(batch)) if model == "elastic" else 1,   # the elastic batch: blocks on threads
+                         # the elastic batch: blocks on threads; the inextensible copies: numba's threads
+                         len(copy_blocks(batch)) if model == "elastic" else numba.get_num_threads(),
                          "keeps": "every step's state" if keeps == "state" else keeps,
                          "scene_steps_per_s": round(rate),
                          "ratio_to_mujoco": round(best[peer] / t, 3), "load": os.getloadavg()[0],
                          "note": "not like for like: rollout keeps every step" if keeps == "last step only" else ""})
-    return rows + measure_ground()
+    return rows + measure_ground() + measure_inextensible()
 
 
 def write(rows: list[dict]) -> str:
@@ -246,7 +276,8 @@ def write(rows: list[dict]) -> str:
 
 if __name__ == "__main__":
     # a single case: its own CSV
-    single = {"--ground": (measure_ground, "batch_ground.csv"), "--response": (measure_response, "batch_response.csv")}
+    single = {"--ground": (measure_ground, "batch_ground.csv"), "--response": (measure_response, "batch_response.csv"),
+              "--inextensible": (measure_inextensible, "batch_inextensible.csv")}
     chosen = [single[flag] for flag in sys.argv[1:] if flag in single]
     if chosen:
         case, name = chosen[0]

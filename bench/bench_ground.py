@@ -22,7 +22,8 @@ its start in height, and a ratio is taken to the faster stable integrator (``muj
   1,000 steps, with its summary) and by ``set_rest_lengths`` + ``step`` before each step (a length that did not
   change keeps the steps computed ahead); MuJoCo's commanded tendon length (a spring tendon's length, a limited
   tendon's limit at its offset above the rest length) + ``mj_step`` from Python, and (the peer of our runs)
-  each stretch of unchanged commands in one ``mj_step(nstep)``. The step-by-step loops of both take each
+  each stretch of unchanged commands in one ``mj_step(nstep)``. The inextensible method's ``run(commands=...)``
+  evaluates the schedule in its compiled loop too (issue 47). The step-by-step loops of both take each
   step's lengths from an array evaluated before the timing starts: the schedule's Python (~25 us a step, the
   same for both) is not what they compare. The locked
   inextensible icosahedron's motors reel its cables in with unlimited force, which the rigid structure
@@ -185,6 +186,7 @@ def speed(duration: float, repeats: int) -> list[dict]:
                     ("elastic, as run --commands", "elastic", lambda: _ours_commanded(scene, steps, schedule)),
                     ("elastic step, detection on", "elastic",
                      lambda: _ours(scene, "elastic", steps, schedule, "step", None)),
+                    ("inextensible run", "inextensible", lambda: _ours(scene, "inextensible", steps, schedule, "run")),
                     ("inextensible step", "inextensible",
                      lambda: _ours(scene, "inextensible", min(steps, 500), schedule, "step"))],
     }

@@ -8,7 +8,9 @@ the batch as the *last* axis (:mod:`.methods.elastic_batch`) so that one step of
 array operations, and with a ground steps every copy in the compiled ground loop, the copies spread over
 all cores (with a member contact response too: a copy's steps with an armed member pair are taken by the
 reference, as in a ``Simulator``); the inextensible method solves one QP per copy and so steps a
-:class:`~tensegrity_sim.simulator.Simulator` per copy (style rule 8: a ``Simulator`` is a batch of one).
+:class:`~tensegrity_sim.simulator.Simulator` per copy (style rule 8: a ``Simulator`` is a batch of one), the
+copies' compiled steps run together on every core (``InextensibleMethod.advance_copies``: each copy's own
+numbers; a step its kernel leaves to Python is taken by that copy's method after it).
 
 Each copy equals a single ``Simulator`` run from the same state with the same inputs (to round-off;
 ``test/test_batch.py`` requires 1e-10). A step that fails in one copy (a QP without a solution, a
@@ -26,16 +28,17 @@ import numpy as np
 
 from .checks import float_array, time_step
 from .commands import CommandSchedule
-from .methods.contact.detection import make_detector
+from .methods.contact.detection import CompiledDetector, make_detector
 from .methods.contact.friction import TOUCH_TOL
 from .methods.contact.ground import GroundDetector, walk_copies
 from .methods import StepError, check_backend, choose_method, mass_model
 from .methods.elastic.method import ElasticMethod
 from .methods.elastic.batch import ElasticBatch
+from .methods.inextensible.method import InextensibleMethod
 from .results import ContactEvent
 from .scene import Scene, contact_kinds
 from .methods.base import State
-from .simulator import Simulator, absurd_speed, non_finite_report, run_plan
+from .simulator import Simulator, _walk, absurd_speed, non_finite_report, run_plan
 from .system import System
 
 __all__ = ["BatchSimulator", "BatchStepResult", "BatchTrajectory", "TRAJECTORY_FIELDS", "structure_of"]
@@ -274,6 +277,7 @@ class BatchSimulator:
             for w in {str(w.message): w for w in caught}.values():
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
             self.dt = self._copies[0].dt
+            self._shared_tables = None   # whether every copy's method steps with the same tables (_compiled_copies)
         self._nc = nc
 
     # ------------------------------------------------------------------ state
@@ -437,6 +441,9 @@ class BatchSimulator:
         (steps, B, n_cables), slack (steps, B, n_cables) (views, valid until the next call) and the contacts of
         each step (steps tuples of B tuples)."""
         if self._copies is not None:
+            compiled = self._compiled_copies()
+            if compiled:
+                return self._advance_compiled_copies(steps, compiled)
             out = [self._step_copies() for _ in range(steps)]
             return (*(np.stack([o[i] for o in out]) for i in range(4)), [o[4] for o in out])
         if commands is None:
@@ -519,6 +526,96 @@ class BatchSimulator:
         imp = imp[0].copy()
         return BatchStepResult(self.time, x[0].copy(), v[0].copy(), imp, imp / self.dt, slack[0].copy(),
                                contacts[0], self.failed)
+
+    def _compiled_copies(self) -> list[int]:
+        """The running copies, where the steps of all of them go through the inextensible method's loop over the
+        copies (``InextensibleMethod.advance_copies``): each copy's method has a compiled loop (on its ground
+        too), the same tables as the others, and no member-contact detection to walk; else none. A copy whose
+        first step's speeds are absurd fails here, as its first ``Simulator.step`` would."""
+        running = [i for i in range(self.batch) if i not in self.failures]
+        sims = [self._copies[i] for i in running]
+        if not sims or not all(isinstance(c._method, InextensibleMethod) and c._method.has_loop()
+                               and (c._ground is None or c._method.has_ground_loop())
+                               and (c._contacts is None or isinstance(c._contacts, CompiledDetector)) for c in sims):
+            return []
+        if self._shared_tables is None:   # the tables are the structure's and the scenes': fixed at the build
+            first = self._copies[0]._method
+            self._shared_tables = all(first.same_tables(c._method) for c in self._copies[1:])
+        if not self._shared_tables:
+            return []
+        for i, c in zip(running, sims):
+            if c._speeds_unchecked:
+                try:
+                    c._check_speeds()
+                except StepError as exc:
+                    self.failures[i] = f"step {c.step_count + 1} (t = {c.time + c.dt:.6g} s): {exc}"
+        return [i for i in running if i not in self.failures]
+
+    def _advance_compiled_copies(self, steps: int, running: list[int]):
+        """:meth:`_advance` of the ``running`` copies by ``InextensibleMethod.advance_copies`` (each copy's own
+        numbers, the copies on every core), committed to each copy's ``Simulator`` as its ``run`` commits a
+        compiled part; a copy whose part has a step that is not finite is put back and stepped one step at a
+        time (:meth:`_step_copies`' way: it fails at that very step, with the message ``Simulator.step`` gives)."""
+        b_all, n, nc = self.batch, len(self.scene.nodes), self._nc
+        sims = [self._copies[i] for i in running]
+        for c in sims:
+            c._rewind()
+        methods = [c._method for c in sims]
+        carries = [m.carry() for m in methods]
+        states = [c._state for c in sims]
+        k = len(sims)
+        pos, vel = np.empty((k, steps, n, 3)), np.empty((k, steps, n, 3))
+        imp, sl = np.empty((k, steps, nc)), np.empty((k, steps, nc), dtype=bool)
+        ground = None if sims[0]._ground is None else np.empty((k, steps, n, 3))
+        start = np.stack([st.positions for st in states], axis=-1)
+        start_v = np.stack([st.velocities for st in states], axis=-1)
+        x, v = InextensibleMethod.advance_copies(methods, states, steps, pos, vel, imp, sl, ground)
+        add = np.add.reduce
+        finite = np.isfinite(add(pos.reshape(k, steps, -1), 2) + add(vel.reshape(k, steps, -1), 2) + add(imp, 2))
+        count = states[0].step_count
+        t0 = count * self.dt
+        good = [j for j in range(k) if finite[j].all()]
+        contacts = [[()] * b_all for _ in range(steps)]
+        if ground is not None and good:
+            found = walk_copies([sims[j]._ground for j in good], start[..., good], start_v[..., good],
+                                np.moveaxis(pos[good], 0, -1), np.moveaxis(vel[good], 0, -1),
+                                np.moveaxis(ground[good], 0, -1), t0, self.dt)
+            for step, row in found.items():
+                for j, events in zip(good, row):
+                    contacts[step][running[j]] = events
+        for j in good:   # the member contacts' events, each copy's detector walked through its steps
+            detector = sims[j]._contacts
+            if detector is None:
+                continue
+            xs = np.concatenate([start[None, ..., j], pos[j]])
+            for (step, _), events in _walk(detector, xs[..., None], lambda s: (count + s) * self.dt, self.dt,
+                                           {}).items():
+                events, landed = tuple(events), contacts[step][running[j]]
+                contacts[step][running[j]] = tuple(sorted(events + landed, key=lambda e: e.time)) if landed else events
+        for j in good:
+            st = states[j]
+            st.positions, st.velocities = x[j].copy(), v[j].copy()
+            st.step_count += steps
+        out_x, out_v = np.full((b_all, steps, n, 3), np.nan), np.full((b_all, steps, n, 3), np.nan)
+        out_imp, out_sl = np.full((b_all, steps, nc), np.nan), np.zeros((b_all, steps, nc), dtype=bool)
+        out_x[running], out_v[running], out_imp[running], out_sl[running] = pos, vel, imp, sl
+        for j in set(range(k)) - set(good):   # a failure inside: the copy again, one step at a time
+            i, c = running[j], sims[j]
+            methods[j].restore(carries[j])
+            out_x[i], out_v[i], out_imp[i], out_sl[i] = np.nan, np.nan, np.nan, False
+            for step in range(steps):
+                try:
+                    r = c.step()
+                except StepError as exc:
+                    self.failures[i] = f"step {c.step_count + 1} (t = {c.time + c.dt:.6g} s): {exc}"
+                    break
+                out_x[i, step], out_v[i, step], out_imp[i, step], out_sl[i, step] = (r.positions, r.velocities,
+                                                                                     r.impulses, r.slack)
+                contacts[step][i] = r.contacts
+        self._step_count = max(c.step_count for c in self._copies)
+        events = [tuple(row) if any(row) else self._no_events for row in contacts]
+        return (np.moveaxis(out_x, 0, 1), np.moveaxis(out_v, 0, 1), np.moveaxis(out_imp, 0, 1),
+                np.moveaxis(out_sl, 0, 1), events)
 
     def _step_copies(self):
         b, n, nc = self.batch, len(self.scene.nodes), self._nc

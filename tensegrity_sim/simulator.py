@@ -569,8 +569,8 @@ class Simulator:
         ``commands``: a :class:`~tensegrity_sim.commands.CommandSchedule` applied before each step at its
         start time, as ``tensegrity-sim run --commands`` does (a cable it does not name keeps its rest length
         at the run's start; an input is set only where it changed). A method that evaluates a schedule in
-        its compiled loop (``runs_commands``: the elastic method on a ground) runs it there, each step the
-        very arithmetic of setting its inputs and stepping it; the others step one at a time.
+        its compiled loop (``runs_commands``: the elastic and inextensible methods on a ground) runs it there,
+        each step the very arithmetic of setting its inputs and stepping it; the others step one at a time.
         """
         if callback is not None and not callable(callback):
             raise ValueError(f"callback must be callable, got {describe(callback)}")

@@ -622,18 +622,22 @@ def _ground_case(name):
         return ts.load_scene("icosahedron_ground"), 300, None
     if name == "dropped":
         return dropped(lift=0.05, spin=2.0), 400, None
+    if name == "reeled":   # examples/roll.yaml's reel-in: the locked robot hops, its cables snapping in the air
+        scene = ts.load_scene("icosahedron_ground")
+        return scene, 400, (0, [scene.cable_names.index(c) for c in ("c4", "c5", "c6")], 0.6)
     case = T.random_throw(np.random.default_rng([28, int(name.split()[1])]), steps=400)
     assert case["method"] == "inextensible"
     return T.throw_scene(case), case["steps"], (case["command_step"], case["command_cables"], case["command_factor"])
 
 
-@pytest.mark.parametrize("name", ["resting", "dropped", "throw 1", "throw 9", "throw 12", "throw 13"])
+@pytest.mark.parametrize("name", ["resting", "dropped", "throw 1", "throw 9", "throw 12", "throw 13", "reeled"])
 def test_ground_step_kernel_and_loop_are_the_api_path_bitwise(name):
     """The inextensible method on a ground: each step without an event in the step kernel (the ground's
-    contacts armed and solved by the compiled friction modes inside it), and steps computed ahead in the
-    compiled loop, against every step through the API (``one_kernel = False``: the friction solver's own
-    calls): the same positions, velocities, cable and contact impulses and slack flags to the last bit,
-    landings, snaps and a command mid-run included, and the kernel taking most steps."""
+    contacts armed and solved by the compiled friction modes inside it; a snap's impact at the step's start with
+    no node on the ground too), and steps computed ahead in the compiled loop, against every step through the
+    API (``one_kernel = False``: the friction solver's own calls): the same positions, velocities, cable and
+    contact impulses and slack flags to the last bit, landings, snaps and a command mid-run included, and the
+    kernel taking most steps."""
     scene, steps, command = _ground_case(name)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LengthOffsetWarning)

@@ -8,7 +8,7 @@ Members are the method's row table: the ``n_eq`` moving rigid struts first, then
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .._c_calls import ddot_at, dgemv_at
 from ..qp._daqp_kernels import solve_rows
@@ -18,7 +18,7 @@ from ._self_stress_kernels import locked_space
 from ..contact._friction_kernels import arm_step, contact_solve, first_impact, landing, missed
 
 __all__ = ["select_rows", "row_targets", "motor_limits", "first_snap", "landed", "midpoint", "cable_geometry",
-           "fit_one", "step", "steps"]
+           "fit_one", "impact", "step", "steps", "copies_steps"]
 
 
 @njit(cache=True)
@@ -403,6 +403,83 @@ def fit_one(ddot, dgemv, wide, y, binding, basis, a_t, reference, members, tau, 
 
 
 @njit(cache=True)
+def impact(x, v, d, length, at_limit, snapping, holding, ends, n_eq, row_nodes, free_nodes, entry, settings, hessian,
+           sqrt_mass, mass, feasibility_tol, velocity_floor, guess, locked, load_basis, load_cables, load_largest,
+           refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference):
+    """``InextensibleMethod._impact`` without a landing in it, and its ``_publish``: Moreau's impact law at
+    ``x`` (N, 3) from ``v`` when the cables ``snapping`` (nc,) bool separate, rows every moving rigid strut
+    (``ends``' first ``n_eq``) and every cable ``at_limit`` (nc,) bool (cable vectors ``d`` (nc, 3), lengths
+    (nc,) m at ``x``), targets 0, warm the rigid struts and the cables snapping or ``holding``; solved by
+    ``_solve_checked`` (``guess``: the working set first, as the backend does). When the structure can lock
+    (``locked``) the impulses published are the self-stress rule's with a one-dimensional self-stress and no
+    cable pulling (:func:`fit_one`, tau = 0). Returns ``ok`` (False: an answer refused or a rule's fit the
+    kernel leaves to the Python path), ``v+`` (N, 3), the published cable impulses (nc,) N*s and the fit's
+    dropped node impulse, N*s."""
+    nc = at_limit.shape[0]
+    cables = np.flatnonzero(at_limit)
+    k = n_eq + cables.shape[0]
+    nodes = np.empty((k, 2), dtype=row_nodes.dtype)
+    directions = np.empty((k, 3))
+    warm = np.empty(k, dtype=np.bool_)
+    for i in range(n_eq):   # the rigid struts' directions at x, as System.geometry
+        a = ends[i, 0]
+        b = ends[i, 1]
+        for j in range(3):
+            directions[i, j] = x[b, j] - x[a, j]
+        size = np.sqrt(dot3(directions[i, 0], directions[i, 1], directions[i, 2], directions[i, 0],
+                            directions[i, 1], directions[i, 2]))
+        for j in range(3):
+            directions[i, j] /= size
+        nodes[i, 0] = row_nodes[i, 0]
+        nodes[i, 1] = row_nodes[i, 1]
+        warm[i] = True
+    for r in range(cables.shape[0]):
+        c = cables[r]
+        i = n_eq + r
+        for j in range(3):
+            directions[i, j] = d[c, j] / length[c]
+        nodes[i, 0] = row_nodes[n_eq + c, 0]
+        nodes[i, 1] = row_nodes[n_eq + c, 1]
+        warm[i] = snapping[c] or holding[c]
+    n_free = free_nodes.shape[0]
+    v_in = np.empty((n_free, 3))
+    for i in range(n_free):
+        for j in range(3):
+            v_in[i, j] = v[free_nodes[i], j]
+    v_free, y, ok, _, _ = _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, directions, v_in,
+                                         np.zeros(k), n_eq, warm, feasibility_tol, velocity_floor, guess)
+    v_plus = np.zeros_like(v)
+    for i in range(n_free):
+        for j in range(3):
+            v_plus[free_nodes[i], j] = v_free[i, j]
+    kicked = np.zeros(nc)
+    node = 0.0
+    if not ok:
+        return False, v_plus, kicked, node
+    published = y
+    if locked:
+        binding, members, a_t, basis = locked_space(nodes, directions, n_free, n_eq, cables,
+                                                    np.ones(cables.shape[0], dtype=np.bool_), y, load_basis,
+                                                    load_cables, load_largest, refine, rank_tol, exact, weight,
+                                                    shared, np.zeros(0, dtype=np.int64), np.zeros((0, 0)))
+        if basis is None or basis.shape[1] > 1:
+            return False, v_plus, kicked, node
+        if basis.shape[1] == 1:
+            fitted, out, node = fit_one(ddot, dgemv, wide, y, binding, basis, a_t, reference, members, 0.0, n_eq)
+            if not fitted:
+                return False, v_plus, kicked, node
+            published = y.copy()
+            b = 0
+            for i in range(k):
+                if binding[i]:
+                    published[i] = out[b]
+                    b += 1
+    for r in range(cables.shape[0]):
+        kicked[cables[r]] = published[n_eq + r]
+    return True, v_plus, kicked, node
+
+
+@njit(cache=True)
 def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint, inv_mass, ends,
          n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
          settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked,
@@ -438,6 +515,8 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
         maybe |= at_limit[c] and not holding[c]
         all_at &= at_limit[c]
     ok = True
+    snapping = np.zeros(nc, dtype=np.bool_)
+    snaps = False
     if maybe and (v != 0.0).any():   # a cable at its limit that did not hold separating: an impact
         for c in range(nc):
             if at_limit[c] and not holding[c]:
@@ -446,10 +525,22 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
                 rate = dot3(v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2], d[c, 0] / length[c],
                             d[c, 1] / length[c], d[c, 2] / length[c])
                 if rate * dt > limit_tol * limits[c]:
-                    ok = False
+                    snapping[c] = True
+                    snaps = True
     on, g_nodes, radii, height, _, touch_tol = ground[:6]
     if on and landing(x, v, dt, g_nodes, radii, height, touch_tol) and (v != 0.0).any():
-        ok = False   # a node landing at the step's start: an impact
+        ok = False   # a node landing at the step's start: an impact with the ground's rows (the Python path's)
+    kicked = np.zeros(nc)   # the impact's published impulses
+    kick_node = 0.0
+    if ok and snaps and on:   # a node touching the ground takes part in the impact (ContactSet.arm_impact): Python's
+        for p in g_nodes:
+            if x[p, 2] - radii[p] - height <= touch_tol:
+                ok = False
+    if ok and snaps:
+        ok, v, kicked, kick_node = impact(x, v, d, length, at_limit, snapping, holding, ends, n_eq, row_nodes,
+                                          free_nodes, entry, settings, hessian, sqrt_mass, mass, feasibility_tol,
+                                          velocity_floor, not on, locked, load_basis, load_cables, load_largest,
+                                          refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference)
     x_m = x + (0.5 * dt) * v
     v0 = np.empty_like(v)
     for i in range(v.shape[0]):
@@ -506,12 +597,18 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
                 elif c >= 0:
                     published[c] = y[r]
                 r += 1
-    # the step's impulses as the Python path sums them (0.0 + published: a -0.0 becomes 0.0) and its flags
+    # the step's impulses as the Python path sums them (0.0 + the impact's + published: a -0.0 becomes 0.0) and
+    # its flags; a step with an impact whose sub-step the caller must fit is the Python path's (the caller's fit
+    # publishes the sub-step's impulses alone)
     summed = np.zeros(nc)
     slack = np.empty(nc, dtype=np.bool_)
     for c in range(nc):
+        if snaps:
+            summed[c] += kicked[c]
         summed[c] += published[c]
         slack[c] = length_f[c] < taut[c] and not summed[c] > 0
+    ok = ok and not (snaps and not fitted)
+    node = max(node, kick_node)
     return (ok and done, x_f, v_f, new_holding, new_applied, taut, fitted, summed, slack, node, cables, y, d_f,
             length_f, binding, members, a_t, basis, contact, modes)
 
@@ -522,7 +619,7 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
           cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian,
           sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
           load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference, ground,
-          memory, contact_total, out_contact):
+          memory, contact_total, out_contact, rest_seq, ext_seq, gravity, ext):
     """Steps ``first``, ``first + 1``, ... of ``n_steps`` from ``x``, ``v`` (N, 3), the inputs held, each
     :func:`step` from the cables known to hold ``holding`` and the warm start ``hint`` (nc,) bool (after a
     step both are the cables that held, as in ``InextensibleMethod._step_impl``), until one needs the
@@ -532,10 +629,30 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
     summed into ``contact_total`` (N, 3) and kept likewise in ``out_contact`` (K, N, 3), and the friction
     ``memory`` moves on in place with the steps taken.
     Returns the first step not taken (``n_steps``: all), the positions and velocities before it, the
-    rest lengths in effect, ``holding`` and ``hint`` then and the rule's largest dropped node impulse, N*s."""
+    rest lengths in effect, ``holding`` and ``hint`` then and the rule's largest dropped node impulse, N*s.
+
+    ``rest_seq`` (n_steps, nc), ``ext_seq`` (n_steps, N, 3): each step's commanded rest lengths and external
+    forces (a command schedule evaluated ahead; empty: ``commanded`` and the force ``f_ext`` held), the
+    force being ``gravity`` (N, 3) N plus the step's; ``commanded`` and ``ext`` are then the inputs in effect
+    before step ``first``. A step whose inputs differ from the last step's starts as after
+    ``InextensibleMethod.invalidate`` (no cable known to hold, the warm start kept): the very arithmetic of
+    setting them before stepping it, as ``Simulator`` does. The cables that hold are returned after that."""
     n = x.shape[0]
     nc = cable_ends.shape[0]
+    scheduled = rest_seq.shape[0] > 0
     for i in range(first, n_steps):
+        if scheduled:
+            changed = False
+            for c in range(nc):
+                changed |= rest_seq[i, c] != commanded[c]
+            for p in range(n):
+                for j in range(3):
+                    changed |= ext_seq[i, p, j] != ext[p, j]
+            commanded = rest_seq[i]
+            ext = ext_seq[i]
+            f_ext = gravity + ext
+            if changed:
+                holding = np.zeros(nc, dtype=np.bool_)
         (ok, x_f, v_f, new_holding, new_applied, _, fitted, impulses, slack, node, _, _, _, _, _, _, _,
          _, contact, modes) = step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding,
                                    hint, inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes,
@@ -564,3 +681,38 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
             keep(x.reshape((n, 3, 1)), v.reshape((n, 3, 1)), 0, total, slack, i // every, 0, out_x, out_v,
                  out_impulses, out_slack)
     return n_steps, x, v, applied, holding, hint, residual
+
+
+@njit(cache=True, parallel=True)
+def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, out_v, out_impulses, out_slack, f_ext,
+                 commanded, most, dt, offsets, limit_tol, taut_tol, inv_mass, ends, n_eq, rigid_lengths, cables_move,
+                 row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass,
+                 feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis, load_cables,
+                 load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference, ground, stick,
+                 normal, slip, contact_total, out_contact, done):
+    """:func:`steps` of B copies of one structure on every core (``prange`` over the copies), each in arrays of
+    its own: the leading axis of ``x``, ``v`` (B, N, 3), the carry ``applied``, ``holding``, ``hint`` (B, nc),
+    ``residual`` (B,), the inputs ``f_ext`` (B, N, 3), ``commanded`` and ``offsets`` (B, nc), the friction
+    memory ``stick``, ``normal`` (B, N), ``slip`` (B, N, 2), the sums ``total`` (B, nc), ``contact_total``
+    (B, N, 3) and the outputs (``out_x`` (B, K, N, 3, 1) ..., every step kept); the tables after ``offsets`` are
+    the structure's, shared. A copy's steps are the very arithmetic of its own :func:`steps` call from step 0;
+    each stops where its :func:`steps` stops (a step for the Python path): ``done`` (B,) gets that step, the
+    carry arrays the copy's carry before it."""
+    no_rest = np.empty((0, commanded.shape[1]))   # the inputs held: no schedule
+    no_ext = np.empty((0, x.shape[1], 3))
+    for b in prange(x.shape[0]):
+        i, xb, vb, ab, hb, hib, rb = steps(
+            0, n_steps, 1, x[b], v[b], applied[b], holding[b], hint[b], residual[b], total[b], out_x[b], out_v[b],
+            out_impulses[b], out_slack[b], f_ext[b], commanded[b], most, dt, offsets[b], limit_tol, taut_tol,
+            inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event,
+            newton_iter, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol,
+            landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared,
+            ddot, dgemv, wide, reference, ground, (stick[b], normal[b], slip[b]), contact_total[b], out_contact[b],
+            no_rest, no_ext, f_ext[b], f_ext[b])
+        done[b] = i
+        x[b] = xb
+        v[b] = vb
+        applied[b] = ab
+        holding[b] = hb
+        hint[b] = hib
+        residual[b] = rb

@@ -125,6 +125,16 @@ _NO_GROUND = (False, np.zeros(0, dtype=np.int64), np.zeros(0), 0.0, 0.0, 0.0, np
 _NO_MEMORY = (np.zeros(0, dtype=bool), np.zeros(0), np.zeros((0, 2)))
 
 
+def _same(a, b) -> bool:
+    """Whether two step-kernel arguments (arrays, numbers, nested tuples) are equal, arrays in dtype, shape and
+    values (``InextensibleMethod.same_tables``)."""
+    if isinstance(a, tuple):
+        return isinstance(b, tuple) and len(a) == len(b) and all(_same(p, q) for p, q in zip(a, b))
+    if isinstance(a, np.ndarray):
+        return isinstance(b, np.ndarray) and a.dtype == b.dtype and np.array_equal(a, b)
+    return type(a) is type(b) and a == b
+
+
 class LengthOffsetWarning(UserWarning):
     """The inextensible method lengthened cable limits by their prestress stretch at load time."""
 
@@ -144,7 +154,9 @@ class InextensibleMethod(StepMethod):
     takes it always. On a ground (no member contact response) the step kernel also arms the ground's
     contacts and solves them by the compiled friction modes (``_friction_kernels.contact_solve``); a step
     with a landing inside it or at its start, or whose modes the kernel leaves to the reference, is
-    Python's."""
+    Python's. A snap's impact at a step's start is the kernel's too (``_inextensible_kernels.impact``) where no
+    node touches the ground and the rule's fit is one-dimensional; a command schedule runs inside the loop
+    (:meth:`runs_commands`), and a batch's copies step in it together on every core (:meth:`advance_copies`)."""
 
     name = "inextensible"
     options = ("solver", "reel_speed")
@@ -454,6 +466,10 @@ class InextensibleMethod(StepMethod):
     def has_ground_loop(self) -> bool:
         return self.ground is not None and self.has_loop()
 
+    def runs_commands(self) -> bool:
+        """:meth:`advance` takes each step's inputs (a command schedule evaluated ahead) where it has a loop."""
+        return self.has_loop()
+
     def carry(self):
         """What a step leaves to the next (a motor's position, the cables that hold, the warm start, the
         rule's largest dropped impulse, on a ground each node's friction mode): a command or a reset does not
@@ -471,30 +487,42 @@ class InextensibleMethod(StepMethod):
         self._end_geometry = None
 
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
-                impulses: np.ndarray, slack: np.ndarray, contact: np.ndarray | None = None
+                impulses: np.ndarray, slack: np.ndarray, contact: np.ndarray | None = None, inputs=None
                 ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`StepMethod.advance` in ``_inextensible_kernels.steps``, with each step the kernel leaves
         to Python taken by :meth:`step`'s own path (the same bits as stepping one at a time). A step that
         fails (:class:`QPError`, an answer that is not finite) ends the loop: it and what would follow are
         NaN, which the simulator takes for a step it must retake alone (and raise at). On a ground,
-        ``contact`` (K, N, 3) N*s gets its impulses, summed like the cables' (None: not kept)."""
+        ``contact`` (K, N, 3) N*s gets its impulses, summed like the cables' (None: not kept). ``inputs``
+        (:meth:`runs_commands`): each step's rest lengths (steps, nc) and external forces (steps, N, 3),
+        ``state``'s being those in effect before them (not changed), each step the very arithmetic of setting
+        its inputs (a change is an :meth:`invalidate`) and stepping it."""
         x, v = state.positions, state.velocities
-        inputs, motors, constants = self._step_inputs(state), self._motors(), self._step_constants()
+        rest_now, ext_now = state.rest_lengths, state.external_forces
+        n, nc = x.shape[0], self.system.n_cables
+        if inputs is None:
+            rest_seq, ext_seq = np.empty((0, nc)), np.empty((0, n, 3))
+        else:
+            rest_seq, ext_seq = (np.ascontiguousarray(a, dtype=float) for a in inputs)
+        motors, constants = self._motors(), self._step_constants()
         out = positions[..., None], velocities[..., None], impulses[..., None], slack[..., None]
-        total = np.zeros(self.system.n_cables)
-        n = x.shape[0]
+        total = np.zeros(nc)
         if contact is None:
             contact = np.empty((0 if self.ground is None else len(positions), n, 3))
         on_ground = np.zeros((n, 3))   # the ground's impulses since the last kept step
+        gravity = self.system.gravity_force
         rule, i = self.self_stress, 0
         while True:
             i, x, v, self._applied, self._holding, self._hint, rule.residual = kernels.steps(
                 i, steps, every, x, v, self._applied, self._holding, self._hint, rule.residual, total, *out,
-                *inputs, *motors, *constants, self._memory(), on_ground, contact)
+                gravity + ext_now, rest_now, *motors, *constants, self._memory(), on_ground, contact, rest_seq,
+                ext_seq, gravity, ext_now)
             if i == steps:
                 break
+            if len(rest_seq):   # the step's inputs (the kernel invalidated the method if they changed)
+                rest_now, ext_now = rest_seq[i], ext_seq[i]
             try:
-                r = self._step_impl(State(x, v, state.rest_lengths, state.external_forces, state.step_count + i))
+                r = self._step_impl(State(x, v, rest_now, ext_now, state.step_count + i))
             except QPError:
                 r = None
             if r is None or not np.isfinite(r.positions).all():
@@ -514,6 +542,61 @@ class InextensibleMethod(StepMethod):
                 break
         self._end_geometry = None
         return x.copy(), v.copy()
+
+    def same_tables(self, other: "InextensibleMethod") -> bool:
+        """Whether ``other`` (a method of another copy of the structure) steps with this one's tables and
+        constants (:meth:`_step_constants`, :meth:`_motors` but the length offsets, which
+        :meth:`advance_copies` takes per copy): copies built from scenes whose prestress differs do not."""
+        mine, theirs = self._step_constants() + self._motors(), other._step_constants() + other._motors()
+        mine, theirs = mine[:-3] + mine[-2:], theirs[:-3] + theirs[-2:]   # without the offsets
+        return _same(mine, theirs)
+
+    @staticmethod
+    def advance_copies(methods: list, states: list, steps: int, positions: np.ndarray, velocities: np.ndarray,
+                       impulses: np.ndarray, slack: np.ndarray, contact: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`advance` of B copies of one structure, every step kept: ``methods`` (B,) each
+        :meth:`has_loop` and :meth:`same_tables` as the first, from ``states`` (B,); the outputs
+        ``positions``, ``velocities`` (B, steps, N, 3), ``impulses``, ``slack`` (B, steps, n_cables),
+        ``contact`` (B, steps, N, 3) on a ground. The copies' compiled steps run on every core
+        (``_inextensible_kernels.copies_steps``), each copy's steps from the first one its kernel leaves to
+        Python by that copy's own :meth:`advance`: each copy's numbers are those of its :meth:`advance`
+        alone (a failed step and what follows NaN). Returns the positions and velocities (B, N, 3) after
+        them."""
+        first = methods[0]
+        x = np.stack([s.positions for s in states])
+        v = np.stack([s.velocities for s in states])
+        applied = np.stack([m._applied for m in methods])
+        holding = np.stack([m._holding for m in methods])
+        hint = np.stack([m._hint for m in methods])
+        residual = np.array([m.self_stress.residual for m in methods], dtype=float)
+        f_ext = np.stack([m._step_inputs(s)[0] for m, s in zip(methods, states)])
+        commanded = np.stack([s.rest_lengths for s in states])
+        offsets = np.stack([m.length_offsets for m in methods])
+        memory = [np.stack(kept) for kept in zip(*(m._memory() for m in methods))]
+        n = x.shape[1]
+        on_ground = np.zeros((len(methods), n, 3))
+        out_contact = np.empty((len(methods), 0, n, 3)) if contact is None else contact
+        done = np.empty(len(methods), dtype=np.int64)
+        most, dt, _, limit_tol, taut_tol = first._motors()
+        kernels.copies_steps(steps, x, v, applied, holding, hint, residual, np.zeros(applied.shape),
+                             positions[..., None], velocities[..., None], impulses[..., None], slack[..., None], f_ext,
+                             commanded, most, dt, offsets, limit_tol, taut_tol, *first._step_constants(), *memory,
+                             on_ground, out_contact, done)
+        for b, method in enumerate(methods):
+            method._applied, method._holding, method._hint = applied[b].copy(), holding[b].copy(), hint[b].copy()
+            method.self_stress.residual = float(residual[b])
+            for kept, new in zip(method._memory(), memory):
+                kept[:] = new[b]
+            method._end_geometry = None
+            i = int(done[b])
+            if i < steps:   # the rest of the copy's steps by its own advance (the Python path's steps in it)
+                state = states[b]
+                x[b], v[b] = method.advance(
+                    State(x[b].copy(), v[b].copy(), state.rest_lengths, state.external_forces, state.step_count + i),
+                    steps - i, 1, positions[b, i:], velocities[b, i:], impulses[b, i:], slack[b, i:],
+                    None if contact is None else contact[b, i:])
+        return x, v
 
     def _motor_limits_reference(self, commanded):
         """The numpy reference of ``_inextensible_kernels.motor_limits`` for the ``commanded`` rest
