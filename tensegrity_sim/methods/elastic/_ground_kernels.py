@@ -534,11 +534,21 @@ def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, 
     for p in range(n_nodes):
         for j in range(3):
             contact[p, j] = 0.0
-        vz0 = v[p, 2, b]
-        for j in range(3):
             v[p, j, b] += half * acc[p, j, b]
+    for p in range(n_nodes):
+        vz0 = v0[p, 2]
         gap = x[p, 2, b] - radii[p] - height
-        armed[p] = inv_mass[p, 0] > 0.0 and gap - h * abs(v[p, 2, b]) <= touch_tol
+        # the node's vertical velocity once its rigid strut's length rate is zeroed (ContactSet.arm_step's v_f)
+        vz = v[p, 2, b]
+        r = node_strut[p]
+        if r >= 0:
+            a = ends[rigid_members[r], 0]
+            c = ends[rigid_members[r], 1]
+            rate = ((v[c, 0, b] - v[a, 0, b]) * rigid_dirs[r, 0, b] + (v[c, 1, b] - v[a, 1, b]) * rigid_dirs[r, 1, b]
+                    + (v[c, 2, b] - v[a, 2, b]) * rigid_dirs[r, 2, b])
+            s = rate / rigid_w[r, r]
+            vz += (axial_inverse(inv_mass, a) if p == a else -axial_inverse(inv_mass, c)) * (s * rigid_dirs[r, 2, b])
+        armed[p] = inv_mass[p, 0] > 0.0 and min(gap - h * abs(v[p, 2, b]), gap + h * vz) <= touch_tol
         # the drift's target lands the node on the ground, capped at the reversal of its start velocity
         # but never letting it sink past touch_tol deep (ContactSet.arm_step's floored)
         target[p] = max(min(-gap / h, -vz0), min(-(gap + touch_tol) / h, 0.0))
@@ -556,11 +566,31 @@ def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, 
         if n_armed < 0:
             return MEMBERS
     if found or n_armed:
-        why = _solve_all(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
-                         warm[0], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes,
-                         pair_mu, pairs)
-        if why:
-            return why
+        for p in range(n_nodes):   # the free velocities, for a solve again (dx is the drift's scratch)
+            for j in range(3):
+                dx[p, j] = v[p, j, b]
+        while True:
+            why = _solve_all(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
+                             warm[0], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes,
+                             pair_mu, pairs)
+            if why:
+                return why
+            # ContactSet.missed: the answer carries an unarmed node into the ground (its strut turned by its other
+            # end's contact): those within touch_tol of it by the drift's end are armed too, and solved again
+            missed = False
+            for p in range(n_nodes):
+                end_gap = x[p, 2, b] - radii[p] - height + h * v[p, 2, b]
+                missed = missed or (not armed[p] and inv_mass[p, 0] > 0.0 and end_gap < -touch_tol)
+            if not missed:
+                break
+            if n_armed:   # the member pairs' impulses are summed in the solve: the reference solves again
+                return MEMBERS
+            for p in range(n_nodes):
+                armed[p] = armed[p] or (inv_mass[p, 0] > 0.0 and x[p, 2, b] - radii[p] - height + h * v[p, 2, b]
+                                        <= touch_tol)
+                for j in range(3):
+                    v[p, j, b] = dx[p, j]
+                    contact[p, j] = 0.0
     _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
     _close(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
            rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b)

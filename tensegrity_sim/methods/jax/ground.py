@@ -129,13 +129,14 @@ def velocity_step(model, ground: GroundModel, x, v, armed, w):
     return out, impulses
 
 
-def drift_contacts(model, ground: GroundModel, x, v, v_half, h):
+def drift_contacts(model, ground: GroundModel, x, v, v_half, h, v_f_z):
     """The drift's contacts (``ContactSet.arm_step`` with the elastic drift's ``half = h``): the free nodes that
-    may reach the ground by the step's end, each with the target that lands it exactly on it, capped at the
-    reversal of its normal velocity at the step's start ``v`` but never letting it sink past ``TOUCH_TOL`` deep.
-    Returns armed (N, B) bool and the targets (N, B)."""
+    may reach the ground by the step's end on the free velocities ``v_half`` or at the vertical velocities
+    ``v_f_z`` (N, B) (the method's: its rigid struts' length rates zeroed), each with the target that lands it
+    exactly on it, capped at the reversal of its normal velocity at the step's start ``v`` but never letting it
+    sink past ``TOUCH_TOL`` deep. Returns armed (N, B) bool and the targets (N, B)."""
     g = gaps(ground, x)
-    armed = (model.free > 0)[:, None] & (g - h * jnp.abs(v_half[:, 2]) <= TOUCH_TOL)
+    armed = (model.free > 0)[:, None] & (jnp.minimum(g - h * jnp.abs(v_half[:, 2]), g + h * v_f_z) <= TOUCH_TOL)
     return armed, jnp.maximum(jnp.minimum(-g / h, -v[:, 2]), jnp.minimum(-(g + TOUCH_TOL) / h, 0.0))
 
 
