@@ -169,7 +169,7 @@ def measure_inextensible(batch: int = 256, steps: int = 20) -> list[dict]:
         pool.close()
         load = " ".join(f"{x:.2f}" for x in os.getloadavg())
         rows += [{"case": case, "batch": batch, "steps": steps, "contender": name, "threads": threads,
-                  "scene_steps_per_s": round(batch * steps / t),
+                  "keeps": "every step's state", "scene_steps_per_s": round(batch * steps / t),
                   "ratio_to_mujoco": round(best["mujoco rollout"] / t, 3),
                   "note": f"load {load}"} for name, t in best.items()]
     return rows
