@@ -7,9 +7,12 @@ The table sits between the markers ``<!-- speed table -->`` and ``<!-- end speed
 the thrown icosahedron's CPU time per step beside MuJoCo's, without and with member contact detection
 (``bench/results/head_to_head.csv``, written by ``bench/head_to_head.py``); ``icosahedron_ground`` resting and
 rolling beside MuJoCo with its ground contact (``bench/results/ground.csv``, ``bench/bench_ground.py``); and a
-batch's scene-steps per second beside ``mujoco.rollout`` (``bench/results/batch.csv``, ``bench/bench_batch.py``).
-Below it, the real-time figures: the command line's rolling run (``ground.csv``) and the live node's ticks
-(``bench/results/node_tick.csv`` and ``node_in_process.csv``, ``bench/bench_node.py``). Each CSV's command,
+batch's scene-steps per second beside ``mujoco.rollout``, both keeping every step's state
+(``bench/results/batch.csv``, ``bench/bench_batch.py``); the massive method beside MuJoCo's spring tendons
+(``bench/results/massive_speed.csv``, ``bench/massive.py``). Below it, the real-time figures: the command line's
+rolling run (``ground.csv``) and the live node's ticks (``bench/results/node_tick.csv`` and
+``node_in_process.csv``, ``bench/bench_node.py``), and the throw benchmark's reliability line
+(``bench/results/throws.csv``, ``bench/bench_throws.py``). Each CSV's command,
 commit and machine are in its ``.json`` sidecar and on the site's benchmarks page.
 """
 from __future__ import annotations
@@ -59,23 +62,30 @@ def table() -> str:
             ("rolling", "elastic, as run --commands", "elastic, rolling, as `run --commands`",
              ", commands in stretches"),
             ("resting", "inextensible run", "inextensible, resting on the ground, `run()`", ""),
-            ("resting", "inextensible step", "inextensible, resting on the ground, `step()`", "")):
+            ("resting", "inextensible step", "inextensible, resting on the ground, `step()`", ""),
+            ("rolling", "inextensible run", "inextensible, rolling, `run(commands=...)`", "")):
         row = _one(ground, case=case, contender=contender)
         peer = _one(ground, case=case, contender=f"mujoco {row['cables']} {row['mujoco_integrator']}{suffix}")
         lines.append(f"| {label} | {cell(row['steps_per_s'])} steps/s | {cell(peer['steps_per_s'])} steps/s "
                      f"(ground contact, {row['mujoco_integrator']}) | **{cell(row['ratio_to_mujoco'])}** |")
     for case, label in (("icosahedron_thrown elastic", "elastic, batch of {:,}"),
                         ("icosahedron_thrown inextensible", "inextensible, batch of {:,}"),
+                        ("icosahedron_ground resting inextensible", "inextensible, batch of {:,} resting on the ground"),
                         ("icosahedron_ground rolling elastic", "elastic, batch of {:,} rolling on the ground")):
         ours = _one(batches, case=case, contender="BatchSimulator")
         peer = _one(batches, case=case, contender="mujoco rollout")
-        lines.append(f"| {label.format(ours['batch'])} | {cell(ours['scene_steps_per_s'])} "
+        lines.append(f"| {label.format(ours['batch'])}, every step kept | {cell(ours['scene_steps_per_s'])} "
                      f"scene-steps/s | {cell(peer['scene_steps_per_s'])} scene-steps/s (`rollout`, "
-                     f"{peer['threads']} threads) | **{cell(ours['ratio_to_mujoco'])}** |")
-    lines += ["", *real_time(ground)]
+                     f"{peer['threads']} threads, every step kept) | **{cell(ours['ratio_to_mujoco'])}** |")
+    massive = {row["run"]: row for row in read_csv(RESULTS / "massive_speed.csv")}
+    ours, peer = massive["massive run() (compiled)"], massive["MuJoCo mj_step(nstep) (spring tendons)"]
+    lines.append(f"| massive (cables of 0.05 kg, elastic struts), `run()` | {cell(ours['us_per_step'])} µs/step | "
+                 f"{cell(peer['us_per_step'])} µs/step (`mj_step(nstep)`, spring tendons: massless cables) | "
+                 f"**{cell(float(peer['us_per_step']) / float(ours['us_per_step']))}** |")
+    lines += ["", *real_time(ground), "", reliability(read_csv(RESULTS / "throws.csv"))]
     commits = ", ".join(f"`{name}` at {provenance(RESULTS / name)['commit']}"
-                        for name in ("head_to_head.csv", "ground.csv", "batch.csv", "node_tick.csv",
-                                     "node_in_process.csv"))
+                        for name in ("head_to_head.csv", "ground.csv", "batch.csv", "massive_speed.csv",
+                                     "throws.csv", "node_tick.csv", "node_in_process.csv"))
     lines += ["", f"Generated from {commits} by `scripts/readme_table.py`;",
               "commands and machines: [benchmarks](docs/benchmarks.md)."]
     return "\n".join(lines)
@@ -99,6 +109,18 @@ def real_time(ground: list[dict]) -> list[str]:
             f"{cell(default['late_wakeups'])} and {cell(fifo['late_wakeups'])} came after the machine woke it over a "
             f"period late, and its own work alone (`--in-process`) owes a second step "
             f"{'once' if owed == 1 else f'{owed} times'} in {cell(alone['turns'])} ticks."]
+
+
+def reliability(throws: list[dict]) -> str:
+    """The throw benchmark's line (``throws.csv``, ``bench/bench_throws.py``): runs stopped, answers checked."""
+    total = _one(throws, method="all")
+    return (f"Reliability: of {cell(total['throws'])} random throws onto the ground (`bench/bench_throws.py`, "
+            f"seed {total['seed']}, throws {total['throw_range'].replace(';', ', ')}, space `{total['space']}`: both "
+            f"methods, five robots, batches, friction 0–2, restitution 0–1, spins, commands mid-run) "
+            f"**{cell(total['stopped'])} stopped**, and {cell(total['violations'])} of {cell(total['answers_checked'])} "
+            f"checked contact answers missed Coulomb's law or the cable complementarity by more than 1e-5 of the "
+            f"momentum in play; {cell(total['unsound'])} broke the sink (0.1 mm) or energy checks and "
+            f"{cell(total['cut'])} were cut by the time budget per throw (`--budget`).")
 
 
 def render(readme: str) -> str:
