@@ -202,17 +202,22 @@ def test_an_imported_robot_follows_mujoco_running_the_original_file():
 
 
 # ------------------------------------------------------------------------------------------- on the ground
+def _fixture(path):
+    """The fixture at ``path`` imported (MJCF or NTRT), its mapping warnings silenced."""
+    if path.suffix == ".xml":
+        pytest.importorskip("mujoco")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", MappingWarning)
+        return ts.load_mjcf(path) if path.suffix == ".xml" else ts.load_ntrt(path)
+
+
 @pytest.mark.parametrize("path", [SUPERBALL, PRISM, THREE_BAR], ids=lambda p: p.name)
 def test_imported_robots_settle_on_the_ground(path):
     """Each fixture, dropped into gravity as written (prestressed, not form-found), stands on the ground: after
     3 s its nodes swing less than 1 cm about where they sit and that place no longer moves (the prisms' soft
     mechanism mode, which cable dampers barely touch, still swings by millimetres; SUPERball stops), every
     cable taut, nothing below the ground, and no energy made."""
-    if path.suffix == ".xml":
-        pytest.importorskip("mujoco")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", MappingWarning)
-        scene = ts.load_mjcf(path) if path.suffix == ".xml" else ts.load_ntrt(path)
+    scene = _fixture(path)
     sim = ts.Simulator(scene, method="elastic", dt=1e-3)
     start = sim.energy()["total"]
     sim.run(duration=2.0)
@@ -235,11 +240,7 @@ def test_imported_robots_roll_under_a_schedule(path, distance, heading):
     0.31 m), on the ground, no cable slack at the end, every contact problem answered with the rods' blocks."""
     from tensegrity_sim.commands import parse_commands
 
-    if path.suffix == ".xml":
-        pytest.importorskip("mujoco")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", MappingWarning)
-        scene = ts.load_mjcf(path) if path.suffix == ".xml" else ts.load_ntrt(path)
+    scene = _fixture(path)
     sim = ts.Simulator(scene, method="elastic", dt=1e-3)
     assert sim.system.mass.consistent
     sim.run(duration=2.0)
