@@ -46,9 +46,10 @@ def test_builtins_list():
 @pytest.mark.parametrize("name, duration, distance", [("superball", 12.0, 2.5), ("three_bar", 4.0, 0.3)])
 def test_builtin_robots_roll_under_their_schedules(name, duration, distance):
     """tensegrity_sim/schedules/NAME_roll.yaml rolls the robot: its centre of mass moves ``distance`` m or more
-    over the ground (measured, the rods with their consistent mass: superball 3.0 m in 12 s, three rolls; three_bar
-    0.32 m in 4 s, tipped over an edge onto its side), it stays on the ground and no cable is left slack at the
-    end."""
+    over the ground (measured, the rods with their consistent mass: superball 2.96 m in 12 s, three rolls; three_bar
+    0.32 m in 4 s, tipped over an edge onto its side) and stays on the ground; once the schedule has ended, its
+    energy only falls (the cables' damping and the ground's friction; no input). Whether a cable is slack at the
+    end is no law: superball still bounces on its cables at 12 s, one of them slackening and tautening with it."""
     from importlib import resources
 
     from tensegrity_sim.commands import load_commands
@@ -60,8 +61,11 @@ def test_builtin_robots_roll_under_their_schedules(name, duration, distance):
         commands = load_commands(path, scene)
     mass = scene.masses[:, None]
     start = (mass * sim.positions).sum(axis=0) / mass.sum()
-    traj = sim.run(duration=duration, commands=commands)
+    end = max(float(times[-1]) for times in commands.rest_times)
+    driven = sim.run(duration=end, commands=commands)
+    after_schedule = sim.energy()["total"]
+    coasting = sim.run(duration=duration - end)
     moved = (mass * sim.positions).sum(axis=0) / mass.sum() - start
     assert np.linalg.norm(moved[:2]) > distance
-    assert traj.positions[:, :, 2].min() > scene.ground.height
-    assert not traj.slack[-1].any()
+    assert min(driven.positions[:, :, 2].min(), coasting.positions[:, :, 2].min()) > scene.ground.height
+    assert sim.energy()["total"] < after_schedule
