@@ -233,7 +233,6 @@ class BatchSimulator:
             if backend == "jax":
                 from .methods.jax.engine import ElasticBatchJax, ElasticMethodJax   # imports JAX: only here
 
-                # the JAX engine applies the blocks in free flight, the numba engine everywhere
                 self.system = mass_model(self.system, ElasticMethodJax)
                 self._engine = ElasticBatchJax(self.system, dt, dtype=dtype or "float64")
             else:

@@ -189,18 +189,15 @@ def test_the_fast_paths_apply_the_blocks_as_the_numpy_reference_does(path):
 
 def test_paths_without_blocks_lump_the_struts_and_say_so():
     scene = rod(ground={"friction": 0.5}, gravity=(0.0, 0.0, -9.81), angle=0.0)
-    with warnings.catch_warnings():   # the elastic method takes the blocks with a ground (numba) ...
+    with warnings.catch_warnings():   # the elastic method takes the blocks with a ground ...
         warnings.simplefilter("error")
         assert ts.Simulator(scene, method="elastic", dt=1e-3).system.mass.consistent
         ts.Simulator(rod(distribution="ends", ground={"friction": 0.5}), method="elastic", dt=1e-3)
+        if HAVE_JAX:   # ... and so does the JAX backend, its ground too
+            assert ts.Simulator(scene, method="elastic", dt=1e-3, backend="jax").system.mass.consistent
+            assert BatchSimulator(scene, 2, method="elastic", dt=1e-3, backend="jax").system.mass.consistent
     with pytest.warns(LumpedMassWarning, match="the inextensible method takes no"):
         ts.Simulator(rod(), method="inextensible", dt=1e-3)
-    if HAVE_JAX:   # ... the JAX backend in free flight only
-        with pytest.warns(LumpedMassWarning, match=r"the elastic method with a ground takes no rigid strut's mass "
-                                                   r"spread along it: struts \['s'\]"):
-            sim = ts.Simulator(scene, method="elastic", dt=1e-3, backend="jax")
-        assert not sim.system.mass.consistent
-        np.testing.assert_array_equal(sim.system.inv_mass, [1.0 / (0.5 * M)] * 2)
 
 
 TILT = 0.3   # rad from the vertical
@@ -233,7 +230,7 @@ def fall(scene, path, steps=300, dt=1e-3):
     return 0.5 * (x[:, 0] + x[:, 1]), theta, np.gradient(theta, dt), x[:, 0, 2]
 
 
-@pytest.mark.parametrize("path", ["reference", "compiled", "run", "batch"])
+@pytest.mark.parametrize("path", ["reference", "compiled", "run", "batch"] + (["jax"] if HAVE_JAX else []))
 def test_a_rod_standing_on_frictionless_ground_falls_with_its_centre_on_a_vertical_line(path):
     """Its foot slides, its centre falls straight down (no horizontal force), and it turns as energy says with
     ``I = m L^2 / 12``: to 1e-5 relative through 300 steps (to 0.8 rad from the vertical). Lumped at its ends
@@ -267,7 +264,7 @@ def blocked_icosahedron_on_the_ground():
     return ts.Scene.from_dict(d)
 
 
-@pytest.mark.parametrize("path", ["compiled", "run", "batch"])
+@pytest.mark.parametrize("path", ["compiled", "run", "batch"] + (["jax"] if HAVE_JAX else []))
 def test_the_fast_ground_paths_apply_the_blocks_as_the_numpy_reference_does(path):
     """Thrown, spun and landing on rough ground: the compiled step, loop and batch follow the reference (its QPs
     in ``BlockMassSolver``'s coordinates) through 300 steps to the reference's own tolerance (its QP fixed point

@@ -154,8 +154,7 @@ def mass_model(system: System, cls: type[StepMethod]) -> System:
         return system
     struts = [system.scene.struts[i].name for i in range(system.n_struts)
               if any(system.mass.partner[system.strut_ends[i]] >= 0)]
-    where = f" {cls.mass_blocks_missing}" if cls.mass_blocks_missing else ""
-    warnings.warn(f"{system.scene.source or system.scene.name}: the {cls.name} method{where} takes "
+    warnings.warn(f"{system.scene.source or system.scene.name}: the {cls.name} method takes "
                   f"no rigid strut's mass spread along it: struts {struts} are lumped at their ends (row sums: their "
                   f"weight and momentum exact, their rotational inertia too large)", LumpedMassWarning, stacklevel=3)
     return system.lumped()

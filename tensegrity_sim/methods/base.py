@@ -95,7 +95,6 @@ class StepMethod:
     advanced_pairs: dict = {}       # rule 10: the member contacts' impulses of the last advance(), by step
     options: tuple[str, ...] = ()
     losses: float = 0.0             # rule 5: J removed at events since prepare()
-    mass_blocks_missing = ""        # rule 12: where it takes no mass blocks, said in the warning ("on the ground")
 
     def __init__(self, system: System, dt: float):
         self.system = system

@@ -70,12 +70,12 @@ class ElasticMethodJax(ElasticMethod):
     The checks, ``prepare``, ``slack`` and ``strain_energy`` are :class:`ElasticMethod`'s."""
 
     options = ()
-    mass_blocks_missing = "with a ground"
 
     @classmethod
     def takes_mass_blocks(cls, system) -> bool:
-        """In free flight; its ground's block Gauss-Seidel (``jax/ground.py``) takes diagonal masses."""
-        return system.scene.ground is None
+        """Always: its step applies ``system.mass`` (``elastic._derived``), its ground's block Gauss-Seidel
+        (``jax/ground.py``) the rods' blocks too."""
+        return True
 
     def __init__(self, system: System, dt: float, *, dtype: str = "float64"):
         self.dtype = _dtype(dtype)

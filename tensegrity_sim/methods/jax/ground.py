@@ -12,12 +12,17 @@ friction: closed form, ``y_n = m max(0, w - v_z)``, ``f = proj_disc(mu y_n)(-m v
 **The solve.** Nonsmooth block Gauss-Seidel (the ``NSGS`` of Moreau and Jean) with a fixed number of sweeps:
 each sweep solves the length row exactly for the others fixed, then each end's normal row
 (``y_n <- max(0, y_n + m (w - v_z))``) and its friction on the exact disc
-(``f <- proj_disc(mu y_n)(f - m v_t)``). Its fixed points are exactly the solutions of the Coulomb problem
-(the numpy reference's mode fixed point finds the same velocities); every update is a ``max`` or a projection
-(``jnp.where``), so the work is the same for every block and every copy. The sweeps converge linearly, at a
-rate set by the angle between the strut and the ground (fastest lying flat; a standing strut's length and
-normal rows share a node: rate about ``m_a / (m_a + m_b)``): ``SWEEPS`` = 60 brings an end's velocity to
-round-off at rates up to about 0.55 (``test/test_jax_ground.py`` measures the agreement with the reference).
+(``f <- proj_disc(mu y_n)(f - m v_t)``), ``m`` the end's effective mass ``1 / d`` and its impulse moving it by
+``d`` and the strut's other end by ``M^-1``'s cross entry (a rod's 2x2 mass block, physics.md section 4c: the
+arithmetic of the numba kernels' ``solve_block``; lumped, ``d = 1 / m`` and no cross entry). Its fixed points are
+exactly the solutions of the Coulomb problem (the numpy reference's mode fixed point finds the same velocities);
+every update is a ``max`` or a projection (``jnp.where``), so the work is the same for every block and every copy.
+The sweeps converge linearly, at a rate set by the angle between the strut and the ground (fastest lying flat;
+a standing strut's length and normal rows share a node: rate ``a_e^2 / ((a_a + a_c) d_e)`` with the axial entries
+``a = d - cross``, lumped ``m_a / (m_a + m_b)``): ``SWEEPS`` = 60 brings an end's velocity to round-off at rates up
+to about 0.55, and a scene whose rods' blocks converge slower takes more (:func:`block_sweeps`: a uniform rod's
+0.75, 128 sweeps; three_bar's 149). ``test/test_jax_ground.py`` measures the agreement with the reference and
+the numba batch.
 """
 from __future__ import annotations
 
@@ -28,25 +33,48 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..contact.friction import TOUCH_TOL
-from .elastic import _index, _pytree
+from .elastic import _derived, _index, _pytree
 
-__all__ = ["GroundModel", "ground_model", "gaps", "velocity_step", "drift_contacts", "contact_step", "SWEEPS",
-           "TOUCH_TOL"]
+__all__ = ["GroundModel", "ground_model", "block_sweeps", "gaps", "velocity_step", "drift_contacts", "contact_step",
+           "SWEEPS", "MAX_SWEEPS", "TOUCH_TOL"]
 
-SWEEPS = 60
+SWEEPS = 60          # the fewest sweeps (lumped ends of equal mass: rate 0.5) ...
+MAX_SWEEPS = 400     # ... and the most (a rate near 1: a rod pinned at one end standing on the other)
+_ROUND_OFF = 0.55 ** SWEEPS   # the contraction SWEEPS sweeps at rate 0.55 reach (2.7e-16)
 
 
-@_pytree("lone")
+@_pytree("lone", "sweeps")
 class GroundModel:
     """The ground of a scene, as arrays: height (m), friction (Coulomb mu), restitution (Newton's e), radii (N,) m
     (a node touches at its position minus its largest member radius); static: lone, the free nodes on no
-    moving rigid strut."""
+    moving rigid strut, and sweeps, the block Gauss-Seidel's (:func:`block_sweeps`)."""
 
     height: jax.Array
     friction: jax.Array
     restitution: jax.Array
     radii: jax.Array
     lone: tuple = field(default=())
+    sweeps: int = SWEEPS
+
+
+def block_sweeps(mass, rigid_ends) -> int:
+    """The sweeps that bring every rigid strut's block to round-off (:data:`_ROUND_OFF`) at its slowest rate, that
+    of the strut standing on one end (its length row and that end's normal row both vertical): ``W_ln^2 / (W_ll
+    W_nn)`` with ``M^-1``'s entries, ``a_e^2 / ((a_a + a_c) d_e)`` (``d`` the diagonal, ``a = d - cross`` the axial
+    entry; lumped ``m_c / (m_a + m_c)``, 0.5 for equal ends: :data:`SWEEPS`; a uniform rod's block 0.75, the
+    built-in three_bar's 0.79: 149 sweeps). At least :data:`SWEEPS`, at most :data:`MAX_SWEEPS`. ``mass``: a
+    ``MassOperator``; ``rigid_ends`` (nr, 2) the moving rigid struts' end nodes."""
+    rate = 0.0
+    axial = mass.axial_inverse
+    for a, c in np.asarray(rigid_ends, dtype=int).reshape(-1, 2):
+        for e in (a, c):
+            if mass.inv_diagonal[e] > 0.0:
+                rate = max(rate, axial[e] ** 2 / ((axial[a] + axial[c]) * mass.inv_diagonal[e]))
+    if rate <= 0.0:
+        return SWEEPS
+    if rate >= 1.0:
+        return MAX_SWEEPS
+    return int(np.clip(np.ceil(np.log(_ROUND_OFF) / np.log(rate)), SWEEPS, MAX_SWEEPS))
 
 
 def ground_model(system, rigid, dtype=jnp.float64) -> GroundModel | None:
@@ -59,7 +87,7 @@ def ground_model(system, rigid, dtype=jnp.float64) -> GroundModel | None:
     lone = np.flatnonzero(system.free & ~on_strut)
     return GroundModel(jnp.asarray(ground.height, dtype), jnp.asarray(ground.friction, dtype),
                        jnp.asarray(ground.restitution, dtype), jnp.asarray(system.scene.node_radii, dtype),
-                       _index(lone))
+                       _index(lone), block_sweeps(system.mass, rigid.ends))
 
 
 def gaps(ground: GroundModel, x):
@@ -75,14 +103,15 @@ def _disc(f, radius):
 
 
 def _contact(ground, mass, armed, w, v, y, f):
-    """One normal row and its friction for nodes with velocities ``v`` (k, 3, B), masses (k,), targets ``w``
-    (k, B), current normal impulses ``y`` (k, B) and friction (k, 2, B); unarmed rows keep no impulse. Returns the
-    velocity change (k, 3, B) and the new ``y``, ``f``."""
+    """One normal row and its friction for nodes with velocities ``v`` (k, 3, B), effective masses ``mass`` (k,)
+    (``1 / M^-1``'s diagonal entry: the node's mass lumped, its rod's block's otherwise), targets ``w`` (k, B),
+    current normal impulses ``y`` (k, B) and friction (k, 2, B); unarmed rows keep no impulse. Returns the impulse
+    change (k, 3, B) N*s (``M^-1`` of it is the velocity change: the node's, and its block's partner's) and the new
+    ``y``, ``f``."""
     m = mass[:, None]
     y_new = jnp.where(armed, jnp.maximum(0.0, y + m * (w - v[:, 2])), 0.0)
     f_new = jnp.where(armed[:, None], _disc(f - m[:, None] * v[:, :2], ground.friction * y_new), 0.0)
-    dv = jnp.concatenate([(f_new - f) / m[:, None], ((y_new - y) / m)[:, None]], axis=1)
-    return dv, y_new, f_new
+    return jnp.concatenate([f_new - f, (y_new - y)[:, None]], axis=1), y_new, f_new
 
 
 def velocity_step(model, ground: GroundModel, x, v, armed, w):
@@ -90,8 +119,8 @@ def velocity_step(model, ground: GroundModel, x, v, armed, w):
     ``v_z >= w`` (N, B) m/s, exact Coulomb friction) and the rigid struts' length rows at ``x`` (N, 3, B) (rate 0),
     from ``v`` (N, 3, B); and the ground's impulses (N, 3, B) N*s (friction x, y; normal z)."""
     free = model.free > 0
-    inv_mass = jnp.where(free, 1.0 / jnp.where(free, model.masses, 1.0), 0.0)
-    mass = jnp.where(free, model.masses, jnp.inf)
+    (inv_mass, inv_cross), _, _ = _derived(model)   # M^-1: its diagonal, its rods' blocks' cross entries
+    mass = jnp.where(free, 1.0 / jnp.where(free, inv_mass, 1.0), jnp.inf)
     impulses = jnp.zeros_like(v)
     out = v
     if model.rigid_members:
@@ -99,23 +128,27 @@ def velocity_step(model, ground: GroundModel, x, v, armed, w):
         a, b = ends[:, 0], ends[:, 1]
         d = x[b] - x[a]
         n = d / jnp.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])[:, None]
-        ia, ib = inv_mass[a][:, None, None], inv_mass[b][:, None, None]
-        w_rigid = (inv_mass[a] + inv_mass[b])[:, None]
+        # a push along the strut moves its ends by M^-1's axial entries; an impulse on one end moves it by the
+        # diagonal entry and the other end by the cross entry (0 lumped or with a fixed end)
+        axial = inv_mass - inv_cross
+        ia, ib = axial[a][:, None, None], axial[b][:, None, None]
+        w_rigid = (axial[a] + axial[b])[:, None]
+        da, db, cross = inv_mass[a][:, None, None], inv_mass[b][:, None, None], inv_cross[a][:, None, None]
 
         def sweep(state, _):
             va, vb, ya, fa, yb, fb = state
             # the length row exactly, the contacts held
             rate = (jnp.sum((vb - va) * n, axis=1) / w_rigid)[:, None]
             va, vb = va + ia * rate * n, vb - ib * rate * n
-            dv, ya, fa = _contact(ground, mass[a], armed[a], w[a], va, ya, fa)
-            va = va + dv
-            dv, yb, fb = _contact(ground, mass[b], armed[b], w[b], vb, yb, fb)
-            return (va, vb + dv, ya, fa, yb, fb), None
+            dp, ya, fa = _contact(ground, mass[a], armed[a], w[a], va, ya, fa)
+            va, vb = va + da * dp, vb + cross * dp
+            dp, yb, fb = _contact(ground, mass[b], armed[b], w[b], vb, yb, fb)
+            return (va + cross * dp, vb + db * dp, ya, fa, yb, fb), None
 
         zero = jnp.zeros((len(a),) + v.shape[2:], v.dtype)
         zero2 = jnp.zeros((len(a), 2) + v.shape[2:], v.dtype)
         state = (v[a], v[b], zero, zero2, zero, zero2)
-        (va, vb, ya, fa, yb, fb), _ = jax.lax.scan(sweep, state, None, length=SWEEPS)
+        (va, vb, ya, fa, yb, fb), _ = jax.lax.scan(sweep, state, None, length=ground.sweeps)
         out = out.at[a].set(va).at[b].set(vb)
         impulses = impulses.at[a].set(jnp.concatenate([fa, ya[:, None]], axis=1))
         impulses = impulses.at[b].set(jnp.concatenate([fb, yb[:, None]], axis=1))
@@ -123,8 +156,8 @@ def velocity_step(model, ground: GroundModel, x, v, armed, w):
         p = np.asarray(ground.lone, dtype=int)
         zero = jnp.zeros((len(p),) + v.shape[2:], v.dtype)
         zero2 = jnp.zeros((len(p), 2) + v.shape[2:], v.dtype)
-        dv, y, f = _contact(ground, mass[p], armed[p], w[p], v[p], zero, zero2)
-        out = out.at[p].add(dv)
+        dp, y, f = _contact(ground, mass[p], armed[p], w[p], v[p], zero, zero2)
+        out = out.at[p].add(inv_mass[p][:, None, None] * dp)
         impulses = impulses.at[p].set(jnp.concatenate([f, y[:, None]], axis=1))
     return out, impulses
 
