@@ -212,7 +212,8 @@ def test_a_frictional_problem_answered_only_near_the_tolerance_is_answered_and_c
     a FrictionError naming the three contacts."""
     from tensegrity_sim.methods.contact import friction
 
-    for name, value in (("MAX_MODE_ITER", 0), ("_NSGS_SWEEPS", ()), ("_RESTARTS", 0), ("FIXED_POINT_TOL", 1e-18)):
+    for name, value in (("MAX_MODE_ITER", 0), ("_NSGS_SWEEPS", ()), ("_RESTARTS", 0), ("_DRIFT_ROUNDS", 0),
+                        ("FIXED_POINT_TOL", 1e-18)):
         monkeypatch.setattr(friction, name, value)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ts.LengthOffsetWarning)

@@ -65,8 +65,11 @@ point; the first three follow from the alternatives' definitions and were not im
   one of the 600 throws' problems ended 5e-10 N*s from the law against a tolerance of 4e-11, so the best
   answer found is taken where it meets the law to ``ACCEPT_TOL`` of the momentum in play (a physical
   scale: at rest the structure's weight times the step), and counted in ``FrictionalSolver.relaxed``;
-  beyond that the problem has no solution). The modes' answers are accepted the same way, else the Newton
-  method takes the problem. Measured cost of the modes: 2 QPs per
+  beyond that the problem has no solution). Where no start comes that near, the rows may depend on each other
+  (a rod lying on the ground on both ends) and the solution lie far along the Delassus matrix's null space:
+  NSGS with steps along it takes it there (``drift`` in :meth:`FrictionalSolver._newton`; measured on a
+  ``three_bar`` reeling three cables, ~150 sweeps where NSGS alone needs 1e5). The modes' answers are accepted
+  the same way, else the Newton method takes the problem. Measured cost of the modes: 2 QPs per
   solve for the sliding strut, 1 for the resting icosahedron (``bench/bench_ground.py`` times them).
 
 **Targets.** A contact is armed when its node can reach the ground by the sub-step's end
@@ -97,9 +100,7 @@ import numpy as np
 from ...system import System
 from .member import Armed, MemberContacts, tangents
 from . import _friction_kernels as kernels
-from ..base import StepError
-from ..qp.solvers import (_FEASIBILITY_TOL, _VELOCITY_FLOOR, BlockMassSolver, DaqpSolver, QPError, QPSolver, Rows,
-                          make_solver)
+from ..qp.solvers import _FEASIBILITY_TOL, _VELOCITY_FLOOR, BlockMassSolver, DaqpSolver, QPError, QPSolver, Rows
 
 __all__ = ["ContactSet", "FrictionalSolver", "FrictionError", "FIXED_POINT_TOL", "TOUCH_TOL"]
 
@@ -108,7 +109,8 @@ MAX_MODE_ITER = 30        # QPs of the mode fixed point before the semismooth Ne
 MAX_NEWTON_ITER = 100     # ... and its iterations before the problem is declared to have no solution
 _LINE_SEARCH = 30         # halvings of the Newton step before the line search gives it up ...
 _NSGS_SWEEPS = (100, 300, 600, 4000)   # NSGS sweeps between Newton's further starts (5000 in all) ...
-_RESTARTS = 64            # Newton's starts from random impulses where it stops at a merit's local minimum
+_RESTARTS = 64            # Newton's starts from random impulses where it stops at a merit's local minimum ...
+_DRIFT_SWEEPS, _DRIFT_ROUNDS = 50, 400   # ... then NSGS rounds of sweeps with steps along W's null space
 # Where no answer meets the law to FIXED_POINT_TOL of the contacts' own impulse scale, the best one found is
 # taken if it meets it to ACCEPT_TOL of the momentum in play (FrictionalSolver._physical_tol: the free nodes'
 # sum m |v0|, at rest the weight times the step) and counted in FrictionalSolver.relaxed; beyond it the problem
@@ -161,14 +163,6 @@ class ContactSet:
         if isinstance(daqp, DaqpSolver):
             daqp.working_set = False   # DAQP alone: see DaqpSolver.working_set
         self.solver = FrictionalSolver(inner, self)
-        # with rigid rods' mass blocks, the last resort of velocity_step: the same problem with the rods lumped
-        self._lumped = None
-        if isinstance(inner, BlockMassSolver):
-            lumped = make_solver(None, system.masses[self.free])
-            if isinstance(lumped, DaqpSolver):
-                lumped.working_set = False
-            self._lumped = FrictionalSolver(lumped, self)
-        self.lumped_solves = 0   # velocity problems answered with the rods lumped (velocity_step)
         self.impulses = np.zeros((system.n_nodes, 3))
         self.pair_impulses: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
 
@@ -266,11 +260,11 @@ class ContactSet:
         contact impulses and by impulses along the rigid struts (``rigid``: :class:`~.rigid.RigidStruts`)
         that keep their lengths at ``x`` (rate 0, as RATTLE does): otherwise SHAKE's position correction
         after the drift would push a node resting on the ground into it, a little every step.
-        Returns the new velocities (N, 3); the ground's impulses go to ``impulses``. With rigid rods' mass blocks,
-        a problem that no method of :class:`FrictionalSolver` answers (measured: a ``three_bar`` reeling three
-        cables to 40 % at once, its rods landing and sliding at 1.6 m/s; never on the test scenes or the throws)
-        is answered with the rods lumped at their ends (row sums: the weight and the linear momentum exact), and
-        counted in ``lumped_solves``, rather than stopping the run."""
+        Returns the new velocities (N, 3); the ground's impulses go to ``impulses``. With rigid rods' mass blocks
+        too (``BlockMassSolver``): the problem whose modes cycled and whose Newton starts missed the law (a
+        ``three_bar`` reeling three cables to 40 % at once, a rod lying on both ends: its solution far along the
+        rows' null space, :meth:`FrictionalSolver._newton`'s ``drift``) is answered with the blocks, never
+        lumped."""
         free = self.free
         fi = self._free_index
         if rigid.count:
@@ -279,17 +273,8 @@ class ContactSet:
         else:
             rows = Rows(np.zeros((0, 2), dtype=int), np.zeros((0, 3)), np.zeros(0), 0)
         out = v.copy()
-        try:
-            out[free] = self.solver.solve(v[free], rows)[0]
-            self.solver.commit()
-        except StepError:
-            if self._lumped is None:
-                raise
-            armed, k = self.solver, len(self.solver._nodes)
-            self._lumped.arm(armed._nodes, armed._targets[:k], armed._touching[:k], armed._pairs)
-            out[free] = self._lumped.solve(v[free], rows)[0]
-            self._lumped.commit()
-            self.lumped_solves += 1
+        out[free] = self.solver.solve(v[free], rows)[0]
+        self.solver.commit()
         return out
 
     def begin_step(self) -> None:
@@ -804,6 +789,38 @@ class FrictionalSolver:
                 size, bound = float(np.hypot(*trial)), mu[c] * r[n_rows + c]
                 r[t] = trial * (bound / size) if size > bound else trial
 
+        def drift(r):
+            """NSGS with steps along the Delassus matrix's null space, from ``r`` (an NSGS iterate: its friction
+            in the discs, its inequality rows' impulses >= 0): where the rows depend on each other (a rod lying on
+            the ground on both ends: its length row and its ends' friction along it), a direction of impulses
+            changes no velocity, and the solution may lie far along it, where one end's friction reaches its
+            disc's edge (at rest on it). NSGS drifts there at a constant rate per sweep (measured on such a rod of
+            ``three_bar``: 1e5 sweeps); after each round of :data:`_DRIFT_SWEEPS` sweeps the last sweep's change,
+            projected on the null space, is taken as far as the first disc edge or impulse sign it meets. Returns
+            the last iterate (solved or not: the caller checks)."""
+            _, size, vh = np.linalg.svd(delassus)
+            null = vh[size <= 1e-12 * size.max(initial=0.0)].T
+            for _ in range(_DRIFT_ROUNDS):
+                for _ in range(_DRIFT_SWEEPS):
+                    previous = r.copy()
+                    sweep(r)
+                if solved(r) or not null.shape[1]:
+                    return r
+                d = null @ (null.T @ (r - previous))
+                step = np.inf
+                shrinking = d[ineq] < 0.0   # inequality rows' impulses stay >= 0
+                if shrinking.any():
+                    step = float(np.min(-r[ineq][shrinking] / d[ineq][shrinking]))
+                for c in range(k):   # |f + t df|^2 <= mu^2 (y + t dy)^2: the first root past 0 of the quadratic
+                    y, dy, f, df = r[n_rows + c], d[n_rows + c], r[t_index[c]], d[t_index[c]]
+                    roots = np.roots([df @ df - (mu[c] * dy) ** 2, 2.0 * (f @ df - mu[c] ** 2 * y * dy),
+                                      f @ f - (mu[c] * y) ** 2])
+                    ahead = roots[(np.abs(roots.imag) <= 1e-12 * np.abs(roots)) & (roots.real > 0.0)].real
+                    step = min(step, float(ahead.min(initial=np.inf)))
+                if np.isfinite(step):
+                    r += step * d
+            return r
+
         def answer(r):
             """The impulses ``r``'s answer: ``y``, ``f`` (k, 2), the contacts' impulses (k, 3) without the normal,
             ``v`` and the contacts' tangential velocities."""
@@ -860,6 +877,8 @@ class FrictionalSolver:
             start[n_qp:] = rng.normal(0.0, scale, 2 * k)
             r, its = descend(start)
             it += its
+        if not (solved(r) or acceptable(best[1])):   # from the last NSGS iterate: its friction in the discs
+            r = drift(swept)
         if not solved(r) and best[1] is not None:   # (None: every miss NaN; the check below names it)
             r = best[1]
         y, f, applied, v, vt = answer(r)

@@ -64,8 +64,7 @@ Compiled, the ground's velocity problems are solved block by block (with elastic
 strut couples nodes: ``_friction_block_kernels.py``, a damped semismooth Newton on the Alart–Curnier form
 with the exact disc, against the Coulomb law's projection form; a rod's block couples its ends' rows through
 ``M^-1``'s cross entry too, and the reference's QPs take the full block mass matrix in ``BlockMassSolver``'s
-coordinates; a problem neither answers with the blocks is answered with the rods lumped, counted in
-``ground.lumped_solves``), the same answers as the QP fixed point to
+coordinates, its last resort NSGS with steps along the rows' null space), the same answers as the QP fixed point to
 its tolerance (``test/test_friction_blocks.py``) and every closed form of ``test/test_ground.py`` on both
 paths. A block the Newton leaves unsolved (measured: 1 % of random blocks with arbitrary strut directions,
 masses and mu up to 1; none on the test scenes) has its step taken by the reference (``fallbacks`` counts
