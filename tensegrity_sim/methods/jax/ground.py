@@ -134,6 +134,7 @@ def velocity_step(model, ground: GroundModel, x, v, armed, w):
         ia, ib = axial[a][:, None, None], axial[b][:, None, None]
         w_rigid = (axial[a] + axial[b])[:, None]
         da, db, cross = inv_mass[a][:, None, None], inv_mass[b][:, None, None], inv_cross[a][:, None, None]
+        blocked = any(p != i for i, p in enumerate(model.mass_partner))
 
         def sweep(state, _):
             va, vb, ya, fa, yb, fb = state
@@ -141,9 +142,14 @@ def velocity_step(model, ground: GroundModel, x, v, armed, w):
             rate = (jnp.sum((vb - va) * n, axis=1) / w_rigid)[:, None]
             va, vb = va + ia * rate * n, vb - ib * rate * n
             dp, ya, fa = _contact(ground, mass[a], armed[a], w[a], va, ya, fa)
-            va, vb = va + da * dp, vb + cross * dp
+            va = va + da * dp
+            if blocked:   # static: only where the scene has rods' blocks
+                vb = vb + cross * dp
             dp, yb, fb = _contact(ground, mass[b], armed[b], w[b], vb, yb, fb)
-            return (va + cross * dp, vb + db * dp, ya, fa, yb, fb), None
+            vb = vb + db * dp
+            if blocked:
+                va = va + cross * dp
+            return (va, vb, ya, fa, yb, fb), None
 
         zero = jnp.zeros((len(a),) + v.shape[2:], v.dtype)
         zero2 = jnp.zeros((len(a), 2) + v.shape[2:], v.dtype)
