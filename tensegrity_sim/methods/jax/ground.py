@@ -21,7 +21,7 @@ The sweeps converge linearly, at a rate set by the angle between the strut and t
 a standing strut's length and normal rows share a node: rate ``a_e^2 / ((a_a + a_c) d_e)`` with the axial entries
 ``a = d - cross``, lumped ``m_a / (m_a + m_b)``): ``SWEEPS`` = 60 brings an end's velocity to round-off at rates up
 to about 0.55, and a scene whose rods' blocks converge slower takes more (:func:`block_sweeps`: a uniform rod's
-0.75, 128 sweeps; three_bar's 149). ``test/test_jax_ground.py`` measures the agreement with the reference and
+0.75, 125 sweeps; three_bar's 149). ``test/test_jax_ground.py`` measures the agreement with the reference and
 the numba batch.
 """
 from __future__ import annotations
