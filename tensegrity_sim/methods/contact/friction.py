@@ -798,13 +798,15 @@ class FrictionalSolver:
             ``three_bar``: 1e5 sweeps); after each round of :data:`_DRIFT_SWEEPS` sweeps the last sweep's change,
             projected on the null space, is taken as far as the first disc edge or impulse sign it meets. Returns
             the last iterate (solved or not: the caller checks)."""
+            if not np.isfinite(delassus).all():   # (the check after names what is not finite)
+                return r
             _, size, vh = np.linalg.svd(delassus)
             null = vh[size <= 1e-12 * size.max(initial=0.0)].T
             for _ in range(_DRIFT_ROUNDS):
                 for _ in range(_DRIFT_SWEEPS):
                     previous = r.copy()
                     sweep(r)
-                if solved(r) or not null.shape[1]:
+                if solved(r) or not null.shape[1] or not np.isfinite(r).all():
                     return r
                 d = null @ (null.T @ (r - previous))
                 step = np.inf
