@@ -496,6 +496,35 @@ def test_a_batch_with_a_ground_runs_schedules_inside_its_compiled_loop():
             np.testing.assert_array_equal(batch.external_forces[b], sim.external_forces)
 
 
+@pytest.mark.parametrize("apart", ["rest_lengths", "forces"])
+def test_a_batch_schedule_over_copies_whose_rest_lengths_or_forces_differ(apart):
+    """One schedule (no forces) over two copies that differ only in their held rest lengths, or only in their held
+    forces: the compiled loop takes the inputs that every copy shares as one column and the others copy by copy
+    (an environment's copies: each reels its own cables, none has a force); each copy as a Simulator commanded
+    step by step."""
+    scene = ts.load_scene("icosahedron_ground")
+    schedule = _roll_schedule(scene, False)
+    rest = np.tile(scene.cable_rest_lengths, (2, 1))
+    forces = np.zeros((2, len(scene.nodes), 3))
+    if apart == "rest_lengths":
+        rest[1, 0] *= 0.9     # c0: a cable the schedule does not name, so it stays apart
+    else:
+        forces[1, 3] = [6.0, -2.0, 1.0]
+    batch = ts.BatchSimulator(scene, 2, method="elastic", contacts=[])
+    batch.set_rest_lengths(rest)
+    batch.set_external_forces(forces)
+    traj = batch.run(steps=400, every=5, commands=schedule)
+    for b in range(2):
+        sim = ts.Simulator(scene, method="elastic", contacts=[])
+        sim.set_rest_lengths(rest[b])
+        sim.set_external_forces(forces[b])
+        ref = sim.run(steps=400, every=5, commands=schedule, callback=lambda k, r: None)
+        np.testing.assert_allclose(traj.positions[b], ref.positions, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(traj.impulses[b], ref.impulses, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(batch.external_forces[b], sim.external_forces)
+    assert np.abs(traj.positions[0, -1] - traj.positions[1, -1]).max() > 1e-3   # the copies went apart
+
+
 def test_the_batch_ground_loop_compiles_parallel_from_a_cold_cache(monkeypatch):
     """The batch's ground loop compiled afresh with ``parallel=True`` (no cache: numba names cache files after
     the function, so before the loops had names of their own the parallel one was only ever the serial one's
