@@ -20,8 +20,9 @@ its start in height, and a ratio is taken to the faster stable integrator (``muj
 * rolling, 2 s under the roll's commands: ours through ``Simulator.run(commands=...)`` (the schedule
   evaluated inside the compiled ground loop), as ``tensegrity-sim run --commands`` (the same, in chunks of
   1,000 steps, with its summary) and by ``set_rest_lengths`` + ``step`` before each step (a length that did not
-  change keeps the steps computed ahead); MuJoCo's commanded tendon length (a spring tendon's length, a limited
-  tendon's limit at its offset above the rest length) + ``mj_step`` from Python, and (the peer of our runs)
+  change keeps the steps computed ahead, a new one is checked and its step taken alone); MuJoCo's commanded
+  tendon length (a spring tendon's length, a limited tendon's limit at its offset above the rest length) +
+  ``mj_step`` from Python, and (the peer of our runs)
   each stretch of unchanged commands in one ``mj_step(nstep)``. The inextensible method's ``run(commands=...)``
   evaluates the schedule in its compiled loop too (issue 47). The step-by-step loops of both take each
   step's lengths from an array evaluated before the timing starts: the schedule's Python (~25 us a step, the

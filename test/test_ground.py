@@ -434,6 +434,38 @@ def test_a_schedule_inside_the_compiled_ground_loop_equals_commanding_each_step(
                                rtol=0, atol=1e-12)
 
 
+def test_a_command_every_step_steps_alone_as_a_look_ahead_of_one_step():
+    """A controller that sets new rest lengths before every step gets each step from the method's ``step``
+    (``Simulator._step_once``: no bookkeeping of steps ahead for one step) and its ground events from the
+    detector's one-step ``changes``; the very numbers and events of looking one step ahead first (the path the
+    step took before), bit for bit, through the roll's ramps, holds and landings."""
+    scene = ts.load_scene("icosahedron_ground")
+    schedule = _roll_schedule(scene, True)
+    # (without strut-strut detection: a detector walks the steps computed ahead, and they are computed so)
+    alone, ahead = (ts.Simulator(scene, method="elastic", dt=1e-3, contacts=()) for _ in range(2))
+    base = scene.cable_rest_lengths
+    steps = []
+    for k in range(700):
+        rest = schedule.rest_lengths_at(k * 1e-3, base)
+        forces = schedule.forces_at(k * 1e-3)
+        for sim in (alone, ahead):
+            sim.set_rest_lengths(rest)
+            if forces is not None:
+                sim.set_external_forces(forces)
+        assert k == 0 or ahead.look_ahead()   # (none before the first step, which checks the speeds)
+        steps.append((alone.step(), ahead.step()))
+        if k < 300:   # the ramp: a new length every step, so the step alone, nothing computed ahead
+            assert alone._ahead is None
+    assert sum(len(a.contacts) for a, _ in steps) > 0   # contacts began and ended
+    for a, b in steps:
+        for f in ("positions", "velocities", "impulses", "tensions", "slack", "contact_impulses"):
+            np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+        assert len(a.contacts) == len(b.contacts)
+        for x, y in zip(a.contacts, b.contacts):
+            assert (x.kind, x.members, x.time, x.normal_impulse) == (y.kind, y.members, y.time, y.normal_impulse)
+            np.testing.assert_array_equal(x.point_a, y.point_a)
+
+
 def test_a_schedule_inside_the_compiled_ground_loop_against_the_numpy_reference():
     """The same run against the numpy reference (friction.py's QP fixed point per step, the schedule set
     step by step): two solvers of the contact problem, each to its tolerance."""
@@ -463,6 +495,35 @@ def test_a_batch_with_a_ground_runs_schedules_inside_its_compiled_loop():
             np.testing.assert_allclose(traj.impulses[b], ref.impulses, rtol=0, atol=1e-12)
             np.testing.assert_array_equal(batch.rest_lengths[b], sim.rest_lengths)
             np.testing.assert_array_equal(batch.external_forces[b], sim.external_forces)
+
+
+@pytest.mark.parametrize("apart", ["rest_lengths", "forces"])
+def test_a_batch_schedule_over_copies_whose_rest_lengths_or_forces_differ(apart):
+    """One schedule (no forces) over two copies that differ only in their held rest lengths, or only in their held
+    forces: the compiled loop takes the inputs that every copy shares as one column and the others copy by copy
+    (an environment's copies: each reels its own cables, none has a force); each copy as a Simulator commanded
+    step by step."""
+    scene = ts.load_scene("icosahedron_ground")
+    schedule = _roll_schedule(scene, False)
+    rest = np.tile(scene.cable_rest_lengths, (2, 1))
+    forces = np.zeros((2, len(scene.nodes), 3))
+    if apart == "rest_lengths":
+        rest[1, 0] *= 0.9     # c0: a cable the schedule does not name, so it stays apart
+    else:
+        forces[1, 3] = [6.0, -2.0, 1.0]
+    batch = ts.BatchSimulator(scene, 2, method="elastic", contacts=[])
+    batch.set_rest_lengths(rest)
+    batch.set_external_forces(forces)
+    traj = batch.run(steps=400, every=5, commands=schedule)
+    for b in range(2):
+        sim = ts.Simulator(scene, method="elastic", contacts=[])
+        sim.set_rest_lengths(rest[b])
+        sim.set_external_forces(forces[b])
+        ref = sim.run(steps=400, every=5, commands=schedule, callback=lambda k, r: None)
+        np.testing.assert_allclose(traj.positions[b], ref.positions, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(traj.impulses[b], ref.impulses, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(batch.external_forces[b], sim.external_forces)
+    assert np.abs(traj.positions[0, -1] - traj.positions[1, -1]).max() > 1e-3   # the copies went apart
 
 
 def test_the_batch_ground_loop_compiles_parallel_from_a_cold_cache(monkeypatch):

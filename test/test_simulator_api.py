@@ -39,6 +39,13 @@ BAD_REST = [
     ({"cl": 10 ** 400}, "rest_lengths['cl'] must be numbers, got an integer of 401 digits"),
     ({"cl": 1j}, "rest_lengths['cl'] must be numbers, got 1j"),
     ({("cl",): 1.0}, "rest_lengths: unknown name ('cl',) (known: cl, cr)"),
+    # a float64 array of the right shape (a controller's each step) is checked on a path of its own
+    (np.array([1.0, np.nan]), "rest_lengths must be finite, got array([ 1., nan])"),
+    (np.array([np.inf, 1.0]), "rest_lengths must be finite, got array([inf, 1.])"),
+    (np.array([1.0, -np.inf]), "rest_lengths must be finite, got array([ 1., -inf])"),
+    (np.array([1.0, -1.0]), "rest_lengths['cr']: must be > 0, got -1.0"),
+    (np.array([0.0, 1.0]), "rest_lengths['cl']: must be > 0, got 0.0"),
+    (np.array([[1.0, 1.0]]), "rest_lengths must be an array of shape (2,), got shape (1, 2)"),
 ]
 
 
@@ -49,6 +56,23 @@ def test_bad_rest_lengths_refused_state_unchanged(sim, values, message):
         sim.set_rest_lengths(values)
     assert str(err.value) == message
     assert_unchanged(before, sim)
+
+
+def test_rest_lengths_array_taken_as_a_copy_and_the_same_lengths_change_nothing(sim):
+    """The array path: new lengths are copied (the caller's array is theirs to write), the lengths in effect
+    keep the steps computed ahead, and lengths whose sum overflows are still accepted (each is finite)."""
+    new = np.array([1.0, 0.9])
+    sim.set_rest_lengths(new)
+    new[0] = 5.0
+    np.testing.assert_array_equal(sim.rest_lengths, [1.0, 0.9])
+    sim.step()
+    ahead = sim.steps_ahead
+    assert ahead > 0
+    sim.set_rest_lengths(np.array([1.0, 0.9]))
+    assert sim.steps_ahead == ahead
+    sim.set_rest_lengths(np.array([1e308, 1e308]))
+    np.testing.assert_array_equal(sim.rest_lengths, [1e308, 1e308])
+    assert sim.steps_ahead == 0
 
 
 BAD_FORCES = [

@@ -40,7 +40,8 @@ class _Reel(CommandSchedule):
     the cables ``rest_cables`` (na,). Only what the compiled ground run asks of a batch's schedule (style rule 8:
     one schedule for all copies, its per-copy values on the trailing axis): :meth:`inputs_at` for the S step times
     of the period, ``base`` (nc, B) and ``forces`` (N, 3, B) held; the same numbers as B schedules that name each
-    step's value at its start time (``np.interp`` at a point is the point's value), without a Python loop."""
+    step's value at its start time (``np.interp`` at a point is the point's value), without a Python loop; the
+    forces as given (one column where every copy's are the same: the run passes it so)."""
 
     def __init__(self, cables: np.ndarray, reel: np.ndarray, n_nodes: int):
         super().__init__(cables, (), (), np.zeros(0), np.zeros((0, n_nodes, 3)))
@@ -50,9 +51,8 @@ class _Reel(CommandSchedule):
         steps, copies = len(times), self.reel.shape[1]
         if self.reel.shape[0] != steps or base.ndim != 2:
             raise ValueError(f"a control period of {self.reel.shape[0]} steps asked for {steps} steps' inputs")
-        # (the run passes one column where every copy's inputs are equal)
-        base, forces = np.broadcast_to(base, (len(base), copies)), np.broadcast_to(forces, forces.shape[:2] + (copies,))
-        rest = np.repeat(base[None], steps, axis=0)
+        # (the run passes one column where every copy's rest lengths are equal)
+        rest = np.repeat(np.broadcast_to(base, (len(base), copies))[None], steps, axis=0)
         rest[:, self.rest_cables] = np.moveaxis(self.reel, 1, 2)
         return rest, np.repeat(forces[None], steps, axis=0)
 

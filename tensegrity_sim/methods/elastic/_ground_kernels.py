@@ -504,8 +504,10 @@ def _arm_pairs_for(x, v, v0, h, pair_nodes, pair_radii, touch_tol, restitution, 
 def pair_scratch(n_nodes, n_rigid, n_pairs):
     """The member pairs' scratch of the kernels (a tuple): by pair, the armed pairs' indices, their frames,
     weights, targets, landing speeds, the step's impulses (normal, friction in space) and whether the step
-    armed them; the union-find of the bodies (struts, then nodes) and the coupled block's arrays."""
-    rows = MAX_COUPLED
+    armed them; the union-find of the bodies (struts, then nodes) and the coupled block's arrays (none without
+    pairs: only an armed pair makes a coupled block, and its 110 kB were zeroed at every call, one a step where a
+    controller commands every step)."""
+    rows = MAX_COUPLED if n_pairs else 0
     width = rows // 3 + 1   # nodes a coupled block may hold
     return (np.empty(n_pairs, dtype=np.int64), np.empty((n_pairs, 3, 3)), np.empty((n_pairs, 4)), np.empty(n_pairs),
             np.zeros(n_pairs), np.zeros((n_pairs, 4)), np.zeros(n_pairs, dtype=np.bool_),
@@ -612,8 +614,9 @@ def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, 
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _take_inputs(rest_seq, ext_seq, s, bs, rest, ext) -> bool:
-    """Step ``s``'s inputs of copy ``bs`` into ``rest`` (nc, 1) and ``ext`` (N, 3, 1); whether they changed."""
+def _take_inputs(rest_seq, ext_seq, s, bs, be, rest, ext) -> bool:
+    """Step ``s``'s inputs into ``rest`` (nc, 1) (column ``bs`` of ``rest_seq``) and ``ext`` (N, 3, 1) (column ``be``
+    of ``ext_seq``); whether they changed."""
     changed = False
     for ci in range(rest.shape[0]):
         if rest[ci, 0] != rest_seq[s, ci, bs]:
@@ -621,8 +624,8 @@ def _take_inputs(rest_seq, ext_seq, s, bs, rest, ext) -> bool:
             changed = True
     for i in range(ext.shape[0]):
         for j in range(3):
-            if ext[i, j, 0] != ext_seq[s, i, j, bs]:
-                ext[i, j, 0] = ext_seq[s, i, j, bs]
+            if ext[i, j, 0] != ext_seq[s, i, j, be]:
+                ext[i, j, 0] = ext_seq[s, i, j, be]
                 changed = True
     return changed
 
@@ -645,8 +648,9 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
     Each copy is stepped in contiguous arrays of its own (a batch of one: the very arithmetic of
     ``Simulator``'s loop, and no stride of B between a copy's numbers).
 
-    ``rest_seq`` (T, nc, Bs), ``ext_seq`` (T, N, 3, Bs): with T = ``n_steps``, each step's rest lengths and external
-    forces (a command schedule evaluated at the steps' start times; Bs = B, or 1 for every copy), with T = 0
+    ``rest_seq`` (T, nc, Bs), ``ext_seq`` (T, N, 3, Be): with T = ``n_steps``, each step's rest lengths and external
+    forces (a command schedule evaluated at the steps' start times; Bs, Be = B, or 1 for every copy: an environment's
+    copies reel each its own cables under the same forces), with T = 0
     ``rest`` and ``ext`` held. A step whose inputs differ from the last step's starts from forces computed anew
     at its start (as ``Simulator`` does after a new input: the carry dropped, ``elastic_forces`` at the state;
     the contact warm starts kept): a run with a schedule here is the very arithmetic of commanding each step."""
@@ -660,14 +664,14 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _copy_steps(b, bs, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
+def _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
                 damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu,
                 restitution, radii_b, node_strut_b,
                 touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb, extb, accb, tensionb,
                 dirsb, warmb, rest_seq, ext_seq, dx, imp, total, sl, contact, total_contact, armed, target, landing, x0,
                 v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, out_x, out_v,
                 out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason):
-    """Copy ``b``'s ``n_steps`` steps in its own arrays (``*b``; ``bs`` its column of the inputs), for
+    """Copy ``b``'s ``n_steps`` steps in its own arrays (``*b``; ``bs``, ``be`` its columns of the inputs), for
     :func:`_block`, which allocates; this loop hands a step dozens of arrays and is compiled without
     reference counts (a counted call of ``_ground_step`` adds and subtracts one per array: ~5 ns each)."""
     n_nodes = xb.shape[0]
@@ -682,7 +686,7 @@ def _copy_steps(b, bs, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffne
             for j in range(3):
                 x0[i, j] = xb[i, j, 0]
                 v0[i, j] = vb[i, j, 0]
-        if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, restb, extb):
+        if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, be, restb, extb):
             _forces(xb, vb, restb, extb, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b, damping_b,
                     inv_mass_b, gravity_b, rigid_members_b, accb, tensionb, dirsb, sl, 0)
         why = _ground_step(xb, vb, restb, extb, h, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
@@ -792,8 +796,9 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
         failed[b] = -1
         reason[b] = 0
         n_records[b] = 0
-        bs = b if rest_seq.shape[2] > 1 else 0   # the copy's column of the inputs (or the one of every copy's)
-        _copy_steps(b, bs, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
+        bs = b if rest_seq.shape[2] > 1 else 0   # the copy's columns of the inputs (or the one of every copy's)
+        be = b if ext_seq.shape[3] > 1 else 0
+        _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
                     damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu,
                     restitution, radii_b,
                     node_strut_b, touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb,

@@ -232,14 +232,19 @@ class ElasticBatch:
         return out_x, out_v, out_imp, out_slack
 
     def _inputs(self, commands, rest, ext, steps: int, first_step: int):
-        """Each step's rest lengths (steps, nc, Bs) and forces (steps, N, 3, Bs) from ``commands`` on top of
-        ``rest`` (nc, B) and ``ext`` (N, 3, B): Bs = 1 where one schedule meets copies with the same inputs."""
+        """Each step's rest lengths (steps, nc, Bs) and forces (steps, N, 3, Be) from ``commands`` on top of
+        ``rest`` (nc, B) and ``ext`` (N, 3, B): Bs = 1 where one schedule meets copies with the same rest lengths,
+        Be = 1 where it meets them with the same forces (an environment's copies: its actions reel each copy's
+        cables, its forces are every copy's none; one column each step instead of B, 1.5 MB a control period
+        of 256 copies)."""
         times = (first_step + np.arange(steps)) * self.dt
         if isinstance(commands, (list, tuple)):
             per_copy = [c.inputs_at(times, rest[:, b], ext[..., b]) for b, c in enumerate(commands)]
             return tuple(np.ascontiguousarray(np.stack([p[i] for p in per_copy], axis=-1)) for i in range(2))
-        if (rest == rest[:, :1]).all() and (ext == ext[..., :1]).all():
-            rest, ext = rest[:, :1], ext[..., :1]
+        if (rest == rest[:, :1]).all():
+            rest = rest[:, :1]
+        if (ext == ext[..., :1]).all():
+            ext = ext[..., :1]
         return tuple(np.ascontiguousarray(a) for a in commands.inputs_at(times, rest, ext))
 
     def _advance_ground(self, x, v, rest_lengths, f_ext, steps: int, commands=None, first_step: int = 0):
@@ -300,12 +305,12 @@ class ElasticBatch:
             done = int(failed[c])
             full = reason[c] == ground_kernels.FULL
             method = ElasticMethod(self.system, self.dt)
-            bs = c if seq[0].shape[2] > 1 else 0
-            inputs = None if commands is None else (seq[0][done:, :, bs], seq[1][done:, ..., bs])
+            bs, be = (c if seq[0].shape[2] > 1 else 0), (c if seq[1].shape[3] > 1 else 0)
+            inputs = None if commands is None else (seq[0][done:, :, bs], seq[1][done:, ..., be])
             state = State(x[..., c].copy(), v[..., c].copy(), rest[:, c].copy(), ext[..., c].copy())
             if inputs is not None and (done or not full):   # the inputs in effect (at FULL: the step's before)
                 state.rest_lengths = seq[0][done - full, :, bs].copy()
-                state.external_forces = seq[1][done - full, ..., bs].copy()
+                state.external_forces = seq[1][done - full, ..., be].copy()
             if full:
                 method.restore(tuple(a[..., c:c + 1] for a in self._cache[:3]) + (np.zeros((nc, 1), dtype=bool),
                                                                                   self._cache[3][..., c:c + 1]))

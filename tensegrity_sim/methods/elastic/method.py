@@ -185,6 +185,10 @@ class ElasticMethod(StepMethod):
         self._pair_keys = (None if self.ground is None
                            else ground_kernels.eligible_pairs(system, self.ground.members).tolist())
         self._records = {}    # the member pairs' impulses of the last compiled call, {step: pair_impulses}
+        # the compiled call's flags (failed, reason, n_records: (1,) int64 each) and, without member pairs, its
+        # empty record buffer, made once: a call of one step (a command every step) is where they cost
+        self._flags = tuple(np.empty(1, dtype=np.int64) for _ in range(3))
+        self._no_records = np.empty((1, 0, 6))
         self._plain = self.order == 2 and not self.locate_switches
         self._weights = np.array(WEIGHTS[self.order])
         self._model = kernels.model_arrays(system, self.rigid)
@@ -280,9 +284,10 @@ class ElasticMethod(StepMethod):
             self._warm = None
             self._carry = forces + (kernels.elastic_forces(x, v, rest, ext, *self._model[:10], *forces), warm)
         if self._ground_model is not None:
-            failed, reason, count = (np.empty(1, dtype=np.int64) for _ in range(3))
+            failed, reason, count = self._flags
             n_pairs = len(self._pair_keys)
-            records = np.empty((1, n_pairs and max(n_pairs, min(steps * n_pairs, _PAIR_RECORDS)), 6))
+            records = (self._no_records if not n_pairs
+                       else np.empty((1, max(n_pairs, min(steps * n_pairs, _PAIR_RECORDS)), 6)))
             ground_kernels.ground_steps_serial(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
                                                *self._ground_model, self._carry[4], *inputs, positions, velocities,
                                                impulses, slack, contact, records, count, failed, reason, 1)
