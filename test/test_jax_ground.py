@@ -114,3 +114,39 @@ def test_rolling_under_a_schedule_equals_the_numpy_reference():
     # the rest lengths in effect: the schedule's at the last step's start
     np.testing.assert_allclose(sim.rest_lengths[0], schedule.rest_lengths_at(0.799, scene.cable_rest_lengths),
                                rtol=0, atol=1e-14)
+
+
+def test_sweeps_stopping_at_a_tolerance_equal_the_reference_and_the_fixed_counts_tangents():
+    """The ground's tolerance mode (``fit``'s: warm-started sweeps on the problem with each strut's length row
+    eliminated, stopping at ``TOLERANCE``) on the icosahedron thrown onto the ground (landing, rolling, cables
+    going slack): positions as the numpy reference's, and the forward-mode tangent of the run with respect to every
+    cable's stiffness as the fixed count's (whose sweeps converge to round-off)."""
+    import jax
+    import jax.numpy as jnp
+
+    from tensegrity_sim.methods.jax import elastic as jel
+    from tensegrity_sim.methods.jax.ground import TOLERANCE
+    from tensegrity_sim.methods.rigid import RigidStruts
+    from tensegrity_sim.system import System
+
+    scene = _thrown_onto_the_ground(1)
+    system = System(scene)
+    fixed = jel.model_arrays(system, RigidStruts(system))
+    stopping = fixed._replace(ground=fixed.ground._replace(tolerance=TOLERANCE))
+    x0, v0 = jnp.asarray(scene.positions[..., None]), jnp.asarray(scene.velocities[..., None])
+    inputs = jel.held_inputs(scene.cable_rest_lengths[:, None], jnp.zeros_like(x0))
+
+    def run(model, factor):
+        scaled = model._replace(stiffness=model.stiffness * factor)
+        return jel.rollout(scaled, x0, v0, inputs, 1e-3, 600, every=10).x[..., 0]
+
+    ref = ts.Simulator(scene, method="elastic", dt=1e-3).run(steps=600, every=10)
+    assert len(ref.contacts) > 0 and ref.slack.any()
+    x_stop, dx_stop = jax.jvp(lambda k: run(stopping, k), (1.0,), (1.0,))
+    x_fixed, dx_fixed = jax.jvp(lambda k: run(fixed, k), (1.0,), (1.0,))
+    kept = np.rint(ref.time / 1e-2).astype(int) - 1   # the rollout keeps steps 10, 20, ..., 600
+    np.testing.assert_allclose(np.asarray(x_stop)[kept[1:]], ref.positions[1:], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(np.asarray(x_stop), np.asarray(x_fixed), rtol=0, atol=1e-10)
+    scale = np.abs(np.asarray(dx_fixed)).max()
+    assert scale > 1e-3   # the stiffness moves the run
+    np.testing.assert_allclose(np.asarray(dx_stop), np.asarray(dx_fixed), rtol=0, atol=1e-7 * scale)

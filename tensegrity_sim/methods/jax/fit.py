@@ -64,6 +64,7 @@ from ...scene import Scene
 from ...system import System
 from ..rigid import RigidStruts
 from .elastic import Carry, model_arrays, start_carry, verlet_step
+from .ground import TOLERANCE
 
 __all__ = ["KINDS", "LOSSES", "FitResult", "Observed", "Unknown", "choose_window", "fit_observed",
            "parse_parameters"]
@@ -227,6 +228,8 @@ class _Problem:
         system = System(scene)
         rigid = RigidStruts(system)
         self.model = model_arrays(system, rigid)
+        if self.model.ground is not None:   # forward mode only: the ground's sweeps may stop at a tolerance
+            self.model = self.model._replace(ground=self.model.ground._replace(tolerance=TOLERANCE))
         self.ns = system.n_struts
         self.free = np.flatnonzero(system.free)
         steps = np.asarray(obs.steps, dtype=np.int64)
@@ -370,7 +373,7 @@ class _Problem:
             rb, fb = copies(r), copies(f)
 
             def restart():   # a new input: the start forces with it, in the windows where it changed
-                fresh = start_carry(model, carry.x, carry.v, rb, fb)
+                fresh = start_carry(model, carry.x, carry.v, rb, fb, carry.contact)
                 return Carry(*(jnp.where(copies(changed), a, b) for a, b in zip(fresh, carry)))
 
             carry = lax.cond(jnp.any(changed), restart, lambda: carry)
