@@ -179,3 +179,63 @@ def test_gradients_through_rods_on_the_ground_equal_central_differences():
         g = getattr(grad, field)
         assert np.all(np.isfinite(np.asarray(g))), field
         _check(g, lambda p, f=field: value(model._replace(**{f: p})), getattr(model, field), eps, field)
+
+
+def test_sweeps_stopping_at_a_tolerance_equal_the_reference_and_the_fixed_counts_tangents():
+    """The ground's tolerance mode (``fit``'s: warm-started sweeps on the problem with each strut's length row
+    eliminated, stopping at ``TOLERANCE``) on the icosahedron thrown onto the ground (landing, rolling, cables
+    going slack): positions as the numpy reference's, and the forward-mode tangent of the run with respect to every
+    cable's stiffness as the fixed count's (whose sweeps converge to round-off)."""
+    import jax
+    import jax.numpy as jnp
+
+    from tensegrity_sim.methods.jax import elastic as jel
+    from tensegrity_sim.methods.jax.ground import TOLERANCE
+    from tensegrity_sim.methods.rigid import RigidStruts
+    from tensegrity_sim.system import System
+
+    scene = _thrown_onto_the_ground(1)
+    system = System(scene)
+    fixed = jel.model_arrays(system, RigidStruts(system))
+    stopping = fixed._replace(ground=fixed.ground._replace(tolerance=TOLERANCE))
+    x0, v0 = jnp.asarray(scene.positions[..., None]), jnp.asarray(scene.velocities[..., None])
+    inputs = jel.held_inputs(scene.cable_rest_lengths[:, None], jnp.zeros_like(x0))
+
+    def run(model, factor):
+        scaled = model._replace(stiffness=model.stiffness * factor)
+        return jel.rollout(scaled, x0, v0, inputs, 1e-3, 600, every=10).x[..., 0]
+
+    ref = ts.Simulator(scene, method="elastic", dt=1e-3).run(steps=600, every=10)
+    assert len(ref.contacts) > 0 and ref.slack.any()
+    x_stop, dx_stop = jax.jvp(lambda k: run(stopping, k), (1.0,), (1.0,))
+    x_fixed, dx_fixed = jax.jvp(lambda k: run(fixed, k), (1.0,), (1.0,))
+    kept = np.rint(ref.time / 1e-2).astype(int) - 1   # the rollout keeps steps 10, 20, ..., 600
+    np.testing.assert_allclose(np.asarray(x_stop)[kept[1:]], ref.positions[1:], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(np.asarray(x_stop), np.asarray(x_fixed), rtol=0, atol=1e-10)
+    scale = np.abs(np.asarray(dx_fixed)).max()
+    assert scale > 1e-3   # the stiffness moves the run
+    np.testing.assert_allclose(np.asarray(dx_stop), np.asarray(dx_fixed), rtol=0, atol=1e-7 * scale)
+
+
+def test_sweeps_stopping_at_a_tolerance_take_the_rods_blocks():
+    """The tolerance mode on a scene whose rods carry their 2x2 mass blocks (three_bar reeling three cables on the
+    ground: its rods land, tip and slide) takes the plain block sweeps, warm-started and stopping at ``TOLERANCE``:
+    the same run as the fixed count's (``block_sweeps``, round-off), and so the numba batch's."""
+    import jax.numpy as jnp
+
+    from tensegrity_sim.methods.jax import elastic as jel
+    from tensegrity_sim.methods.jax.ground import TOLERANCE
+    from tensegrity_sim.methods.rigid import RigidStruts
+    from tensegrity_sim.system import System
+
+    scene = ts.load_scene("three_bar")
+    system = System(scene)
+    fixed = jel.model_arrays(system, RigidStruts(system))
+    assert np.any(np.asarray(fixed.mass_block) > 0)
+    stopping = fixed._replace(ground=fixed.ground._replace(tolerance=TOLERANCE))
+    x0, v0 = jnp.asarray(scene.positions[..., None]), jnp.asarray(scene.velocities[..., None])
+    inputs = jel.schedule_inputs(_reeling(scene), scene.cable_rest_lengths[:, None], np.zeros(x0.shape))
+    runs = [np.asarray(jel.rollout(m, x0, v0, inputs, 1e-3, 600, 10, scheduled=True).x[..., 0])
+            for m in (fixed, stopping)]
+    assert np.abs(runs[0][-1] - scene.positions).max() > 0.05   # it moved
+    np.testing.assert_allclose(runs[1], runs[0], rtol=0, atol=1e-10)

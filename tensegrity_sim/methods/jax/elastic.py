@@ -99,13 +99,16 @@ class ElasticModel:
 
 class Carry(NamedTuple):
     """What one step hands the next, batch last: x, v (N, 3, B), acc (N, 3, B) m/s^2, tension (nc, B) N and the
-    rigid struts' unit vectors dirs (nr, 3, B) at the step's end."""
+    rigid struts' unit vectors dirs (nr, 3, B) at the step's end; contact (2, N, 3, B) N*s: the ground's impulses
+    of the step's drift and closing solves, where the next step's sweeps start (a ground with a tolerance:
+    ``ground.py``; else (0, N, 3, B))."""
 
     x: jax.Array
     v: jax.Array
     acc: jax.Array
     tension: jax.Array
     dirs: jax.Array
+    contact: jax.Array
 
 
 @_pytree("rest_cables")
@@ -282,7 +285,7 @@ def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
     (nc, B) at the step's end."""
     from .ground import TOUCH_TOL, contact_step, drift_contacts, gaps
 
-    x, v, acc, tension, dirs = carry
+    x, v, acc, tension, dirs, contact = carry
     inverse, _, w = _derived(model)
     half = 0.5 * h
     v_half = v + half * acc
@@ -293,16 +296,21 @@ def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
         if len(model.rigid_members):   # armed on the velocity with each rigid strut's length rate zeroed too
             rate = _dot3(_differences(model.rigid_incidence, v_half), dirs)
             free_z = (v_half + _push(model, inverse, rate / w[:, None], dirs))[:, 2]
+        warm = carry.contact if len(carry.contact) else (None, None)
         armed, target = drift_contacts(model, ground, x, v, v_half, h, free_z)
-        out = contact_step(model, ground, x, v_half, armed, target)[0]
+        out, drift = contact_step(model, ground, x, v_half, armed, target, warm[0])
         # ContactSet.missed: a copy whose answer carries an unarmed node into the ground is solved again with the
         # nodes it carries within TOUCH_TOL of it armed too
         end_gap = gaps(ground, x) + h * out[:, 2]
         free = (model.free > 0)[:, None]
         missed = jnp.any(free & ~armed & (end_gap < -TOUCH_TOL), axis=0)
         again = armed | (free & missed[None] & (end_gap <= TOUCH_TOL))
-        v_half = jax.lax.cond(jnp.any(missed), lambda: jnp.where(
-            missed[None, None], contact_step(model, ground, x, v_half, again, target)[0], out), lambda: out)
+
+        def solve_again():
+            out_again, drift_again = contact_step(model, ground, x, v_half, again, target, warm[0])
+            return jnp.where(missed[None, None], out_again, out), jnp.where(missed[None, None], drift_again, drift)
+
+        v_half, drift = jax.lax.cond(jnp.any(missed), solve_again, lambda: (out, drift))
         landing_speed = jnp.where(gaps(ground, x) > TOUCH_TOL, landing_speed, 0.0)
     x_new = x + h * v_half
     nr = len(model.rigid_members)
@@ -325,15 +333,22 @@ def verlet_step(model: ElasticModel, carry: Carry, rest, ext, h):
         v_new = v_new + _push(model, inverse, rate / w[:, None], dirs)
     if ground is not None:
         touching = (model.free > 0)[:, None] & (gaps(ground, x_new) <= TOUCH_TOL)
-        v_new = contact_step(model, ground, x_new, v_new, touching, ground.restitution * landing_speed)[0]
-    return Carry(x_new, v_new, acc_end, tension_end, dirs), impulses, slack
+        v_new, closing = contact_step(model, ground, x_new, v_new, touching, ground.restitution * landing_speed,
+                                      warm[1])
+        if len(carry.contact):
+            contact = jnp.stack([drift, closing])
+    return Carry(x_new, v_new, acc_end, tension_end, dirs, contact), impulses, slack
 
 
 @jax.jit
-def start_carry(model: ElasticModel, x, v, rest, ext) -> Carry:
-    """The carry at the start of a run from positions ``x`` and velocities ``v`` (N, 3, B)."""
+def start_carry(model: ElasticModel, x, v, rest, ext, contact=None) -> Carry:
+    """The carry at the start of a run from positions ``x`` and velocities ``v`` (N, 3, B); ``contact``: the
+    ground's impulses the sweeps start from (:class:`Carry`; None: zero)."""
     acc, tension, dirs, _ = elastic_forces(model, x, v, rest, ext)
-    return Carry(x, v, acc, tension, dirs)
+    if contact is None:
+        warm = model.ground is not None and model.ground.tolerance > 0
+        contact = jnp.zeros((2 if warm else 0,) + x.shape, x.dtype)
+    return Carry(x, v, acc, tension, dirs, contact)
 
 
 def _inputs_at(inputs: Inputs, t):
@@ -384,7 +399,8 @@ def _scan_steps(model, h, inputs, scheduled, n_steps, first, loop, every):
             rest, ext = _inputs_at(inputs, (first + k).astype(h.dtype) * h)
             changed = jnp.any(rest != rest_prev) | jnp.any(ext != ext_prev)
             # a new input: the start forces at the step's start state with it (the numba batch's invalidate)
-            carry = lax.cond(changed, lambda: start_carry(model, carry.x, carry.v, rest, ext), lambda: carry)
+            carry = lax.cond(changed, lambda: start_carry(model, carry.x, carry.v, rest, ext, carry.contact),
+                             lambda: carry)
         else:
             rest, ext = rest_prev, ext_prev
         carry, impulses, slack = _remat_step(model, carry, rest, ext, h)

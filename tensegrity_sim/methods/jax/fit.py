@@ -28,9 +28,11 @@ per start-state coordinate, seeded in every window at once, gives every window's
 whatever the number of windows). The start states' tangents (6 N of them) are reused between iterations (a chord
 method: ``exact`` False) until a parameter factor moves by ``CHORD`` or a start state by ``CHORD_STATE`` since they
 were computed; the parameters' are computed every time. It is an option (``chord``): it saves most of the
-Jacobians' cost where they dominate (the rolling icosahedron: 3x less CPU). ``scipy.optimize.least_squares`` (trust
-region reflective) minimises the sum of squares, or a robust loss (``loss``: ``soft_l1``, ``huber``, ``cauchy``,
-``arctan``, with ``loss_scale`` in m).
+Jacobians' cost where they dominate (the rolling icosahedron: 3x less CPU). Every run here is differentiated in
+forward mode only, so a ground's sweeps stop at ``ground.TOLERANCE`` (``ground.py``: warm-started, each end on the
+problem with its strut's length row eliminated; half the CPU of the fixed 60 sweeps a Jacobian of the rolling
+icosahedron). ``scipy.optimize.least_squares`` (trust region reflective) minimises the sum of squares, or a robust
+loss (``loss``: ``soft_l1``, ``huber``, ``cauchy``, ``arctan``, with ``loss_scale`` in m).
 
 **Bounds and prior.** Bounds are physical (stiffness, mass and reel speed > 0, damping and friction >= 0,
 restitution in [0, 1]); an unknown with a positive scene value is fitted as a factor on it, one that is 0 in the
@@ -64,6 +66,7 @@ from ...scene import Scene
 from ...system import System
 from ..rigid import RigidStruts
 from .elastic import Carry, model_arrays, start_carry, verlet_step
+from .ground import TOLERANCE
 
 __all__ = ["KINDS", "LOSSES", "FitResult", "Observed", "Unknown", "choose_window", "fit_observed",
            "parse_parameters"]
@@ -227,6 +230,8 @@ class _Problem:
         system = System(scene)
         rigid = RigidStruts(system)
         self.model = model_arrays(system, rigid)
+        if self.model.ground is not None:   # forward mode only: the ground's sweeps may stop at a tolerance
+            self.model = self.model._replace(ground=self.model.ground._replace(tolerance=TOLERANCE))
         self.ns = system.n_struts
         self.free = np.flatnonzero(system.free)
         steps = np.asarray(obs.steps, dtype=np.int64)
@@ -370,7 +375,7 @@ class _Problem:
             rb, fb = copies(r), copies(f)
 
             def restart():   # a new input: the start forces with it, in the windows where it changed
-                fresh = start_carry(model, carry.x, carry.v, rb, fb)
+                fresh = start_carry(model, carry.x, carry.v, rb, fb, carry.contact)
                 return Carry(*(jnp.where(copies(changed), a, b) for a, b in zip(fresh, carry)))
 
             carry = lax.cond(jnp.any(changed), restart, lambda: carry)
