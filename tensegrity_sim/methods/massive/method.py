@@ -41,8 +41,18 @@ unless ``compiled`` is False) and the numpy code below, the plain reference it m
 The structure's inverse mass is applied in one place in each, :meth:`MassiveMethod.inverse_mass` and
 ``_kernels.inverse_mass`` (lumped, diagonal, now; the kernel builds the plates' ``G`` node by node and factors it
 once a step, see its docstring). Not available yet (refused at construction with a message):
-rigid struts (RATTLE's projections would need the plate-augmented mass), a ground and a member contact
-response.
+rigid struts (RATTLE's projections would need the plate-augmented mass) and a member contact response.
+
+**A ground** (``methods/contact/friction.py``): the elastic method's contact impulses at each half-kick
+(``ContactSet.drift_step``: lands every node that would pass the ground exactly on it; ``settle_step``: no node
+on it moves into it or slides against friction), exact Coulomb friction, with the velocity problems posed under
+the mass matrix of the moment, ``M + sum m_c b_c b_c^T`` over the taut cables whose plates move with them
+(:class:`PlateMassSolver`: each plate a node of mass ``m_c`` on an equality row, so that the project's backends
+and the frictional solver's mode fixed point, semismooth Newton method and Coulomb checks answer it unchanged).
+A scene with a ground is stepped by plain Verlet (order 2), its snaps and releases resolved at the end of the step
+they happen in (first order there, as the elastic method's unlocated switches), and by the numpy reference: the
+compiled kernel takes no ground yet (``describe()["contacts"]`` says so). The contacts' losses are not in
+``losses`` (only the plates'): on the ground ``energy()["total"] + losses`` only falls.
 
 ``run()`` steps in the kernel's loop (``massive_steps``, base.py's rule 10); its carry is the start workspace
 (positions, velocities and the forces there) and the losses so far, so the simulator rewinds the steps it
@@ -50,6 +60,7 @@ computed ahead before an input changes or ``energy_lost`` is read (``carry_outli
 """
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import NamedTuple
 
 import numpy as np
@@ -60,13 +71,15 @@ from scipy.optimize import nnls
 
 from ...system import System
 from ..base import MethodStep, State, StepMethod
+from ..contact.friction import ContactSet
+from ..qp.solvers import BlockMassSolver, QPSolver, Rows, make_solver
 from ..elastic import _kernels as elastic_kernels
 from ..elastic.composition import MIN_SPLIT, STABILITY, WEIGHTS, Stepper, check_stable
 from ..elastic.method import ElasticMethod
 from ..rigid import RigidStruts
 from . import _kernels as kernels
 
-__all__ = ["MassiveMethod", "plate_impact", "BAND"]
+__all__ = ["MassiveMethod", "PlateMassSolver", "plate_impact", "BAND"]
 
 # relative to the rest length: a cable this close to its natural length has the switch state of its rate's sign
 # (taut when lengthening), so that a located snap (|e| <= LOCATE_TOL L = 1e-13 L) counts as taut and a located
@@ -110,6 +123,151 @@ def plate_impact(g: np.ndarray, rates: np.ndarray, snapping: np.ndarray) -> np.n
     return p
 
 
+class PlateMassSolver(QPSolver):
+    """The contacts' velocity problem (``methods/contact/friction.py``) under the massive method's mass matrix
+    ``M + sum_c m_c b_c b_c^T`` over the cables :meth:`hold` names (taut, their plates moving with them),
+    answered exactly by the project's backends (``make_solver``, ``BlockMassSolver`` where ``M`` has rods'
+    blocks) with every plate a node of its own: mass ``m_c``, velocity ``de_c`` along the cable, held there by
+    an equality row ``b_c . v - n_c . u_c = 0`` (the plate rides on its cable). ``min 1/2 |v - v0|_M^2 + 1/2
+    sum m_c (de_c - de0_c)^2`` on that row is ``min 1/2 |v - v0|^2`` in the augmented matrix, so the answer
+    and the rows' multipliers are those of the augmented-mass QP; the plates' rows' multipliers are the plates'
+    momentum changes (the cables' share of the contact impulse). :meth:`inverse` applies ``(M + B^T diag(m_c)
+    B)^-1`` by Woodbury's form (``G = B M^-1 B^T + diag(1/m_c)``, the plates' Delassus matrix, factored once per
+    :meth:`hold`). ``mass`` (the scale of the contacts' projection form) is each node's ``1 / (M^-1)_pp``."""
+
+    diagonal = False
+
+    def __init__(self, system: System, plates: np.ndarray, name: str | None = None):
+        self.system = system
+        fi = np.flatnonzero(system.free)
+        self.n_free = len(fi)
+        self._fi = fi
+        self._index = np.full(system.n_nodes + 1, -1)   # system node -> free index (fixed: -1)
+        self._index[fi] = np.arange(len(fi))
+        self._massive = np.flatnonzero(plates > 0)      # the cables that carry a plate, in order: its node
+        self._plates = plates[self._massive]
+        self._slot = np.full(len(plates), -1)           # cable -> its plate (-1: none)
+        self._slot[self._massive] = np.arange(len(self._massive))
+        op = system.mass
+        k = len(self._plates)
+        if op.consistent:   # the rods' blocks, and the plates as nodes without one
+            aug = SimpleNamespace(diagonal=np.concatenate([op.diagonal, self._plates]),
+                                  partner=np.concatenate([op.partner, np.full(k, -1)]),
+                                  cross=np.concatenate([op.cross, np.zeros(k)]),
+                                  inv_diagonal=np.concatenate([op.inv_diagonal, 1.0 / self._plates]),
+                                  inv_cross=np.concatenate([op.inv_cross, np.zeros(k)]),
+                                  free=np.concatenate([system.free, np.ones(k, dtype=bool)]))
+            self.inner = BlockMassSolver(aug, aug.free, name)
+        else:
+            self.inner = make_solver(name, np.concatenate([system.masses[fi], self._plates]))
+        self.name = self.inner.name
+        self.inv_mass = np.repeat(op.inv_diagonal[fi], 3)
+        self.mass = 1.0 / self.inv_mass
+        self.hold(np.zeros(0, dtype=int), np.zeros((0, 3)))
+
+    @property
+    def compiled(self) -> bool:
+        return self.inner.compiled
+
+    @compiled.setter
+    def compiled(self, value: bool) -> None:
+        self.inner.compiled = bool(value)
+
+    @property
+    def verify(self) -> bool:
+        return self.inner.verify
+
+    def hold(self, cables: np.ndarray, directions: np.ndarray) -> None:
+        """The cables (k,) whose plates move with them, their unit vectors (k, 3), for the next solves."""
+        keep = self._slot[cables] >= 0
+        cables, directions = cables[keep], directions[keep]
+        k, slot = len(cables), self._slot[cables]
+        ends = self._index[self.system.cable_ends[cables]]
+        self._held = (cables, directions, ends, slot)
+        self._rows = Rows(np.column_stack([ends, self.n_free + slot]), directions, np.zeros(k), k,
+                          np.tile([-1.0, 1.0, -1.0], (k, 1)))
+        self._factor = None
+
+    def _node_inverse(self, p: np.ndarray) -> np.ndarray:
+        """``M^-1 p`` (the structure's, ``System.mass``) for free-node vectors ``p`` (n_free, 3, ...)."""
+        full = np.zeros((self.system.n_nodes,) + p.shape[1:])
+        full[self._fi] = p
+        return self.system.mass.solve(full)[self._fi]
+
+    def _rates(self, v: np.ndarray) -> np.ndarray:
+        """``b_c . v`` (k,) of the held cables for free-node velocities ``v`` (n_free, 3)."""
+        _, n, ends, _ = self._held
+        vv = np.vstack([v, np.zeros((1, 3))])
+        return np.einsum("ij,ij->i", vv[ends[:, 1]] - vv[ends[:, 0]], n)
+
+    def inverse(self, p: np.ndarray) -> np.ndarray:
+        shape = p.shape
+        out = self._node_inverse(p.reshape((self.n_free, 3) + shape[1:]))
+        cables, n, ends, slot = self._held
+        if len(cables):
+            if self._factor is None:   # B (k, n_free, 3), M^-1 B^T and G's Cholesky factor
+                k = len(cables)
+                b = np.zeros((k, self.n_free + 1, 3))
+                b[np.arange(k), np.where(ends[:, 0] < 0, self.n_free, ends[:, 0])] -= n
+                b[np.arange(k), np.where(ends[:, 1] < 0, self.n_free, ends[:, 1])] += n
+                b = b[:, :-1]
+                w = np.moveaxis(self._node_inverse(np.moveaxis(b, 0, -1)), -1, 0)
+                g = np.einsum("inj,knj->ik", b, w) + np.diag(1.0 / self._plates[slot])
+                self._factor = b, w, scipy_linalg.cho_factor(g)
+            b, w, factor = self._factor
+            y = scipy_linalg.cho_solve(factor, np.tensordot(b, out, axes=([1, 2], [0, 1])))
+            out = out - np.tensordot(w, y, axes=([0], [0]))
+        return out.reshape(shape)
+
+    def _augment(self, v: np.ndarray) -> np.ndarray:
+        """Free-node velocities ``v`` (n_free, 3) with every plate's (its cable's rate along it; at rest where
+        not held): (n_free + plates, 3)."""
+        out = np.zeros((self.n_free + len(self._plates), 3))
+        out[: self.n_free] = v.reshape(-1, 3)
+        cables, n, _, slot = self._held
+        out[self.n_free + slot] = self._rates(v.reshape(-1, 3))[:, None] * n
+        return out
+
+    def _augment_rows(self, rows: Rows) -> Rows:
+        """The plates' equality rows, then ``rows`` (as general rows on the augmented nodes)."""
+        if rows.weights is None:
+            nodes, weights = rows.nodes, np.tile([-1.0, 1.0], (len(rows), 1))
+        else:
+            nodes, weights = rows.nodes, rows.weights
+        width = max(3, nodes.shape[1])
+        pad = width - nodes.shape[1]
+        nodes = np.pad(nodes, ((0, 0), (0, pad)), constant_values=-1)
+        weights = np.pad(weights, ((0, 0), (0, pad)))
+        mine = self._rows
+        k = len(mine)
+        return Rows(np.vstack([np.pad(mine.nodes, ((0, 0), (0, width - 3)), constant_values=-1), nodes]),
+                    np.vstack([mine.directions, rows.directions]), np.concatenate([mine.targets, rows.targets]),
+                    k + rows.n_eq, np.vstack([np.pad(mine.weights, ((0, 0), (0, width - 3))), weights]))
+
+    def _augment_multipliers(self, v, y, v0) -> np.ndarray:
+        """The plates' rows' multipliers (their momentum changes ``m_c (de - de0)``), then ``y``."""
+        slot = self._held[3]
+        return np.concatenate([self._plates[slot] * (self._rates(v.reshape(-1, 3)) - self._rates(v0.reshape(-1, 3))),
+                               y])
+
+    def solve(self, v0, rows, warm=None):
+        k = len(self._rows)
+        warm = None if warm is None else np.concatenate([np.ones(k, dtype=bool), warm])
+        u, y = self.inner.solve(self._augment(v0), self._augment_rows(rows), warm)
+        return u[: self.n_free], y[k:]
+
+    def _check(self, v, y, v0, rows: Rows) -> None:
+        self.inner._check(self._augment(v), self._augment_multipliers(v, y, v0), self._augment(v0),
+                          self._augment_rows(rows))
+
+    def _residuals_reference(self, v, y, v0, rows: Rows):
+        return self.inner._residuals_reference(self._augment(v), self._augment_multipliers(v, y, v0),
+                                               self._augment(v0), self._augment_rows(rows))
+
+    def describe(self) -> dict:
+        return {**self.inner.describe(), "mass": "cable plates as nodes on equality rows"}
+
+
 class _PlateStepper(Stepper):
     """The elastic method's located stepper with the plates' events resolved where each part ends."""
 
@@ -138,9 +296,9 @@ class MassiveMethod(StepMethod):
         if rigid:
             raise ValueError(f"method 'massive' does not take rigid struts yet ({', '.join(rigid)}); give them a "
                              f"stiffness, or use method 'elastic' or 'inextensible'")
-        if scene.ground is not None or scene.contact_response.response:
-            raise ValueError("method 'massive' does not take a ground or a member contact response yet; use method "
-                             "'elastic' or 'inextensible'")
+        if scene.contact_response.response:
+            raise ValueError("method 'massive' does not take a member contact response yet; use method 'elastic' or "
+                             "'inextensible'")
         if len(system.attached):
             raise ValueError(f"method 'massive' does not take a cable attached along a strut yet (cable "
                              f"{scene.cable_names[system.attached[0]]!r}); use method 'elastic'")
@@ -148,8 +306,11 @@ class MassiveMethod(StepMethod):
             raise ValueError(f"order must be one of {sorted(STABILITY)}, got {order!r}")
         if not (locate_switches is None or isinstance(locate_switches, (bool, np.bool_))):
             raise ValueError(f"locate_switches must be True, False or None (automatic), got {locate_switches!r}")
+        if scene.ground is not None and (order != 2 or locate_switches):
+            raise ValueError("method 'massive' steps a scene with a ground by plain Verlet, its events at the step's "
+                             "end: order 4 and located switches are not available with a ground")
         self.order = int(order)
-        self.locate_switches = True if locate_switches is None else bool(locate_switches)
+        self.locate_switches = scene.ground is None if locate_switches is None else bool(locate_switches)
         # the plates only add mass: the massless cables' highest frequency bounds the method's
         self.omega_max = system.max_frequency(scene.positions, include_cables=True)
         check_stable("massive", self.order, self.dt, self.omega_max, "use a smaller dt")
@@ -162,7 +323,15 @@ class MassiveMethod(StepMethod):
         self._cache: _Forces | None = None
         self._step_loss = 0.0
         self.losses = 0.0
-        self.compiled = bool(compiled)
+        # a ground: the elastic method's contact impulses at each half-kick (ContactSet.drift_step, settle_step),
+        # their velocity problems under the plate-augmented mass (PlateMassSolver); stepped by the reference
+        self.ground = None
+        self._contact = None   # the ground's impulses of the last step (N, 3) N*s, or None
+        if scene.ground is not None:
+            self._plate_solver = PlateMassSolver(system, self.plates)
+            self.ground = ContactSet(system, self._plate_solver)
+            self._no_rigid = RigidStruts(system)
+        self.compiled = bool(compiled) and self.ground is None
         if self.compiled:
             self._set_up_kernel()
 
@@ -301,6 +470,9 @@ class MassiveMethod(StepMethod):
         the closing kick corrected once where the forces depend on the velocity. Returns the end positions,
         velocities (N, 3) and forces there."""
         v_half = v + (0.5 * h) * start.acc
+        if self.ground is not None:   # the plates of the taut cables move with their nodes in the contacts
+            self._hold(start)
+            v_half, landing_speed = self.ground.drift_step(x, v, v_half, h, self._no_rigid)
         x_new = x + h * v_half
         # the taut set of the step's start: a switch at its end (a snap, a release) comes after its closing kick
         end = self.accelerations(x_new, v_half, state, start.held)
@@ -308,7 +480,16 @@ class MassiveMethod(StepMethod):
         if self._damped or np.any(start.held & self._massive):   # forces that depend on the velocity
             end = self.accelerations(x_new, v_new, state, start.held)
             v_new = v_half + (0.5 * h) * end.acc
+        if self.ground is not None:
+            self._hold(end)
+            v_new = self.ground.settle_step(x_new, v_new, landing_speed, self._no_rigid)
+            self._contact = self.ground.take_impulses()
         return x_new, v_new, end
+
+    def _hold(self, forces: _Forces) -> None:
+        """The contacts' mass from now: the plates of ``forces``' held cables move with them."""
+        cables = np.flatnonzero(forces.held & self._massive)
+        self._plate_solver.hold(cables, forces.directions[self.system.n_struts + cables])
 
     # ------------------------------------------------------------------ events
     def _events(self, part, state: State):
@@ -400,7 +581,7 @@ class MassiveMethod(StepMethod):
         x_new, v_new, end, impulses = self.stepper.step(x, v, start, self.dt, state)
         self._cache = end
         self.losses += self._step_loss
-        return MethodStep(x_new, v_new, impulses, end.elongations < 0)
+        return MethodStep(x_new, v_new, impulses, end.elongations < 0, self._contact)
 
     def plate_energy(self, positions: np.ndarray, velocities: np.ndarray, rest_lengths: np.ndarray) -> float:
         """The moving plates' kinetic energy ``sum 1/2 m_c de_c^2`` over the taut cables (J)."""
@@ -413,4 +594,7 @@ class MassiveMethod(StepMethod):
     strain_energy = ElasticMethod.strain_energy   # the same springs: k max(0, e) on cables, k e on struts
 
     def describe(self) -> dict:
-        return {"method": self.name, "dt": self.dt, "order": self.order, "locate_switches": self.locate_switches}
+        out = {"method": self.name, "dt": self.dt, "order": self.order, "locate_switches": self.locate_switches}
+        if self.ground is not None:
+            out["contacts"] = "numpy reference (the compiled kernel takes no ground yet)"
+        return out

@@ -163,6 +163,8 @@ class QPSolver:
     # the inextensible method warms the last sub-step of a step cut at snaps with the cables that held in
     # the last sub-step of the previous such step (InextensibleMethod._last_hint), not the sub-step before
     last_hint = False
+    # the mass matrix is the diagonal ``mass`` (False: ``inverse`` applies a general one, e.g. rods' blocks)
+    diagonal = True
 
     def __init__(self, mass: np.ndarray):
         self.n_free = len(mass)
@@ -961,6 +963,8 @@ class BlockMassSolver(QPSolver):
     check on ``u`` is the check on ``v``. ``mass`` and ``inv_mass`` are a node's effective mass ``1 /
     (M^-1)_pp`` and ``M^-1``'s diagonal (the scales of the contacts' projection form); :meth:`inverse` applies
     the whole ``M^-1``."""
+
+    diagonal = False
 
     def __init__(self, operator, free: np.ndarray, name: str | None = None):
         fi = np.flatnonzero(free)
