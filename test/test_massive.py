@@ -227,8 +227,6 @@ def test_auto_chooses_among_three_and_says_why():
 
 
 def test_refuses_what_it_cannot_step_yet():
-    with pytest.raises(ValueError, match="method 'massive' does not take rigid struts yet"):
-        ts.Simulator(ts.load_scene("icosahedron"), method="massive")
     with pytest.raises(ValueError, match="method 'massive' does not take a member contact response"):
         ts.Simulator(ts.Scene.from_dict({**bungee(0.5).to_dict(), "contact": {"response": True}}), method="massive")
     with pytest.raises(ValueError, match="reel_speed=2.0 is an option of the inextensible method; method 'massive'"):
