@@ -1,8 +1,8 @@
-"""The massive method (physics.md §4b) on the ground: the contacts' velocity problems under the plate-augmented mass
-``M + sum m_c b_c b_c^T`` (``PlateMassSolver``), answered by the project's frictional solver (friction.py), which
+"""The massive method (physics.md §4b) with contacts, the ground's and the members': their velocity problems
+under the plate-augmented mass ``M + sum m_c b_c b_c^T`` (``PlateMassSolver``), answered by the project's frictional solver (friction.py), which
 checks every answer against the Coulomb law. An icosahedron with cable masses resting on the ground stays; a thrown
 one lands with the momentum balance of its ground impulses exact; as ``m_c -> 0`` it tends to the elastic method on
-the ground, the difference proportional to ``m_c``."""
+the ground, the difference proportional to ``m_c``; a member contact response likewise."""
 import numpy as np
 import pytest
 
@@ -128,9 +128,44 @@ def test_ground_options_and_auto():
     """With a ground the massive method steps plain Verlet (its events at the step's end) and refuses the options
     it cannot take there; ``auto`` picks it for a scene on the ground whose cables' restitution is between."""
     scene = resting(0.5)
-    with pytest.raises(ValueError, match="located switches are not available with a ground"):
+    with pytest.raises(ValueError, match="located switches are not available with contacts"):
         ts.Simulator(scene, method="massive", locate_switches=True)
     with pytest.raises(ValueError, match="order 4"):
         ts.Simulator(scene, method="massive", order=4)
     sim = ts.Simulator(scene, method="auto", dt=1e-3)
     assert sim.method == "massive" and sim.method_settings["locate_switches"] is False
+
+
+def crossing_with_a_plate(plate: float) -> ts.Scene:
+    """test_member_contact's crossing struts (B falls at 1 m/s onto A, across it at A's point 0.25 m, a member
+    contact response) with a taut cable of ``plate`` kg from A's end a1 to B's end b1."""
+    from test_member_contact import crossing
+    raw = crossing(0.25).to_dict()
+    raw["cables"] = [{"name": "c", "nodes": ["a1", "b1"], "stiffness": 100.0, "rest_length": 0.5, "mass": plate}]
+    return ts.Scene.from_dict(raw)
+
+
+def test_member_contact_with_a_plate_keeps_momentum_and_tends_to_the_elastic_method():
+    """A member contact response under the plate-augmented mass: strut B strikes strut A (plastic) while a massive
+    cable pulls between them; momentum holds to round-off, the struts do not pass through each other (TOUCH_TOL),
+    the pair's impulse is reported, and as m_c -> 0 the motion tends to the elastic method's (its reference, the
+    same arithmetic at m_c = 0), the difference proportional to m_c."""
+    from test_member_contact import gap
+    elastic = ts.Simulator(crossing_with_a_plate(0.0), method="elastic", dt=1e-3)
+    elastic._method.compiled = False
+    reference = elastic.run(steps=80).positions[-1]
+    errors = []
+    for plate in (0.0, 1e-3, 1e-4, 1e-5):
+        sim = ts.Simulator(crossing_with_a_plate(plate), method="massive", dt=1e-3)
+        linear, angular = sim.momentum()
+        normals = []
+        for _ in range(80):
+            sim.step()
+            normals += [normal for normal, _ in (sim._method._pairs or {}).values()]   # the method's step record
+        assert max(normals) > 0.1 and min(normals) >= 0.0   # the blow, then B resting on A
+        assert np.abs(sim.momentum()[0] - linear).max() < 1e-14 and np.abs(sim.momentum()[1] - angular).max() < 1e-14
+        assert gap(sim.positions) > -3e-9 and not sim.slack()[0]
+        errors.append(np.abs(sim.positions - reference).max())
+    assert errors[0] < 1e-14
+    slope = np.polyfit(np.log([1e-3, 1e-4, 1e-5]), np.log(errors[1:]), 1)[0]
+    assert 0.95 < slope < 1.05, (errors, slope)

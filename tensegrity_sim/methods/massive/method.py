@@ -40,8 +40,8 @@ Two implementations of the same arithmetic: the numba kernel ``massive/_kernels.
 unless ``compiled`` is False) and the numpy code below, the plain reference it must match to 1e-12 in tests.
 The structure's inverse mass is applied in one place in each, :meth:`MassiveMethod.inverse_mass` and
 ``_kernels.inverse_mass`` (lumped, diagonal, now; the kernel builds the plates' ``G`` node by node and factors it
-once a step, see its docstring). Not available yet (refused at construction with a message): a member contact
-response.
+once a step, see its docstring). Not available yet (refused at construction with a message): a cable attached
+along a strut.
 
 **Rigid struts** (RATTLE, as the elastic method's, with the rods' consistent mass blocks of ``tensegrity_sim.mass``
 in ``M``): SHAKE and RATTLE push along the struts through the plate-augmented mass ``(M + sum m_c b_c b_c^T)^-1``
@@ -51,13 +51,14 @@ unprojected ones, the energy error measured first order: 4.3e-5, 2.4e-5, 1.2e-5 
 4.6e-6, 1.2e-6). At a snap the struts' rows join the plates' impact as rows with no plate (``1/m = 0``: their
 length rates do not change). Stepped by the numpy reference (the kernel takes no rigid struts).
 
-**A ground** (``methods/contact/friction.py``): the elastic method's contact impulses at each half-kick
+**A ground and a member contact response** (``methods/contact/friction.py``, ``member.py``): the elastic method's
+contact impulses at each half-kick
 (``ContactSet.drift_step``: lands every node that would pass the ground exactly on it; ``settle_step``: no node
 on it moves into it or slides against friction), exact Coulomb friction, with the velocity problems posed under
 the mass matrix of the moment, ``M + sum m_c b_c b_c^T`` over the taut cables whose plates move with them
 (:class:`PlateMassSolver`: each plate a node of mass ``m_c`` on an equality row, so that the project's backends
 and the frictional solver's mode fixed point, semismooth Newton method and Coulomb checks answer it unchanged).
-A scene with a ground is stepped by plain Verlet (order 2), its snaps and releases resolved at the end of the step
+A scene with contacts is stepped by plain Verlet (order 2), its snaps and releases resolved at the end of the step
 they happen in (first order there, as the elastic method's unlocated switches), and by the numpy reference: the
 compiled kernel takes no ground yet (``describe()["contacts"]`` says so). The contacts' losses are not in
 ``losses`` (only the plates'): on the ground ``energy()["total"] + losses`` only falls.
@@ -348,9 +349,6 @@ class MassiveMethod(StepMethod):
         missing = [c.name for c in scene.cables if c.stiffness is None]
         if missing:
             raise ValueError(f"method 'massive' needs a stiffness for every cable; missing for {missing}")
-        if scene.contact_response.response:
-            raise ValueError("method 'massive' does not take a member contact response yet; use method 'elastic' or "
-                             "'inextensible'")
         if len(system.attached):
             raise ValueError(f"method 'massive' does not take a cable attached along a strut yet (cable "
                              f"{scene.cable_names[system.attached[0]]!r}); use method 'elastic'")
@@ -358,11 +356,12 @@ class MassiveMethod(StepMethod):
             raise ValueError(f"order must be one of {sorted(STABILITY)}, got {order!r}")
         if not (locate_switches is None or isinstance(locate_switches, (bool, np.bool_))):
             raise ValueError(f"locate_switches must be True, False or None (automatic), got {locate_switches!r}")
-        if scene.ground is not None and (order != 2 or locate_switches):
-            raise ValueError("method 'massive' steps a scene with a ground by plain Verlet, its events at the step's "
-                             "end: order 4 and located switches are not available with a ground")
+        contacts = scene.ground is not None or scene.contact_response.response
+        if contacts and (order != 2 or locate_switches):
+            raise ValueError("method 'massive' steps a scene with a ground or a contact response by plain Verlet, its "
+                             "events at the step's end: order 4 and located switches are not available with contacts")
         self.order = int(order)
-        self.locate_switches = scene.ground is None if locate_switches is None else bool(locate_switches)
+        self.locate_switches = not contacts if locate_switches is None else bool(locate_switches)
         # the plates only add mass: the massless cables' highest frequency bounds the method's
         self.omega_max = system.max_frequency(scene.positions, include_cables=True)
         check_stable("massive", self.order, self.dt, self.omega_max, "use a smaller dt")
@@ -375,14 +374,15 @@ class MassiveMethod(StepMethod):
         self._cache: _Forces | None = None
         self._step_loss = 0.0
         self.losses = 0.0
-        # a ground: the elastic method's contact impulses at each half-kick (ContactSet.drift_step, settle_step),
+        # contacts: the elastic method's contact impulses at each half-kick (ContactSet.drift_step, settle_step),
         # their velocity problems under the plate-augmented mass (PlateMassSolver); stepped by the reference
         self.ground = None
         self._contact = None   # the ground's impulses of the last step (N, 3) N*s, or None
+        self._pairs = None     # the member contacts' of the last step (ContactSet.pair_impulses), or None
         # rigid struts: SHAKE/RATTLE under the same mass (the plates held at the projection), in the reference
         self._plate_solver = PlateMassSolver(system, self.plates)
         self.rigid = _PlateRigidStruts(system, self._effective_inverse)
-        if scene.ground is not None:
+        if contacts:
             self.ground = ContactSet(system, self._plate_solver)
         self.compiled = bool(compiled) and self.ground is None and not self.rigid.count
         if self.compiled:
@@ -551,7 +551,7 @@ class MassiveMethod(StepMethod):
             v_new = close(end)
         if self.ground is not None:
             v_new = self.ground.settle_step(x_new, v_new, landing_speed, rigid)
-            self._contact = self.ground.take_impulses()
+            self._contact, self._pairs = self.ground.take_impulses(), self.ground.take_pair_impulses()
         return x_new, v_new, end
 
     def _hold(self, forces: _Forces) -> None:
@@ -677,7 +677,7 @@ class MassiveMethod(StepMethod):
         x_new, v_new, end, impulses = self.stepper.step(x, v, start, self.dt, state)
         self._cache = end
         self.losses += self._step_loss
-        return MethodStep(x_new, v_new, impulses, end.elongations < 0, self._contact)
+        return MethodStep(x_new, v_new, impulses, end.elongations < 0, self._contact, self._pairs)
 
     def plate_energy(self, positions: np.ndarray, velocities: np.ndarray, rest_lengths: np.ndarray) -> float:
         """The moving plates' kinetic energy ``sum 1/2 m_c de_c^2`` over the taut cables (J)."""
