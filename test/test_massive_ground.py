@@ -1,8 +1,9 @@
 """The massive method (physics.md §4b) with contacts, the ground's and the members': their velocity problems
 under the plate-augmented mass ``M + sum m_c b_c b_c^T`` (``PlateMassSolver``), answered by the project's
-frictional solver (friction.py), which checks every answer against the Coulomb law. An icosahedron with cable masses resting on the ground stays; a thrown
-one lands with the momentum balance of its ground impulses exact; as ``m_c -> 0`` it tends to the elastic method on
-the ground, the difference proportional to ``m_c``; a member contact response likewise."""
+frictional solver (friction.py), which checks every answer against the Coulomb law. An icosahedron with cable
+masses resting on the ground stays; a thrown one lands with the momentum balance of its ground impulses exact; as
+``m_c -> 0`` it tends to the elastic method on the ground, the difference proportional to ``m_c``; a member contact
+response likewise."""
 import numpy as np
 import pytest
 

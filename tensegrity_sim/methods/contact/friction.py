@@ -98,8 +98,8 @@ from ...system import System
 from .member import Armed, MemberContacts, tangents
 from . import _friction_kernels as kernels
 from ..base import StepError
-from ..qp.solvers import (_FEASIBILITY_TOL, _VELOCITY_FLOOR, BlockMassSolver, DaqpSolver, QPError, QPSolver, Rows,
-                          make_solver)
+from ..qp.solvers import (_FEASIBILITY_TOL, _VELOCITY_FLOOR, BlockMassSolver, DaqpSolver, MassWrapper, QPError,
+                          QPSolver, Rows, make_solver)
 
 __all__ = ["ContactSet", "FrictionalSolver", "FrictionError", "FIXED_POINT_TOL", "TOUCH_TOL"]
 
@@ -157,7 +157,7 @@ class ContactSet:
         # the nodes that can touch the ground (none without one)
         self._grounded = self.free if ground is not None else np.zeros(0, dtype=int)
         self.members = MemberContacts(system) if system.scene.contact_response.response else None
-        daqp = getattr(inner, "inner", inner)   # a block or plate mass wrapper's backend
+        daqp = inner.inner if isinstance(inner, MassWrapper) else inner
         if isinstance(daqp, DaqpSolver):
             daqp.working_set = False   # DAQP alone: see DaqpSolver.working_set
         self.solver = FrictionalSolver(inner, self)

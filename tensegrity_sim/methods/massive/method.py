@@ -81,7 +81,7 @@ from scipy.optimize import nnls
 from ...system import System
 from ..base import MethodStep, State, StepMethod
 from ..contact.friction import ContactSet
-from ..qp.solvers import BlockMassSolver, QPSolver, Rows, make_solver
+from ..qp.solvers import BlockMassSolver, MassWrapper, Rows, make_solver
 from ..elastic import _kernels as elastic_kernels
 from ..elastic.composition import MIN_SPLIT, STABILITY, WEIGHTS, Stepper, check_stable
 from ..elastic.method import ElasticMethod
@@ -132,7 +132,7 @@ def plate_impact(g: np.ndarray, rates: np.ndarray, snapping: np.ndarray) -> np.n
     return p
 
 
-class PlateMassSolver(QPSolver):
+class PlateMassSolver(MassWrapper):
     """The contacts' velocity problem (``methods/contact/friction.py``) under the massive method's mass matrix
     ``M + sum_c m_c b_c b_c^T`` over the cables :meth:`hold` names (taut, their plates moving with them),
     answered exactly by the project's backends (``make_solver``, ``BlockMassSolver`` where ``M`` has rods'
@@ -143,8 +143,6 @@ class PlateMassSolver(QPSolver):
     momentum changes (the cables' share of the contact impulse). :meth:`inverse` applies ``(M + B^T diag(m_c)
     B)^-1`` by Woodbury's form (``G = B M^-1 B^T + diag(1/m_c)``, the plates' Delassus matrix, factored once per
     :meth:`hold`). ``mass`` (the scale of the contacts' projection form) is each node's ``1 / (M^-1)_pp``."""
-
-    diagonal = False
 
     def __init__(self, system: System, plates: np.ndarray, name: str | None = None):
         self.system = system
@@ -173,18 +171,6 @@ class PlateMassSolver(QPSolver):
         self.inv_mass = np.repeat(op.inv_diagonal[fi], 3)
         self.mass = 1.0 / self.inv_mass
         self.hold(np.zeros(0, dtype=int), np.zeros((0, 3)))
-
-    @property
-    def compiled(self) -> bool:
-        return self.inner.compiled
-
-    @compiled.setter
-    def compiled(self, value: bool) -> None:
-        self.inner.compiled = bool(value)
-
-    @property
-    def verify(self) -> bool:
-        return self.inner.verify
 
     def hold(self, cables: np.ndarray, directions: np.ndarray) -> None:
         """The cables (k,) whose plates move with them, their unit vectors (k, 3), for the next solves."""
