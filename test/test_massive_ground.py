@@ -8,47 +8,11 @@ import numpy as np
 import pytest
 
 import tensegrity_sim as ts
+from bench.massive import resting, thrown
 from tensegrity_sim.methods.contact.friction import TOUCH_TOL
 from tensegrity_sim.methods.massive.method import PlateMassSolver
 from tensegrity_sim.methods.qp.solvers import Rows
 from tensegrity_sim.system import System
-
-STRUT_K = 1e5   # N/m: the massive method takes elastic struts
-
-
-def resting(plate: float) -> ts.Scene:
-    """The built-in ``icosahedron_ground`` (at rest on three nodes, its prestress form-found) with elastic struts
-    pre-compressed by their share of that prestress (the free end's balance along the strut), so that the
-    form-found state is still at rest, and every cable carrying ``plate`` kg."""
-    raw = ts.load_scene("icosahedron_ground").to_dict()
-    system = System(ts.Scene.from_dict(raw))
-    x = system.scene.positions
-    _, length, n = system.geometry(x)
-    t = np.zeros(system.n_members)
-    cables = slice(system.n_struts, None)
-    t[cables] = system.stiffness[cables] * (length[cables] - system.scene.cable_rest_lengths)
-    force = system.assemble(t[:, None] * n) + system.gravity_force
-    names = [node["name"] for node in raw["nodes"]]
-    for i, strut in enumerate(raw["struts"]):
-        a, b = (names.index(e) for e in strut["nodes"])
-        top = a if x[a, 2] > x[b, 2] else b          # off the ground: its balance is the strut's and cables'
-        other = b if top == a else a
-        tension = float(force[top] @ (x[top] - x[other])) / length[i]
-        strut["stiffness"], strut["rest_length"] = STRUT_K, float(length[i] - tension / STRUT_K)
-    for cable in raw["cables"]:
-        cable["mass"] = plate
-    return ts.Scene.from_dict(raw)
-
-
-def thrown(plate: float) -> ts.Scene:
-    """:func:`resting` lifted 0.2 m and thrown down at 1 m/s, sideways at (1, 0.5) m/s, spinning at 3 rad/s."""
-    raw = resting(plate).to_dict()
-    x = np.array([node["position"] for node in raw["nodes"]])
-    v = np.cross([0.0, 0.0, 3.0], x - x.mean(axis=0)) + np.array([1.0, 0.5, -1.0])
-    for node, vi in zip(raw["nodes"], v):
-        node["position"][2] += 0.2
-        node["velocity"] = [float(a) for a in vi]
-    return ts.Scene.from_dict(raw)
 
 
 def test_plate_mass_solver_is_the_augmented_mass_qp():
