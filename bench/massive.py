@@ -16,7 +16,12 @@
   taken in turns; the references best of 2), and MuJoCo's Euler on the same structure with spring tendons
   (massless cables), where ``mujoco`` is installed.
 
-``python3 bench/massive.py [--quick]``.
+* ``ground``: the icosahedron with elastic struts resting on the ground, lifted 0.2 m and thrown down spinning
+  (:func:`thrown`, as in ``test/test_massive_ground.py``), 250 steps of 1 ms through its landing: the massive method (cable
+  plates of 0.05 kg; with contacts it steps by its numpy reference) against the elastic method's compiled
+  ``run()`` and its numpy reference (CPU time, best of 3 taken in turns).
+
+``python3 bench/massive.py [--quick] [--study drop|order|speed|ground]``.
 """
 from __future__ import annotations
 
@@ -27,6 +32,7 @@ import warnings
 import numpy as np
 
 import tensegrity_sim as ts
+from tensegrity_sim.system import System
 
 G = 9.81
 
@@ -120,6 +126,44 @@ def thrown_icosahedron(plate: float) -> ts.Scene:
     return ts.Scene.from_dict(raw)
 
 
+STRUT_K = 1e5   # N/m: the struts of the ground study (test_massive_ground.py's scenes too)
+
+
+def resting(plate: float) -> ts.Scene:
+    """The built-in ``icosahedron_ground`` (at rest on three nodes, its prestress form-found) with elastic struts
+    pre-compressed by their share of that prestress (the free end's balance along the strut), so that the
+    form-found state is still at rest, and every cable carrying ``plate`` kg."""
+    raw = ts.load_scene("icosahedron_ground").to_dict()
+    system = System(ts.Scene.from_dict(raw))
+    x = system.scene.positions
+    _, length, n = system.geometry(x)
+    t = np.zeros(system.n_members)
+    cables = slice(system.n_struts, None)
+    t[cables] = system.stiffness[cables] * (length[cables] - system.scene.cable_rest_lengths)
+    force = system.assemble(t[:, None] * n) + system.gravity_force
+    names = [node["name"] for node in raw["nodes"]]
+    for i, strut in enumerate(raw["struts"]):
+        a, b = (names.index(e) for e in strut["nodes"])
+        top = a if x[a, 2] > x[b, 2] else b          # off the ground: its balance is the strut's and cables'
+        other = b if top == a else a
+        tension = float(force[top] @ (x[top] - x[other])) / length[i]
+        strut["stiffness"], strut["rest_length"] = STRUT_K, float(length[i] - tension / STRUT_K)
+    for cable in raw["cables"]:
+        cable["mass"] = plate
+    return ts.Scene.from_dict(raw)
+
+
+def thrown(plate: float) -> ts.Scene:
+    """:func:`resting` lifted 0.2 m and thrown down at 1 m/s, sideways at (1, 0.5) m/s, spinning at 3 rad/s."""
+    raw = resting(plate).to_dict()
+    x = np.array([node["position"] for node in raw["nodes"]])
+    v = np.cross([0.0, 0.0, 3.0], x - x.mean(axis=0)) + np.array([1.0, 0.5, -1.0])
+    for node, vi in zip(raw["nodes"], v):
+        node["position"][2] += 0.2
+        node["velocity"] = [float(a) for a in vi]
+    return ts.Scene.from_dict(raw)
+
+
 def speed_rows(quick: bool, repeats: int = 7) -> list[dict]:
     """CPU time per step of each run, best of ``repeats`` taken in turns (one of each per round), so that a
     change in the machine's load falls on all of them alike; with ``mujoco`` installed, MuJoCo's Euler on the
@@ -156,6 +200,29 @@ def speed_rows(quick: bool, repeats: int = 7) -> list[dict]:
     return rows
 
 
+def ground_rows(repeats: int = 3) -> list[dict]:
+    """CPU time per step of the thrown icosahedron's landing, best of ``repeats`` taken in turns."""
+    steps, runs = 250, []
+    for label, method, plate, compiled in (("massive (numpy reference: contacts)", "massive", 0.05, True),
+                                           ("elastic run() (compiled)", "elastic", 0.0, True),
+                                           ("elastic (numpy reference)", "elastic", 0.0, False)):
+        sim = ts.Simulator(thrown(plate), method=method, dt=1e-3)
+        sim._method.compiled = sim._method.compiled and compiled
+        runs.append((label, sim))
+    best = {label: math.inf for label, _ in runs}
+    for _ in range(repeats):
+        for label, sim in runs:
+            sim.reset()
+            start = time.process_time()
+            sim.run(steps=steps, every=steps)
+            best[label] = min(best[label], time.process_time() - start)
+    rows = [{"run": label, "steps": steps, "us_per_step": 1e6 * best[label] / steps} for label, _ in runs]
+    base = next(r["us_per_step"] for r in rows if r["run"].startswith("elastic run()"))
+    for r in rows:
+        r["over_elastic_run"] = r["us_per_step"] / base
+    return rows
+
+
 def main(argv=None) -> int:
     import argparse
     from pathlib import Path
@@ -163,9 +230,13 @@ def main(argv=None) -> int:
     from bench.tables import write_csv
     parser = argparse.ArgumentParser(description="The massive method: the drop hard case, order, speed.")
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--study", choices=("drop", "order", "speed", "ground"), help="one study only")
     args = parser.parse_args(argv)
     out = Path(__file__).resolve().parent / "results"
-    for name, rows in (("drop", drop_rows()), ("order", order_rows(args.quick)), ("speed", speed_rows(args.quick))):
+    studies = {"drop": drop_rows, "order": lambda: order_rows(args.quick), "speed": lambda: speed_rows(args.quick),
+               "ground": ground_rows}
+    for name in [args.study] if args.study else studies:
+        rows = studies[name]()
         print(f"-- {name}")
         for row in rows:
             print("  " + ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))

@@ -227,10 +227,9 @@ def test_auto_chooses_among_three_and_says_why():
 
 
 def test_refuses_what_it_cannot_step_yet():
-    with pytest.raises(ValueError, match="method 'massive' does not take rigid struts yet"):
-        ts.Simulator(ts.load_scene("icosahedron"), method="massive")
-    with pytest.raises(ValueError, match="method 'massive' does not take a ground"):
-        ts.Simulator(ts.Scene.from_dict({**bungee(0.5).to_dict(), "ground": {"height": -1.0}}), method="massive")
+    with pytest.raises(ValueError, match="located switches are not available with contacts"):
+        ts.Simulator(ts.Scene.from_dict({**bungee(0.5).to_dict(), "contact": {"response": True}}), method="massive",
+                     locate_switches=True)
     with pytest.raises(ValueError, match="reel_speed=2.0 is an option of the inextensible method; method 'massive'"):
         ts.Simulator(bungee(0.5), method="massive", reel_speed=2.0)
 

@@ -56,7 +56,8 @@ def simulate(scene, path, steps, dt):
         batch = BatchSimulator(scene, 2, method="elastic", dt=dt)
         traj = batch.run(steps=steps)
         return traj.positions[0], traj.velocities[0], None
-    sim = ts.Simulator(scene, method="elastic", dt=dt, backend="jax" if path == "jax" else "numba")
+    method = "massive" if path == "massive" else "elastic"   # the massive method's numpy reference (its blocks)
+    sim = ts.Simulator(scene, method=method, dt=dt, backend="jax" if path == "jax" else "numba")
     if path == "reference":
         sim._method.compiled = False
     if path in ("run", "jax"):
@@ -84,7 +85,7 @@ def rod_angular_momentum(x, v, payloads, distribution, about):
     return total
 
 
-@pytest.mark.parametrize("path", PATHS)
+@pytest.mark.parametrize("path", PATHS + ["massive"])
 def test_a_free_uniform_rod_spins_end_over_end_with_a_twelfth_of_m_l_squared(path):
     omega, drift = 3.0, np.array([0.2, -0.1, 0.3])   # rad/s about z, m/s of the centre
     half = 0.5 * L * omega

@@ -85,10 +85,10 @@ def choose_method(system: System, dt: float) -> tuple[str, str]:
 
     A scene whose cables carry mass (physics §4b) gets the massive method where some cable's snap restitution
     ``m*/(m* + m_c)`` (:func:`restitutions`) lies more than ``RESTITUTION_TOL`` from 0 and from 1, and the
-    scene's mass allows it (no rigid struts, ground or contact response yet); otherwise the rules below pick
-    the cheaper limit (restitution near 1: massless cables; near 0: plastic snaps, which the inextensible
-    method makes). With ``omega_c`` the highest axial frequency of the cables (all taut, struts ignored) and
-    ``omega_s`` the scene's fastest other time scale (:func:`scene_frequency`):
+    method takes the scene (rigid struts and contacts, but no cable attached along a strut yet); otherwise the
+    rules below pick the cheaper limit (restitution near 1: massless cables; near 0: plastic snaps, which the
+    inextensible method makes). With ``omega_c`` the highest axial frequency of the cables (all taut, struts
+    ignored) and ``omega_s`` the scene's fastest other time scale (:func:`scene_frequency`):
 
     1. a cable without a stiffness can only be inextensible; a cable attached along a strut only elastic
        (the inextensible method's rows join two nodes);
@@ -134,8 +134,7 @@ def _massive_choice(system: System) -> str | None:
     scene = system.scene
     if not np.any(scene.cable_masses > 0) or any(c.stiffness is None for c in scene.cables):
         return None
-    if (any(s.rigid for s in scene.struts) or scene.ground is not None or scene.contact_response.response
-            or len(system.attached)):
+    if len(system.attached):
         return None
     e = restitutions(system)
     between = (e > RESTITUTION_TOL) & (e < 1.0 - RESTITUTION_TOL)

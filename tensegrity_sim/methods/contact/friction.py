@@ -100,7 +100,8 @@ import numpy as np
 from ...system import System
 from .member import Armed, MemberContacts, tangents
 from . import _friction_kernels as kernels
-from ..qp.solvers import _FEASIBILITY_TOL, _VELOCITY_FLOOR, BlockMassSolver, DaqpSolver, QPError, QPSolver, Rows
+from ..qp.solvers import (_FEASIBILITY_TOL, _VELOCITY_FLOOR, BlockMassSolver, DaqpSolver, MassWrapper, QPError,
+                          QPSolver, Rows)
 
 __all__ = ["ContactSet", "FrictionalSolver", "FrictionError", "FIXED_POINT_TOL", "TOUCH_TOL"]
 
@@ -159,7 +160,7 @@ class ContactSet:
         # the nodes that can touch the ground (none without one)
         self._grounded = self.free if ground is not None else np.zeros(0, dtype=int)
         self.members = MemberContacts(system) if system.scene.contact_response.response else None
-        daqp = inner.inner if isinstance(inner, BlockMassSolver) else inner
+        daqp = inner.inner if isinstance(inner, MassWrapper) else inner
         if isinstance(daqp, DaqpSolver):
             daqp.working_set = False   # DAQP alone: see DaqpSolver.working_set
         self.solver = FrictionalSolver(inner, self)
@@ -276,6 +277,36 @@ class ContactSet:
         out[free] = self.solver.solve(v[free], rows)[0]
         self.solver.commit()
         return out
+
+    def drift_step(self, x: np.ndarray, v: np.ndarray, v_half: np.ndarray, h: float, rigid,
+                   v_f: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The drift's contact impulse of a velocity-Verlet step of ``h`` (s) (the elastic and massive methods):
+        every node that would pass the ground by ``x + h v_half`` is landed exactly on it (:meth:`arm_step`,
+        floored; ``v`` (N, 3) the step's start velocities, ``v_f`` an answer that may carry a node into the ground,
+        or None). Begins the step's impulses. Returns the new ``v_half`` (N, 3) and each node's landing speed (N,)
+        m/s (its speed into the ground where it was above it: :meth:`settle_step`'s restitution)."""
+        self.begin_step()
+        landing_speed = np.maximum(-v_half[:, 2], 0.0)
+        if self.arm_step(x, v, v_half, h, h, v_f, floored=True):
+            free = v_half
+            v_half = self.velocity_step(x, free, rigid)
+            # an answer that carries an unarmed node into the ground (its strut turned by its other end's
+            # contact: 0.39 mm in one step, bench_throws --rods) is solved again with it armed
+            while self.missed(x, v_half, h):
+                v_f = free.copy() if v_f is None else v_f
+                np.minimum(v_f[:, 2], v_half[:, 2], out=v_f[:, 2])
+                self.begin_step()
+                self.arm_step(x, v, free, h, h, v_f, floored=True)
+                v_half = self.velocity_step(x, free, rigid)
+        landing_speed *= self.gaps(x) > TOUCH_TOL
+        return v_half, landing_speed
+
+    def settle_step(self, x: np.ndarray, v: np.ndarray, landing_speed: np.ndarray, rigid) -> np.ndarray:
+        """The closing kick's contact impulse (after :meth:`drift_step`): no node touching the ground at ``x``
+        moves into it or slides against friction. Returns the new velocities ``v`` (N, 3)."""
+        if self.arm_settle(x, v, landing_speed):
+            v = self.velocity_step(x, v, rigid)
+        return v
 
     def begin_step(self) -> None:
         """A new step: what a failed one left in ``impulses`` and ``pair_impulses`` is dropped."""
@@ -614,7 +645,7 @@ class FrictionalSolver:
         c_targets = np.concatenate([-self._targets, np.zeros(4 * len(s))])
         if self._frames is None:   # ground contacts only: member rows, a fixed end and the node
             fi = self._fi
-            if isinstance(self.inner, BlockMassSolver):   # M^-1 has the rods' cross entries
+            if not self.inner.diagonal:   # M^-1 has cross entries (rods' blocks, cable plates)
                 push = np.zeros_like(v0)
                 np.add.at(push, fi, friction)
                 v0c = v0 + self.inner.inverse(push.reshape(-1)).reshape(-1, 3)
@@ -630,7 +661,7 @@ class FrictionalSolver:
         else:   # general rows: the method's as (-1, 1, 0, 0), each contact's on its four nodes
             c_nodes, weights, normals, tang = self._frames
             impulse = np.einsum("ki,kid->kd", friction[:, :2], tang)   # the friction in space, (k, 3)
-            if isinstance(self.inner, BlockMassSolver):   # M^-1 has the rods' cross entries
+            if not self.inner.diagonal:   # M^-1 has cross entries (rods' blocks, cable plates)
                 push = np.zeros((len(v0) + 1, 3))
                 np.add.at(push, c_nodes, weights[:, :, None] * impulse[:, None, :])
                 v0c = v0 + self.inner.inverse(push[:-1].reshape(-1)).reshape(-1, 3)

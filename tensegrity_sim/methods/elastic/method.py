@@ -466,26 +466,12 @@ class ElasticMethod(StepMethod):
         (then one primitive step per step) it applies the contact impulses and keeps them in ``_contact``."""
         v_half = v + (0.5 * h) * start.acc
         if self.ground is not None:
-            self.ground.begin_step()
-            # the drift's contact impulse: lands every node that would pass the ground exactly on it
-            landing_speed = np.maximum(-v_half[:, 2], 0.0)
             # armed also where zeroing its rigid strut's length rate (the velocity problem's rows, SHAKE's after
             # the drift) carries a node into the ground: a strut's axial rate, large under a rod's mass block, took
             # an unarmed end 0.13 mm under it in one step (bench_throws --rods)
             v_f = v_half + self.rigid.project_velocities(x, v_half, start.directions[self.rigid.members]) \
                 if self.rigid.count else None
-            if self.ground.arm_step(x, v, v_half, h, h, v_f, floored=True):
-                free = v_half
-                v_half = self.ground.velocity_step(x, free, self.rigid)
-                # an answer that carries an unarmed node into the ground (its strut turned by its other end's
-                # contact: 0.39 mm in one step, bench_throws --rods) is solved again with it armed
-                while self.ground.missed(x, v_half, h):
-                    v_f = free.copy() if v_f is None else v_f
-                    np.minimum(v_f[:, 2], v_half[:, 2], out=v_f[:, 2])
-                    self.ground.begin_step()
-                    self.ground.arm_step(x, v, free, h, h, v_f, floored=True)
-                    v_half = self.ground.velocity_step(x, free, self.rigid)
-            landing_speed *= self.ground.gaps(x) > TOUCH_TOL
+            v_half, landing_speed = self.ground.drift_step(x, v, v_half, h, self.rigid, v_f)
         x_new = x + h * v_half
         if self.rigid.count:
             dx = self.rigid.project_positions(x, x_new, start.directions[self.rigid.members])
@@ -496,9 +482,7 @@ class ElasticMethod(StepMethod):
         if self.rigid.count:
             v_new += self.rigid.project_velocities(x_new, v_new, end.directions[self.rigid.members])
         if self.ground is not None:
-            # the closing kick's: no touching node moves into the ground or slides against friction
-            if self.ground.arm_settle(x_new, v_new, landing_speed):
-                v_new = self.ground.velocity_step(x_new, v_new, self.rigid)
+            v_new = self.ground.settle_step(x_new, v_new, landing_speed, self.rigid)
             self._contact, self._pairs = self.ground.take_impulses(), self.ground.take_pair_impulses()
         return x_new, v_new, end
 

@@ -40,9 +40,28 @@ Two implementations of the same arithmetic: the numba kernel ``massive/_kernels.
 unless ``compiled`` is False) and the numpy code below, the plain reference it must match to 1e-12 in tests.
 The structure's inverse mass is applied in one place in each, :meth:`MassiveMethod.inverse_mass` and
 ``_kernels.inverse_mass`` (lumped, diagonal, now; the kernel builds the plates' ``G`` node by node and factors it
-once a step, see its docstring). Not available yet (refused at construction with a message):
-rigid struts (RATTLE's projections would need the plate-augmented mass), a ground and a member contact
-response.
+once a step, see its docstring). Not available yet (refused at construction with a message): a cable attached
+along a strut.
+
+**Rigid struts** (RATTLE, as the elastic method's, with the rods' consistent mass blocks of ``tensegrity_sim.mass``
+in ``M``): SHAKE and RATTLE push along the struts through the plate-augmented mass ``(M + sum m_c b_c b_c^T)^-1``
+of the cables taut then (:class:`_PlateRigidStruts`: a plate moves with its cable under a strut's push too), and
+the closing kick's velocity-dependent forces are corrected at RATTLE's projected velocities (corrected at the
+unprojected ones, the energy error measured first order: 4.3e-5, 2.4e-5, 1.2e-5 at 1, 0.5, 0.25 ms; now 1.8e-5,
+4.6e-6, 1.2e-6). At a snap the struts' rows join the plates' impact as rows with no plate (``1/m = 0``: their
+length rates do not change). Stepped by the numpy reference (the kernel takes no rigid struts).
+
+**A ground and a member contact response** (``methods/contact/friction.py``, ``member.py``): the elastic method's
+contact impulses at each half-kick
+(``ContactSet.drift_step``: lands every node that would pass the ground exactly on it; ``settle_step``: no node
+on it moves into it or slides against friction), exact Coulomb friction, with the velocity problems posed under
+the mass matrix of the moment, ``M + sum m_c b_c b_c^T`` over the taut cables whose plates move with them
+(:class:`PlateMassSolver`: each plate a node of mass ``m_c`` on an equality row, so that the project's backends
+and the frictional solver's mode fixed point, semismooth Newton method and Coulomb checks answer it unchanged).
+A scene with contacts is stepped by plain Verlet (order 2), its snaps and releases resolved at the end of the step
+they happen in (first order there, as the elastic method's unlocated switches), and by the numpy reference: the
+compiled kernel takes no ground yet (``describe()["contacts"]`` says so). The contacts' losses are not in
+``losses`` (only the plates'): on the ground ``energy()["total"] + losses`` only falls.
 
 ``run()`` steps in the kernel's loop (``massive_steps``, base.py's rule 10); its carry is the start workspace
 (positions, velocities and the forces there) and the losses so far, so the simulator rewinds the steps it
@@ -50,6 +69,7 @@ computed ahead before an input changes or ``energy_lost`` is read (``carry_outli
 """
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import NamedTuple
 
 import numpy as np
@@ -60,13 +80,15 @@ from scipy.optimize import nnls
 
 from ...system import System
 from ..base import MethodStep, State, StepMethod
+from ..contact.friction import ContactSet
+from ..qp.solvers import BlockMassSolver, MassWrapper, Rows, make_solver
 from ..elastic import _kernels as elastic_kernels
 from ..elastic.composition import MIN_SPLIT, STABILITY, WEIGHTS, Stepper, check_stable
 from ..elastic.method import ElasticMethod
-from ..rigid import RigidStruts
+from ..rigid import _NEWTON_MAX_ITER, _NEWTON_TOL, RigidStruts
 from . import _kernels as kernels
 
-__all__ = ["MassiveMethod", "plate_impact", "BAND"]
+__all__ = ["MassiveMethod", "PlateMassSolver", "plate_impact", "BAND"]
 
 # relative to the rest length: a cable this close to its natural length has the switch state of its rate's sign
 # (taut when lengthening), so that a located snap (|e| <= LOCATE_TOL L = 1e-13 L) counts as taut and a located
@@ -110,6 +132,179 @@ def plate_impact(g: np.ndarray, rates: np.ndarray, snapping: np.ndarray) -> np.n
     return p
 
 
+class PlateMassSolver(MassWrapper):
+    """The contacts' velocity problem (``methods/contact/friction.py``) under the massive method's mass matrix
+    ``M + sum_c m_c b_c b_c^T`` over the cables :meth:`hold` names (taut, their plates moving with them),
+    answered exactly by the project's backends (``make_solver``, ``BlockMassSolver`` where ``M`` has rods'
+    blocks) with every plate a node of its own: mass ``m_c``, velocity ``de_c`` along the cable, held there by
+    an equality row ``b_c . v - n_c . u_c = 0`` (the plate rides on its cable). ``min 1/2 |v - v0|_M^2 + 1/2
+    sum m_c (de_c - de0_c)^2`` on that row is ``min 1/2 |v - v0|^2`` in the augmented matrix, so the answer
+    and the rows' multipliers are those of the augmented-mass QP; the plates' rows' multipliers are the plates'
+    momentum changes (the cables' share of the contact impulse). :meth:`inverse` applies ``(M + B^T diag(m_c)
+    B)^-1`` by Woodbury's form (``G = B M^-1 B^T + diag(1/m_c)``, the plates' Delassus matrix, factored once per
+    :meth:`hold`). ``mass`` (the scale of the contacts' projection form) is each node's ``1 / (M^-1)_pp``."""
+
+    def __init__(self, system: System, plates: np.ndarray, name: str | None = None):
+        self.system = system
+        fi = np.flatnonzero(system.free)
+        self.n_free = len(fi)
+        self._fi = fi
+        self._index = np.full(system.n_nodes + 1, -1)   # system node -> free index (fixed: -1)
+        self._index[fi] = np.arange(len(fi))
+        self._massive = np.flatnonzero(plates > 0)      # the cables that carry a plate, in order: its node
+        self._plates = plates[self._massive]
+        self._slot = np.full(len(plates), -1)           # cable -> its plate (-1: none)
+        self._slot[self._massive] = np.arange(len(self._massive))
+        op = system.mass
+        k = len(self._plates)
+        if op.consistent:   # the rods' blocks, and the plates as nodes without one
+            aug = SimpleNamespace(diagonal=np.concatenate([op.diagonal, self._plates]),
+                                  partner=np.concatenate([op.partner, np.full(k, -1)]),
+                                  cross=np.concatenate([op.cross, np.zeros(k)]),
+                                  inv_diagonal=np.concatenate([op.inv_diagonal, 1.0 / self._plates]),
+                                  inv_cross=np.concatenate([op.inv_cross, np.zeros(k)]),
+                                  free=np.concatenate([system.free, np.ones(k, dtype=bool)]))
+            self.inner = BlockMassSolver(aug, aug.free, name)
+        else:
+            self.inner = make_solver(name, np.concatenate([system.masses[fi], self._plates]))
+        self.name = self.inner.name
+        self.inv_mass = np.repeat(op.inv_diagonal[fi], 3)
+        self.mass = 1.0 / self.inv_mass
+        self.hold(np.zeros(0, dtype=int), np.zeros((0, 3)))
+
+    def hold(self, cables: np.ndarray, directions: np.ndarray) -> None:
+        """The cables (k,) whose plates move with them, their unit vectors (k, 3), for the next solves."""
+        keep = self._slot[cables] >= 0
+        cables, directions = cables[keep], directions[keep]
+        k, slot = len(cables), self._slot[cables]
+        ends = self._index[self.system.cable_ends[cables]]
+        self._held = (cables, directions, ends, slot)
+        self._rows = Rows(np.column_stack([ends, self.n_free + slot]), directions, np.zeros(k), k,
+                          np.tile([-1.0, 1.0, -1.0], (k, 1)))
+        self._factor = None
+
+    def _node_inverse(self, p: np.ndarray) -> np.ndarray:
+        """``M^-1 p`` (the structure's, ``System.mass``) for free-node vectors ``p`` (n_free, 3, ...)."""
+        full = np.zeros((self.system.n_nodes,) + p.shape[1:])
+        full[self._fi] = p
+        return self.system.mass.solve(full)[self._fi]
+
+    def _rates(self, v: np.ndarray) -> np.ndarray:
+        """``b_c . v`` (k,) of the held cables for free-node velocities ``v`` (n_free, 3)."""
+        _, n, ends, _ = self._held
+        vv = np.vstack([v, np.zeros((1, 3))])
+        return np.einsum("ij,ij->i", vv[ends[:, 1]] - vv[ends[:, 0]], n)
+
+    def inverse(self, p: np.ndarray) -> np.ndarray:
+        shape = p.shape
+        out = self._node_inverse(p.reshape((self.n_free, 3) + shape[1:]))
+        cables, n, ends, slot = self._held
+        if len(cables):
+            if self._factor is None:   # B (k, n_free, 3), M^-1 B^T and G's Cholesky factor
+                k = len(cables)
+                b = np.zeros((k, self.n_free + 1, 3))
+                b[np.arange(k), np.where(ends[:, 0] < 0, self.n_free, ends[:, 0])] -= n
+                b[np.arange(k), np.where(ends[:, 1] < 0, self.n_free, ends[:, 1])] += n
+                b = b[:, :-1]
+                w = np.moveaxis(self._node_inverse(np.moveaxis(b, 0, -1)), -1, 0)
+                g = np.einsum("inj,knj->ik", b, w) + np.diag(1.0 / self._plates[slot])
+                self._factor = b, w, scipy_linalg.cho_factor(g)
+            b, w, factor = self._factor
+            y = scipy_linalg.cho_solve(factor, np.tensordot(b, out, axes=([1, 2], [0, 1])))
+            out = out - np.tensordot(w, y, axes=([0], [0]))
+        return out.reshape(shape)
+
+    def _augment(self, v: np.ndarray) -> np.ndarray:
+        """Free-node velocities ``v`` (n_free, 3) with every plate's (its cable's rate along it; at rest where
+        not held): (n_free + plates, 3)."""
+        out = np.zeros((self.n_free + len(self._plates), 3))
+        out[: self.n_free] = v.reshape(-1, 3)
+        cables, n, _, slot = self._held
+        out[self.n_free + slot] = self._rates(v.reshape(-1, 3))[:, None] * n
+        return out
+
+    def _augment_rows(self, rows: Rows) -> Rows:
+        """The plates' equality rows, then ``rows`` (as general rows on the augmented nodes)."""
+        if rows.weights is None:
+            nodes, weights = rows.nodes, np.tile([-1.0, 1.0], (len(rows), 1))
+        else:
+            nodes, weights = rows.nodes, rows.weights
+        width = max(3, nodes.shape[1])
+        pad = width - nodes.shape[1]
+        nodes = np.pad(nodes, ((0, 0), (0, pad)), constant_values=-1)
+        weights = np.pad(weights, ((0, 0), (0, pad)))
+        mine = self._rows
+        k = len(mine)
+        return Rows(np.vstack([np.pad(mine.nodes, ((0, 0), (0, width - 3)), constant_values=-1), nodes]),
+                    np.vstack([mine.directions, rows.directions]), np.concatenate([mine.targets, rows.targets]),
+                    k + rows.n_eq, np.vstack([np.pad(mine.weights, ((0, 0), (0, width - 3))), weights]))
+
+    def _augment_multipliers(self, v, y, v0) -> np.ndarray:
+        """The plates' rows' multipliers (their momentum changes ``m_c (de - de0)``), then ``y``."""
+        slot = self._held[3]
+        return np.concatenate([self._plates[slot] * (self._rates(v.reshape(-1, 3)) - self._rates(v0.reshape(-1, 3))),
+                               y])
+
+    def solve(self, v0, rows, warm=None):
+        k = len(self._rows)
+        warm = None if warm is None else np.concatenate([np.ones(k, dtype=bool), warm])
+        u, y = self.inner.solve(self._augment(v0), self._augment_rows(rows), warm)
+        return u[: self.n_free], y[k:]
+
+    def _check(self, v, y, v0, rows: Rows) -> None:
+        self.inner._check(self._augment(v), self._augment_multipliers(v, y, v0), self._augment(v0),
+                          self._augment_rows(rows))
+
+    def _residuals_reference(self, v, y, v0, rows: Rows):
+        return self.inner._residuals_reference(self._augment(v), self._augment_multipliers(v, y, v0),
+                                               self._augment(v0), self._augment_rows(rows))
+
+    def describe(self) -> dict:
+        return {**self.inner.describe(), "mass": "cable plates as nodes on equality rows"}
+
+
+class _PlateRigidStruts(RigidStruts):
+    """SHAKE and RATTLE (``methods/rigid.py``) under the plate-augmented mass: a push along a strut moves the nodes
+    by ``(M + sum m_c b_c b_c^T)^-1`` (``inverse``: node vectors (N, 3, k) to the same; the plates of the cables
+    held then move with them), which couples the struts that a plate or a rod's block joins: SHAKE's lengths by
+    Newton's method on all of them (from zero, as the class-k struts' in ``RigidStruts``), RATTLE's rates by one
+    dense solve. Without plates held it is ``M^-1`` itself, the rods' blocks included."""
+
+    def __init__(self, system: System, inverse):
+        super().__init__(system)
+        self._inverse = inverse
+
+    def _responses(self, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each strut's unit push (``+n`` on its end a, ``-n`` on b, as ``RigidStruts._push``): the nodes' moves
+        (N, 3, count) and the struts' vectors' (count, 3, count)."""
+        k = np.arange(self.count)
+        push = np.zeros((self._system.n_nodes, 3, self.count))
+        push[self.ends[:, 0], :, k] += directions
+        push[self.ends[:, 1], :, k] -= directions
+        moves = self._inverse(push)
+        return moves, moves[self.ends[:, 1]] - moves[self.ends[:, 0]]
+
+    def project_positions(self, x_start, x_pred, directions=None):
+        n0 = self._system.geometry(x_start, self.ends)[2] if directions is None else directions
+        moves, turns = self._responses(n0)
+        r = x_pred[self.ends[:, 1]] - x_pred[self.ends[:, 0]]
+        gamma = np.zeros(self.count)
+        for _ in range(_NEWTON_MAX_ITER):
+            r_new = r + np.einsum("idj,j->id", turns, gamma)
+            g = np.einsum("ij,ij->i", r_new, r_new) - self.length_sq
+            if np.max(np.abs(g) / self.length_sq) < _NEWTON_TOL:
+                break
+            gamma -= np.linalg.solve(2.0 * np.einsum("id,idj->ij", r_new, turns), g)
+        return np.einsum("ndj,j->nd", moves, gamma)
+
+    def project_velocities(self, x, v, directions=None):
+        n = self._system.geometry(x, self.ends)[2] if directions is None else directions
+        moves, turns = self._responses(n)
+        rate = self._system.member_rates(v, n, self.ends)
+        mu = np.linalg.solve(np.einsum("id,idj->ij", n, turns), -rate)
+        return np.einsum("ndj,j->nd", moves, mu)
+
+
 class _PlateStepper(Stepper):
     """The elastic method's located stepper with the plates' events resolved where each part ends."""
 
@@ -127,6 +322,12 @@ class MassiveMethod(StepMethod):
     name = "massive"
     options = ("order", "locate_switches")
 
+    @classmethod
+    def takes_mass_blocks(cls, system) -> bool:
+        """Always: its reference applies ``system.mass`` (the rods' blocks) in the forces, the plates' ``G``, the
+        impacts, SHAKE/RATTLE and the contacts (the compiled kernel, lumped, runs only without rigid struts)."""
+        return True
+
     def __init__(self, system: System, dt: float, *, order: int = 2, locate_switches: bool | None = None,
                  compiled: bool = True):
         super().__init__(system, dt)
@@ -134,13 +335,6 @@ class MassiveMethod(StepMethod):
         missing = [c.name for c in scene.cables if c.stiffness is None]
         if missing:
             raise ValueError(f"method 'massive' needs a stiffness for every cable; missing for {missing}")
-        rigid = [s.name for s in scene.struts if s.rigid]
-        if rigid:
-            raise ValueError(f"method 'massive' does not take rigid struts yet ({', '.join(rigid)}); give them a "
-                             f"stiffness, or use method 'elastic' or 'inextensible'")
-        if scene.ground is not None or scene.contact_response.response:
-            raise ValueError("method 'massive' does not take a ground or a member contact response yet; use method "
-                             "'elastic' or 'inextensible'")
         if len(system.attached):
             raise ValueError(f"method 'massive' does not take a cable attached along a strut yet (cable "
                              f"{scene.cable_names[system.attached[0]]!r}); use method 'elastic'")
@@ -148,8 +342,12 @@ class MassiveMethod(StepMethod):
             raise ValueError(f"order must be one of {sorted(STABILITY)}, got {order!r}")
         if not (locate_switches is None or isinstance(locate_switches, (bool, np.bool_))):
             raise ValueError(f"locate_switches must be True, False or None (automatic), got {locate_switches!r}")
+        contacts = scene.ground is not None or scene.contact_response.response
+        if contacts and (order != 2 or locate_switches):
+            raise ValueError("method 'massive' steps a scene with a ground or a contact response by plain Verlet, its "
+                             "events at the step's end: order 4 and located switches are not available with contacts")
         self.order = int(order)
-        self.locate_switches = True if locate_switches is None else bool(locate_switches)
+        self.locate_switches = not contacts if locate_switches is None else bool(locate_switches)
         # the plates only add mass: the massless cables' highest frequency bounds the method's
         self.omega_max = system.max_frequency(scene.positions, include_cables=True)
         check_stable("massive", self.order, self.dt, self.omega_max, "use a smaller dt")
@@ -162,7 +360,17 @@ class MassiveMethod(StepMethod):
         self._cache: _Forces | None = None
         self._step_loss = 0.0
         self.losses = 0.0
-        self.compiled = bool(compiled)
+        # contacts: the elastic method's contact impulses at each half-kick (ContactSet.drift_step, settle_step),
+        # their velocity problems under the plate-augmented mass (PlateMassSolver); stepped by the reference
+        self.ground = None
+        self._contact = None   # the ground's impulses of the last step (N, 3) N*s, or None
+        self._pairs = None     # the member contacts' of the last step (ContactSet.pair_impulses), or None
+        # rigid struts: SHAKE/RATTLE under the same mass (the plates held at the projection), in the reference
+        self._plate_solver = PlateMassSolver(system, self.plates)
+        self.rigid = _PlateRigidStruts(system, self._effective_inverse)
+        if contacts:
+            self.ground = ContactSet(system, self._plate_solver)
+        self.compiled = bool(compiled) and self.ground is None and not self.rigid.count
         if self.compiled:
             self._set_up_kernel()
 
@@ -236,19 +444,18 @@ class MassiveMethod(StepMethod):
             return self.system.mass.solve(f)
         return np.moveaxis(self.system.mass.solve(np.moveaxis(f, 0, -1)), -1, 0)
 
-    def _rows(self, cables: np.ndarray, n: np.ndarray) -> np.ndarray:
-        """The compatibility vectors ``b_c`` of ``cables`` (k,) as node vectors (k, N, 3), ``n`` (k, 3) their
-        unit vectors."""
-        ends = self.system.cable_ends[cables]
-        b = np.zeros((len(cables), self.system.n_nodes, 3))
-        k = np.arange(len(cables))
+    def _rows(self, ends: np.ndarray, n: np.ndarray) -> np.ndarray:
+        """The compatibility vectors ``b`` of members with ``ends`` (k, 2) as node vectors (k, N, 3), ``n`` (k, 3)
+        their unit vectors."""
+        b = np.zeros((len(ends), self.system.n_nodes, 3))
+        k = np.arange(len(ends))
         b[k, ends[:, 0]] -= n
         b[k, ends[:, 1]] += n
         return b
 
     def _delassus(self, cables: np.ndarray, n: np.ndarray) -> np.ndarray:
         """``G = B M^-1 B^T + diag(1/m_c)`` (k, k) over ``cables`` (dense: the kernel builds it node by node)."""
-        b = self._rows(cables, n)
+        b = self._rows(self.system.cable_ends[cables], n)
         return np.einsum("inj,knj->ik", b, self.inverse_mass(b)) + np.diag(1.0 / self.plates[cables])
 
     # ------------------------------------------------------------------ forces
@@ -301,14 +508,49 @@ class MassiveMethod(StepMethod):
         the closing kick corrected once where the forces depend on the velocity. Returns the end positions,
         velocities (N, 3) and forces there."""
         v_half = v + (0.5 * h) * start.acc
+        rigid = self.rigid
+        if self.ground is not None or rigid.count:   # the plates of the taut cables move with their nodes
+            self._hold(start)
+        if self.ground is not None:
+            v_f = v_half + rigid.project_velocities(x, v_half, start.directions[rigid.members]) \
+                if rigid.count else None
+            v_half, landing_speed = self.ground.drift_step(x, v, v_half, h, rigid, v_f)
         x_new = x + h * v_half
+        if rigid.count:
+            dx = rigid.project_positions(x, x_new, start.directions[rigid.members])
+            x_new += dx
+            v_half += dx / h
         # the taut set of the step's start: a switch at its end (a snap, a release) comes after its closing kick
         end = self.accelerations(x_new, v_half, state, start.held)
-        v_new = v_half + (0.5 * h) * end.acc
+        if self.ground is not None or rigid.count:
+            self._hold(end)
+
+        def close(end):   # the closing kick, and RATTLE's rates (the velocities the forces are corrected at)
+            v_new = v_half + (0.5 * h) * end.acc
+            if rigid.count:
+                v_new += rigid.project_velocities(x_new, v_new, end.directions[rigid.members])
+            return v_new
+
+        v_new = close(end)
         if self._damped or np.any(start.held & self._massive):   # forces that depend on the velocity
             end = self.accelerations(x_new, v_new, state, start.held)
-            v_new = v_half + (0.5 * h) * end.acc
+            v_new = close(end)
+        if self.ground is not None:
+            v_new = self.ground.settle_step(x_new, v_new, landing_speed, rigid)
+            self._contact, self._pairs = self.ground.take_impulses(), self.ground.take_pair_impulses()
         return x_new, v_new, end
+
+    def _hold(self, forces: _Forces) -> None:
+        """The contacts' and rigid struts' mass from now: the plates of ``forces``' held cables move with them."""
+        cables = np.flatnonzero(forces.held & self._massive)
+        self._plate_solver.hold(cables, forces.directions[self.system.n_struts + cables])
+
+    def _effective_inverse(self, f: np.ndarray) -> np.ndarray:
+        """``(M + sum m_c b_c b_c^T)^-1`` over the cables held (:meth:`_hold`) for node vectors ``f`` (N, 3, k)."""
+        free = self.system.free
+        out = np.zeros_like(f)
+        out[free] = self._plate_solver.inverse(f[free].reshape(-1, f.shape[-1])).reshape(-1, 3, f.shape[-1])
+        return out
 
     # ------------------------------------------------------------------ events
     def _events(self, part, state: State):
@@ -326,12 +568,25 @@ class MassiveMethod(StepMethod):
         snapping = taut_after & ~taut_before
         if not snapping.any():
             return v, self.accelerations(x, v, state), kicks
+        sys, rigid = self.system, self.rigid
         involved = np.flatnonzero(taut_after)
-        n = end.directions[self.system.n_struts + involved]
-        g = self._delassus(involved, n)
+        n = end.directions[sys.n_struts + involved]
         rates = end.rates[involved]
-        p = plate_impact(g, rates, snapping[involved])
-        v = v - self.inverse_mass(np.einsum("k,knj->nj", p, self._rows(involved, n)))
+        b = self._rows(sys.cable_ends[involved], n)
+        g = np.einsum("inj,knj->ik", b, self.inverse_mass(b)) + np.diag(1.0 / self.plates[involved])
+        rows_rates, snaps = rates, snapping[involved]
+        if rigid.count:   # the rigid struts keep their length rates through the impact: rows without a plate
+            dirs = end.directions[rigid.members]
+            struts = self._rows(rigid.ends, dirs)
+            g = np.block([[g, np.einsum("inj,knj->ik", b, self.inverse_mass(struts))],
+                          [np.einsum("inj,knj->ik", struts, self.inverse_mass(b)),
+                           np.einsum("inj,knj->ik", struts, self.inverse_mass(struts))]])
+            b = np.concatenate([b, struts])
+            rows_rates = np.concatenate([rates, sys.member_rates(v, dirs, rigid.ends)])
+            snaps = np.concatenate([snaps, np.zeros(rigid.count, dtype=bool)])
+        p = plate_impact(g, rows_rates, snaps)
+        v = v - self.inverse_mass(np.einsum("k,knj->nj", p, b))
+        p = p[: len(involved)]
         after = self.accelerations(x, v, state)
         kept = np.flatnonzero(~after.slack & self._massive)
         # what the impact took: the nodes' kinetic energy and the involved plates' (moving ones before it)
@@ -350,7 +605,15 @@ class MassiveMethod(StepMethod):
         self._fresh = True
 
     def prepare(self, state: State) -> None:
+        """Initial velocities that would stretch a rigid strut lose that component (as the elastic method's), under
+        the plate-augmented mass of the cables taut there (their plates moving with them)."""
         self.losses = 0.0
+        if self.rigid.count:
+            forces = self.accelerations(state.positions, state.velocities, state)
+            self._hold(forces)
+            state.velocities = state.velocities + self.rigid.project_velocities(
+                state.positions, state.velocities, forces.directions[self.rigid.members])
+            self._cache = None
 
     def _step_impl(self, state: State) -> MethodStep:
         if self.compiled:
@@ -400,7 +663,7 @@ class MassiveMethod(StepMethod):
         x_new, v_new, end, impulses = self.stepper.step(x, v, start, self.dt, state)
         self._cache = end
         self.losses += self._step_loss
-        return MethodStep(x_new, v_new, impulses, end.elongations < 0)
+        return MethodStep(x_new, v_new, impulses, end.elongations < 0, self._contact, self._pairs)
 
     def plate_energy(self, positions: np.ndarray, velocities: np.ndarray, rest_lengths: np.ndarray) -> float:
         """The moving plates' kinetic energy ``sum 1/2 m_c de_c^2`` over the taut cables (J)."""
@@ -413,4 +676,7 @@ class MassiveMethod(StepMethod):
     strain_energy = ElasticMethod.strain_energy   # the same springs: k max(0, e) on cables, k e on struts
 
     def describe(self) -> dict:
-        return {"method": self.name, "dt": self.dt, "order": self.order, "locate_switches": self.locate_switches}
+        out = {"method": self.name, "dt": self.dt, "order": self.order, "locate_switches": self.locate_switches}
+        if self.ground is not None:
+            out["contacts"] = "numpy reference (the compiled kernel takes no ground yet)"
+        return out

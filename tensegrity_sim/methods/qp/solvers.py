@@ -60,8 +60,8 @@ from ._qp_kernels import _SETTLED, _SWEEPS
 from ._superlu_kernels import factor_arrays, symmetric_lu
 from ..base import StepError
 
-__all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SparseSolver", "BlockMassSolver",
-           "SOLVERS",
+__all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolver", "SparseSolver", "MassWrapper",
+           "BlockMassSolver", "SOLVERS",
            "SPARSE_NODES", "DUAL_NODES", "choose_solver", "make_solver"]
 
 # A returned answer may miss the optimality conditions by at most _FEASIBILITY_TOL relative to the
@@ -163,6 +163,8 @@ class QPSolver:
     # the inextensible method warms the last sub-step of a step cut at snaps with the cables that held in
     # the last sub-step of the previous such step (InextensibleMethod._last_hint), not the sub-step before
     last_hint = False
+    # the mass matrix is the diagonal ``mass`` (False: ``inverse`` applies a general one, e.g. rods' blocks)
+    diagonal = True
 
     def __init__(self, mass: np.ndarray):
         self.n_free = len(mass)
@@ -950,7 +952,27 @@ DUAL_NODES = SPARSE_NODES
 FALLBACKS = ("nnls", "osqp")
 
 
-class BlockMassSolver(QPSolver):
+class MassWrapper(QPSolver):
+    """A QP of a non-diagonal mass matrix answered by a diagonal backend ``inner`` in other coordinates (the
+    subclasses say which): its compiled paths and checks are the backend's."""
+
+    diagonal = False
+    inner: QPSolver
+
+    @property
+    def compiled(self) -> bool:
+        return self.inner.compiled
+
+    @compiled.setter
+    def compiled(self, value: bool) -> None:
+        self.inner.compiled = bool(value)
+
+    @property
+    def verify(self) -> bool:
+        return self.inner.verify
+
+
+class BlockMassSolver(MassWrapper):
     """The QP of a mass matrix with 2x2 blocks (rigid rods' consistent mass, ``tensegrity_sim.mass``; its full,
     non-diagonal Hessian) answered exactly by a diagonal backend, in coordinates where ``M`` is diagonal: for a
     block ``[[A, B], [B, C]]`` (times I3) on free nodes ``(a, c)``, ``A`` the larger diagonal entry (the pivot),
@@ -983,18 +1005,6 @@ class BlockMassSolver(QPSolver):
         self.inv_mass = np.repeat(inv_diagonal, 3)
         self.mass = 1.0 / self.inv_mass
         self._inv_cross, self._partner = inv_cross, partner
-
-    @property
-    def compiled(self) -> bool:
-        return self.inner.compiled
-
-    @compiled.setter
-    def compiled(self, value: bool) -> None:
-        self.inner.compiled = bool(value)
-
-    @property
-    def verify(self) -> bool:
-        return self.inner.verify
 
     def inverse(self, p: np.ndarray) -> np.ndarray:
         shape = p.shape
