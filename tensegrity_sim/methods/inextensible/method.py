@@ -162,6 +162,14 @@ class InextensibleMethod(StepMethod):
     options = ("solver", "reel_speed")
     carry_outlives_inputs = True
 
+    @classmethod
+    def takes_mass_blocks(cls, system: System) -> bool:
+        """Always: the free motion applies ``system.mass`` and every QP (the sub-steps', the impacts', the
+        ground's and the member contacts') is posed in ``BlockMassSolver``'s coordinates, where the rods' blocks
+        are diagonal. The one-call step kernels take a diagonal mass, so a scene with blocks steps by the Python
+        path (with the compiled row, snap and landing kernels: :meth:`_compiled_dense`)."""
+        return True
+
     def __init__(self, system: System, dt: float, *, solver: str | None = None, reel_speed: float = REEL_SPEED,
                  compiled: bool = True):
         super().__init__(system, dt)
@@ -197,9 +205,10 @@ class InextensibleMethod(StepMethod):
         index = np.full(system.n_nodes, -1)
         index[free] = np.arange(int(free.sum()))
         self._inv_mass = system.inv_mass[:, None]
-        # the backend: named, or chosen by size (dense DAQP for small structures, sparse for large ones)
+        # the backend: named, or chosen by size (dense DAQP for small structures, sparse for large ones); with rigid
+        # rods' mass blocks that backend in BlockMassSolver's coordinates, where M is diagonal
         self.solver_choice = f"{solver}: requested" if solver else choose_solver(int(free.sum()))[1]
-        self.solver = make_solver(solver, system.masses[free])
+        self.solver = make_solver(solver, system.masses[free], system.mass)
         # a ground or a member contact response adds its contact rows to every QP (methods/contact/friction.py),
         # through the same interface
         self.ground = (None if scene.ground is None and not scene.contact_response.response
@@ -619,7 +628,9 @@ class InextensibleMethod(StepMethod):
             _, length, n = self.system.geometry(x_m, self._elastic_ends)
             tension = self._elastic_k * (length - self._elastic_rest)
             force = force + self._elastic_incidence @ (tension[:, None] * n)
-        return x_m, v + tau * self._inv_mass * force
+        if self.system.mass.consistent:   # the rods' blocks: M^-1 couples each rod's two ends
+            return x_m, v + tau * self.system.mass.solve(force)
+        return x_m, v + tau * self._inv_mass * force   # the step kernel's arithmetic, to the bit
 
     def _first_snap(self, d, limits, v, v0, tau, slack) -> float:
         """Fraction of the sub-step (0, 1] at which the first ``slack`` cable reaches its limit on the
@@ -703,7 +714,8 @@ class InextensibleMethod(StepMethod):
 
     def _compiled_dense(self, solver) -> bool:
         """Whether the kernels can stand for the QP backend ``solver`` and the self-stress rule: the method
-        and the rule compiled, the rule dense, ``solver`` dense DAQP, and neither replaced on the instance."""
+        and the rule compiled, the rule dense, ``solver`` dense DAQP (on a diagonal mass: a scene with rigid rods'
+        blocks has ``BlockMassSolver`` there, which the kernels do not take), and neither replaced on the instance."""
         rule = self.self_stress
         return (self.one_kernel and self.compiled and rule.compiled and not rule.sparse
                 and type(solver) is DaqpSolver and not {"solve", "_solve", "_check"} & vars(solver).keys()
