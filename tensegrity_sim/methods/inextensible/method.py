@@ -213,6 +213,7 @@ class InextensibleMethod(StepMethod):
         index = np.full(system.n_nodes, -1)
         index[free] = np.arange(int(free.sum()))
         self._inv_mass = system.inv_mass[:, None]
+        self._kernel_mass = system.mass.kernel_array   # the step kernels' M^-1 (N, 2), made once
         # the backend: named, or chosen by size (dense DAQP for small structures, sparse for large ones); with rigid
         # rods' mass blocks that backend in BlockMassSolver's coordinates, where M is diagonal
         self.solver_choice = f"{solver}: requested" if solver else choose_solver(int(free.sum()))[1]
@@ -437,7 +438,7 @@ class InextensibleMethod(StepMethod):
         the tolerances, the self-stress rule's load-time space and numpy's BLAS."""
         rule = self.self_stress
         backend = self.solver if self.ground is None else self.solver.inner   # DAQP (a ground's: under its friction)
-        return (self.system.mass.kernel_array, self._ends, self._n_eq, self._rigid_lengths, self._cables_move,
+        return (self._kernel_mass, self._ends, self._n_eq, self._rigid_lengths, self._cables_move,
                 self._row_nodes, self._free_nodes, self.system.cable_ends, _MIN_EVENT, _NEWTON_ITER,
                 *self._qp_call(backend),
                 _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, rule.possible, *rule.load_space,
