@@ -241,7 +241,6 @@ def test_the_ground_loop_takes_cables_along_rods():
 
 
 # ------------------------------------------------------------------ what does not take them
-@pytest.mark.filterwarnings("ignore::tensegrity_sim.scene.LumpedMassWarning")   # the inextensible method lumps
 def test_paths_that_join_two_nodes_refuse_a_cable_along_a_strut_clearly():
     scene = attached_icosahedron()
     with pytest.raises(ValueError, match=r"^method 'inextensible' does not take a cable attached along a strut "

@@ -11,9 +11,10 @@ import numpy as np
 from numba import njit, prange
 
 from .._c_calls import ddot_at, dgemv_at
-from ..qp._daqp_kernels import solve_rows
+from .._mass_kernels import solve_forces
+from ..qp._daqp_kernels import quadprog, solve_rows
 from ..elastic._kernels import keep
-from ..qp._qp_kernels import answer_residuals, dot3, row_rates
+from ..qp._qp_kernels import answer_residuals, dense_rows, dot3, row_rates
 from ._self_stress_kernels import locked_space
 from ..contact._friction_kernels import arm_step, contact_solve, first_impact, landing, missed
 
@@ -210,13 +211,18 @@ def landed(v_f, v, v_free, y, ends, nodes, directions, length, limits, tau, floo
 
 
 @njit(cache=True)
-def _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, directions, v0_free, targets, n_eq, warm,
+def _solve_checked(entry, settings, hessian, sqrt_mass, mass, schur, nodes, directions, v0_free, targets, n_eq, warm,
                    feasibility_tol, velocity_floor, guess):
     """``DaqpSolver.solve`` at unit scale with ``QPSolver._check``: ``v`` (n_free, 3) m/s, the multipliers
     (k,) N*s and whether the answer passed (DAQP succeeded, finite, the optimality conditions met to
     ``feasibility_tol`` relative plus ``velocity_floor`` m/s). A failed one goes back to the Python path,
     which raises its error or solves again at another scale. Also the working set's Cholesky factor and
-    rows (``solve_rows``, trying the working set ``warm`` first with ``guess``: ``DaqpSolver.working_set``)."""
+    rows (``solve_rows``, trying the working set ``warm`` first with ``guess``: ``DaqpSolver.working_set``).
+    With rigid rods' mass blocks (``schur``: :func:`_solve_blocks`) that solve is ``BlockMassSolver.solve``'s."""
+    if schur[0].shape[0]:
+        v, y, ok = _solve_blocks(entry, settings, hessian, sqrt_mass, mass, schur, nodes, directions, v0_free,
+                                 targets, n_eq, warm, feasibility_tol, velocity_floor)
+        return v, y, ok, np.zeros((0, 0)), np.zeros(0, dtype=np.int64)
     n_free = v0_free.shape[0]
     v_flat, y, flag, _, factor, rows = solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, directions,
                                                   n_free, v0_free.reshape(-1), targets, n_eq, warm, 1.0, guess)
@@ -232,8 +238,71 @@ def _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, directions,
 
 
 @njit(cache=True)
+def _solve_blocks(entry, settings, hessian, sqrt_mass, mass, schur, nodes, directions, v0_free, targets, n_eq, warm,
+                  feasibility_tol, velocity_floor):
+    """``BlockMassSolver.solve`` by DAQP's C call (no working-set guess: the backend takes none for general rows):
+    ``schur`` = (pivot, other (nb,) int, beta (nb,)) its coordinates ``u = T^-1 v`` (``u_p = v_p + beta v_o``),
+    in which ``sqrt_mass``, ``mass`` (3 n_free,) are the diagonal (Schur) mass; the rows on ``u`` are ``A T``
+    (column ``o`` less ``beta`` times column ``p``), built and scaled to the bit as ``Rows.dense`` builds
+    ``BlockMassSolver.inner_rows`` and ``DaqpSolver._solve`` scales them. The answer is checked on ``u`` as the
+    backend checks it (``QPSolver._check``). Returns ``v`` (n_free, 3) m/s, the multipliers (k,) N*s and whether
+    the answer passed."""
+    pivot, other, beta = schur
+    n_free = v0_free.shape[0]
+    k = targets.shape[0]
+    u0 = v0_free.copy()
+    for b in range(pivot.shape[0]):
+        for j in range(3):
+            u0[pivot[b], j] += beta[b] * u0[other[b], j]
+    a = dense_rows(nodes, directions, n_free, np.ones(3 * n_free))
+    for b in range(pivot.shape[0]):
+        for j in range(3):
+            p = 3 * pivot[b] + j
+            o = 3 * other[b] + j
+            for i in range(k):
+                a[i, o] -= beta[b] * a[i, p]
+    scaled = a / sqrt_mass
+    lower = np.full(k, -1e30)
+    sense = np.empty(k, dtype=np.int32)
+    for i in range(k):
+        sense[i] = 5 if i < n_eq else np.int32(warm[i])
+        if i < n_eq:
+            lower[i] = targets[i]
+    z, y, flag, _ = quadprog(entry, settings, hessian, -sqrt_mass * u0.reshape(-1), scaled, targets.copy(), lower,
+                             sense)
+    u = (z / sqrt_mass).reshape((n_free, 3))
+    v = u.copy()
+    for b in range(pivot.shape[0]):
+        for j in range(3):
+            v[pivot[b], j] -= beta[b] * v[other[b], j]
+    if flag < 1 or not (np.isfinite(z).all() and np.isfinite(y).all()):
+        return v, y, False
+    # QPSolver._check on u: rates A T u, stationarity D (u - u0) + (A T)^T y
+    scale = max(np.abs(u0).max() if n_free else 0.0, np.abs(targets).max() if k else 0.0)
+    res = a @ u.reshape(-1) - targets
+    violation = 0.0
+    for i in range(k):
+        violation = max(violation, abs(res[i]) if i < n_eq else res[i])
+    change = mass * (u.reshape(-1) - u0.reshape(-1))
+    impulse = max(np.abs(mass * u0.reshape(-1)).max() if n_free else 0.0, np.abs(change).max() if n_free else 0.0,
+                  np.abs(y).max() if k else 0.0, 1e-300)
+    station = change + a.T @ y
+    stationarity = np.abs(station).max() if n_free else 0.0
+    smallest = 0.0
+    short = 0.0
+    for i in range(n_eq, k):
+        smallest = min(smallest, y[i])
+        if y[i] > feasibility_tol * impulse:
+            short = max(short, -res[i])
+    tol = feasibility_tol * scale + velocity_floor
+    ok = not (violation > tol or stationarity > feasibility_tol * impulse or smallest < -feasibility_tol * impulse
+              or short > tol)
+    return v, y, ok
+
+
+@njit(cache=True)
 def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding, row_nodes, free_nodes,
-             cable_ends, taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor,
+             cable_ends, taut, entry, settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor,
              landing_tol, landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact,
              weight, shared, ground, memory):
     """``InextensibleMethod._midpoint`` with no contact rows or the ground's alone, its QP solved by DAQP
@@ -245,6 +314,9 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
     (``_self_stress_kernels.locked_space``, its fit stays numpy). ``row_nodes`` (n_eq + nc, 2): the
     free-node index of each member end; ``free_nodes`` (n_free,) int: the free nodes; ``taut`` (nc,) m: a
     cable's at-limit length.
+
+    ``schur``: the Schur coordinates of the rods' mass blocks (``InextensibleMethod._qp_call``; empty without
+    them), in which ``sqrt_mass`` and ``mass`` are the QP's diagonal mass (:func:`_solve_blocks`; no ground then).
 
     ``ground``: ``(on, nodes, radii, height, mu, touch_tol, free_index, fixed_point_tol, slip_floor,
     max_iter, depth)`` (``on`` False: no ground, the rest unused; see ``InextensibleMethod._ground_table``)
@@ -302,8 +374,8 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
                     free_index, w, touching, mu, stick, normal, slip, fixed_point_tol, slip_floor, max_iter, depth,
                     feasibility_tol, velocity_floor)
             else:   # a ground's backend answers by DAQP alone (DaqpSolver.working_set)
-                v_free, y, ok, factor, work = _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, m_n,
-                                                             v0_free, targets, n_eq, warm, feasibility_tol,
+                v_free, y, ok, factor, work = _solve_checked(entry, settings, hessian, sqrt_mass, mass, schur, nodes,
+                                                             m_n, v0_free, targets, n_eq, warm, feasibility_tol,
                                                              velocity_floor, not on)
             if not ok:
                 break
@@ -404,8 +476,8 @@ def fit_one(ddot, dgemv, wide, y, binding, basis, a_t, reference, members, tau, 
 
 @njit(cache=True)
 def impact(x, v, d, length, at_limit, snapping, holding, ends, n_eq, row_nodes, free_nodes, entry, settings, hessian,
-           sqrt_mass, mass, feasibility_tol, velocity_floor, guess, locked, load_basis, load_cables, load_largest,
-           refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference):
+           sqrt_mass, mass, schur, feasibility_tol, velocity_floor, guess, locked, load_basis, load_cables,
+           load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference):
     """``InextensibleMethod._impact`` without a landing in it, and its ``_publish``: Moreau's impact law at
     ``x`` (N, 3) from ``v`` when the cables ``snapping`` (nc,) bool separate, rows every moving rigid strut
     (``ends``' first ``n_eq``) and every cable ``at_limit`` (nc,) bool (cable vectors ``d`` (nc, 3), lengths
@@ -446,7 +518,7 @@ def impact(x, v, d, length, at_limit, snapping, holding, ends, n_eq, row_nodes, 
     for i in range(n_free):
         for j in range(3):
             v_in[i, j] = v[free_nodes[i], j]
-    v_free, y, ok, _, _ = _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, directions, v_in,
+    v_free, y, ok, _, _ = _solve_checked(entry, settings, hessian, sqrt_mass, mass, schur, nodes, directions, v_in,
                                          np.zeros(k), n_eq, warm, feasibility_tol, velocity_floor, guess)
     v_plus = np.zeros_like(v)
     for i in range(n_free):
@@ -482,13 +554,14 @@ def impact(x, v, d, length, at_limit, snapping, holding, ends, n_eq, row_nodes, 
 @njit(cache=True)
 def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint, inv_mass, ends,
          n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
-         settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked,
+         settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked,
          load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide,
          reference, ground, memory):
     """``InextensibleMethod._step_impl`` of a step that is one sub-step (no snap or landing located inside
     it, no impact at its start), without elastic struts or member contact rows, in one call: the motors' limits
     (:func:`motor_limits`), the impact test, the free motion from ``x``, ``v`` (N, 3) under ``f_ext``
-    (N, 3) N (``inv_mass`` (N, 1) 1/kg), the snap search (:func:`first_snap`) and :func:`midpoint`.
+    (N, 3) N (``inv_mass`` (N, 2) 1/kg, ``MassOperator.kernel_array``; with ``schur`` non-empty the rods' blocks
+    apply), the snap search (:func:`first_snap`) and :func:`midpoint`.
     ``holding``, ``hint`` (nc,) bool: the cables known to hold and the QP's warm start; ``ground`` and
     ``memory`` as :func:`midpoint` takes them (``memory`` itself is not changed: the friction modes after
     the step are returned, for the caller to keep when it takes the step).
@@ -538,15 +611,23 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
                 ok = False
     if ok and snaps:
         ok, v, kicked, kick_node = impact(x, v, d, length, at_limit, snapping, holding, ends, n_eq, row_nodes,
-                                          free_nodes, entry, settings, hessian, sqrt_mass, mass, feasibility_tol,
+                                          free_nodes, entry, settings, hessian, sqrt_mass, mass, schur, feasibility_tol,
                                           velocity_floor, not on, locked, load_basis, load_cables, load_largest,
                                           refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference)
     x_m = x + (0.5 * dt) * v
     v0 = np.empty_like(v)
-    for i in range(v.shape[0]):
-        scale = dt * inv_mass[i, 0]
-        for j in range(3):
-            v0[i, j] = v[i, j] + scale * f_ext[i, j]
+    if schur[0].shape[0]:   # the rods' blocks: v + dt M^-1 f, M^-1 as MassOperator.solve applies it
+        acc = np.empty((v.shape[0], 3, 1))
+        acc[:, :, 0] = f_ext
+        solve_forces(acc, inv_mass, ends, np.arange(n_eq), 0)
+        for i in range(v.shape[0]):
+            for j in range(3):
+                v0[i, j] = v[i, j] + dt * acc[i, j, 0]
+    else:
+        for i in range(v.shape[0]):
+            scale = dt * inv_mass[i, 0]
+            for j in range(3):
+                v0[i, j] = v[i, j] + scale * f_ext[i, j]
     theta = 1.0
     if ok and not all_at:
         slack = np.empty(nc, dtype=np.bool_)
@@ -568,8 +649,9 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     modes = (memory[0].copy(), memory[1].copy(), memory[2].copy()) if on else memory   # the step's own until taken
     done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis, contact = midpoint(
         x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
-        taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter,
-        locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ground, modes)
+        taut, entry, settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol,
+        landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ground,
+        modes)
     new_holding = np.zeros(nc, dtype=np.bool_)
     r = n_eq
     for c in range(nc):
@@ -617,7 +699,7 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
 def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, out_x, out_v, out_impulses, out_slack,
           f_ext, commanded, most, dt, offsets, limit_tol, taut_tol, inv_mass, ends, n_eq, rigid_lengths,
           cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian,
-          sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
+          sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
           load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference, ground,
           memory, contact_total, out_contact, rest_seq, ext_seq, gravity, ext):
     """Steps ``first``, ``first + 1``, ... of ``n_steps`` from ``x``, ``v`` (N, 3), the inputs held, each
@@ -656,7 +738,7 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
         (ok, x_f, v_f, new_holding, new_applied, _, fitted, impulses, slack, node, _, _, _, _, _, _, _,
          _, contact, modes) = step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding,
                                    hint, inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes,
-                                   cable_ends, min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass,
+                                   cable_ends, min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass, schur,
                                    feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
                                    load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv,
                                    wide, reference, ground, memory)
@@ -687,7 +769,7 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
 def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, out_v, out_impulses, out_slack, f_ext,
                  commanded, most, dt, offsets, limit_tol, taut_tol, inv_mass, ends, n_eq, rigid_lengths, cables_move,
                  row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass,
-                 feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis, load_cables,
+                 schur, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis, load_cables,
                  load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference, ground, stick,
                  normal, slip, contact_total, out_contact, done):
     """:func:`steps` of B copies of one structure on every core (``prange`` over the copies), each in arrays of
@@ -705,7 +787,7 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
             0, n_steps, 1, x[b], v[b], applied[b], holding[b], hint[b], residual[b], total[b], out_x[b], out_v[b],
             out_impulses[b], out_slack[b], f_ext[b], commanded[b], most, dt, offsets[b], limit_tol, taut_tol,
             inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event,
-            newton_iter, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol,
+            newton_iter, entry, settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol,
             landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared,
             ddot, dgemv, wide, reference, ground, (stick[b], normal[b], slip[b]), contact_total[b], out_contact[b],
             no_rest, no_ext, f_ext[b], f_ext[b])

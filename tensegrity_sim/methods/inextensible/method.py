@@ -99,7 +99,8 @@ from .._numpy_blas import numpy_blas
 from ..base import MethodStep, State, StepMethod
 from ..contact import friction
 from ..contact.friction import ContactSet
-from ..qp.solvers import _FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, QPError, Rows, choose_solver, make_solver
+from ..qp.solvers import (_FEASIBILITY_TOL, _VELOCITY_FLOOR, BlockMassSolver, DaqpSolver, QPError, Rows, choose_solver,
+                          make_solver)
 from ..rigid import RigidStruts
 from .self_stress import TAUT_TOL, SelfStress, reference_tensions
 
@@ -123,6 +124,8 @@ _LANDING_ITER = 4     # ... after at most this many solves per sub-step
 _NO_GROUND = (False, np.zeros(0, dtype=np.int64), np.zeros(0), 0.0, 0.0, 0.0, np.zeros(0, dtype=np.int64), 0.0, 0.0,
               0, 0)
 _NO_MEMORY = (np.zeros(0, dtype=bool), np.zeros(0), np.zeros((0, 2)))
+# the kernels' Schur coordinates of the rods' mass blocks where the scene has none (``InextensibleMethod._qp_call``)
+_NO_BLOCKS = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
 
 
 def _same(a, b) -> bool:
@@ -156,11 +159,24 @@ class InextensibleMethod(StepMethod):
     with a landing inside it or at its start, or whose modes the kernel leaves to the reference, is
     Python's. A snap's impact at a step's start is the kernel's too (``_inextensible_kernels.impact``) where no
     node touches the ground and the rule's fit is one-dimensional; a command schedule runs inside the loop
-    (:meth:`runs_commands`), and a batch's copies step in it together on every core (:meth:`advance_copies`)."""
+    (:meth:`runs_commands`), and a batch's copies step in it together on every core (:meth:`advance_copies`).
+    Rigid rods' mass blocks (physics.md section 4c) are the kernels' too in free flight (DAQP in
+    ``BlockMassSolver``'s coordinates, ``_inextensible_kernels._solve_blocks``, to the reference's bits); on a ground
+    a scene with blocks steps by the Python path (:meth:`takes_mass_blocks`)."""
 
     name = "inextensible"
     options = ("solver", "reel_speed")
     carry_outlives_inputs = True
+
+    @classmethod
+    def takes_mass_blocks(cls, system: System) -> bool:
+        """Always: the free motion applies ``system.mass`` and every QP (the sub-steps', the impacts', the
+        ground's and the member contacts') is posed in ``BlockMassSolver``'s coordinates, where the rods' blocks
+        are diagonal; the one-call step kernels, the compiled loop and the batch's loop over the copies do the same
+        arithmetic in free flight (``_inextensible_kernels._solve_blocks``, ``_mass_kernels.solve_forces``). On a
+        ground the friction modes' kernels take a diagonal mass, so a scene with blocks there steps by the Python
+        path (with the compiled row, snap and landing kernels: :meth:`_kernel_steps`)."""
+        return True
 
     def __init__(self, system: System, dt: float, *, solver: str | None = None, reel_speed: float = REEL_SPEED,
                  compiled: bool = True):
@@ -197,9 +213,11 @@ class InextensibleMethod(StepMethod):
         index = np.full(system.n_nodes, -1)
         index[free] = np.arange(int(free.sum()))
         self._inv_mass = system.inv_mass[:, None]
-        # the backend: named, or chosen by size (dense DAQP for small structures, sparse for large ones)
+        self._kernel_mass = system.mass.kernel_array   # the step kernels' M^-1 (N, 2), made once
+        # the backend: named, or chosen by size (dense DAQP for small structures, sparse for large ones); with rigid
+        # rods' mass blocks that backend in BlockMassSolver's coordinates, where M is diagonal
         self.solver_choice = f"{solver}: requested" if solver else choose_solver(int(free.sum()))[1]
-        self.solver = make_solver(solver, system.masses[free])
+        self.solver = make_solver(solver, system.masses[free], system.mass)
         # a ground or a member contact response adds its contact rows to every QP (methods/contact/friction.py),
         # through the same interface
         self.ground = (None if scene.ground is None and not scene.contact_response.response
@@ -420,8 +438,9 @@ class InextensibleMethod(StepMethod):
         the tolerances, the self-stress rule's load-time space and numpy's BLAS."""
         rule = self.self_stress
         backend = self.solver if self.ground is None else self.solver.inner   # DAQP (a ground's: under its friction)
-        return (self._inv_mass, self._ends, self._n_eq, self._rigid_lengths, self._cables_move, self._row_nodes,
-                self._free_nodes, self.system.cable_ends, _MIN_EVENT, _NEWTON_ITER, *backend.c_call,
+        return (self._kernel_mass, self._ends, self._n_eq, self._rigid_lengths, self._cables_move,
+                self._row_nodes, self._free_nodes, self.system.cable_ends, _MIN_EVENT, _NEWTON_ITER,
+                *self._qp_call(backend),
                 _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, rule.possible, *rule.load_space,
                 *self._blas, rule.reference, self._ground_table())
 
@@ -460,7 +479,8 @@ class InextensibleMethod(StepMethod):
         if self.ground is None:
             return self._one_kernel()
         solver = self.solver
-        return (self.ground.members is None and self._compiled_dense(solver.inner)
+        # the ground's compiled friction modes take a diagonal mass: with the rods' blocks, the Python path
+        return (self.ground.members is None and not self.system.mass.consistent and self._compiled_dense(solver.inner)
                 and not {"solve", "_modes_compiled", "_modes"} & vars(solver).keys())
 
     def has_ground_loop(self) -> bool:
@@ -619,7 +639,9 @@ class InextensibleMethod(StepMethod):
             _, length, n = self.system.geometry(x_m, self._elastic_ends)
             tension = self._elastic_k * (length - self._elastic_rest)
             force = force + self._elastic_incidence @ (tension[:, None] * n)
-        return x_m, v + tau * self._inv_mass * force
+        if self.system.mass.consistent:   # the rods' blocks: M^-1 couples each rod's two ends
+            return x_m, v + tau * self.system.mass.solve(force)
+        return x_m, v + tau * self._inv_mass * force   # the step kernel's arithmetic, to the bit
 
     def _first_snap(self, d, limits, v, v0, tau, slack) -> float:
         """Fraction of the sub-step (0, 1] at which the first ``slack`` cable reaches its limit on the
@@ -703,11 +725,23 @@ class InextensibleMethod(StepMethod):
 
     def _compiled_dense(self, solver) -> bool:
         """Whether the kernels can stand for the QP backend ``solver`` and the self-stress rule: the method
-        and the rule compiled, the rule dense, ``solver`` dense DAQP, and neither replaced on the instance."""
+        and the rule compiled, the rule dense, ``solver`` dense DAQP (or DAQP in ``BlockMassSolver``'s coordinates,
+        the rods' mass blocks: ``_inextensible_kernels._solve_blocks``), and neither replaced on the instance."""
         rule = self.self_stress
-        return (self.one_kernel and self.compiled and rule.compiled and not rule.sparse
-                and type(solver) is DaqpSolver and not {"solve", "_solve", "_check"} & vars(solver).keys()
+        daqp = solver.inner if type(solver) is BlockMassSolver else solver
+        return (self.one_kernel and self.compiled and rule.compiled and not rule.sparse and type(daqp) is DaqpSolver
+                and not {"solve", "_solve", "_check"} & (vars(solver).keys() | vars(daqp).keys())
                 and "impulses" not in vars(rule))
+
+    @staticmethod
+    def _qp_call(solver) -> tuple:
+        """What the kernels take of the QP backend ``solver`` (:meth:`_compiled_dense`): DAQP's ``c_call`` and the
+        Schur coordinates of the rods' blocks (``BlockMassSolver``: pivots, their partners and ``beta``; empty
+        without blocks)."""
+        if type(solver) is BlockMassSolver:
+            return (*solver.inner.c_call, (solver._pivot.astype(np.int64), solver._other.astype(np.int64),
+                                           solver._beta))
+        return (*solver.c_call, _NO_BLOCKS)
 
     def _midpoint_kernel(self, x_m, v, v0, tau, all_limits, floor, taut, reel, holding):
         """:meth:`_midpoint` in one kernel call (plus the self-stress rule's numpy fit); None when a QP
@@ -715,8 +749,9 @@ class InextensibleMethod(StepMethod):
         locked = self.self_stress.possible
         ok, x_f, v_f, y, cables, nodes, directions, d, length, binding, members, a_t, basis, _ = kernels.midpoint(
             x_m, v, v0, tau, self._ends, self._n_eq, all_limits, floor, self._cables_move, reel, holding,
-            self._row_nodes, self._free_nodes, self.system.cable_ends, taut, *self.solver.c_call, _FEASIBILITY_TOL,
-            _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, locked, *self.self_stress.load_space, _NO_GROUND, _NO_MEMORY)
+            self._row_nodes, self._free_nodes, self.system.cable_ends, taut, *self._qp_call(self.solver),
+            _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, locked, *self.self_stress.load_space,
+            _NO_GROUND, _NO_MEMORY)
         if not ok:
             return None
         self._end_geometry = (x_f, d, length)
