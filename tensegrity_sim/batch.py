@@ -31,7 +31,7 @@ from .commands import CommandSchedule
 from .methods.contact.detection import CompiledDetector, make_detector
 from .methods.contact.friction import TOUCH_TOL
 from .methods.contact.ground import GroundDetector, walk_copies
-from .methods import StepError, check_backend, choose_method, mass_model
+from .methods import StepError, check_backend, choose_method
 from .methods.elastic.method import ElasticMethod
 from .methods.elastic.batch import ElasticBatch
 from .methods.inextensible.method import InextensibleMethod
@@ -231,12 +231,10 @@ class BatchSimulator:
             if solver is not None and requested:
                 raise ValueError(f"solver={solver!r} is an option of a method with a QP; method 'elastic' has none")
             if backend == "jax":
-                from .methods.jax.engine import ElasticBatchJax, ElasticMethodJax   # imports JAX: only here
+                from .methods.jax.engine import ElasticBatchJax   # imports JAX: only here
 
-                self.system = mass_model(self.system, ElasticMethodJax)
                 self._engine = ElasticBatchJax(self.system, dt, dtype=dtype or "float64")
             else:
-                self.system = mass_model(self.system, ElasticMethod)
                 self._engine = ElasticBatch(self.system, dt)
             self.dt = self._engine.dt
             self._copies = None

@@ -31,8 +31,7 @@ __all__ = ["MassOperator"]
 
 
 class MassOperator:
-    """``M`` of a scene's free nodes (fixed nodes never move: their rows are zero in ``M^-1``); with
-    ``consistent`` false every strut is lumped by its row sums (a method that takes no blocks).
+    """``M`` of a scene's free nodes (fixed nodes never move: their rows are zero in ``M^-1``).
 
     Attributes (shapes; units):
         lumped: (N,) kg, the row sums of ``M`` (each node's weight is ``lumped g``; linear momentum
@@ -44,7 +43,7 @@ class MassOperator:
         blocks: (nb, 2) int, the end nodes of every block, in strut order.
     """
 
-    def __init__(self, scene: Scene, free: np.ndarray, consistent: bool = True):
+    def __init__(self, scene: Scene, free: np.ndarray):
         index = {n.name: i for i, n in enumerate(scene.nodes)}
         n = len(scene.nodes)
         self.lumped = scene.masses
@@ -62,7 +61,7 @@ class MassOperator:
             for s in scene.struts:
                 a, c = index[s.nodes[0]], index[s.nodes[1]]
                 ma, mb, mc = s.mass_block
-                if not (consistent and s.rigid) or mb == 0.0:
+                if not s.rigid or mb == 0.0:
                     continue
                 if rigid_ends[a] > 1 or rigid_ends[c] > 1:
                     shared.append(s.name)

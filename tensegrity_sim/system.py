@@ -53,7 +53,7 @@ class System:
         strut_rest: (n_struts,) m.
     """
 
-    def __init__(self, scene: Scene, consistent_mass: bool = True):
+    def __init__(self, scene: Scene):
         self.scene = scene
         self.n_nodes = len(scene.nodes)
         self.n_struts = len(scene.struts)
@@ -61,7 +61,7 @@ class System:
         self.n_members = self.n_struts + self.n_cables
         self.masses = scene.masses
         self.free = ~scene.fixed
-        self.mass = MassOperator(scene, self.free, consistent_mass)
+        self.mass = MassOperator(scene, self.free)
         self.inv_mass = self.mass.inv_diagonal
         self.gravity_force = (self.masses * self.free)[:, None] * np.asarray(scene.gravity)[None, :]
         self.cable_nodes, self.cable_weights = scene.cable_points()
@@ -78,11 +78,6 @@ class System:
         self.cable_damping = np.array([c.damping for c in scene.cables], dtype=float)
         self.sparse = self.n_nodes * max(self.n_members, 1) > SPARSE_THRESHOLD
         self._incidence = self.incidence_matrix()
-
-    def lumped(self) -> "System":
-        """This system with every strut's mass lumped at its ends by row sums (itself if it has no mass block):
-        for a method or a path that takes a diagonal ``M`` only."""
-        return System(self.scene, consistent_mass=False) if self.mass.consistent else self
 
     # ------------------------------------------------------------------ algebra
     def incidence_matrix(self, ends: np.ndarray | None = None):

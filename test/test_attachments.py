@@ -7,7 +7,6 @@ would not), the conservation of linear and angular momentum (a force at a point 
 weights has that point's torque), naming a strut's end either way (the same numbers, bit for bit), and the
 fast paths (compiled step, compiled loop, batch, ground loop, JAX) against the numpy reference.
 """
-import warnings
 
 import numpy as np
 import pytest
@@ -16,7 +15,7 @@ import tensegrity_sim as ts
 from tensegrity_sim.methods.base import State
 from tensegrity_sim.methods.contact.detection import ContactDetector
 from tensegrity_sim.methods.elastic import _kernels as kernels
-from tensegrity_sim.scene import CONTACT_KINDS, Attachment, LumpedMassWarning, SceneError
+from tensegrity_sim.scene import CONTACT_KINDS, Attachment, SceneError
 from tensegrity_sim.system import System
 from test_rods import HAVE_JAX, simulate
 
@@ -231,10 +230,8 @@ def test_the_composed_fourth_order_step_takes_cables_along_rods():
 def test_the_ground_loop_takes_cables_along_rods():
     """The elastic method's compiled ground loop calls the same force kernel: against the reference's ground step."""
     scene = attached_icosahedron(ground=True)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", LumpedMassWarning)   # the ground path lumps the rods' mass (test_rods.py)
-        x_ref, v_ref, _ = simulate(scene, "reference", 300, 1e-3)
-        x, v, _ = simulate(scene, "run", 300, 1e-3)
+    x_ref, v_ref, _ = simulate(scene, "reference", 300, 1e-3)
+    x, v, _ = simulate(scene, "run", 300, 1e-3)
     assert np.max(np.abs(x[-1] - x[0])) > 1e-3
     np.testing.assert_allclose(x, x_ref, rtol=0, atol=1e-9)
     np.testing.assert_allclose(v, v_ref, rtol=0, atol=1e-7)

@@ -1,12 +1,10 @@
 """Stepping methods, picked by name from :data:`METHODS`; ``"auto"`` is :func:`choose_method`."""
 from __future__ import annotations
 
-import warnings
 
 import numpy as np
 
 from ..checks import describe
-from ..scene import LumpedMassWarning
 from ..system import System
 from .base import MethodStep, State, StepError, StepMethod
 from .elastic.method import ElasticMethod
@@ -146,19 +144,6 @@ def _massive_choice(system: System) -> str | None:
             f"methods 1 and 2)")
 
 
-def mass_model(system: System, cls: type[StepMethod]) -> System:
-    """``system``, or its lumped form (``System.lumped``, with a :class:`LumpedMassWarning`) where its mass
-    matrix has rigid struts' blocks (physics.md section 4c) that method ``cls`` does not take on this scene."""
-    if not system.mass.consistent or cls.takes_mass_blocks(system):
-        return system
-    struts = [system.scene.struts[i].name for i in range(system.n_struts)
-              if any(system.mass.partner[system.strut_ends[i]] >= 0)]
-    warnings.warn(f"{system.scene.source or system.scene.name}: the {cls.name} method takes "
-                  f"no rigid strut's mass spread along it: struts {struts} are lumped at their ends (row sums: their "
-                  f"weight and momentum exact, their rotational inertia too large)", LumpedMassWarning, stacklevel=3)
-    return system.lumped()
-
-
 # what has each option, for the error when a named method lacks it
 _OPTION_OF = {"solver": "a method with a QP", "order": "the elastic and massive methods",
               "locate_switches": "the elastic and massive methods",
@@ -201,5 +186,4 @@ def make_method(system: System, method: str, dt: float, *, backend: str = "numba
             raise ValueError(f"{name}={describe(given[name])} is an option of {_OPTION_OF[name]}; "
                              f"method {method!r} has none")
     extra = {} if backend == "numba" else {"dtype": dtype or "float64"}
-    system = mass_model(system, cls)
     return cls(system, dt, **{name: value for name, value in given.items() if name in cls.options}, **extra), reason

@@ -35,9 +35,7 @@ Rules for whoever writes a new method (compare ``scipy.integrate.OdeSolver``):
 11. ``applied_rest_lengths(state)`` are the rest lengths the cables follow now, if a method lags the
     commanded ones (a motor's finite speed).
 12. Masses: apply ``M`` and ``M^-1`` only through ``system.mass`` (``tensegrity_sim.mass``) or its kernel form
-    (``methods/_mass_kernels.py``). A method that applies a rigid strut's 2x2 block says so in
-    ``takes_mass_blocks(system)``; one that does not is given the lumped system (``System.lumped``), and
-    ``make_method`` warns that the struts' rotational inertia is then too large.
+    (``methods/_mass_kernels.py``), rigid struts' 2x2 blocks included: every method applies them.
 """
 from __future__ import annotations
 
@@ -99,12 +97,6 @@ class StepMethod:
     def __init__(self, system: System, dt: float):
         self.system = system
         self.dt = float(dt)
-
-    @classmethod
-    def takes_mass_blocks(cls, system: System) -> bool:
-        """Rule 12: whether the method applies ``system.mass`` with its rigid struts' 2x2 blocks on this scene
-        (else ``make_method`` hands it the lumped system, with a warning)."""
-        return False
 
     def invalidate(self) -> None:
         """The state was changed from outside: drop anything cached from the previous step."""

@@ -132,12 +132,6 @@ class ElasticMethod(StepMethod):
     name = "elastic"
     options = ("order", "locate_switches")
 
-    @classmethod
-    def takes_mass_blocks(cls, system) -> bool:
-        """Always: its kernels and reference apply ``system.mass``, its contact blocks (``solve_block``,
-        ``solve_coupled``) and the reference's QPs (``BlockMassSolver``) the rods' blocks too."""
-        return True
-
     def __init__(self, system: System, dt: float, *, order: int = 2, locate_switches: bool | None = None,
                  compiled: bool = True):
         super().__init__(system, dt)

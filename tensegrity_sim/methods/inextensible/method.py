@@ -162,21 +162,11 @@ class InextensibleMethod(StepMethod):
     (:meth:`runs_commands`), and a batch's copies step in it together on every core (:meth:`advance_copies`).
     Rigid rods' mass blocks (physics.md section 4c) are the kernels' too in free flight (DAQP in
     ``BlockMassSolver``'s coordinates, ``_inextensible_kernels._solve_blocks``, to the reference's bits); on a ground
-    a scene with blocks steps by the Python path (:meth:`takes_mass_blocks`)."""
+    the friction modes' kernels take a diagonal mass, so a scene with blocks steps by the Python path."""
 
     name = "inextensible"
     options = ("solver", "reel_speed")
     carry_outlives_inputs = True
-
-    @classmethod
-    def takes_mass_blocks(cls, system: System) -> bool:
-        """Always: the free motion applies ``system.mass`` and every QP (the sub-steps', the impacts', the
-        ground's and the member contacts') is posed in ``BlockMassSolver``'s coordinates, where the rods' blocks
-        are diagonal; the one-call step kernels, the compiled loop and the batch's loop over the copies do the same
-        arithmetic in free flight (``_inextensible_kernels._solve_blocks``, ``_mass_kernels.solve_forces``). On a
-        ground the friction modes' kernels take a diagonal mass, so a scene with blocks there steps by the Python
-        path (with the compiled row, snap and landing kernels: :meth:`_kernel_steps`)."""
-        return True
 
     def __init__(self, system: System, dt: float, *, solver: str | None = None, reel_speed: float = REEL_SPEED,
                  compiled: bool = True):

@@ -71,12 +71,6 @@ class ElasticMethodJax(ElasticMethod):
 
     options = ()
 
-    @classmethod
-    def takes_mass_blocks(cls, system) -> bool:
-        """Always: its step applies ``system.mass`` (``elastic._derived``), its ground's block Gauss-Seidel
-        (``jax/ground.py``) the rods' blocks too."""
-        return True
-
     def __init__(self, system: System, dt: float, *, dtype: str = "float64"):
         self.dtype = _dtype(dtype)
         super().__init__(system, dt, compiled=False)

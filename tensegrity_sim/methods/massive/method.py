@@ -322,12 +322,6 @@ class MassiveMethod(StepMethod):
     name = "massive"
     options = ("order", "locate_switches")
 
-    @classmethod
-    def takes_mass_blocks(cls, system) -> bool:
-        """Always: its reference applies ``system.mass`` (the rods' blocks) in the forces, the plates' ``G``, the
-        impacts, SHAKE/RATTLE and the contacts (the compiled kernel, lumped, runs only without rigid struts)."""
-        return True
-
     def __init__(self, system: System, dt: float, *, order: int = 2, locate_switches: bool | None = None,
                  compiled: bool = True):
         super().__init__(system, dt)
