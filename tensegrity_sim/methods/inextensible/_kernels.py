@@ -234,8 +234,8 @@ def _solve_checked(entry, settings, hessian, sqrt_mass, mass, nodes, directions,
 @njit(cache=True)
 def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding, row_nodes, free_nodes,
              cable_ends, taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor,
-             landing_tol, landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact,
-             weight, shared, ground, memory):
+             landing_tol, landing_iter, reel_force, locked, load_basis, load_cables, load_largest, refine, rank_tol,
+             exact, weight, shared, ground, memory):
     """``InextensibleMethod._midpoint`` with no contact rows or the ground's alone, its QP solved by DAQP
     (``_solve_checked``, or with armed ground contacts the compiled friction modes,
     ``_friction_kernels.contact_solve``), in one call: the rows (:func:`select_rows`, member table
@@ -319,6 +319,12 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
             v_start = v_f.copy()
         if ok and on and missed(x_m, v_f, 0.5 * tau, g_nodes, armed, radii, height, touch_tol):
             ok = False
+        r = n_eq
+        for c in range(cables.shape[0]):   # a motor pulling harder than reel_force: Python's (its force)
+            if cables[c]:
+                if ok and reel[c] < 0.0 and y[r] > reel_force * tau:
+                    ok = False
+                r += 1
         if ok:
             for c in range(impulses.shape[0]):   # the last solve's, committed (FrictionalSolver.commit)
                 for j in range(3):
@@ -482,8 +488,8 @@ def impact(x, v, d, length, at_limit, snapping, holding, ends, n_eq, row_nodes, 
 @njit(cache=True)
 def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint, inv_mass, ends,
          n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
-         settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked,
-         load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide,
+         settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, reel_force,
+         locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide,
          reference, ground, memory):
     """``InextensibleMethod._step_impl`` of a step that is one sub-step (no snap or landing located inside
     it, no impact at its start), without elastic struts or member contact rows, in one call: the motors' limits
@@ -569,7 +575,8 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis, contact = midpoint(
         x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
         taut, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter,
-        locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ground, modes)
+        reel_force, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ground,
+        modes)
     new_holding = np.zeros(nc, dtype=np.bool_)
     r = n_eq
     for c in range(nc):
@@ -617,7 +624,7 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
 def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, out_x, out_v, out_impulses, out_slack,
           f_ext, commanded, most, dt, offsets, limit_tol, taut_tol, inv_mass, ends, n_eq, rigid_lengths,
           cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian,
-          sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
+          sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol, landing_iter, reel_force, locked, load_basis,
           load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference, ground,
           memory, contact_total, out_contact, rest_seq, ext_seq, gravity, ext):
     """Steps ``first``, ``first + 1``, ... of ``n_steps`` from ``x``, ``v`` (N, 3), the inputs held, each
@@ -657,9 +664,9 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
          _, contact, modes) = step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding,
                                    hint, inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes,
                                    cable_ends, min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass,
-                                   feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
-                                   load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv,
-                                   wide, reference, ground, memory)
+                                   feasibility_tol, velocity_floor, landing_tol, landing_iter, reel_force, locked,
+                                   load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared,
+                                   ddot, dgemv, wide, reference, ground, memory)
         if not (ok and fitted):
             return i, x, v, applied, holding, hint, residual
         x, v, applied, holding, hint = x_f, v_f, new_applied, new_holding, new_holding
@@ -687,9 +694,9 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
 def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, out_v, out_impulses, out_slack, f_ext,
                  commanded, most, dt, offsets, limit_tol, taut_tol, inv_mass, ends, n_eq, rigid_lengths, cables_move,
                  row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass,
-                 feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis, load_cables,
-                 load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference, ground, stick,
-                 normal, slip, contact_total, out_contact, done):
+                 feasibility_tol, velocity_floor, landing_tol, landing_iter, reel_force, locked, load_basis,
+                 load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference,
+                 ground, stick, normal, slip, contact_total, out_contact, done):
     """:func:`steps` of B copies of one structure on every core (``prange`` over the copies), each in arrays of
     its own: the leading axis of ``x``, ``v`` (B, N, 3), the carry ``applied``, ``holding``, ``hint`` (B, nc),
     ``residual`` (B,), the inputs ``f_ext`` (B, N, 3), ``commanded`` and ``offsets`` (B, nc), the friction
@@ -706,9 +713,9 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
             out_impulses[b], out_slack[b], f_ext[b], commanded[b], most, dt, offsets[b], limit_tol, taut_tol,
             inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event,
             newton_iter, entry, settings, hessian, sqrt_mass, mass, feasibility_tol, velocity_floor, landing_tol,
-            landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared,
-            ddot, dgemv, wide, reference, ground, (stick[b], normal[b], slip[b]), contact_total[b], out_contact[b],
-            no_rest, no_ext, f_ext[b], f_ext[b])
+            landing_iter, reel_force, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight,
+            shared, ddot, dgemv, wide, reference, ground, (stick[b], normal[b], slip[b]), contact_total[b],
+            out_contact[b], no_rest, no_ext, f_ext[b], f_ext[b])
         done[b] = i
         x[b] = xb
         v[b] = vb

@@ -103,9 +103,10 @@ from ..qp.solvers import _FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, QPError,
 from ..rigid import RigidStruts
 from .self_stress import TAUT_TOL, SelfStress, reference_tensions
 
-__all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_EVENTS", "REEL_SPEED"]
+__all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_EVENTS", "REEL_FORCE", "REEL_SPEED"]
 
 REEL_SPEED = 1.0     # m/s: the motors' default top speed (cable-driven tensegrity robots reel slower)
+REEL_FORCE = 2e3     # N: the motors' default largest pull (their stall force; module docstring, *Motor force*)
 
 LIMIT_TOL = 1e-9     # relative: a cable within LIMIT_TOL * L of its limit is at it (taut, not slack)
 # Snap events located inside one step; each costs an impact and a sub-step. Later snaps in the same
@@ -159,11 +160,11 @@ class InextensibleMethod(StepMethod):
     (:meth:`runs_commands`), and a batch's copies step in it together on every core (:meth:`advance_copies`)."""
 
     name = "inextensible"
-    options = ("solver", "reel_speed")
+    options = ("solver", "reel_speed", "reel_force")
     carry_outlives_inputs = True
 
     def __init__(self, system: System, dt: float, *, solver: str | None = None, reel_speed: float = REEL_SPEED,
-                 compiled: bool = True):
+                 reel_force: float = REEL_FORCE, compiled: bool = True):
         super().__init__(system, dt)
         if len(system.attached):
             raise ValueError(f"method 'inextensible' does not take a cable attached along a strut (cable "
@@ -175,6 +176,14 @@ class InextensibleMethod(StepMethod):
             self.reel_speed = float("nan")
         if not self.reel_speed > 0:
             raise ValueError(f"reel_speed must be a number of m/s > 0 (math.inf: no limit), got {reel_speed!r}")
+        try:
+            self.reel_force = float(reel_force)
+        except (TypeError, ValueError):
+            self.reel_force = float("nan")
+        if not self.reel_force > 0:
+            raise ValueError(f"reel_force must be a number of N > 0 (math.inf: no limit), got {reel_force!r}")
+        self.stalls = 0   # motor steps at the force limit (pulling at reel_force, behind the command)
+        self._pulled = np.zeros(system.n_cables, dtype=bool)   # the step's motors at their force limit
         scene = system.scene
         self.omega_struts = system.max_frequency(scene.positions, include_cables=False)
         if self.omega_struts * self.dt >= 2.0:
@@ -297,7 +306,8 @@ class InextensibleMethod(StepMethod):
     def describe(self) -> dict:
         offsets = self.length_offsets
         return {"method": self.name, "dt": self.dt, **self.solver.describe(), "solver_choice": self.solver_choice,
-                "limit_tol": LIMIT_TOL, "reel_speed": self.reel_speed,
+                "limit_tol": LIMIT_TOL, "reel_speed": self.reel_speed, "reel_force": self.reel_force,
+                "motor_stalls": self.stalls,
                 "max_events": MAX_EVENTS, "omega_struts": self.omega_struts,
                 "length_offsets": {name: float(o) for name, o in zip(self.system.scene.cable_names, offsets)
                                    if o > 0}}
@@ -329,6 +339,7 @@ class InextensibleMethod(StepMethod):
             applied, reel, limits, floor, taut, reeling = self._motor_limits_reference(state.rest_lengths)
         f_ext = self.system.gravity_force + state.external_forces
         impulses = np.zeros(self.system.n_cables)
+        self._pulled = np.zeros(self.system.n_cables, dtype=bool)
         if self.ground is not None:
             self.ground.begin_step()
         holding = self._holding
@@ -365,9 +376,17 @@ class InextensibleMethod(StepMethod):
                     self._last_hint = y > 0
                 break
             remaining -= tau
+        end_length = self._cable_geometry(x)[1]   # cached if the self-stress rule computed it
+        pulled = self._pulled
+        if pulled.any():
+            # a motor at its force limit reeled in only what its cable gave: it stands where the cable ends, half
+            # a step's reel ahead as a running motor does (within what it could reel: no farther than commanded,
+            # never back out)
+            ahead = end_length[pulled] - self.length_offsets[pulled] + (0.5 * self.dt) * reel[pulled]
+            applied[pulled] = np.maximum(applied[pulled], np.minimum(self._applied[pulled], ahead))
+            self.stalls += int(np.count_nonzero(pulled))
         self._holding = self._hint = holding
         self._applied = applied
-        end_length = self._cable_geometry(x)[1]   # cached if the self-stress rule computed it
         contact = pairs = None
         if self.ground is not None:
             contact, pairs = self.ground.take_impulses(), self.ground.take_pair_impulses()
@@ -422,8 +441,8 @@ class InextensibleMethod(StepMethod):
         backend = self.solver if self.ground is None else self.solver.inner   # DAQP (a ground's: under its friction)
         return (self._inv_mass, self._ends, self._n_eq, self._rigid_lengths, self._cables_move, self._row_nodes,
                 self._free_nodes, self.system.cable_ends, _MIN_EVENT, _NEWTON_ITER, *backend.c_call,
-                _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, rule.possible, *rule.load_space,
-                *self._blas, rule.reference, self._ground_table())
+                _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, self.reel_force, rule.possible,
+                *rule.load_space, *self._blas, rule.reference, self._ground_table())
 
     def _ground_table(self) -> tuple:
         """What the step kernels take of the ground (``_inextensible_kernels.midpoint``'s ``ground``): its
@@ -653,7 +672,8 @@ class InextensibleMethod(StepMethod):
     def _midpoint(self, x_m, v, v0, tau, limits, floor, taut, reel, reeling, holding):
         """Moreau's midpoint sub-step from ``x_m`` with free velocity ``v0``: returns ``x_f``, ``v_f``
         (N, 3), the QP's cable impulses (n_cables,) N*s (they decide which cables hold) and the published
-        ones (:meth:`_publish`)."""
+        ones (:meth:`_publish`). A motor that would pull its cable harder than ``reel_force`` pulls at that
+        force instead (*Motor force* in the module docstring): the sub-step is solved again with it."""
         n_eq = self._n_eq
         # a cable being reeled in lands half a sub-step's reel behind its moving limit: landing on it would
         # make the second half-step cover the whole reel, launching its ends at twice the motor's speed
@@ -663,6 +683,63 @@ class InextensibleMethod(StepMethod):
             done = self._midpoint_kernel(x_m, v, v0, tau, all_limits, floor, taut, reel, holding)
             if done is not None:
                 return done
+        x_f, v_f, y, rows, cables, pull = self._motor_modes(x_m, v, v0, tau, limits, all_limits, floor, reel, holding)
+        impulses = np.zeros(len(limits))
+        impulses[cables] = y[n_eq:]
+        self._pulled |= pull > 0
+        if self.ground is not None:
+            self.solver.commit()
+        if rows is None:
+            return x_f, v_f, impulses, impulses
+        y = y.copy()
+        y[n_eq:] += pull[cables]
+        impulses += pull
+        return x_f, v_f, impulses, self._publish(rows, np.flatnonzero(cables), y, tau, x_f, taut)
+
+    def _motor_modes(self, x_m, v, v0, tau, limits, all_limits, floor, reel, holding):
+        """The sub-step's QP with each reeling motor following its reel (its cable's row lands behind the
+        moving limit) or, where that would take more than ``reel_force`` (or where the structure cannot
+        follow at all: its QP has no answer), pulling at that force: a known impulse along the cable at the
+        midpoint, the cable held where the motor stood at the step's start (its brake). Motors only go from
+        following to pulling within a sub-step, so this ends. Returns ``x_f``, ``v_f`` (N, 3), the
+        multipliers (k,) N*s, the rows (or None), the cable rows (nc,) bool and the motors' impulses at their
+        force (nc,) N*s."""
+        n_eq = self._n_eq
+        most = self.reel_force * tau   # N*s: the most a motor pulls over the sub-step
+        reeling = reel < 0
+        pulling = np.zeros(len(reel), dtype=bool)
+        while True:
+            ends = self.system.cable_ends[pulling]
+            d = x_m[ends[:, 1]] - x_m[ends[:, 0]]
+            impulse = (most / np.sqrt(np.einsum("ij,ij->i", d, d)))[:, None] * d
+            push = np.zeros_like(v0)
+            np.add.at(push, ends[:, 0], impulse)
+            np.add.at(push, ends[:, 1], -impulse)
+            held = all_limits.copy()
+            # (the motor stands half a step's reel ahead of its cable, as a running one does: _step_impl)
+            held[n_eq:][pulling] = limits[pulling] - (self.dt + 0.5 * tau) * reel[pulling]
+            try:
+                v_f, y, rows, cables = self._solve_sub_step(x_m, v, v0 + self._inv_mass * push, tau, held, floor,
+                                                            np.where(pulling, 0.0, reel), holding)
+            except QPError:
+                if not np.isfinite(most) or (pulling == reeling).all():
+                    raise
+                pulling = reeling.copy()   # the structure cannot follow the reel: the motors pull at their force
+                continue
+            impulses = np.zeros(len(reel))
+            impulses[cables] = y[n_eq:]
+            over = reeling & ~pulling & (impulses > most)
+            if not over.any():
+                return x_m + (0.5 * tau) * v_f, v_f, y, rows, cables, np.where(pulling, most, 0.0)
+            pulling |= over
+            if self.ground is not None:
+                self.solver.last = None   # this answer is not kept: its contact impulses are not the step's
+
+    def _solve_sub_step(self, x_m, v, v0, tau, all_limits, floor, reel, holding):
+        """The QP of a midpoint sub-step (its rows, the landing, the ground's contacts armed, not committed):
+        ``v_f`` (N, 3), the multipliers (k,) N*s, the rows (None: nothing can be taut, no cable row) and the
+        cable rows (n_cables,) bool."""
+        n_eq = self._n_eq
         if self.compiled:
             cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = kernels.select_rows(
                 x_m, v, v0, tau, self._ends, n_eq, all_limits, floor, self._cables_move, reel, holding)
@@ -676,22 +753,15 @@ class InextensibleMethod(StepMethod):
                 v_f = v0.copy()
                 v_f[self._free] = self.solver.solve(v0[self._free], Rows(np.zeros((0, 2), int), np.zeros((0, 3)),
                                                                          np.zeros(0), 0))[0]
-                self.solver.commit()
-            none = np.zeros(len(limits))
-            return x_m + (0.5 * tau) * v_f, v_f, none, none
+            return v_f, np.zeros(n_eq), None, cables
         rows = Rows(self._row_nodes[sel], m_n, targets, n_eq)
         v_f, y = self._land(v, v0, rows, warm, self._ends[sel], m_length, m_limits, tau, floor_rate, reel)
-        if self.ground is not None:
-            if self.ground.missed(x_m, v_f, 0.5 * tau):
-                # a cable's impulse carried a node that its free motion kept clear of the ground into it:
-                # the sub-step again with that node armed too (judged on this answer)
-                self.ground.arm_step(x_m, v, v0, tau, 0.5 * tau, v_f)
-                v_f, y = self._land(v, v0, rows, warm, self._ends[sel], m_length, m_limits, tau, floor_rate, reel)
-            self.solver.commit()
-        impulses = np.zeros(len(limits))
-        impulses[cables] = y[n_eq:]
-        x_f = x_m + (0.5 * tau) * v_f
-        return x_f, v_f, impulses, self._publish(rows, np.flatnonzero(cables), y, tau, x_f, taut)
+        if self.ground is not None and self.ground.missed(x_m, v_f, 0.5 * tau):
+            # a cable's impulse carried a node that its free motion kept clear of the ground into it:
+            # the sub-step again with that node armed too (judged on this answer)
+            self.ground.arm_step(x_m, v, v0, tau, 0.5 * tau, v_f)
+            v_f, y = self._land(v, v0, rows, warm, self._ends[sel], m_length, m_limits, tau, floor_rate, reel)
+        return v_f, y, rows, cables
 
     def _one_kernel(self) -> bool:
         """Whether a sub-step runs in ``_inextensible_kernels.midpoint``: compiled, dense DAQP, no contact
@@ -716,7 +786,8 @@ class InextensibleMethod(StepMethod):
         ok, x_f, v_f, y, cables, nodes, directions, d, length, binding, members, a_t, basis, _ = kernels.midpoint(
             x_m, v, v0, tau, self._ends, self._n_eq, all_limits, floor, self._cables_move, reel, holding,
             self._row_nodes, self._free_nodes, self.system.cable_ends, taut, *self.solver.c_call, _FEASIBILITY_TOL,
-            _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, locked, *self.self_stress.load_space, _NO_GROUND, _NO_MEMORY)
+            _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, self.reel_force, locked, *self.self_stress.load_space,
+            _NO_GROUND, _NO_MEMORY)
         if not ok:
             return None
         self._end_geometry = (x_f, d, length)
