@@ -698,8 +698,8 @@ class InextensibleMethod(StepMethod):
 
     def _motor_modes(self, x_m, v, v0, tau, limits, all_limits, floor, reel, holding):
         """The sub-step's QP with each reeling motor following its reel (its cable's row lands behind the
-        moving limit) or, where that would take more than ``reel_force`` (or where the structure cannot
-        follow at all: its QP has no answer), pulling at that force: a known impulse along the cable at the
+        moving limit) or, where that would take more than ``reel_force`` (or where a structure not locked at
+        load cannot follow at all: its QP has no answer), pulling at that force: a known impulse along the cable at the
         midpoint, the cable held where the motor stood at the step's start (its brake). Motors only go from
         following to pulling within a sub-step, so this ends. Returns ``x_f``, ``v_f`` (N, 3), the
         multipliers (k,) N*s, the rows (or None), the cable rows (nc,) bool and the motors' impulses at their
@@ -722,7 +722,9 @@ class InextensibleMethod(StepMethod):
                 v_f, y, rows, cables = self._solve_sub_step(x_m, v, v0 + self._inv_mass * push, tau, held, floor,
                                                             np.where(pulling, 0.0, reel), holding)
             except QPError:
-                if not np.isfinite(most) or (pulling == reeling).all():
+                # a structure locked at load cannot reel at all (a clear error, docs/errors.md); one that locks on
+                # the way (a reel that takes it to where its members carry a self-stress) stalls its motors there
+                if not np.isfinite(most) or self.self_stress.possible or (pulling == reeling).all():
                     raise
                 pulling = reeling.copy()   # the structure cannot follow the reel: the motors pull at their force
                 continue
