@@ -51,6 +51,15 @@ then oscillated 2 % of that around the balance. Spread at 1 m/s the same command
 balance holds to 7.9e-4 (2.0e-4 at 0.5 ms: O(h^2), from the explicit elastic struts), measured by
 ``bench/hard_cases.py``; without elastic struts it holds to round-off (``test_inextensible.py``).
 
+**Motor force.** A motor pulls at most ``reel_force`` (default ``REEL_FORCE`` = 2 kN; ``math.inf``: none).
+Where following its reel would take a larger impulse over a sub-step (or a structure not locked at load cannot
+follow at all), the motor pulls at that force, a known impulse along its cable at the midpoint, and its brake
+holds the cable where the motor stood (its row at that length, no reel): it reels in only what the cable gives
+(``stalls`` counts those motor steps). The energy gained is then below ``reel_force`` times the cable reeled in:
+unlimited motors drove ``icosahedron_ground`` (rigid struts), which locks a few mm into ``examples/roll.yaml``,
+on with up to 3e4 N*s a step and launched it 3.6 m up (issue 47). The step kernels leave such a step to the
+Python path.
+
 **Snaps.** Steering a cable back while its ends still separate would push them apart again (a
 rebound: effective restitution up to 0.96 for Baumgarte with gamma = 1, see the tests). A snap is an
 event instead, located inside the step and resolved where it happens:
