@@ -410,13 +410,15 @@ class InextensibleMethod(StepMethod):
         handle)."""
         rule = self.self_stress
         (ok, x, v, holding, applied, taut, fitted, impulses, slack, node, cables, y, d, length, binding, members,
-         a_t, basis, contact, modes) = kernels.step(state.positions, state.velocities, *self._step_inputs(state),
+         a_t, basis, contact, modes, stalls) = kernels.step(state.positions, state.velocities,
+                                                            *self._step_inputs(state),
                                                     self._applied, *self._motors(), self._holding, self._hint,
                                                     *self._step_constants(), self._memory())
         if not ok:
             return None
         for kept, new in zip(self._memory(), modes):
             kept[:] = new
+        self.stalls += stalls
         self._end_geometry = (x, d, length)
         if fitted:
             rule.residual = max(rule.residual, node)
@@ -540,11 +542,14 @@ class InextensibleMethod(StepMethod):
         on_ground = np.zeros((n, 3))   # the ground's impulses since the last kept step
         gravity = self.system.gravity_force
         rule, i = self.self_stress, 0
+        stall_count = np.zeros(1, dtype=np.int64)   # the kernel's motor steps at their force
         while True:
             i, x, v, self._applied, self._holding, self._hint, rule.residual = kernels.steps(
                 i, steps, every, x, v, self._applied, self._holding, self._hint, rule.residual, total, *out,
                 gravity + ext_now, rest_now, *motors, *constants, self._memory(), on_ground, contact, rest_seq,
-                ext_seq, gravity, ext_now)
+                ext_seq, gravity, ext_now, stall_count)
+            self.stalls += int(stall_count[0])
+            stall_count[0] = 0
             if i == steps:
                 break
             if len(rest_seq):   # the step's inputs (the kernel invalidated the method if they changed)
@@ -606,14 +611,16 @@ class InextensibleMethod(StepMethod):
         on_ground = np.zeros((len(methods), n, 3))
         out_contact = np.empty((len(methods), 0, n, 3)) if contact is None else contact
         done = np.empty(len(methods), dtype=np.int64)
+        stalls = np.zeros(len(methods), dtype=np.int64)   # each copy's motor steps at their force
         most, dt, _, limit_tol, taut_tol = first._motors()
         kernels.copies_steps(steps, x, v, applied, holding, hint, residual, np.zeros(applied.shape),
                              positions[..., None], velocities[..., None], impulses[..., None], slack[..., None], f_ext,
                              commanded, most, dt, offsets, limit_tol, taut_tol, *first._step_constants(), *memory,
-                             on_ground, out_contact, done)
+                             on_ground, out_contact, done, stalls)
         for b, method in enumerate(methods):
             method._applied, method._holding, method._hint = applied[b].copy(), holding[b].copy(), hint[b].copy()
             method.self_stress.residual = float(residual[b])
+            method.stalls += int(stalls[b])
             for kept, new in zip(method._memory(), memory):
                 kept[:] = new[b]
             method._end_geometry = None
@@ -689,7 +696,7 @@ class InextensibleMethod(StepMethod):
         landing = limits - (0.5 * tau) * reel if reeling else limits
         all_limits = np.concatenate([self._rigid_lengths, landing])
         if self._one_kernel():
-            done = self._midpoint_kernel(x_m, v, v0, tau, all_limits, floor, taut, reel, holding)
+            done = self._midpoint_kernel(x_m, v, v0, tau, limits, all_limits, floor, taut, reel, holding)
             if done is not None:
                 return done
         x_f, v_f, y, rows, cables, pull = self._motor_modes(x_m, v, v0, tau, limits, all_limits, floor, reel, holding)
@@ -790,17 +797,19 @@ class InextensibleMethod(StepMethod):
                 and type(solver) is DaqpSolver and not {"solve", "_solve", "_check"} & vars(solver).keys()
                 and "impulses" not in vars(rule))
 
-    def _midpoint_kernel(self, x_m, v, v0, tau, all_limits, floor, taut, reel, holding):
+    def _midpoint_kernel(self, x_m, v, v0, tau, limits, all_limits, floor, taut, reel, holding):
         """:meth:`_midpoint` in one kernel call (plus the self-stress rule's numpy fit); None when a QP
         answer needs the Python path (a failed or refused solve: it raises or solves again)."""
         locked = self.self_stress.possible
-        ok, x_f, v_f, y, cables, nodes, directions, d, length, binding, members, a_t, basis, _ = kernels.midpoint(
+        (ok, x_f, v_f, y, cables, nodes, directions, d, length, binding, members, a_t, basis, _,
+         pulled) = kernels.midpoint(
             x_m, v, v0, tau, self._ends, self._n_eq, all_limits, floor, self._cables_move, reel, holding,
             self._row_nodes, self._free_nodes, self.system.cable_ends, taut, *self.solver.c_call, _FEASIBILITY_TOL,
-            _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, self.reel_force, locked, *self.self_stress.load_space,
-            _NO_GROUND, _NO_MEMORY)
+            _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, self.reel_force, limits, self.dt, self._inv_mass, locked,
+            *self.self_stress.load_space, _NO_GROUND, _NO_MEMORY)
         if not ok:
             return None
+        self._pulled |= pulled
         self._end_geometry = (x_f, d, length)
         impulses = np.zeros(len(cables))
         n_eq = self._n_eq
