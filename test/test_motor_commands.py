@@ -82,6 +82,8 @@ def test_fast_command_on_prism3_keeps_the_energy_balance():
 def test_reel_speed_is_checked(bad):
     with pytest.raises(ValueError, match=r"reel_speed must be a number of m/s > 0 \(math.inf: no limit\), got"):
         _hanging(reel_speed=bad)
+    with pytest.raises(ValueError, match=r"reel_force must be a number of N > 0 \(math.inf: no limit\), got"):
+        _hanging(reel_force=bad)
     with pytest.raises(ValueError, match=r"reel_speed=2.0 is an option of the inextensible method; method 'elastic'"):
         ts.Simulator(ts.Scene.from_dict(bungee_dict()), method="elastic", reel_speed=2.0)
 

@@ -145,6 +145,17 @@ def _same(a, b) -> bool:
     return type(a) is type(b) and a == b
 
 
+def _motor_limit(value, name: str, unit: str) -> float:
+    """A motor's limit ``value`` as a float > 0 (``math.inf``: none), else a ValueError naming ``name``."""
+    try:
+        limit = float(value)
+    except (TypeError, ValueError):
+        limit = float("nan")
+    if not limit > 0:
+        raise ValueError(f"{name} must be a number of {unit} > 0 (math.inf: no limit), got {value!r}")
+    return limit
+
+
 class LengthOffsetWarning(UserWarning):
     """The inextensible method lengthened cable limits by their prestress stretch at load time."""
 
@@ -179,18 +190,8 @@ class InextensibleMethod(StepMethod):
             raise ValueError(f"method 'inextensible' does not take a cable attached along a strut (cable "
                              f"{system.scene.cable_names[system.attached[0]]!r}: its constraint rows join two nodes); "
                              f"give the cables a stiffness and use method 'elastic'")
-        try:
-            self.reel_speed = float(reel_speed)
-        except (TypeError, ValueError):
-            self.reel_speed = float("nan")
-        if not self.reel_speed > 0:
-            raise ValueError(f"reel_speed must be a number of m/s > 0 (math.inf: no limit), got {reel_speed!r}")
-        try:
-            self.reel_force = float(reel_force)
-        except (TypeError, ValueError):
-            self.reel_force = float("nan")
-        if not self.reel_force > 0:
-            raise ValueError(f"reel_force must be a number of N > 0 (math.inf: no limit), got {reel_force!r}")
+        self.reel_speed = _motor_limit(reel_speed, "reel_speed", "m/s")
+        self.reel_force = _motor_limit(reel_force, "reel_force", "N")
         self.stalls = 0   # motor steps at the force limit (pulling at reel_force, behind the command)
         self._pulled = np.zeros(system.n_cables, dtype=bool)   # the step's motors at their force limit
         scene = system.scene
