@@ -183,7 +183,7 @@ class Simulator:
     ``reel_speed``: the inextensible method's motor top speed, m/s (default 1 m/s; ``math.inf``: none):
     a faster rest-length command is followed at that speed (``applied_rest_lengths``).
     ``reel_force``: the inextensible method's motor pull limit, N (default 2 kN; ``math.inf``: none): a motor
-    that would pull harder stalls at that force, behind its command (``method_settings["motor_stalls"]``).
+    that would pull harder stalls at that force, behind its command (``motor_stalls`` counts those steps).
     ``backend``: where the elastic method's step runs: "numba" (default: the compiled kernels) or "jax" (the
     JAX backend, ``methods/jax/``, a batch of one; needs the ``jax`` extra) in ``dtype`` "float64" (default)
     or "float32".
@@ -247,6 +247,12 @@ class Simulator:
     def method_settings(self) -> dict:
         """The method's settings worth logging."""
         return self._method.describe()
+
+    @property
+    def motor_stalls(self) -> int:
+        """Motor steps at the force limit since the simulator was made (the inextensible method's ``reel_force``:
+        a motor that would pull harder pulls at that force, behind its command); 0 in the other methods."""
+        return getattr(self._method, "stalls", 0)
 
     @property
     def time(self) -> float:

@@ -101,7 +101,7 @@ def test_a_motor_at_its_force_limit_pulls_at_that_force():
     k = np.arange(1, 91)
     np.testing.assert_allclose(traj.velocities[:, 1, 2], k * dt * (force - 9.81), rtol=1e-12)
     np.testing.assert_allclose(traj.impulses[:, 0], force * dt, rtol=1e-12)
-    assert sim.method_settings["motor_stalls"] == 90
+    assert sim.motor_stalls == 90
     # the motor reeled in what the mass rose, (F/m - g) t^2 / 2 = 41 mm of the 50 commanded
     _, length, _ = sim.system.geometry(sim.positions, sim.system.cable_ends)
     assert sim.applied_rest_lengths[0] == pytest.approx(length[0] - 0.5e-3, abs=1e-12)   # half a step's reel ahead
@@ -133,6 +133,6 @@ def test_a_rolling_command_the_locked_icosahedron_cannot_follow_stalls_its_motor
         assert sim.energy()["total"] - e0 <= 2e3 * reeled
         rise = np.einsum("n,knj->kj", mass, traj.positions)[:, 2] - mass @ scene.positions[:, 2]
         assert rise.max() < 0.05
-        assert sim.method_settings["motor_stalls"] > 0
+        assert sim.motor_stalls > 0
         runs.append(traj.positions)
     np.testing.assert_allclose(runs[0], runs[1], rtol=0, atol=1e-12)

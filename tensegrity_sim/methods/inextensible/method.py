@@ -317,7 +317,6 @@ class InextensibleMethod(StepMethod):
         offsets = self.length_offsets
         return {"method": self.name, "dt": self.dt, **self.solver.describe(), "solver_choice": self.solver_choice,
                 "limit_tol": LIMIT_TOL, "reel_speed": self.reel_speed, "reel_force": self.reel_force,
-                "motor_stalls": self.stalls,
                 "max_events": MAX_EVENTS, "omega_struts": self.omega_struts,
                 "length_offsets": {name: float(o) for name, o in zip(self.system.scene.cable_names, offsets)
                                    if o > 0}}
