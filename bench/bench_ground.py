@@ -26,9 +26,10 @@ its start in height, and a ratio is taken to the faster stable integrator (``muj
   each stretch of unchanged commands in one ``mj_step(nstep)``. The inextensible method's ``run(commands=...)``
   evaluates the schedule in its compiled loop too (issue 47). The step-by-step loops of both take each
   step's lengths from an array evaluated before the timing starts: the schedule's Python (~25 us a step, the
-  same for both) is not what they compare. The locked
-  inextensible icosahedron's motors reel its cables in with unlimited force, which the rigid structure
-  can only follow by leaving the ground: its rate is reported with how high its centre rose.
+  same for both) is not what they compare. The
+  inextensible icosahedron with rigid struts locks a few mm into the reel: its motors stall at their
+  ``reel_force`` (2 kN; before issue 47 they pulled without limit and launched it 3.6 m up) and it stays on the
+  ground, its degenerate QPs mostly on the Python path; its rate is reported with how high its centre rose.
 
 Member contacts (``--members``, issue 28): rigid strut B dropped across rigid strut A lying on the ground,
 an elastic cable between them reeled in half-way (``crossed_struts``: B lands on A, rests across it and on the

@@ -182,6 +182,8 @@ class Simulator:
     only; ``method_settings`` says which); the massive method locates its snaps and releases (default: on).
     ``reel_speed``: the inextensible method's motor top speed, m/s (default 1 m/s; ``math.inf``: none):
     a faster rest-length command is followed at that speed (``applied_rest_lengths``).
+    ``reel_force``: the inextensible method's motor pull limit, N (default 2 kN; ``math.inf``: none): a motor
+    that would pull harder stalls at that force, behind its command (``motor_stalls`` counts those steps).
     ``backend``: where the elastic method's step runs: "numba" (default: the compiled kernels) or "jax" (the
     JAX backend, ``methods/jax/``, a batch of one; needs the ``jax`` extra) in ``dtype`` "float64" (default)
     or "float32".
@@ -189,7 +191,8 @@ class Simulator:
 
     def __init__(self, scene: Scene, method: str = "auto", dt: float = 1e-3, *, contacts=None,
                  solver: str | None = None, order: int | None = None, locate_switches: bool | None = None,
-                 reel_speed: float | None = None, backend: str = "numba", dtype: str | None = None):
+                 reel_speed: float | None = None, reel_force: float | None = None, backend: str = "numba",
+                 dtype: str | None = None):
         if not isinstance(scene, Scene):
             raise ValueError(f"scene must be a Scene (see load_scene), got {type(scene).__name__}")
         if contacts is not None:
@@ -203,7 +206,7 @@ class Simulator:
         self.system = System(scene)
         self._method, self.method_reason = make_method(self.system, method, self.dt, backend=backend, dtype=dtype,
                                                        solver=solver, order=order, locate_switches=locate_switches,
-                                                       reel_speed=reel_speed)
+                                                       reel_speed=reel_speed, reel_force=reel_force)
         self.system = self._method.system   # its mass model (make_method lumps what the method takes no block of)
         # None when nothing can be in contact: then detection costs nothing at all
         # with a contact response, members rest in contact at a gap of ~0: a contact ends beyond TOUCH_TOL
@@ -244,6 +247,12 @@ class Simulator:
     def method_settings(self) -> dict:
         """The method's settings worth logging."""
         return self._method.describe()
+
+    @property
+    def motor_stalls(self) -> int:
+        """Motor steps at the force limit since the simulator was made (the inextensible method's ``reel_force``:
+        a motor that would pull harder pulls at that force, behind its command); 0 in the other methods."""
+        return getattr(self._method, "stalls", 0)
 
     @property
     def time(self) -> float:

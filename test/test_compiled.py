@@ -622,7 +622,7 @@ def _ground_case(name):
         return ts.load_scene("icosahedron_ground"), 300, None
     if name == "dropped":
         return dropped(lift=0.05, spin=2.0), 400, None
-    if name == "reeled":   # examples/roll.yaml's reel-in: the locked robot hops, its cables snapping in the air
+    if name == "reeled":   # examples/roll.yaml's reel-in: the robot locks, its motors stall at their force (issue 47)
         scene = ts.load_scene("icosahedron_ground")
         return scene, 400, (0, [scene.cable_names.index(c) for c in ("c4", "c5", "c6")], 0.6)
     case = T.random_throw(np.random.default_rng([28, int(name.split()[1])]), steps=400)
@@ -667,7 +667,9 @@ def test_ground_step_kernel_and_loop_are_the_api_path_bitwise(name):
         for field in fields:
             assert np.array_equal(getattr(a, field), getattr(c, field)), f"kernel: {field}, step {k}"
             assert np.array_equal(getattr(b, field), getattr(c, field)), f"loop: {field}, step {k}"
-    assert taken[0] >= 0.5 * steps, taken
+    # the stalled reel-in holds the robot at the configuration where it locks: its degenerate QPs (DAQP refused,
+    # NNLS answers; friction modes that cycle) are the Python path's in most steps (48 of 400 in the kernel)
+    assert taken[0] >= (0.1 if name == "reeled" else 0.5) * steps, taken
     for sim in (loop, api):
         sim.reset()
     a, b = (sim.run(steps=steps // 2, every=7) for sim in (loop, api))

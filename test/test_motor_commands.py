@@ -2,12 +2,16 @@
 energy balance against the motor's work."""
 import math
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import tensegrity_sim as ts
 from bench.analytic import bungee_dict
+from tensegrity_sim.commands import load_commands
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _hanging(**options) -> ts.Simulator:
@@ -37,14 +41,14 @@ def test_a_jump_is_followed_at_the_motor_speed():
 
 
 def test_one_step_reel_balances_the_motors_work_to_round_off():
-    """Without a speed limit a jump is a reel-in within one step at ``w = change / dt``: an impulsive
-    start of the motor. As in the exact solution the mass leaves at ``w`` and gains half the motor's
+    """Without a speed limit (nor a force limit) a jump is a reel-in within one step at ``w = change / dt``: an
+    impulsive start of the motor. As in the exact solution the mass leaves at ``w`` and gains half the motor's
     work ``y w`` (the other half is lost as in a perfectly inelastic impact), to round-off; that energy
     grows as 1/dt^2, which is why the default spreads a jump."""
     kinetic = []
     for dt in (1e-3, 5e-4):
         sim = ts.Simulator(ts.Scene.from_dict(bungee_dict(drop=1.0)), method="inextensible", dt=dt,
-                           reel_speed=math.inf)
+                           reel_speed=math.inf, reel_force=math.inf)
         before = sim.energy()["total"]
         sim.set_rest_lengths({"c": 0.99})
         r = sim.step()
@@ -78,5 +82,57 @@ def test_fast_command_on_prism3_keeps_the_energy_balance():
 def test_reel_speed_is_checked(bad):
     with pytest.raises(ValueError, match=r"reel_speed must be a number of m/s > 0 \(math.inf: no limit\), got"):
         _hanging(reel_speed=bad)
+    with pytest.raises(ValueError, match=r"reel_force must be a number of N > 0 \(math.inf: no limit\), got"):
+        _hanging(reel_force=bad)
     with pytest.raises(ValueError, match=r"reel_speed=2.0 is an option of the inextensible method; method 'elastic'"):
         ts.Simulator(ts.Scene.from_dict(bungee_dict()), method="elastic", reel_speed=2.0)
+
+
+def test_a_motor_at_its_force_limit_pulls_at_that_force():
+    """``reel_force`` 20 N on the hanging 1 kg mass, reeled in 5 cm: the motor cannot give the impulsive start
+    (1 N*s in a step), so it pulls at 20 N and the mass rises at the constant ``F/m - g`` until it reaches the
+    motor's 1 m/s; meanwhile the cable carries ``F dt`` a step, the motor stands where the cable ends (behind
+    its free reel) and the stalled steps are counted."""
+    force, dt = 20.0, 1e-3
+    sim = _hanging(reel_force=force)
+    assert sim.method_settings["reel_force"] == force
+    sim.set_rest_lengths({"c": 0.95})
+    traj = sim.run(steps=90)
+    k = np.arange(1, 91)
+    np.testing.assert_allclose(traj.velocities[:, 1, 2], k * dt * (force - 9.81), rtol=1e-12)
+    np.testing.assert_allclose(traj.impulses[:, 0], force * dt, rtol=1e-12)
+    assert sim.motor_stalls == 90
+    # the motor reeled in what the mass rose, (F/m - g) t^2 / 2 = 41 mm of the 50 commanded
+    _, length, _ = sim.system.geometry(sim.positions, sim.system.cable_ends)
+    assert sim.applied_rest_lengths[0] == pytest.approx(length[0] - 0.5e-3, abs=1e-12)   # half a step's reel ahead
+    assert length[0] == pytest.approx(1.0 - 0.5 * (force - 9.81) * 0.09 ** 2, rel=1e-12)
+
+
+def test_a_rolling_command_the_locked_icosahedron_cannot_follow_stalls_its_motors():
+    """Regression (issue 47): ``examples/roll.yaml`` on the inextensible ``icosahedron_ground`` (rigid struts)
+    launched it 3.6 m up in 2 s: a few mm of reel bring the structure to a configuration where it locks, and
+    motors of unlimited force drove it on with impulses of up to 3e4 N*s a step (12 kJ of kinetic energy at
+    step 9). With motors of finite force (default 2 kN) they stall there: over the reel-in (0.3 s) the energy
+    gained stays below the motors' work bound ``reel_force`` times the cable they reeled in, the centre rises
+    less than 5 cm, the compiled loop matches the numpy reference to 1e-12 and the stalls are reported."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ts.LengthOffsetWarning)
+        scene = ts.load_scene("icosahedron_ground")
+    schedule = load_commands(ROOT / "examples" / "roll.yaml", scene)
+    mass = scene.masses / scene.masses.sum()
+    runs = []
+    for compiled in (True, False):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ts.LengthOffsetWarning)
+            sim = ts.Simulator(scene, method="inextensible", dt=1e-3)
+        sim._method.compiled = compiled
+        e0, rest0 = sim.energy()["total"], sim.applied_rest_lengths
+        traj = sim.run(steps=300, commands=schedule)
+        reeled = float(np.sum(rest0 - sim.applied_rest_lengths))
+        assert 0.0 < reeled < 0.03   # 3 x 0.3 m commanded
+        assert sim.energy()["total"] - e0 <= 2e3 * reeled
+        rise = np.einsum("n,knj->kj", mass, traj.positions)[:, 2] - mass @ scene.positions[:, 2]
+        assert rise.max() < 0.05
+        assert sim.motor_stalls > 0
+        runs.append(traj.positions)
+    np.testing.assert_allclose(runs[0], runs[1], rtol=0, atol=1e-12)

@@ -147,7 +147,7 @@ def _massive_choice(system: System) -> str | None:
 # what has each option, for the error when a named method lacks it
 _OPTION_OF = {"solver": "a method with a QP", "order": "the elastic and massive methods",
               "locate_switches": "the elastic and massive methods",
-              "reel_speed": "the inextensible method"}
+              "reel_speed": "the inextensible method", "reel_force": "the inextensible method"}
 
 
 def make_method(system: System, method: str, dt: float, *, backend: str = "numba", dtype: str | None = None,
@@ -155,7 +155,7 @@ def make_method(system: System, method: str, dt: float, *, backend: str = "numba
     """Instantiate ``method`` (a name of :data:`METHODS` or ``"auto"``); returns it and the reason.
 
     ``options`` are the methods' keyword options (``solver`` of a method that solves QPs, ``order`` and
-    ``locate_switches`` of the elastic and massive methods, ``reel_speed`` of the inextensible one); None means the
+    ``locate_switches`` of the elastic and massive methods, ``reel_speed`` and ``reel_force`` of the inextensible one); None means the
     method's default. An option the chosen method does not have is an error when the method was named,
     and ignored when ``"auto"`` chose it. ``backend="jax"`` steps the elastic method in JAX
     (:class:`~tensegrity_sim.methods.jax.engine.ElasticMethodJax`, in ``dtype`` "float64" or "float32")."""

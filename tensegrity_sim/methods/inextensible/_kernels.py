@@ -301,10 +301,21 @@ def _solve_blocks(entry, settings, hessian, sqrt_mass, mass, schur, nodes, direc
 
 
 @njit(cache=True)
+def _solve_mass(f, inv_mass, ends, n_eq):
+    """``M^-1 f`` (N, 3) of forces or impulses ``f`` (N, 3) with the rods' blocks: ``MassOperator.solve``'s
+    arithmetic (``_mass_kernels.solve_forces`` on ``inv_mass`` (N, 2), the operator's ``kernel_array``; the rigid
+    struts are ``ends``' first ``n_eq``)."""
+    acc = np.empty((f.shape[0], 3, 1))
+    acc[:, :, 0] = f
+    solve_forces(acc, inv_mass, ends, np.arange(n_eq), 0)
+    return acc[:, :, 0]
+
+
+@njit(cache=True)
 def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding, row_nodes, free_nodes,
              cable_ends, taut, entry, settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor,
-             landing_tol, landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact,
-             weight, shared, ground, memory):
+             landing_tol, landing_iter, reel_force, cable_limits, dt, inv_mass, locked, load_basis, load_cables,
+             load_largest, refine, rank_tol, exact, weight, shared, ground, memory):
     """``InextensibleMethod._midpoint`` with no contact rows or the ground's alone, its QP solved by DAQP
     (``_solve_checked``, or with armed ground contacts the compiled friction modes,
     ``_friction_kernels.contact_solve``), in one call: the rows (:func:`select_rows`, member table
@@ -329,72 +340,139 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
     ``v_f`` (N, 3), the multipliers (k,) N*s, ``cables`` (nc,) bool (the cable rows), the rows' nodes
     (k, 2) and directions (k, 3), the cable vectors (nc, 3) and lengths (nc,) m at ``x_f`` (as
     ``System.geometry``), ``locked_space``'s binding rows, members, ``A_B^T`` and basis (or None:
-    the caller's SVD; empty when not ``locked``) and the ground's impulses (N, 3) N*s."""
-    cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = select_rows(
-        x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding)
-    k = sel.shape[0]
-    nodes = np.empty((k, 2), dtype=row_nodes.dtype)
-    m_ends = np.empty((k, 2), dtype=ends.dtype)
-    for r in range(k):
-        for j in range(2):
-            nodes[r, j] = row_nodes[sel[r], j]
-            m_ends[r, j] = ends[sel[r], j]
-    n_free = free_nodes.shape[0]
-    y = np.zeros(k)
-    ok = True
-    factor = np.zeros((0, 0))   # the last QP's working set and its factor, which the rule may refine with
-    work = np.zeros(0, dtype=np.int64)
+    the caller's SVD; empty when not ``locked``), the ground's impulses (N, 3) N*s and the motors that pulled at
+    their force (nc,) bool.
+
+    A reeling motor whose cable's impulse would exceed ``reel_force * tau`` pulls at that force instead
+    (``InextensibleMethod._motor_modes``, the same arithmetic): a known impulse along the cable added to ``v0``
+    (``inv_mass`` (N, 2) 1/kg, ``MassOperator.kernel_array``), the cable's limit where the motor stood at the step's
+    start (``cable_limits`` (nc,) m: the step's limits without the landing's lag; ``dt``: the step),
+    no reel; the multipliers returned include those impulses."""
     (on, g_nodes, radii, height, mu, touch_tol, free_index, fixed_point_tol, slip_floor, max_iter,
      depth) = ground
     stick, normal, slip = memory
-    # without a ground: empty views, no allocation (this runs every step)
-    contact = v0[:0]
-    armed = g_nodes[:0]
-    w = radii[:0]
-    touching = stick[:0]
-    impulses = v0[:0]
-    if on:
-        contact = np.zeros((x_m.shape[0], 3))
-        armed, w, touching = arm_step(x_m, v, v0, 0.5 * tau, g_nodes, radii, height, touch_tol)
-    if k == 0:   # nothing can be taut: free motion, no QP (a contact's QP alone is the Python path's)
-        v_f = v0.copy()
-        ok = armed.shape[0] == 0
-    else:
-        v0_free = np.empty((n_free, 3))
-        for i in range(n_free):
-            for j in range(3):
-                v0_free[i, j] = v0[free_nodes[i], j]
-        v_f = np.zeros_like(v0)
-        shortest = m_limits.min()
-        v_start = v
-        for _ in range(landing_iter):
-            if armed.shape[0]:
-                ok, v_free, y, impulses = contact_solve(
-                    entry, settings, hessian, sqrt_mass, mass, v0_free, nodes, m_n, targets, n_eq, warm, armed,
-                    free_index, w, touching, mu, stick, normal, slip, fixed_point_tol, slip_floor, max_iter, depth,
-                    feasibility_tol, velocity_floor)
-            else:   # a ground's backend answers by DAQP alone (DaqpSolver.working_set)
-                v_free, y, ok, factor, work = _solve_checked(entry, settings, hessian, sqrt_mass, mass, schur, nodes,
-                                                             m_n, v0_free, targets, n_eq, warm, feasibility_tol,
-                                                             velocity_floor, not on)
-            if not ok:
-                break
+    n_free = free_nodes.shape[0]
+    nc = reel.shape[0]
+    most = reel_force * tau   # N*s: the most a motor pulls over the sub-step (InextensibleMethod._motor_modes)
+    pulling = np.zeros(nc, dtype=np.bool_)
+    pulls = False
+    v0p = v0
+    limits_p = limits
+    reel_p = reel
+    while True:
+        cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = select_rows(
+            x_m, v, v0p, tau, ends, n_eq, limits_p, floor, cables_move, reel_p, holding)
+        k = sel.shape[0]
+        nodes = np.empty((k, 2), dtype=row_nodes.dtype)
+        m_ends = np.empty((k, 2), dtype=ends.dtype)
+        for r in range(k):
+            for j in range(2):
+                nodes[r, j] = row_nodes[sel[r], j]
+                m_ends[r, j] = ends[sel[r], j]
+        y = np.zeros(k)
+        ok = True
+        factor = np.zeros((0, 0))   # the last QP's working set and its factor, which the rule may refine with
+        work = np.zeros(0, dtype=np.int64)
+        # without a ground: empty views, no allocation (this runs every step)
+        contact = v0[:0]
+        armed = g_nodes[:0]
+        w = radii[:0]
+        touching = stick[:0]
+        impulses = v0[:0]
+        if on:
+            contact = np.zeros((x_m.shape[0], 3))
+            armed, w, touching = arm_step(x_m, v, v0p, 0.5 * tau, g_nodes, radii, height, touch_tol)
+        if k == 0:   # nothing can be taut: free motion, no QP (a contact's QP alone is the Python path's)
+            v_f = v0p.copy()
+            ok = armed.shape[0] == 0
+        else:
+            v0_free = np.empty((n_free, 3))
             for i in range(n_free):
                 for j in range(3):
-                    v_f[free_nodes[i], j] = v_free[i, j]
-            done, new_targets, new_warm = landed(v_f, v_start, v_free, y, m_ends, nodes, m_n, m_length, m_limits,
-                                                 tau, floor_rate, n_eq, shortest, landing_tol)
-            if done:
-                break
-            targets = new_targets
-            warm = new_warm
-            v_start = v_f.copy()
-        if ok and on and missed(x_m, v_f, 0.5 * tau, g_nodes, armed, radii, height, touch_tol):
-            ok = False
+                    v0_free[i, j] = v0p[free_nodes[i], j]
+            v_f = np.zeros_like(v0)
+            shortest = m_limits.min()
+            v_start = v
+            for _ in range(landing_iter):
+                if armed.shape[0]:
+                    ok, v_free, y, impulses = contact_solve(
+                        entry, settings, hessian, sqrt_mass, mass, v0_free, nodes, m_n, targets, n_eq, warm, armed,
+                        free_index, w, touching, mu, stick, normal, slip, fixed_point_tol, slip_floor, max_iter, depth,
+                        feasibility_tol, velocity_floor)
+                else:   # a ground's backend answers by DAQP alone (DaqpSolver.working_set)
+                    v_free, y, ok, factor, work = _solve_checked(entry, settings, hessian, sqrt_mass, mass, schur,
+                                                                 nodes, m_n, v0_free, targets, n_eq, warm,
+                                                                 feasibility_tol, velocity_floor, not on)
+                if not ok:
+                    break
+                for i in range(n_free):
+                    for j in range(3):
+                        v_f[free_nodes[i], j] = v_free[i, j]
+                done, new_targets, new_warm = landed(v_f, v_start, v_free, y, m_ends, nodes, m_n, m_length,
+                                                     m_limits, tau, floor_rate, n_eq, shortest, landing_tol)
+                if done:
+                    break
+                targets = new_targets
+                warm = new_warm
+                v_start = v_f.copy()
+            if ok and on and missed(x_m, v_f, 0.5 * tau, g_nodes, armed, radii, height, touch_tol):
+                ok = False
+        # a motor that would pull harder than reel_force pulls at that force, its cable held where it stood
+        over = False
         if ok:
-            for c in range(impulses.shape[0]):   # the last solve's, committed (FrictionalSolver.commit)
+            r = n_eq
+            for c in range(nc):
+                if cables[c]:
+                    if reel[c] < 0.0 and not pulling[c] and y[r] > most:
+                        pulling[c] = True
+                        over = True
+                    r += 1
+        if not over:
+            break
+        pulls = True
+        push = np.zeros_like(v0)
+        pull = np.zeros((nc, 3))
+        for c in range(nc):
+            if pulling[c]:
+                a = cable_ends[c, 0]
+                b = cable_ends[c, 1]
+                dx = x_m[b, 0] - x_m[a, 0]
+                dy = x_m[b, 1] - x_m[a, 1]
+                dz = x_m[b, 2] - x_m[a, 2]
+                scale = most / np.sqrt(dot3(dx, dy, dz, dx, dy, dz))   # (einsum's order, as the reference's)
+                pull[c, 0] = scale * dx
+                pull[c, 1] = scale * dy
+                pull[c, 2] = scale * dz
+        for c in range(nc):   # np.add.at's order: every first end, then every second end
+            if pulling[c]:
                 for j in range(3):
-                    contact[armed[c], j] += impulses[c, j]
+                    push[cable_ends[c, 0], j] += pull[c, j]
+        for c in range(nc):
+            if pulling[c]:
+                for j in range(3):
+                    push[cable_ends[c, 1], j] += -pull[c, j]
+        if schur[0].shape[0]:   # the rods' blocks
+            v0p = v0 + _solve_mass(push, inv_mass, ends, n_eq)
+        else:
+            v0p = v0 + inv_mass[:, :1] * push
+        limits_p = limits.copy()
+        reel_p = reel.copy()
+        for c in range(nc):
+            if pulling[c]:
+                # (the motor half a step's reel ahead of its cable, as a running one is)
+                limits_p[n_eq + c] = cable_limits[c] - (dt + 0.5 * tau) * reel[c]
+                reel_p[c] = 0.0
+    if ok and k and pulls:   # the pulling motors' impulses are their cables' too
+        r = n_eq
+        for c in range(nc):
+            if cables[c]:
+                if pulling[c]:
+                    y[r] += most
+                r += 1
+    if ok and k:
+        for c in range(impulses.shape[0]):   # the last solve's, committed (FrictionalSolver.commit)
+            for j in range(3):
+                contact[armed[c], j] += impulses[c, j]
     x_f = x_m + (0.5 * tau) * v_f
     d, length = cable_geometry(x_f, cable_ends)
     binding = np.zeros(0, dtype=np.bool_)
@@ -409,7 +487,7 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
         binding, members, a_t, basis = locked_space(nodes, m_n, n_free, n_eq, rows_cables, at_limit, y, load_basis,
                                                     load_cables, load_largest, refine, rank_tol, exact, weight, shared,
                                                     work, factor)
-    return ok, x_f, v_f, y, cables, nodes, m_n, d, length, binding, members, a_t, basis, contact
+    return ok, x_f, v_f, y, cables, nodes, m_n, d, length, binding, members, a_t, basis, contact, pulling
 
 
 @njit(cache=True)
@@ -554,9 +632,9 @@ def impact(x, v, d, length, at_limit, snapping, holding, ends, n_eq, row_nodes, 
 @njit(cache=True)
 def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint, inv_mass, ends,
          n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
-         settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked,
-         load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide,
-         reference, ground, memory):
+         settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol, landing_iter,
+         reel_force, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot,
+         dgemv, wide, reference, ground, memory):
     """``InextensibleMethod._step_impl`` of a step that is one sub-step (no snap or landing located inside
     it, no impact at its start), without elastic struts or member contact rows, in one call: the motors' limits
     (:func:`motor_limits`), the impact test, the free motion from ``x``, ``v`` (N, 3) under ``f_ext``
@@ -617,12 +695,10 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     x_m = x + (0.5 * dt) * v
     v0 = np.empty_like(v)
     if schur[0].shape[0]:   # the rods' blocks: v + dt M^-1 f, M^-1 as MassOperator.solve applies it
-        acc = np.empty((v.shape[0], 3, 1))
-        acc[:, :, 0] = f_ext
-        solve_forces(acc, inv_mass, ends, np.arange(n_eq), 0)
+        acc = _solve_mass(f_ext, inv_mass, ends, n_eq)
         for i in range(v.shape[0]):
             for j in range(3):
-                v0[i, j] = v[i, j] + dt * acc[i, j, 0]
+                v0[i, j] = v[i, j] + dt * acc[i, j]
     else:
         for i in range(v.shape[0]):
             scale = dt * inv_mass[i, 0]
@@ -645,13 +721,13 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     if not ok:   # the caller's Python path
         return (False, x, v, holding, new_applied, taut, False, impulses, holding, 0.0, holding,
                 np.zeros(0), d, length, np.zeros(0, dtype=np.bool_), load_cables[:0],
-                np.zeros((3 * free_nodes.shape[0], 0)), None, np.zeros_like(x), memory)
+                np.zeros((3 * free_nodes.shape[0], 0)), None, np.zeros_like(x), memory, 0)
     modes = (memory[0].copy(), memory[1].copy(), memory[2].copy()) if on else memory   # the step's own until taken
-    done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis, contact = midpoint(
+    done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis, contact, pulled = midpoint(
         x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
         taut, entry, settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol,
-        landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ground,
-        modes)
+        landing_iter, reel_force, limits, dt, inv_mass, locked, load_basis, load_cables, load_largest, refine,
+        rank_tol, exact, weight, shared, ground, modes)
     new_holding = np.zeros(nc, dtype=np.bool_)
     r = n_eq
     for c in range(nc):
@@ -691,17 +767,25 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
         slack[c] = length_f[c] < taut[c] and not summed[c] > 0
     ok = ok and not (snaps and not fitted)
     node = max(node, kick_node)
+    stalls = 0
+    for c in range(nc):
+        if pulled[c]:
+            # a motor at its force reeled in only what its cable gave: it stands where the cable ends, half a
+            # step's reel ahead (InextensibleMethod._step_impl)
+            ahead = length_f[c] - offsets[c] + (0.5 * dt) * reel[c]
+            new_applied[c] = max(new_applied[c], min(applied[c], ahead))
+            stalls += 1
     return (ok and done, x_f, v_f, new_holding, new_applied, taut, fitted, summed, slack, node, cables, y, d_f,
-            length_f, binding, members, a_t, basis, contact, modes)
+            length_f, binding, members, a_t, basis, contact, modes, stalls)
 
 
 @njit(cache=True)
 def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, out_x, out_v, out_impulses, out_slack,
           f_ext, commanded, most, dt, offsets, limit_tol, taut_tol, inv_mass, ends, n_eq, rigid_lengths,
           cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian,
-          sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
-          load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference, ground,
-          memory, contact_total, out_contact, rest_seq, ext_seq, gravity, ext):
+          sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol, landing_iter, reel_force, locked,
+          load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide,
+          reference, ground, memory, contact_total, out_contact, rest_seq, ext_seq, gravity, ext, stall_count):
     """Steps ``first``, ``first + 1``, ... of ``n_steps`` from ``x``, ``v`` (N, 3), the inputs held, each
     :func:`step` from the cables known to hold ``holding`` and the warm start ``hint`` (nc,) bool (after a
     step both are the cables that held, as in ``InextensibleMethod._step_impl``), until one needs the
@@ -718,7 +802,8 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
     force being ``gravity`` (N, 3) N plus the step's; ``commanded`` and ``ext`` are then the inputs in effect
     before step ``first``. A step whose inputs differ from the last step's starts as after
     ``InextensibleMethod.invalidate`` (no cable known to hold, the warm start kept): the very arithmetic of
-    setting them before stepping it, as ``Simulator`` does. The cables that hold are returned after that."""
+    setting them before stepping it, as ``Simulator`` does. The cables that hold are returned after that.
+    ``stall_count`` (1,) int: the motor steps at their force (``InextensibleMethod.stalls``) are added to it."""
     n = x.shape[0]
     nc = cable_ends.shape[0]
     scheduled = rest_seq.shape[0] > 0
@@ -736,15 +821,16 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
             if changed:
                 holding = np.zeros(nc, dtype=np.bool_)
         (ok, x_f, v_f, new_holding, new_applied, _, fitted, impulses, slack, node, _, _, _, _, _, _, _,
-         _, contact, modes) = step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding,
-                                   hint, inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes,
-                                   cable_ends, min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass, schur,
-                                   feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis,
-                                   load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv,
-                                   wide, reference, ground, memory)
+         _, contact, modes, stalls) = step(
+            x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint, inv_mass, ends,
+            n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
+            settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol, landing_iter,
+            reel_force, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot,
+            dgemv, wide, reference, ground, memory)
         if not (ok and fitted):
             return i, x, v, applied, holding, hint, residual
         x, v, applied, holding, hint = x_f, v_f, new_applied, new_holding, new_holding
+        stall_count[0] += stalls
         residual = max(residual, node)
         for c in range(nc):
             total[c] += impulses[c]
@@ -769,9 +855,9 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
 def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, out_v, out_impulses, out_slack, f_ext,
                  commanded, most, dt, offsets, limit_tol, taut_tol, inv_mass, ends, n_eq, rigid_lengths, cables_move,
                  row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass,
-                 schur, feasibility_tol, velocity_floor, landing_tol, landing_iter, locked, load_basis, load_cables,
-                 load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference, ground, stick,
-                 normal, slip, contact_total, out_contact, done):
+                 schur, feasibility_tol, velocity_floor, landing_tol, landing_iter, reel_force, locked, load_basis,
+                 load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference,
+                 ground, stick, normal, slip, contact_total, out_contact, done, stall_count):
     """:func:`steps` of B copies of one structure on every core (``prange`` over the copies), each in arrays of
     its own: the leading axis of ``x``, ``v`` (B, N, 3), the carry ``applied``, ``holding``, ``hint`` (B, nc),
     ``residual`` (B,), the inputs ``f_ext`` (B, N, 3), ``commanded`` and ``offsets`` (B, nc), the friction
@@ -779,7 +865,8 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
     (B, N, 3) and the outputs (``out_x`` (B, K, N, 3, 1) ..., every step kept); the tables after ``offsets`` are
     the structure's, shared. A copy's steps are the very arithmetic of its own :func:`steps` call from step 0;
     each stops where its :func:`steps` stops (a step for the Python path): ``done`` (B,) gets that step, the
-    carry arrays the copy's carry before it."""
+    carry arrays the copy's carry before it; ``stall_count`` (B,) int gets each copy's motor steps at their
+    force."""
     no_rest = np.empty((0, commanded.shape[1]))   # the inputs held: no schedule
     no_ext = np.empty((0, x.shape[1], 3))
     for b in prange(x.shape[0]):
@@ -788,9 +875,9 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
             out_impulses[b], out_slack[b], f_ext[b], commanded[b], most, dt, offsets[b], limit_tol, taut_tol,
             inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event,
             newton_iter, entry, settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol,
-            landing_iter, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared,
-            ddot, dgemv, wide, reference, ground, (stick[b], normal[b], slip[b]), contact_total[b], out_contact[b],
-            no_rest, no_ext, f_ext[b], f_ext[b])
+            landing_iter, reel_force, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight,
+            shared, ddot, dgemv, wide, reference, ground, (stick[b], normal[b], slip[b]), contact_total[b],
+            out_contact[b], no_rest, no_ext, f_ext[b], f_ext[b], stall_count[b:b + 1])
         done[b] = i
         x[b] = xb
         v[b] = vb

@@ -51,6 +51,15 @@ then oscillated 2 % of that around the balance. Spread at 1 m/s the same command
 balance holds to 7.9e-4 (2.0e-4 at 0.5 ms: O(h^2), from the explicit elastic struts), measured by
 ``bench/hard_cases.py``; without elastic struts it holds to round-off (``test_inextensible.py``).
 
+**Motor force.** A motor pulls at most ``reel_force`` (default ``REEL_FORCE`` = 2 kN; ``math.inf``: none).
+Where following its reel would take a larger impulse over a sub-step (or a structure not locked at load cannot
+follow at all), the motor pulls at that force, a known impulse along its cable at the midpoint, and its brake
+holds the cable where the motor stood (its row at that length, no reel): it reels in only what the cable gives
+(``stalls`` counts those motor steps). The energy gained is then below ``reel_force`` times the cable reeled in:
+unlimited motors drove ``icosahedron_ground`` (rigid struts), which locks a few mm into ``examples/roll.yaml``,
+on with up to 3e4 N*s a step and launched it 3.6 m up (issue 47). The step kernels leave such a step to the
+Python path.
+
 **Snaps.** Steering a cable back while its ends still separate would push them apart again (a
 rebound: effective restitution up to 0.96 for Baumgarte with gamma = 1, see the tests). A snap is an
 event instead, located inside the step and resolved where it happens:
@@ -104,9 +113,10 @@ from ..qp.solvers import (_FEASIBILITY_TOL, _VELOCITY_FLOOR, BlockMassSolver, Da
 from ..rigid import RigidStruts
 from .self_stress import TAUT_TOL, SelfStress, reference_tensions
 
-__all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_EVENTS", "REEL_SPEED"]
+__all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_EVENTS", "REEL_FORCE", "REEL_SPEED"]
 
 REEL_SPEED = 1.0     # m/s: the motors' default top speed (cable-driven tensegrity robots reel slower)
+REEL_FORCE = 2e3     # N: the motors' default largest pull (their stall force; module docstring, *Motor force*)
 
 LIMIT_TOL = 1e-9     # relative: a cable within LIMIT_TOL * L of its limit is at it (taut, not slack)
 # Snap events located inside one step; each costs an impact and a sub-step. Later snaps in the same
@@ -138,6 +148,17 @@ def _same(a, b) -> bool:
     return type(a) is type(b) and a == b
 
 
+def _motor_limit(value, name: str, unit: str) -> float:
+    """A motor's limit ``value`` as a float > 0 (``math.inf``: none), else a ValueError naming ``name``."""
+    try:
+        limit = float(value)
+    except (TypeError, ValueError):
+        limit = float("nan")
+    if not limit > 0:
+        raise ValueError(f"{name} must be a number of {unit} > 0 (math.inf: no limit), got {value!r}")
+    return limit
+
+
 class LengthOffsetWarning(UserWarning):
     """The inextensible method lengthened cable limits by their prestress stretch at load time."""
 
@@ -165,22 +186,20 @@ class InextensibleMethod(StepMethod):
     the friction modes' kernels take a diagonal mass, so a scene with blocks steps by the Python path."""
 
     name = "inextensible"
-    options = ("solver", "reel_speed")
+    options = ("solver", "reel_speed", "reel_force")
     carry_outlives_inputs = True
 
     def __init__(self, system: System, dt: float, *, solver: str | None = None, reel_speed: float = REEL_SPEED,
-                 compiled: bool = True):
+                 reel_force: float = REEL_FORCE, compiled: bool = True):
         super().__init__(system, dt)
         if len(system.attached):
             raise ValueError(f"method 'inextensible' does not take a cable attached along a strut (cable "
                              f"{system.scene.cable_names[system.attached[0]]!r}: its constraint rows join two nodes); "
                              f"give the cables a stiffness and use method 'elastic'")
-        try:
-            self.reel_speed = float(reel_speed)
-        except (TypeError, ValueError):
-            self.reel_speed = float("nan")
-        if not self.reel_speed > 0:
-            raise ValueError(f"reel_speed must be a number of m/s > 0 (math.inf: no limit), got {reel_speed!r}")
+        self.reel_speed = _motor_limit(reel_speed, "reel_speed", "m/s")
+        self.reel_force = _motor_limit(reel_force, "reel_force", "N")
+        self.stalls = 0   # motor steps at the force limit (pulling at reel_force, behind the command)
+        self._pulled = np.zeros(system.n_cables, dtype=bool)   # the step's motors at their force limit
         scene = system.scene
         self.omega_struts = system.max_frequency(scene.positions, include_cables=False)
         if self.omega_struts * self.dt >= 2.0:
@@ -305,7 +324,7 @@ class InextensibleMethod(StepMethod):
     def describe(self) -> dict:
         offsets = self.length_offsets
         return {"method": self.name, "dt": self.dt, **self.solver.describe(), "solver_choice": self.solver_choice,
-                "limit_tol": LIMIT_TOL, "reel_speed": self.reel_speed,
+                "limit_tol": LIMIT_TOL, "reel_speed": self.reel_speed, "reel_force": self.reel_force,
                 "max_events": MAX_EVENTS, "omega_struts": self.omega_struts,
                 "length_offsets": {name: float(o) for name, o in zip(self.system.scene.cable_names, offsets)
                                    if o > 0}}
@@ -337,6 +356,7 @@ class InextensibleMethod(StepMethod):
             applied, reel, limits, floor, taut, reeling = self._motor_limits_reference(state.rest_lengths)
         f_ext = self.system.gravity_force + state.external_forces
         impulses = np.zeros(self.system.n_cables)
+        self._pulled = np.zeros(self.system.n_cables, dtype=bool)
         if self.ground is not None:
             self.ground.begin_step()
         holding = self._holding
@@ -373,9 +393,17 @@ class InextensibleMethod(StepMethod):
                     self._last_hint = y > 0
                 break
             remaining -= tau
+        end_length = self._cable_geometry(x)[1]   # cached if the self-stress rule computed it
+        pulled = self._pulled
+        if pulled.any():
+            # a motor at its force limit reeled in only what its cable gave: it stands where the cable ends, half
+            # a step's reel ahead as a running motor does (within what it could reel: no farther than commanded,
+            # never back out)
+            ahead = end_length[pulled] - self.length_offsets[pulled] + (0.5 * self.dt) * reel[pulled]
+            applied[pulled] = np.maximum(applied[pulled], np.minimum(self._applied[pulled], ahead))
+            self.stalls += int(np.count_nonzero(pulled))
         self._holding = self._hint = holding
         self._applied = applied
-        end_length = self._cable_geometry(x)[1]   # cached if the self-stress rule computed it
         contact = pairs = None
         if self.ground is not None:
             contact, pairs = self.ground.take_impulses(), self.ground.take_pair_impulses()
@@ -390,13 +418,15 @@ class InextensibleMethod(StepMethod):
         handle)."""
         rule = self.self_stress
         (ok, x, v, holding, applied, taut, fitted, impulses, slack, node, cables, y, d, length, binding, members,
-         a_t, basis, contact, modes) = kernels.step(state.positions, state.velocities, *self._step_inputs(state),
+         a_t, basis, contact, modes, stalls) = kernels.step(state.positions, state.velocities,
+                                                            *self._step_inputs(state),
                                                     self._applied, *self._motors(), self._holding, self._hint,
                                                     *self._step_constants(), self._memory())
         if not ok:
             return None
         for kept, new in zip(self._memory(), modes):
             kept[:] = new
+        self.stalls += stalls
         self._end_geometry = (x, d, length)
         if fitted:
             rule.residual = max(rule.residual, node)
@@ -431,8 +461,8 @@ class InextensibleMethod(StepMethod):
         return (self._kernel_mass, self._ends, self._n_eq, self._rigid_lengths, self._cables_move,
                 self._row_nodes, self._free_nodes, self.system.cable_ends, _MIN_EVENT, _NEWTON_ITER,
                 *self._qp_call(backend),
-                _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, rule.possible, *rule.load_space,
-                *self._blas, rule.reference, self._ground_table())
+                _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, self.reel_force, rule.possible,
+                *rule.load_space, *self._blas, rule.reference, self._ground_table())
 
     def _ground_table(self) -> tuple:
         """What the step kernels take of the ground (``_inextensible_kernels.midpoint``'s ``ground``): its
@@ -522,11 +552,14 @@ class InextensibleMethod(StepMethod):
         on_ground = np.zeros((n, 3))   # the ground's impulses since the last kept step
         gravity = self.system.gravity_force
         rule, i = self.self_stress, 0
+        stall_count = np.zeros(1, dtype=np.int64)   # the kernel's motor steps at their force
         while True:
             i, x, v, self._applied, self._holding, self._hint, rule.residual = kernels.steps(
                 i, steps, every, x, v, self._applied, self._holding, self._hint, rule.residual, total, *out,
                 gravity + ext_now, rest_now, *motors, *constants, self._memory(), on_ground, contact, rest_seq,
-                ext_seq, gravity, ext_now)
+                ext_seq, gravity, ext_now, stall_count)
+            self.stalls += int(stall_count[0])
+            stall_count[0] = 0
             if i == steps:
                 break
             if len(rest_seq):   # the step's inputs (the kernel invalidated the method if they changed)
@@ -588,14 +621,16 @@ class InextensibleMethod(StepMethod):
         on_ground = np.zeros((len(methods), n, 3))
         out_contact = np.empty((len(methods), 0, n, 3)) if contact is None else contact
         done = np.empty(len(methods), dtype=np.int64)
+        stalls = np.zeros(len(methods), dtype=np.int64)   # each copy's motor steps at their force
         most, dt, _, limit_tol, taut_tol = first._motors()
         kernels.copies_steps(steps, x, v, applied, holding, hint, residual, np.zeros(applied.shape),
                              positions[..., None], velocities[..., None], impulses[..., None], slack[..., None], f_ext,
                              commanded, most, dt, offsets, limit_tol, taut_tol, *first._step_constants(), *memory,
-                             on_ground, out_contact, done)
+                             on_ground, out_contact, done, stalls)
         for b, method in enumerate(methods):
             method._applied, method._holding, method._hint = applied[b].copy(), holding[b].copy(), hint[b].copy()
             method.self_stress.residual = float(residual[b])
+            method.stalls += int(stalls[b])
             for kept, new in zip(method._memory(), memory):
                 kept[:] = new[b]
             method._end_geometry = None
@@ -633,6 +668,13 @@ class InextensibleMethod(StepMethod):
             return x_m, v + tau * self.system.mass.solve(force)
         return x_m, v + tau * self._inv_mass * force   # the step kernel's arithmetic, to the bit
 
+    def _solve_mass(self, impulse: np.ndarray) -> np.ndarray:
+        """``M^-1`` of ``impulse`` (N, 3): the rods' blocks through ``system.mass``, else the lumped arithmetic of the
+        kernels (``_inextensible_kernels._solve_mass`` and ``inv_mass[:, :1] * push``), to the bit."""
+        if self.system.mass.consistent:
+            return self.system.mass.solve(impulse)
+        return self._inv_mass * impulse
+
     def _first_snap(self, d, limits, v, v0, tau, slack) -> float:
         """Fraction of the sub-step (0, 1] at which the first ``slack`` cable reaches its limit on the
         free path ``d(t) = d + t tau u + (t tau)^2 a / 2`` of its ends (1.0 if none does); compiled in
@@ -665,16 +707,76 @@ class InextensibleMethod(StepMethod):
     def _midpoint(self, x_m, v, v0, tau, limits, floor, taut, reel, reeling, holding):
         """Moreau's midpoint sub-step from ``x_m`` with free velocity ``v0``: returns ``x_f``, ``v_f``
         (N, 3), the QP's cable impulses (n_cables,) N*s (they decide which cables hold) and the published
-        ones (:meth:`_publish`)."""
+        ones (:meth:`_publish`). A motor that would pull its cable harder than ``reel_force`` pulls at that
+        force instead (*Motor force* in the module docstring): the sub-step is solved again with it."""
         n_eq = self._n_eq
         # a cable being reeled in lands half a sub-step's reel behind its moving limit: landing on it would
         # make the second half-step cover the whole reel, launching its ends at twice the motor's speed
         landing = limits - (0.5 * tau) * reel if reeling else limits
         all_limits = np.concatenate([self._rigid_lengths, landing])
         if self._one_kernel():
-            done = self._midpoint_kernel(x_m, v, v0, tau, all_limits, floor, taut, reel, holding)
+            done = self._midpoint_kernel(x_m, v, v0, tau, limits, all_limits, floor, taut, reel, holding)
             if done is not None:
                 return done
+        x_f, v_f, y, rows, cables, pull = self._motor_modes(x_m, v, v0, tau, limits, all_limits, floor, reel, holding)
+        impulses = np.zeros(len(limits))
+        impulses[cables] = y[n_eq:]
+        self._pulled |= pull > 0
+        if self.ground is not None:
+            self.solver.commit()
+        if rows is None:
+            return x_f, v_f, impulses, impulses
+        y = y.copy()
+        y[n_eq:] += pull[cables]
+        impulses += pull
+        return x_f, v_f, impulses, self._publish(rows, np.flatnonzero(cables), y, tau, x_f, taut)
+
+    def _motor_modes(self, x_m, v, v0, tau, limits, all_limits, floor, reel, holding):
+        """The sub-step's QP with each reeling motor following its reel (its cable's row lands behind the
+        moving limit) or, where that would take more than ``reel_force`` (or where a structure not locked at
+        load cannot follow at all: its QP has no answer), pulling at that force: a known impulse along the cable at the
+        midpoint, the cable held where the motor stood at the step's start (its brake). Motors only go from
+        following to pulling within a sub-step, so this ends. Returns ``x_f``, ``v_f`` (N, 3), the
+        multipliers (k,) N*s, the rows (or None), the cable rows (nc,) bool and the motors' impulses at their
+        force (nc,) N*s."""
+        n_eq = self._n_eq
+        most = self.reel_force * tau   # N*s: the most a motor pulls over the sub-step
+        reeling = reel < 0
+        pulling = np.zeros(len(reel), dtype=bool)
+        while True:
+            ends = self.system.cable_ends[pulling]
+            d = x_m[ends[:, 1]] - x_m[ends[:, 0]]
+            impulse = (most / np.sqrt(np.einsum("ij,ij->i", d, d)))[:, None] * d
+            push = np.zeros_like(v0)
+            np.add.at(push, ends[:, 0], impulse)
+            np.add.at(push, ends[:, 1], -impulse)
+            held = all_limits.copy()
+            # (the motor stands half a step's reel ahead of its cable, as a running one does: _step_impl)
+            held[n_eq:][pulling] = limits[pulling] - (self.dt + 0.5 * tau) * reel[pulling]
+            try:
+                v_f, y, rows, cables = self._solve_sub_step(x_m, v, v0 + self._solve_mass(push), tau, held, floor,
+                                                            np.where(pulling, 0.0, reel), holding)
+            except QPError:
+                # a structure locked at load cannot reel at all (a clear error, docs/errors.md); one that locks on
+                # the way (a reel that takes it to where its members carry a self-stress) stalls its motors there
+                if not np.isfinite(most) or self.self_stress.possible or (pulling == reeling).all():
+                    raise
+                pulling = reeling.copy()   # the structure cannot follow the reel: the motors pull at their force
+                continue
+            impulses = np.zeros(len(reel))
+            impulses[cables] = y[n_eq:]
+            over = reeling & ~pulling & (impulses > most)
+            if not over.any():
+                return x_m + (0.5 * tau) * v_f, v_f, y, rows, cables, np.where(pulling, most, 0.0)
+            pulling |= over
+            if self.ground is not None:
+                self.solver.last = None   # this answer is not kept: its contact impulses are not the step's
+
+    def _solve_sub_step(self, x_m, v, v0, tau, all_limits, floor, reel, holding):
+        """The QP of a midpoint sub-step (its rows, the landing, the ground's contacts armed, not committed):
+        ``v_f`` (N, 3), the multipliers (k,) N*s, the rows (None: nothing can be taut, no cable row) and the
+        cable rows (n_cables,) bool."""
+        n_eq = self._n_eq
         if self.compiled:
             cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = kernels.select_rows(
                 x_m, v, v0, tau, self._ends, n_eq, all_limits, floor, self._cables_move, reel, holding)
@@ -688,22 +790,15 @@ class InextensibleMethod(StepMethod):
                 v_f = v0.copy()
                 v_f[self._free] = self.solver.solve(v0[self._free], Rows(np.zeros((0, 2), int), np.zeros((0, 3)),
                                                                          np.zeros(0), 0))[0]
-                self.solver.commit()
-            none = np.zeros(len(limits))
-            return x_m + (0.5 * tau) * v_f, v_f, none, none
+            return v_f, np.zeros(n_eq), None, cables
         rows = Rows(self._row_nodes[sel], m_n, targets, n_eq)
         v_f, y = self._land(v, v0, rows, warm, self._ends[sel], m_length, m_limits, tau, floor_rate, reel)
-        if self.ground is not None:
-            if self.ground.missed(x_m, v_f, 0.5 * tau):
-                # a cable's impulse carried a node that its free motion kept clear of the ground into it:
-                # the sub-step again with that node armed too (judged on this answer)
-                self.ground.arm_step(x_m, v, v0, tau, 0.5 * tau, v_f)
-                v_f, y = self._land(v, v0, rows, warm, self._ends[sel], m_length, m_limits, tau, floor_rate, reel)
-            self.solver.commit()
-        impulses = np.zeros(len(limits))
-        impulses[cables] = y[n_eq:]
-        x_f = x_m + (0.5 * tau) * v_f
-        return x_f, v_f, impulses, self._publish(rows, np.flatnonzero(cables), y, tau, x_f, taut)
+        if self.ground is not None and self.ground.missed(x_m, v_f, 0.5 * tau):
+            # a cable's impulse carried a node that its free motion kept clear of the ground into it:
+            # the sub-step again with that node armed too (judged on this answer)
+            self.ground.arm_step(x_m, v, v0, tau, 0.5 * tau, v_f)
+            v_f, y = self._land(v, v0, rows, warm, self._ends[sel], m_length, m_limits, tau, floor_rate, reel)
+        return v_f, y, rows, cables
 
     def _one_kernel(self) -> bool:
         """Whether a sub-step runs in ``_inextensible_kernels.midpoint``: compiled, dense DAQP, no contact
@@ -733,17 +828,19 @@ class InextensibleMethod(StepMethod):
                                            solver._beta))
         return (*solver.c_call, _NO_BLOCKS)
 
-    def _midpoint_kernel(self, x_m, v, v0, tau, all_limits, floor, taut, reel, holding):
+    def _midpoint_kernel(self, x_m, v, v0, tau, limits, all_limits, floor, taut, reel, holding):
         """:meth:`_midpoint` in one kernel call (plus the self-stress rule's numpy fit); None when a QP
         answer needs the Python path (a failed or refused solve: it raises or solves again)."""
         locked = self.self_stress.possible
-        ok, x_f, v_f, y, cables, nodes, directions, d, length, binding, members, a_t, basis, _ = kernels.midpoint(
+        (ok, x_f, v_f, y, cables, nodes, directions, d, length, binding, members, a_t, basis, _,
+         pulled) = kernels.midpoint(
             x_m, v, v0, tau, self._ends, self._n_eq, all_limits, floor, self._cables_move, reel, holding,
             self._row_nodes, self._free_nodes, self.system.cable_ends, taut, *self._qp_call(self.solver),
-            _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, locked, *self.self_stress.load_space,
-            _NO_GROUND, _NO_MEMORY)
+            _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, self.reel_force, limits, self.dt,
+            self._kernel_mass, locked, *self.self_stress.load_space, _NO_GROUND, _NO_MEMORY)
         if not ok:
             return None
+        self._pulled |= pulled
         self._end_geometry = (x_f, d, length)
         impulses = np.zeros(len(cables))
         n_eq = self._n_eq
