@@ -241,6 +241,35 @@ def test_the_locked_icosahedron_set_down_is_answered_where_daqp_calls_it_infeasi
         _sim(case).step()
 
 
+SET_DOWN_THREE_BAR = {  # bench_throws.py --seed 0, throw 1430 (fuzz_throw: a batch of two there, copy 0 here)
+    "robot": "three_bar", "method": "inextensible", "mu": 0.4417892629839357, "e": 0.18750724831380894,
+    "height": 9.88794223331461e-06,
+    "velocity": [-0.009175434386672855, 0.02089438250208933, 0.015714644256312964],
+    "spin": [0.09676942960909288, 0.047182537999824914, -0.06637722317254868], "command_step": 50,
+    "command_cables": [1, 6], "command_factor": 1.001270358375684, "steps": 200, "response": None,
+    "second_step": 155, "second_factor": 1.035828526569482}
+
+
+def test_daqp_cycling_on_a_set_down_three_bar_is_solved_again_from_no_hint(monkeypatch):
+    """three_bar set down 10 um above the ground stopped at step 39 (``QPError: QP solver 'daqp' failed
+    (cycling): after 656 iterations on 27 rows``, issue 47): three nodes stick on the ground, and its 3 strut,
+    9 cable and 15 contact rows have rank 18, their drift-correcting targets (1e-9 m/s) met by no velocity.
+    DAQP warm-started from the last working set cycles, NNLS and OSQP refuse it; from the empty working set DAQP
+    calls it infeasible, and the friction modes let the targets yield (the pure velocity level). The steps go
+    on, nothing sinking; without the cold restart the step is the cycling QPError."""
+    from tensegrity_sim.methods.qp import solvers
+
+    sim = _sim(SET_DOWN_THREE_BAR)
+    for _ in range(45):
+        sim.step()
+    assert (sim.positions[:, 2] - sim.scene.node_radii).min() >= -1e-6
+    monkeypatch.setattr(solvers, "_RESTARTED", ())
+    sim = _sim(SET_DOWN_THREE_BAR)
+    with pytest.raises(solvers.QPError, match=r"\(cycling\): after \d+ iterations on 27 rows"):
+        for _ in range(39):
+            sim.step()
+
+
 # its state after 7 steps: (node, position m, velocity m/s), n0 and n2 on the ground
 SET_DOWN_PRISM_AT_7 = (
     ("n0", [0.40000900957190794, -1.4079911338202462e-05, 0.015],
