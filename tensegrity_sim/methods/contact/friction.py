@@ -88,7 +88,9 @@ the pure velocity level (equalities 0, inequalities at least 0), which ``v = 0``
 **Impacts** are located inside the step like the cables' snaps (:meth:`GroundResponse.first_impact`:
 the node's free path, a parabola, crosses ``g = 0``); at the impact Newton's law
 ``v_z+ >= -e v_z-`` with Coulomb friction is one more problem of the same form, solved together with
-the snapping cables so that a robot landing while its cables go taut is a single inelastic impact.
+the snapping cables so that a robot landing while its cables go taut is a single inelastic impact. The nodes
+a sub-step was cut for take that law at the cut even where the members' impulses left them a few nm off the
+ground (:meth:`ContactSet.landed`): landed by a target instead, a node's normal velocity is reversed.
 """
 from __future__ import annotations
 
