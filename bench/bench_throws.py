@@ -30,8 +30,9 @@ tolerance the solver accepts answers to. ``violations`` counts the answers that 
 stopped run, not a completed one).
 
 Run: ``python3 bench/bench_throws.py [--count N] [--seed S] [--first I] [--steps K] [--space fuzz|wide|rods]
-[--budget T] [--out PATH]``; ``--merge A.csv B.csv ... --out PATH`` sums runs over disjoint ranges (chunks run
-side by side) into one CSV.
+[--budget T] [--out PATH]``; ``--throws I J ...`` runs those throws alone (a rerun of earlier failures; their
+indices, comma-joined, are the CSV's ``throw_range``); ``--merge A.csv B.csv ... --out PATH`` sums runs over
+disjoint ranges (chunks run side by side) into one CSV.
 """
 from __future__ import annotations
 
@@ -176,6 +177,8 @@ def main(argv=None) -> int:
     parser.add_argument("--count", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--first", type=int, default=0, help="index of the first throw")
+    parser.add_argument("--throws", type=int, nargs="+", help="these throws' indices (a rerun of some) in place of "
+                        "--first and --count")
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--space", choices=sorted(SPACES), default="fuzz")
     parser.add_argument("--budget", type=float, default=None, help="wall-clock seconds per throw (none: no limit)")
@@ -193,7 +196,9 @@ def main(argv=None) -> int:
         return 0
     groups: dict[tuple, dict] = {}
     start = time.perf_counter()
-    for i in range(args.first, args.first + args.count):
+    indices = args.throws or list(range(args.first, args.first + args.count))
+    label = ",".join(map(str, indices)) if args.throws else f"{indices[0]}-{indices[-1]}"
+    for n, i in enumerate(indices, start=1):
         case = case_of(args.seed, i, args.steps, args.space)
         began = time.perf_counter()
         with AnswerChecks() as checks:
@@ -216,13 +221,14 @@ def main(argv=None) -> int:
             print(f"throw {i}: {'; '.join(found)}{' cut by the budget' if out['cut'] else ''}"
                   f"{f'; {checks.violations} answers violate: {checks.first}' if checks.violations else ''}"
                   f"\n  case: {case}", flush=True)
-        if (i - args.first + 1) % 25 == 0:   # the counts so far, written as they stand
-            print(f"{i - args.first + 1} throws, {time.perf_counter() - start:.0f} s", flush=True)
+        if n % 25 == 0:   # the counts so far, written as they stand
+            print(f"{n} throws, {time.perf_counter() - start:.0f} s", flush=True)
             total = write(args.out, list(groups.values()), steps=args.steps, seed=args.seed,
-                          ranges=f"{args.first}-{i}", space=args.space)
+                          ranges=",".join(map(str, indices[:n])) if args.throws else f"{indices[0]}-{i}",
+                          space=args.space)
     total = write(args.out, list(groups.values()), steps=args.steps, seed=args.seed,
-                  ranges=f"{args.first}-{args.first + args.count - 1}", space=args.space)
-    print(f"{total['throws']} throws {args.first}..{args.first + args.count - 1} of {args.steps} steps (seed "
+                  ranges=label, space=args.space)
+    print(f"{total['throws']} throws {label} of {args.steps} steps (seed "
           f"{args.seed}, space {args.space}): {total['stopped']} stopped, {total['unsound']} unsound otherwise, "
           f"{total['cut']} cut, {total['violations']} of {total['answers_checked']} answers violating, "
           f"{time.perf_counter() - start:.0f} s; {args.out}")

@@ -429,6 +429,36 @@ def test_daqp_working_set_answer_matches_its_reference_and_quadprog(case):
     assert answered or case in ("duplicated members", "duplicated, mass ratio 1e4")
 
 
+@pytest.mark.parametrize("status", [-2, -4])   # cycling, iteration limit
+def test_daqp_failing_from_its_warm_start_is_solved_again_from_no_hint(monkeypatch, status):
+    """Where DAQP cycles (or runs out of iterations) from the warm start's working set (issue 47: a set-down
+    three_bar's dependent rows, bench_throws.py throw 1430), it runs again from the empty working set before
+    any other backend: quadprog's answer, counted as "daqp cold". Where that fails too, its error is the one
+    raised (here a problem no velocity meets: infeasible, not the warm start's status)."""
+    def failing_warm(backend):
+        solve = backend._solve
+
+        def solve_unless_warm(v0, rows, warm, unit=1.0):
+            if warm is not None and warm.any():
+                raise backend._failure(status, 625, len(rows))
+            return solve(v0, rows, warm, unit)
+
+        monkeypatch.setattr(backend, "_solve", solve_unless_warm)
+        return backend
+
+    v0, mass, rows = random_problem(1, duplicates=4)
+    reference, multipliers = quadprog_solution(v0, mass, rows)
+    solver = failing_warm(qp.make_solver("daqp", mass))
+    v, _ = solver.solve(v0, rows, np.abs(multipliers) > 1e-9 * np.max(np.abs(multipliers)))
+    assert np.max(np.abs(v - reference)) < 1e-9 * np.max(np.abs(reference))
+    assert solver.fallbacks == {"daqp cold": 1}
+    one = failing_warm(qp.make_solver("daqp", np.array([1.0])))
+    infeasible = qp.Rows(np.array([[0, -1], [-1, 0]]), np.array([[1.0, 0, 0], [1.0, 0, 0]]), np.array([-1.0, -1.0]), 0)
+    with pytest.raises(qp.QPError, match=r"QP solver 'daqp' failed \(infeasible\): after \d+ iterations on 2 rows"):
+        one.solve(np.zeros((1, 3)), infeasible, np.array([True, False]))
+    assert one.fallbacks == {}
+
+
 @pytest.mark.parametrize("status", [-1, -2, -4])   # infeasible, cycling, iteration limit
 def test_a_daqp_failure_is_answered_by_the_fallbacks_verified(monkeypatch, status):
     """Where DAQP fails on a feasible problem (issue 47: infeasible on a set-down locked icosahedron's

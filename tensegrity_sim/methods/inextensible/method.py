@@ -362,11 +362,12 @@ class InextensibleMethod(StepMethod):
         holding = self._holding
         hint = self._hint
         remaining = self.dt
+        landed = None   # the nodes whose impact the last cut was placed at (ContactSet.landed)
         for event in range(MAX_EVENTS + 1):
             d, length = self._cable_geometry(x)
             at_limit = (length >= floor) & self._cables_move
             maybe = at_limit & ~holding
-            landing = self.ground is not None and self.ground.arm_impact(x, v, self.dt)
+            landing = self.ground is not None and self.ground.arm_impact(x, v, self.dt, landed)
             if (maybe.any() or landing) and v.any():
                 v, y = self._impact(x, v, d, length, limits, at_limit, maybe, holding, landing)
                 if y is not None:
@@ -392,6 +393,8 @@ class InextensibleMethod(StepMethod):
                 if last:
                     self._last_hint = y > 0
                 break
+            if self.ground is not None:
+                landed = self.ground.landed(theta)
             remaining -= tau
         end_length = self._cable_geometry(x)[1]   # cached if the self-stress rule computed it
         pulled = self._pulled

@@ -68,6 +68,8 @@ __all__ = ["Rows", "QPError", "QPSolver", "DaqpSolver", "OsqpSolver", "NnlsSolve
 # problem's velocity (impulse) scale, plus _VELOCITY_FLOOR m/s, before it is refused.
 _FEASIBILITY_TOL = 1e-7
 _VELOCITY_FLOOR = 1e-12
+# DAQP's statuses after which a warm-started solve is run again from the empty working set (DaqpSolver.solve)
+_RESTARTED = ("cycling", "iteration limit")
 
 
 @dataclass
@@ -363,13 +365,29 @@ class DaqpSolver(QPSolver):
         first verified answer is returned (counted in :attr:`fallbacks`); only if none answers is DAQP's
         error raised. Measured (``bench/bench_throws.py``, issue 47): a locked icosahedron set down on
         the ground, its 30 dependent member rows and a ground row all met by ``v = 0`` (every target 0),
-        which DAQP called infeasible from every start while NNLS and OSQP answer it."""
+        which DAQP called infeasible from every start while NNLS and OSQP answer it.
+
+        DAQP that cycles (or runs out of iterations) from a warm start is first run again from the empty
+        working set (counted in :attr:`fallbacks` as ``"daqp cold"``), and if that fails too, its error is the
+        one raised: the warm start's rows can hold a dependent subset (a locked structure's self-stress with
+        sticking ground rows) on which DAQP's working-set changes loop, while from no hint it decides the
+        problem. Measured (``bench/bench_throws.py --first 1430 --count 1``, issue 47): three_bar, inextensible,
+        set down on three sticking nodes, 27 rows of rank 18 whose drift-correcting targets (1e-9 m/s) no
+        velocity meets: warm, "cycling" after 656 iterations; cold, "infeasible" after 33, which the friction
+        modes answer by letting the targets yield (``friction.FrictionalSolver._qp``)."""
         try:
             return self._solve_checked(v0, rows, warm)
         except QPError as exc:
             if not (np.all(np.isfinite(v0)) and np.all(np.isfinite(rows.targets))
                     and np.all(np.isfinite(rows.directions))):
                 raise   # not a problem another backend could answer: a state gone non-finite
+            if exc.status in _RESTARTED and warm is not None and warm.any():
+                try:
+                    answer = self._solve_checked(v0, rows, None)
+                    self.fallbacks["daqp cold"] = self.fallbacks.get("daqp cold", 0) + 1
+                    return answer
+                except QPError as cold:
+                    exc = cold
             for backend in self._fallback_backends():
                 try:
                     answer = backend.solve(v0, rows, warm)
