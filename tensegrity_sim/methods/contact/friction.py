@@ -102,7 +102,7 @@ import numpy as np
 from ...system import System
 from .member import Armed, MemberContacts, tangents
 from . import _friction_kernels as kernels
-from ..qp.solvers import (_FEASIBILITY_TOL, _VELOCITY_FLOOR, BlockMassSolver, DaqpSolver, MassWrapper, QPError,
+from ..qp.solvers import (_FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, MassWrapper, QPError,
                           QPSolver, Rows)
 
 __all__ = ["ContactSet", "FrictionalSolver", "FrictionError", "FIXED_POINT_TOL", "TOUCH_TOL"]
