@@ -149,13 +149,14 @@ def test_the_ends_distribution_keeps_the_old_lumped_meaning():
     np.testing.assert_array_equal(op.inv_diagonal, [1.0 / (0.5 * M), 1.0 / (0.5 * M)])
 
 
-@pytest.mark.parametrize("path", PATHS)
-def test_a_rod_pinned_at_one_end_swings_with_the_physical_pendulums_period(path):
+@pytest.mark.parametrize("method, path", [("elastic", p) for p in PATHS]
+                         + [("inextensible", p) for p in ["reference", "compiled", "run", "batch"]])
+def test_a_rod_pinned_at_one_end_swings_with_the_physical_pendulums_period(method, path):
     g, theta0, dt = 9.81, 0.02, 2e-4
     scene = rod(fixed_first=True, gravity=(0.0, 0.0, -g), angle=math.pi / 2 - theta0)   # hanging, 0.02 rad out
     period = 2 * math.pi * math.sqrt(2 * L / (3 * g)) * (1 + theta0 ** 2 / 16)   # small-angle series
     steps = int(2.2 * period / dt)
-    x, _, _ = simulate(scene, path, steps, dt)
+    x, _, _ = simulate(scene, path, steps, dt, method)
     sway = x[:, 1, 0]
     up = np.flatnonzero((sway[:-1] > 0) & (sway[1:] <= 0))   # downward zero crossings, interpolated
     times = (up + sway[up] / (sway[up] - sway[up + 1]) + 1) * dt
