@@ -207,7 +207,6 @@ class Simulator:
         self._method, self.method_reason = make_method(self.system, method, self.dt, backend=backend, dtype=dtype,
                                                        solver=solver, order=order, locate_switches=locate_switches,
                                                        reel_speed=reel_speed, reel_force=reel_force)
-        self.system = self._method.system   # its mass model (make_method lumps what the method takes no block of)
         # None when nothing can be in contact: then detection costs nothing at all
         # with a contact response, members rest in contact at a gap of ~0: a contact ends beyond TOUCH_TOL
         self._contacts = make_detector(self.system, scene.contact_kinds,
