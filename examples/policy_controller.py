@@ -12,9 +12,13 @@ At every ``node_poses`` message it reads the node's clock and the node positions
 * ``--gait FILE.yaml`` (a command schedule from ``tensegrity-sim optimize-gait``): at ``--rate`` Hz (default 50)
   the gait's rest lengths at the time since the first pose it saw (its ramps repeated as the file gives them).
 
-    tensegrity-sim serve icosahedron_ground --transport dds &
+    tensegrity-sim serve icosahedron_ground --transport dds --lockstep &
     python3 examples/policy_controller.py --policy examples/policies/roll_icosahedron.npz --seconds 10
     python3 examples/policy_controller.py --gait examples/gait.yaml --seconds 6
+
+It answers every pose in turn (a gait's last command again between its samples), so a node in lockstep
+(``--lockstep``, msg_docs/parameters.md) waits for each answer and the run is the ``--offline`` one exactly,
+however late the answers come; without it a loaded machine's delays change a closed-loop policy's run.
 
 ``examples/gait.yaml`` is ``tensegrity-sim optimize-gait icosahedron_ground --out examples/gait.yaml`` (CMA-ES,
 5.15 m along +x in 6 s offline). Needs the "dds" extra: ``pip install -e ".[dds]"``. ``--offline`` drives the
@@ -124,38 +128,71 @@ def load_player(scene, gait: str | None = None, policy: str | None = None):
     return GaitPlayer(load_commands(gait, scene), scene)
 
 
+class Answers:
+    """What the controller sends at each ``node_poses`` message (stamp ``t`` s, node positions ``x``): the player's
+    command at ``t - t0`` (``t0``: the first message's stamp) every ``1/rate`` s (``rate`` None: at every
+    message), and the last command again in between, so that a node in lockstep (its parameter ``lockstep``)
+    has every publication answered; nothing for a stamp it has seen (a lockstep node repeats the one it waits
+    on) or once ``seconds`` s have passed (:attr:`done`). :attr:`moved`: the centre of mass's displacement (3,) m
+    from the first message to the last."""
+
+    def __init__(self, player, scene, seconds: float, rate: float | None):
+        self.player, self.scene, self.seconds, self.rate = player, scene, seconds, rate
+        self.t0 = self.start = self.last = self.x = None
+        self.command: dict[str, float] = {}
+        self.next_command = 0.0
+        self.done = False
+
+    def __call__(self, t: float, x: np.ndarray) -> dict[str, float] | None:
+        if self.done or (self.last is not None and t <= self.last):
+            return None
+        if self.t0 is None:
+            self.t0, self.start = t, _centre(self.scene, x)
+        self.last, self.x = t, x
+        if t - self.t0 >= self.seconds - 1e-9:
+            self.done = True
+            return None
+        if self.rate is None or t - self.t0 >= self.next_command - 1e-9:
+            self.next_command += 1.0 / self.rate if self.rate is not None else 0.0
+            self.command = self.player.update(t - self.t0, x)
+        return self.command
+
+    @property
+    def moved(self) -> np.ndarray:
+        return _centre(self.scene, self.x) - self.start
+
+
 def drive_offline(player, seconds: float, rate: float | None = 50.0, scene: str = "icosahedron_ground",
                   method: str = "elastic") -> np.ndarray:
-    """Drive the node's logic in this process (no DDS) for ``seconds`` s of its time as the DDS loop of
-    :func:`main` does: at every ``node_poses`` publication the ``player``'s ``update(t, positions)`` (``t`` s since
-    the first; every ``1/rate`` s, or at every publication with ``rate`` None) goes in as a ``cable_rest_lengths``
-    message. ``player``: a :class:`GaitPlayer`, :class:`PolicyPlayer`, or anything with that ``update``. Returns
-    the centre of mass's displacement (3,) m."""
+    """Drive the node's logic in this process (no DDS) for ``seconds`` s of its time as :func:`main` drives the
+    node: at every ``node_poses`` publication the :class:`Answers` of the ``player`` go in as
+    ``cable_rest_lengths`` messages, before the next step (as a node in lockstep takes them). ``player``: a
+    :class:`GaitPlayer`, :class:`PolicyPlayer`, or anything with that ``update(t, positions)``. Returns the centre
+    of mass's displacement (3,) m from the first publication to the one ``seconds`` s after it."""
     from roll_controller import offline_node   # beside this file
     from tensegrity_sim.ros import messages as M
 
     loaded, sim, logic, poses = offline_node(scene, method)
-    start = _centre(loaded, sim.positions)
-    next_command = 0.0
-    while sim.time < seconds - 1e-9:
+    answers = Answers(player, loaded, seconds, rate)
+    while not answers.done:
         if logic.step() is None:
             raise RuntimeError("the node paused after a failed step")
         if not logic.publication_due:
             continue
         logic.publish()
         msg = poses[-1]
-        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-        if rate is not None and t < next_command - 1e-9:
-            continue
-        next_command += 1.0 / rate if rate is not None else 0.0
-        x = np.array([[p.position.x, p.position.y, p.position.z] for p in msg.poses])
-        command = player.update(t, x)
+        command = answers(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, _positions(msg))
         if command:
             reason = logic.receive("cable_rest_lengths", M.joint_state(M.header(0, ""), list(command),
                                                                         position=list(command.values())))
             if reason is not None:
                 raise RuntimeError(f"the node refused the command: {reason}")
-    return _centre(loaded, sim.positions) - start
+    return answers.moved
+
+
+def _positions(msg) -> np.ndarray:
+    """The node positions (N, 3) m of a ``node_poses`` message."""
+    return np.array([[p.position.x, p.position.y, p.position.z] for p in msg.poses])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -184,31 +221,22 @@ def main(argv: list[str] | None = None) -> int:
         moved = drive_offline(player, args.seconds, rate, args.scene)
         print(f"centre of mass moved {np.round(moved, 4).tolist()} m in {args.seconds:g} s")
         return 0
-    from roll_controller import latest_pose   # beside this file
     from tensegrity_sim.ros import messages as M
     from tensegrity_sim.ros.dds import Participant
 
     with Participant(domain_id=args.domain_id, interface=args.interface, node_name="policy_controller") as dds:
         poses = dds.reader(f"{args.node}/node_poses", "geometry_msgs/msg/PoseArray")
         rest = dds.writer(f"{args.node}/cable_rest_lengths", "sensor_msgs/msg/JointState")
-        t0 = start = x = None
-        next_command = 0.0
-        while True:
+        answers = Answers(player, scene, args.seconds, rate)
+        while not answers.done:
             dds.wait(0.002)
-            latest = latest_pose(poses)
-            if latest is None:
-                continue
-            t, x = latest
-            if t0 is None:
-                t0, start = t, _centre(scene, x)
-            if t - t0 >= args.seconds:
-                break
-            if rate is not None and t - t0 < next_command:
-                continue
-            next_command += 1.0 / rate if rate is not None else 0.0
-            command = player.update(t - t0, x)
-            rest.write(M.joint_state(M.header(time.time_ns(), ""), list(command), position=list(command.values())))
-        print(f"centre of mass moved {np.round(_centre(scene, x) - start, 4).tolist()} m in {args.seconds:g} s")
+            got, _ = poses.take_messages()
+            for msg in got:   # every pose in turn: a node in lockstep waits for the answer to each
+                command = answers(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, _positions(msg))
+                if command:
+                    rest.write(M.joint_state(M.header(time.time_ns(), ""), list(command),
+                                             position=list(command.values())))
+        print(f"centre of mass moved {np.round(answers.moved, 4).tolist()} m in {args.seconds:g} s")
     return 0
 
 

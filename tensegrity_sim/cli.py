@@ -542,8 +542,9 @@ def _add_serve(verbs) -> None:
     for f in fields(NodeSettings):
         if f.name in ("scene", "node_name"):
             continue
-        # NodeSettings validates the values (a bad one is a ValueError naming the parameter)
-        serve.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=type(f.default), default=f.default,
+        # NodeSettings validates the values (a bad one is a ValueError naming the parameter); a switch is a flag
+        kind = {"action": "store_true"} if isinstance(f.default, bool) else {"type": type(f.default)}
+        serve.add_argument("--" + f.name.replace("_", "-"), dest=f.name, default=f.default, **kind,
                            help=f"{f.metadata['doc']} (default: {f.default!r})")
     serve.add_argument("--transport", choices=("auto", "rclpy", "dds"), default="auto",
                        help="rclpy if it imports, else DDS (default: auto)")

@@ -48,6 +48,8 @@ BAD_SETTINGS = [
     ({"thread_priority": 100}, "parameter 'thread_priority': must be an integer from 0 to 99, got 100"),
     ({"thread_priority": 50.0}, "parameter 'thread_priority': must be an integer from 0 to 99, got 50.0"),
     ({"thread_priority": True}, "parameter 'thread_priority': must be an integer from 0 to 99, got True"),
+    ({"lockstep": "true"}, "parameter 'lockstep': must be true or false, got 'true'"),
+    ({"lockstep": 1}, "parameter 'lockstep': must be true or false, got 1"),
     ({"node_name": "tensegrity_sim"}, "parameter 'node_name': must be fully qualified (start with /), got "
                                       "'tensegrity_sim'"),
 ]
@@ -1086,3 +1088,42 @@ def test_markers_go_out_at_marker_rate():
     assert keys.count("node_poses") == 12 and keys.count("markers") == 3
     stamps = [stamp_of(m.markers[0]) for k, m in sent if k == "markers"]
     assert stamps == [10_000_000, 50_000_000, 90_000_000]
+
+
+def test_lockstep_waits_for_an_answer_to_each_publication():
+    """lockstep: a publication (every 10 steps) holds the ticks until an applied input answers it; a refused one
+    does not; the wait is not owed (the schedule restarts at the answer: one step a tick after it, no burst);
+    the publication's clock, poses and cable states go out again every LOCKSTEP_REPEAT s meanwhile, to the
+    transport only; and the run is the one that takes the same inputs right after each publication."""
+    from tensegrity_sim.ros.node_logic import LOCKSTEP_REPEAT
+
+    clock = FakeClock(t=0.0)
+    recorder = FakeRecorder()
+    logic, sent, _ = make_logic(prism(), clock=clock, lockstep=True)
+    logic.recorder = recorder
+    names = logic.sim.scene.cable_names
+    counts = run_ticks(logic, clock, [1e-3 * k + 1e-7 for k in range(1, 16)])
+    assert counts == list(range(1, 11)) + [10] * 5 and logic.awaiting
+    assert logic.next_tick(clock.t) is None
+    records = len(recorder.records)
+    poses = [m for k, m in sent if k == "node_poses"]
+    clock.t += LOCKSTEP_REPEAT
+    logic.tick()
+    again = [m for k, m in sent if k == "node_poses"]
+    assert len(again) == 2 and stamp_of(again[1]) == stamp_of(poses[0]) == 10_000_000
+    assert len(recorder.records) == records   # the log has it once
+    assert logic.receive("cable_rest_lengths", rest_lengths_msg(["nope"], [0.3])) is not None
+    assert run_ticks(logic, clock, [clock.t + 1e-3]) == [10] and logic.awaiting
+    answer = rest_lengths_msg([names[0]], [0.3])
+    assert logic.receive("cable_rest_lengths", answer) is None and not logic.awaiting
+    t = clock.t
+    counts = run_ticks(logic, clock, [t + 1e-3 * k + 1e-7 for k in range(1, 13)])
+    assert counts == list(range(11, 21)) + [20, 20] and logic.burst_ticks == 0
+    # the same inputs right after the tenth step, without lockstep
+    twin, _, _ = make_logic(prism())
+    for _ in range(10):
+        twin.step()
+    twin.receive("cable_rest_lengths", answer)
+    for _ in range(10):
+        twin.step()
+    assert np.array_equal(twin.sim.positions, logic.sim.positions)

@@ -29,13 +29,23 @@ def test_player_gives_the_schedules_rest_lengths():
         assert player.update(t) == {n: expected[i] for i, n in enumerate(scene.cable_names)}
 
 
-def test_gait_through_the_node_rolls_along_the_goal():
+@pytest.fixture(scope="module")
+def offline():
+    """The displacement (3,) m each shipped controller gives through the node's logic in this process, by name."""
+    scene = ts.load_scene("icosahedron_ground")
+    return {"gait": pc.drive_offline(pc.load_player(scene, gait=str(GAIT)), 6.0),
+            "policy": pc.drive_offline(pc.load_player(scene, policy=str(POLICY)), 10.0, rate=None)}
+
+
+def test_gait_through_the_node_rolls_along_the_goal(offline):
     """Offline the gait rolls 5.15 m along +x in 6 s (run --commands: the rest lengths ramped every step); the
     node's 50 Hz commands hold each value for 20 ms, and the robot still rolls over 3 m along +x."""
-    scene = ts.load_scene("icosahedron_ground")
-    moved = pc.drive_offline(pc.load_player(scene, gait=str(GAIT)), 6.0)
+    moved = offline["gait"]
     assert moved[0] > 3.0, moved
     assert abs(moved[2]) < 0.3 and np.all(np.isfinite(moved))
+
+
+LOCKSTEP = ("--lockstep", "--real-time-factor", "0")   # each publication waits for its answer; no schedule
 
 
 def over_dds(tmp_path, *controller: str, node: tuple[str, ...] = ()) -> np.ndarray:
@@ -56,13 +66,12 @@ def over_dds(tmp_path, *controller: str, node: tuple[str, ...] = ()) -> np.ndarr
     return np.array(ast.literal_eval(out.split("moved ")[1].split(" m")[0]))
 
 
-def test_gait_over_dds_moves_the_live_node(tmp_path):
-    """The gait over DDS: the centre of mass the controller sees moves over 1.5 m along +x in 6 s of the node's
-    time (measured 2.06, 4.94 and 5.08 m in three runs on a loaded 2-core machine: the node runs in real time,
-    commands land late by a varying few ms, and the rolling is chaotic, so the bound is looser than the offline
-    test's)."""
-    moved = over_dds(tmp_path, "--gait", str(GAIT), "--seconds", "6")
-    assert moved[0] > 1.5, moved
+def test_gait_over_dds_moves_the_live_node_as_offline(tmp_path, offline):
+    """The gait over DDS to the live node in lockstep (as fast as the answers come): the centre of mass the
+    controller sees moves as through the node's logic in one process (to the 0.1 mm it prints), over 3 m along
+    +x, however late the commands land."""
+    moved = over_dds(tmp_path, "--gait", str(GAIT), "--seconds", "6", node=LOCKSTEP)
+    assert np.max(np.abs(moved - offline["gait"])) <= 5.1e-5, (moved, offline["gait"])
 
 
 def test_policy_file_gives_the_actions_flax_gave():
@@ -96,23 +105,19 @@ def test_policy_player_observes_and_reels_as_the_environment():
     assert first == dict(zip(player.names, scene.cable_rest_lengths.tolist()))   # at t = 0 nothing has moved yet
 
 
-def test_policy_through_the_node_rolls_along_the_goal():
+def test_policy_through_the_node_rolls_along_the_goal(offline):
     """The trained policy through the node's logic (the DDS loop's 100 Hz poses, in one process): its centre of
     mass moves over 3 m along +x in 10 s (bench/compare_roll.py measured 6.50 m; the roll controller 2.61 m)."""
-    scene = ts.load_scene("icosahedron_ground")
-    moved = pc.drive_offline(pc.load_player(scene, policy=str(POLICY)), 10.0, rate=None)
-    assert moved[0] > 3.0, moved
+    assert offline["policy"][0] > 3.0, offline["policy"]
 
 
-def test_policy_over_dds_moves_the_live_node(tmp_path):
-    """The trained policy over DDS: the centre of mass the controller sees moves over 1.5 m along +x in 10 s of
-    the node's time (measured in real time 6.64, 6.16, 3.78, 7.63 and 14.3 m; the bound is looser than the
-    offline test's since commands land a few ms late). The node runs at half real time (``--real-time-factor
-    0.5``): on CI's loaded machine, in real time, a run's commands landed late enough once that the robot rolled
-    3.1 m along +y instead (a policy trained with commands that act at once), which a robot's own computer,
-    serving one controller, does not see."""
-    moved = over_dds(tmp_path, "--policy", str(POLICY), "--seconds", "10", node=("--real-time-factor", "0.5"))
-    assert moved[0] > 1.5, moved
+def test_policy_over_dds_moves_the_live_node_as_offline(tmp_path, offline):
+    """The trained policy over DDS to the live node in lockstep: the centre moves as offline (to the 0.1 mm the
+    controller prints), over 3 m along +x in 10 s. Without lockstep, on CI's loaded machine, the commands of a
+    run in real time landed late enough that the robot rolled 1.9 m along -x instead (a policy trained with
+    commands that act at once): what lockstep is for."""
+    moved = over_dds(tmp_path, "--policy", str(POLICY), "--seconds", "10", node=LOCKSTEP)
+    assert np.max(np.abs(moved - offline["policy"])) <= 5.1e-5, (moved, offline["policy"])
 
 
 def test_controller_refuses_a_file_that_is_no_policy(tmp_path, capsys):

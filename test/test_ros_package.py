@@ -178,7 +178,8 @@ def test_msg_docs_services_and_parameters():
     parameters = (ROOT / "msg_docs" / "parameters.md").read_text()
     for f in fields(NodeSettings):
         if f.name != "node_name":
-            assert f"| `{f.name}` |" in parameters and f"`{f.default}`" in parameters, f.name
+            default = str(f.default).lower() if isinstance(f.default, bool) else f.default   # as YAML writes it
+            assert f"| `{f.name}` |" in parameters and f"`{default}`" in parameters, f.name
 
 
 # --------------------------------------------------------------------------- who imports what

@@ -116,6 +116,10 @@ class NodeSettings:
         "the OS runs it before every ordinary thread, so no other process delays a tick; 0 = the default "
         "scheduler. Needs root, CAP_SYS_NICE or an rtprio limit (ulimit -r); refused, the node warns and "
         "steps on the default scheduler"))
+    lockstep: bool = field(default=False, metadata=_doc(
+        "wait for the controller: after each node_poses publication no step runs until a cable_rest_lengths "
+        "or external_wrench message is applied, so a run is the same however late a controller answers (the "
+        "schedule restarts at each answer)"))
     node_name: str = field(default="/tensegrity_sim", metadata=_doc(
         "fully qualified node name, the prefix of ~/ topics (set by the node, not a parameter)"))
 
@@ -134,6 +138,8 @@ class NodeSettings:
             raise ValueError(f"parameter 'thread_priority': must be an integer from 0 to {MAX_THREAD_PRIORITY}, got "
                              f"{describe(self.thread_priority)}")
         object.__setattr__(self, "thread_priority", int(self.thread_priority))
+        if not isinstance(self.lockstep, bool):
+            raise ValueError(f"parameter 'lockstep': must be true or false, got {describe(self.lockstep)}")
         if not self.node_name.startswith("/"):
             raise ValueError(f"parameter 'node_name': must be fully qualified (start with /), got "
                              f"{self.node_name!r}")

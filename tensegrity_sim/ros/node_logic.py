@@ -65,6 +65,9 @@ _WAKE_AFTER_DUE = 1e-6  # s after a tick of the schedule's grid that next_tick w
 NODE_STEPS_AHEAD = 16
 # No tick holds the executor longer than this, wall-clock (services and subscriptions wait for a tick).
 TICK_WALL_LIMIT = 0.1           # s
+# s of wall-clock time between two repeats of the publication a lockstep node waits on (SimNodeLogic.tick): a
+# controller that subscribed after it was sent gets it (one that has it ignores a stamp it has seen)
+LOCKSTEP_REPEAT = 0.5
 
 
 class TickDurations:
@@ -206,6 +209,9 @@ class SimNodeLogic:
         self._undo: tuple[np.ndarray, np.ndarray, np.ndarray, list[str]] | None = None
         self._since_publish = 0
         self._until_markers = 0                      # publications to go until the next marker array
+        self.awaiting = False                        # lockstep: no step until an input answers the publication
+        self._awaited: list[tuple[str, object, bytes | None]] = []   # lockstep: that publication's first outputs
+        self._repeat_at = 0.0                        # lockstep: when (clock, s) to send them again
 
     def restart_schedule(self) -> None:
         """Restart the real-time schedule here: step ``k`` is due at ``t0 + (k - k0) dt / rtf``."""
@@ -223,7 +229,7 @@ class SimNodeLogic:
         there, not on a cadence of its own, has a whole tick period of slack before a late wake-up owes extra
         steps."""
         s = self.settings
-        if self.paused or s.real_time_factor == 0.0:
+        if self.paused or self.awaiting or s.real_time_factor == 0.0:
             return None
         steps_per_second = s.real_time_factor / s.dt
         behind = self._anchor_step + math.floor((now - self._anchor_time) * steps_per_second) - self.sim.step_count
@@ -313,6 +319,9 @@ class SimNodeLogic:
             return self._refuse(key, str(exc))
         undo[3].append(key)
         self._undo = undo
+        if self.awaiting:   # lockstep: the controller answered; the wait is not owed to the schedule
+            self.awaiting = False
+            self.restart_schedule()
         return None
 
     def _refuse(self, key: str, reason: str) -> str:
@@ -422,9 +431,10 @@ class SimNodeLogic:
         steps computed before rather than computing them (a controller's command that moves a rest length
         drops them: the tick that takes it computes its own step, and the loop the rest). Nothing while
         paused or while a rate-limited rest length moves (every step changes it). A step that would fail here
-        is left to the step that meets it (:meth:`step`), which fails there as without this. Whether steps
-        computed ahead wait now."""
-        if self.paused:
+        is left to the step that meets it (:meth:`step`), which fails there as without this. Nothing while
+        waiting for a controller's answer in lockstep either (it would drop them). Whether steps computed ahead
+        wait now."""
+        if self.paused or self.awaiting:
             return False
         if self.sim.steps_ahead:
             return True
@@ -497,7 +507,8 @@ class SimNodeLogic:
         catches up later, or runs slower than real time, visibly). With ``real_time_factor == 0`` a tick
         steps for one tick period, as fast as possible. No tick runs longer than one tick period or
         :data:`TICK_WALL_LIMIT`, whichever is shorter, on the wall clock. A failed step (:meth:`step`) is
-        not counted; one that pauses the node ends the tick.
+        not counted; one that pauses the node ends the tick, and so does a publication in lockstep (no step
+        until an input answers it: :attr:`awaiting`).
 
         Every tick's wall-clock duration and steps go into the statistics (:meth:`statistics`: the
         duration percentiles, the most steps a tick ran, and the ticks that ran more than their nominal
@@ -509,6 +520,9 @@ class SimNodeLogic:
         CPU time, so there some of the first are the machine's too (``bench/bench_wakeups.py`` counts them).
         """
         if self.paused:
+            return 0
+        if self.awaiting:
+            self._repeat_awaited()
             return 0
         start = self._clock()
         cpu = self._cpu_clock()
@@ -523,6 +537,17 @@ class SimNodeLogic:
         self._tick_cpu = cpu
         return done
 
+    def _repeat_awaited(self) -> None:
+        """In lockstep, while no input answered the last publication: its clock, poses and cable states again
+        every :data:`LOCKSTEP_REPEAT` s, to the transport only (the log has them)."""
+        now = self._clock()
+        if now < self._repeat_at:
+            return
+        self._repeat_at = now + LOCKSTEP_REPEAT
+        if self._transport is not None:
+            for key, message, data in self._awaited:
+                self._transport(key, data if self._raw else message)
+
     def _run_due(self, start: float) -> tuple[int, float]:
         """The steps of a tick that started at ``start`` s on the clock (:meth:`tick`): (steps run, the
         clock at the tick's end, s)."""
@@ -531,7 +556,7 @@ class SimNodeLogic:
         budget = min(period, TICK_WALL_LIMIT)
         done = 0
         if s.real_time_factor == 0.0:
-            while not self.paused:   # a failed step may pause the node
+            while not (self.paused or self.awaiting):   # a failed step may pause the node; lockstep waits
                 done += self._advance()
                 now = self._clock()
                 if now - start >= budget:
@@ -542,7 +567,7 @@ class SimNodeLogic:
         cap = max(1, math.ceil(2.0 * steps_per_second * period))
         for _ in range(min(due - self.sim.step_count, cap)):
             done += self._advance()
-            if self.paused:
+            if self.paused or self.awaiting:
                 return done, self._clock()
             if self._clock() - start >= budget:
                 break
@@ -585,7 +610,11 @@ class SimNodeLogic:
         self._until_markers -= 1
         if self._transport is not None or self.recorder is not None:
             ns = stamp_ns(self.sim.time)
-            self._send(ns, self._outputs(ns, r))
+            outputs = self._outputs(ns, r)
+            self._send(ns, outputs)
+            if self.settings.lockstep:
+                self._awaited = outputs
+                self._repeat_at = self._clock() + LOCKSTEP_REPEAT
             if markers or events:
                 rest = (ns, r, list(self._active_contacts.values()) if markers else None, events)
                 if self.idle_outputs:
@@ -596,6 +625,7 @@ class SimNodeLogic:
         self._contact_queue = []
         self._since_publish = 0
         self.publications += 1
+        self.awaiting = self.settings.lockstep
 
     def send_waiting(self) -> None:
         """Send and record the markers and contact events that the last publication left waiting
@@ -745,7 +775,8 @@ class SimNodeLogic:
             level, text = 1, (f"{new_overruns} overrun(s) since the last report: the node cannot keep the "
                               f"real-time factor")
         else:
-            level, text = 0, "paused" if self.paused else "stepping"
+            level, text = 0, ("paused" if self.paused else "waiting for the controller (lockstep)" if self.awaiting
+                              else "stepping")
         values = {k: str(v) for k, v in self.statistics().items()}
         ns = self.stamp_ns()
         self._send(ns, [self._output("diagnostics", M.new(
