@@ -107,7 +107,7 @@ def test_policy_player_observes_and_reels_as_the_environment():
 
 def test_policy_through_the_node_rolls_along_the_goal(offline):
     """The trained policy through the node's logic (the DDS loop's 100 Hz poses, in one process): its centre of
-    mass moves over 3 m along +x in 10 s (bench/compare_roll.py measured 6.50 m; the roll controller 2.61 m)."""
+    mass moves over 3 m along +x in 10 s (measured 6.48 m; the roll controller 2.61 m)."""
     assert offline["policy"][0] > 3.0, offline["policy"]
 
 
