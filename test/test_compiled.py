@@ -382,7 +382,7 @@ def _inextensible_scenes():
         "prism3": (lambda: random_velocities(ts.load_scene("prism3"), seed=2, scale=0.3), 1e-3, 300, None),
         "icosahedron": (lambda: random_velocities(ts.load_scene("icosahedron"), seed=2, scale=0.3), 1e-3, 300,
                         None),
-        "tower": (lambda: random_velocities(ts.load_scene("tower"), seed=2, scale=0.3), 1e-3, 200, None),
+        "tower": (lambda: random_velocities(ts.load_scene("tower"), seed=2, scale=0.3), 1e-3, 80, None),
         "hanging_chain_sparse": (lambda: hanging_chain(120, ratio=1e4), 1e-4, 30, None),
     }
 

@@ -297,7 +297,7 @@ def test_the_moving_basis_matches_the_svd():
     """From MOVING_NODES free nodes the dense rule takes the basis of binding rows that are not the load
     time's from the sparse block inverse iteration instead of an SVD: on a moving 15-stage tower (87 free
     nodes) it publishes what the SVD's basis does, to 1e-10 of the largest multiplier (measured 4.9e-13
-    over 5 steps; these calls' shares are nonnegative fits, DAQP's answers at its default tolerances,
+    over 5 steps, 3 here; these calls' shares are nonnegative fits, DAQP's answers at its default tolerances,
     which the basis steers: 1.9e-11 at one call of another run)."""
     from tensegrity_sim.methods.inextensible.self_stress import MOVING_NODES
     scene = random_velocities(ts.Scene.from_dict(formfinding.tower(15, gravity=(0.0, 0.0, 0.0))), seed=1, scale=0.05)
@@ -315,9 +315,9 @@ def test_the_moving_basis_matches_the_svd():
         worst[0] = max(worst[0], float(np.abs(published - reference).max(initial=0.0)) / scale)
         return published
     rule.impulses = both
-    for _ in range(5):
+    for _ in range(3):
         sim.step()
-    assert sum(basis.shape[1] > 0 for basis in bases) >= 10
+    assert sum(basis.shape[1] > 0 for basis in bases) >= 10   # 13 in these 3 steps
     assert worst[0] <= 1e-10
 
 
