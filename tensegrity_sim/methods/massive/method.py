@@ -375,17 +375,14 @@ class MassiveMethod(StepMethod):
         n, nc, m = sys.n_nodes, sys.n_cables, sys.n_members
         em = elastic_kernels.model_arrays(sys, RigidStruts(sys))   # by name: the elastic model has more fields
         self._model = (em.ends, em.stiffness, em.floor, em.strut_rest, em.damping, em.inv_mass, em.gravity_force,
-                       em.rigid_members, np.ascontiguousarray(self.plates), *self._couplings(), BAND, self._damped)
+                       em.rigid_members, np.ascontiguousarray(self.plates), *self._plate_layout(), BAND, self._damped)
 
         def workspace():
             return (np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(nc), np.empty((m, 3)),
                     np.empty(nc, dtype=bool), np.empty(nc), np.empty(nc), np.zeros(nc, dtype=bool))
 
         self._start, self._trial = workspace(), workspace()
-        self._scratch = (np.empty((n, 3)), np.empty(nc, dtype=np.int64), np.empty(nc * nc),
-                         np.empty(nc, dtype=np.int64), np.empty(nc), np.empty((n, 3)), np.empty((n, 3)),
-                         np.empty((n, 3)), np.empty(nc), np.empty(nc), np.empty(nc),
-                         np.empty(nc, dtype=np.int64), np.empty(nc), np.empty(nc), np.empty(nc))
+        self._scratch = kernels.make_scratch(n, nc, int(np.count_nonzero(self._massive)))
         self._weights = np.array(WEIGHTS[self.order])
         self._fresh = True   # the start workspace's record is not the state's: compute it
         scene = sys.scene
@@ -395,17 +392,32 @@ class MassiveMethod(StepMethod):
                      np.empty((1, nc), dtype=bool))
         self._fresh, self.losses = True, 0.0
 
-    def _couplings(self) -> tuple[np.ndarray, np.ndarray]:
-        """The plates' ``G`` couples two cables at a node they share: every such pair once, (P, 3) int64 (cable,
-        cable, node), for the kernel's sparse build of it; and the cables in the reverse Cuthill-McKee order of
-        that graph (nc,) int64, the order of ``G``'s rows that keeps its Cholesky factor in a narrow band."""
+    def _plate_layout(self) -> tuple:
+        """The kernel's layout of the plates' ``G`` (its module docstring): a row for every cable that carries a
+        plate, in the reverse Cuthill-McKee order of the graph in which two cables sharing a node are joined (so
+        that the Cholesky factor's envelope, fixed for the scene, stays narrow), and every such coupling once.
+        Returns ``rows`` (nc,) (cable -> row, -1: no plate), ``plated`` (k,) (row -> cable), ``envelope`` (k,)
+        (each row's first column), ``pairs`` (P, 3) (row, row before it, node) int64 and ``signs`` (P,) (+1 where
+        the node is the same end of both cables, else -1)."""
         ends = self.system.cable_ends
-        nc = len(ends)
-        rows = [(i, k, node) for i in range(nc) for k in range(i + 1, nc) for node in set(ends[i]) & set(ends[k])]
-        pairs = np.array(rows, dtype=np.int64).reshape(-1, 3)
-        graph = scipy_sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(nc, nc))
-        order = reverse_cuthill_mckee(graph.tocsr(), symmetric_mode=False)
-        return pairs, np.ascontiguousarray(order, dtype=np.int64)
+        cables = np.flatnonzero(self._massive)
+        k = len(cables)
+        shared = [(i, j, node) for i in range(k) for j in range(i + 1, k)
+                  for node in sorted(set(ends[cables[i]]) & set(ends[cables[j]]))]
+        links = np.array(shared, dtype=np.int64).reshape(-1, 3)
+        graph = scipy_sparse.coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(k, k))
+        plated = cables[reverse_cuthill_mckee(graph.tocsr(), symmetric_mode=False)] if k else cables
+        rows = np.full(len(ends), -1, dtype=np.int64)
+        rows[plated] = np.arange(k)
+        pairs = np.empty((len(links), 3), dtype=np.int64)
+        signs = np.empty(len(links))
+        envelope = np.arange(k, dtype=np.int64)
+        for q, (i, j, node) in enumerate(links):
+            a, b = rows[cables[i]], rows[cables[j]]
+            pairs[q] = max(a, b), min(a, b), node
+            signs[q] = 1.0 if (ends[cables[i], 0] == node) == (ends[cables[j], 0] == node) else -1.0
+            envelope[max(a, b)] = min(envelope[max(a, b)], min(a, b))
+        return rows, plated, envelope, pairs, signs
 
     def _at_state(self, state: State):
         """The start workspace at ``state``'s positions and velocities (its forces recomputed after an input),
@@ -415,8 +427,7 @@ class MassiveMethod(StepMethod):
         rest = np.ascontiguousarray(state.rest_lengths, dtype=float)
         ext = np.ascontiguousarray(state.external_forces, dtype=float)
         if self._fresh:
-            kernels.forces(ws[0], ws[1], rest, ext, *self._model, False, False, ws[2:], *self._scratch[:5],
-                           *self._scratch[6:8], *self._scratch[11:13])
+            kernels.forces(ws[0], ws[1], rest, ext, self._model, self._scratch, False, False, ws[2:])
             self._fresh = False
         return ws, rest, ext
 
