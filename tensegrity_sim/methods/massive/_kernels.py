@@ -27,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..contact._detection_kernels import event_arrays, examine, measure, moved_on, new_events, new_work
 from ..elastic._composition_kernels import _first_switch, newton_in_bracket
 from .._mass_kernels import solve_forces
 from ..qp._qp_kernels import _REASSOCIATE, cho_solve, cholesky
@@ -552,20 +553,34 @@ def massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, 
 
 @njit(cache=True, error_model="numpy")
 def massive_steps(start, trial, h, n_steps, every, weights, locate, min_split, rest, ext, model, masses, free,
-                  scratch, out_x, out_v, out_impulses, out_slack):
+                  scratch, out_x, out_v, out_impulses, out_slack, detection):
     """``n_steps`` steps of :func:`massive_step` in place on ``start`` (``trial`` and it take turns), keeping
     steps ``every``, ``2 every``, ... and the last in ``out_x``, ``out_v`` (K, N, 3), ``out_impulses`` (K, nc;
     summed over the steps since the last kept one) and ``out_slack`` (K, nc: shorter than the rest length),
-    ``K = ceil(n_steps / every)``. Returns the energy the plates lost (J)."""
+    ``K = ceil(n_steps / every)``. ``detection``: member-contact detection over every step, as the elastic
+    method's loop runs it (``_detection_kernels.detection_state``, or ``no_detection()``). Returns the energy
+    the plates lost (J) and the detection's events (``_detection_kernels.event_arrays``)."""
     nc = rest.shape[0]
+    n = start[0].shape[0]
     imp, total = scratch[10:]
     total[:] = 0.0
     loss = 0.0
+    detecting = detection[0].shape[0] > 0
+    events, points = new_events()
+    work = new_work()
+    before = np.empty((n, 3, 1))   # the positions at the step's start, for detection
     now, spare = start, trial
     for s in range(n_steps):
+        if detecting:
+            _copy_rows(now[0], before.reshape((n, 3)))
         loss += massive_step(now, spare, h, weights, locate, min_split, rest, ext, model, masses, free, scratch,
                              imp)
         now, spare = spare, now
+        x = now[0].reshape((n, 3, 1))
+        if detecting and moved_on(before, 0, x, 0, 0, detection):
+            p = measure(x, 0, 0, detection, work, 0)
+            if p >= 0:
+                examine(before, 0, x, 0, 0, s, detection, work, events, points, p, 0)
         for ci in range(nc):
             total[ci] += imp[ci]
         if (s + 1) % every == 0 or s == n_steps - 1:
@@ -578,4 +593,4 @@ def massive_steps(start, trial, h, n_steps, every, weights, locate, min_split, r
                 total[ci] = 0.0
     if n_steps % 2:
         _copy(now, start)
-    return loss
+    return loss, event_arrays(events, points)

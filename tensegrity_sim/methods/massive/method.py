@@ -80,6 +80,7 @@ from scipy.optimize import nnls
 
 from ...system import System
 from ..base import MethodStep, State, StepMethod
+from ..contact import _detection_kernels as detection_kernels
 from ..contact.friction import ContactSet
 from ..qp.solvers import BlockMassSolver, MassWrapper, Rows, make_solver
 from ..elastic import _kernels as elastic_kernels
@@ -365,6 +366,11 @@ class MassiveMethod(StepMethod):
         if contacts:
             self.ground = ContactSet(system, self._plate_solver)
         self.compiled = bool(compiled) and self.ground is None and not self.rigid.count
+        # member-contact detection inside the compiled loop (loop_detects), as the elastic method's: the detector
+        # whose state it moves on (set by the simulator around advance) and the events of the last advance
+        self.detection = None
+        self.found = None
+        self._no_detection = detection_kernels.no_detection()
         if self.compiled:
             self._set_up_kernel()
 
@@ -635,13 +641,18 @@ class MassiveMethod(StepMethod):
     def has_loop(self) -> bool:
         return self.compiled
 
+    def loop_detects(self) -> bool:
+        return self.compiled
+
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
                 impulses: np.ndarray, slack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ws, rest, ext = self._at_state(state)
-        self.losses += kernels.massive_steps(ws, self._trial, self.dt, steps, every, self._weights,
-                                             self.locate_switches, MIN_SPLIT * self.dt, rest, ext, self._model,
-                                             self.system.masses, self.system.free, self._scratch, positions,
-                                             velocities, impulses, slack)
+        loss, self.found = kernels.massive_steps(ws, self._trial, self.dt, steps, every, self._weights,
+                                                 self.locate_switches, MIN_SPLIT * self.dt, rest, ext, self._model,
+                                                 self.system.masses, self.system.free, self._scratch, positions,
+                                                 velocities, impulses, slack, self._no_detection
+                                                 if self.detection is None else self.detection.state)
+        self.losses += loss
         return ws[0].copy(), ws[1].copy()
 
     def carry(self):
