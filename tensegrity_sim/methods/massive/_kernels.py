@@ -17,9 +17,9 @@ The structure's inverse mass is applied by :func:`inverse_mass` only (``_mass_ke
 Cost: ``G`` always has a row for every plated cable, in the cables' reverse Cuthill-McKee order, so its
 envelope (and the Cholesky factor's, which keeps its fill) is set once for the scene; a cable whose plate is at
 rest gets an identity row (its ``y`` is exactly 0, and so are its couplings in the factor). :func:`_delassus`
-builds it node by node (two cables couple only at a shared node) and :func:`_factor` factors it once a step; the
-closing kick's correction (:func:`forces` with ``factored``) reuses the factor and the structure's forces,
-recomputing only what the velocity moves. The functions a step calls take no reference counts (``_nrt=False``)
+builds it node by node (two cables couple only at a shared node) and :func:`_factor` factors it once a step, for
+one solve: while plates move, the forces are evaluated once a step, at the predicted end velocity (the
+reference's ``verlet``). The functions a step calls take no reference counts (``_nrt=False``)
 and the loop allocates nothing but at a snap's impact (:func:`_events`).
 """
 from __future__ import annotations
@@ -149,12 +149,9 @@ def _solve(g, first, rdiag, b):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def forces(x, v, rest, ext, model, scratch, given, factored, rec):
+def forces(x, v, rest, ext, model, scratch, given, rec):
     """The record ``rec`` at ``x``, ``v`` (N, 3) (MassiveMethod.accelerations): the taut cables damped and with
-    their plates, or those of ``rec``'s ``held`` as it is when ``given``. ``factored``: the record and the
-    scratch hold this ``x`` and held set, ``g`` the Cholesky factor of ``G`` there (the closing kick's
-    correction: only the velocity moved), so only what depends on it is recomputed. ``scratch``
-    (:func:`make_scratch`) here: ``f`` (N, 3) the structure's forces, ``g`` (k * k,), ``y`` (k,), ``acc0`` (N, 3) ``M^-1 f``,
+    their plates, or those of ``rec``'s ``held`` as it is when ``given``. ``scratch`` (:func:`make_scratch`) here: ``f`` (N, 3) the structure's forces, ``g`` (k * k,), ``y`` (k,), ``acc0`` (N, 3) ``M^-1 f``,
     ``pulled`` (N, 3), ``rdiag`` (k,) (the factor's diagonal's reciprocals)."""
     (ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, rows, plated,
      envelope, pairs, signs, band, damped) = model
@@ -162,27 +159,16 @@ def forces(x, v, rest, ext, model, scratch, given, factored, rec):
     rdiag = scratch[9]
     acc, tension, dirs, slack, elong, rates, held = rec
     n_struts = strut_rest.shape[0]
-    if factored and not damped:   # the forces are those of the positions: only the rates change
-        for ci in range(rest.shape[0]):
-            i = n_struts + ci
-            a, c = ends[i, 0], ends[i, 1]
-            rate = dirs[i, 0] * (v[c, 0] - v[a, 0]) + dirs[i, 1] * (v[c, 1] - v[a, 1]) + dirs[i, 2] * (
-                v[c, 2] - v[a, 2])
-            e, r = elong[ci], rest[ci]
-            slack[ci] = not (e > band * r or (e >= -band * r and rate > 0.0))
-            tension[ci], rates[ci] = stiffness[i] * max(e, floor[i]), rate
-    else:
-        _structure_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                          rigid_members, band, damped, given, rec, f, acc0)
+    _structure_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+                      rigid_members, band, damped, given, rec, f, acc0)
     k = plated.shape[0]
     if not _any_plate(held, plates):
         _copy_rows(acc0, acc)
         return
     # the plates' inertial forces y = m_c d2e/dt2: (B M^-1 B^T + diag(1/m_c)) y = B M^-1 f + q
     gk = g[: k * k].reshape((k, k))   # contiguous: the factor's loops run over rows
-    if not factored:
-        _delassus(held, dirs, n_struts, ends, inv_mass, plates, plated, envelope, pairs, signs, gk)
-        _factor(gk, envelope, rdiag)
+    _delassus(held, dirs, n_struts, ends, inv_mass, plates, plated, envelope, pairs, signs, gk)
+    _factor(gk, envelope, rdiag)
     for r in range(k):
         ci = plated[r]
         if not held[ci]:
@@ -203,6 +189,19 @@ def forces(x, v, rest, ext, model, scratch, given, factored, rec):
     for r in range(k):
         if held[plated[r]]:
             tension[plated[r]] += y[r]
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _rates_at(v, rest, ends, n_struts, band, rec):
+    """The record's elongation rates and switch states at the velocities ``v`` (N, 3), its positions' kept."""
+    dirs, slack, elong, rates = rec[2], rec[3], rec[4], rec[5]
+    for ci in range(rest.shape[0]):
+        i = n_struts + ci
+        a, c = ends[i, 0], ends[i, 1]
+        rate = dirs[i, 0] * (v[c, 0] - v[a, 0]) + dirs[i, 1] * (v[c, 1] - v[a, 1]) + dirs[i, 2] * (v[c, 2] - v[a, 2])
+        e, r = elong[ci], rest[ci]
+        slack[ci] = not (e > band * r or (e >= -band * r and rate > 0.0))
+        rates[ci] = rate
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -368,13 +367,17 @@ def _flow(src, dst, h, weights, rest, ext, model, scratch, impulses):
             for j in range(3):
                 v_half[i, j] = start[1][i, j] + (0.5 * hw) * start[2][i, j]
                 x[i, j] = start[0][i, j] + hw * v_half[i, j]
-        forces(x, v_half, rest, ext, model, scratch, True, False, rec)
+                # the end velocity the start's acceleration predicts: the plates' forces are evaluated there
+                v[i, j] = v_half[i, j] + (0.5 * hw) * start[2][i, j]
+        predict = _any_plate(rec[6], plates)
+        forces(x, v if predict else v_half, rest, ext, model, scratch, True, rec)
         for i in range(x.shape[0]):
             for j in range(3):
                 v[i, j] = v_half[i, j] + (0.5 * hw) * rec[0][i, j]
-        if damped or _any_plate(rec[6], plates):
-            # the same positions and held set: G's factor is kept
-            forces(x, v, rest, ext, model, scratch, True, True, rec)
+        if predict:   # the events read the rates at the end velocity
+            _rates_at(v, rest, model[0], model[3].shape[0], model[14], rec)
+        elif damped:   # the closing kick corrected once (no plate moving)
+            forces(x, v, rest, ext, model, scratch, True, rec)
             for i in range(x.shape[0]):
                 for j in range(3):
                     v[i, j] = v_half[i, j] + (0.5 * hw) * rec[0][i, j]
@@ -437,7 +440,7 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
     if not changed:
         return loss
     if not snaps:
-        forces(x, v, rest, ext, model, scratch, False, False, rec)
+        forces(x, v, rest, ext, model, scratch, False, rec)
         return loss
     # the plates' plastic impact (the step loop's only allocations)
     n_struts = strut_rest.shape[0]
@@ -478,7 +481,7 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
     for i in range(v.shape[0]):
         for j in range(3):
             v[i, j] += dv[i, j]
-    forces(x, v, rest, ext, model, scratch, False, False, rec)
+    forces(x, v, rest, ext, model, scratch, False, rec)
     kept = 0.0
     for ci in range(nc):
         if held[ci] and plates[ci] > 0:
