@@ -568,8 +568,8 @@ def test_compiled_detection_matches_the_numpy_detector(crowded, seed):
 def test_detection_in_the_compiled_run_matches_the_numpy_detector(method, every):
     """The built-in icosahedron with struts thick enough to overlap now and then, thrown: run() detects in
     the method's compiled loop (the elastic one's; the massive one's, with cable plates and elastic struts),
-    step() one step at a time; both give the numpy detector's events over the same positions (to 1e-12), and the same ongoing
-    contacts."""
+    step() one step at a time; both give the numpy detector's events over the same positions (to 1e-12), and
+    the same ongoing contacts."""
     d = ts.load_scene("icosahedron").to_dict()
     rng = np.random.default_rng(4)
     for s in d["struts"]:

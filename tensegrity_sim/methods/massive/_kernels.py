@@ -151,7 +151,8 @@ def _solve(g, first, rdiag, b):
 @njit(cache=True, error_model="numpy", _nrt=False)
 def forces(x, v, rest, ext, model, scratch, given, rec):
     """The record ``rec`` at ``x``, ``v`` (N, 3) (MassiveMethod.accelerations): the taut cables damped and with
-    their plates, or those of ``rec``'s ``held`` as it is when ``given``. ``scratch`` (:func:`make_scratch`) here: ``f`` (N, 3) the structure's forces, ``g`` (k * k,), ``y`` (k,), ``acc0`` (N, 3) ``M^-1 f``,
+    their plates, or those of ``rec``'s ``held`` as it is when ``given``. ``scratch`` (:func:`make_scratch`)
+    here: ``f`` (N, 3) the structure's forces, ``g`` (k * k,), ``y`` (k,), ``acc0`` (N, 3) ``M^-1 f``,
     ``pulled`` (N, 3), ``rdiag`` (k,) (the factor's diagonal's reciprocals)."""
     (ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, rows, plated,
      envelope, pairs, signs, band, damped) = model
