@@ -114,7 +114,7 @@ def _factor(g, first, rdiag):
     """The Cholesky factor ``L`` (``G = L L^T``) of the lower envelope of :func:`_delassus` in place (the
     envelope keeps its fill), ``rdiag`` (count,) its diagonal's reciprocals. Column by column, so that a
     column's rows are independent of each other; the cables come in an order of small bandwidth
-    (``MassiveMethod._couplings``), so this costs a fraction of the dense factor."""
+    (``MassiveMethod._plate_layout``), so this costs a fraction of the dense factor."""
     n = g.shape[0]
     for j in range(n):
         fj = first[j]
