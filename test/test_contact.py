@@ -564,22 +564,29 @@ def test_compiled_detection_matches_the_numpy_detector(crowded, seed):
             np.testing.assert_allclose([a.since for a in active], [a.since for a in ref_active], rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("every", [1, 7])
-def test_detection_in_the_compiled_run_matches_the_numpy_detector(every):
+@pytest.mark.parametrize("method, every", [("elastic", 1), ("elastic", 7), ("massive", 7)])
+def test_detection_in_the_compiled_run_matches_the_numpy_detector(method, every):
     """The built-in icosahedron with struts thick enough to overlap now and then, thrown: run() detects in
-    the elastic method's compiled loop, step() one step at a time; both give the numpy detector's events
-    over the same positions (to 1e-12), and the same ongoing contacts."""
+    the method's compiled loop (the elastic one's; the massive one's, with cable plates and elastic struts),
+    step() one step at a time; both give the numpy detector's events over the same positions (to 1e-12), and
+    the same ongoing contacts."""
     d = ts.load_scene("icosahedron").to_dict()
     rng = np.random.default_rng(4)
     for s in d["struts"]:
         s["radius"] = 0.25
     for node in d["nodes"]:
         node["velocity"] = list(rng.normal(scale=1.0, size=3))
+    if method == "massive":   # its kernel takes elastic struts and cables with mass
+        x = {n["name"]: np.array(n["position"]) for n in d["nodes"]}
+        for s in d["struts"]:
+            s["stiffness"], s["rest_length"] = 1e5, float(np.linalg.norm(x[s["nodes"][1]] - x[s["nodes"][0]]))
+        for c in d["cables"]:
+            c["mass"] = 0.05
     scene = ts.Scene.from_dict(d)
-    run = ts.Simulator(scene, method="elastic", dt=1e-3)
+    run = ts.Simulator(scene, method=method, dt=1e-3)
     assert run._method.loop_detects()
     trajectory = run.run(steps=700, every=every)
-    stepped = ts.Simulator(scene, method="elastic", dt=1e-3)
+    stepped = ts.Simulator(scene, method=method, dt=1e-3)
     results = [stepped.step() for _ in range(700)]
     path = [scene.positions] + [r.positions for r in results]
     reference = ContactDetector(stepped.system, scene.contact_kinds)

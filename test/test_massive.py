@@ -276,28 +276,34 @@ def test_kernel_matches_the_numpy_reference(case, options):
 
 def test_kernel_solves_the_plates_system_as_a_dense_solve():
     """The kernel's G (built node by node over shared nodes) and its envelope factor in the cables' RCM order,
-    with some cables left out (a ragged envelope), against the reference's dense G and numpy's solve."""
+    with some plates at rest (their rows identity rows in the scene's fixed envelope), against the reference's
+    dense G and numpy's solve; the resting plates' unknowns come out exactly 0."""
     from tensegrity_sim.methods.massive import _kernels as kernels
     sim = ts.Simulator(_free_scene("icosahedron", 0.05), method="massive", dt=2.5e-4)
     method = sim._method
     model, dirs = method._model, method._start[4]
-    order = model[10]
-    nc, n_struts = len(order), sim.system.n_struts
-    assert sorted(order) == list(range(nc))
-    cables = np.ascontiguousarray(order[np.arange(nc) % 5 != 2])   # four in five of them, in the kernel's order
-    count = len(cables)
-    g, first, rdiag = np.zeros((count, count)), np.empty(nc, dtype=np.int64), np.empty(nc)
-    kernels._delassus(cables, count, dirs, n_struts, model[0], model[5], model[9], model[8], np.empty(nc, np.int64),
-                      first, g, False)
-    dense = method._delassus(cables, dirs[n_struts + cables])
-    assert np.array_equal(np.tril(g) != 0, np.tril(dense) != 0)   # the envelope holds every coupling
-    assert np.abs(np.tril(g) - np.tril(dense)).max() < 1e-14 * np.abs(dense).max()
-    assert 0 < first[:count].max() and (first[:count] <= np.arange(count)).all()
-    rhs = np.random.default_rng(3).normal(size=count)
+    rows, plated, envelope, pairs, signs = model[9:14]
+    nc, n_struts = len(plated), sim.system.n_struts
+    assert sorted(plated) == list(range(nc)) and (rows[plated] == np.arange(nc)).all()
+    held = np.arange(nc) % 5 != 2                       # four in five of the rows
+    mask = np.zeros(nc, dtype=bool)
+    mask[plated[held]] = True
+    g, rdiag = np.zeros((nc, nc)), np.empty(nc)
+    assert kernels._delassus(mask, dirs, n_struts, model[0], model[5], model[8], plated, envelope, pairs, signs,
+                             g) == held.sum()
+    dense = method._delassus(plated[held], dirs[n_struts + plated[held]])
+    lower = np.tril(g)
+    assert np.array_equal(lower[np.ix_(held, held)] != 0, np.tril(dense) != 0)   # the envelope holds every coupling
+    assert np.abs(lower[np.ix_(held, held)] - np.tril(dense)).max() < 1e-14 * np.abs(dense).max()
+    assert np.array_equal(lower[~held], np.eye(nc)[~held]) and not lower[:, ~held][held].any()
+    assert 0 < envelope.max() and (envelope <= np.arange(nc)).all()
+    assert all(envelope[r] <= p < r for r, p, _ in pairs)
+    rhs = np.where(held, np.random.default_rng(3).normal(size=nc), 0.0)
     y = rhs.copy()
-    kernels._factor(g, first, rdiag)
-    kernels._solve(g, first, rdiag, y)
-    assert np.abs(y - np.linalg.solve(dense, rhs)).max() < 1e-13 * np.abs(y).max()
+    kernels._factor(g, envelope, rdiag)
+    kernels._solve(g, envelope, rdiag, y)
+    assert np.abs(y[held] - np.linalg.solve(dense, rhs[held])).max() < 1e-13 * np.abs(y).max()
+    assert not y[~held].any()
 
 
 def test_run_loop_equals_single_steps_and_losses_follow_the_present():

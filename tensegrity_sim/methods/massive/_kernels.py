@@ -2,34 +2,49 @@
 reference, which tests require this to match to 1e-12), with numba.
 
 A batch of one (``Simulator``'s; ``BatchSimulator`` steps one simulator per copy for this method). Shapes: ``N``
-nodes, ``m`` members (struts first), ``nc`` cables. The system arrays are those of the elastic kernels
-(``elastic/_kernels.model_arrays``: ``ends``, ``stiffness``, ``floor``, ``strut_rest``, ``damping``,
-``inv_mass`` (N, 2), ``gravity_force``, ``rigid_members``: none, the method takes no rigid strut yet),
-``plates`` (nc,) kg, ``pairs`` (P, 3) and ``order`` (nc,) (``MassiveMethod._couplings``). A step's record at a
-configuration (``_Forces`` of the reference) is the tuple ``(acc (N, 3), tension (nc,), dirs (m, 3), slack (nc,)
-bool, elong (nc,), rates (nc,), held (nc,) bool)``; a workspace is ``(x (N, 3), v (N, 3)) + record``, stepped in place.
+nodes, ``m`` members (struts first), ``nc`` cables, ``k`` cables that carry a plate. The system arrays are those
+of the elastic kernels (``elastic/_kernels.model_arrays``: ``ends``, ``stiffness``, ``floor``, ``strut_rest``,
+``damping``, ``inv_mass`` (N, 2), ``gravity_force``, ``rigid_members``: none, the method takes no rigid strut
+yet), ``plates`` (nc,) kg and the plates' ``G`` layout (``MassiveMethod._plate_layout``): ``rows`` (nc,) each
+cable's row of ``G`` (-1: no plate), ``plated`` (k,) the cable of each row, ``envelope`` (k,) the first column of
+each row's lower envelope, ``pairs`` (P, 3) (row, row below it, node: two plated cables coupled at a node they
+share) and ``signs`` (P,) (+1 where the node is the same end of both). A step's record at a configuration
+(``_Forces`` of the reference) is the tuple ``(acc (N, 3), tension (nc,), dirs (m, 3), slack (nc,) bool, elong
+(nc,), rates (nc,), held (nc,) bool)``; a workspace is ``(x (N, 3), v (N, 3)) + record``, stepped in place.
 
 The structure's inverse mass is applied by :func:`inverse_mass` only (``_mass_kernels.solve_forces``).
 
-Cost: the plates' ``G`` is built node by node (:func:`_delassus`: two cables couple only at a shared node) and
-factored once per step, in an envelope that the cables' reverse Cuthill-McKee order keeps narrow
-(:func:`_factor`); the closing kick's correction (:func:`forces` with ``factored``) reuses the factor and the
-structure's forces, recomputing only what the velocity moves. The functions a step calls take no reference
-counts (``_nrt=False``) and the loop allocates nothing but at a snap's impact (:func:`_events`).
+Cost: ``G`` always has a row for every plated cable, in the cables' reverse Cuthill-McKee order, so its
+envelope (and the Cholesky factor's, which keeps its fill) is set once for the scene; a cable whose plate is at
+rest gets an identity row (its ``y`` is exactly 0, and so are its couplings in the factor). :func:`_delassus`
+builds it node by node (two cables couple only at a shared node) and :func:`_factor` factors it once a step, for
+one solve: while plates move, the forces are evaluated once a step, at the predicted end velocity (the
+reference's ``verlet``). The functions a step calls take no reference counts (``_nrt=False``)
+and the loop allocates nothing but at a snap's impact (:func:`_events`).
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
+from ..contact._detection_kernels import event_arrays, examine, measure, moved_on, new_events, new_work
 from ..elastic._composition_kernels import _first_switch, newton_in_bracket
 from .._mass_kernels import solve_forces
 from ..qp._qp_kernels import _REASSOCIATE, cho_solve, cholesky
 from ..elastic.composition import _FLOW_ITER, LOCATE_TOL, MAX_SWITCHES
 
-__all__ = ["inverse_mass", "forces", "massive_step", "massive_steps", "plate_impact"]
+__all__ = ["inverse_mass", "forces", "make_scratch", "massive_step", "massive_steps", "plate_impact"]
 
 _PIVOTS = 64   # principal pivots of the snap's complementarity problem at most (a few in practice)
+
+
+def make_scratch(n_nodes: int, n_cables: int, n_plated: int) -> tuple:
+    """The kernels' scratch arrays: ``f`` (N, 3), ``g`` (k * k,), ``y`` (k,), ``v_half`` (N, 3), ``acc0`` (N, 3),
+    ``pulled`` (N, 3), the impulses of a part, of a trial and of a snap (nc,) each, ``rdiag`` (k,), a step's
+    impulses and their sum since the last kept step (nc,) each."""
+    n, nc, k = n_nodes, n_cables, max(n_plated, 1)
+    return (np.empty((n, 3)), np.empty(k * k), np.empty(k), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
+            np.empty(nc), np.empty(nc), np.empty(nc), np.empty(k), np.empty(nc), np.empty(nc))
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -51,10 +66,13 @@ def _solve_spd(a, b):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _pull(coef, cables, count, dirs, n_struts, ends, out):
-    """``out -= B^T coef``: each of ``cables[:count]`` pulls its ends together by ``coef[k]`` along its unit
-    vector in ``dirs`` (as a tension would: ``+coef n`` at its first end, ``-coef n`` at its second)."""
-    for k in range(count):
+def _pull(coef, cables, mask, dirs, n_struts, ends, out):
+    """``out -= B^T coef``: each cable ``cables[k]`` of ``mask`` (nc,) bool pulls its ends together by
+    ``coef[k]`` along its unit vector in ``dirs`` (as a tension would: ``+coef n`` at its first end, ``-coef n``
+    at its second)."""
+    for k in range(cables.shape[0]):
+        if not mask[cables[k]]:
+            continue
         ci = n_struts + cables[k]
         a, c = ends[ci, 0], ends[ci, 1]
         for j in range(3):
@@ -63,47 +81,32 @@ def _pull(coef, cables, count, dirs, n_struts, ends, out):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _delassus(cables, count, dirs, n_struts, ends, inv_mass, pairs, plates, at, first, g, dense):
-    """``G = B M^-1 B^T + diag(1/m_c)`` into ``g`` (count, count) over ``cables[:count]``, the cables' unit
-    vectors in ``dirs`` (m, 3). ``M^-1`` is lumped (the method takes no rigid strut, so ``inv_mass[:, 1]`` is
-    0): two cables couple only at a node they share, listed once in ``pairs`` (P, 3): cable, cable, node.
-    ``dense``: the whole matrix; else its lower envelope only, row ``k`` from column ``first[k]`` (set here; the
-    rest of ``g`` is not written), for :func:`_factor`. ``at`` (nc,) scratch: each cable's row (-1: not
-    among them)."""
-    at[:] = -1
-    for k in range(count):
-        at[cables[k]] = k
-        first[k] = 0 if dense else k
-    for r in range(pairs.shape[0]):
-        p, q = at[pairs[r, 0]], at[pairs[r, 1]]
-        if p >= 0 and q >= 0:
-            lo, hi = min(p, q), max(p, q)
-            first[hi] = min(first[hi], lo)
-    for k in range(count):
-        ci = cables[k]
-        a, c = ends[n_struts + ci, 0], ends[n_struts + ci, 1]
-        for i in range(first[k], count if dense else k):
-            g[k, i] = 0.0
-        s = 0.0
-        for j in range(3):
-            s += dirs[n_struts + ci, j] * dirs[n_struts + ci, j]
-        g[k, k] = s * (inv_mass[a, 0] + inv_mass[c, 0]) + 1.0 / plates[ci]
-    for r in range(pairs.shape[0]):
-        p, q = at[pairs[r, 0]], at[pairs[r, 1]]
-        if p < 0 or q < 0:
-            continue
-        node = pairs[r, 2]
-        i, k = n_struts + pairs[r, 0], n_struts + pairs[r, 1]
-        s = 0.0
-        for j in range(3):
-            s += dirs[i, j] * dirs[k, j]
-        # b_c is -n at the cable's first end, +n at its second
-        if (ends[i, 0] == node) != (ends[k, 0] == node):
-            s = -s
-        s *= inv_mass[node, 0]
-        g[max(p, q), min(p, q)] += s
-        if dense:
-            g[min(p, q), max(p, q)] += s
+def _delassus(mask, dirs, n_struts, ends, inv_mass, plates, plated, envelope, pairs, signs, g):
+    """``G = B M^-1 B^T + diag(1/m_c)`` over the plated cables of ``mask`` (nc,) bool, the cables' unit vectors
+    in ``dirs`` (m, 3), into the lower envelope of ``g`` (k, k) (the layout's rows; the rest of ``g`` is not
+    written), an identity row for every other plated cable. ``M^-1`` is lumped (the method takes no rigid strut,
+    so ``inv_mass[:, 1]`` is 0): two cables couple only at a node they share, listed once in ``pairs``. Returns
+    how many cables it took."""
+    count = 0
+    for r in range(plated.shape[0]):
+        for p in range(envelope[r], r):
+            g[r, p] = 0.0
+        ci = plated[r]
+        if mask[ci]:
+            count += 1
+            i = n_struts + ci
+            s = dirs[i, 0] * dirs[i, 0] + dirs[i, 1] * dirs[i, 1] + dirs[i, 2] * dirs[i, 2]
+            g[r, r] = s * (inv_mass[ends[i, 0], 0] + inv_mass[ends[i, 1], 0]) + 1.0 / plates[ci]
+        else:
+            g[r, r] = 1.0
+    for q in range(pairs.shape[0]):
+        r, p = pairs[q, 0], pairs[q, 1]
+        if mask[plated[r]] and mask[plated[p]]:
+            i, k = n_struts + plated[r], n_struts + plated[p]
+            s = dirs[i, 0] * dirs[k, 0] + dirs[i, 1] * dirs[k, 1] + dirs[i, 2] * dirs[k, 2]
+            # b_c is -n at the cable's first end, +n at its second
+            g[r, p] += signs[q] * s * inv_mass[pairs[q, 2], 0]
+    return count
 
 
 @njit(cache=True, error_model="numpy", _nrt=False, fastmath=_REASSOCIATE)
@@ -111,7 +114,7 @@ def _factor(g, first, rdiag):
     """The Cholesky factor ``L`` (``G = L L^T``) of the lower envelope of :func:`_delassus` in place (the
     envelope keeps its fill), ``rdiag`` (count,) its diagonal's reciprocals. Column by column, so that a
     column's rows are independent of each other; the cables come in an order of small bandwidth
-    (``MassiveMethod._couplings``), so this costs a fraction of the dense factor."""
+    (``MassiveMethod._plate_layout``), so this costs a fraction of the dense factor."""
     n = g.shape[0]
     for j in range(n):
         fj = first[j]
@@ -146,57 +149,60 @@ def _solve(g, first, rdiag, b):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
-           plates, pairs, order, band, damped, given, factored, rec, f, cables, g, at, y, acc0, pulled, first, rdiag):
+def forces(x, v, rest, ext, model, scratch, given, rec):
     """The record ``rec`` at ``x``, ``v`` (N, 3) (MassiveMethod.accelerations): the taut cables damped and with
-    their plates, or those of ``rec``'s ``held`` as it is when ``given``. ``factored``: the record and the
-    scratch hold this ``x`` and held set, ``g`` the Cholesky factor of ``G`` there (the closing kick's
-    correction: only the velocity moved), so only what depends on it is recomputed. Scratch: ``f`` (N, 3) the
-    structure's forces, ``cables`` (nc,), ``g`` (nc * nc,), ``at`` (nc,), ``y`` (nc,), ``acc0`` (N, 3) ``M^-1 f``,
-    ``pulled`` (N, 3), ``first`` (nc,), ``rdiag`` (nc,) (the factor's envelope and diagonal)."""
+    their plates, or those of ``rec``'s ``held`` as it is when ``given``. ``scratch`` (:func:`make_scratch`)
+    here: ``f`` (N, 3) the structure's forces, ``g`` (k * k,), ``y`` (k,), ``acc0`` (N, 3) ``M^-1 f``,
+    ``pulled`` (N, 3), ``rdiag`` (k,) (the factor's diagonal's reciprocals)."""
+    (ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, rows, plated,
+     envelope, pairs, signs, band, damped) = model
+    f, g, y, _, acc0, pulled = scratch[:6]
+    rdiag = scratch[9]
     acc, tension, dirs, slack, elong, rates, held = rec
     n_struts = strut_rest.shape[0]
-    if factored and not damped:   # the forces are those of the positions: only the rates change
-        for ci in range(rest.shape[0]):
-            i = n_struts + ci
-            a, c = ends[i, 0], ends[i, 1]
-            rate = dirs[i, 0] * (v[c, 0] - v[a, 0]) + dirs[i, 1] * (v[c, 1] - v[a, 1]) + dirs[i, 2] * (
-                v[c, 2] - v[a, 2])
-            e, r = elong[ci], rest[ci]
-            slack[ci] = not (e > band * r or (e >= -band * r and rate > 0.0))
-            tension[ci], rates[ci] = stiffness[i] * max(e, floor[i]), rate
-    else:
-        _structure_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                          rigid_members, band, damped, given, rec, f, acc0)
-    count = 0
-    for ci in order:   # G's rows in the order of small bandwidth
-        if held[ci] and plates[ci] > 0:
-            cables[count] = ci
-            count += 1
-    if count == 0:
+    _structure_forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+                      rigid_members, band, damped, given, rec, f, acc0)
+    k = plated.shape[0]
+    if not _any_plate(held, plates):
         _copy_rows(acc0, acc)
         return
     # the plates' inertial forces y = m_c d2e/dt2: (B M^-1 B^T + diag(1/m_c)) y = B M^-1 f + q
-    gc = g[: count * count].reshape((count, count))   # contiguous: the factor's loops run over rows
-    if not factored:
-        _delassus(cables, count, dirs, n_struts, ends, inv_mass, pairs, plates, at, first, gc, False)
-        _factor(gc, first, rdiag)
-    for k in range(count):
-        ci = cables[k]
+    gk = g[: k * k].reshape((k, k))   # contiguous: the factor's loops run over rows
+    _delassus(held, dirs, n_struts, ends, inv_mass, plates, plated, envelope, pairs, signs, gk)
+    _factor(gk, envelope, rdiag)
+    for r in range(k):
+        ci = plated[r]
+        if not held[ci]:
+            y[r] = 0.0   # an identity row: the plate at rest
+            continue
         a, c = ends[n_struts + ci, 0], ends[n_struts + ci, 1]
         dv0, dv1, dv2 = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
         q = (dv0 * dv0 + dv1 * dv1 + dv2 * dv2 - rates[ci] ** 2) / (elong[ci] + rest[ci])
         s = 0.0
         for j in range(3):
             s += (acc0[c, j] - acc0[a, j]) * dirs[n_struts + ci, j]
-        y[k] = s + q
-    _solve(gc, first, rdiag, y)
+        y[r] = s + q
+    _solve(gk, envelope, rdiag, y)
     # a = M^-1 (f - B^T y): the plates pull on the nodes as tensions would
     _copy_rows(f, pulled)
-    _pull(y, cables, count, dirs, n_struts, ends, pulled)
+    _pull(y, plated, held, dirs, n_struts, ends, pulled)
     inverse_mass(inv_mass, ends, rigid_members, pulled, acc)
-    for k in range(count):
-        tension[cables[k]] += y[k]
+    for r in range(k):
+        if held[plated[r]]:
+            tension[plated[r]] += y[r]
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _rates_at(v, rest, ends, n_struts, band, rec):
+    """The record's elongation rates and switch states at the velocities ``v`` (N, 3), its positions' kept."""
+    dirs, slack, elong, rates = rec[2], rec[3], rec[4], rec[5]
+    for ci in range(rest.shape[0]):
+        i = n_struts + ci
+        a, c = ends[i, 0], ends[i, 1]
+        rate = dirs[i, 0] * (v[c, 0] - v[a, 0]) + dirs[i, 1] * (v[c, 1] - v[a, 1]) + dirs[i, 2] * (v[c, 2] - v[a, 2])
+        e, r = elong[ci], rest[ci]
+        slack[ci] = not (e > band * r or (e >= -band * r and rate > 0.0))
+        rates[ci] = rate
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -348,10 +354,8 @@ def _flow(src, dst, h, weights, rest, ext, model, scratch, impulses):
     ``impulses`` (nc,) set to each cable's impulse over it (MassiveMethod.verlet, Stepper.flow)."""
     x, v = dst[0], dst[1]
     rec = dst[2:]
-    (ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, pairs, order,
-     band, damped) = model
-    f, cables, g, at, y, v_half, acc0, pulled = scratch[:8]
-    first, rdiag = scratch[11:13]
+    plates, damped = model[8], model[15]
+    v_half = scratch[3]
     for ci in range(impulses.shape[0]):
         impulses[ci] = 0.0
         rec[6][ci] = src[8][ci]   # the taut set of the step's start, kept: a switch at its end comes after the kick
@@ -364,17 +368,17 @@ def _flow(src, dst, h, weights, rest, ext, model, scratch, impulses):
             for j in range(3):
                 v_half[i, j] = start[1][i, j] + (0.5 * hw) * start[2][i, j]
                 x[i, j] = start[0][i, j] + hw * v_half[i, j]
-        forces(x, v_half, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-               rigid_members, plates, pairs, order, band, damped, True, False, rec, f, cables, g, at, y, acc0,
-               pulled, first, rdiag)
+                # the end velocity the start's acceleration predicts: the plates' forces are evaluated there
+                v[i, j] = v_half[i, j] + (0.5 * hw) * start[2][i, j]
+        predict = _any_plate(rec[6], plates)
+        forces(x, v if predict else v_half, rest, ext, model, scratch, True, rec)
         for i in range(x.shape[0]):
             for j in range(3):
                 v[i, j] = v_half[i, j] + (0.5 * hw) * rec[0][i, j]
-        if damped or _any_plate(rec[6], plates):
-            # the same positions and held set: G's factor is kept
-            forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                   rigid_members, plates, pairs, order, band, damped, True, True, rec, f, cables, g, at, y, acc0,
-                   pulled, first, rdiag)
+        if predict:   # the events read the rates at the end velocity
+            _rates_at(v, rest, model[0], model[3].shape[0], model[14], rec)
+        elif damped:   # the closing kick corrected once (no plate moving)
+            forces(x, v, rest, ext, model, scratch, True, rec)
             for i in range(x.shape[0]):
                 for j in range(3):
                     v[i, j] = v_half[i, j] + (0.5 * hw) * rec[0][i, j]
@@ -419,10 +423,9 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
     x, v = ws[0], ws[1]
     rec = ws[2:]
     acc, tension, dirs, slack, elong, rates, held = rec
-    (ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members, plates, pairs, order,
-     band, damped) = model
-    f, cables, g, at, y, dv, acc0, pulled = scratch[:8]
-    first, rdiag = scratch[11:13]
+    ends, strut_rest, inv_mass, rigid_members, plates = model[0], model[3], model[5], model[7], model[8]
+    rows, plated, envelope, pairs, signs = model[9:14]
+    f, g, _, dv = scratch[:4]
     nc = rest.shape[0]
     kicks[:] = 0.0
     changed, snaps = False, False
@@ -438,46 +441,54 @@ def _events(ws, rest, ext, model, masses, free, scratch, kicks):
     if not changed:
         return loss
     if not snaps:
-        forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
-               plates, pairs, order, band, damped, False, False, rec, f, cables, g, at, y, acc0, pulled, first, rdiag)
+        forces(x, v, rest, ext, model, scratch, False, rec)
         return loss
     # the plates' plastic impact (the step loop's only allocations)
     n_struts = strut_rest.shape[0]
+    taut = np.empty(nc, dtype=np.bool_)
     involved = np.empty(nc, dtype=np.int64)
     count = 0
     for ci in range(nc):
-        if (not slack[ci]) and plates[ci] > 0:
+        taut[ci] = not slack[ci]
+        if taut[ci] and plates[ci] > 0:
             involved[count] = ci
             count += 1
+    involved = involved[:count]
     snapping = np.empty(count, dtype=np.bool_)
     before_rates = np.empty(count)
     before = 0.0
-    for k in range(count):
-        ci = involved[k]
-        snapping[k] = not held[ci]
-        before_rates[k] = rates[ci]
-        if not snapping[k]:
+    for u in range(count):
+        ci = involved[u]
+        snapping[u] = not held[ci]
+        before_rates[u] = rates[ci]
+        if not snapping[u]:
             before += 0.5 * plates[ci] * rates[ci] ** 2
+    # G over the cables involved, dense, in their order: read off the layout's envelope (zero outside it)
+    k = plated.shape[0]
+    gk = g[: k * k].reshape((k, k))
+    _delassus(taut, dirs, n_struts, ends, inv_mass, plates, plated, envelope, pairs, signs, gk)
     gc = np.empty((count, count))
-    _delassus(involved, count, dirs, n_struts, ends, inv_mass, pairs, plates, at, scratch[11], gc, True)
+    for u in range(count):
+        for w in range(u + 1):
+            hi, lo = max(rows[involved[u]], rows[involved[w]]), min(rows[involved[u]], rows[involved[w]])
+            gc[u, w] = gc[w, u] = gk[hi, lo] if lo >= envelope[hi] else 0.0
     p = np.empty(count)
     plate_impact(gc, before_rates, snapping, p)
     kinetic_before = _kinetic(v, masses, free)
     # v -= M^-1 B^T p
     f[:] = 0.0
-    _pull(p, involved, count, dirs, n_struts, ends, f)
+    _pull(p, involved, taut, dirs, n_struts, ends, f)
     inverse_mass(inv_mass, ends, rigid_members, f, dv)
     for i in range(v.shape[0]):
         for j in range(3):
             v[i, j] += dv[i, j]
-    forces(x, v, rest, ext, ends, stiffness, floor, strut_rest, damping, inv_mass, gravity_force, rigid_members,
-           plates, pairs, order, band, damped, False, False, rec, f, cables, g, at, y, acc0, pulled, first, rdiag)
+    forces(x, v, rest, ext, model, scratch, False, rec)
     kept = 0.0
     for ci in range(nc):
         if held[ci] and plates[ci] > 0:
             kept += 0.5 * plates[ci] * rates[ci] ** 2
-    for k in range(count):
-        kicks[involved[k]] = p[k]
+    for u in range(count):
+        kicks[involved[u]] = p[u]
     return loss + kinetic_before + before - _kinetic(v, masses, free) - kept
 
 
@@ -491,7 +502,7 @@ def massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, 
     n_struts = model[3].shape[0]
     nc = rest.shape[0]
     n = start[0].shape[0]
-    part_imp, trial_imp, kicks = scratch[8:11]
+    part_imp, trial_imp, kicks = scratch[6:9]
     rest3 = rest.reshape((nc, 1))
     loss = 0.0
     impulses[:] = 0.0
@@ -546,20 +557,34 @@ def massive_step(start, trial, h, weights, locate, min_split, rest, ext, model, 
 
 @njit(cache=True, error_model="numpy")
 def massive_steps(start, trial, h, n_steps, every, weights, locate, min_split, rest, ext, model, masses, free,
-                  scratch, out_x, out_v, out_impulses, out_slack):
+                  scratch, out_x, out_v, out_impulses, out_slack, detection):
     """``n_steps`` steps of :func:`massive_step` in place on ``start`` (``trial`` and it take turns), keeping
     steps ``every``, ``2 every``, ... and the last in ``out_x``, ``out_v`` (K, N, 3), ``out_impulses`` (K, nc;
     summed over the steps since the last kept one) and ``out_slack`` (K, nc: shorter than the rest length),
-    ``K = ceil(n_steps / every)``. Returns the energy the plates lost (J)."""
+    ``K = ceil(n_steps / every)``. ``detection``: member-contact detection over every step, as the elastic
+    method's loop runs it (``_detection_kernels.detection_state``, or ``no_detection()``). Returns the energy
+    the plates lost (J) and the detection's events (``_detection_kernels.event_arrays``)."""
     nc = rest.shape[0]
-    imp, total = scratch[13:]
+    n = start[0].shape[0]
+    imp, total = scratch[10:]
     total[:] = 0.0
     loss = 0.0
+    detecting = detection[0].shape[0] > 0
+    events, points = new_events()
+    work = new_work()
+    before = np.empty((n, 3, 1))   # the positions at the step's start, for detection
     now, spare = start, trial
     for s in range(n_steps):
+        if detecting:
+            _copy_rows(now[0], before.reshape((n, 3)))
         loss += massive_step(now, spare, h, weights, locate, min_split, rest, ext, model, masses, free, scratch,
                              imp)
         now, spare = spare, now
+        x = now[0].reshape((n, 3, 1))
+        if detecting and moved_on(before, 0, x, 0, 0, detection):
+            p = measure(x, 0, 0, detection, work, 0)
+            if p >= 0:
+                examine(before, 0, x, 0, 0, s, detection, work, events, points, p, 0)
         for ci in range(nc):
             total[ci] += imp[ci]
         if (s + 1) % every == 0 or s == n_steps - 1:
@@ -572,4 +597,4 @@ def massive_steps(start, trial, h, n_steps, every, weights, locate, min_split, r
                 total[ci] = 0.0
     if n_steps % 2:
         _copy(now, start)
-    return loss
+    return loss, event_arrays(events, points)
