@@ -6,7 +6,8 @@ by ``_qp_kernels.answer_residuals``, so no Python runs per iteration. ``Friction
 reference (``compiled = False``); ``test/test_throws.py`` holds the two to each other.
 
 The kernel answers only what it can answer exactly as the reference does: a QP that fails or is refused
-(infeasible, an inaccurate answer that the backend would solve again at unit scale), modes that do not
+(infeasible even with its member rows' targets at the velocity level, an inaccurate answer that the backend
+would solve again at unit scale), modes that do not
 settle in ``MAX_MODE_ITER`` QPs, or an answer that misses the Coulomb check return ``ok = False``, and
 the reference then takes the whole solve from its start (its own QPs, its fallbacks, its errors).
 
@@ -25,6 +26,8 @@ from ..qp._daqp_kernels import solve_rows
 from ..qp._qp_kernels import answer_residuals
 
 __all__ = ["ground_modes", "first_impact", "landing", "arm_step", "missed", "contact_solve"]
+
+_INFEASIBLE = -1   # DAQP's exit flag for infeasible rows (DaqpSolver._STATUS)
 
 
 @njit(cache=True)
@@ -118,6 +121,13 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
                 v0c[fi[c], j] += friction[c, j] / meff[c]
         flat, y_all, flag, _, _, _ = solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, dirs, n_free,
                                                 v0c.reshape(-1), targets, n_eq, start, 1.0, False)
+        if flag == _INFEASIBLE and s.shape[0]:
+            # sticking rows with drift-correcting targets no velocity meets: for this QP the member rows'
+            # targets yield to the pure velocity level (FrictionalSolver._qp, friction._velocity_level)
+            for i in range(n_rows):
+                targets[i] = 0.0 if i < n_eq else max(targets[i], 0.0)
+            flat, y_all, flag, _, _, _ = solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, dirs, n_free,
+                                                    v0c.reshape(-1), targets, n_eq, start, 1.0, False)
         if flag < 1:
             return False, v, y, impulses, remember, slip, it
         v = flat.reshape((n_free, 3))
