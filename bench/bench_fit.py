@@ -113,8 +113,8 @@ def main_() -> int:
                     rows.append(row)
                     print(", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()),
                           flush=True)
-    fields = list(dict.fromkeys(k for row in rows for k in row))
-    write_csv(args.out, rows, fields)
+                    # after every fit, so that a run stopped part way keeps the rows it has
+                    write_csv(args.out, rows, list(dict.fromkeys(k for row in rows for k in row)))
     return 0
 
 

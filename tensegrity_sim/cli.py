@@ -498,8 +498,8 @@ def _add_fit(verbs) -> None:
                      help="a prior on each parameter about the scene's value, its relative standard deviation "
                           "(default 0: none), in --loss-scale metres of residual per standard deviation")
     fit.add_argument("--chord", action="store_true",
-                     help="reuse the start states' Jacobian between iterations (faster from a close start; it can "
-                          "stall from a far one)")
+                     help="reuse the start states' Jacobian between steps while they do what it predicts (it is "
+                          "most of a Jacobian's cost; refreshed after a poor step)")
     fit.add_argument("--plot", nargs="?", const="", metavar="DIR",
                      help=f"write the before/after figures into DIR (default {DEFAULT_PLOT_DIR}/<log name>_fit)")
     fit.set_defaults(func=_cmd_fit)

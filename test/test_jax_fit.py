@@ -71,7 +71,7 @@ def test_sparse_jacobian_is_the_dense_one(logged):
     import jax
     import jax.numpy as jnp
 
-    from tensegrity_sim.methods.jax.fit import CHORD, Observed, _Problem, parse_parameters
+    from tensegrity_sim.methods.jax.fit import Observed, _Problem, parse_parameters
     from tensegrity_sim.ros.fit_log import read_observed
 
     scene = ts.load_scene(logged / "nominal.yaml")
@@ -97,10 +97,14 @@ def test_sparse_jacobian_is_the_dense_one(logged):
     np.testing.assert_allclose(np.asarray(residual(jnp.asarray(z))), problem.residual(z), rtol=0, atol=1e-15)
     dense = np.asarray(jax.jacfwd(residual)(jnp.asarray(z)))
     np.testing.assert_allclose(problem.jacobian(z).toarray(), dense, rtol=1e-12, atol=1e-12 * np.abs(dense).max())
-    # the chord: at parameters moved less than CHORD the start states' columns are those at z, the parameters' new
+    # the parameters alone, the start states held: the dense Jacobian's first columns
+    p, state = z[:problem.n_params], z[problem.n_params:].reshape(problem.windows, -1)
+    np.testing.assert_allclose(problem.parameter_jacobian(p, state), dense[:, :problem.n_params], rtol=1e-12,
+                               atol=1e-12 * np.abs(dense).max())
+    # the chord: the start states' columns those at z, the parameters' new
     moved = z.copy()
-    moved[:problem.n_params] *= 1.0 + 0.5 * CHORD
-    chord = problem.jacobian(moved, exact=False).toarray()
+    moved[:problem.n_params] *= 1.02
+    chord = problem.jacobian(moved, states=False).toarray()
     exact = np.asarray(jax.jacfwd(residual)(jnp.asarray(moved)))
     np.testing.assert_array_equal(chord[:, problem.n_params:], problem.jacobian(z).toarray()[:, problem.n_params:])
     np.testing.assert_allclose(chord[:, :problem.n_params], exact[:, :problem.n_params], rtol=1e-12,

@@ -25,14 +25,20 @@ follows its targets at ``reel_speed``, differentiable in it).
 **The Jacobian** is exact (forward mode) and sparse: a window's residuals depend on the parameters and its own
 start state only (a continuity row also on the next window's start, linearly). One ``jax.jvp`` per parameter and
 per start-state coordinate, seeded in every window at once, gives every window's block together (6 N + P tangents
-whatever the number of windows). The start states' tangents (6 N of them) are reused between iterations (a chord
-method: ``exact`` False) until a parameter factor moves by ``CHORD`` or a start state by ``CHORD_STATE`` since they
-were computed; the parameters' are computed every time. It is an option (``chord``): it saves most of the
-Jacobians' cost where they dominate (the rolling icosahedron: 3x less CPU). Every run here is differentiated in
-forward mode only, so a ground's sweeps stop at ``ground.TOLERANCE`` (``ground.py``: warm-started, each end on the
-problem with its strut's length row eliminated; half the CPU of the fixed 60 sweeps a Jacobian of the rolling
-icosahedron). ``scipy.optimize.least_squares`` (trust region reflective) minimises the sum of squares, or a robust
-loss (``loss``: ``soft_l1``, ``huber``, ``cauchy``, ``arctan``, with ``loss_scale`` in m).
+whatever the number of windows). Every run here is differentiated in forward mode only, so a ground's sweeps stop
+at ``ground.TOLERANCE`` (``ground.py``: warm-started, each end on the problem with its strut's length row
+eliminated; half the CPU of the fixed 60 sweeps a Jacobian of the rolling icosahedron).
+
+**Two stages.** First the parameters alone, every window held at its start from the poses
+(``scipy.optimize.least_squares``, trust region reflective, P tangents a Jacobian): cheap, and close to the
+optimum where the poses' start states are (noise-free, the 10 s roll's stiffness 2e-5, its damping 1.2 % off).
+Then everything, by Levenberg-Marquardt with the sparse normal equations solved exactly
+(``_levenberg_marquardt``): Gauss-Newton's steps near the optimum (least_squares' sparse solver takes lsmr's
+inexact step in a two-dimensional subspace, and with it and the chord the 10 s roll stopped 3 % off). The start
+states' tangents (6 N of the 6 N + P runs, the Jacobian's cost) are computed fresh after the first stage and, with
+``chord``, reused between steps while a step does at least ``REFRESH`` of what its linear model predicted; the
+parameters' are computed every time. ``loss``: ``soft_l1``, ``huber``, ``cauchy``, ``arctan`` (scipy's, with
+``loss_scale`` in m; the normal equations weighted by the loss's derivative).
 
 **Bounds and prior.** Bounds are physical (stiffness, mass and reel speed > 0, damping and friction >= 0,
 restitution in [0, 1]); an unknown with a positive scene value is fitted as a factor on it, one that is 0 in the
@@ -73,13 +79,22 @@ __all__ = ["KINDS", "LOSSES", "FitResult", "Observed", "Unknown", "choose_window
 
 KINDS = {"stiffness": "N/m", "damping": "N*s/m", "mass": "kg", "friction": "", "restitution": "",
          "reel_speed": "m/s"}
-LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
+LOSSES = {   # rho(z) and rho'(z) of z = (r / loss_scale)^2, as scipy.optimize.least_squares' losses
+    "linear": (lambda z: z, np.ones_like),
+    "soft_l1": (lambda z: 2.0 * (np.sqrt(1.0 + z) - 1.0), lambda z: 1.0 / np.sqrt(1.0 + z)),
+    "huber": (lambda z: np.where(z <= 1.0, z, 2.0 * np.sqrt(z) - 1.0),
+              lambda z: np.where(z <= 1.0, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))),
+    "cauchy": (np.log1p, lambda z: 1.0 / (1.0 + z)),
+    "arctan": (np.arctan, lambda z: 1.0 / (1.0 + z * z)),
+}
 SWITCHES_PER_WINDOW = 4.0
 MIN_WINDOW, MAX_WINDOW = 5, 40   # grid intervals
 CONTINUITY = 10.0                # weight of the continuity rows against the observations'
 PRIOR = 0.0                      # the prior's relative standard deviation about the scene's values (0: none)
-CHORD = 0.05                     # the start states' Jacobian is reused until a parameter (a factor) moves this
-CHORD_STATE = 1e-3               # much, or a start position (m) or velocity times the pose interval (m) this much
+REFRESH = 0.5                   # the chord's tangents are refreshed after a step doing less than this of its model
+PARAMETER_TOLERANCE = 1e-5       # a parameter's (a factor's) step that ends the fit
+FAILED = 8                      # failed steps in a row on fresh tangents that end the fit
+HELD_TOLERANCE = 1e-6           # the first stage's (the parameters alone, the windows' starts held from the poses)
 
 
 @dataclass(frozen=True)
@@ -406,21 +421,22 @@ class _Problem:
         self.state_tangents = jax.jit(lambda p, state, data: jax.jvp(
             lambda st: pieces(p, st, data, s), (jnp.repeat(state, s, axis=0),), (jnp.asarray(seeds),))[1])
 
-    def tangents(self, p, state, exact: bool = True):
+    def tangents(self, p, state, states: bool = True):
         """Every parameter's and start-state coordinate's tangent: (T, L, nf, 3, W), (T, nf, 3, W) twice; with
-        ``exact`` False the start states' are those last computed unless a parameter moved by more than ``CHORD``
-        (a factor) or a start state by more than ``CHORD_STATE`` since (module docstring)."""
+        ``states`` False the start states' are those last computed (the chord: module docstring)."""
+        out = self.parameter_tangents(p, state)
+        if states or self._chord is None:
+            s, w = 6 * self.nf, self.windows
+            self._chord = [np.moveaxis(np.asarray(a).reshape(*a.shape[:-1], w, s), -1, 0)
+                           for a in self.state_tangents(jnp.asarray(p), jnp.asarray(state), self.data)]
+            self.state_jacobians += 1
+        return [np.concatenate(parts) for parts in zip(out, self._chord)]
+
+    def parameter_tangents(self, p, state):
+        """Every parameter's tangent: (P, L, nf, 3, W), (P, nf, 3, W) twice."""
         out = [[np.asarray(a)[None] for a in self.param_tangent(jnp.asarray(p), jnp.asarray(state), self.data,
                                                                  jnp.eye(len(p))[i])]
                for i in range(len(p))]
-        scaled = np.asarray(state) * np.repeat([1.0, self.tau], 3 * self.nf)
-        if exact or self._chord is None or np.max(np.abs(np.asarray(p) - self._chord[0])) > CHORD or \
-                np.max(np.abs(scaled - self._chord[1])) > CHORD_STATE:
-            s, w = 6 * self.nf, self.windows
-            self._chord = (np.array(p), scaled, [np.moveaxis(np.asarray(a).reshape(*a.shape[:-1], w, s), -1, 0)
-                                         for a in self.state_tangents(jnp.asarray(p), jnp.asarray(state), self.data)])
-            self.state_jacobians += 1
-        out.append(self._chord[2])
         return [np.concatenate(parts) for parts in zip(*out)]
 
     # ----------------------------------------------------------------- least squares
@@ -451,13 +467,13 @@ class _Problem:
     def n_observed(self) -> int:
         return int(self.obs_mask.sum()) * 3 * self.nf + 3 * self.nf
 
-    def jacobian(self, z, exact: bool = True) -> sp.csr_matrix:
-        """The sparse Jacobian at ``z``; ``exact`` False: the start states' tangents reused (:meth:`tangents`)."""
+    def jacobian(self, z, states: bool = True) -> sp.csr_matrix:
+        """The sparse Jacobian at ``z``; ``states`` False: the start states' tangents reused (:meth:`tangents`)."""
         p, state = self.split(z)
         P, nf, W, L = self.n_params, self.nf, self.windows, self.window
         s = 6 * nf
         T = P + s
-        dxs, dxe, dve = self.tangents(p, state, exact)
+        dxs, dxe, dve = self.tangents(p, state, states)
         rows, cols, vals = [], [], []
         per = L * nf * 3
         # observation rows of window w: (T, L, nf, 3, W) -> (W, per, T)
@@ -496,6 +512,18 @@ class _Problem:
         n_rows = base + len(self.prior_rows)
         return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                              shape=(n_rows, P + W * s))
+
+    def parameter_jacobian(self, p, state) -> np.ndarray:
+        """The residual's Jacobian in the parameters alone, the start states ``state`` (W, 6 nf) held: (rows, P),
+        dense, the rows of :meth:`residual`."""
+        dxs, dxe, dve = self.parameter_tangents(p, state)
+        n = self.n_params
+        obs = dxs * self.obs_mask[None, :, None, None, :]                                    # (P, L, nf, 3, W)
+        ends = np.stack([self.cw * dxe, self.cw * self.tau * dve], axis=1)[..., :-1]         # (P, 2, nf, 3, W-1)
+        prior = np.zeros((len(self.prior_rows), n))
+        prior[np.arange(len(self.prior_rows)), self.prior_rows] = self.prior_weight
+        return np.concatenate([np.moveaxis(obs, -1, 1).reshape(n, -1).T, np.zeros((3 * self.nf, n)),
+                               np.moveaxis(ends, -1, 1).reshape(n, -1).T, prior])
 
     def bounds(self):
         """Physical: stiffness, mass and reel speed > 0, damping and friction >= 0, restitution in [0, 1]."""
@@ -545,14 +573,80 @@ def _parameter_sigma(jac, n_params: int, noise: float) -> np.ndarray:
     return noise * np.sqrt(np.maximum(np.diag(cov), 0.0))
 
 
+def _levenberg_marquardt(problem: _Problem, z: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, loss: str,
+                         loss_scale: float, tolerance: float, max_evaluations: int, chord: bool, verbose: int):
+    """Minimise ``0.5 loss_scale^2 sum(rho((r / loss_scale)^2))`` (``LOSSES``) over ``z`` within the bounds by
+    Levenberg-Marquardt: each step solves the sparse normal equations exactly (``J^T W J`` with ``rho'`` as the
+    weights ``W``; Marquardt's scaling by its diagonal, floored at 1 % of its median, so that a coordinate the
+    poses do not see, such as the first window's start velocity of a node resting on the ground, is damped too),
+    Gauss-Newton's step near the optimum. With ``chord`` the start states' tangents are reused while the steps
+    do what the linear model predicts (a ratio of the actual to the predicted decrease of at least ``REFRESH``),
+    and refreshed after a poorer step or a second failed one. It stops on fresh tangents once the cost decreases
+    by less than ``tolerance`` of itself or every parameter moves by less than ``PARAMETER_TOLERANCE`` (an
+    undamped step: lambda < 1), or after ``FAILED`` failed steps in a row (the cost's floor: its round-off and
+    the ground's sweep tolerance). Returns ``z``, the runs of the model, the message and a fresh Jacobian at
+    ``z`` (or one step below the tolerances before it)."""
+    rho, weight = LOSSES[loss]
+    cost = lambda r: 0.5 * loss_scale ** 2 * float(np.sum(rho((r / loss_scale) ** 2)))   # noqa: E731
+    r = problem.residual(z)
+    f, evaluations = cost(r), 1
+    jac, fresh, normal = problem.jacobian(z), True, None
+    lam, nu, failed, message = 1e-3, 2.0, 0, "the evaluation limit reached"
+    while evaluations < max_evaluations:
+        if normal is None:   # J^T W J and the gradient, after a new Jacobian or residual
+            w = weight((r / loss_scale) ** 2)
+            a = (jac.T @ sp.diags(w) @ jac).tocsc()
+            normal = a, jac.T @ (w * r), np.maximum(a.diagonal(), 1e-2 * np.median(a.diagonal()))
+        a, g, d = normal
+        try:
+            step = -splu((a + lam * sp.diags(d)).tocsc()).solve(g)
+        except RuntimeError:   # singular: more damping
+            lam, nu = lam * nu, nu * 2.0
+            continue
+        new = np.clip(z + step, lo, hi)
+        step = new - z
+        predicted = -(g @ step + 0.5 * step @ (a @ step))
+        r_new = problem.residual(new)
+        f_new, evaluations = cost(r_new), evaluations + 1
+        ratio = (f - f_new) / predicted if predicted > 0 else -1.0
+        if verbose:
+            print(f"fit: run {evaluations:3d}  cost {f:.6e} -> {f_new:.6e}  ratio {ratio:+.3f}  lambda {lam:.1e}"
+                  f"  step {np.linalg.norm(step):.2e}  parameters {new[:problem.n_params]}"
+                  f"{'' if fresh else '  (chord)'}", flush=True)
+        if ratio > 1e-4:
+            n = problem.n_params
+            converged = f - f_new <= tolerance * f or (lam < 1.0 and np.all(
+                np.abs(step[:n]) <= PARAMETER_TOLERANCE * (PARAMETER_TOLERANCE + np.abs(new[:n]))))
+            z, r, f, failed, normal = new, r_new, f_new, 0, None
+            if converged and fresh:   # the Jacobian one step below the tolerances away serves for sigma
+                message = "converged: the cost's decrease or the parameters' step below the tolerance"
+                break
+            lam, nu = lam * max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3), 2.0
+            refresh = not chord or ratio < REFRESH or converged
+            jac, fresh = problem.jacobian(z, states=refresh), refresh
+            continue
+        failed += 1
+        if not fresh and failed >= 2:   # a stale model: refresh it before damping more
+            jac, fresh, normal, failed = problem.jacobian(z), True, None, 0
+        elif fresh and failed >= FAILED:
+            message = f"{FAILED} failed steps in a row: the cost's floor"
+            break
+        else:
+            lam, nu = lam * nu, nu * 2.0
+    if not fresh:
+        jac = problem.jacobian(z)
+    return z, evaluations, message, jac
+
+
 def fit_observed(scene: Scene, obs: Observed, unknowns: list[Unknown], *, window: int | None = None,
                  loss: str = "linear", loss_scale: float = 3e-3, continuity: float = CONTINUITY,
-                 prior: float = PRIOR, chord: bool = False, tolerance: float = 1e-10, max_evaluations: int = 100,
+                 prior: float = PRIOR, chord: bool = False, tolerance: float = 1e-6, max_evaluations: int = 100,
                  verbose: int = 0) -> FitResult:
     """Fit ``unknowns`` of ``scene`` (their start values) to ``obs`` by multiple shooting (module docstring);
     ``window``: grid intervals per window (None: :func:`choose_window`); ``prior``: the prior's relative standard
     deviation about the scene's values (0: none); ``chord``: reuse the start states' Jacobian (module
-    docstring); ``verbose``: least_squares' (2: every iteration)."""
+    docstring); ``tolerance``: the relative decrease of the cost that ends the fit; ``verbose``: every step's
+    progress printed (2: least_squares' of the first stage too)."""
     if not prior >= 0:
         raise ValueError(f"prior must be >= 0 (a relative standard deviation; 0: none), got {prior}")
     if loss not in LOSSES:
@@ -584,18 +678,25 @@ def fit_observed(scene: Scene, obs: Observed, unknowns: list[Unknown], *, window
     r0 = problem.residual(z0)
     n_obs = problem.n_observed()
     rms = lambda r: float(np.sqrt(np.sum(r[:n_obs] ** 2) / n_obs))   # noqa: E731
-    options = dict(bounds=(lo, hi), method="trf", x_scale="jac", loss=loss, f_scale=loss_scale, xtol=tolerance,
-                   ftol=tolerance, gtol=tolerance, tr_solver="lsmr", verbose=verbose)
-    sol = least_squares(problem.residual, z0, jac=lambda z: problem.jacobian(z, exact=not chord),
-                        max_nfev=max_evaluations, **options)
-    r = problem.residual(sol.x)
+    # first the parameters alone, the windows held at their starts from the poses: a few cheap runs that bring
+    # them close, so that the start states' tangents (6 nf per window) are computed near the optimum
+    n = problem.n_params
+    held = problem.state0.ravel()
+    first = least_squares(lambda p: problem.residual(np.concatenate([p, held])), z0[:n],
+                          jac=lambda p: problem.parameter_jacobian(p, problem.state0), bounds=(lo[:n], hi[:n]),
+                          method="trf", x_scale="jac", loss=loss, f_scale=loss_scale, xtol=HELD_TOLERANCE,
+                          ftol=HELD_TOLERANCE, gtol=HELD_TOLERANCE, max_nfev=max_evaluations, verbose=verbose)
+    z, evaluations, message, jac = _levenberg_marquardt(
+        problem, np.concatenate([first.x, held]), lo, hi, loss=loss, loss_scale=loss_scale, tolerance=tolerance,
+        max_evaluations=max(1, max_evaluations - first.nfev), chord=chord, verbose=verbose)
+    evaluations += first.nfev
+    r = problem.residual(z)
     # the continuity rows act as constraints: each takes one unknown off (the prior rows do not)
-    dof = max(1, n_obs - len(sol.x) + (len(r) - n_obs - len(problem.prior_rows)))
+    dof = max(1, n_obs - len(z) + (len(r) - n_obs - len(problem.prior_rows)))
     noise = float(np.sqrt(np.sum(r[:n_obs] ** 2) / dof))
-    jac = problem.jacobian(sol.x, exact=not chord)
     scale = np.array([b if f else 1.0 for b, f in zip(problem.base, problem.factor)])
     sigma = _parameter_sigma(jac, problem.n_params, noise) * scale
-    p = sol.x[:problem.n_params]
+    p = z[:n]
     fitted = problem.values(p)
     reel = problem.reel
     for u, value in zip(unknowns, fitted):
@@ -604,8 +705,8 @@ def fit_observed(scene: Scene, obs: Observed, unknowns: list[Unknown], *, window
     return FitResult(unknowns, problem.values(problem.p0), fitted, sigma, rms(r0), rms(r), noise,
                      _fitted_scene(scene, unknowns, problem, p), problem.window, problem.windows, problem.every,
                      obs.dt,
-                     problem.grid_steps, problem.observed, problem.positions(z0), problem.positions(sol.x),
-                     int(sol.nfev), sol.message, reel, switches, problem.state_jacobians)
+                     problem.grid_steps, problem.observed, problem.positions(z0), problem.positions(z),
+                     evaluations, message, reel, switches, problem.state_jacobians)
 
 
 def _fitted_scene(scene: Scene, unknowns: list[Unknown], problem: _Problem, p) -> Scene:
