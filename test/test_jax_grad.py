@@ -4,6 +4,7 @@ external forces and a command schedule's rest lengths (``jax.grad`` and ``jax.ja
 switches (the icosahedron at its prestress, every cable taut) and through them (thrown, its cables snapping:
 the derivative of the discrete run, module docstring); and exactly zero for a cable slack all along."""
 import os
+from functools import partial
 
 import numpy as np
 import pytest
@@ -38,7 +39,26 @@ def _taut_scene(seed: int) -> ts.Scene:
     return rigid_consistent(d)
 
 
+def _objective(model, x0, v0, inputs, weights, scheduled):
+    """The scalar whose gradients the tests take (the last kept step's positions and velocities weighted, and the
+    second kept step's positions squared) and the run's :class:`Outputs`."""
+    out = jel.rollout(model, x0, v0, inputs, DT, STEPS, EVERY, scheduled=scheduled)
+    return jnp.sum(weights[0] * out.x[-1]) + jnp.sum(weights[1] * out.v[-1]) + jnp.sum(out.x[1] ** 2), out
+
+
+# One compile for every test of the same shapes (the scenes below are all the icosahedron in 2 copies): the
+# weights are an argument, not a constant of a closure compiled per test; and the central differences take their
+# values from the same compiled function as the gradient (its primal: the run itself), not from a second compile.
+@partial(jax.jit, static_argnames="scheduled")
+def _value_and_gradients(model, x0, v0, inputs, weights, scheduled):
+    """((objective, the run's Outputs), d objective / d (model, x0, v0, inputs)), the gradient by ``jax.grad``."""
+    return jax.value_and_grad(lambda *a: _objective(*a, weights, scheduled), argnums=(0, 1, 2, 3),
+                              has_aux=True)(model, x0, v0, inputs)
+
+
 def _problem(scenes, schedule=None):
+    """The model, initial state and inputs of ``scenes`` (a batch), the objective as a plain function of them
+    (for ``jax.jacfwd``) and :func:`_value_and_gradients` at them (each argument defaulting to the problem's)."""
     system = System(scenes[0])
     model = jel.model_arrays(system, RigidStruts(system))
     x0 = jnp.asarray(np.stack([s.positions for s in scenes], axis=-1))    # (N, 3, B): the batch last
@@ -46,18 +66,16 @@ def _problem(scenes, schedule=None):
     rest = np.stack([s.cable_rest_lengths for s in scenes], axis=-1)
     ext = np.zeros(x0.shape)
     inputs = jel.held_inputs(rest, ext) if schedule is None else jel.schedule_inputs(schedule, rest, ext)
-    rng = np.random.default_rng(7)
-    weights = jnp.asarray(rng.normal(size=(2,) + x0.shape))
+    weights = jnp.asarray(np.random.default_rng(7).normal(size=(2,) + x0.shape))
+    scheduled = schedule is not None
 
-    @jax.jit
-    def run(model, x0, v0, inputs):
-        out = jel.rollout(model, x0, v0, inputs, DT, STEPS, EVERY, scheduled=schedule is not None)
-        return jnp.sum(weights[0] * out.x[-1]) + jnp.sum(weights[1] * out.v[-1]) + jnp.sum(out.x[1] ** 2), out
+    def objective(model=model):
+        return _objective(model, x0, v0, inputs, weights, scheduled)[0]
 
     def loss(model=model, x0=x0, v0=v0, inputs=inputs):
-        return run(model, x0, v0, inputs)
+        return _value_and_gradients(model, x0, v0, inputs, weights, scheduled=scheduled)
 
-    return model, x0, v0, inputs, loss
+    return model, x0, v0, inputs, objective, loss
 
 
 def _central(f, p, directions, eps):
@@ -81,16 +99,14 @@ def test_gradients_equal_central_differences(regime):
         scenes = [_taut_scene(s) for s in range(2)]
     else:
         scenes = [icosahedron_thrown(scale=3.0, seed=s) for s in range(2)]
-    model, x0, v0, inputs, loss = _problem(scenes)
-    out = loss()[1]
+    model, x0, v0, inputs, objective, loss = _problem(scenes)
+    (_, out), (grad_model, grad_x0, grad_v0, grad_inputs) = loss()
     slack = np.asarray(out.slack)
     if regime == "taut":
         assert not slack.any() and not np.asarray(out.snaps).any()
     else:   # cables that are taut at one kept step and slack at another
         assert np.sum(slack.any(axis=0) & (~slack).any(axis=0)) >= 2   # (cable, copy) pairs
-    value = lambda **kw: float(loss(**kw)[0])   # noqa: E731
-    grad_model, grad_x0, grad_v0, grad_inputs = jax.jit(jax.grad(lambda m, x, v, i: loss(m, x, v, i)[0],
-                                                                 argnums=(0, 1, 2, 3)))(model, x0, v0, inputs)
+    value = lambda **kw: float(loss(**kw)[0][0])   # noqa: E731
     ns = len(scenes[0].struts)
     k_cables = model.stiffness[ns:]
     _check(grad_model.stiffness[ns:], lambda k: value(model=model._replace(stiffness=model.stiffness.at[ns:].set(k))),
@@ -101,7 +117,7 @@ def test_gradients_equal_central_differences(regime):
     _check(grad_inputs.ext, lambda f: value(inputs=inputs._replace(ext=f)), inputs.ext, 1e-5, "external forces")
     _check(grad_inputs.rest, lambda r: value(inputs=inputs._replace(rest=r)), inputs.rest, 1e-7, "rest lengths")
     if regime == "taut":   # forward mode too, and the damping (the thrown icosahedron has none)
-        jac = jax.jacfwd(lambda c: loss(model=model._replace(damping=c))[0])(model.damping)
+        jac = jax.jacfwd(lambda c: objective(model=model._replace(damping=c)))(model.damping)
         _check(jac, lambda c: value(model=model._replace(damping=c)), model.damping, 1e-5, "damping")
 
 
@@ -113,11 +129,11 @@ def test_gradient_of_a_schedules_rest_lengths():
                                {"time": 0.05, "rest_lengths": {c[0]: 0.99 * r0, c[3]: scenes[0].cables[3].rest_length}},
                                {"time": 0.08, "rest_lengths": {c[3]: 0.995 * scenes[0].cables[3].rest_length}}],
                               scenes[0])
-    model, x0, v0, inputs, loss = _problem(scenes, schedule)
-    assert not np.asarray(loss()[1].slack).any()
-    g = jax.grad(lambda values: loss(inputs=inputs._replace(rest_values=values))[0])(inputs.rest_values)
-    _check(g, lambda values: float(loss(inputs=inputs._replace(rest_values=values))[0]), inputs.rest_values, 1e-7,
-           "schedule rest lengths")
+    model, x0, v0, inputs, _, loss = _problem(scenes, schedule)
+    (_, out), grads = loss()
+    assert not np.asarray(out.slack).any()
+    _check(grads[3].rest_values, lambda values: float(loss(inputs=inputs._replace(rest_values=values))[0][0]),
+           inputs.rest_values, 1e-7, "schedule rest lengths")
 
 
 def test_a_cable_slack_all_along_has_no_gradient():
@@ -126,10 +142,9 @@ def test_a_cable_slack_all_along_has_no_gradient():
     d = _taut_scene(0).to_dict()
     d["cables"][5]["rest_length"] *= 1.5   # far from taut for the whole run
     scenes = [ts.Scene.from_dict(d)] * 2
-    model, x0, v0, inputs, loss = _problem(scenes)
-    out = loss()[1]
+    model, x0, v0, inputs, _, loss = _problem(scenes)
+    (_, out), (g, *_) = loss()
     assert np.asarray(out.slack)[:, 5].all()
     ns = len(scenes[0].struts)
-    g = jax.grad(lambda m: loss(model=m)[0])(model)
     assert float(g.stiffness[ns + 5]) == 0.0 and float(g.damping[5]) == 0.0
     assert np.all(np.asarray(g.stiffness[ns:ns + 5]) != 0.0)

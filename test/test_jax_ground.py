@@ -4,6 +4,7 @@ a strut sliding to a stop at ``v0^2 / (2 mu g)``, held on a slope below the fric
 one at ``g (sin - mu cos)``, a point mass bouncing to ``e^2 h``, the icosahedron resting on the ground."""
 import os
 import warnings
+from functools import lru_cache
 
 import numpy as np
 import pytest
@@ -37,6 +38,13 @@ def _thrown_onto_the_ground(seed: int) -> ts.Scene:
     return rigid_consistent(d)
 
 
+@lru_cache(maxsize=None)
+def _reference(seed: int) -> ts.Trajectory:
+    """The numpy reference's 600 steps of ``_thrown_onto_the_ground(seed)``, every step kept (computed once: two
+    tests compare with seed 1's)."""
+    return ts.Simulator(_thrown_onto_the_ground(seed), method="elastic", dt=1e-3).run(steps=600)
+
+
 def test_landing_and_rolling_equal_the_numpy_reference():
     scenes = [_thrown_onto_the_ground(s) for s in range(2)]
     with warnings.catch_warnings():
@@ -44,8 +52,8 @@ def test_landing_and_rolling_equal_the_numpy_reference():
         batch = BatchSimulator.from_scenes(scenes, method="elastic", dt=1e-3, backend="jax")
     traj = batch.run(steps=600)
     assert np.all(traj.positions[:, :, :, 2].min(axis=(1, 2)) < 0.03)   # both landed (node radius 0.025 m)
-    for b, scene in enumerate(scenes):
-        ref = ts.Simulator(scene, method="elastic", dt=1e-3).run(steps=600)
+    for b in range(len(scenes)):
+        ref = _reference(b)
         assert len(ref.contacts) > 0 and ref.slack.any()
         np.testing.assert_allclose(traj.positions[b], ref.positions, rtol=0, atol=1e-9)
         np.testing.assert_allclose(traj.velocities[b], ref.velocities, rtol=0, atol=1e-8)
@@ -127,6 +135,19 @@ def _reeling(scene: ts.Scene):
     return parse_commands(points, scene, "reel")
 
 
+@lru_cache(maxsize=None)
+def _reeling_runs(name: str):
+    """``name`` reeling (``_reeling``) on the ground for 600 steps, kept every 10: the scene, the JAX batch of one
+    and its trajectory, and the numba batch's (computed once: two tests compare with three_bar's)."""
+    scene = ts.load_scene(name)
+    schedule = _reeling(scene)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", LumpedMassWarning)
+        ref = BatchSimulator(scene, 1, method="elastic", dt=1e-3).run(steps=600, every=10, commands=schedule)
+        sim = BatchSimulator(scene, 1, method="elastic", dt=1e-3, backend="jax")
+    return scene, sim, sim.run(steps=600, every=10, commands=schedule), ref
+
+
 @pytest.mark.parametrize("name", ["three_bar", "superball"])
 def test_rods_on_the_ground_take_their_blocks_as_the_numba_batch_does(name):
     """The built-in robots whose rods carry their mass along them (three_bar: a motor at each rod's middle, end
@@ -134,14 +155,8 @@ def test_rods_on_the_ground_take_their_blocks_as_the_numba_batch_does(name):
     with the rods' 2x2 mass blocks (``M^-1``'s diagonal and cross entries; ``ground.block_sweeps`` sweeps) against
     the numba batch's block Newton, to the tolerance of the icosahedron's comparison above. Measured: 7e-15 m and
     5e-13 m/s over 1,000 steps of each (at 60 sweeps, three_bar's block converging at rate 0.79: 6e-9 m)."""
-    scene = ts.load_scene(name)
-    schedule = _reeling(scene)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", LumpedMassWarning)
-        ref = BatchSimulator(scene, 1, method="elastic", dt=1e-3).run(steps=600, every=10, commands=schedule)
-        sim = BatchSimulator(scene, 1, method="elastic", dt=1e-3, backend="jax")
+    scene, sim, traj, ref = _reeling_runs(name)
     assert sim.system.mass.consistent
-    traj = sim.run(steps=600, every=10, commands=schedule)
     assert np.abs(ref.positions[0, -1] - scene.positions).max() > 0.05   # it moved
     np.testing.assert_allclose(traj.positions, ref.positions, rtol=0, atol=1e-9)
     np.testing.assert_allclose(traj.velocities, ref.velocities, rtol=0, atol=1e-8)
@@ -205,12 +220,12 @@ def test_sweeps_stopping_at_a_tolerance_equal_the_reference_and_the_fixed_counts
         scaled = model._replace(stiffness=model.stiffness * factor)
         return jel.rollout(scaled, x0, v0, inputs, 1e-3, 600, every=10).x[..., 0]
 
-    ref = ts.Simulator(scene, method="elastic", dt=1e-3).run(steps=600, every=10)
+    ref = _reference(1)
     assert len(ref.contacts) > 0 and ref.slack.any()
     x_stop, dx_stop = jax.jvp(lambda k: run(stopping, k), (1.0,), (1.0,))
     x_fixed, dx_fixed = jax.jvp(lambda k: run(fixed, k), (1.0,), (1.0,))
-    kept = np.rint(ref.time / 1e-2).astype(int) - 1   # the rollout keeps steps 10, 20, ..., 600
-    np.testing.assert_allclose(np.asarray(x_stop)[kept[1:]], ref.positions[1:], rtol=0, atol=1e-9)
+    kept = np.rint(ref.time / 1e-3).astype(int) % 10 == 0   # the rollout keeps steps 10, 20, ..., 600
+    np.testing.assert_allclose(np.asarray(x_stop), ref.positions[kept], rtol=0, atol=1e-9)
     np.testing.assert_allclose(np.asarray(x_stop), np.asarray(x_fixed), rtol=0, atol=1e-10)
     scale = np.abs(np.asarray(dx_fixed)).max()
     assert scale > 1e-3   # the stiffness moves the run
@@ -220,7 +235,8 @@ def test_sweeps_stopping_at_a_tolerance_equal_the_reference_and_the_fixed_counts
 def test_sweeps_stopping_at_a_tolerance_take_the_rods_blocks():
     """The tolerance mode on a scene whose rods carry their 2x2 mass blocks (three_bar reeling three cables on the
     ground: its rods land, tip and slide) takes the plain block sweeps, warm-started and stopping at ``TOLERANCE``:
-    the same run as the fixed count's (``block_sweeps``, round-off), and so the numba batch's."""
+    the same run as the fixed count's (``block_sweeps``; the JAX batch's run of the test above), to round-off, and
+    so the numba batch's."""
     import jax.numpy as jnp
 
     from tensegrity_sim.methods.jax import elastic as jel
@@ -228,14 +244,13 @@ def test_sweeps_stopping_at_a_tolerance_take_the_rods_blocks():
     from tensegrity_sim.methods.rigid import RigidStruts
     from tensegrity_sim.system import System
 
-    scene = ts.load_scene("three_bar")
+    scene, _, traj, _ = _reeling_runs("three_bar")   # the fixed count's run: the JAX batch's
     system = System(scene)
     fixed = jel.model_arrays(system, RigidStruts(system))
-    assert np.any(np.asarray(fixed.mass_block) > 0)
+    assert np.any(np.asarray(fixed.mass_block) > 0) and fixed.ground.tolerance == 0   # the batch's model: a fixed count
     stopping = fixed._replace(ground=fixed.ground._replace(tolerance=TOLERANCE))
     x0, v0 = jnp.asarray(scene.positions[..., None]), jnp.asarray(scene.velocities[..., None])
     inputs = jel.schedule_inputs(_reeling(scene), scene.cable_rest_lengths[:, None], np.zeros(x0.shape))
-    runs = [np.asarray(jel.rollout(m, x0, v0, inputs, 1e-3, 600, 10, scheduled=True).x[..., 0])
-            for m in (fixed, stopping)]
-    assert np.abs(runs[0][-1] - scene.positions).max() > 0.05   # it moved
-    np.testing.assert_allclose(runs[1], runs[0], rtol=0, atol=1e-10)
+    run = np.asarray(jel.rollout(stopping, x0, v0, inputs, 1e-3, 600, 10, scheduled=True).x[..., 0])
+    assert np.abs(traj.positions[0, -1] - scene.positions).max() > 0.05   # it moved
+    np.testing.assert_allclose(run, traj.positions[0], rtol=0, atol=1e-10)   # steps 10, 20, ..., 600 of both
