@@ -52,6 +52,7 @@ ROS_WHEELS = 'platform_system == "Linux" and platform_machine == "x86_64" and py
 EXTRAS_REQUIRE = {
     "test": [
         "pytest>=9.0.3,<10",
+        "pytest-xdist>=3.8.0,<4",  # the suite on every core, a file per worker (README's test command, CI)
         "hypothesis>=6.170.15,<7",  # property-based fuzzing of every public boundary (test/test_fuzz_*.py)
         "mcap-ros2-support>=0.6.0,<0.7",  # an independent reader of the logs
         "quadprog>=0.1.14,<0.2",  # an independent QP solver to check the QP backends against
