@@ -26,7 +26,7 @@ from typing import Mapping
 
 import numpy as np
 
-from .checks import float_array, time_step, whole
+from .checks import float_array, time_step
 from .commands import CommandSchedule
 from .methods.contact.detection import CompiledDetector, make_detector
 from .methods.contact.friction import TOUCH_TOL
@@ -725,23 +725,6 @@ class BatchSimulator:
         return BatchTrajectory(time, kept_arrays["positions"], kept_arrays["velocities"], kept_arrays["impulses"],
                                kept_arrays["tensions"], kept_arrays["slack"], contacts, dict(self.failures),
                                peak / self.dt, snaps)
-
-    def advance(self, steps: int, *, commands=None) -> None:
-        """Step every running copy ``steps`` steps, ``commands`` applied as :meth:`run` applies them, keeping nothing:
-        no trajectory, no peak tensions or snaps, no ground contact events (an environment's control period, which
-        reads only the state after it; the ground contacts known at a later run that finds them are those that
-        begin from its start). Failures as in :meth:`run` (``failures``)."""
-        steps = whole(steps, "steps")
-        self._check_commands(commands)
-        if commands is not None and not (self._copies is None and self._engine.runs_commands()):
-            self.run(steps=steps, commands=commands, fields=(), ground_events=False)   # applied step by step
-            return
-        chunk = max(1, min(steps, _CHUNK_NUMBERS // max(1, self.batch * len(self.scene.nodes) * 3)))
-        done = 0
-        while done < steps:
-            m = min(chunk, steps - done)
-            self._advance(m, commands, ground_events=False)
-            done += m
 
     def _check_commands(self, commands) -> None:
         if commands is None or isinstance(commands, CommandSchedule):

@@ -491,29 +491,3 @@ def test_a_run_without_ground_events_steps_the_same():
     fresh = BatchSimulator(scene, 2, method="elastic", contacts=(), positions=with_events.positions,
                            velocities=with_events.velocities)
     assert touching and touching == {e.members for e in fresh.run(steps=1).contacts[0] if e.kind == "begin"}
-
-
-@pytest.mark.parametrize("scene_name", ["icosahedron_ground", "prism3"])
-def test_advance_leaves_the_state_a_run_leaves(scene_name):
-    """``advance``: the state, clock and inputs a ``run`` of the same steps and schedule leaves, bit for bit, keeping
-    nothing (a ground's schedule evaluated inside the compiled loop; without a ground, applied step by step as
-    ``run`` applies it); a bad step count is refused and changes nothing."""
-    from tensegrity_sim.commands import parse_commands
-
-    scene = ts.load_scene(scene_name)
-    names = scene.cable_names[:2]
-    schedule = parse_commands([{"time": 0.0, "rest_lengths": {n: 1.0 for n in names}},
-                               {"time": 0.03, "rest_lengths": {n: 0.9 for n in names}}], scene)
-    ran, advanced = (BatchSimulator(scene, 3, method="elastic", contacts=[]) for _ in range(2))
-    for sim in (ran, advanced):
-        sim.set_rest_lengths(scene.cable_rest_lengths * np.array([[1.0], [0.95], [0.9]]))
-    ran.run(steps=50, commands=schedule, fields=())
-    advanced.advance(50, commands=schedule)
-    assert advanced.step_count == ran.step_count == 50
-    for field in ("positions", "velocities", "rest_lengths"):
-        np.testing.assert_array_equal(getattr(advanced, field), getattr(ran, field))
-    assert np.ptp(advanced.positions[:, :, 2], axis=0).max() > 0   # the copies went apart
-    before = advanced.positions
-    with pytest.raises(ValueError, match="steps must be a whole number"):
-        advanced.advance(-1)
-    np.testing.assert_array_equal(advanced.positions, before)

@@ -36,7 +36,7 @@ PARAMETERS = {
 
 
 class _Reel(CommandSchedule):
-    """One control period's rest lengths of the actuated cables, every step of every copy: ``reel`` (S, na, B) m,
+    """One control period's rest lengths of the actuated cables, every step of every copy: ``reel`` (S, B, na) m,
     the cables ``rest_cables`` (na,). Only what the compiled ground run asks of a batch's schedule (style rule 8:
     one schedule for all copies, its per-copy values on the trailing axis): :meth:`inputs_at` for the S step times
     of the period, ``base`` (nc, B) and ``forces`` (N, 3, B) held; the same numbers as B schedules that name each
@@ -48,13 +48,12 @@ class _Reel(CommandSchedule):
         object.__setattr__(self, "reel", reel)
 
     def inputs_at(self, times, base, forces):
-        steps, copies = len(times), self.reel.shape[2]
+        steps, copies = len(times), self.reel.shape[1]
         if self.reel.shape[0] != steps or base.ndim != 2:
             raise ValueError(f"a control period of {self.reel.shape[0]} steps asked for {steps} steps' inputs")
-        rest = np.empty((steps, len(base), copies))
-        if len(self.rest_cables) < len(base):   # the cables not reeled hold (the run passes one column where every
-            rest[:] = base                       # copy's rest lengths are equal)
-        rest[:, self.rest_cables] = self.reel
+        # (the run passes one column where every copy's rest lengths are equal)
+        rest = np.repeat(np.broadcast_to(base, (len(base), copies))[None], steps, axis=0)
+        rest[:, self.rest_cables] = np.moveaxis(self.reel, 1, 2)
         return rest, np.repeat(forces[None], steps, axis=0)
 
 
@@ -145,7 +144,6 @@ class RollTask:
         self.n_obs = nc + len(names) + 6 * n + 2
         self.goals = np.tile(self.goal, (copies, 1))
         self.elapsed = np.zeros(copies, dtype=np.int64)   # control periods since each copy's reset
-        self.centres = self.com(self.sim.positions)   # (B, 3) m: the copies' centres of mass now
 
     @staticmethod
     def _range(value) -> tuple[float, float]:
@@ -191,7 +189,6 @@ class RollTask:
                          np.tile(self.rest0, (len(copies), 1)))
         self.goals[copies] = np.stack([s[2] for s in starts])
         self.elapsed[copies] = 0
-        self.centres = self.com(self.sim.positions)
 
     def observe(self) -> np.ndarray:
         """(B, n_obs) float64: cable lengths (n_cables) m, the actuated cables' rest lengths (n_actuated) m,
@@ -199,7 +196,7 @@ class RollTask:
         x, v = self.sim.positions, self.sim.velocities
         ce = self.sim.system.cable_ends
         lengths = np.linalg.norm(x[:, ce[:, 1]] - x[:, ce[:, 0]], axis=-1)
-        relative = x - self.centres[:, None]
+        relative = x - self.com(x)[:, None]
         b = self.batch
         return np.concatenate([lengths, self.sim.rest_lengths[:, self.actuated], relative.reshape(b, -1),
                                v.reshape(b, -1), self.goals], axis=1)
@@ -228,15 +225,15 @@ class RollTask:
         """One control period of every copy from actions (B, n_actuated) in [-1, 1]: rewards (B,) and the copies'
         time limits reached (B,) bool. The copies the simulator refused are in ``sim.failures`` {copy: reason}."""
         sim, s = self.sim, self.substeps
-        before = self.centres[:, :2]
-        current = sim.rest_lengths[:, self.actuated].T                                   # (na, B) m
+        before = self.com(sim.positions)[:, :2]
+        current = sim.rest_lengths[:, self.actuated]
         reach = self.reel_speed * self.dt * np.arange(1, s + 1)[:, None, None]          # (S, 1, 1) m
-        rest = current + np.clip(self.targets(actions).T - current, -reach, reach)      # (S, na, B), as the run's
-        # nothing kept but the state (no trajectory, no peaks, no ground events): what a period's step reads
-        sim.advance(s, commands=_Reel(self.actuated, rest, len(self.scene.nodes)))
-        self.centres = self.com(sim.positions)
-        after = self.centres[:, :2]
-        effort = np.abs(rest[-1] - current).sum(axis=0)
+        rest = current + np.clip(self.targets(actions) - current, -reach, reach)        # (S, B, na)
+        # nothing kept but the state (no trajectory, no ground events): what a period's step reads
+        sim.run(steps=s, every=s, commands=_Reel(self.actuated, rest, len(self.scene.nodes)), fields=(),
+                ground_events=False)
+        after = self.com(sim.positions)[:, :2]
+        effort = np.abs(rest[-1] - current).sum(axis=1)
         rewards = np.einsum("bk,bk->b", after - before, self.goals) - self.effort_cost * effort
         self.elapsed += 1
         rewards[sim.failed] = 0.0   # a refused copy stands still at its last good state

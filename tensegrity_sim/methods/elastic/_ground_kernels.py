@@ -45,8 +45,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ._kernels import (_close, _close_copies, _drift, _drift_copies, _forces, _forces_copies, _kick_copies,
-                       gather_copies, keep, scatter_copies)
+from ._kernels import _close, _drift, _forces, gather_copy, keep, scatter_copy
 from .._mass_kernels import axial_inverse
 from ..contact._detection_kernels import _closest
 from ..contact._friction_block_kernels import MAX_COUPLED, MAX_ROWS, lone_contact, solve_block, solve_coupled
@@ -364,14 +363,13 @@ def _join(n_armed, pair_nodes, inv_mass, node_strut, n_rigid, pairs):
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, node_strut, mu, warm, contact,
-           work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pairs):
+           work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, parent, joined):
     """The armed ground contacts' velocity problem of copy ``b``, block by block, in place on ``v``; adds their
     impulses to ``contact`` (N, 3) and keeps them in ``warm`` (N + P, 3, B), this solve's warm starts. ``dirs``
     (nr, 3, B): the rigid struts' unit vectors at the configuration. A rigid strut with its ends' ground
     contacts is a block (``solve_block``), a lone node's contact one more (its closed form). With ``n_armed``
-    member pairs, the bodies they join (:func:`_join`'s ``parent`` and ``joined`` in ``pairs``) are skipped: their
-    coupled blocks are :func:`_solve_pairs`' (after this, in the same solve); ``pairs`` None: a scene without member
-    pairs (compiled without them). The rest is scratch. Returns 0, or
+    member pairs, the bodies they join (:func:`_join`'s ``parent`` and ``joined``) are skipped: their coupled
+    blocks are :func:`_solve_pairs`' (after this, in the same solve). The rest is scratch. Returns 0, or
     ``UNSOLVED`` if a block was not solved (the caller starts the step again in the reference)."""
     n_nodes = v.shape[0]
     nr = rigid_members.shape[0]
@@ -380,9 +378,8 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
             for j in range(3):
                 warm[p, j, b] = 0.0
     for k in range(nr):
-        if pairs is not None:   # (a branch numba prunes where pairs is None)
-            if n_armed and pairs[8][_root(pairs[7], k)]:
-                continue
+        if n_armed and joined[_root(parent, k)]:
+            continue
         m = rigid_members[k]
         a = ends[m, 0]
         c = ends[m, 1]
@@ -435,10 +432,7 @@ def _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, no
                 contact[p, j] += z[1 + 3 * i + j]
                 warm[p, j, b] = z[1 + 3 * i + j]
     for p in range(n_nodes):
-        if armed[p] and node_strut[p] < 0:
-            if pairs is not None:
-                if n_armed and pairs[8][_root(pairs[7], nr + p)]:
-                    continue
+        if armed[p] and node_strut[p] < 0 and not (n_armed and joined[_root(parent, nr + p)]):
             for j in range(3):
                 vel3[j] = v[p, j, b]
             lone_contact(inv_mass[p, 0], vel3, target[p], mu, z3)
@@ -475,15 +469,11 @@ def _solve_all(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs
                work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes, pair_mu, pairs):
     """A solve of the step: the bodies the ``n_armed`` member pairs join (:func:`_join`), the strut and node
     blocks (:func:`_solve`), then the coupled ones (:func:`_solve_pairs`); returns as those. Compiled into its
-    caller. ``pairs`` None (no member pairs): the blocks of :func:`_solve` only, compiled without the pairs' scratch
-    (a call handed the scratch's 18 arrays costs ~0.4 us, more than a copy's step of free flight)."""
-    if pairs is None:
-        return _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, node_strut, mu, warm, contact,
-                      work, inv2, vel, z, ends_k, target_k, vel3, z3, 0, pairs)
+    caller: :func:`_solve` is handed the pairs' scratch only where pairs are armed (a call costs ~4 ns an array)."""
     if n_armed:
         _join(n_armed, pair_nodes, inv_mass, node_strut, rigid_members.shape[0], pairs)
     why = _solve(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, dirs, node_strut, mu, warm, contact,
-                 work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pairs)
+                 work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pairs[7], pairs[8])
     if why or not n_armed:
         return why
     return _solve_pairs(v, b, armed, target, inv_mass, ends, rigid_members, dirs, node_strut, mu, warm, contact,
@@ -528,21 +518,25 @@ def pair_scratch(n_nodes, n_rigid, n_pairs):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _land(x, v, v0, h, ends, inv_mass, rigid_members, rigid_w, rigid_dirs, height, mu, radii, node_strut, touch_tol,
-          pair_nodes, pair_radii, pair_mu, pair_restitution, warm, dx, contact, armed, target, landing, work, inv2, vel,
-          z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, b):
-    """Copy ``b``'s contacts before the drift, after the first half-kick (:func:`_ground_step`): the nodes (and
-    member pairs) that would pass into contact during the drift of ``h`` are armed and get the impulse that lands
-    them, in place on ``v``; ``contact`` (N, 3) starts at these impulses, ``landing`` (N,) gets each node's
-    landing speed (for :func:`_settle`), ``warm`` (N + P, 3, B) the solve's warm starts. ``v0`` (N, 3): the
-    velocities at the step's start; ``dx`` (N, 3) is scratch. Returns 0, or the reason the step is left to the
-    reference (``UNSOLVED``, ``MEMBERS``)."""
+def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                 gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu,
+                 restitution, radii,
+                 node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, dx, impulses, slack,
+                 contact, armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5,
+                 t5, pairs, b):
+    """One step of copy ``b`` with the contacts (module docstring), in place as ``_elastic_kernels._step``;
+    ``contact`` (N, 3) gets the ground's impulses of the step, ``pairs`` (:func:`pair_scratch`) the member
+    pairs' (``v0`` (N, 3): the velocities at the step's start). Returns 0, or the reason the step is left to
+    the reference (``UNSOLVED``, ``MEMBERS``: the copy's ``x``, ``v`` and carry are then not those of a step,
+    the caller restarts it)."""
     n_nodes = x.shape[0]
     n_pairs = pair_nodes.shape[0]
+    half = 0.5 * h
     found = False
     for p in range(n_nodes):
         for j in range(3):
             contact[p, j] = 0.0
+            v[p, j, b] += half * acc[p, j, b]
     for p in range(n_nodes):
         vz0 = v0[p, 2]
         gap = x[p, 2, b] - radii[p] - height
@@ -563,23 +557,23 @@ def _land(x, v, v0, h, ends, inv_mass, rigid_members, rigid_w, rigid_dirs, heigh
         landing[p] = max(-v[p, 2, b], 0.0) if gap > touch_tol else 0.0
         found = found or armed[p]
     n_armed = 0
-    if pairs is not None:   # (pruned where None: a scene without member pairs)
+    if n_pairs:
         pair_impulse, touched = pairs[5], pairs[6]
         for k in range(n_pairs):
             touched[k] = False
             for j in range(4):
                 pair_impulse[k, j] = 0.0
-        n_armed = _arm_pairs_for(x, v, v0, h, pair_nodes, pair_radii, touch_tol, pair_restitution, warm, ends4,
+        n_armed = _arm_pairs_for(x, v, v0, h, pair_nodes, pair_radii, touch_tol, pair_restitution, warm[0], ends4,
                                  out6, s5, t5, pairs, b)
         if n_armed < 0:
             return MEMBERS
     if found or n_armed:
-        for p in range(n_nodes):   # the free velocities, for a solve again
+        for p in range(n_nodes):   # the free velocities, for a solve again (dx is the drift's scratch)
             for j in range(3):
                 dx[p, j] = v[p, j, b]
         while True:
             why = _solve_all(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
-                             warm, contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes,
+                             warm[0], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes,
                              pair_mu, pairs)
             if why:
                 return why
@@ -599,77 +593,39 @@ def _land(x, v, v0, h, ends, inv_mass, rigid_members, rigid_w, rigid_dirs, heigh
                 for j in range(3):
                     v[p, j, b] = dx[p, j]
                     contact[p, j] = 0.0
-    return 0
-
-
-@njit(cache=True, error_model="numpy", _nrt=False)
-def _settle(x, v, v0, ends, inv_mass, rigid_members, rigid_w, rigid_dirs, height, mu, restitution, radii, node_strut,
-            touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, contact, armed, target, landing, work,
-            inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, b):
-    """Copy ``b``'s contacts after the closing half-kick (:func:`_ground_step`): the touching nodes (and member
-    pairs) get the impulse that stops them moving into contact, with Newton's restitution of their ``landing``
-    speeds (:func:`_land`'s), in place on ``v``; adds the impulses to ``contact`` (N, 3), the warm starts to
-    ``warm`` (N + P, 3, B). Returns as :func:`_land`."""
-    n_armed = 0
-    if pairs is not None:
-        n_armed = _arm_pairs_for(x, v, v0, 0.0, pair_nodes, pair_radii, touch_tol, pair_restitution, warm, ends4,
+    _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
+    _close(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
+           rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b)
+    if n_pairs:
+        n_armed = _arm_pairs_for(x, v, v0, 0.0, pair_nodes, pair_radii, touch_tol, pair_restitution, warm[1], ends4,
                                  out6, s5, t5, pairs, b)
         if n_armed < 0:
             return MEMBERS
     found = False
-    for p in range(x.shape[0]):
+    for p in range(n_nodes):
         armed[p] = inv_mass[p, 0] > 0.0 and x[p, 2, b] - radii[p] - height <= touch_tol
         target[p] = restitution * landing[p]
         found = found or armed[p]
     if found or n_armed:
         return _solve_all(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
-                          warm, contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes,
+                          warm[1], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes,
                           pair_mu, pairs)
     return 0
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                 gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu,
-                 restitution, radii,
-                 node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, dx, impulses, slack,
-                 contact, armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5,
-                 t5, pairs, b):
-    """One step of copy ``b`` with the contacts (module docstring), in place as ``_elastic_kernels._step``: the
-    first half-kick, :func:`_land`, the drift, the closing half-kick and :func:`_settle`; ``contact`` (N, 3) gets
-    the ground's impulses of the step, ``pairs`` (:func:`pair_scratch`) the member pairs' (``v0`` (N, 3): the
-    velocities at the step's start). Returns 0, or the reason the step is left to the reference (``UNSOLVED``,
-    ``MEMBERS``: the copy's ``x``, ``v`` and carry are then not those of a step, the caller restarts it)."""
-    half = 0.5 * h
-    for p in range(x.shape[0]):
-        for j in range(3):
-            v[p, j, b] += half * acc[p, j, b]
-    why = _land(x, v, v0, h, ends, inv_mass, rigid_members, rigid_w, rigid_dirs, height, mu, radii, node_strut,
-                touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm[0], dx, contact, armed, target,
-                landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, b)
-    if why:
-        return why
-    _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
-    _close(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-           rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b)
-    return _settle(x, v, v0, ends, inv_mass, rigid_members, rigid_w, rigid_dirs, height, mu, restitution, radii,
-                   node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm[1], contact, armed,
-                   target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, b)
-
-
-@njit(cache=True, error_model="numpy", _nrt=False)
-def _take_inputs(rest_seq, ext_seq, s, bs, be, rest, ext, b) -> bool:
-    """Step ``s``'s inputs into copy ``b`` of ``rest`` (nc, B) (column ``bs`` of ``rest_seq``) and ``ext`` (N, 3, B)
-    (column ``be`` of ``ext_seq``); whether they changed."""
+def _take_inputs(rest_seq, ext_seq, s, bs, be, rest, ext) -> bool:
+    """Step ``s``'s inputs into ``rest`` (nc, 1) (column ``bs`` of ``rest_seq``) and ``ext`` (N, 3, 1) (column ``be``
+    of ``ext_seq``); whether they changed."""
     changed = False
     for ci in range(rest.shape[0]):
-        if rest[ci, b] != rest_seq[s, ci, bs]:
-            rest[ci, b] = rest_seq[s, ci, bs]
+        if rest[ci, 0] != rest_seq[s, ci, bs]:
+            rest[ci, 0] = rest_seq[s, ci, bs]
             changed = True
     for i in range(ext.shape[0]):
         for j in range(3):
-            if ext[i, j, b] != ext_seq[s, i, j, be]:
-                ext[i, j, b] = ext_seq[s, i, j, be]
+            if ext[i, j, 0] != ext_seq[s, i, j, be]:
+                ext[i, j, 0] = ext_seq[s, i, j, be]
                 changed = True
     return changed
 
@@ -689,10 +645,8 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
     (the copy stops there: its ``x``, ``v`` are those at that step's start, its carry is not), and ``reason``
     (B,) int64 why (``UNSOLVED``, ``MEMBERS``), or the step before which a copy stopped for want of room for
     its records (``FULL``: fewer than P left; its carry is that step's start's, for a call that goes on).
-    Each block's copies are stepped in contiguous arrays of their own (:func:`_block`): without member pairs
-    together, step by step in phases (:func:`_phased_steps`: what every copy does alike with the copies innermost,
-    each copy's contact solves between; 256 rolling icosahedra: 1.5 against 1.9 us a copy-step of free flight,
-    CPU time), with them one copy after the other; each copy the very arithmetic of ``Simulator``'s loop.
+    Each copy is stepped in contiguous arrays of its own (a batch of one: the very arithmetic of
+    ``Simulator``'s loop, and no stride of B between a copy's numbers).
 
     ``rest_seq`` (T, nc, Bs), ``ext_seq`` (T, N, 3, Be): with T = ``n_steps``, each step's rest lengths and external
     forces (a command schedule evaluated at the steps' start times; Bs, Be = B, or 1 for every copy: an environment's
@@ -732,7 +686,7 @@ def _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, sti
             for j in range(3):
                 x0[i, j] = xb[i, j, 0]
                 v0[i, j] = vb[i, j, 0]
-        if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, be, restb, extb, 0):
+        if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, be, restb, extb):
             _forces(xb, vb, restb, extb, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b, damping_b,
                     inv_mass_b, gravity_b, rigid_members_b, accb, tensionb, dirsb, sl, 0)
         why = _ground_step(xb, vb, restb, extb, h, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
@@ -773,178 +727,6 @@ def _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, sti
                     total_contact[i, j] = 0.0
 
 
-@njit(cache=True, error_model="numpy", _nrt=False)
-def _phased_steps(lo, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                  gravity_force, rigid_members, rigid_length_sq, rigid_w, height, mu, restitution, radii, node_strut,
-                  touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, x, v, rest, ext, acc, tension, dirs,
-                  warm, rest_seq, ext_seq, x0, v0, x_failed, v_failed, dx, strength, imp, total, sl, contact,
-                  total_contact, landing, running, changed, v0c, dxc, contactc, landingc, slc, armed, target, work,
-                  inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, out_x, out_v, out_impulses,
-                  out_slack, out_contact, failed, reason):
-    """The ``n_steps`` steps of a block of copies without member pairs, the copies ``lo ..`` of the call in
-    block arrays of their own (``x`` .. ``warm``, batch last), step by step in phases: what every copy does alike
-    (the half-kicks, the drift with SHAKE, the forces, RATTLE: ``_elastic_kernels``' loops with the copies
-    innermost, which the compiler vectorises) over all the block's copies at once, each copy's contacts
-    (:func:`_land`, :func:`_settle`) one copy at a time between them. Each copy sees the very operations of
-    :func:`_ground_step` in the same order, so its numbers are a lone copy's bit for bit. A copy that a step
-    fails in (``failed``, ``reason``: :func:`_ground_steps`') takes no more contact solves; the block's loops step
-    it on (numbers nobody reads: the caller restarts it) and its state at that step's start is put back at the
-    end. The rest is scratch (``*c`` a copy's)."""
-    n_nodes, _, nb = x.shape
-    nc = rest.shape[0]
-    half = 0.5 * h
-    per_rest = rest_seq.shape[2] > 1   # the copies' columns of the inputs (or the one of every copy's)
-    per_ext = ext_seq.shape[3] > 1
-    for b in range(nb):
-        running[b] = True
-    for s in range(n_steps):
-        for i in range(n_nodes):
-            for j in range(3):
-                for b in range(nb):
-                    x0[i, j, b] = x[i, j, b]
-                    v0[i, j, b] = v[i, j, b]
-        if rest_seq.shape[0] > 0:
-            # new inputs: the step starts from forces computed anew (the carry dropped); where every copy's changed
-            # (a failed copy's counts as changed: nobody reads it), for all of them in one pass
-            every_copy = True
-            for b in range(nb):
-                changed[b] = _take_inputs(rest_seq, ext_seq, s, lo + b if per_rest else 0, lo + b if per_ext else 0,
-                                          rest, ext, b) or not running[b]
-                every_copy = every_copy and changed[b]
-            if every_copy:
-                _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping,
-                               inv_mass, gravity_force, rigid_members, acc, tension, dirs, sl)
-            else:
-                for b in range(nb):
-                    if changed[b] and running[b]:
-                        _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping,
-                                inv_mass, gravity_force, rigid_members, acc, tension, dirs, slc, b)
-        _kick_copies(v, acc, half)
-        for b in range(nb):
-            if not running[b]:
-                continue
-            for i in range(n_nodes):
-                for j in range(3):
-                    v0c[i, j] = v0[i, j, b]
-            why = _land(x, v, v0c, h, ends, inv_mass, rigid_members, rigid_w, dirs, height, mu, radii, node_strut,
-                        touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm[0], dxc, contactc, armed,
-                        target, landingc, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs,
-                        b)
-            for i in range(n_nodes):
-                landing[i, b] = landingc[i]
-                for j in range(3):
-                    contact[i, j, b] = contactc[i, j]
-            if why:
-                _stop(b, lo, s, why, x0, v0, x_failed, v_failed, running, failed, reason)
-        _drift_copies(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, dirs, dx, strength)
-        _close_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                      gravity_force, rigid_members, rigid_w, acc, tension, dirs, dx, strength, imp, sl)
-        for b in range(nb):
-            if not running[b]:
-                continue
-            for i in range(n_nodes):
-                landingc[i] = landing[i, b]
-                for j in range(3):
-                    v0c[i, j] = v0[i, j, b]
-                    contactc[i, j] = contact[i, j, b]
-            why = _settle(x, v, v0c, ends, inv_mass, rigid_members, rigid_w, dirs, height, mu, restitution, radii,
-                          node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm[1], contactc,
-                          armed, target, landingc, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5,
-                          pairs, b)
-            for i in range(n_nodes):
-                for j in range(3):
-                    contact[i, j, b] = contactc[i, j]
-            if why:
-                _stop(b, lo, s, why, x0, v0, x_failed, v_failed, running, failed, reason)
-        for ci in range(nc):
-            for b in range(nb):
-                total[ci, b] += imp[ci, b]
-        for i in range(n_nodes):
-            for j in range(3):
-                for b in range(nb):
-                    total_contact[i, j, b] += contact[i, j, b]
-        if (s + 1) % every == 0 or s == n_steps - 1:   # every copy's (a failed one's: the caller writes its own)
-            k = s // every
-            for i in range(n_nodes):
-                for j in range(3):
-                    for b in range(nb):
-                        out_x[k, i, j, lo + b] = x[i, j, b]
-                        out_v[k, i, j, lo + b] = v[i, j, b]
-                        out_contact[k, i, j, lo + b] = total_contact[i, j, b]
-                        total_contact[i, j, b] = 0.0
-            for ci in range(nc):
-                for b in range(nb):
-                    out_impulses[k, ci, lo + b] = total[ci, b]
-                    out_slack[k, ci, lo + b] = sl[ci, b]
-                    total[ci, b] = 0.0
-    for b in range(nb):
-        if not running[b]:
-            for i in range(n_nodes):
-                for j in range(3):
-                    x[i, j, b] = x_failed[i, j, b]
-                    v[i, j, b] = v_failed[i, j, b]
-
-
-@njit(cache=True, error_model="numpy", _nrt=False)
-def _stop(b, lo, s, why, x0, v0, x_failed, v_failed, running, failed, reason):
-    """Copy ``b`` of a block (``lo + b`` of the call) failed at step ``s`` for reason ``why``: its state at the
-    step's start kept (:func:`_phased_steps` puts it back at the end), its failure noted, its contacts done."""
-    for i in range(x0.shape[0]):
-        for j in range(3):
-            x_failed[i, j, b] = x0[i, j, b]
-            v_failed[i, j, b] = v0[i, j, b]
-    running[b] = False
-    failed[lo + b] = s
-    reason[lo + b] = why
-
-
-@njit(cache=True, error_model="numpy")
-def _block_phased(lo, hi, x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest,
-                  damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs,
-                  height, mu, restitution, radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu,
-                  pair_restitution, warm, rest_seq, ext_seq, out_x, out_v, out_impulses, out_slack, out_contact,
-                  n_records, failed, reason):
-    """Copies ``lo .. hi - 1`` of :func:`_ground_steps` (its arguments; no member pairs) gathered into block arrays
-    of their own, stepped by :func:`_phased_steps` with the scratch allocated here, and written back."""
-    n_nodes = x.shape[0]
-    nc = rest.shape[0]
-    nr = rigid_members.shape[0]
-    nb = hi - lo
-    xb, vb, accb, extb = (np.empty((n_nodes, 3, nb)), np.empty((n_nodes, 3, nb)), np.empty((n_nodes, 3, nb)),
-                          np.empty((n_nodes, 3, nb)))
-    restb, tensionb, dirsb = np.empty((nc, nb)), np.empty((nc, nb)), np.empty((nr, 3, nb))
-    gather_copies(x, v, acc, ext, rest, tension, rigid_dirs, lo, hi, xb, vb, accb, extb, restb, tensionb, dirsb)
-    warmb = np.empty((2, n_nodes, 3, nb))
-    for e in range(2):
-        for i in range(n_nodes):
-            for j in range(3):
-                for b in range(nb):
-                    warmb[e, i, j, b] = warm[e, i, j, lo + b]
-    for b in range(lo, hi):
-        failed[b] = -1
-        reason[b] = 0
-        n_records[b] = 0
-    _phased_steps(lo, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                  gravity_force, rigid_members, rigid_length_sq, rigid_w, height, mu, restitution, radii, node_strut,
-                  touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, xb, vb, restb, extb, accb, tensionb,
-                  dirsb, warmb, rest_seq, ext_seq, np.empty((n_nodes, 3, nb)), np.empty((n_nodes, 3, nb)),
-                  np.empty((n_nodes, 3, nb)), np.empty((n_nodes, 3, nb)), np.empty((n_nodes, 3, nb)),
-                  np.empty((nr, nb)), np.empty((nc, nb)), np.zeros((nc, nb)), np.empty((nc, nb), dtype=np.bool_),
-                  np.empty((n_nodes, 3, nb)), np.zeros((n_nodes, 3, nb)), np.empty((n_nodes, nb)),
-                  np.empty(nb, dtype=np.bool_), np.empty(nb, dtype=np.bool_), np.empty((n_nodes, 3)),
-                  np.empty((n_nodes, 3)), np.empty((n_nodes, 3)), np.empty(n_nodes), np.empty(nc, dtype=np.bool_),
-                  np.empty(n_nodes, dtype=np.bool_), np.empty(n_nodes), np.zeros((6, MAX_ROWS, MAX_ROWS)),
-                  np.empty(3), np.empty((2, 3)), np.zeros(MAX_ROWS), np.empty(2, dtype=np.int64), np.empty(2),
-                  np.empty(3), np.empty(3), np.empty((4, 3)), np.empty(6), np.empty(5), np.empty(5), None, out_x,
-                  out_v, out_impulses, out_slack, out_contact, failed, reason)
-    scatter_copies(xb, vb, accb, tensionb, dirsb, lo, hi, x, v, acc, tension, rigid_dirs)
-    for e in range(2):
-        for i in range(n_nodes):
-            for j in range(3):
-                for b in range(nb):
-                    warm[e, i, j, lo + b] = warmb[e, i, j, b]
-
-
 @njit(cache=True, error_model="numpy")
 def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest,
            damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height,
@@ -952,20 +734,10 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
            radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, rest_seq, ext_seq,
            out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason):
     """Block ``blk`` of ``blocks`` of :func:`_ground_steps`' copies (its arguments): one function that the
-    parallel loop calls once a block and the serial loop once, so both step the copies with the same code.
-    Without member pairs the block is stepped in phases (:func:`_block_phased`); with them (whose scratch
-    lives from a step's first solve to its last) one copy after the other, each in arrays of its own."""
+    parallel loop calls once a block and the serial loop once, so both step the copies with the same code."""
     n_nodes = x.shape[0]
     nc, n_copies = rest.shape
     nr = rigid_members.shape[0]
-    if pair_nodes.shape[0] == 0:
-        first = np.int64(blk)   # prange's index is unsigned: with a signed number it would make a float
-        _block_phased(n_copies * first // blocks, n_copies * (first + 1) // blocks, x, v, rest, ext, h, n_steps,
-                      every, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-                      rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu, restitution,
-                      radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, rest_seq,
-                      ext_seq, out_x, out_v, out_impulses, out_slack, out_contact, n_records, failed, reason)
-        return
     # a block of copies a thread (the scratch allocated once for its copies: allocated for each copy, it
     # cost 7 ms a call of 1,024 copies); the model's arrays copied for each block, measured when the step loop
     # still counted references per call (threads sharing one array's count took turns at it: 178-204k
@@ -1012,8 +784,7 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
     t5 = np.empty(5)
     first = np.int64(blk)   # prange's index is unsigned: with a signed number it would make a float
     for b in range(n_copies * first // blocks, n_copies * (first + 1) // blocks):
-        gather_copies(x, v, acc, ext, rest, tension, rigid_dirs, b, b + 1, xb, vb, accb, extb, restb, tensionb,
-                      dirsb)
+        gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, xb, vb, accb, extb, restb, tensionb, dirsb)
         for i in range(n_nodes + n_pairs):
             for j in range(3):
                 warmb[0, i, j, 0] = warm[0, i, j, b]
@@ -1035,7 +806,7 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
                     total_contact, armed, target, landing, x0, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3,
                     ends4, out6, s5, t5, pairs, out_x, out_v, out_impulses, out_slack, out_contact, out_pairs,
                     n_records, failed, reason)
-        scatter_copies(xb, vb, accb, tensionb, dirsb, b, b + 1, x, v, acc, tension, rigid_dirs)
+        scatter_copy(xb, vb, accb, tensionb, dirsb, b, x, v, acc, tension, rigid_dirs)
         for i in range(n_nodes + n_pairs):
             for j in range(3):
                 warm[0, i, j, b] = warmb[0, i, j, 0]

@@ -354,42 +354,36 @@ def verlet_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, s
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def gather_copies(x, v, acc, ext, rest, tension, rigid_dirs, lo, hi, wx, wv, wacc, wext, wrest, wten, wdirs):
-    """Copies ``lo .. hi - 1`` of the batch-last state and carry into the ``w*`` arrays of ``hi - lo`` copies (a
-    copy, or a block of them, stepped in contiguous arrays of its own: the very arithmetic of a ``Simulator``)."""
+def gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs):
+    """Copy ``b`` of the batch-last state and carry into the batch-of-one ``w*`` arrays (a copy stepped in
+    contiguous arrays of its own: the very arithmetic of a ``Simulator``, no stride of B)."""
     for i in range(x.shape[0]):
         for j in range(3):
-            for b in range(lo, hi):
-                wx[i, j, b - lo] = x[i, j, b]
-                wv[i, j, b - lo] = v[i, j, b]
-                wacc[i, j, b - lo] = acc[i, j, b]
-                wext[i, j, b - lo] = ext[i, j, b]
+            wx[i, j, 0] = x[i, j, b]
+            wv[i, j, 0] = v[i, j, b]
+            wacc[i, j, 0] = acc[i, j, b]
+            wext[i, j, 0] = ext[i, j, b]
     for ci in range(rest.shape[0]):
-        for b in range(lo, hi):
-            wten[ci, b - lo] = tension[ci, b]
-            wrest[ci, b - lo] = rest[ci, b]
+        wten[ci, 0] = tension[ci, b]
+        wrest[ci, 0] = rest[ci, b]
     for k in range(rigid_dirs.shape[0]):
         for j in range(3):
-            for b in range(lo, hi):
-                wdirs[k, j, b - lo] = rigid_dirs[k, j, b]
+            wdirs[k, j, 0] = rigid_dirs[k, j, b]
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def scatter_copies(wx, wv, wacc, wten, wdirs, lo, hi, x, v, acc, tension, rigid_dirs):
-    """The ``w*`` state and carry written back as copies ``lo .. hi - 1`` (:func:`gather_copies`' inverse)."""
+def scatter_copy(wx, wv, wacc, wten, wdirs, b, x, v, acc, tension, rigid_dirs):
+    """The batch-of-one state and carry written back as copy ``b`` (:func:`gather_copy`'s inverse)."""
     for i in range(x.shape[0]):
         for j in range(3):
-            for b in range(lo, hi):
-                x[i, j, b] = wx[i, j, b - lo]
-                v[i, j, b] = wv[i, j, b - lo]
-                acc[i, j, b] = wacc[i, j, b - lo]
+            x[i, j, b] = wx[i, j, 0]
+            v[i, j, b] = wv[i, j, 0]
+            acc[i, j, b] = wacc[i, j, 0]
     for ci in range(tension.shape[0]):
-        for b in range(lo, hi):
-            tension[ci, b] = wten[ci, b - lo]
+        tension[ci, b] = wten[ci, 0]
     for k in range(rigid_dirs.shape[0]):
         for j in range(3):
-            for b in range(lo, hi):
-                rigid_dirs[k, j, b] = wdirs[k, j, b - lo]
+            rigid_dirs[k, j, b] = wdirs[k, j, 0]
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -551,22 +545,19 @@ def _pushes_copies(ends, inv_mass, rigid_members, strengths, dirs, out):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _kick_copies(v, acc, dt):
-    """Every copy's velocities kicked by ``dt`` (s) of the accelerations ``acc``: ``v += dt acc`` (N, 3, B)."""
-    for i in range(v.shape[0]):
-        for j in range(3):
-            for b in range(v.shape[2]):
-                v[i, j, b] += dt * acc[i, j, b]
-
-
-@njit(cache=True, error_model="numpy", _nrt=False)
-def _drift_copies(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, strength):
-    """:func:`_drift` of every copy; ``dx`` (N, 3, B) and ``strength`` (nr, B) are scratch."""
+def _step_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                 gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength,
+                 impulses, slack):
+    """:func:`_step` of every copy; ``dx`` (N, 3, B) and ``strength`` (nr, B) are scratch, ``impulses``
+    and ``slack`` (nc, B) the step's."""
     n_nodes, _, n_copies = x.shape
+    nc = tension.shape[0]
     nr = rigid_members.shape[0]
+    half = 0.5 * h
     for i in range(n_nodes):
         for j in range(3):
             for b in range(n_copies):
+                v[i, j, b] += half * acc[i, j, b]
                 x[i, j, b] += h * v[i, j, b]
     if nr:
         for k in range(nr):   # SHAKE (_shake)
@@ -587,17 +578,6 @@ def _drift_copies(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid
                 for b in range(n_copies):
                     x[i, j, b] += dx[i, j, b]
                     v[i, j, b] += dx[i, j, b] / h
-
-
-@njit(cache=True, error_model="numpy", _nrt=False)
-def _close_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                  gravity_force, rigid_members, rigid_w, acc, tension, rigid_dirs, dx, strength, impulses, slack):
-    """:func:`_close` of every copy; ``dx`` (N, 3, B) and ``strength`` (nr, B) are scratch, ``impulses`` and
-    ``slack`` (nc, B) the step's."""
-    n_nodes, _, n_copies = x.shape
-    nc = tension.shape[0]
-    nr = rigid_members.shape[0]
-    half = 0.5 * h
     for ci in range(nc):
         for b in range(n_copies):
             impulses[ci, b] = tension[ci, b]
@@ -606,7 +586,10 @@ def _close_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor,
     for ci in range(nc):
         for b in range(n_copies):
             impulses[ci, b] = half * (impulses[ci, b] + tension[ci, b])
-    _kick_copies(v, acc, half)
+    for i in range(n_nodes):
+        for j in range(3):
+            for b in range(n_copies):
+                v[i, j, b] += half * acc[i, j, b]
     if nr:
         for k in range(nr):   # RATTLE (_rattle)
             m = rigid_members[k]
@@ -622,18 +605,6 @@ def _close_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor,
             for j in range(3):
                 for b in range(n_copies):
                     v[i, j, b] += dx[i, j, b]
-
-
-@njit(cache=True, error_model="numpy", _nrt=False)
-def _step_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                 gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength,
-                 impulses, slack):
-    """:func:`_step` of every copy (kick, drift, close); ``dx`` (N, 3, B) and ``strength`` (nr, B) are scratch,
-    ``impulses`` and ``slack`` (nc, B) the step's."""
-    _kick_copies(v, acc, 0.5 * h)
-    _drift_copies(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, strength)
-    _close_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                  gravity_force, rigid_members, rigid_w, acc, tension, rigid_dirs, dx, strength, impulses, slack)
 
 
 @njit(cache=True, error_model="numpy", nogil=True)   # nogil: blocks of copies on threads (methods/_copy_blocks.py)

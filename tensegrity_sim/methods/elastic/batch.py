@@ -254,12 +254,9 @@ class ElasticBatch:
         self.pairs = {}
 
         def copy_major(*shape, dtype=float):
-            # (steps, ..., B) over memory laid out copy by copy where a loop steps one copy at a time (the reference,
-            # the kernel with member pairs): its writes then fall on consecutive numbers, not numbers B apart (1,024
-            # rolling copies on 2 threads: 3.1-3.3 us a copy-step against 4.0-4.3, timed in turns in one process);
-            # batch last where the kernel steps a block of copies together (with the copies innermost)
-            if self.compiled and not n_pairs:
-                return np.empty((steps,) + shape + (b,), dtype=dtype)
+            # (steps, ..., B) over memory laid out copy by copy: the loop steps one copy at a time, and its
+            # writes then fall on consecutive numbers, not numbers B apart (1,024 rolling copies on 2 threads:
+            # 3.1-3.3 us a copy-step against 4.0-4.3, timed in turns in one process)
             return np.moveaxis(np.empty((b, steps) + shape, dtype=dtype), 0, -1)
 
         if not self.compiled:
