@@ -544,9 +544,7 @@ class SimNodeLogic:
         if now < self._repeat_at:
             return
         self._repeat_at = now + LOCKSTEP_REPEAT
-        if self._transport is not None:
-            for key, message, data in self._awaited:
-                self._transport(key, data if self._raw else message)
+        self._transmit(self._awaited)
 
     def _run_due(self, start: float) -> tuple[int, float]:
         """The steps of a tick that started at ``start`` s on the clock (:meth:`tick`): (steps run, the
@@ -706,6 +704,10 @@ class SimNodeLogic:
         if self.recorder is not None:
             names = self.topic_names
             self.recorder.record([(names[key], data) for key, _, data in outputs], ns)
+        self._transmit(outputs)
+
+    def _transmit(self, outputs: list[tuple[str, object, bytes | None]]) -> None:
+        """Hand ``outputs`` (as :meth:`_send` takes them) to the transport, if any, in order."""
         if self._transport is not None:
             for key, message, data in outputs:
                 self._transport(key, data if self._raw else message)
