@@ -144,6 +144,9 @@ class RollTask:
         self.n_obs = nc + len(names) + 6 * n + 2
         self.goals = np.tile(self.goal, (copies, 1))
         self.elapsed = np.zeros(copies, dtype=np.int64)   # control periods since each copy's reset
+        # the copies' centres of mass (B, 3) m now: kept with the state (one computation a control period, the
+        # reward's, the observation's and the info's)
+        self.centres = self.com(self.sim.positions)
 
     @staticmethod
     def _range(value) -> tuple[float, float]:
@@ -189,6 +192,7 @@ class RollTask:
                          np.tile(self.rest0, (len(copies), 1)))
         self.goals[copies] = np.stack([s[2] for s in starts])
         self.elapsed[copies] = 0
+        self.centres[copies] = self.com(np.stack([s[0] for s in starts]))
 
     def observe(self) -> np.ndarray:
         """(B, n_obs) float64: cable lengths (n_cables) m, the actuated cables' rest lengths (n_actuated) m,
@@ -196,7 +200,7 @@ class RollTask:
         x, v = self.sim.positions, self.sim.velocities
         ce = self.sim.system.cable_ends
         lengths = np.linalg.norm(x[:, ce[:, 1]] - x[:, ce[:, 0]], axis=-1)
-        relative = x - self.com(x)[:, None]
+        relative = x - self.centres[:, None]
         b = self.batch
         return np.concatenate([lengths, self.sim.rest_lengths[:, self.actuated], relative.reshape(b, -1),
                                v.reshape(b, -1), self.goals], axis=1)
@@ -225,14 +229,15 @@ class RollTask:
         """One control period of every copy from actions (B, n_actuated) in [-1, 1]: rewards (B,) and the copies'
         time limits reached (B,) bool. The copies the simulator refused are in ``sim.failures`` {copy: reason}."""
         sim, s = self.sim, self.substeps
-        before = self.com(sim.positions)[:, :2]
+        before = self.centres[:, :2]
         current = sim.rest_lengths[:, self.actuated]
         reach = self.reel_speed * self.dt * np.arange(1, s + 1)[:, None, None]          # (S, 1, 1) m
         rest = current + np.clip(self.targets(actions) - current, -reach, reach)        # (S, B, na)
         # nothing kept but the state (no trajectory, no ground events): what a period's step reads
         sim.run(steps=s, every=s, commands=_Reel(self.actuated, rest, len(self.scene.nodes)), fields=(),
                 ground_events=False)
-        after = self.com(sim.positions)[:, :2]
+        self.centres = self.com(sim.positions)
+        after = self.centres[:, :2]
         effort = np.abs(rest[-1] - current).sum(axis=1)
         rewards = np.einsum("bk,bk->b", after - before, self.goals) - self.effort_cost * effort
         self.elapsed += 1
