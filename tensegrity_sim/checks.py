@@ -35,6 +35,8 @@ _repr.maxlevel = 3
 def describe(value: Any) -> str:
     """A short repr of ``value`` for an error message: bounded in length and depth (a nested or
     self-referencing structure, a huge integer, a long string all print in one short line)."""
+    if type(value) is int and value.bit_length() <= 64:   # reprlib's text without its cost (each run() names
+        return str(value)                                   # its kept steps)
     if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 64:
         return f"an integer of {len(str(abs(value))) if value.bit_length() < 10_000 else 'over 3000'} digits"
     try:

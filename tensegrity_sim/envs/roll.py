@@ -93,8 +93,7 @@ class RollEnv(gym.Env):
 
     def _info(self) -> dict:
         """The copy's time (s since its reset) and centre of mass (3,) m."""
-        x = self.task.sim.positions
-        return {"time": float(self.task.elapsed[0] * self.task.control_dt), "com": self.task.com(x)[0]}
+        return {"time": float(self.task.elapsed[0] * self.task.control_dt), "com": self.task.centres[0].copy()}
 
     def render(self):
         if self.render_mode == "rgb_array":
@@ -158,10 +157,9 @@ class RollVectorEnv(VectorEnv):
     def _infos(self, failed: np.ndarray | None = None) -> dict:
         """Per copy: time (s since its reset), com (3,) m and, where the simulator refused it, refused (its reason);
         each with Gymnasium's ``_key`` mask of the copies that have it."""
-        x = self.task.sim.positions
         every = np.ones(self.num_envs, dtype=bool)
         infos = {"time": self.task.elapsed * self.task.control_dt, "_time": every,
-                 "com": self.task.com(x), "_com": every.copy()}
+                 "com": self.task.centres.copy(), "_com": every.copy()}
         if failed is not None and failed.any():
             reasons = np.full(self.num_envs, None, dtype=object)
             for b, reason in self.task.sim.failures.items():
