@@ -301,14 +301,19 @@ def landing(x, v, dt, nodes, radii, height, touch_tol):
 
 
 @njit(cache=True)
-def arm_step(x_m, v, v0, half, nodes, radii, height, touch_tol):
-    """``ContactSet.arm_step`` without an answer (the ground alone): the armed nodes (k,) (system indices),
-    their normal targets (k,) m/s and whether each touches the ground (k,) bool."""
+def arm_step(x_m, v, v0, half, nodes, radii, height, touch_tol, v_f):
+    """``ContactSet.arm_step`` for the ground alone: the armed nodes (k,) (system indices), their normal
+    targets (k,) m/s and whether each touches the ground (k,) bool; judged on an answer ``v_f`` (N, 3) too
+    unless it is empty (a re-arm after :func:`missed`)."""
     armed = np.zeros(nodes.shape[0], dtype=np.bool_)
+    answered = v_f.shape[0] > 0
     for i in range(nodes.shape[0]):
         p = nodes[i]
         g = x_m[p, 2] - radii[p] - height
-        armed[i] = g - half * abs(v0[p, 2]) <= touch_tol
+        reach = g - half * abs(v0[p, 2])
+        if answered:
+            reach = min(reach, g + half * v_f[p, 2])
+        armed[i] = reach <= touch_tol
     which = nodes[armed]
     k = which.shape[0]
     w = np.empty(k)

@@ -132,7 +132,7 @@ _LANDING_ITER = 4     # ... after at most this many solves per sub-step
 
 # the step kernels' ground and friction memory where the scene has no ground (``InextensibleMethod._ground_table``)
 _NO_GROUND = (False, np.zeros(0, dtype=np.int64), np.zeros(0), 0.0, 0.0, 0.0, np.zeros(0, dtype=np.int64), 0.0, 0.0,
-              0, 0)
+              0, 0, 0.0)
 _NO_MEMORY = (np.zeros(0, dtype=bool), np.zeros(0), np.zeros((0, 2)))
 # the kernels' Schur coordinates of the rods' mass blocks where the scene has none (``InextensibleMethod._qp_call``)
 _NO_BLOCKS = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
@@ -469,15 +469,15 @@ class InextensibleMethod(StepMethod):
 
     def _ground_table(self) -> tuple:
         """What the step kernels take of the ground (``_inextensible_kernels.midpoint``'s ``ground``): its
-        nodes, radii, height and friction, ``ContactSet``'s tolerance and free-node index and the friction
-        modes' settings as ``friction.py`` has them now; ``_NO_GROUND`` without one (or with a member contact
+        nodes, radii, height and friction, ``ContactSet``'s tolerance and free-node index, the friction
+        modes' settings as ``friction.py`` has them now and the restitution; ``_NO_GROUND`` without one (or with a member contact
         response, which is Python's)."""
         ground = self.ground
         if ground is None or ground.members is not None:
             return _NO_GROUND
         return (True, ground._grounded, np.asarray(ground.radii, dtype=float), float(ground.height), float(ground.mu),
                 friction.TOUCH_TOL, ground._free_index, friction.FIXED_POINT_TOL, friction._SLIP_FLOOR,
-                friction.MAX_MODE_ITER, friction._ANDERSON_DEPTH)
+                friction.MAX_MODE_ITER, friction._ANDERSON_DEPTH, float(ground.restitution))
 
     def _memory(self) -> tuple:
         """Each node's friction mode, ``y_n`` and slip direction as the friction solver keeps them (the step
