@@ -176,10 +176,12 @@ class InextensibleMethod(StepMethod):
     not cover (an event, a refused QP answer, an SVD of the rule, a pulling cable in its fit) takes the
     Python path with the same kernels, to the same bits (``test_compiled.py``); ``one_kernel = False``
     takes it always. On a ground (no member contact response) the step kernel also arms the ground's
-    contacts and solves them by the compiled friction modes (``_friction_kernels.contact_solve``); a step
-    with a landing inside it or at its start, or whose modes the kernel leaves to the reference, is
-    Python's. A snap's impact at a step's start is the kernel's too (``_inextensible_kernels.impact``) where no
-    node touches the ground and the rule's fit is one-dimensional; a command schedule runs inside the loop
+    contacts and solves them by the compiled friction modes (``_friction_kernels.contact_solve``: modes that
+    cycle once more at the velocity level, a node an answer carried into the ground armed and the sub-step
+    solved again, as the Python path does); a step with a landing inside it, or whose modes the kernel leaves
+    to the reference, is Python's. An impact at a step's start (a snap, a node landing) is the kernel's too
+    (``_inextensible_kernels.impact``, the touching nodes' rows by the compiled modes) where the rule's fit is
+    one-dimensional; a command schedule runs inside the loop
     (:meth:`runs_commands`), and a batch's copies step in it together on every core (:meth:`advance_copies`).
     Rigid rods' mass blocks (physics.md section 4c) are the kernels' too in free flight (DAQP in
     ``BlockMassSolver``'s coordinates, ``_inextensible_kernels._solve_blocks``, to the reference's bits); on a ground
