@@ -472,8 +472,8 @@ class InextensibleMethod(StepMethod):
     def _ground_table(self) -> tuple:
         """What the step kernels take of the ground (``_inextensible_kernels.midpoint``'s ``ground``): its
         nodes, radii, height and friction, ``ContactSet``'s tolerance and free-node index, the friction
-        modes' settings as ``friction.py`` has them now and the restitution; ``_NO_GROUND`` without one (or with a member contact
-        response, which is Python's)."""
+        modes' settings as ``friction.py`` has them now and the restitution; ``_NO_GROUND`` without one (or with
+        a member contact response, which is Python's)."""
         ground = self.ground
         if ground is None or ground.members is not None:
             return _NO_GROUND
