@@ -667,9 +667,12 @@ def test_ground_step_kernel_and_loop_are_the_api_path_bitwise(name):
         for field in fields:
             assert np.array_equal(getattr(a, field), getattr(c, field)), f"kernel: {field}, step {k}"
             assert np.array_equal(getattr(b, field), getattr(c, field)), f"loop: {field}, step {k}"
-    # the stalled reel-in holds the robot at the configuration where it locks: its degenerate QPs (DAQP refused,
-    # NNLS answers; friction modes that cycle) are the Python path's in most steps (48 of 400 in the kernel)
-    assert taken[0] >= (0.1 if name == "reeled" else 0.5) * steps, taken
+    # the stalled reel-in holds the robot at the configuration where it locks, its node on the ground hopping: the
+    # kernel re-arms a node an answer carried into the ground, takes the snaps' impacts with the touching nodes'
+    # rows and solves friction modes that cycle again at the velocity level (issue 47: 211 of 400 steps in the
+    # kernel before, 362 after); what stays the Python path's are events inside a step, DAQP refused (NNLS
+    # answers) and modes that cycle at both levels (the Newton method)
+    assert taken[0] >= (0.8 if name == "reeled" else 0.5) * steps, taken
     for sim in (loop, api):
         sim.reset()
     a, b = (sim.run(steps=steps // 2, every=7) for sim in (loop, api))

@@ -71,7 +71,7 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
     solve's modes, ``y_n`` (N*s) and slip directions ((k,), (k,), (k, 2)); DAQP's C call and settings as
     ``DaqpSolver.c_call``. Returns ``ok``, ``v`` (n_free, 3), the rows' multipliers (r,), the contacts'
     impulses (k, 3) N*s (friction x, y; normal), the modes to remember (k,) bool, the slip directions
-    (k, 2) and the QPs taken."""
+    (k, 2) and the QPs taken (``max_iter + 1``: the modes did not settle in ``max_iter``, every QP answered)."""
     n_free = v0.shape[0]
     n_rows, k = row_targets.shape[0], fi.shape[0]
     node_mass = mass.reshape((n_free, 3))[:, 0]
@@ -269,7 +269,7 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
             for j in range(moving.shape[0]):
                 phi[moving[j], 0] = accelerated[2 * j]
                 phi[moving[j], 1] = accelerated[2 * j + 1]
-    return False, v, y, impulses, remember, slip, max_iter
+    return False, v, y, impulses, remember, slip, max_iter + 1
 
 
 @njit(cache=True)
@@ -301,14 +301,19 @@ def landing(x, v, dt, nodes, radii, height, touch_tol):
 
 
 @njit(cache=True)
-def arm_step(x_m, v, v0, half, nodes, radii, height, touch_tol):
-    """``ContactSet.arm_step`` without an answer (the ground alone): the armed nodes (k,) (system indices),
-    their normal targets (k,) m/s and whether each touches the ground (k,) bool."""
+def arm_step(x_m, v, v0, half, nodes, radii, height, touch_tol, v_f):
+    """``ContactSet.arm_step`` for the ground alone: the armed nodes (k,) (system indices), their normal
+    targets (k,) m/s and whether each touches the ground (k,) bool; judged on an answer ``v_f`` (N, 3) too
+    unless it is empty (a re-arm after :func:`missed`)."""
     armed = np.zeros(nodes.shape[0], dtype=np.bool_)
+    answered = v_f.shape[0] > 0
     for i in range(nodes.shape[0]):
         p = nodes[i]
         g = x_m[p, 2] - radii[p] - height
-        armed[i] = g - half * abs(v0[p, 2]) <= touch_tol
+        reach = g - half * abs(v0[p, 2])
+        if answered:
+            reach = min(reach, g + half * v_f[p, 2])
+        armed[i] = reach <= touch_tol
     which = nodes[armed]
     k = which.shape[0]
     w = np.empty(k)
@@ -338,7 +343,8 @@ def contact_solve(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_
     """``FrictionalSolver.solve`` through its compiled modes (:func:`ground_modes`) for the ``armed`` ground
     nodes (k >= 1, system indices; ``free_index`` (N,) their free-node index) with targets ``w`` and
     ``touching`` (k,): recalls each node's mode, ``y_n`` and slip direction from ``stick``, ``normal``,
-    ``slip`` ((N,), (N,), (N, 2)) and, answered, remembers the new ones there (``FrictionalSolver._remember``).
+    ``slip`` ((N,), (N,), (N, 2)) and, answered, remembers the new ones there (``FrictionalSolver._remember``);
+    modes that cycle are solved again with the member rows' targets at the velocity level, as there.
     Returns ``ok`` (False: the reference must take the solve; the memory is then unchanged), ``v``
     (n_free, 3), the rows' multipliers and the contacts' impulses (k, 3) N*s."""
     k = armed.shape[0]
@@ -352,10 +358,20 @@ def contact_solve(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_
         old_stick[c] = stick[p]
         old_normal[c] = normal[p]
         old_slip[c] = slip[p]
-    ok, v, y, impulses, remember, new_slip, _ = ground_modes(
+    ok, v, y, impulses, remember, new_slip, taken = ground_modes(
         entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_dirs, row_targets, n_eq, warm, True, fi, w,
         touching, np.full(k, mu), old_stick, old_normal, old_slip, fixed_point_tol, slip_floor, max_iter, depth,
         feasibility_tol, velocity_floor)
+    if not ok and taken > max_iter:
+        # the modes cycled (the reference's own fixed point cycles the same way): once more with the member rows'
+        # targets at the pure velocity level, as FrictionalSolver.solve does (friction._velocity_level)
+        level = row_targets.copy()
+        for i in range(level.shape[0]):
+            level[i] = 0.0 if i < n_eq else max(level[i], 0.0)
+        ok, v, y, impulses, remember, new_slip, _ = ground_modes(
+            entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_dirs, level, n_eq, warm, True, fi, w,
+            touching, np.full(k, mu), old_stick, old_normal, old_slip, fixed_point_tol, slip_floor, max_iter, depth,
+            feasibility_tol, velocity_floor)
     if ok:
         for c in range(k):
             p = armed[c]

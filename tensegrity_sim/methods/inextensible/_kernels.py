@@ -330,7 +330,7 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
     them), in which ``sqrt_mass`` and ``mass`` are the QP's diagonal mass (:func:`_solve_blocks`; no ground then).
 
     ``ground``: ``(on, nodes, radii, height, mu, touch_tol, free_index, fixed_point_tol, slip_floor,
-    max_iter, depth)`` (``on`` False: no ground, the rest unused; see ``InextensibleMethod._ground_table``)
+    max_iter, depth, restitution)`` (``on`` False: no ground, the rest unused; see ``InextensibleMethod._ground_table``)
     and ``memory`` each node's friction mode, ``y_n`` and slip direction (``FrictionalSolver``'s), which
     the contacts' solves read and update in place. The ground's contacts are armed as
     ``ContactSet.arm_step`` arms them; a sub-step with no member row but armed contacts, or whose answer
@@ -349,7 +349,7 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
     start (``cable_limits`` (nc,) m: the step's limits without the landing's lag; ``dt``: the step),
     no reel; the multipliers returned include those impulses."""
     (on, g_nodes, radii, height, mu, touch_tol, free_index, fixed_point_tol, slip_floor, max_iter,
-     depth) = ground
+     depth, _) = ground
     stick, normal, slip = memory
     n_free = free_nodes.shape[0]
     nc = reel.shape[0]
@@ -381,7 +381,7 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
         impulses = v0[:0]
         if on:
             contact = np.zeros((x_m.shape[0], 3))
-            armed, w, touching = arm_step(x_m, v, v0p, 0.5 * tau, g_nodes, radii, height, touch_tol)
+            armed, w, touching = arm_step(x_m, v, v0p, 0.5 * tau, g_nodes, radii, height, touch_tol, v0[:0])
         if k == 0:   # nothing can be taut: free motion, no QP (a contact's QP alone is the Python path's)
             v_f = v0p.copy()
             ok = armed.shape[0] == 0
@@ -393,30 +393,40 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
             v_f = np.zeros_like(v0)
             shortest = m_limits.min()
             v_start = v
-            for _ in range(landing_iter):
-                if armed.shape[0]:
-                    ok, v_free, y, impulses = contact_solve(
-                        entry, settings, hessian, sqrt_mass, mass, v0_free, nodes, m_n, targets, n_eq, warm, armed,
-                        free_index, w, touching, mu, stick, normal, slip, fixed_point_tol, slip_floor, max_iter, depth,
-                        feasibility_tol, velocity_floor)
-                else:   # a ground's backend answers by DAQP alone (DaqpSolver.working_set)
-                    v_free, y, ok, factor, work = _solve_checked(entry, settings, hessian, sqrt_mass, mass, schur,
-                                                                 nodes, m_n, v0_free, targets, n_eq, warm,
-                                                                 feasibility_tol, velocity_floor, not on)
-                if not ok:
+            first_warm = warm
+            for again in range(2):
+                for _ in range(landing_iter):
+                    if armed.shape[0]:
+                        ok, v_free, y, impulses = contact_solve(
+                            entry, settings, hessian, sqrt_mass, mass, v0_free, nodes, m_n, targets, n_eq, warm, armed,
+                            free_index, w, touching, mu, stick, normal, slip, fixed_point_tol, slip_floor, max_iter,
+                            depth, feasibility_tol, velocity_floor)
+                    else:   # a ground's backend answers by DAQP alone (DaqpSolver.working_set)
+                        v_free, y, ok, factor, work = _solve_checked(entry, settings, hessian, sqrt_mass, mass, schur,
+                                                                     nodes, m_n, v0_free, targets, n_eq, warm,
+                                                                     feasibility_tol, velocity_floor, not on)
+                    if not ok:
+                        break
+                    for i in range(n_free):
+                        for j in range(3):
+                            v_f[free_nodes[i], j] = v_free[i, j]
+                    done, new_targets, new_warm = landed(v_f, v_start, v_free, y, m_ends, nodes, m_n, m_length,
+                                                         m_limits, tau, floor_rate, n_eq, shortest, landing_tol)
+                    if done:
+                        break
+                    targets = new_targets
+                    warm = new_warm
+                    v_start = v_f.copy()
+                if again or not (ok and on and missed(x_m, v_f, 0.5 * tau, g_nodes, armed, radii, height, touch_tol)):
                     break
-                for i in range(n_free):
-                    for j in range(3):
-                        v_f[free_nodes[i], j] = v_free[i, j]
-                done, new_targets, new_warm = landed(v_f, v_start, v_free, y, m_ends, nodes, m_n, m_length,
-                                                     m_limits, tau, floor_rate, n_eq, shortest, landing_tol)
-                if done:
-                    break
-                targets = new_targets
-                warm = new_warm
-                v_start = v_f.copy()
-            if ok and on and missed(x_m, v_f, 0.5 * tau, g_nodes, armed, radii, height, touch_tol):
-                ok = False
+                # a cable's impulse carried a node its free motion kept clear of the ground into it: the landing
+                # again with that node armed too, judged on this answer (InextensibleMethod._solve_sub_step: from
+                # the landing's last targets, the first warm start and velocities; the refinement factorises itself)
+                armed, w, touching = arm_step(x_m, v, v0p, 0.5 * tau, g_nodes, radii, height, touch_tol, v_f)
+                warm = first_warm
+                v_start = v
+                factor = np.zeros((0, 0))
+                work = np.zeros(0, dtype=np.int64)
         # a motor that would pull harder than reel_force pulls at that force, its cable held where it stood
         over = False
         if ok:
@@ -554,13 +564,17 @@ def fit_one(ddot, dgemv, wide, y, binding, basis, a_t, reference, members, tau, 
 
 @njit(cache=True)
 def impact(x, v, d, length, at_limit, snapping, holding, ends, n_eq, row_nodes, free_nodes, entry, settings, hessian,
-           sqrt_mass, mass, schur, feasibility_tol, velocity_floor, guess, locked, load_basis, load_cables,
-           load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference):
+           sqrt_mass, mass, schur, feasibility_tol, velocity_floor, locked, load_basis, load_cables, load_largest,
+           refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference, dt, ground, memory, lands, contact):
     """``InextensibleMethod._impact`` without a landing in it, and its ``_publish``: Moreau's impact law at
     ``x`` (N, 3) from ``v`` when the cables ``snapping`` (nc,) bool separate, rows every moving rigid strut
     (``ends``' first ``n_eq``) and every cable ``at_limit`` (nc,) bool (cable vectors ``d`` (nc, 3), lengths
     (nc,) m at ``x``), targets 0, warm the rigid struts and the cables snapping or ``holding``; solved by
-    ``_solve_checked`` (``guess``: the working set first, as the backend does). When the structure can lock
+    ``_solve_checked`` (the working set first without a ``ground``, as the backend does) or, with nodes touching
+    the ground (``ground`` and ``memory`` as :func:`midpoint` takes them), by the compiled friction modes with
+    those nodes' rows (``ContactSet.arm_impact``: Newton's law with the ground's restitution for a node moving
+    into it by more than its tolerance in a step ``dt``, ``v_z+ >= 0`` for the others), whose impulses are
+    added to ``contact`` (N, 3) N*s when the impact ``lands`` (the Python path's commit). When the structure can lock
     (``locked``) the impulses published are the self-stress rule's with a one-dimensional self-stress and no
     cable pulling (:func:`fit_one`, tau = 0). Returns ``ok`` (False: an answer refused or a rule's fit the
     kernel leaves to the Python path), ``v+`` (N, 3), the published cable impulses (nc,) N*s and the fit's
@@ -596,8 +610,30 @@ def impact(x, v, d, length, at_limit, snapping, holding, ends, n_eq, row_nodes, 
     for i in range(n_free):
         for j in range(3):
             v_in[i, j] = v[free_nodes[i], j]
-    v_free, y, ok, _, _ = _solve_checked(entry, settings, hessian, sqrt_mass, mass, schur, nodes, directions, v_in,
-                                         np.zeros(k), n_eq, warm, feasibility_tol, velocity_floor, guess)
+    (on, g_nodes, radii, height, mu, touch_tol, free_index, fixed_point_tol, slip_floor, max_iter, depth,
+     restitution) = ground
+    touching = np.zeros(g_nodes.shape[0], dtype=np.bool_)
+    for i in range(g_nodes.shape[0]):
+        touching[i] = on and x[g_nodes[i], 2] - radii[g_nodes[i]] - height <= touch_tol
+    armed = g_nodes[touching]
+    if armed.shape[0]:
+        w = np.empty(armed.shape[0])
+        for c in range(armed.shape[0]):
+            vz = v[armed[c], 2]
+            w[c] = -restitution * vz if vz * dt < -touch_tol else 0.0
+        stick, normal, slip = memory
+        ok, v_free, y, impulses = contact_solve(entry, settings, hessian, sqrt_mass, mass, v_in, nodes, directions,
+                                                np.zeros(k), n_eq, warm, armed, free_index, w,
+                                                np.ones(armed.shape[0], dtype=np.bool_), mu, stick, normal, slip,
+                                                fixed_point_tol, slip_floor, max_iter, depth, feasibility_tol,
+                                                velocity_floor)
+        if ok and lands:
+            for c in range(armed.shape[0]):
+                for j in range(3):
+                    contact[armed[c], j] += impulses[c, j]
+    else:
+        v_free, y, ok, _, _ = _solve_checked(entry, settings, hessian, sqrt_mass, mass, schur, nodes, directions, v_in,
+                                             np.zeros(k), n_eq, warm, feasibility_tol, velocity_floor, not on)
     v_plus = np.zeros_like(v)
     for i in range(n_free):
         for j in range(3):
@@ -679,19 +715,18 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
                     snapping[c] = True
                     snaps = True
     on, g_nodes, radii, height, _, touch_tol = ground[:6]
-    if on and landing(x, v, dt, g_nodes, radii, height, touch_tol) and (v != 0.0).any():
-        ok = False   # a node landing at the step's start: an impact with the ground's rows (the Python path's)
+    # a node landing at the step's start: an impact with the ground's rows, as a snap is
+    lands = on and landing(x, v, dt, g_nodes, radii, height, touch_tol) and (v != 0.0).any()
+    modes = (memory[0].copy(), memory[1].copy(), memory[2].copy()) if on else memory   # the step's own until taken
     kicked = np.zeros(nc)   # the impact's published impulses
     kick_node = 0.0
-    if ok and snaps and on:   # a node touching the ground takes part in the impact (ContactSet.arm_impact): Python's
-        for p in g_nodes:
-            if x[p, 2] - radii[p] - height <= touch_tol:
-                ok = False
-    if ok and snaps:
+    kick_contact = np.zeros_like(x)   # a landing's ground impulses
+    if snaps or lands:
         ok, v, kicked, kick_node = impact(x, v, d, length, at_limit, snapping, holding, ends, n_eq, row_nodes,
                                           free_nodes, entry, settings, hessian, sqrt_mass, mass, schur, feasibility_tol,
-                                          velocity_floor, not on, locked, load_basis, load_cables, load_largest,
-                                          refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference)
+                                          velocity_floor, locked, load_basis, load_cables, load_largest,
+                                          refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference, dt,
+                                          ground, modes, lands, kick_contact)
     x_m = x + (0.5 * dt) * v
     v0 = np.empty_like(v)
     if schur[0].shape[0]:   # the rods' blocks: v + dt M^-1 f, M^-1 as MassOperator.solve applies it
@@ -722,7 +757,6 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
         return (False, x, v, holding, new_applied, taut, False, impulses, holding, 0.0, holding,
                 np.zeros(0), d, length, np.zeros(0, dtype=np.bool_), load_cables[:0],
                 np.zeros((3 * free_nodes.shape[0], 0)), None, np.zeros_like(x), memory, 0)
-    modes = (memory[0].copy(), memory[1].copy(), memory[2].copy()) if on else memory   # the step's own until taken
     done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis, contact, pulled = midpoint(
         x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
         taut, entry, settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol,
@@ -761,12 +795,15 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     summed = np.zeros(nc)
     slack = np.empty(nc, dtype=np.bool_)
     for c in range(nc):
-        if snaps:
+        if snaps or lands:
             summed[c] += kicked[c]
         summed[c] += published[c]
         slack[c] = length_f[c] < taut[c] and not summed[c] > 0
-    ok = ok and not (snaps and not fitted)
+    ok = ok and not ((snaps or lands) and not fitted)
     node = max(node, kick_node)
+    if lands:   # the landing's ground impulses first, as the Python path sums them
+        kick_contact += contact
+        contact = kick_contact
     stalls = 0
     for c in range(nc):
         if pulled[c]:

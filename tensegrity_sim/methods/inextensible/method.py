@@ -132,7 +132,7 @@ _LANDING_ITER = 4     # ... after at most this many solves per sub-step
 
 # the step kernels' ground and friction memory where the scene has no ground (``InextensibleMethod._ground_table``)
 _NO_GROUND = (False, np.zeros(0, dtype=np.int64), np.zeros(0), 0.0, 0.0, 0.0, np.zeros(0, dtype=np.int64), 0.0, 0.0,
-              0, 0)
+              0, 0, 0.0)
 _NO_MEMORY = (np.zeros(0, dtype=bool), np.zeros(0), np.zeros((0, 2)))
 # the kernels' Schur coordinates of the rods' mass blocks where the scene has none (``InextensibleMethod._qp_call``)
 _NO_BLOCKS = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
@@ -176,10 +176,12 @@ class InextensibleMethod(StepMethod):
     not cover (an event, a refused QP answer, an SVD of the rule, a pulling cable in its fit) takes the
     Python path with the same kernels, to the same bits (``test_compiled.py``); ``one_kernel = False``
     takes it always. On a ground (no member contact response) the step kernel also arms the ground's
-    contacts and solves them by the compiled friction modes (``_friction_kernels.contact_solve``); a step
-    with a landing inside it or at its start, or whose modes the kernel leaves to the reference, is
-    Python's. A snap's impact at a step's start is the kernel's too (``_inextensible_kernels.impact``) where no
-    node touches the ground and the rule's fit is one-dimensional; a command schedule runs inside the loop
+    contacts and solves them by the compiled friction modes (``_friction_kernels.contact_solve``: modes that
+    cycle once more at the velocity level, a node an answer carried into the ground armed and the sub-step
+    solved again, as the Python path does); a step with a landing inside it, or whose modes the kernel leaves
+    to the reference, is Python's. An impact at a step's start (a snap, a node landing) is the kernel's too
+    (``_inextensible_kernels.impact``, the touching nodes' rows by the compiled modes) where the rule's fit is
+    one-dimensional; a command schedule runs inside the loop
     (:meth:`runs_commands`), and a batch's copies step in it together on every core (:meth:`advance_copies`).
     Rigid rods' mass blocks (physics.md section 4c) are the kernels' too in free flight (DAQP in
     ``BlockMassSolver``'s coordinates, ``_inextensible_kernels._solve_blocks``, to the reference's bits); on a ground
@@ -469,15 +471,15 @@ class InextensibleMethod(StepMethod):
 
     def _ground_table(self) -> tuple:
         """What the step kernels take of the ground (``_inextensible_kernels.midpoint``'s ``ground``): its
-        nodes, radii, height and friction, ``ContactSet``'s tolerance and free-node index and the friction
-        modes' settings as ``friction.py`` has them now; ``_NO_GROUND`` without one (or with a member contact
-        response, which is Python's)."""
+        nodes, radii, height and friction, ``ContactSet``'s tolerance and free-node index, the friction
+        modes' settings as ``friction.py`` has them now and the restitution; ``_NO_GROUND`` without one (or with
+        a member contact response, which is Python's)."""
         ground = self.ground
         if ground is None or ground.members is not None:
             return _NO_GROUND
         return (True, ground._grounded, np.asarray(ground.radii, dtype=float), float(ground.height), float(ground.mu),
                 friction.TOUCH_TOL, ground._free_index, friction.FIXED_POINT_TOL, friction._SLIP_FLOOR,
-                friction.MAX_MODE_ITER, friction._ANDERSON_DEPTH)
+                friction.MAX_MODE_ITER, friction._ANDERSON_DEPTH, float(ground.restitution))
 
     def _memory(self) -> tuple:
         """Each node's friction mode, ``y_n`` and slip direction as the friction solver keeps them (the step
