@@ -32,12 +32,15 @@ eliminated; half the CPU of the fixed 60 sweeps a Jacobian of the rolling icosah
 **Two stages.** First the parameters alone, every window held at its start from the poses
 (``scipy.optimize.least_squares``, trust region reflective, P tangents a Jacobian): cheap, and close to the
 optimum where the poses' start states are (noise-free, the 10 s roll's stiffness 2e-5, its damping 1.2 % off).
+Each window starts from the poses' central differences or, where its run follows its poses closer, from their
+local quadratics (``SMOOTHING``; :meth:`_Problem.choose_starts`, before the first stage and after it: noisy logs).
 Then everything, by Levenberg-Marquardt with the sparse normal equations solved exactly
 (``_levenberg_marquardt``): Gauss-Newton's steps near the optimum (least_squares' sparse solver takes lsmr's
 inexact step in a two-dimensional subspace, and with it and the chord the 10 s roll stopped 3 % off). The start
 states' tangents (6 N of the 6 N + P runs, the Jacobian's cost) are computed fresh after the first stage and, with
 ``chord``, reused between steps while a step does at least ``REFRESH`` of what its linear model predicted; the
-parameters' are computed every time. ``loss``: ``soft_l1``, ``huber``, ``cauchy``, ``arctan`` (scipy's, with
+parameters' are computed every time. It stops once the parameters' steps are below ``SIGMA_STEP`` of their
+standard deviations (``_levenberg_marquardt``). ``loss``: ``soft_l1``, ``huber``, ``cauchy``, ``arctan`` (scipy's, with
 ``loss_scale`` in m; the normal equations weighted by the loss's derivative).
 
 **Bounds and prior.** Bounds are physical (stiffness, mass and reel speed > 0, damping and friction >= 0,
