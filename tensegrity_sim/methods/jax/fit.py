@@ -32,12 +32,15 @@ eliminated; half the CPU of the fixed 60 sweeps a Jacobian of the rolling icosah
 **Two stages.** First the parameters alone, every window held at its start from the poses
 (``scipy.optimize.least_squares``, trust region reflective, P tangents a Jacobian): cheap, and close to the
 optimum where the poses' start states are (noise-free, the 10 s roll's stiffness 2e-5, its damping 1.2 % off).
+Each window starts from the poses' central differences or, where its run follows its poses closer, from their
+local quadratics (``SMOOTHING``; :meth:`_Problem.choose_starts`, before the first stage and after it: noisy logs).
 Then everything, by Levenberg-Marquardt with the sparse normal equations solved exactly
 (``_levenberg_marquardt``): Gauss-Newton's steps near the optimum (least_squares' sparse solver takes lsmr's
 inexact step in a two-dimensional subspace, and with it and the chord the 10 s roll stopped 3 % off). The start
 states' tangents (6 N of the 6 N + P runs, the Jacobian's cost) are computed fresh after the first stage and, with
 ``chord``, reused between steps while a step does at least ``REFRESH`` of what its linear model predicted; the
-parameters' are computed every time. ``loss``: ``soft_l1``, ``huber``, ``cauchy``, ``arctan`` (scipy's, with
+parameters' are computed every time. It stops once the parameters' steps are below ``SIGMA_STEP`` of their
+standard deviations (``_levenberg_marquardt``). ``loss``: ``soft_l1``, ``huber``, ``cauchy``, ``arctan`` (scipy's, with
 ``loss_scale`` in m; the normal equations weighted by the loss's derivative).
 
 **Bounds and prior.** Bounds are physical (stiffness, mass and reel speed > 0, damping and friction >= 0,
@@ -58,6 +61,7 @@ changes, and the discrete run's derivative jumps there: ``elastic.py``), between
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import jax
@@ -95,6 +99,9 @@ REFRESH = 0.5                   # the chord's tangents are refreshed after a ste
 PARAMETER_TOLERANCE = 1e-5       # a parameter's (a factor's) step that ends the fit
 FAILED = 8                      # failed steps in a row on fresh tangents that end the fit
 HELD_TOLERANCE = 1e-6           # the first stage's (the parameters alone, the windows' starts held from the poses)
+SMOOTHING = (4, 8)               # grid points each side of the smoothed start states' local quadratics
+SIGMA_STEP = 0.1                 # a parameter step below this many of its standard deviations ends the fit,
+SETTLED = 1e-2                   # in a step that decreased the cost by less than this of itself (else it is no noise)
 
 
 @dataclass(frozen=True)
@@ -274,6 +281,10 @@ class _Problem:
         v0 = (after - before) / (span[:, None, None] * tau)
         self.fixed_x = np.moveaxis(filled[self.start_grid], 0, -1)               # (N, 3, W)
         self.state0 = np.concatenate([x0[:, self.free].reshape(W, -1), v0[:, self.free].reshape(W, -1)], axis=1)
+        # the smoothed candidates of the start states: a local quadratic through the poses within k of each start
+        self.smoothed = [np.concatenate([a[:, self.free].reshape(W, -1) for a in
+                                         _local_quadratic(grid[:g], self.start_grid, k, tau)], axis=1)
+                         for k in SMOOTHING]
         self.nf, self.tau, self.cw = nf, tau, continuity
         # the steps of every window: (L, every) step indices into the per-step commands (held past the last)
         step_idx = (self.first + np.arange(W)[None, None, :] * L * every
@@ -461,6 +472,17 @@ class _Problem:
                                np.moveaxis(np.stack([cx, cv]), -1, 0).ravel(),
                                self.prior_weight * (p[self.prior_rows] - 1.0)])
 
+    def choose_starts(self, p) -> np.ndarray:
+        """Each window's start state (W, 6 nf) for the parameters ``p``: of the poses' central differences and
+        their local quadratics (``SMOOTHING``), the one whose run follows the window's poses best."""
+        candidates = [self.state0] + self.smoothed
+        misses = []
+        for state in candidates:
+            xs = np.asarray(self.pieces(jnp.asarray(p), jnp.asarray(state), self.data)[0])
+            misses.append(np.sum(((xs - self.target) * self.obs_mask[:, None, None, :]) ** 2, axis=(0, 1, 2)))
+        best = np.argmin(misses, axis=0)
+        return np.stack([candidates[b][w] for w, b in enumerate(best)])
+
     def target_start(self) -> np.ndarray:
         return _fill(self.observed)[0][self.free].ravel()
 
@@ -551,19 +573,35 @@ def _fill(grid: np.ndarray) -> np.ndarray:
     return grid[nearest]
 
 
+def _local_quadratic(grid: np.ndarray, starts: np.ndarray, k: int, tau: float) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and velocities (len(starts), N, 3) at the grid points ``starts``: the least-squares quadratic in
+    time through the observed rows of ``grid`` (G, N, 3; NaN: none) within ``k`` points of each (fewer than three:
+    the nearest observed row, at rest)."""
+    x, v = np.zeros((len(starts), *grid.shape[1:])), np.zeros((len(starts), *grid.shape[1:]))
+    seen = ~np.isnan(grid[:, 0, 0])
+    for i, c in enumerate(starts):
+        near = np.flatnonzero(seen[max(0, c - k):c + k + 1]) + max(0, c - k)
+        if len(near) < 3:
+            x[i] = _fill_at(_fill(grid), np.array([c]))[0]
+            continue
+        t = (near - c) * tau
+        coef = np.linalg.lstsq(np.stack([np.ones_like(t), t, t * t], axis=1), grid[near].reshape(len(near), -1),
+                               rcond=None)[0]
+        x[i], v[i] = coef[0].reshape(grid.shape[1:]), coef[1].reshape(grid.shape[1:])
+    return x, v
+
+
 def _fill_at(filled: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return filled[np.clip(idx, 0, len(filled) - 1)]
 
 
-def _parameter_sigma(jac, n_params: int, noise: float) -> np.ndarray:
-    """Each parameter's standard deviation: the noise times the square root of its diagonal entry of
-    ``(J^T J)^-1``, the window states eliminated by their Schur complement."""
-    jac = sp.csc_matrix(jac)
-    a = jac[:, :n_params]
-    s = jac[:, n_params:]
-    aa = (a.T @ a).toarray()
-    bt = (s.T @ a).toarray()
-    d = (s.T @ s).tocsc()
+def _parameter_sigma(normal, n_params: int, noise: float) -> np.ndarray:
+    """Each parameter's standard deviation: the noise times the square root of its diagonal entry of the inverse
+    of the normal matrix ``normal`` (``J^T J``, sparse), the window states eliminated by their Schur complement."""
+    normal = sp.csc_matrix(normal)
+    aa = normal[:n_params, :n_params].toarray()
+    bt = normal[n_params:, :n_params].toarray()
+    d = normal[n_params:, n_params:].tocsc()
     try:
         lu = splu(d + sp.identity(d.shape[0], format="csc") * 1e-14 * max(d.diagonal().max(), 1.0))
         schur = aa - bt.T @ lu.solve(bt)
@@ -574,24 +612,31 @@ def _parameter_sigma(jac, n_params: int, noise: float) -> np.ndarray:
 
 
 def _levenberg_marquardt(problem: _Problem, z: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, loss: str,
-                         loss_scale: float, tolerance: float, max_evaluations: int, chord: bool, verbose: int):
+                         loss_scale: float, tolerance: float, max_evaluations: int, chord: bool, dof: int,
+                         verbose: int):
     """Minimise ``0.5 loss_scale^2 sum(rho((r / loss_scale)^2))`` (``LOSSES``) over ``z`` within the bounds by
     Levenberg-Marquardt: each step solves the sparse normal equations exactly (``J^T W J`` with ``rho'`` as the
     weights ``W``; Marquardt's scaling by its diagonal, floored at 1 % of its median, so that a coordinate the
     poses do not see, such as the first window's start velocity of a node resting on the ground, is damped too),
     Gauss-Newton's step near the optimum. With ``chord`` the start states' tangents are reused while the steps
     do what the linear model predicts (a ratio of the actual to the predicted decrease of at least ``REFRESH``),
-    and refreshed after a poorer step or a second failed one. It stops on fresh tangents once the cost decreases
-    by less than ``tolerance`` of itself or every parameter moves by less than ``PARAMETER_TOLERANCE`` (an
-    undamped step: lambda < 1), or after ``FAILED`` failed steps in a row (the cost's floor: its round-off and
-    the ground's sweep tolerance). Returns ``z``, the runs of the model, the message and a fresh Jacobian at
-    ``z`` (or one step below the tolerances before it)."""
+    and refreshed after a poorer step or a second failed one. It stops once a step that did at least ``REFRESH``
+    of what its model predicted and decreased the cost by less than ``SETTLED`` of itself (the residual is the
+    noise, no misfit) moved every parameter by less than ``SIGMA_STEP`` of its standard deviation (the noise from
+    the cost over ``dof`` degrees of freedom, and the normal equations the step came from: what is left is below
+    what the poses can tell), or, on fresh tangents, once the cost decreases by less than
+    ``tolerance`` of itself or every parameter moves by less than ``PARAMETER_TOLERANCE`` (lambda < 1), or after
+    ``FAILED`` failed steps in a row (the cost's floor: its round-off and the ground's sweep tolerance). Returns
+    ``z``, the runs of the model, the message and the Jacobian at ``z`` (or one step before it; after the
+    standard-deviation rule with ``chord``, the start states' columns from their last refresh)."""
+    cpu = time.process_time()
     rho, weight = LOSSES[loss]
     cost = lambda r: 0.5 * loss_scale ** 2 * float(np.sum(rho((r / loss_scale) ** 2)))   # noqa: E731
+    n = problem.n_params
     r = problem.residual(z)
     f, evaluations = cost(r), 1
     jac, fresh, normal = problem.jacobian(z), True, None
-    lam, nu, failed, message = 1e-3, 2.0, 0, "the evaluation limit reached"
+    lam, nu, failed, message, small = 1e-3, 2.0, 0, "the evaluation limit reached", False
     while evaluations < max_evaluations:
         if normal is None:   # J^T W J and the gradient, after a new Jacobian or residual
             w = weight((r / loss_scale) ** 2)
@@ -609,12 +654,18 @@ def _levenberg_marquardt(problem: _Problem, z: np.ndarray, lo: np.ndarray, hi: n
         r_new = problem.residual(new)
         f_new, evaluations = cost(r_new), evaluations + 1
         ratio = (f - f_new) / predicted if predicted > 0 else -1.0
+        # the parameters' steps in standard deviations (the noise from the cost), after a step the model predicted
+        sigma = _parameter_sigma(a, n, np.sqrt(2.0 * f / dof)) if ratio >= REFRESH else np.full(n, np.nan)
         if verbose:
-            print(f"fit: run {evaluations:3d}  cost {f:.6e} -> {f_new:.6e}  ratio {ratio:+.3f}  lambda {lam:.1e}"
-                  f"  step {np.linalg.norm(step):.2e}  parameters {new[:problem.n_params]}"
+            print(f"fit: run {evaluations:3d}  cpu {time.process_time() - cpu:6.1f} s  state Jacobians "
+                  f"{problem.state_jacobians:2d}  cost {f:.6e} -> {f_new:.6e}  ratio {ratio:+.3f}  lambda {lam:.1e}"
+                  f"  step {np.linalg.norm(step):.2e}  parameters {new[:n]}  steps / sigma {np.abs(step[:n]) / sigma}"
                   f"{'' if fresh else '  (chord)'}", flush=True)
         if ratio > 1e-4:
-            n = problem.n_params
+            if f - f_new < SETTLED * f and np.all(np.abs(step[:n]) < SIGMA_STEP * sigma):
+                z, small = new, True
+                message = f"converged: every parameter's step below {SIGMA_STEP} of its standard deviation"
+                break
             converged = f - f_new <= tolerance * f or (lam < 1.0 and np.all(
                 np.abs(step[:n]) <= PARAMETER_TOLERANCE * (PARAMETER_TOLERANCE + np.abs(new[:n]))))
             z, r, f, failed, normal = new, r_new, f_new, 0, None
@@ -633,7 +684,7 @@ def _levenberg_marquardt(problem: _Problem, z: np.ndarray, lo: np.ndarray, hi: n
             break
         else:
             lam, nu = lam * nu, nu * 2.0
-    if not fresh:
+    if not fresh and not small:   # after the standard-deviation rule, sigma from the Jacobian at hand
         jac = problem.jacobian(z)
     return z, evaluations, message, jac
 
@@ -672,30 +723,33 @@ def fit_observed(scene: Scene, obs: Observed, unknowns: list[Unknown], *, window
     if window < 1:
         raise ValueError(f"window must be at least 1 grid interval, got {window}")
     problem = _Problem(scene, obs, unknowns, window, continuity, prior, loss_scale)
-    z0 = np.concatenate([problem.p0, problem.state0.ravel()])
     lo, hi = problem.bounds()
-    z0 = np.clip(z0, lo, hi)
+    p0 = np.clip(problem.p0, lo[:problem.n_params], hi[:problem.n_params])
+    starts = problem.choose_starts(p0)
+    z0 = np.concatenate([p0, starts.ravel()])
     r0 = problem.residual(z0)
     n_obs = problem.n_observed()
     rms = lambda r: float(np.sqrt(np.sum(r[:n_obs] ** 2) / n_obs))   # noqa: E731
     # first the parameters alone, the windows held at their starts from the poses: a few cheap runs that bring
     # them close, so that the start states' tangents (6 nf per window) are computed near the optimum
     n = problem.n_params
-    held = problem.state0.ravel()
+    held = starts.ravel()
     first = least_squares(lambda p: problem.residual(np.concatenate([p, held])), z0[:n],
-                          jac=lambda p: problem.parameter_jacobian(p, problem.state0), bounds=(lo[:n], hi[:n]),
+                          jac=lambda p: problem.parameter_jacobian(p, starts), bounds=(lo[:n], hi[:n]),
                           method="trf", x_scale="jac", loss=loss, f_scale=loss_scale, xtol=HELD_TOLERANCE,
                           ftol=HELD_TOLERANCE, gtol=HELD_TOLERANCE, max_nfev=max_evaluations, verbose=verbose)
-    z, evaluations, message, jac = _levenberg_marquardt(
-        problem, np.concatenate([first.x, held]), lo, hi, loss=loss, loss_scale=loss_scale, tolerance=tolerance,
-        max_evaluations=max(1, max_evaluations - first.nfev), chord=chord, verbose=verbose)
-    evaluations += first.nfev
-    r = problem.residual(z)
+    choices = 1 + len(problem.smoothed)   # the runs of each choice of the start states
     # the continuity rows act as constraints: each takes one unknown off (the prior rows do not)
-    dof = max(1, n_obs - len(z) + (len(r) - n_obs - len(problem.prior_rows)))
+    dof = max(1, len(r0) - len(z0) - len(problem.prior_rows))
+    z, evaluations, message, jac = _levenberg_marquardt(
+        problem, np.concatenate([first.x, problem.choose_starts(first.x).ravel()]), lo, hi, loss=loss,
+        loss_scale=loss_scale, tolerance=tolerance, chord=chord, dof=dof, verbose=verbose,
+        max_evaluations=max(1, max_evaluations - first.nfev - 2 * choices))
+    evaluations += first.nfev + 2 * choices
+    r = problem.residual(z)
     noise = float(np.sqrt(np.sum(r[:n_obs] ** 2) / dof))
     scale = np.array([b if f else 1.0 for b, f in zip(problem.base, problem.factor)])
-    sigma = _parameter_sigma(jac, problem.n_params, noise) * scale
+    sigma = _parameter_sigma(jac.T @ jac, problem.n_params, noise) * scale
     p = z[:n]
     fitted = problem.values(p)
     reel = problem.reel
