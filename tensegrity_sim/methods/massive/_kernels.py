@@ -583,7 +583,7 @@ def _switches(start, trial, h, weights, locate, min_split, rest, ext, model, mas
 @njit(cache=True, error_model="numpy")
 def massive_steps(start, trial, h, n_steps, every, weights, locate, min_split, rest, ext, model, masses, free,
                   scratch, out_x, out_v, out_impulses, out_slack, detection):
-    """``n_steps`` steps of :func:`massive_step` in place on ``start`` (``trial`` and it take turns), keeping
+    """``n_steps`` steps of :func:`massive_step` in place on ``start`` (``trial`` its scratch), keeping
     steps ``every``, ``2 every``, ... and the last in ``out_x``, ``out_v`` (K, N, 3), ``out_impulses`` (K, nc;
     summed over the steps since the last kept one) and ``out_slack`` (K, nc: shorter than the rest length),
     ``K = ceil(n_steps / every)``. ``detection``: member-contact detection over every step, as the elastic
@@ -598,15 +598,17 @@ def massive_steps(start, trial, h, n_steps, every, weights, locate, min_split, r
     events, points = new_events()
     work = new_work()
     before = np.empty((n, 3, 1))   # the positions at the step's start, for detection
-    now, spare = start, trial
     for s in range(n_steps):
         if detecting:
-            _copy_rows(now[0], before.reshape((n, 3)))
-        if not _unswitched(now, spare, h, weights, locate, rest, ext, model, scratch, imp):
-            loss += _switches(now, spare, h, weights, locate, min_split, rest, ext, model, masses, free, scratch, imp)
-        now, spare = spare, now
+            _copy_rows(start[0], before.reshape((n, 3)))
+        if not _unswitched(start, trial, h, weights, locate, rest, ext, model, scratch, imp):
+            loss += _switches(start, trial, h, weights, locate, min_split, rest, ext, model, masses, free, scratch,
+                              imp)
+        # the step's end is the next one's start: copied (swapping the two tuples counts their arrays' references,
+        # 0.3 us a step; the copy takes 0.13 us)
+        _copy(trial, start)
         if detecting:
-            x = now[0].reshape((n, 3, 1))
+            x = start[0].reshape((n, 3, 1))
             if moved_on(before, 0, x, 0, 0, detection):
                 p = measure(x, 0, 0, detection, work, 0)
                 if p >= 0:
@@ -615,12 +617,10 @@ def massive_steps(start, trial, h, n_steps, every, weights, locate, min_split, r
             total[ci] += imp[ci]
         if (s + 1) % every == 0 or s == n_steps - 1:
             k = s // every
-            _copy_rows(now[0], out_x[k])
-            _copy_rows(now[1], out_v[k])
+            _copy_rows(start[0], out_x[k])
+            _copy_rows(start[1], out_v[k])
             for ci in range(nc):
                 out_impulses[k, ci] = total[ci]
-                out_slack[k, ci] = now[6][ci] < 0
+                out_slack[k, ci] = start[6][ci] < 0
                 total[ci] = 0.0
-    if n_steps % 2:
-        _copy(now, start)
     return loss, event_arrays(events, points)
