@@ -14,7 +14,7 @@ share) and ``signs`` (P,) (+1 where the node is the same end of both). A step's 
 
 The structure's inverse mass is applied by :func:`inverse_mass` only (``_mass_kernels.solve_forces``).
 
-Cost: ``G`` always has a row for every plated cable, in the cables' reverse Cuthill-McKee order, so its
+Cost: ``G`` always has a row for every plated cable, in a reversed Cuthill-McKee order of the cables, so its
 envelope (and the Cholesky factor's, which keeps its fill) is set once for the scene; a cable whose plate is at
 rest gets an identity row (its ``y`` is exactly 0, and so are its couplings in the factor). :func:`_delassus`
 builds it node by node (two cables couple only at a shared node) and :func:`_factor` factors it once a step, the

@@ -444,7 +444,8 @@ class MassiveMethod(StepMethod):
     def _plate_layout(self) -> tuple:
         """The kernel's layout of the plates' ``G`` (its module docstring): a row for every cable that carries a
         plate, in the reversed Cuthill-McKee order (of the graph in which two cables sharing a node are joined)
-        whose envelope factor costs least (:func:`_row_order`: the envelope, fixed for the scene, stays narrow), and every such coupling once.
+        whose envelope factor costs least (:func:`_row_order`: the envelope, fixed for the scene, stays narrow),
+        and every such coupling once.
         Returns ``rows`` (nc,) (cable -> row, -1: no plate), ``plated`` (k,) (row -> cable), ``envelope`` (k,)
         (each row's first column), ``pairs`` (P, 3) (row, row before it, node) int64 and ``signs`` (P,) (+1 where
         the node is the same end of both cables, else -1)."""
