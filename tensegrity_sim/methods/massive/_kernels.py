@@ -32,7 +32,7 @@ from numba import njit
 from ..contact._detection_kernels import event_arrays, examine, measure, moved_on, new_events, new_work
 from ..elastic._composition_kernels import _first_switch, newton_in_bracket
 from .._mass_kernels import solve_forces
-from ..qp._qp_kernels import _REASSOCIATE, cho_solve, cholesky
+from ..qp._qp_kernels import cho_solve, cholesky
 from ..elastic.composition import _FLOW_ITER, LOCATE_TOL, MAX_SWITCHES
 
 __all__ = ["inverse_mass", "forces", "make_scratch", "massive_step", "massive_steps", "plate_impact"]
@@ -111,7 +111,7 @@ def _delassus(mask, dirs, n_struts, ends, inv_mass, plates, plated, envelope, pa
     return count
 
 
-@njit(cache=True, error_model="numpy", _nrt=False, fastmath=_REASSOCIATE)
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _factor(g, first, rdiag, b):
     """The Cholesky factor ``L`` (``G = L L^T``) of the lower envelope of :func:`_delassus` in place (the
     envelope keeps its fill), ``rdiag`` (k,) its diagonal's reciprocals, and the forward substitution: ``b``
@@ -135,7 +135,7 @@ def _factor(g, first, rdiag, b):
         b[i] = s * rdiag[i]
 
 
-@njit(cache=True, error_model="numpy", _nrt=False, fastmath=_REASSOCIATE)
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _back(g, first, rdiag, b):
     """``b`` (k,) overwritten by ``L^-T b`` with :func:`_factor`'s ``L`` (by columns, inside the envelope): after
     :func:`_factor`, ``G^-1`` of its ``b``."""
