@@ -490,3 +490,40 @@ def test_fuzz_throws_run_soundly(index):
         out = T.run_throw(case)
     assert T.problems(case, out) == [] and out["steps"] == 60
     assert checks.violations == 0, checks.first
+
+
+def _fuzz_copy(index: int, copy: int, steps: int) -> dict:
+    """Copy ``copy`` of throw ``index`` of ``bench/bench_throws.py --seed 0`` (``--space fuzz``; copy ``b`` of a
+    batch is dropped ``b`` cm higher) as a throw of its own, cut to ``steps``."""
+    from bench.bench_throws import case_of
+
+    case = case_of(0, index, 200, "fuzz")
+    return dict(case, height=case["height"] + 0.01 * copy, batch=1, steps=steps)
+
+
+def test_a_node_whose_sliding_friction_jams_it_sticks(monkeypatch):
+    """Throw 6046 (superball at mu = 1.41, a batch of 4) stopped in copy 3 at step 21 (``QPError ...
+    (infeasible output): the returned velocities violate a constraint by 0.000541 m/s``, issue 47): a node
+    sliding at 0.83 m/s whose normal impulse grows faster than the friction that presses it (no sliding
+    answer), where the modes wandered and the Newton method missed a cable's row. Started sticking
+    (``FrictionalSolver._jammed``) it is answered: at each such answer the node stops (its tangential
+    velocity 0 to round-off) with its friction inside the disc, and the throw runs soundly. (Without that start
+    the step is the QPError, after 30 s of Newton iterations: not rerun here.)"""
+    case = _fuzz_copy(6046, 3, 22)
+    seen = []
+    jammed = F.FrictionalSolver._jammed
+
+    def recorded(self, v0, rows, warm):
+        found = jammed(self, v0, rows, warm)
+        if found is not None:
+            seen.append((self._tangential(self._velocity(found[0])), self.last.copy(), self._mu.copy()))
+        return found
+
+    monkeypatch.setattr(F.FrictionalSolver, "_jammed", recorded)
+    out = T.run_throw(case)
+    assert T.problems(case, out) == [] and out["steps"] == 22
+    assert seen
+    for vt, impulses, mu in seen:
+        stuck = np.linalg.norm(impulses[:, :2], axis=1) > 0
+        assert np.abs(vt[stuck]).max() <= 1e-12
+        assert (np.linalg.norm(impulses[:, :2], axis=1) <= mu * impulses[:, 2]).all()

@@ -500,11 +500,9 @@ class FrictionalSolver:
         self.last = None
         if not self.armed:
             return self.inner.solve(v0, rows, warm)
-        found = None
-        if self.compiled and self._frames is None and isinstance(self.inner, DaqpSolver) and self.inner.verify:
-            found = self._modes_compiled(v0, rows, warm)
-        if found is None:   # the reference: what the kernel answers, and what it leaves to it
-            found = self._modes(v0, rows, warm)
+        found = self._settle(v0, rows, warm)
+        if found is None:
+            found = self._jammed(v0, rows, warm)
         if found is None:
             # the modes cycled: once more with the method's targets at the pure velocity level (a drift
             # correction that only sliding could meet is what makes them cycle on a locked structure),
@@ -512,6 +510,35 @@ class FrictionalSolver:
             rows = _velocity_level(rows)
             found = self._modes(v0, rows, warm)
         return found if found is not None else self._newton(v0, rows, warm)
+
+    def _settle(self, v0, rows, warm):
+        """The mode fixed point from the modes the contacts remember: the compiled kernel's answer
+        (:meth:`_modes_compiled`), else the reference's (:meth:`_modes`: what the kernel answers, and what it
+        leaves to it); None where the modes do not settle."""
+        found = None
+        if self.compiled and self._frames is None and isinstance(self.inner, DaqpSolver) and self.inner.verify:
+            found = self._modes_compiled(v0, rows, warm)
+        return found if found is not None else self._modes(v0, rows, warm)
+
+    def _jammed(self, v0, rows, warm):
+        """:meth:`_settle` again with every ground contact that carried load in its last solve starting to
+        stick, where one of them started sliding; None if there is none, or the modes do not settle from
+        there either (the contacts' memory is then as it was). A sliding contact can have no fixed point: its
+        friction may press its node into the ground harder than it lets it slide (the robot jams, as in
+        Painlevé's paradox), and then only sticking answers. Measured (issue 47, ``bench_throws.py`` throw
+        6046, superball at mu = 1.41, copy 3): a node sliding at 0.83 m/s, whose normal impulse grows by 1.1
+        times the friction's (``mu y_n = 0.055 + 1.098 a`` N*s for a friction ``a``: no ``a >= 0`` meets it),
+        the modes' 30 QPs wandered, the Newton method's answer missed a cable's row by 5.4e-4 m/s; sticking,
+        its friction 3.78 N*s inside the disc's 4.37, it is answered by one QP."""
+        nodes = self._nodes
+        stick, loaded = self._stick[nodes].copy(), self._normal[nodes] > 0
+        if not (loaded & ~stick & (self._mu[:len(nodes)] > 0)).any():
+            return None
+        self._stick[nodes] = stick | loaded
+        found = self._settle(v0, rows, warm)
+        if found is None:
+            self._stick[nodes] = stick
+        return found
 
     def _modes_compiled(self, v0, rows, warm):
         """:meth:`_modes` for ground contacts in one kernel call (``_friction_kernels.ground_modes``: the
@@ -931,6 +958,13 @@ class FrictionalSolver:
         scale = max(impulse_scale, float(np.max(np.abs(r), initial=0.0)))
         r, it = descend(r)
         swept = r.copy()
+        if self._guess is not None and not (solved(r) or acceptable(best[1])):
+            # from no impulse: the modes' iterate can lie in another piece of the equation, and there Newton
+            # stops at a local minimum. Measured (issue 47, bench_throws.py throw 5944: three_bar set down at mu
+            # = 1.35 on three nodes, its struts' blocks): from the cycled modes' iterate every start missed the
+            # law by 2.1e-7 N*s (after 6900 iterations, 11 s); from zero it is solved in 49 iterations
+            r, its = descend(np.zeros_like(r))
+            it += its
         for sweeps in _NSGS_SWEEPS:
             if solved(r) or acceptable(best[1]):
                 break
