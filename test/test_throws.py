@@ -121,12 +121,13 @@ def test_newton_answers_the_coulomb_law_where_the_modes_cycle(monkeypatch):
 
 
 def test_a_friction_problem_left_unsolved_names_its_contacts_and_residual(monkeypatch):
-    """With no Newton iteration, NSGS sweep, restart or drift round allowed, the problem where the modes cycle is
-    left unsolved: the FrictionError names the contacts on the ground and the residual, in N*s."""
+    """With no Newton iteration, NSGS sweep, restart, drift round or polishing QP allowed, the problem where the
+    modes cycle is left unsolved: the FrictionError names the contacts on the ground and the residual, in N*s."""
     monkeypatch.setattr(F, "MAX_NEWTON_ITER", 0)
     monkeypatch.setattr(F, "_NSGS_SWEEPS", ())
     monkeypatch.setattr(F, "_RESTARTS", 0)
     monkeypatch.setattr(F, "_DRIFT_ROUNDS", 0)
+    monkeypatch.setattr(F, "_POLISH_QPS", 0)
     sim = _sim(throw(33))
     with pytest.raises(F.FrictionError, match=r"\(no solution\): contacts 'n\d' on the ground miss the Coulomb "
                                               r"law by up to [0-9.e+-]+ N\*s \(tolerance [0-9.e+-]+ N\*s\) after 30 "
