@@ -523,10 +523,10 @@ class FrictionalSolver:
 
     def _jammed(self, v0, rows, warm):
         """:meth:`_settle` again with every ground contact that carried load in its last solve starting to
-        stick, where one of them started sliding; None if there is none, or the modes do not settle from
-        there either (the contacts' memory is then as it was). A sliding contact can have no fixed point: its
-        friction may press its node into the ground harder than it lets it slide (the robot jams, as in
-        Painlevé's paradox), and then only sticking answers. Measured (issue 47, ``bench_throws.py`` throw
+        stick, where one of them started sliding; None if there is none, or the modes do not settle from there
+        either, or a QP fails (the contacts' memory is then as it was). A sliding contact can have no fixed
+        point: its friction may press its node into the ground harder than it lets it slide (the robot jams, as
+        in Painlevé's paradox), and then only sticking answers. Measured (issue 47, ``bench_throws.py`` throw
         6046, superball at mu = 1.41, copy 3): a node sliding at 0.83 m/s, whose normal impulse grows by 1.1
         times the friction's (``mu y_n = 0.055 + 1.098 a`` N*s for a friction ``a``: no ``a >= 0`` meets it),
         the modes' 30 QPs wandered, the Newton method's answer missed a cable's row by 5.4e-4 m/s; sticking,
@@ -536,7 +536,10 @@ class FrictionalSolver:
         if not (loaded & ~stick & (self._mu[:len(nodes)] > 0)).any():
             return None
         self._stick[nodes] = stick | loaded
-        found = self._settle(v0, rows, warm)
+        try:
+            found = self._settle(v0, rows, warm)
+        except QPError:   # (a QP the sticking rows make fail: throw 5944's DAQP cycling on three of them)
+            found = None
         if found is None:
             self._stick[nodes] = stick
         return found
