@@ -121,12 +121,13 @@ def test_newton_answers_the_coulomb_law_where_the_modes_cycle(monkeypatch):
 
 
 def test_a_friction_problem_left_unsolved_names_its_contacts_and_residual(monkeypatch):
-    """With no Newton iteration, NSGS sweep, restart or drift round allowed, the problem where the modes cycle is
-    left unsolved: the FrictionError names the contacts on the ground and the residual, in N*s."""
+    """With no Newton iteration, NSGS sweep, restart, drift round or polishing QP allowed, the problem where the
+    modes cycle is left unsolved: the FrictionError names the contacts on the ground and the residual, in N*s."""
     monkeypatch.setattr(F, "MAX_NEWTON_ITER", 0)
     monkeypatch.setattr(F, "_NSGS_SWEEPS", ())
     monkeypatch.setattr(F, "_RESTARTS", 0)
     monkeypatch.setattr(F, "_DRIFT_ROUNDS", 0)
+    monkeypatch.setattr(F, "_POLISH_QPS", 0)
     sim = _sim(throw(33))
     with pytest.raises(F.FrictionError, match=r"\(no solution\): contacts 'n\d' on the ground miss the Coulomb "
                                               r"law by up to [0-9.e+-]+ N\*s \(tolerance [0-9.e+-]+ N\*s\) after 30 "
@@ -490,3 +491,85 @@ def test_fuzz_throws_run_soundly(index):
         out = T.run_throw(case)
     assert T.problems(case, out) == [] and out["steps"] == 60
     assert checks.violations == 0, checks.first
+
+
+def _fuzz_copy(index: int, copy: int, steps: int) -> dict:
+    """Copy ``copy`` of throw ``index`` of ``bench/bench_throws.py --seed 0`` (``--space fuzz``; copy ``b`` of a
+    batch is dropped ``b`` cm higher) as a throw of its own, cut to ``steps``."""
+    from bench.bench_throws import case_of
+
+    case = case_of(0, index, 200, "fuzz")
+    return dict(case, height=case["height"] + 0.01 * copy, batch=1, steps=steps)
+
+
+def test_a_node_whose_sliding_friction_jams_it_sticks(monkeypatch):
+    """Throw 6046 (superball at mu = 1.41, a batch of 4) stopped in copy 3 at step 21 (``QPError ...
+    (infeasible output): the returned velocities violate a constraint by 0.000541 m/s``, issue 47): a node
+    sliding at 0.83 m/s whose normal impulse grows faster than the friction that presses it (no sliding
+    answer), where the modes wandered and the Newton method missed a cable's row. Started sticking
+    (``FrictionalSolver._jammed``) it is answered: at each such answer the node stops (its tangential
+    velocity 0 to round-off) with its friction inside the disc, and the throw runs soundly. (Without that start
+    the step is the QPError, after 30 s of Newton iterations: not rerun here.)"""
+    case = _fuzz_copy(6046, 3, 22)
+    seen = []
+    jammed = F.FrictionalSolver._jammed
+
+    def recorded(self, v0, rows, warm):
+        found = jammed(self, v0, rows, warm)
+        if found is not None:
+            seen.append((self._tangential(self._velocity(found[0])), self.last.copy(), self._mu.copy()))
+        return found
+
+    monkeypatch.setattr(F.FrictionalSolver, "_jammed", recorded)
+    out = T.run_throw(case)
+    assert T.problems(case, out) == [] and out["steps"] == 22
+    assert seen
+    for vt, impulses, mu in seen:
+        stuck = np.linalg.norm(impulses[:, :2], axis=1) > 0
+        assert np.abs(vt[stuck]).max() <= 1e-12
+        assert (np.linalg.norm(impulses[:, :2], axis=1) <= mu * impulses[:, 2]).all()
+
+
+def test_a_set_down_three_bar_whose_newton_start_stalls_runs_from_no_impulse():
+    """Throw 5944 (three_bar set down 5 um above the ground at mu = 1.35) stopped at step 89 (``FrictionError ...
+    (no solution): contacts 'n0' on the ground, 'n1' on the ground, 'n2' on the ground miss the Coulomb law by
+    up to 2.08e-07 N*s ... after 30 mode QPs and 6900 semismooth Newton iterations``, issue 47): its three
+    nodes' modes cycle, and the Newton method from their last iterate stalls at a local minimum; from no
+    impulse it is solved (and 6 steps later from there and its NSGS sweeps), and at step 100 the jammed start's
+    QP (DAQP cycling) leaves the solve to the Newton method. Its first 101 steps run soundly, every accepted
+    answer meeting the law (the benchmark's check)."""
+    from bench.bench_throws import AnswerChecks
+
+    case = _fuzz_copy(5944, 0, 101)
+    with AnswerChecks() as checks:
+        out = T.run_throw(case)
+    assert T.problems(case, out) == [] and out["steps"] == 101
+    assert checks.violations == 0, checks.first
+
+
+def test_a_newton_answer_off_a_row_is_polished_with_its_friction_known(monkeypatch):
+    """Throw 5467 (the locked superball set down 7 um above the ground at mu = 0.49) stopped at step 52
+    (``QPError ... (infeasible output): the returned velocities violate a constraint by 1.68e-06 m/s``, issue 47):
+    on three nodes, its modes cycle and the Newton method's best answer stays off a cable's row. Polished
+    (``FrictionalSolver._polish``: the QP with its friction known, the friction projected on the discs) the
+    answer meets the rows and, to the physical tolerance, the law; the throw runs on soundly, every accepted
+    answer meeting the law (the benchmark's check). (The Newton method's random restarts are skipped here: on
+    this problem none comes nearer, and they take 25 s; the answer polished is the null-space drift's.)"""
+    from bench.bench_throws import AnswerChecks
+
+    polished = []
+    polish = F.FrictionalSolver._polish
+
+    def recorded(self, *args):
+        found = polish(self, *args)
+        polished.append(found is not None)
+        return found
+
+    monkeypatch.setattr(F.FrictionalSolver, "_polish", recorded)
+    monkeypatch.setattr(F, "_RESTARTS", 0)
+    case = _fuzz_copy(5467, 0, 54)
+    with AnswerChecks() as checks:
+        out = T.run_throw(case)
+    assert T.problems(case, out) == [] and out["steps"] == 54
+    assert checks.violations == 0, checks.first
+    assert any(polished)
