@@ -39,6 +39,7 @@ impulses, tensions, slack) and only the last step (``every=steps``: not like for
 """
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 import warnings
@@ -276,10 +277,16 @@ def write(rows: list[dict]) -> str:
 
 
 if __name__ == "__main__":
-    # a single case: its own CSV
+    # a single case: its own CSV; an unknown flag is refused (it used to run the whole bench)
     single = {"--ground": (measure_ground, "batch_ground.csv"), "--response": (measure_response, "batch_response.csv"),
               "--inextensible": (measure_inextensible, "batch_inextensible.csv")}
-    chosen = [single[flag] for flag in sys.argv[1:] if flag in single]
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    group = parser.add_mutually_exclusive_group()
+    for flag, (_, name) in single.items():
+        group.add_argument(flag, action="store_true", help=f"that case only: bench/results/{name}")
+    args = parser.parse_args()
+    chosen = [single[flag] for flag in single if getattr(args, flag[2:])]
     if chosen:
         case, name = chosen[0]
         rows = case()
