@@ -169,7 +169,23 @@ def merge(paths: list[Path], out: Path) -> dict:
     if len(kinds) != 1:
         raise SystemExit(f"cannot merge runs of different seeds, steps or spaces: {sorted(kinds)}")
     seed, steps, space = kinds.pop()
-    return write(out, list(groups.values()), steps=steps, seed=seed, ranges=";".join(ranges), space=space)
+    return write(out, list(groups.values()), steps=steps, seed=seed, ranges=";".join(joined(ranges)), space=space)
+
+
+def joined(ranges: list[str]) -> list[str]:
+    """The ranges ``ranges`` ("a-b" or a comma-separated rerun list, each kept as it is), in their order, with
+    each "a-b" that starts where the one before it ended joined to it: ["0-9", "10-19", "40-49"] gives
+    ["0-19", "40-49"]."""
+    out: list[str] = []
+    for r in ranges:
+        first, _, last = r.partition("-")
+        if out and last and "," not in r:
+            before_first, _, before_last = out[-1].partition("-")
+            if before_last and "," not in out[-1] and int(before_last) + 1 == int(first):
+                out[-1] = f"{before_first}-{last}"
+                continue
+        out.append(r)
+    return out
 
 
 def main(argv=None) -> int:
