@@ -9,7 +9,7 @@ import pytest
 
 import tensegrity_sim as ts
 from tensegrity_sim.methods import choose_method, restitutions
-from tensegrity_sim.methods.massive.method import _factor_cost, _row_order, plate_impact
+from tensegrity_sim.methods.massive.method import plate_impact
 from tensegrity_sim.system import System
 
 L, GAP, V, M = 1.0, 0.05, 1.0, 1.0
@@ -304,34 +304,6 @@ def test_kernel_solves_the_plates_system_as_a_dense_solve():
     kernels._back(g, envelope, rdiag, y)
     assert np.abs(y[held] - np.linalg.solve(dense, rhs[held])).max() < 1e-13 * np.abs(y).max()
     assert not y[~held].any()
-
-
-def test_plate_rows_come_in_the_order_whose_factor_costs_least():
-    """A chain of rows given scrambled: the chosen order costs what the chain's order does, 3 multiply-adds a link
-    (an entry each, its diagonal, forward and back substitution: or one row of two entries, 6, and one of none),
-    less than the scrambled order; on the icosahedron the chosen order costs no more than scipy's reverse
-    Cuthill-McKee."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import reverse_cuthill_mckee
-    chain = [3, 0, 4, 1, 2]
-    links = np.array([chain[i:i + 2] for i in range(4)])
-    neighbours = [set() for _ in range(5)]
-    for a, b in links:
-        neighbours[a].add(b)
-        neighbours[b].add(a)
-    order = _row_order(links, 5)
-    assert sorted(order) == list(range(5))
-    assert _factor_cost(order, neighbours) == _factor_cost(np.array(chain), neighbours) == 3 * 4
-    assert _factor_cost(order, neighbours) < _factor_cost(np.arange(5), neighbours)
-    sim = ts.Simulator(_free_scene("icosahedron", 0.05), method="massive", dt=2.5e-4)
-    pairs, k = sim._method._model[12], len(sim._method._model[10])   # in the chosen rows
-    neighbours = [set() for _ in range(k)]
-    for a, b, _ in pairs:
-        neighbours[a].add(b)
-        neighbours[b].add(a)
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(k, k)).tocsr()
-    rcm = reverse_cuthill_mckee(graph, symmetric_mode=False)
-    assert _factor_cost(np.arange(k), neighbours) <= _factor_cost(rcm, neighbours)
 
 
 def test_run_loop_equals_single_steps_and_losses_follow_the_present():

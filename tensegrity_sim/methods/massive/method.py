@@ -79,6 +79,8 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg as scipy_linalg
+import scipy.sparse as scipy_sparse
+from scipy.sparse.csgraph import reverse_cuthill_mckee
 from scipy.optimize import nnls
 
 from ...system import System
@@ -134,46 +136,6 @@ def plate_impact(g: np.ndarray, rates: np.ndarray, snapping: np.ndarray) -> np.n
     p = np.empty(len(rates))
     p[s], p[a] = p_s, -coupling @ p_s
     return p
-
-
-def _row_order(links: np.ndarray, k: int) -> np.ndarray:
-    """The order of ``k`` rows (``links`` (P, 2): the pairs of rows coupled) for the kernel's envelope factor: of
-    the reversed Cuthill-McKee orders started from every row (breadth first, the fewest links first: a narrow
-    envelope), the one whose factor and solve take the fewest multiply-adds (:func:`_factor_cost`). Rows
-    apart from the first's component follow from their lowest one."""
-    neighbours = [set() for _ in range(k)]
-    for a, b in links:
-        neighbours[a].add(int(b))
-        neighbours[b].add(int(a))
-    best, best_cost = np.arange(k), np.inf
-    for start in range(k):
-        order, seen = [], set()
-        for seed in [start, *range(k)]:
-            if seed in seen:
-                continue
-            seen.add(seed)
-            head = len(order)
-            order.append(seed)
-            while head < len(order):   # breadth first
-                for other in sorted(neighbours[order[head]] - seen, key=lambda r: (len(neighbours[r]), r)):
-                    seen.add(other)
-                    order.append(other)
-                head += 1
-        order = np.array(order[::-1], dtype=np.int64)
-        cost = _factor_cost(order, neighbours)
-        if cost < best_cost:
-            best, best_cost = order, cost
-    return best
-
-
-def _factor_cost(order: np.ndarray, neighbours: list) -> int:
-    """The multiply-adds of the kernel's envelope factor, forward and back substitution with the rows in
-    ``order`` (``neighbours``: each row's coupled rows): each entry of a row's envelope takes the dot product of
-    the two rows' common part, and the diagonal, the forward and the back substitution one each."""
-    at = np.empty(len(order), dtype=np.int64)
-    at[order] = np.arange(len(order))
-    first = [min([i, *(at[r] for r in neighbours[row])]) for i, row in enumerate(order)]
-    return sum(j - max(first[i], first[j]) + 3 for i in range(len(order)) for j in range(first[i], i))
 
 
 class PlateMassSolver(MassWrapper):
@@ -443,9 +405,8 @@ class MassiveMethod(StepMethod):
 
     def _plate_layout(self) -> tuple:
         """The kernel's layout of the plates' ``G`` (its module docstring): a row for every cable that carries a
-        plate, in the reversed Cuthill-McKee order (of the graph in which two cables sharing a node are joined)
-        whose envelope factor costs least (:func:`_row_order`: the envelope, fixed for the scene, stays narrow),
-        and every such coupling once.
+        plate, in the reverse Cuthill-McKee order of the graph in which two cables sharing a node are joined (so
+        that the Cholesky factor's envelope, fixed for the scene, stays narrow), and every such coupling once.
         Returns ``rows`` (nc,) (cable -> row, -1: no plate), ``plated`` (k,) (row -> cable), ``envelope`` (k,)
         (each row's first column), ``pairs`` (P, 3) (row, row before it, node) int64 and ``signs`` (P,) (+1 where
         the node is the same end of both cables, else -1)."""
@@ -455,7 +416,8 @@ class MassiveMethod(StepMethod):
         shared = [(i, j, node) for i in range(k) for j in range(i + 1, k)
                   for node in sorted(set(ends[cables[i]]) & set(ends[cables[j]]))]
         links = np.array(shared, dtype=np.int64).reshape(-1, 3)
-        plated = cables[_row_order(links[:, :2], k)]
+        graph = scipy_sparse.coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(k, k))
+        plated = cables[reverse_cuthill_mckee(graph.tocsr(), symmetric_mode=False)] if k else cables
         rows = np.full(len(ends), -1, dtype=np.int64)
         rows[plated] = np.arange(k)
         pairs = np.empty((len(links), 3), dtype=np.int64)
