@@ -997,7 +997,7 @@ class FrictionalSolver:
             r = drift(swept)
         if not solved(r) and best[1] is not None:   # (None: every miss NaN; the check below names it)
             r = best[1]
-        y, f, applied, v, vt = answer(r)
+        y, _, applied, v, vt = answer(r)
         impulse = max(impulse_scale, float(np.max(np.abs(r), initial=0.0)))
         tol = FIXED_POINT_TOL * impulse
         yn = y[n_rows:]
@@ -1020,13 +1020,20 @@ class FrictionalSolver:
             if polished is None:
                 raise
             return polished
+        self._keep(v0, v, vt, applied, yn, tol)
+        return v, y[:n_rows]
+
+    def _keep(self, v0, v, vt, impulses, yn, tol) -> None:
+        """An accepted answer of the Newton method or its polish: the contacts remember sticking where its
+        friction ``impulses[:, :2]`` lies inside the disc by ``tol`` or its slip ``vt`` is round-off, and
+        ``impulses`` with the normal impulses ``yn`` are :attr:`last`."""
         speed = np.sqrt(np.einsum("ij,ij->i", vt, vt))
         slip_tol = _SLIP_FLOOR + FIXED_POINT_TOL * max(float(np.max(np.abs(v0), initial=0.0)),
                                                        float(np.max(np.abs(v), initial=0.0)))
-        self._remember((np.sqrt(np.einsum("ij,ij->i", f, f)) < mu * yn - tol) | (speed <= slip_tol), yn, None)
-        applied[:, 2] = yn
-        self.last = applied
-        return v, y[:n_rows]
+        size = np.sqrt(np.einsum("ij,ij->i", impulses[:, :2], impulses[:, :2]))
+        self._remember((size < self._mu * yn - tol) | (speed <= slip_tol), yn, None)
+        impulses[:, 2] = yn
+        self.last = impulses
 
     def _polish(self, v0, rows, warm, friction, loaded, tol):
         """The Newton method's answer polished where it misses the law or the QP rows: its friction ``friction``
@@ -1046,15 +1053,8 @@ class FrictionalSolver:
             except QPError:
                 return None
             vt = self._tangential(self._velocity(v))
-            speed = np.sqrt(np.einsum("ij,ij->i", vt, vt))
             if self._accepted(yn, friction, vt, tol, v0, y):
-                slip_tol = _SLIP_FLOOR + FIXED_POINT_TOL * max(float(np.max(np.abs(v0), initial=0.0)),
-                                                               float(np.max(np.abs(v), initial=0.0)))
-                size = np.sqrt(np.einsum("ij,ij->i", friction[:, :2], friction[:, :2]))
-                self._remember((size < self._mu * yn - tol) | (speed <= slip_tol), yn, None)
-                impulses = friction.copy()
-                impulses[:, 2] = yn
-                self.last = impulses
+                self._keep(v0, v, vt, friction.copy(), yn, tol)
                 return v, y[:n_rows]
             trial = friction[:, :2] - self._meff[:, None] * vt
             size = np.sqrt(np.einsum("ij,ij->i", trial, trial))
