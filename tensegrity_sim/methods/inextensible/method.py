@@ -375,9 +375,12 @@ class InextensibleMethod(StepMethod):
         hint = self._hint
         remaining = self.dt
         landed = None   # the nodes whose impact the last cut was placed at (ContactSet.landed)
+        snapped = None  # ... and the cables (_snapped)
         for event in range(self.max_events + 1):
             d, length = self._cable_geometry(x)
             at_limit = (length >= floor) & self._cables_move
+            if snapped is not None:
+                at_limit |= snapped
             maybe = at_limit & ~holding
             landing = self.ground is not None and self.ground.arm_impact(x, v, self.dt, landed)
             if (maybe.any() or landing) and v.any():
@@ -388,12 +391,13 @@ class InextensibleMethod(StepMethod):
             x_m, v0 = self._free_motion(x, v, tau, f_ext)
             cut = False
             if event < self.max_events:
-                theta = 1.0 if at_limit.all() else self._first_snap(d, limits, v, v0, tau,
-                                                                    ~at_limit & self._cables_move)
+                slack = ~at_limit & self._cables_move
+                snap = theta = 1.0 if at_limit.all() else self._first_snap(d, limits, v, v0, tau, slack)
                 if self.ground is not None:
                     theta = min(theta, self.ground.first_impact(x, v, v0, tau))
                 cut = _MIN_EVENT * self.dt < theta * tau < tau - _MIN_EVENT * self.dt
                 if cut:
+                    snapped = self._snapped(d, limits, v, v0, tau, slack) if snap == theta else None
                     tau = theta * tau
                     x_m, v0 = self._free_motion(x, v, tau, f_ext)
             last = event > 0 and not cut and self.solver.last_hint
@@ -696,15 +700,32 @@ class InextensibleMethod(StepMethod):
         ``_inextensible_kernels.first_snap``, of which this is the numpy reference."""
         if self.compiled:
             return kernels.first_snap(d, limits, v, v0, tau, self.system.cable_ends, slack, _NEWTON_ITER)
+        return float(self._snap_times(d, limits, v, v0, tau, slack)[1].min(initial=1.0))
+
+    def _snapped(self, d, limits, v, v0, tau, slack) -> np.ndarray:
+        """The cables (n_cables,) bool whose snap :meth:`_first_snap` located first: a sub-step cut there ends with
+        them at their limits to the accuracy of their free path, and they take the impact at the cut (as the nodes
+        landing there, ``ContactSet.landed``). Measured (issue 47, ``bench_throws.py`` throw 9087: three_bar, a
+        cable snapping 6.1 us into a step): the cut left it 1e-9 m short of its limit, below ``LIMIT_TOL``'s reach,
+        and its snap 1.4e-10 s into the next sub-step, too near to split off: its row stopped it inside the
+        sub-step, 2.5 N*s, while a node stuck on the ground, whose friction working on the sub-step's mean
+        velocity made 0.020 J."""
+        cables, t = self._snap_times(d, limits, v, v0, tau, slack)
+        out = np.zeros(len(limits), dtype=bool)
+        out[cables[t == t.min(initial=np.inf)]] = True
+        return out
+
+    def _snap_times(self, d, limits, v, v0, tau, slack):
+        """The ``slack`` cables that reach their limits within the sub-step on their free path (indices) and the
+        fraction (0, 1] at which each does (:meth:`_first_snap`'s reference)."""
+        cables = np.flatnonzero(slack)
         ends = self.system.cable_ends[slack]
         d, lim = d[slack], limits[slack]
         u = v[ends[:, 1]] - v[ends[:, 0]]
         u_mean = 0.5 * (u + v0[ends[:, 1]] - v0[ends[:, 0]])
         d_end = d + tau * u_mean
         cross = np.einsum("ij,ij->i", d_end, d_end) > lim * lim
-        if not cross.any():
-            return 1.0
-        d, u, u_mean, lim = d[cross], u[cross], u_mean[cross], lim[cross]
+        cables, d, u, u_mean, lim = cables[cross], d[cross], u[cross], u_mean[cross], lim[cross]
         acc = 2.0 * (u_mean - u) / tau
         # start: the crossing of the straight path d + t tau u_mean (exact at t = 1), small root form
         b = np.einsum("ij,ij->i", d, u_mean) * tau
@@ -717,7 +738,7 @@ class InextensibleMethod(StepMethod):
             g = np.einsum("ij,ij->i", p, p) - lim * lim
             slope = 2.0 * np.einsum("ij,ij->i", p, dp)
             t = np.clip(t - g / np.where(slope > 0, slope, np.inf), 0.0, 1.0)
-        return float(t.min())
+        return cables, t
 
     def _midpoint(self, x_m, v, v0, tau, limits, floor, taut, reel, reeling, holding):
         """Moreau's midpoint sub-step from ``x_m`` with free velocity ``v0``: returns ``x_f``, ``v_f``
