@@ -112,6 +112,7 @@ MAX_MODE_ITER = 30        # QPs of the mode fixed point before the semismooth Ne
 MAX_NEWTON_ITER = 100     # ... and its iterations before the problem is declared to have no solution
 _LINE_SEARCH = 30         # halvings of the Newton step before the line search gives it up ...
 _NSGS_SWEEPS = (100, 300, 600, 4000)   # NSGS sweeps between Newton's further starts (5000 in all) ...
+_CHAINS = 2               # Newton's first iterates (the modes' and zero's) the NSGS sweeps go on from ...
 _RESTARTS = 64            # Newton's starts from random impulses where it stops at a merit's local minimum ...
 _DRIFT_SWEEPS, _DRIFT_ROUNDS = 50, 400   # ... then NSGS rounds of sweeps with steps along W's null space
 # Where no answer meets the law to FIXED_POINT_TOL of the contacts' own impulse scale, the best one found is
@@ -967,24 +968,32 @@ class FrictionalSolver:
             r[:n_qp], r[n_qp:] = self._guess[0], self._guess[1].ravel()
         scale = max(impulse_scale, float(np.max(np.abs(r), initial=0.0)))
         r, it = descend(r)
+        chains = [r]   # the Newton iterates the NSGS sweeps go on from, the nearer first
         if self._guess is not None and not (solved(r) or acceptable(best[1])):
             # from no impulse: the modes' iterate can lie in another piece of the equation, and there Newton
-            # stops at a local minimum; the further starts go on from the nearer of the two. Measured (issue 47,
-            # bench_throws.py throw 5944: three_bar set down at mu = 1.35 on three nodes, its struts' blocks):
-            # from the cycled modes' iterate every start missed the law by 2.1e-7 N*s (after 6900 iterations,
-            # 11 s); from zero it is solved in 49 iterations, and 6 steps later, from zero and its NSGS sweeps
+            # stops at a local minimum. Measured (issue 47, bench_throws.py throw 5944: three_bar set down at
+            # mu = 1.35 on three nodes, its struts' blocks): from the cycled modes' iterate every start missed the
+            # law by 2.1e-7 N*s (after 6900 iterations, 11 s); from zero it is solved in 49 iterations, and 6
+            # steps later, from zero and its NSGS sweeps
             zero, its = descend(np.zeros_like(r))
             it += its
-            if np.max(np.abs(equation(zero)[0])) < np.max(np.abs(equation(r)[0])):
-                r = zero
-        swept = r.copy()
+            chains = [zero, r] if np.max(np.abs(equation(zero)[0])) < np.max(np.abs(equation(r)[0])) else [r, zero]
+            r = chains[0]
+        # NSGS sweeps, then Newton, from both iterates in turn: which of the two stalled nearer the solution says
+        # little of which piece it lies in. Measured (issue 47, bench_throws.py throw 12549: three_bar set down at
+        # mu = 1.58, its rows of rank 18 of 20 and a singular value 7.6e-5 of 65): Newton stalled with |Phi| at
+        # 1.1e-5 N*s from the modes' iterate, 2.4e-5 from zero, and every further start went on from the first
+        # (7000 iterations, 20 s, the best answer 3.5e-7 N*s off the law: the step stopped); from zero's iterate
+        # 100 sweeps and Newton solve it (0.4 s)
+        swept = [c.copy() for c in chains[:_CHAINS]]
         for sweeps in _NSGS_SWEEPS:
-            if solved(r) or acceptable(best[1]):
-                break
-            for _ in range(sweeps):
-                sweep(swept)
-            r, its = descend(swept.copy())
-            it += its
+            for chain in swept:
+                if solved(r) or acceptable(best[1]):
+                    break
+                for _ in range(sweeps):
+                    sweep(chain)
+                r, its = descend(chain.copy())
+                it += its
         for seed in range(_RESTARTS):
             if solved(r) or acceptable(best[1]):
                 break
@@ -993,8 +1002,8 @@ class FrictionalSolver:
             start[n_qp:] = rng.normal(0.0, scale, 2 * k)
             r, its = descend(start)
             it += its
-        if not (solved(r) or acceptable(best[1])):   # from the last NSGS iterate: its friction in the discs
-            r = drift(swept)
+        if not (solved(r) or acceptable(best[1])):   # from the nearer chain's last NSGS iterate: friction in discs
+            r = drift(swept[0])
         if not solved(r) and best[1] is not None:   # (None: every miss NaN; the check below names it)
             r = best[1]
         y, _, applied, v, vt = answer(r)

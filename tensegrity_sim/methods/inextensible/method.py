@@ -66,8 +66,8 @@ event instead, located inside the step and resolved where it happens:
 
 1. *Locate it.* For each slack cable whose ends' free path (constant free acceleration) crosses its
    limit during the sub-step, the crossing time is found by Newton's method; the sub-step is cut at the
-   earliest crossing (at most ``MAX_EVENTS`` per step; later ones are stopped at their limit by their
-   rows and resolved at the next step's start).
+   earliest crossing (at most ``MAX_EVENTS`` per step, ``MAX_CONTACT_EVENTS`` with contacts, snaps and landings
+   alike; later ones are stopped at their limit by their rows and resolved at the next step's start).
 2. *Impact.* At that configuration, if a cable at its limit that was not already holding (active at
    its limit in the previous sub-step) separates, Moreau's impact law: ``v+ = argmin |v+ - v|_M`` with
    ``b^T v+ <= 0`` for every cable at its limit and ``b^T v+ = 0`` for the rigid struts. Perfectly
@@ -113,7 +113,8 @@ from ..qp.solvers import (_FEASIBILITY_TOL, _VELOCITY_FLOOR, BlockMassSolver, Da
 from ..rigid import RigidStruts
 from .self_stress import TAUT_TOL, SelfStress, reference_tensions
 
-__all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_EVENTS", "REEL_FORCE", "REEL_SPEED"]
+__all__ = ["InextensibleMethod", "LengthOffsetWarning", "LIMIT_TOL", "MAX_CONTACT_EVENTS", "MAX_EVENTS", "REEL_FORCE",
+           "REEL_SPEED"]
 
 REEL_SPEED = 1.0     # m/s: the motors' default top speed (cable-driven tensegrity robots reel slower)
 REEL_FORCE = 2e3     # N: the motors' default largest pull (their stall force; module docstring, *Motor force*)
@@ -124,6 +125,14 @@ LIMIT_TOL = 1e-9     # relative: a cable within LIMIT_TOL * L of its limit is at
 # built-ins (0.1 s against dt = 1e-4) locating up to 8 changed nothing beyond the trajectories'
 # chaotic spread and cost up to 1.5x (tower10); the closed-form cases need one.
 MAX_EVENTS = 2
+# ... and with contacts (a ground, a member response): a snap or landing past the limit is stopped by its row inside
+# a midpoint sub-step, where the contacts' friction, its law met at the sub-step's end, works on the mean of its
+# velocities and can create energy (issue 47, bench_throws.py --seed 0, the throws the energy check called unsound:
+# 12958, the superball pivoting on a node sliding at 2 m/s, whose third sub-step turned the slip to -0.98 m/s under
+# a 6.2 N*s normal impulse and made 1.94 J; 10448 and 9087, a node stopped by sticking friction while a cable
+# snapped inside the last sub-step, 3.9e-3 and 0.018 J; 11130, three_bar landing a node at 1.5 m/s in its last
+# sub-step, bounced by the landing target, 0.027 J). Up to 8 located, the first three make none
+MAX_CONTACT_EVENTS = 8
 _MIN_EVENT = 1e-6    # an event closer than this fraction of dt to the sub-step's start is not split off
 _NEWTON_ITER = 4     # Newton iterations for a snap time (the start point is exact for a straight path)
 _LANDING_TOL = 1e-11  # relative: a binding row must end within this of its member's limit ...
@@ -235,6 +244,7 @@ class InextensibleMethod(StepMethod):
                        else ContactSet(system, self.solver))
         if self.ground is not None:
             self.solver = self.ground.solver
+        self.max_events = MAX_EVENTS if self.ground is None else MAX_CONTACT_EVENTS   # events located per step
         # The member table of the QP rows: the rigid struts that move (equalities), then every cable.
         self.rigid = RigidStruts(system)
         self._n_eq = self.rigid.count
@@ -327,7 +337,7 @@ class InextensibleMethod(StepMethod):
         offsets = self.length_offsets
         return {"method": self.name, "dt": self.dt, **self.solver.describe(), "solver_choice": self.solver_choice,
                 "limit_tol": LIMIT_TOL, "reel_speed": self.reel_speed, "reel_force": self.reel_force,
-                "max_events": MAX_EVENTS, "omega_struts": self.omega_struts,
+                "max_events": self.max_events, "omega_struts": self.omega_struts,
                 "length_offsets": {name: float(o) for name, o in zip(self.system.scene.cable_names, offsets)
                                    if o > 0}}
 
@@ -365,9 +375,12 @@ class InextensibleMethod(StepMethod):
         hint = self._hint
         remaining = self.dt
         landed = None   # the nodes whose impact the last cut was placed at (ContactSet.landed)
-        for event in range(MAX_EVENTS + 1):
+        snapped = None  # ... and the cables (_snapped)
+        for event in range(self.max_events + 1):
             d, length = self._cable_geometry(x)
             at_limit = (length >= floor) & self._cables_move
+            if snapped is not None:
+                at_limit |= snapped
             maybe = at_limit & ~holding
             landing = self.ground is not None and self.ground.arm_impact(x, v, self.dt, landed)
             if (maybe.any() or landing) and v.any():
@@ -377,13 +390,14 @@ class InextensibleMethod(StepMethod):
             tau = remaining
             x_m, v0 = self._free_motion(x, v, tau, f_ext)
             cut = False
-            if event < MAX_EVENTS:
-                theta = 1.0 if at_limit.all() else self._first_snap(d, limits, v, v0, tau,
-                                                                    ~at_limit & self._cables_move)
+            if event < self.max_events:
+                slack = ~at_limit & self._cables_move
+                snap = theta = 1.0 if at_limit.all() else self._first_snap(d, limits, v, v0, tau, slack)
                 if self.ground is not None:
                     theta = min(theta, self.ground.first_impact(x, v, v0, tau))
                 cut = _MIN_EVENT * self.dt < theta * tau < tau - _MIN_EVENT * self.dt
                 if cut:
+                    snapped = self._snapped(d, limits, v, v0, tau, slack) if snap == theta else None
                     tau = theta * tau
                     x_m, v0 = self._free_motion(x, v, tau, f_ext)
             last = event > 0 and not cut and self.solver.last_hint
@@ -686,15 +700,32 @@ class InextensibleMethod(StepMethod):
         ``_inextensible_kernels.first_snap``, of which this is the numpy reference."""
         if self.compiled:
             return kernels.first_snap(d, limits, v, v0, tau, self.system.cable_ends, slack, _NEWTON_ITER)
+        return float(self._snap_times(d, limits, v, v0, tau, slack)[1].min(initial=1.0))
+
+    def _snapped(self, d, limits, v, v0, tau, slack) -> np.ndarray:
+        """The cables (n_cables,) bool whose snap :meth:`_first_snap` located first: a sub-step cut there ends with
+        them at their limits to the accuracy of their free path, and they take the impact at the cut (as the nodes
+        landing there, ``ContactSet.landed``). Measured (issue 47, ``bench_throws.py`` throw 9087: three_bar, a
+        cable snapping 6.1 us into a step): the cut left it 1e-9 m short of its limit, below ``LIMIT_TOL``'s reach,
+        and its snap 1.4e-10 s into the next sub-step, too near to split off: its row stopped it inside the
+        sub-step, 2.5 N*s, while a node stuck on the ground, whose friction working on the sub-step's mean
+        velocity made 0.020 J."""
+        cables, t = self._snap_times(d, limits, v, v0, tau, slack)
+        out = np.zeros(len(limits), dtype=bool)
+        out[cables[t == t.min(initial=np.inf)]] = True
+        return out
+
+    def _snap_times(self, d, limits, v, v0, tau, slack):
+        """The ``slack`` cables that reach their limits within the sub-step on their free path (indices) and the
+        fraction (0, 1] at which each does (:meth:`_first_snap`'s reference)."""
+        cables = np.flatnonzero(slack)
         ends = self.system.cable_ends[slack]
         d, lim = d[slack], limits[slack]
         u = v[ends[:, 1]] - v[ends[:, 0]]
         u_mean = 0.5 * (u + v0[ends[:, 1]] - v0[ends[:, 0]])
         d_end = d + tau * u_mean
         cross = np.einsum("ij,ij->i", d_end, d_end) > lim * lim
-        if not cross.any():
-            return 1.0
-        d, u, u_mean, lim = d[cross], u[cross], u_mean[cross], lim[cross]
+        cables, d, u, u_mean, lim = cables[cross], d[cross], u[cross], u_mean[cross], lim[cross]
         acc = 2.0 * (u_mean - u) / tau
         # start: the crossing of the straight path d + t tau u_mean (exact at t = 1), small root form
         b = np.einsum("ij,ij->i", d, u_mean) * tau
@@ -707,7 +738,7 @@ class InextensibleMethod(StepMethod):
             g = np.einsum("ij,ij->i", p, p) - lim * lim
             slope = 2.0 * np.einsum("ij,ij->i", p, dp)
             t = np.clip(t - g / np.where(slope > 0, slope, np.inf), 0.0, 1.0)
-        return float(t.min())
+        return cables, t
 
     def _midpoint(self, x_m, v, v0, tau, limits, floor, taut, reel, reeling, holding):
         """Moreau's midpoint sub-step from ``x_m`` with free velocity ``v0``: returns ``x_f``, ``v_f``
