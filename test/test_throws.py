@@ -138,13 +138,14 @@ def test_a_friction_problem_left_unsolved_names_its_contacts_and_residual(monkey
 
 
 def _kernel_answers(monkeypatch) -> list[bool]:
-    """From now on, whether each friction solve was answered by the compiled kernel (in order)."""
+    """From now on, whether each friction solve was answered by the compiled kernel (in order; modes that
+    cycle are no answer)."""
     answered = []
     compiled_modes = F.FrictionalSolver._modes_compiled
 
     def counted(self, v0, rows, warm):
         found = compiled_modes(self, v0, rows, warm)
-        answered.append(found is not None)
+        answered.append(found is not None and found is not F._CYCLED)
         return found
 
     monkeypatch.setattr(F.FrictionalSolver, "_modes_compiled", counted)
@@ -215,9 +216,9 @@ def test_the_closed_forms_run_on_the_compiled_modes(monkeypatch):
         tr = sim.run(duration=0.3)
         assert np.abs(tr.positions - tr.positions[0]).max() < 1e-9
         if one_kernel:
-            assert python[0] == 1 and len(answered) <= 1
-        else:
-            assert len(answered) == 300 and sum(answered) >= 299
+            assert python[0] == 1 and len(answered) <= 2   # the first step's solve, and at the velocity level
+        else:   # the first step's modes cycle, at the velocity level too: the Newton method answers it
+            assert len(answered) == 301 and sum(answered) == 299
         answered.clear()
 
 

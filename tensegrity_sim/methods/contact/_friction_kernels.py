@@ -71,7 +71,9 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
     solve's modes, ``y_n`` (N*s) and slip directions ((k,), (k,), (k, 2)); DAQP's C call and settings as
     ``DaqpSolver.c_call``. Returns ``ok``, ``v`` (n_free, 3), the rows' multipliers (r,), the contacts'
     impulses (k, 3) N*s (friction x, y; normal), the modes to remember (k,) bool, the slip directions
-    (k, 2) and the QPs taken (``max_iter + 1``: the modes did not settle in ``max_iter``, every QP answered)."""
+    (k, 2), the QPs taken (``max_iter + 1``: the modes did not settle in ``max_iter``, every QP answered) and
+    the last QP's iterate, ``FrictionalSolver._guess``: its multipliers of the member and normal rows
+    (r + k,) N*s and the friction (k, 2) N*s (the semismooth Newton method's start where the modes cycle)."""
     n_free = v0.shape[0]
     n_rows, k = row_targets.shape[0], fi.shape[0]
     node_mass = mass.reshape((n_free, 3))[:, 0]
@@ -105,6 +107,8 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
     y = np.zeros(n_rows)
     impulses = np.zeros((k, 3))
     remember = np.zeros(k, dtype=np.bool_)
+    guess_y = np.zeros(n_rows + k)
+    guess_f = np.zeros((k, 2))
     for it in range(1, max_iter + 1):
         s = np.flatnonzero(stick)
         sliding = ~stick
@@ -129,22 +133,22 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
             flat, y_all, flag, _, _, _ = solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, dirs, n_free,
                                                     v0c.reshape(-1), targets, n_eq, start, 1.0, False)
         if flag < 1:
-            return False, v, y, impulses, remember, slip, it
+            return False, v, y, impulses, remember, slip, it, guess_y, guess_f
         v = flat.reshape((n_free, 3))
         # QPSolver._check, as the compiled backend does it
         for i in range(total):
             if not np.isfinite(y_all[i]):
-                return False, v, y, impulses, remember, slip, it
+                return False, v, y, impulses, remember, slip, it, guess_y, guess_f
         for i in range(n_free):
             for j in range(3):
                 if not np.isfinite(v[i, j]):
-                    return False, v, y, impulses, remember, slip, it
+                    return False, v, y, impulses, remember, slip, it, guess_y, guess_f
         scale, viol, impulse, stationarity, smallest, short = answer_residuals(
             v, y_all, v0c, nodes, dirs, targets, n_eq, mass, feasibility_tol)
         tol_v = feasibility_tol * scale + velocity_floor
         if (viol > tol_v or stationarity > feasibility_tol * impulse or smallest < -feasibility_tol * impulse
                 or short > tol_v):
-            return False, v, y, impulses, remember, slip, it
+            return False, v, y, impulses, remember, slip, it, guess_y, guess_f
         yn = y_all[n_rows:n_rows + k].copy()
         stick_f = np.empty((s.shape[0], 2))
         for j in range(s.shape[0]):
@@ -158,6 +162,8 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
         for j in range(s.shape[0]):
             friction[s[j], 0] = stick_f[j, 0]
             friction[s[j], 1] = stick_f[j, 1]
+        guess_y = y_all[:n_rows + k].copy()
+        guess_f = friction[:, :2].copy()
         vmax = np.abs(v).max()
         speed = np.empty(k)
         vt = np.empty((k, 2))
@@ -226,13 +232,13 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
                 r0, r1 = friction[c, 0] - t0 * shrink, friction[c, 1] - t1 * shrink
                 f_mag = np.sqrt(friction[c, 0] * friction[c, 0] + friction[c, 1] * friction[c, 1])
                 if np.sqrt(r0 * r0 + r1 * r1) > 2.0 * tol or not f_mag <= mu[c] * yn[c] + 2.0 * tol:
-                    return False, v, y, impulses, remember, slip, it
+                    return False, v, y, impulses, remember, slip, it, guess_y, guess_f
             for c in range(k):
                 remember[c] = stick[c] or speed[c] <= slip_tol
                 impulses[c, 0] = friction[c, 0]
                 impulses[c, 1] = friction[c, 1]
                 impulses[c, 2] = yn[c]
-            return True, v, y_all[:n_rows].copy(), impulses, remember, slip, it
+            return True, v, y_all[:n_rows].copy(), impulses, remember, slip, it, guess_y, guess_f
         for c in range(k):
             if sliding[c] and not stops[c]:
                 slip[c] = new_slip[c]
@@ -269,7 +275,7 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
             for j in range(moving.shape[0]):
                 phi[moving[j], 0] = accelerated[2 * j]
                 phi[moving[j], 1] = accelerated[2 * j + 1]
-    return False, v, y, impulses, remember, slip, max_iter + 1
+    return False, v, y, impulses, remember, slip, max_iter + 1, guess_y, guess_f
 
 
 @njit(cache=True)
@@ -358,7 +364,7 @@ def contact_solve(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_
         old_stick[c] = stick[p]
         old_normal[c] = normal[p]
         old_slip[c] = slip[p]
-    ok, v, y, impulses, remember, new_slip, taken = ground_modes(
+    ok, v, y, impulses, remember, new_slip, taken, _, _ = ground_modes(
         entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_dirs, row_targets, n_eq, warm, True, fi, w,
         touching, np.full(k, mu), old_stick, old_normal, old_slip, fixed_point_tol, slip_floor, max_iter, depth,
         feasibility_tol, velocity_floor)
@@ -368,7 +374,7 @@ def contact_solve(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_
         level = row_targets.copy()
         for i in range(level.shape[0]):
             level[i] = 0.0 if i < n_eq else max(level[i], 0.0)
-        ok, v, y, impulses, remember, new_slip, _ = ground_modes(
+        ok, v, y, impulses, remember, new_slip, _, _, _ = ground_modes(
             entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_dirs, level, n_eq, warm, True, fi, w,
             touching, np.full(k, mu), old_stick, old_normal, old_slip, fixed_point_tol, slip_floor, max_iter, depth,
             feasibility_tol, velocity_floor)
