@@ -523,10 +523,11 @@ def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, 
                  restitution, radii,
                  node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, dx, impulses, slack,
                  contact, armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5,
-                 t5, pairs, b):
+                 t5, pairs, kept, b):
     """One step of copy ``b`` with the contacts (module docstring), in place as ``_elastic_kernels._step``;
     ``contact`` (N, 3) gets the ground's impulses of the step, ``pairs`` (:func:`pair_scratch`) the member
-    pairs' (``v0`` (N, 3): the velocities at the step's start). Returns 0, or the reason the step is left to
+    pairs' (``v0`` (N, 3): the velocities at the step's start), ``kept`` (m, 4) the members' lengths and unit vectors
+    at its end (``_kernels._forces``': the next step's forces after new inputs read them). Returns 0, or the reason the step is left to
     the reference (``UNSOLVED``, ``MEMBERS``: the copy's ``x``, ``v`` and carry are then not those of a step,
     the caller restarts it)."""
     n_nodes = x.shape[0]
@@ -595,7 +596,7 @@ def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, 
                     contact[p, j] = 0.0
     _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
     _close(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-           rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b)
+           rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b, kept)
     if n_pairs:
         n_armed = _arm_pairs_for(x, v, v0, 0.0, pair_nodes, pair_radii, touch_tol, pair_restitution, warm[1], ends4,
                                  out6, s5, t5, pairs, b)
@@ -669,7 +670,7 @@ def _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, sti
                 restitution, radii_b, node_strut_b,
                 touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb, extb, accb, tensionb,
                 dirsb, warmb, rest_seq, ext_seq, dx, imp, total, sl, contact, total_contact, armed, target, landing, x0,
-                v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, out_x, out_v,
+                v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, kept, out_x, out_v,
                 out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason):
     """Copy ``b``'s ``n_steps`` steps in its own arrays (``*b``; ``bs``, ``be`` its columns of the inputs), for
     :func:`_block`, which allocates; this loop hands a step dozens of arrays and is compiled without
@@ -687,14 +688,15 @@ def _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, sti
                 x0[i, j] = xb[i, j, 0]
                 v0[i, j] = vb[i, j, 0]
         if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, be, restb, extb):
+            # after the first step, at the last step's end: its members' geometry is kept (a reel's every step)
             _forces(xb, vb, restb, extb, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b, damping_b,
-                    inv_mass_b, gravity_b, rigid_members_b, accb, tensionb, dirsb, sl, 0)
+                    inv_mass_b, gravity_b, rigid_members_b, accb, tensionb, dirsb, sl, 0, kept, s == 0)
         why = _ground_step(xb, vb, restb, extb, h, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
                            damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb,
                            tensionb, dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol,
                            pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, warmb, dx, imp, sl, contact,
                            armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4,
-                           out6, s5, t5, pairs, 0)
+                           out6, s5, t5, pairs, kept, 0)
         if why:
             for i in range(n_nodes):
                 for j in range(3):
@@ -751,6 +753,7 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
     floor_b, pair_nodes_b, pair_radii_b = floor.copy(), pair_nodes.copy(), pair_radii.copy()
     n_pairs = pair_nodes.shape[0]
     pairs = pair_scratch(n_nodes, nr, n_pairs)
+    kept = np.empty((ends.shape[0], 4))
     xb = np.empty((n_nodes, 3, 1))
     vb = np.empty((n_nodes, 3, 1))
     accb = np.empty((n_nodes, 3, 1))
@@ -804,8 +807,8 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
                     node_strut_b, touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb,
                     extb, accb, tensionb, dirsb, warmb, rest_seq, ext_seq, dx, imp, total, sl, contact,
                     total_contact, armed, target, landing, x0, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3,
-                    ends4, out6, s5, t5, pairs, out_x, out_v, out_impulses, out_slack, out_contact, out_pairs,
-                    n_records, failed, reason)
+                    ends4, out6, s5, t5, pairs, kept, out_x, out_v, out_impulses, out_slack, out_contact,
+                    out_pairs, n_records, failed, reason)
         scatter_copy(xb, vb, accb, tensionb, dirsb, b, x, v, acc, tension, rigid_dirs)
         for i in range(n_nodes + n_pairs):
             for j in range(3):
