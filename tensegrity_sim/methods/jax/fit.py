@@ -61,6 +61,7 @@ changes, and the discrete run's derivative jumps there: ``elastic.py``), between
 """
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -68,7 +69,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
-from jax import lax
+from jax import lax, shard_map
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as Spec
 from scipy.optimize import least_squares
 from scipy.sparse.linalg import splu
 
@@ -79,7 +82,7 @@ from .elastic import Carry, model_arrays, start_carry, verlet_step
 from .ground import TOLERANCE
 
 __all__ = ["KINDS", "LOSSES", "FitResult", "Observed", "Unknown", "choose_window", "fit_observed",
-           "parse_parameters"]
+           "parse_parameters", "spread_over_cores"]
 
 KINDS = {"stiffness": "N/m", "damping": "N*s/m", "mass": "kg", "friction": "", "restitution": "",
          "reel_speed": "m/s"}
@@ -102,6 +105,18 @@ HELD_TOLERANCE = 1e-6           # the first stage's (the parameters alone, the w
 SMOOTHING = (4, 8)               # grid points each side of the smoothed start states' local quadratics
 SIGMA_STEP = 0.1                 # a parameter step below this many of its standard deviations ends the fit,
 SETTLED = 1e-2                   # in a step that decreased the cost by less than this of itself (else it is no noise)
+
+
+def spread_over_cores() -> bool:
+    """Give JAX's CPU one device per core this process may use (``jax_num_cpu_devices``), so that a fit's
+    tangents run on every core (:meth:`_Problem._jit`). For a fit's own process (the ``fit`` verb, a bench),
+    before JAX has run anything: after that its devices are fixed, and this changes nothing (returns False)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    try:
+        jax.config.update("jax_num_cpu_devices", cores)
+    except RuntimeError:   # JAX has run: its backends are initialised
+        return False
+    return True
 
 
 @dataclass(frozen=True)
@@ -373,39 +388,35 @@ class _Problem:
         return jnp.moveaxis(applied[self.step_idx], 2, -1)
 
     # ----------------------------------------------------------------- the run of the windows
-    def _states(self, state, reps):
-        """Start positions and velocities (N, 3, B) of the windows, each run by ``reps`` consecutive copies,
-        from their unknown states (B, 6 nf)."""
+    def _states(self, state):
+        """Start positions and velocities (N, 3, W) of the windows from their unknown states (W, 6 nf)."""
         nf = self.nf
         xf = state[:, :3 * nf].reshape(-1, nf, 3)
         vf = state[:, 3 * nf:].reshape(-1, nf, 3)
-        x = jnp.asarray(np.repeat(self.fixed_x, reps, axis=-1)).at[self.free].set(jnp.moveaxis(xf, 0, -1))
+        x = jnp.asarray(self.fixed_x).at[self.free].set(jnp.moveaxis(xf, 0, -1))
         v = jnp.zeros_like(x).at[self.free].set(jnp.moveaxis(vf, 0, -1))
         return x, v
 
-    def run(self, p, state, data, reps=1):
-        """The windows, each run by ``reps`` consecutive copies, from start states ``state`` (B, 6 nf), with
-        ``data`` (the commands, :attr:`data`): positions at each observation (L, N, 3, B), end positions and
-        velocities (N, 3, B)."""
+    def run(self, p, state, data):
+        """The windows from start states ``state`` (W, 6 nf), with ``data`` (the commands, :attr:`data`):
+        positions at each observation (L, N, 3, W), end positions and velocities (N, 3, W)."""
         model = self.model_of(p)
         rest, forces = self.rest_of(p, data), data[1]
-        x0, v0 = self._states(state, reps)
+        x0, v0 = self._states(state)
         h = jnp.asarray(self.obs.dt)
-        copies = (lambda a: jnp.repeat(a, reps, axis=-1)) if reps > 1 else (lambda a: a)
-        carry = start_carry(model, x0, v0, copies(rest[0, 0]), copies(forces[0, 0]))
+        carry = start_carry(model, x0, v0, rest[0, 0], forces[0, 0])
 
         def step(loop, inputs):
             carry, r_prev, f_prev = loop
             r, f = inputs
             changed = jnp.any(r != r_prev, axis=0) | jnp.any(f != f_prev, axis=(0, 1))   # (W,)
-            rb, fb = copies(r), copies(f)
 
             def restart():   # a new input: the start forces with it, in the windows where it changed
-                fresh = start_carry(model, carry.x, carry.v, rb, fb, carry.contact)
-                return Carry(*(jnp.where(copies(changed), a, b) for a, b in zip(fresh, carry)))
+                fresh = start_carry(model, carry.x, carry.v, r, f, carry.contact)
+                return Carry(*(jnp.where(changed, a, b) for a, b in zip(fresh, carry)))
 
             carry = lax.cond(jnp.any(changed), restart, lambda: carry)
-            carry = verlet_step(model, carry, rb, fb, h)[0]
+            carry = verlet_step(model, carry, r, f, h)[0]
             return (carry, r, f), None
 
         def interval(loop, inputs):
@@ -416,39 +427,51 @@ class _Problem:
         return xs, carry.x, carry.v
 
     def _jit(self):
-        free, s = self.free, 6 * self.nf
+        free = self.free
 
-        def pieces(p, state, data, reps=1):
-            xs, xe, ve = self.run(p, state, data, reps)
+        def pieces(p, state, data):
+            xs, xe, ve = self.run(p, state, data)
             return xs[:, free], xe[free], ve[free]
 
         self.pieces = jax.jit(pieces)
         self.simulated = jax.jit(lambda p, state, data: self.run(p, state, data)[0])
-        # a parameter's tangent: every window at once; the start states' tangents: s copies of each window, one
-        # per coordinate, all in one batch (the step's own layout, which a vmap over tangents would put first)
-        self.param_tangent = jax.jit(lambda p, state, data, dp: jax.jvp(lambda q: pieces(q, state, data), (p,),
-                                                                         (dp,))[1])
-        seeds = np.tile(np.eye(s), (self.windows, 1))
-        self.state_tangents = jax.jit(lambda p, state, data: jax.jvp(
-            lambda st: pieces(p, st, data, s), (jnp.repeat(state, s, axis=0),), (jnp.asarray(seeds),))[1])
+        # the tangents: one jvp per seed, vmapped over the seeds (the run itself computed once, not once per
+        # seed), the seeds split among the devices (shard_map; on a CPU, as many devices as jax_num_cpu_devices:
+        # spread_over_cores), each running every window
+        mesh = Mesh(np.array(jax.devices()), ("seeds",))
+        self.devices = mesh.size
+
+        def spread(tangent):
+            batched = lambda p, state, data, seeds: jax.vmap(lambda e: tangent(p, state, data, e))(seeds)  # noqa
+            return jax.jit(shard_map(batched, mesh=mesh, in_specs=(Spec(), Spec(), Spec(), Spec("seeds")),
+                                     out_specs=Spec("seeds")))
+
+        # a parameter's tangent: every window at once; a start-state coordinate's: seeded in every window at once
+        self.param_tangents = spread(lambda p, state, data, dp: jax.jvp(lambda q: pieces(q, state, data), (p,),
+                                                                        (dp,))[1])
+        self.state_tangents = spread(lambda p, state, data, e: jax.jvp(
+            lambda st: pieces(p, st, data), (state,), (jnp.broadcast_to(e, state.shape),))[1])
+
+    def _seeded(self, compiled, p, state, n: int) -> list[np.ndarray]:
+        """``compiled`` (:meth:`_jit`'s ``spread``) along the n unit seeds (zero seeds pad them to a multiple of
+        the devices): (n, L, nf, 3, W), (n, nf, 3, W) twice."""
+        seeds = np.zeros((-(-n // self.devices) * self.devices, n))
+        seeds[np.arange(n), np.arange(n)] = 1.0
+        return [np.asarray(a)[:n] for a in compiled(jnp.asarray(p), jnp.asarray(state), self.data,
+                                                    jnp.asarray(seeds))]
 
     def tangents(self, p, state, states: bool = True):
         """Every parameter's and start-state coordinate's tangent: (T, L, nf, 3, W), (T, nf, 3, W) twice; with
         ``states`` False the start states' are those last computed (the chord: module docstring)."""
         out = self.parameter_tangents(p, state)
         if states or self._chord is None:
-            s, w = 6 * self.nf, self.windows
-            self._chord = [np.moveaxis(np.asarray(a).reshape(*a.shape[:-1], w, s), -1, 0)
-                           for a in self.state_tangents(jnp.asarray(p), jnp.asarray(state), self.data)]
+            self._chord = self._seeded(self.state_tangents, p, state, 6 * self.nf)
             self.state_jacobians += 1
         return [np.concatenate(parts) for parts in zip(out, self._chord)]
 
     def parameter_tangents(self, p, state):
         """Every parameter's tangent: (P, L, nf, 3, W), (P, nf, 3, W) twice."""
-        out = [[np.asarray(a)[None] for a in self.param_tangent(jnp.asarray(p), jnp.asarray(state), self.data,
-                                                                 jnp.eye(len(p))[i])]
-               for i in range(len(p))]
-        return [np.concatenate(parts) for parts in zip(*out)]
+        return self._seeded(self.param_tangents, p, state, len(p))
 
     # ----------------------------------------------------------------- least squares
     def split(self, z):
@@ -560,7 +583,7 @@ class _Problem:
         """The windows' simulated positions on the grid (G, N, 3): each window's start, then its steps."""
         p, state = self.split(z)
         xs = np.asarray(self.simulated(jnp.asarray(p), jnp.asarray(state), self.data))   # (L, N, 3, W)
-        x0, _ = self._states(jnp.asarray(state), 1)
+        x0, _ = self._states(jnp.asarray(state))
         out = np.concatenate([np.moveaxis(np.asarray(x0)[..., :1], -1, 0),
                               np.moveaxis(xs, -1, 0).reshape(-1, *xs.shape[1:3])])
         return out[:len(self.observed)]
