@@ -25,9 +25,12 @@ follows its targets at ``reel_speed``, differentiable in it).
 **The Jacobian** is exact (forward mode) and sparse: a window's residuals depend on the parameters and its own
 start state only (a continuity row also on the next window's start, linearly). One ``jax.jvp`` per parameter and
 per start-state coordinate, seeded in every window at once, gives every window's block together (6 N + P tangents
-whatever the number of windows). Every run here is differentiated in forward mode only, so a ground's sweeps stop
-at ``ground.TOLERANCE`` (``ground.py``: warm-started, each end on the problem with its strut's length row
-eliminated; half the CPU of the fixed 60 sweeps a Jacobian of the rolling icosahedron).
+whatever the number of windows); the jvps are vmapped over their seeds, so the run itself is computed once for all
+of them, and the seeds are split among JAX's devices (``shard_map``; on a CPU one device per core where the
+process called :func:`spread_over_cores` before JAX ran, as the ``fit`` verb does). Every run here is
+differentiated in forward mode only, so a ground's sweeps stop at ``ground.TOLERANCE`` (``ground.py``:
+warm-started, each end on the problem with its strut's length row eliminated; half the CPU of the fixed 60 sweeps
+a Jacobian of the rolling icosahedron).
 
 **Two stages.** First the parameters alone, every window held at its start from the poses
 (``scipy.optimize.least_squares``, trust region reflective, P tangents a Jacobian): cheap, and close to the
