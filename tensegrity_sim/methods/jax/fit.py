@@ -331,7 +331,7 @@ class _Problem:
         # the prior rows: prior_scale (m) times each factor's distance from 1 in prior standard deviations
         self.prior_rows = np.flatnonzero(self.factor) if prior > 0 else np.zeros(0, int)
         self.prior_weight = prior_scale / prior if prior > 0 else 0.0
-        self._chord, self.state_jacobians = None, 0
+        self._chord, self._gram, self.param_columns, self.state_jacobians = None, None, None, 0
         self._jit()
 
     # ----------------------------------------------------------------- parameters
@@ -463,15 +463,6 @@ class _Problem:
         return [np.asarray(a)[:n] for a in compiled(jnp.asarray(p), jnp.asarray(state), self.data,
                                                     jnp.asarray(seeds))]
 
-    def tangents(self, p, state, states: bool = True):
-        """Every parameter's and start-state coordinate's tangent: (T, L, nf, 3, W), (T, nf, 3, W) twice; with
-        ``states`` False the start states' are those last computed (the chord: module docstring)."""
-        out = self.parameter_tangents(p, state)
-        if states or self._chord is None:
-            self._chord = self._seeded(self.state_tangents, p, state, 6 * self.nf)
-            self.state_jacobians += 1
-        return [np.concatenate(parts) for parts in zip(out, self._chord)]
-
     def parameter_tangents(self, p, state):
         """Every parameter's tangent: (P, L, nf, 3, W), (P, nf, 3, W) twice."""
         return self._seeded(self.param_tangents, p, state, len(p))
@@ -516,50 +507,56 @@ class _Problem:
         return int(self.obs_mask.sum()) * 3 * self.nf + 3 * self.nf
 
     def jacobian(self, z, states: bool = True) -> sp.csr_matrix:
-        """The sparse Jacobian at ``z``; ``states`` False: the start states' tangents reused (:meth:`tangents`)."""
+        """The sparse Jacobian at ``z``: the parameters' columns (:meth:`parameter_jacobian`), then the start
+        states' (:meth:`state_columns`); ``states`` False: those last computed reused (the chord: module
+        docstring)."""
         p, state = self.split(z)
-        P, nf, W, L = self.n_params, self.nf, self.windows, self.window
+        if states or self._chord is None:
+            self._chord, self._gram = self.state_columns(p, state), None
+            self.state_jacobians += 1
+        self.param_columns = self.parameter_jacobian(p, state)
+        return sp.hstack([sp.csr_matrix(self.param_columns), self._chord], format="csr")
+
+    def normal(self, w: np.ndarray) -> sp.csc_matrix:
+        """``J^T diag(w) J`` of the Jacobian last computed (:meth:`jacobian`); the start states' block is kept
+        while their columns and the weights ``w`` stay the same (chord steps: only the parameters' columns
+        change)."""
+        if self._gram is None or not np.array_equal(self._gram[0], w):
+            self._gram = w.copy(), (self._chord.T @ sp.diags(w) @ self._chord).tocsc()
+        weighted = w[:, None] * self.param_columns
+        cross = np.asarray(self._chord.T @ weighted)                                 # (W 6 nf, P)
+        return sp.bmat([[self.param_columns.T @ weighted, cross.T], [cross, self._gram[1]]], format="csc")
+
+    def state_columns(self, p, state) -> sp.csr_matrix:
+        """The Jacobian's start-state columns (the rows of :meth:`residual`, W 6 nf columns), sparse: a window's
+        observation and continuity rows in its own start state's columns, a continuity row's weight (negative)
+        in the next window's, the first window's start positions' identity."""
+        nf, W, L = self.nf, self.windows, self.window
         s = 6 * nf
-        T = P + s
-        dxs, dxe, dve = self.tangents(p, state, states)
-        rows, cols, vals = [], [], []
-        per = L * nf * 3
-        # observation rows of window w: (T, L, nf, 3, W) -> (W, per, T)
-        block = (dxs * self.obs_mask[None, :, None, None, :]).reshape(T, per, W).transpose(2, 1, 0)
+        dxs, dxe, dve = self._seeded(self.state_tangents, p, state, s)
+        per, k = L * nf * 3, np.arange(s)
+        # observation rows of window w: (s, L, nf, 3, W) -> (W, per, s)
+        block = (dxs * self.obs_mask[None, :, None, None, :]).reshape(s, per, W).transpose(2, 1, 0)
         r = np.arange(W)[:, None, None] * per + np.arange(per)[None, :, None]
-        c = np.concatenate([np.arange(P), P + np.arange(s)])[None, None, :] + \
-            np.concatenate([np.zeros(P, int), np.ones(s, int)])[None, None, :] * (np.arange(W)[:, None, None] * s)
-        rows.append(np.broadcast_to(r, block.shape).ravel())
-        cols.append(np.broadcast_to(c, block.shape).ravel())
-        vals.append(block.ravel())
-        base = W * per
-        # the first window's start positions
-        rows.append(base + np.arange(3 * nf))
-        cols.append(P + np.arange(3 * nf))
-        vals.append(np.ones(3 * nf))
+        c = np.arange(W)[:, None, None] * s + k[None, None, :]
+        base = W * per   # then the first window's start positions
+        rows = [np.broadcast_to(r, block.shape).ravel(), base + np.arange(3 * nf)]
+        cols = [np.broadcast_to(c, block.shape).ravel(), np.arange(3 * nf)]
+        vals = [block.ravel(), np.ones(3 * nf)]
         base += 3 * nf
         if W > 1:   # continuity rows of windows w, w + 1: (W - 1, 2, nf, 3) each
-            end = np.stack([self.cw * dxe, self.cw * self.tau * dve], axis=1)[..., :-1]   # (T, 2, nf, 3, W-1)
-            block = end.reshape(T, s, W - 1).transpose(2, 1, 0)                          # (W-1, s, T)
+            end = np.stack([self.cw * dxe, self.cw * self.tau * dve], axis=1)[..., :-1]   # (s, 2, nf, 3, W-1)
+            block = end.reshape(s, s, W - 1).transpose(2, 1, 0)                          # (W-1, s, s)
             r = base + np.arange(W - 1)[:, None, None] * s + np.arange(s)[None, :, None]
-            c = np.concatenate([np.arange(P), P + np.arange(s)])[None, None, :] + \
-                np.concatenate([np.zeros(P, int), np.ones(s, int)])[None, None, :] * \
-                (np.arange(W - 1)[:, None, None] * s)
-            rows.append(np.broadcast_to(r, block.shape).ravel())
-            cols.append(np.broadcast_to(c, block.shape).ravel())
-            vals.append(block.ravel())
+            c = np.arange(W - 1)[:, None, None] * s + k[None, None, :]
             weight = np.concatenate([np.full(3 * nf, self.cw), np.full(3 * nf, self.cw * self.tau)])
-            k = np.arange(W - 1)[:, None] * s + np.arange(s)[None, :]
-            rows.append((base + k).ravel())
-            cols.append((P + s + k).ravel())
-            vals.append(-np.broadcast_to(weight, k.shape).ravel())
-        base += (W - 1) * s
-        rows.append(base + np.arange(len(self.prior_rows)))
-        cols.append(self.prior_rows)
-        vals.append(np.full(len(self.prior_rows), self.prior_weight))
-        n_rows = base + len(self.prior_rows)
+            following = np.arange(W - 1)[:, None] * s + k[None, :]
+            rows += [np.broadcast_to(r, block.shape).ravel(), (base + following).ravel()]
+            cols += [np.broadcast_to(c, block.shape).ravel(), (s + following).ravel()]
+            vals += [block.ravel(), -np.broadcast_to(weight, following.shape).ravel()]
+        n_rows = base + (W - 1) * s + len(self.prior_rows)
         return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                             shape=(n_rows, P + W * s))
+                             shape=(n_rows, W * s))
 
     def parameter_jacobian(self, p, state) -> np.ndarray:
         """The residual's Jacobian in the parameters alone, the start states ``state`` (W, 6 nf) held: (rows, P),
@@ -666,7 +663,7 @@ def _levenberg_marquardt(problem: _Problem, z: np.ndarray, lo: np.ndarray, hi: n
     while evaluations < max_evaluations:
         if normal is None:   # J^T W J and the gradient, after a new Jacobian or residual
             w = weight((r / loss_scale) ** 2)
-            a = (jac.T @ sp.diags(w) @ jac).tocsc()
+            a = problem.normal(w)
             normal = a, jac.T @ (w * r), np.maximum(a.diagonal(), 1e-2 * np.median(a.diagonal()))
         a, g, d = normal
         try:
