@@ -109,7 +109,8 @@ def main_() -> int:
                            "params": params, "windows": result.windows, "window_steps": result.window * result.every,
                            "evaluations": result.evaluations, "jacobians": result.jacobians, "wall_s": wall,
                            "cpu_s": cpu, "devices": jax.device_count(), "load_1min": os.getloadavg()[0],
-                           "noise_estimate_m": result.noise, "rms_start_m": result.rms_start, "rms_fitted_m": result.rms_fitted}
+                           "noise_estimate_m": result.noise, "rms_start_m": result.rms_start,
+                           "rms_fitted_m": result.rms_fitted}
                     for u, value, sigma_u in zip(result.unknowns, result.fitted, result.sigma):
                         row[f"{u.kind}_rel_error"] = value / expected[u.kind] - 1.0
                         row[f"{u.kind}_sigma_rel"] = sigma_u / expected[u.kind]
