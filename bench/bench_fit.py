@@ -3,8 +3,8 @@
 
 Cases: ``prism`` (prism3 thrown, cables slackening and snapping, damped, 2 s free; stiffness and damping) and
 ``roll`` (icosahedron_ground rolling under ``examples/roll.yaml``, damped, 10 s commanded; stiffness, damping and
-the ground's friction; with ``chord``, the start states' Jacobian reused). Each fit's wall time, CPU time and
-the load average of the machine are recorded.
+the ground's friction; with ``chord``, the start states' Jacobian reused). Each fit's wall time, CPU time, the devices JAX ran on (one
+CPU device per core: ``spread_over_cores``) and the load average of the machine are recorded.
 
 Run: ``python3 bench/bench_fit.py [--cases prism,roll] [--factors 1.3,0.7] [--noise 0,0.001] [--duration S]``
 (``--duration``: every case's log that long instead); writes ``bench/results/fit.csv`` (``--out``: another file;
