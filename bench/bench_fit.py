@@ -3,8 +3,8 @@
 
 Cases: ``prism`` (prism3 thrown, cables slackening and snapping, damped, 2 s free; stiffness and damping) and
 ``roll`` (icosahedron_ground rolling under ``examples/roll.yaml``, damped, 10 s commanded; stiffness, damping and
-the ground's friction; with ``chord``, the start states' Jacobian reused). Each fit's wall time, CPU time and
-the load average of the machine are recorded.
+the ground's friction; with ``chord``, the start states' Jacobian reused). Each fit's wall time, CPU time, the devices JAX ran on (one
+CPU device per core: ``spread_over_cores``) and the load average of the machine are recorded.
 
 Run: ``python3 bench/bench_fit.py [--cases prism,roll] [--factors 1.3,0.7] [--noise 0,0.001] [--duration S]``
 (``--duration``: every case's log that long instead); writes ``bench/results/fit.csv`` (``--out``: another file;
@@ -19,6 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -29,6 +30,7 @@ from add_pose_noise import rewrite_poses  # noqa: E402
 from bench.cases import rigid_consistent  # noqa: E402
 from bench.tables import write_csv  # noqa: E402
 from tensegrity_sim.cli import main  # noqa: E402
+from tensegrity_sim.methods.jax.fit import spread_over_cores  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -79,6 +81,7 @@ def main_() -> int:
     parser.add_argument("--duration", type=float, help="s: every case's log this long (default: the case's)")
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "fit.csv")
     args = parser.parse_args()
+    spread_over_cores()   # before JAX runs: the fit's tangents on every core
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -105,8 +108,9 @@ def main_() -> int:
                     row = {"case": case, "duration_s": duration, "noise_m": sigma, "start_factor": factor,
                            "params": params, "windows": result.windows, "window_steps": result.window * result.every,
                            "evaluations": result.evaluations, "jacobians": result.jacobians, "wall_s": wall,
-                           "cpu_s": cpu, "load_1min": os.getloadavg()[0], "noise_estimate_m": result.noise,
-                           "rms_start_m": result.rms_start, "rms_fitted_m": result.rms_fitted}
+                           "cpu_s": cpu, "devices": jax.device_count(), "load_1min": os.getloadavg()[0],
+                           "noise_estimate_m": result.noise, "rms_start_m": result.rms_start,
+                           "rms_fitted_m": result.rms_fitted}
                     for u, value, sigma_u in zip(result.unknowns, result.fitted, result.sigma):
                         row[f"{u.kind}_rel_error"] = value / expected[u.kind] - 1.0
                         row[f"{u.kind}_sigma_rel"] = sigma_u / expected[u.kind]

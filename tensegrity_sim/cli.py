@@ -329,9 +329,10 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 def _cmd_fit(args: argparse.Namespace) -> int:
     try:
-        from .methods.jax.fit import LOSSES   # imports JAX (the jax extra)
+        from .methods.jax.fit import LOSSES, spread_over_cores   # imports JAX (the jax extra)
     except ImportError as exc:   # a missing JAX: the message names the extra
         raise ValueError(str(exc)) from None
+    spread_over_cores()   # the tangents on every core (this process's JAX, before it runs anything)
     from .ros.fit_log import fit_log, table
 
     if args.loss not in LOSSES:

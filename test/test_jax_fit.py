@@ -112,6 +112,52 @@ def test_sparse_jacobian_is_the_dense_one(logged):
     assert np.abs(chord - exact).max() > 1e-9 * np.abs(exact).max()   # the states' columns did move
 
 
+SPREAD = """
+import sys
+import jax
+import numpy as np
+import tensegrity_sim as ts
+from tensegrity_sim.methods.jax.fit import Observed, _Problem, parse_parameters, spread_over_cores
+from tensegrity_sim.ros.fit_log import read_observed
+
+assert spread_over_cores()                      # before JAX has run: it sets the CPU's devices
+jax.config.update("jax_num_cpu_devices", 3)     # 3: the 2 parameters' seeds padded with a zero one
+scene = ts.load_scene(sys.argv[1])
+_, obs = read_observed(sys.argv[2], scene)
+k = 23
+obs = Observed(obs.dt, obs.steps[:k], obs.positions[:k], obs.rest[:obs.steps[k - 1]], obs.forces[:obs.steps[k - 1]])
+problem = _Problem(scene, obs, parse_parameters("stiffness,damping", scene), 8, 10.0)
+z = np.concatenate([problem.p0, problem.state0.ravel()]) * 1.001
+np.save(sys.argv[3], problem.jacobian(z).toarray())
+assert problem.devices == jax.device_count() == 3 and not spread_over_cores()   # JAX has run: nothing changes
+"""
+
+
+def test_jacobian_split_over_devices_is_the_same(logged, tmp_path):
+    """The tangents' seeds split over 3 CPU devices (a fresh process: ``spread_over_cores``, then 3 devices)
+    give this process's Jacobian (its devices, 1 or more) to round-off; the devices can be set only before JAX
+    runs."""
+    import subprocess
+    import sys
+
+    from tensegrity_sim.methods.jax.fit import Observed, _Problem, parse_parameters
+    from tensegrity_sim.ros.fit_log import read_observed
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    subprocess.run([sys.executable, "-c", SPREAD, str(logged / "nominal.yaml"), str(logged / "run.mcap"),
+                    str(tmp_path / "j.npy")], check=True, cwd=root, env={**os.environ, "PYTHONPATH": root})
+    scene = ts.load_scene(logged / "nominal.yaml")
+    _, obs = read_observed(logged / "run.mcap", scene)
+    k = 23
+    obs = Observed(obs.dt, obs.steps[:k], obs.positions[:k], obs.rest[:obs.steps[k - 1]],
+                   obs.forces[:obs.steps[k - 1]])
+    problem = _Problem(scene, obs, parse_parameters("stiffness,damping", scene), 8, 10.0)
+    z = np.concatenate([problem.p0, problem.state0.ravel()]) * 1.001
+    here, split = problem.jacobian(z).toarray(), np.load(tmp_path / "j.npy")
+    np.testing.assert_allclose(split, here, rtol=1e-12, atol=1e-12 * np.abs(here).max())
+    assert np.abs(here).max() > 1.0 and np.count_nonzero(here[:, :2]) > 100   # a Jacobian, not zeros
+
+
 def test_fit_refuses_bad_input(logged, capsys, tmp_path):
     log = str(logged / "run.mcap")
 

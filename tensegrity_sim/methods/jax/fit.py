@@ -25,9 +25,12 @@ follows its targets at ``reel_speed``, differentiable in it).
 **The Jacobian** is exact (forward mode) and sparse: a window's residuals depend on the parameters and its own
 start state only (a continuity row also on the next window's start, linearly). One ``jax.jvp`` per parameter and
 per start-state coordinate, seeded in every window at once, gives every window's block together (6 N + P tangents
-whatever the number of windows). Every run here is differentiated in forward mode only, so a ground's sweeps stop
-at ``ground.TOLERANCE`` (``ground.py``: warm-started, each end on the problem with its strut's length row
-eliminated; half the CPU of the fixed 60 sweeps a Jacobian of the rolling icosahedron).
+whatever the number of windows); the jvps are vmapped over their seeds, so the run itself is computed once for all
+of them, and the seeds are split among JAX's devices (``shard_map``; on a CPU one device per core where the
+process called :func:`spread_over_cores` before JAX ran, as the ``fit`` verb does). Every run here is
+differentiated in forward mode only, so a ground's sweeps stop at ``ground.TOLERANCE`` (``ground.py``:
+warm-started, each end on the problem with its strut's length row eliminated; half the CPU of the fixed 60 sweeps
+a Jacobian of the rolling icosahedron).
 
 **Two stages.** First the parameters alone, every window held at its start from the poses
 (``scipy.optimize.least_squares``, trust region reflective, P tangents a Jacobian): cheap, and close to the
@@ -61,6 +64,7 @@ changes, and the discrete run's derivative jumps there: ``elastic.py``), between
 """
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -68,7 +72,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
-from jax import lax
+from jax import lax, shard_map
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as Spec
 from scipy.optimize import least_squares
 from scipy.sparse.linalg import splu
 
@@ -79,7 +85,7 @@ from .elastic import Carry, model_arrays, start_carry, verlet_step
 from .ground import TOLERANCE
 
 __all__ = ["KINDS", "LOSSES", "FitResult", "Observed", "Unknown", "choose_window", "fit_observed",
-           "parse_parameters"]
+           "parse_parameters", "spread_over_cores"]
 
 KINDS = {"stiffness": "N/m", "damping": "N*s/m", "mass": "kg", "friction": "", "restitution": "",
          "reel_speed": "m/s"}
@@ -102,6 +108,18 @@ HELD_TOLERANCE = 1e-6           # the first stage's (the parameters alone, the w
 SMOOTHING = (4, 8)               # grid points each side of the smoothed start states' local quadratics
 SIGMA_STEP = 0.1                 # a parameter step below this many of its standard deviations ends the fit,
 SETTLED = 1e-2                   # in a step that decreased the cost by less than this of itself (else it is no noise)
+
+
+def spread_over_cores() -> bool:
+    """Give JAX's CPU one device per core this process may use (``jax_num_cpu_devices``), so that a fit's
+    tangents run on every core (:meth:`_Problem._jit`). For a fit's own process (the ``fit`` verb, a bench),
+    before JAX has run anything: after that its devices are fixed, and this changes nothing (returns False)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    try:
+        jax.config.update("jax_num_cpu_devices", cores)
+    except RuntimeError:   # JAX has run: its backends are initialised
+        return False
+    return True
 
 
 @dataclass(frozen=True)
@@ -313,7 +331,7 @@ class _Problem:
         # the prior rows: prior_scale (m) times each factor's distance from 1 in prior standard deviations
         self.prior_rows = np.flatnonzero(self.factor) if prior > 0 else np.zeros(0, int)
         self.prior_weight = prior_scale / prior if prior > 0 else 0.0
-        self._chord, self.state_jacobians = None, 0
+        self._chord, self._gram, self.param_columns, self.state_jacobians = None, None, None, 0
         self._jit()
 
     # ----------------------------------------------------------------- parameters
@@ -373,39 +391,35 @@ class _Problem:
         return jnp.moveaxis(applied[self.step_idx], 2, -1)
 
     # ----------------------------------------------------------------- the run of the windows
-    def _states(self, state, reps):
-        """Start positions and velocities (N, 3, B) of the windows, each run by ``reps`` consecutive copies,
-        from their unknown states (B, 6 nf)."""
+    def _states(self, state):
+        """Start positions and velocities (N, 3, W) of the windows from their unknown states (W, 6 nf)."""
         nf = self.nf
         xf = state[:, :3 * nf].reshape(-1, nf, 3)
         vf = state[:, 3 * nf:].reshape(-1, nf, 3)
-        x = jnp.asarray(np.repeat(self.fixed_x, reps, axis=-1)).at[self.free].set(jnp.moveaxis(xf, 0, -1))
+        x = jnp.asarray(self.fixed_x).at[self.free].set(jnp.moveaxis(xf, 0, -1))
         v = jnp.zeros_like(x).at[self.free].set(jnp.moveaxis(vf, 0, -1))
         return x, v
 
-    def run(self, p, state, data, reps=1):
-        """The windows, each run by ``reps`` consecutive copies, from start states ``state`` (B, 6 nf), with
-        ``data`` (the commands, :attr:`data`): positions at each observation (L, N, 3, B), end positions and
-        velocities (N, 3, B)."""
+    def run(self, p, state, data):
+        """The windows from start states ``state`` (W, 6 nf), with ``data`` (the commands, :attr:`data`):
+        positions at each observation (L, N, 3, W), end positions and velocities (N, 3, W)."""
         model = self.model_of(p)
         rest, forces = self.rest_of(p, data), data[1]
-        x0, v0 = self._states(state, reps)
+        x0, v0 = self._states(state)
         h = jnp.asarray(self.obs.dt)
-        copies = (lambda a: jnp.repeat(a, reps, axis=-1)) if reps > 1 else (lambda a: a)
-        carry = start_carry(model, x0, v0, copies(rest[0, 0]), copies(forces[0, 0]))
+        carry = start_carry(model, x0, v0, rest[0, 0], forces[0, 0])
 
         def step(loop, inputs):
             carry, r_prev, f_prev = loop
             r, f = inputs
             changed = jnp.any(r != r_prev, axis=0) | jnp.any(f != f_prev, axis=(0, 1))   # (W,)
-            rb, fb = copies(r), copies(f)
 
             def restart():   # a new input: the start forces with it, in the windows where it changed
-                fresh = start_carry(model, carry.x, carry.v, rb, fb, carry.contact)
-                return Carry(*(jnp.where(copies(changed), a, b) for a, b in zip(fresh, carry)))
+                fresh = start_carry(model, carry.x, carry.v, r, f, carry.contact)
+                return Carry(*(jnp.where(changed, a, b) for a, b in zip(fresh, carry)))
 
             carry = lax.cond(jnp.any(changed), restart, lambda: carry)
-            carry = verlet_step(model, carry, rb, fb, h)[0]
+            carry = verlet_step(model, carry, r, f, h)[0]
             return (carry, r, f), None
 
         def interval(loop, inputs):
@@ -416,39 +430,42 @@ class _Problem:
         return xs, carry.x, carry.v
 
     def _jit(self):
-        free, s = self.free, 6 * self.nf
+        free = self.free
 
-        def pieces(p, state, data, reps=1):
-            xs, xe, ve = self.run(p, state, data, reps)
+        def pieces(p, state, data):
+            xs, xe, ve = self.run(p, state, data)
             return xs[:, free], xe[free], ve[free]
 
         self.pieces = jax.jit(pieces)
         self.simulated = jax.jit(lambda p, state, data: self.run(p, state, data)[0])
-        # a parameter's tangent: every window at once; the start states' tangents: s copies of each window, one
-        # per coordinate, all in one batch (the step's own layout, which a vmap over tangents would put first)
-        self.param_tangent = jax.jit(lambda p, state, data, dp: jax.jvp(lambda q: pieces(q, state, data), (p,),
-                                                                         (dp,))[1])
-        seeds = np.tile(np.eye(s), (self.windows, 1))
-        self.state_tangents = jax.jit(lambda p, state, data: jax.jvp(
-            lambda st: pieces(p, st, data, s), (jnp.repeat(state, s, axis=0),), (jnp.asarray(seeds),))[1])
+        # the tangents: one jvp per seed, vmapped over the seeds (the run itself computed once, not once per
+        # seed), the seeds split among the devices (shard_map; on a CPU, as many devices as jax_num_cpu_devices:
+        # spread_over_cores), each running every window
+        mesh = Mesh(np.array(jax.devices()), ("seeds",))
+        self.devices = mesh.size
 
-    def tangents(self, p, state, states: bool = True):
-        """Every parameter's and start-state coordinate's tangent: (T, L, nf, 3, W), (T, nf, 3, W) twice; with
-        ``states`` False the start states' are those last computed (the chord: module docstring)."""
-        out = self.parameter_tangents(p, state)
-        if states or self._chord is None:
-            s, w = 6 * self.nf, self.windows
-            self._chord = [np.moveaxis(np.asarray(a).reshape(*a.shape[:-1], w, s), -1, 0)
-                           for a in self.state_tangents(jnp.asarray(p), jnp.asarray(state), self.data)]
-            self.state_jacobians += 1
-        return [np.concatenate(parts) for parts in zip(out, self._chord)]
+        def spread(tangent):
+            batched = lambda p, state, data, seeds: jax.vmap(lambda e: tangent(p, state, data, e))(seeds)  # noqa
+            return jax.jit(shard_map(batched, mesh=mesh, in_specs=(Spec(), Spec(), Spec(), Spec("seeds")),
+                                     out_specs=Spec("seeds")))
+
+        # a parameter's tangent: every window at once; a start-state coordinate's: seeded in every window at once
+        self.param_tangents = spread(lambda p, state, data, dp: jax.jvp(lambda q: pieces(q, state, data), (p,),
+                                                                        (dp,))[1])
+        self.state_tangents = spread(lambda p, state, data, e: jax.jvp(
+            lambda st: pieces(p, st, data), (state,), (jnp.broadcast_to(e, state.shape),))[1])
+
+    def _seeded(self, compiled, p, state, n: int) -> list[np.ndarray]:
+        """``compiled`` (:meth:`_jit`'s ``spread``) along the n unit seeds (zero seeds pad them to a multiple of
+        the devices): (n, L, nf, 3, W), (n, nf, 3, W) twice."""
+        seeds = np.zeros((-(-n // self.devices) * self.devices, n))
+        seeds[np.arange(n), np.arange(n)] = 1.0
+        return [np.asarray(a)[:n] for a in compiled(jnp.asarray(p), jnp.asarray(state), self.data,
+                                                    jnp.asarray(seeds))]
 
     def parameter_tangents(self, p, state):
         """Every parameter's tangent: (P, L, nf, 3, W), (P, nf, 3, W) twice."""
-        out = [[np.asarray(a)[None] for a in self.param_tangent(jnp.asarray(p), jnp.asarray(state), self.data,
-                                                                 jnp.eye(len(p))[i])]
-               for i in range(len(p))]
-        return [np.concatenate(parts) for parts in zip(*out)]
+        return self._seeded(self.param_tangents, p, state, len(p))
 
     # ----------------------------------------------------------------- least squares
     def split(self, z):
@@ -490,50 +507,56 @@ class _Problem:
         return int(self.obs_mask.sum()) * 3 * self.nf + 3 * self.nf
 
     def jacobian(self, z, states: bool = True) -> sp.csr_matrix:
-        """The sparse Jacobian at ``z``; ``states`` False: the start states' tangents reused (:meth:`tangents`)."""
+        """The sparse Jacobian at ``z``: the parameters' columns (:meth:`parameter_jacobian`), then the start
+        states' (:meth:`state_columns`); ``states`` False: those last computed reused (the chord: module
+        docstring)."""
         p, state = self.split(z)
-        P, nf, W, L = self.n_params, self.nf, self.windows, self.window
+        if states or self._chord is None:
+            self._chord, self._gram = self.state_columns(p, state), None
+            self.state_jacobians += 1
+        self.param_columns = self.parameter_jacobian(p, state)
+        return sp.hstack([sp.csr_matrix(self.param_columns), self._chord], format="csr")
+
+    def normal(self, w: np.ndarray) -> sp.csc_matrix:
+        """``J^T diag(w) J`` of the Jacobian last computed (:meth:`jacobian`); the start states' block is kept
+        while their columns and the weights ``w`` stay the same (chord steps: only the parameters' columns
+        change)."""
+        if self._gram is None or not np.array_equal(self._gram[0], w):
+            self._gram = w.copy(), (self._chord.T @ sp.diags(w) @ self._chord).tocsc()
+        weighted = w[:, None] * self.param_columns
+        cross = np.asarray(self._chord.T @ weighted)                                 # (W 6 nf, P)
+        return sp.bmat([[self.param_columns.T @ weighted, cross.T], [cross, self._gram[1]]], format="csc")
+
+    def state_columns(self, p, state) -> sp.csr_matrix:
+        """The Jacobian's start-state columns (the rows of :meth:`residual`, W 6 nf columns), sparse: a window's
+        observation and continuity rows in its own start state's columns, a continuity row's weight (negative)
+        in the next window's, the first window's start positions' identity."""
+        nf, W, L = self.nf, self.windows, self.window
         s = 6 * nf
-        T = P + s
-        dxs, dxe, dve = self.tangents(p, state, states)
-        rows, cols, vals = [], [], []
-        per = L * nf * 3
-        # observation rows of window w: (T, L, nf, 3, W) -> (W, per, T)
-        block = (dxs * self.obs_mask[None, :, None, None, :]).reshape(T, per, W).transpose(2, 1, 0)
+        dxs, dxe, dve = self._seeded(self.state_tangents, p, state, s)
+        per, k = L * nf * 3, np.arange(s)
+        # observation rows of window w: (s, L, nf, 3, W) -> (W, per, s)
+        block = (dxs * self.obs_mask[None, :, None, None, :]).reshape(s, per, W).transpose(2, 1, 0)
         r = np.arange(W)[:, None, None] * per + np.arange(per)[None, :, None]
-        c = np.concatenate([np.arange(P), P + np.arange(s)])[None, None, :] + \
-            np.concatenate([np.zeros(P, int), np.ones(s, int)])[None, None, :] * (np.arange(W)[:, None, None] * s)
-        rows.append(np.broadcast_to(r, block.shape).ravel())
-        cols.append(np.broadcast_to(c, block.shape).ravel())
-        vals.append(block.ravel())
-        base = W * per
-        # the first window's start positions
-        rows.append(base + np.arange(3 * nf))
-        cols.append(P + np.arange(3 * nf))
-        vals.append(np.ones(3 * nf))
+        c = np.arange(W)[:, None, None] * s + k[None, None, :]
+        base = W * per   # then the first window's start positions
+        rows = [np.broadcast_to(r, block.shape).ravel(), base + np.arange(3 * nf)]
+        cols = [np.broadcast_to(c, block.shape).ravel(), np.arange(3 * nf)]
+        vals = [block.ravel(), np.ones(3 * nf)]
         base += 3 * nf
         if W > 1:   # continuity rows of windows w, w + 1: (W - 1, 2, nf, 3) each
-            end = np.stack([self.cw * dxe, self.cw * self.tau * dve], axis=1)[..., :-1]   # (T, 2, nf, 3, W-1)
-            block = end.reshape(T, s, W - 1).transpose(2, 1, 0)                          # (W-1, s, T)
+            end = np.stack([self.cw * dxe, self.cw * self.tau * dve], axis=1)[..., :-1]   # (s, 2, nf, 3, W-1)
+            block = end.reshape(s, s, W - 1).transpose(2, 1, 0)                          # (W-1, s, s)
             r = base + np.arange(W - 1)[:, None, None] * s + np.arange(s)[None, :, None]
-            c = np.concatenate([np.arange(P), P + np.arange(s)])[None, None, :] + \
-                np.concatenate([np.zeros(P, int), np.ones(s, int)])[None, None, :] * \
-                (np.arange(W - 1)[:, None, None] * s)
-            rows.append(np.broadcast_to(r, block.shape).ravel())
-            cols.append(np.broadcast_to(c, block.shape).ravel())
-            vals.append(block.ravel())
+            c = np.arange(W - 1)[:, None, None] * s + k[None, None, :]
             weight = np.concatenate([np.full(3 * nf, self.cw), np.full(3 * nf, self.cw * self.tau)])
-            k = np.arange(W - 1)[:, None] * s + np.arange(s)[None, :]
-            rows.append((base + k).ravel())
-            cols.append((P + s + k).ravel())
-            vals.append(-np.broadcast_to(weight, k.shape).ravel())
-        base += (W - 1) * s
-        rows.append(base + np.arange(len(self.prior_rows)))
-        cols.append(self.prior_rows)
-        vals.append(np.full(len(self.prior_rows), self.prior_weight))
-        n_rows = base + len(self.prior_rows)
+            following = np.arange(W - 1)[:, None] * s + k[None, :]
+            rows += [np.broadcast_to(r, block.shape).ravel(), (base + following).ravel()]
+            cols += [np.broadcast_to(c, block.shape).ravel(), (s + following).ravel()]
+            vals += [block.ravel(), -np.broadcast_to(weight, following.shape).ravel()]
+        n_rows = base + (W - 1) * s + len(self.prior_rows)
         return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                             shape=(n_rows, P + W * s))
+                             shape=(n_rows, W * s))
 
     def parameter_jacobian(self, p, state) -> np.ndarray:
         """The residual's Jacobian in the parameters alone, the start states ``state`` (W, 6 nf) held: (rows, P),
@@ -560,7 +583,7 @@ class _Problem:
         """The windows' simulated positions on the grid (G, N, 3): each window's start, then its steps."""
         p, state = self.split(z)
         xs = np.asarray(self.simulated(jnp.asarray(p), jnp.asarray(state), self.data))   # (L, N, 3, W)
-        x0, _ = self._states(jnp.asarray(state), 1)
+        x0, _ = self._states(jnp.asarray(state))
         out = np.concatenate([np.moveaxis(np.asarray(x0)[..., :1], -1, 0),
                               np.moveaxis(xs, -1, 0).reshape(-1, *xs.shape[1:3])])
         return out[:len(self.observed)]
@@ -640,7 +663,7 @@ def _levenberg_marquardt(problem: _Problem, z: np.ndarray, lo: np.ndarray, hi: n
     while evaluations < max_evaluations:
         if normal is None:   # J^T W J and the gradient, after a new Jacobian or residual
             w = weight((r / loss_scale) ** 2)
-            a = (jac.T @ sp.diags(w) @ jac).tocsc()
+            a = problem.normal(w)
             normal = a, jac.T @ (w * r), np.maximum(a.diagonal(), 1e-2 * np.median(a.diagonal()))
         a, g, d = normal
         try:
