@@ -290,8 +290,9 @@ def sticking_answer(nodes, directions, inv_mass, v0, targets, n_eq, start, oppos
     rows of a body that sticks on more contacts than it has tangential freedoms), and one whose multiplier
     comes out negative hands it, negated, to its opposite row, which is then the active one (a friction of
     round-off size changes sign from step to step: the set of the last answer then fails every other step); a
-    pair whose multiplier is within ``dual_tol`` of zero is inactive. Checked as :func:`working_set_answer` checks: every active inequality row pushes by more than
-    ``dual_tol``, no other row is violated by more than ``primal_tol``. Returns ``ok`` (False: not the
+    pair whose multiplier is within ``dual_tol`` of zero is inactive. Checked as :func:`working_set_answer`
+    checks: every active inequality row pushes by more than ``dual_tol``, no other row is violated by more
+    than ``primal_tol``. Returns ``ok`` (False: not the
     answer, or a row that cannot be dropped depends on the others), ``v`` (n_free, 3) m/s and ``y`` (k,) N*s."""
     k = targets.shape[0]
     g = 0
