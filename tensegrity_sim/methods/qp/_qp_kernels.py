@@ -127,8 +127,8 @@ def cholesky(w, pivot_tol):
     """``w`` (g, g), its lower triangle symmetric positive definite, overwritten by its Cholesky factor
     ``L`` (``w = L L^T``) and ``L^T`` above the diagonal. Returns whether every pivot exceeded
     ``pivot_tol`` times the largest diagonal entry (else ``w`` is left half factorised)."""
-    g = w.shape[0]
-    return cholesky_dropping(w, pivot_tol, np.zeros(g, dtype=np.bool_), np.zeros(g, dtype=np.bool_))
+    none = w.reshape(-1)[:0]   # no row droppable: an empty view, no allocation (the batches' parallel loops call this)
+    return cholesky_dropping(w, pivot_tol, none, none)
 
 
 @njit(cache=True, fastmath=_REASSOCIATE)
@@ -136,7 +136,7 @@ def cholesky_dropping(w, pivot_tol, droppable, dropped):
     """:func:`cholesky`, but a row ``droppable`` (g,) bool whose pivot falls below the tolerance (it depends on
     the rows before it) is left out and marked in ``dropped`` (g,) bool: its row and column of ``L`` zero, its
     pivot 1, so that :func:`cho_solve` gives it 0 for a right-hand side 0. Returns whether every other
-    pivot exceeded the tolerance."""
+    pivot exceeded the tolerance. ``droppable`` may be shorter than g (its missing rows not droppable)."""
     g = w.shape[0]
     largest = 0.0
     for r in range(g):
@@ -146,7 +146,7 @@ def cholesky_dropping(w, pivot_tol, droppable, dropped):
         for p in range(j):
             s -= w[j, p] * w[j, p]
         if not s > pivot_tol * largest:
-            if not droppable[j]:
+            if not (j < droppable.shape[0] and droppable[j]):
                 return False
             dropped[j] = True
             for p in range(g):
