@@ -22,10 +22,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..qp._daqp_kernels import solve_rows
+from ..qp._daqp_kernels import solve_pairs, solve_rows
 from ..qp._qp_kernels import answer_residuals
 
-__all__ = ["ground_modes", "first_impact", "landing", "arm_step", "missed", "contact_solve"]
+__all__ = ["sticking_rows", "ground_modes", "first_impact", "landing", "arm_step", "missed", "contact_solve"]
 
 _INFEASIBLE = -1   # DAQP's exit flag for infeasible rows (DaqpSolver._STATUS)
 
@@ -58,6 +58,24 @@ def _rows(row_nodes, row_dirs, row_targets, warm, warm_given, fi, w, stick, load
             nodes[i, 1] = fi[s[j]]
             dirs[i, side % 2] = 1.0 if side < 2 else -1.0
     return nodes, dirs, targets, start, total
+
+
+@njit(cache=True)
+def sticking_rows(start, first, n_stick):
+    """The working set tried before DAQP where contacts stick (``_qp_kernels.sticking_answer``): the rows
+    ``start`` (k,) bool to start active (the method's warm rows, the loaded contacts' normal rows) and each
+    sticking contact's ``t1`` and ``t2`` rows, its rows ``t1, t2, -t1, -t2`` from row ``first`` on (four per
+    contact, ``n_stick`` contacts: :func:`_rows`' layout) paired with their opposites. Returns the set (k,)
+    bool and each row's opposite (k,) int (-1: none)."""
+    guess = start.copy()
+    opposite = np.full(start.shape[0], -1, dtype=np.int64)
+    for j in range(n_stick):
+        base = first + 4 * j
+        for side in range(2):
+            guess[base + side] = True
+            opposite[base + side] = base + side + 2
+            opposite[base + side + 2] = base + side
+    return guess, opposite
 
 
 @njit(cache=True)
@@ -123,8 +141,17 @@ def ground_modes(entry, settings, hessian, sqrt_mass, mass, v0, row_nodes, row_d
         for c in range(k):
             for j in range(3):
                 v0c[fi[c], j] += friction[c, j] / meff[c]
-        flat, y_all, flag, _, _, _ = solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, dirs, n_free,
-                                                v0c.reshape(-1), targets, n_eq, start, 1.0, False)
+        guessed = False
+        if warm_given and s.shape[0]:
+            # the contacts that stick held by their t and -t rows as sign-free pairs (FrictionalSolver._qp)
+            guess, opposite = sticking_rows(start, n_rows + k, s.shape[0])
+            guessed, flat, y_all = solve_pairs(settings, mass, nodes, dirs, v0c, targets, n_eq, guess,
+                                               opposite)
+        if guessed:
+            flag = 1
+        else:
+            flat, y_all, flag, _, _, _ = solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, dirs, n_free,
+                                                    v0c.reshape(-1), targets, n_eq, start, 1.0, False)
         if flag == _INFEASIBLE and s.shape[0]:
             # sticking rows with drift-correcting targets no velocity meets: for this QP the member rows'
             # targets yield to the pure velocity level (FrictionalSolver._qp, friction._velocity_level)

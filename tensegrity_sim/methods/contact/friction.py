@@ -102,6 +102,7 @@ import numpy as np
 from ...system import System
 from .member import Armed, MemberContacts, tangents
 from . import _friction_kernels as kernels
+from ..qp import _daqp_kernels as daqp_kernels
 from ..qp.solvers import (_FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, MassWrapper, QPError,
                           QPSolver, Rows)
 
@@ -689,6 +690,17 @@ class FrictionalSolver:
         v0c, all_rows = self._with_contacts(v0, rows, friction, s)
         c_warm = np.concatenate([loaded, np.zeros(4 * len(s), dtype=bool)])
         all_warm = None if warm is None else np.concatenate([warm, c_warm])
+        if all_warm is not None and len(s) and self._frames is None and isinstance(self.inner, DaqpSolver):
+            # the contacts that stick held by their t and -t rows as sign-free pairs, the set of the last answer
+            # (ground_modes tries it too): a resting body's QP without DAQP's factorisation of its ~45 rows
+            guess, opposite = kernels.sticking_rows(all_warm, n_rows + k, len(s))
+            found, v, y = daqp_kernels.solve_pairs(self.inner.c_call[1], self.inner.mass, all_rows.nodes,
+                                                   all_rows.directions, v0c, all_rows.targets, all_rows.n_eq,
+                                                   guess, opposite)
+            if found:
+                v = v.reshape(-1, 3)
+                self.inner._check(v, y, v0c, all_rows)
+                return self._split((v, y), n_rows, k)
         # with sticking contacts, DAQP alone first: its "infeasible" is answered below before any other backend
         alone = len(s) > 0 and isinstance(self.inner, DaqpSolver)
         try:

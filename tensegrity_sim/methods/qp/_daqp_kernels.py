@@ -25,9 +25,9 @@ import numpy as np
 from numba import njit
 
 from .._c_calls import quadprog_at
-from ._qp_kernels import dense_rows, working_set_answer
+from ._qp_kernels import dense_rows, sticking_answer, working_set_answer
 
-__all__ = ["Settings", "entry_point", "quadprog", "solve_rows"]
+__all__ = ["Settings", "entry_point", "quadprog", "solve_rows", "solve_pairs"]
 
 class Settings(ctypes.Structure):
     """DAQP 0.11.0's ``DAQPSettings``."""
@@ -122,3 +122,17 @@ def solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, directions, n_f
     f = -sqrt_mass * (v0 / unit)
     z, lam, flag, iterations = quadprog(entry, settings, hessian, f, a, bupper, lower, sense)
     return (z / sqrt_mass) * unit, unit * lam, flag, iterations, np.zeros((0, 0)), np.zeros(0, dtype=np.int64)
+
+
+@njit(cache=True)
+def solve_pairs(settings, mass, nodes, directions, v0, targets, n_eq, start, opposite):
+    """The answer of rows with sign-free pairs (``_qp_kernels.sticking_answer``: the equality rows and the rows
+    ``start`` (k,) bool as the working set, ``opposite`` (k,) int each pair's other row) at DAQP's
+    ``primal_tol``, ``dual_tol`` and ``sing_tol`` read from ``settings``, for ``v0`` (n_free, 3) m/s and
+    ``mass`` (3 n_free,) kg. Returns whether it is the QP's answer (else the caller asks DAQP), ``v``
+    (3 n_free,) m/s and the multipliers (k,) N*s."""
+    n_free = v0.shape[0]
+    tolerances = settings.view(np.float64)
+    ok, v, y = sticking_answer(nodes, directions, (1.0 / mass).reshape((n_free, 3)), v0, targets, n_eq, start,
+                               opposite, tolerances[_PRIMAL_TOL], tolerances[_DUAL_TOL], tolerances[_SING_TOL])
+    return ok, v.reshape(-1), y

@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["dense_rows", "add_row", "row_rates", "delassus", "cholesky", "cho_solve", "working_set_answer",
+__all__ = ["dense_rows", "add_row", "row_rates", "delassus", "cholesky", "cholesky_dropping", "cho_solve",
+           "working_set_answer", "sticking_answer",
            "answer_residuals", "dot3"]
 
 _SWEEPS = 8   # working_set_answer: at most this many refinements of its answer, ...
@@ -126,6 +127,16 @@ def cholesky(w, pivot_tol):
     """``w`` (g, g), its lower triangle symmetric positive definite, overwritten by its Cholesky factor
     ``L`` (``w = L L^T``) and ``L^T`` above the diagonal. Returns whether every pivot exceeded
     ``pivot_tol`` times the largest diagonal entry (else ``w`` is left half factorised)."""
+    none = w.reshape(-1)[:0]   # no row droppable: an empty view, no allocation (the batches' parallel loops call this)
+    return cholesky_dropping(w, pivot_tol, none, none)
+
+
+@njit(cache=True, fastmath=_REASSOCIATE)
+def cholesky_dropping(w, pivot_tol, droppable, dropped):
+    """:func:`cholesky`, but a row ``droppable`` (g,) bool whose pivot falls below the tolerance (it depends on
+    the rows before it) is left out and marked in ``dropped`` (g,) bool: its row and column of ``L`` zero, its
+    pivot 1, so that :func:`cho_solve` gives it 0 for a right-hand side 0. Returns whether every other
+    pivot exceeded the tolerance. ``droppable`` may be shorter than g (its missing rows not droppable)."""
     g = w.shape[0]
     largest = 0.0
     for r in range(g):
@@ -135,7 +146,14 @@ def cholesky(w, pivot_tol):
         for p in range(j):
             s -= w[j, p] * w[j, p]
         if not s > pivot_tol * largest:
-            return False
+            if not (j < droppable.shape[0] and droppable[j]):
+                return False
+            dropped[j] = True
+            for p in range(g):
+                w[j, p] = 0.0
+                w[p, j] = 0.0
+            w[j, j] = 1.0
+            continue
         w[j, j] = np.sqrt(s)
         for i in range(j + 1, g):
             s = w[i, j]
@@ -163,6 +181,55 @@ def cho_solve(factor, b):
 
 
 @njit(cache=True)
+def _refine(w, rows, dropped, nodes, directions, inv_mass, v0, targets, tol):
+    """The answer of the equality problem of the working set ``rows`` (g,) int, ``w`` its Delassus matrix's
+    Cholesky factor (:func:`cholesky`; rows ``dropped`` (g,) bool: left out as dependent, their multipliers 0):
+    ``W y = A_W v0 - r_W`` and ``v = v0 - M^-1 A_W^T y``, refined on the rows' own residual until every
+    working row is within ``tol`` (k,) m/s of its target and a correction moves ``v`` by at most
+    ``_SETTLED`` of the velocity scale. Returns whether it settled, ``v`` (n_free, 3) and ``y`` (k,)."""
+    k = targets.shape[0]
+    g = rows.shape[0]
+    n_free = v0.shape[0]
+    v = v0.copy()
+    y = np.zeros(k)
+    res = np.empty(g)
+    change = np.empty((n_free, 3))
+    # Refined on the rows' residual until a correction moves v by at most _SETTLED of the velocity scale
+    # (or stops shrinking): nearly dependent rows leave the first solve off by the square of A's
+    # conditioning, and each correction shrinks that 4-5 times (the thrown icosahedron's rows, singular
+    # values 7e-6 apart: corrections of 1.6, 2.6e-10, 3.6e-11 m/s; two leave v ~4e-11 off quadprog's)
+    floor = 0.0
+    for i in range(n_free):
+        for j in range(3):
+            floor = max(floor, abs(v0[i, j]))
+    for r in range(g):
+        floor = max(floor, abs(targets[rows[r]]))
+    floor *= _SETTLED
+    moved = previous = np.inf
+    for sweep in range(_SWEEPS + 1):
+        close = True
+        for r in range(g):
+            res[r] = 0.0 if dropped[r] else _rate(v, nodes, directions, rows[r]) - targets[rows[r]]
+            close &= abs(res[r]) <= tol[rows[r]]
+        if close and (moved <= floor or previous < np.inf and moved > 0.5 * previous):
+            break
+        if sweep == _SWEEPS or moved > previous:
+            return False, v, y
+        previous = moved
+        cho_solve(w, res)
+        change[:, :] = 0.0   # M^-1 A_W^T dy, scattered row by row
+        for r in range(g):
+            y[rows[r]] += res[r]
+            add_row(change, nodes, directions, rows[r], res[r])
+        moved = 0.0
+        for i in range(n_free):
+            for j in range(3):
+                v[i, j] -= inv_mass[i, j] * change[i, j]
+                moved = max(moved, abs(inv_mass[i, j] * change[i, j]))
+    return True, v, y
+
+
+@njit(cache=True)
 def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, primal_tol, dual_tol, pivot_tol):
     """The QP's answer if its active set is the working set: the ``n_eq`` equality rows and the rows
     ``warm`` (k,) bool (the previous sub-step's active rows), as ``DaqpSolver._working_set_reference``
@@ -186,7 +253,6 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
     ``v`` (n_free, 3) m/s, the multipliers ``y`` (k,) N*s (0 outside the set), the Cholesky factor
     (g, g) of the set's Delassus matrix (``cholesky``'s layout) and the set's rows (g,) int."""
     k = targets.shape[0]
-    n_free = v0.shape[0]
     g = 0
     for i in range(k):
         g += i < n_eq or warm[i]
@@ -204,48 +270,73 @@ def working_set_answer(nodes, directions, inv_mass, v0, targets, n_eq, warm, pri
     for i in range(k):
         length[i] = _row_length(inv_mass, nodes, i)
         tol[i] = primal_tol * min(length[i], 1.0)
-    v = v0.copy()
-    y = np.zeros(k)
-    res = np.empty(g)
-    change = np.empty((n_free, 3))
-    # Refined on the rows' residual until a correction moves v by at most _SETTLED of the velocity scale
-    # (or stops shrinking): nearly dependent rows leave the first solve off by the square of A's
-    # conditioning, and each correction shrinks that 4-5 times (the thrown icosahedron's rows, singular
-    # values 7e-6 apart: corrections of 1.6, 2.6e-10, 3.6e-11 m/s; two leave v ~4e-11 off quadprog's)
-    floor = 0.0
-    for i in range(n_free):
-        for j in range(3):
-            floor = max(floor, abs(v0[i, j]))
-    for r in range(g):
-        floor = max(floor, abs(targets[rows[r]]))
-    floor *= _SETTLED
-    moved = previous = np.inf
-    for sweep in range(_SWEEPS + 1):
-        close = True
-        for r in range(g):
-            res[r] = _rate(v, nodes, directions, rows[r]) - targets[rows[r]]
-            close &= abs(res[r]) <= tol[rows[r]]
-        if close and (moved <= floor or previous < np.inf and moved > 0.5 * previous):
-            break
-        if sweep == _SWEEPS or moved > previous:
-            return False, v, y, w, rows
-        previous = moved
-        cho_solve(w, res)
-        change[:, :] = 0.0   # M^-1 A_W^T dy, scattered row by row
-        for r in range(g):
-            y[rows[r]] += res[r]
-            add_row(change, nodes, directions, rows[r], res[r])
-        moved = 0.0
-        for i in range(n_free):
-            for j in range(3):
-                v[i, j] -= inv_mass[i, j] * change[i, j]
-                moved = max(moved, abs(inv_mass[i, j] * change[i, j]))
+    refined, v, y = _refine(w, rows, np.zeros(g, dtype=np.bool_), nodes, directions, inv_mass, v0, targets, tol)
+    if not refined:
+        return False, v, y, w, rows
     for i in range(n_eq, k):
         if warm[i] and not y[i] * length[i] > dual_tol:
             return False, v, y, w, rows
         if not warm[i] and _rate(v, nodes, directions, i) - targets[i] > tol[i]:
             return False, v, y, w, rows
     return True, v, y, w, rows
+
+
+@njit(cache=True)
+def sticking_answer(nodes, directions, inv_mass, v0, targets, n_eq, start, opposite, primal_tol, dual_tol, pivot_tol):
+    """:func:`working_set_answer` of a set with sign-free pairs of rows: the ``n_eq`` equality rows and the rows
+    ``start`` (k,) bool, among them rows whose ``opposite`` (k,) int is another row (-1: none), the same row
+    negated with the negated target (a sticking contact's ``t`` and ``-t`` rows, ``friction.py``). Such a row
+    stands for the pair: one that depends on the rows before it is dropped (:func:`cholesky_dropping`; the
+    rows of a body that sticks on more contacts than it has tangential freedoms), and one whose multiplier
+    comes out negative hands it, negated, to its opposite row, which is then the active one (a friction of
+    round-off size changes sign from step to step: the set of the last answer then fails every other step); a
+    pair whose multiplier is within ``dual_tol`` of zero is inactive. Checked as :func:`working_set_answer`
+    checks: every active inequality row pushes by more than ``dual_tol``, no other row is violated by more
+    than ``primal_tol``. Returns ``ok`` (False: not the
+    answer, or a row that cannot be dropped depends on the others), ``v`` (n_free, 3) m/s and ``y`` (k,) N*s."""
+    k = targets.shape[0]
+    g = 0
+    for i in range(k):
+        g += i < n_eq or start[i]
+    rows = np.empty(g, dtype=np.int64)
+    droppable = np.empty(g, dtype=np.bool_)
+    g = 0
+    for i in range(k):
+        if i < n_eq or start[i]:
+            rows[g] = i
+            droppable[g] = opposite[i] >= 0
+            g += 1
+    w = delassus(nodes, directions, rows, inv_mass)
+    dropped = np.zeros(g, dtype=np.bool_)
+    if not cholesky_dropping(w, pivot_tol, droppable, dropped):
+        return False, v0, np.zeros(k)
+    length = np.empty(k)
+    tol = np.empty(k)
+    for i in range(k):
+        length[i] = _row_length(inv_mass, nodes, i)
+        tol[i] = primal_tol * min(length[i], 1.0)
+    refined, v, y = _refine(w, rows, dropped, nodes, directions, inv_mass, v0, targets, tol)
+    if not refined:
+        return False, v, y
+    active = np.zeros(k, dtype=np.bool_)
+    for r in range(g):
+        i = rows[r]
+        if dropped[r]:
+            continue
+        if droppable[r] and not abs(y[i]) * length[i] > dual_tol:
+            y[i] = 0.0   # a pair that carries nothing: inactive (its rows then checked as the others are)
+            continue
+        if droppable[r] and y[i] < 0.0:
+            y[opposite[i]] = -y[i]
+            y[i] = 0.0
+            i = opposite[i]
+        active[i] = True
+    for i in range(n_eq, k):
+        if active[i] and not y[i] * length[i] > dual_tol:
+            return False, v, y
+        if not active[i] and _rate(v, nodes, directions, i) - targets[i] > tol[i]:
+            return False, v, y
+    return True, v, y
 
 
 @njit(cache=True)
