@@ -6,9 +6,15 @@ Contenders, each stepping random actions in [-1, 1] (one control period of 20 ms
 * ``vector``: :class:`~tensegrity_sim.envs.RollVectorEnv` of ``--copies`` copies (one compiled call a period);
 * ``single``: one :class:`~tensegrity_sim.envs.RollEnv`, stepped one by one;
 * ``mujoco``: a Gymnasium ``MujocoEnv`` of the scene's MJCF (``bench/mujoco_peer.py``: a free body per rigid
-  strut, a tendon per cable, the ground a plane, the struts capsules on it; Euler integrator, MuJoCo's
-  cheapest), stepped one by one. An action's targets are reeled toward at 1 m/s as ours are: each of the
-  period's 20 steps (``frame_skip``) moves the tendons' spring lengths (``tendon_lengthspring``) and steps;
+  strut, a tendon per cable, the ground a plane, the struts capsules on it; the ``implicitfast`` integrator),
+  stepped one by one. An action's targets are reeled toward at 1 m/s as ours are: each of the period's 20 steps
+  (``frame_skip``) moves the tendons' spring lengths (``tendon_lengthspring``) and steps. Not Euler, MuJoCo's
+  cheapest: under these random actions its step goes unstable every 0.2-1.2 s (77 times in 2,000 periods, each
+  time MuJoCo's ``mjWARN_BADQACC`` and a reset to the start pose: the friction of the capsules' contacts turns a
+  strut about its axis, whose inertia is only a round-off-sized 1e-6 of its transverse one, or 10 times in
+  2,000 periods with a solid rod's 4.4e-4), so it would step a robot that keeps falling from its start pose
+  rather than one that rolls; ``implicitfast``, MuJoCo's recommended integrator, ran those 2,000 periods without
+  a reset (``resets`` in the CSV counts them over the bench's run: 0 expected);
 * ``mujoco_sync``: Gymnasium's ``SyncVectorEnv`` of ``--copies`` of them.
 
 Rates are environment steps (control periods) per second of wall time, best of ``--repeats`` turns after a
@@ -54,6 +60,7 @@ class MujocoRoll(MujocoEnv):
         size = model.nq + model.nv
         super().__init__(xml_path, 20, gym.spaces.Box(-np.inf, np.inf, (size,), np.float64), **kwargs)
         self.rest = rest
+        self.resets = 0   # MuJoCo's own resets of an unstable step (its clock going back), over the env's life
         self.action_space = gym.spaces.Box(-1.0, 1.0, (len(rest),), np.float64)
         self.reach = 1.0 * self.model.opt.timestep   # m of rest length a step (the motors' 1 m/s)
 
@@ -64,9 +71,11 @@ class MujocoRoll(MujocoEnv):
         before = self.data.xpos[1:, 0].mean()
         target = self.rest * (0.75 + 0.25 * np.asarray(action))
         spring = self.model.tendon_lengthspring
+        start = self.data.time
         for _ in range(self.frame_skip):
             spring[:, 1] += np.clip(target - spring[:, 1], -self.reach, self.reach)
             self.do_simulation(np.zeros(0), 1)
+        self.resets += self.data.time < start
         obs = np.concatenate([self.data.qpos, self.data.qvel])
         return obs, float(self.data.xpos[1:, 0].mean() - before), False, False, {}
 
@@ -106,7 +115,7 @@ def main(argv=None) -> None:
     single = RollEnv()
     single.reset(seed=0)
 
-    peer = MujocoPeer(scene, model="elastic", dt=1e-3, integrator="Euler")
+    peer = MujocoPeer(scene, model="elastic", dt=1e-3, integrator="implicitfast")
     with tempfile.TemporaryDirectory() as tmp:
         xml = Path(tmp) / "icosahedron_ground.xml"
         xml.write_text(peer.xml)
@@ -122,12 +131,13 @@ def main(argv=None) -> None:
             "mujoco_sync": (lambda: sync.step(rng.uniform(-1, 1, (args.copies, na))), max(1, args.periods // 4),
                             args.copies)}
         rates = _rates(contenders, args.repeats)
+        resets = {"mujoco": env.resets, "mujoco_sync": sum(e.resets for e in sync.envs)}
     ours = rates["vector"]
     out = [{"contender": name, "copies": contenders[name][2], "env_steps_per_s": float(rate),
-            "ratio": float(ours / rate)} for name, rate in rates.items()]
+            "ratio": float(ours / rate), "resets": resets.get(name, 0)} for name, rate in rates.items()]
     for row in out:
         print(f"{row['contender']:<12} {row['copies']:>5} copies {row['env_steps_per_s']:>12.1f} env-steps/s   "
-              f"vector / this: {row['ratio']:.2f}")
+              f"vector / this: {row['ratio']:.2f}   unstable resets: {row['resets']}")
     write_csv(RESULTS / "envs.csv", out)
 
 

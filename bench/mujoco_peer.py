@@ -8,6 +8,9 @@ its state in node terms, steps it and measures it. What matters for the benchmar
   MuJoCo needs a positive inertia about the axis too, so ``axial_inertia`` (relative to the transverse
   inertia, default 1e-6) is added: no cable acts off the axis, so the exact motion has no axial torque and
   the axial spin stays zero whatever that inertia; :func:`axial_inertia_effect` measures its round-off.
+  A capsule's contact with the ground is another matter: its friction acts at the surface, off the axis, and
+  spins the strut about it (this simulator's nodes touch the ground at the node); on a rolling robot that spin
+  makes MuJoCo's Euler step unstable, ``implicitfast`` not (``bench/bench_envs.py``).
 * An elastic cable is a dead-band tendon spring (``springlength = "0 L"``), an inextensible one a limited
   tendon with ``solreflimit = "2*dt zeta"``: with the default damping ratio ``zeta = 1`` a snap rebounds
   with a restitution of about 0.1 at every step size (the constraint's dynamics scale with ``dt``, so it
