@@ -695,9 +695,7 @@ class BatchSimulator:
             if commands is not None and not inside:
                 self._apply_commands(commands, base_rest)
             x, v, i, sl, events = self._advance(m, commands if inside else None, ground_events)
-            # a failed copy's NaN is no peak: fmax, where max (half its cost) met one
-            top = i.max(axis=0, initial=-np.inf)
-            np.fmax(peak, np.fmax.reduce(i, axis=0) if np.isnan(top).any() else top, out=peak)
+            np.fmax(peak, np.fmax.reduce(i, axis=0), out=peak)   # fmax: a failed copy's NaN is no peak
             snaps += (np.concatenate([was_slack[None], sl[:-1]]) & ~sl).sum(axis=0)
             was_slack = sl[-1].copy()
             for per_step in events:
