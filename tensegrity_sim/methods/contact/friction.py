@@ -791,8 +791,9 @@ class FrictionalSolver:
         The answer is checked as the QPs' are: by the backend's optimality check of the QP with the
         friction as a known impulse, and by the Coulomb law's projection form (:meth:`_verify`).
         Newton is globalised by its line search, Levenberg–Marquardt steps where the Newton step does not
-        descend, and further starts where it stops at a local minimum of the merit: from NSGS sweeps of
-        the same fixed point, then from seeded random impulses (see below). Returns ``(v, y)`` as
+        descend, and further starts where it stops at a local minimum of the merit: from its last answer to a
+        problem of the same structure (:attr:`answer`), from zero, from NSGS sweeps of the same fixed point, then
+        from seeded random impulses (see below). Returns ``(v, y)`` as
         :meth:`solve` does; raises :class:`FrictionError` naming the contacts whose law is unmet if no
         start reaches an answer that meets it."""
         k, n_rows, mass, mu = len(self._targets), len(rows), self._meff, self._mu
