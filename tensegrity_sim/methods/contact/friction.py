@@ -390,6 +390,8 @@ class FrictionalSolver:
         self.last = None                                       # impulses (k, 3) (tangents, normal) of the last solve
         self.iterations = 0                                    # QPs of the last solve (+ Newton iterations)
         self.relaxed = 0                                       # solves answered to ACCEPT_TOL (physical)
+        self.resumed = 0                                       # Newton solves answered from the last answer
+        self.answer = None                                     # the Newton method's last: (its problem, r)
         self._guess = None                                     # the modes' last iterate: multipliers, friction (k, 2)
         self.disarm()
 
@@ -789,8 +791,9 @@ class FrictionalSolver:
         The answer is checked as the QPs' are: by the backend's optimality check of the QP with the
         friction as a known impulse, and by the Coulomb law's projection form (:meth:`_verify`).
         Newton is globalised by its line search, Levenberg–Marquardt steps where the Newton step does not
-        descend, and further starts where it stops at a local minimum of the merit: from NSGS sweeps of
-        the same fixed point, then from seeded random impulses (see below). Returns ``(v, y)`` as
+        descend, and further starts where it stops at a local minimum of the merit: from its last answer to a
+        problem of the same structure (:attr:`answer`), from zero, from NSGS sweeps of the same fixed point, then
+        from seeded random impulses (see below). Returns ``(v, y)`` as
         :meth:`solve` does; raises :class:`FrictionError` naming the contacts whose law is unmet if no
         start reaches an answer that meets it."""
         k, n_rows, mass, mu = len(self._targets), len(rows), self._meff, self._mu
@@ -807,6 +810,10 @@ class FrictionalSolver:
         targets = np.concatenate([all_rows.targets[:n_qp], np.zeros(2 * k)])
         free_rates = rates @ v0_free.ravel() - targets      # u - r at r = 0
         n_eq = all_rows.n_eq
+        # the problem's structure: the armed contacts and the method's rows (its members, equalities first); an
+        # answer to the same structure is a start of the same size and meaning (:attr:`answer`)
+        problem = (self._nodes.tobytes(), b"" if self._pairs is None else self._pairs.keys.tobytes(),
+                   rows.nodes.tobytes(), n_eq, n_rows)
         ineq = np.arange(n_eq, n_qp)
         normal = np.arange(n_rows, n_qp)
         t_index = n_qp + 2 * every[:, None] + np.arange(2)  # (k, 2) positions of f in r
@@ -992,6 +999,21 @@ class FrictionalSolver:
         scale = max(impulse_scale, float(np.max(np.abs(r), initial=0.0)))
         r, it = descend(r)
         chains = [r]   # the Newton iterates the NSGS sweeps go on from, the nearer first
+        if self.answer is not None and self.answer[0] == problem and not (solved(r) or acceptable(best[1])):
+            # from the impulses of the last answer to a problem of the same structure (a body resting on the same
+            # contacts a step earlier): the solution moved little, and it lies along the same directions of the
+            # rows' (near) null space, which Newton from the other starts crawls along. Measured (issue 47,
+            # bench_throws.py throw 15991: three_bar set down at mu = 1.53 on three nodes, rows of rank 18 of 20
+            # and a singular value 6.1e-5 of 65, one node at rest on its disc's edge): at step 88 Newton's damped
+            # steps (1/64 of the Newton step) crawled from the modes' iterate to |Phi| 3e-6 N*s in 100 iterations
+            # and from zero's to the law in 94 of its 100 (in main's benchmark run, its round-off a little
+            # otherwise, in none: the step stopped); from step 87's answer it is solved in 1 iteration. Tried before
+            # zero's: it is the nearer start
+            again, its = descend(self.answer[1].copy())
+            it += its
+            if solved(again):
+                r = again
+                self.resumed += 1
         if self._guess is not None and not (solved(r) or acceptable(best[1])):
             # from no impulse: the modes' iterate can lie in another piece of the equation, and there Newton
             # stops at a local minimum. Measured (issue 47, bench_throws.py throw 5944: three_bar set down at
@@ -1053,6 +1075,7 @@ class FrictionalSolver:
                 raise
             return polished
         self._keep(v0, v, vt, applied, yn, tol)
+        self.answer = (problem, r.copy())
         return v, y[:n_rows]
 
     def _keep(self, v0, v, vt, impulses, yn, tol) -> None:

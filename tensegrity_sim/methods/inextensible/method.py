@@ -531,18 +531,21 @@ class InextensibleMethod(StepMethod):
 
     def carry(self):
         """What a step leaves to the next (a motor's position, the cables that hold, the warm start, the
-        rule's largest dropped impulse, on a ground each node's friction mode): a command or a reset does not
-        recompute it from the state, so the simulator rewinds the steps computed ahead before either
-        (``carry_outlives_inputs``)."""
+        rule's largest dropped impulse, on a ground each node's friction mode and the friction solver's last
+        Newton answer, a start of its next): a command or a reset does not recompute it from the state, so the
+        simulator rewinds the steps computed ahead before either (``carry_outlives_inputs``)."""
+        answer = None if self.ground is None else self.solver.answer   # (immutable: replaced, never changed)
         return (self._applied.copy(), self._holding.copy(), self._hint.copy(), self._last_hint.copy(),
-                self.self_stress.residual, tuple(a.copy() for a in self._memory()))
+                self.self_stress.residual, tuple(a.copy() for a in self._memory()), answer)
 
     def restore(self, carry) -> None:
-        applied, holding, hint, last, self.self_stress.residual, memory = carry
+        applied, holding, hint, last, self.self_stress.residual, memory, answer = carry
         self._applied, self._holding, self._hint = applied.copy(), holding.copy(), hint.copy()
         self._last_hint = last.copy()
         for kept, saved in zip(self._memory(), memory):
             kept[:] = saved
+        if self.ground is not None:
+            self.solver.answer = answer
         self._end_geometry = None
 
     def advance(self, state: State, steps: int, every: int, positions: np.ndarray, velocities: np.ndarray,
