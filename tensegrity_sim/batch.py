@@ -513,10 +513,14 @@ class BatchSimulator:
             x0, v0 = (previous[..., b], previous_v[..., b]) if k == 0 else (x_seq[k - 1, ..., b], v_seq[k - 1, ..., b])
             state = State(x0.copy(), v0.copy(), self._rest[:, b].copy(), self._f_ext[..., b].copy(), start + k)
             # the report from the plain reference's take of the step, as Simulator.step makes it (how far an
-            # overflow spreads within a step depends on the order of the arithmetic)
-            with np.errstate(all="ignore"):
-                ref = ElasticMethod(self.system, self.dt, compiled=False).step(state)
-            report = non_finite_report(self.scene, state, self.dt, ref.positions, ref.velocities, ref.impulses)
+            # overflow spreads within a step depends on the order of the arithmetic), or its StepError's (the
+            # engine's run met it there: ElasticBatch.advance)
+            try:
+                with np.errstate(all="ignore"):
+                    ref = ElasticMethod(self.system, self.dt, compiled=False).step(state)
+                report = non_finite_report(self.scene, state, self.dt, ref.positions, ref.velocities, ref.impulses)
+            except StepError as exc:
+                report = str(exc)
             self.failures[int(b)] = f"step {start + k + 1} (t = {(start + k + 1) * self.dt:.6g} s): {report}"
             self._frozen[int(b)] = (start + k, state.positions, state.velocities)
         for b, (done, x0, v0) in self._frozen.items():

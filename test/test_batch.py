@@ -305,6 +305,45 @@ def test_a_scene_with_a_ground_steps_in_the_compiled_batch_as_single_runs_do(met
     assert events > 6 * 3   # landings and lift-offs, not only three nodes touching down
 
 
+def test_a_copy_whose_step_the_reference_cannot_take_on_the_ground_stops_alone(monkeypatch):
+    """Regression: a copy whose ground step the compiled loop leaves to the reference (``UNSOLVED``) and the
+    reference cannot take either (a ``StepError``) stopped every copy: the exception left ``ElasticBatch``'s
+    run (Roll-v0's refused copy, stepped on from its absurd state, met it). Now that copy fails alone, with the
+    reference's message, keeping its state before the step, and the others go on as a batch without it."""
+    from tensegrity_sim.methods.elastic import _ground_kernels as ground_kernels
+    from tensegrity_sim.methods.elastic.method import ElasticMethod
+
+    scene, x, v = _thrown_on_ground(3, seed=2)
+    healthy, batch = (BatchSimulator(scene, 3, method="elastic", dt=1e-3, positions=x, velocities=v, contacts=())
+                      for _ in range(2))
+    want = healthy.run(steps=20)
+    batch.run(steps=10)
+    before = batch.positions
+    compiled = ground_kernels.ground_steps
+
+    def copy_1_unsolved(x, v, *arguments):   # the kernel leaves copy 1's first step to the reference
+        x1, v1 = x[..., 1].copy(), v[..., 1].copy()
+        compiled(x, v, *arguments)
+        x[..., 1], v[..., 1] = x1, v1
+        failed, reason = arguments[-3], arguments[-2]
+        failed[1], reason[1] = 0, ground_kernels.UNSOLVED
+
+    failure = ts.QPError("daqp", "non-finite", "the solution contains NaN or inf")
+
+    def refused(*arguments, **keywords):
+        raise failure
+
+    monkeypatch.setattr(ground_kernels, "ground_steps", copy_1_unsolved)
+    monkeypatch.setattr(ElasticMethod, "advance", refused)           # the retake's
+    monkeypatch.setattr(ElasticMethod, "_step_reference", refused)   # the guard's report
+    traj = batch.run(steps=10)
+    assert batch.failures == {1: f"step 11 (t = 0.011 s): {failure}"}
+    np.testing.assert_array_equal(batch.positions[1], before[1])
+    assert np.isnan(traj.positions[1]).all()
+    for b in (0, 2):
+        np.testing.assert_array_equal(traj.positions[b], want.positions[b][10:])
+
+
 def test_the_batch_ground_kernel_equals_its_reference():
     """ElasticBatch with a ground, compiled against its reference (an ElasticMethod numpy reference per
     copy: friction.py's QP fixed point): the same states to that reference's tolerance."""

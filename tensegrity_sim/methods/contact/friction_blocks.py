@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._friction_block_kernels import (_ARMIJO, _DAMPING_GROWTH, _MAX_DAMPING, _MIN_DAMPING, _MIN_STEP, BLOCK_TOL,
-                                      MAX_NEWTON, RELAXED_TOL)
+from ._friction_block_kernels import (_ARMIJO, _DAMPING_GROWTH, _MAX_DAMPING, _MIN_DAMPING, _MIN_STEP,
+                                      _NEWTON_PIVOT, BLOCK_TOL, MAX_NEWTON, RELAXED_TOL)
 
 __all__ = ["solve_block_reference", "solve_coupled_reference", "lone_contact_reference"]
 
@@ -57,17 +57,18 @@ def _residual(s, k, rho, target, mu, w, u0, z):
     return phi, jac, 0.5 * float(phi @ phi)
 
 
-def _definite(a: np.ndarray) -> bool:
+def _definite(a: np.ndarray, floor: float) -> bool:
     """Whether the kernel's Cholesky factorisation (``_cholesky_solve``, the same operations in the same
-    order) of the symmetric ``a`` (q, q) finds every pivot positive. (The two matrices agree to round-off,
-    so where a pivot is at round-off's level the twin and the kernel may decide differently.)"""
+    order) of the symmetric ``a`` (q, q) finds every pivot above ``floor`` times its diagonal entry. (The two
+    matrices agree to round-off, so where a pivot is at the floor's level the twin and the kernel may decide
+    differently.)"""
     q = len(a)
     low = np.zeros((q, q))
     for j in range(q):
         d = a[j, j]
         for p in range(j):
             d -= low[j, p] * low[j, p]
-        if not d > 0.0:
+        if not d > floor * a[j, j]:
             return False
         low[j, j] = d = np.sqrt(d)
         for i in range(j + 1, q):
@@ -88,25 +89,32 @@ def _newton(s, k, rho, target, mu, w, u0, z, scale):
             return z, it
         if it == MAX_NEWTON:
             break
-        nu = min(2.0 * merit / (scale * scale), _MAX_DAMPING) + _MIN_DAMPING
         gram = jac.T @ jac
-        normal = gram + nu * np.eye(q)
-        definite = _definite(normal)
-        while not definite and nu < _MAX_DAMPING:
-            nu = min(nu * _DAMPING_GROWTH, _MAX_DAMPING)
-            normal = gram + nu * np.eye(q)
-            definite = _definite(normal)
-        if not definite:
-            break
-        d = np.linalg.solve(normal, -(jac.T @ phi))
-        slope = float((jac.T @ phi) @ d)
-        step = 1.0
-        while True:
-            trial = z + step * d
+        accepted = _definite(gram, _NEWTON_PIVOT)
+        if accepted:   # Newton's own step, whole, where it decreases the merit enough
+            d = np.linalg.solve(gram, -(jac.T @ phi))
+            trial = z + d
             new = _residual(s, k, rho, target, mu, w, u0, trial)[2]
-            if new <= merit + _ARMIJO * step * slope or step <= _MIN_STEP:
+            accepted = new <= merit + _ARMIJO * float((jac.T @ phi) @ d)
+        if not accepted:
+            nu = min(2.0 * merit / (scale * scale), _MAX_DAMPING) + _MIN_DAMPING
+            normal = gram + nu * np.eye(q)
+            definite = _definite(normal, 0.0)
+            while not definite and nu < _MAX_DAMPING:
+                nu = min(nu * _DAMPING_GROWTH, _MAX_DAMPING)
+                normal = gram + nu * np.eye(q)
+                definite = _definite(normal, 0.0)
+            if not definite:
                 break
-            step *= 0.5
+            d = np.linalg.solve(normal, -(jac.T @ phi))
+            slope = float((jac.T @ phi) @ d)
+            step = 1.0
+            while True:
+                trial = z + step * d
+                new = _residual(s, k, rho, target, mu, w, u0, trial)[2]
+                if new <= merit + _ARMIJO * step * slope or step <= _MIN_STEP:
+                    break
+                step *= 0.5
         z = trial
         phi, jac, merit = _residual(s, k, rho, target, mu, w, u0, z)
     return z, (MAX_NEWTON if np.abs(phi).max() <= RELAXED_TOL * scale else -1)

@@ -24,7 +24,7 @@ from ...system import System
 from . import _ground_kernels as ground_kernels
 from . import _kernels as kernels
 from .._copy_blocks import copy_blocks, on_blocks
-from ..base import State
+from ..base import State, StepError
 from .method import _HELD, ElasticMethod
 
 _PAIR_RECORDS = 512   # member-pair impulse records a copy keeps at most in a compiled call (beyond: its advance)
@@ -192,7 +192,8 @@ class ElasticBatch:
         (``inputs_in_effect`` then has the inputs of the last step). Returns every step's positions and
         velocities (steps, N, 3, B), impulses (steps, n_cables, B) N*s and slack cables (steps, n_cables, B),
         compiled in arrays the next advance of as many steps writes again (:meth:`_outputs`). Inputs are not
-        modified."""
+        modified. With a ground, compiled: a copy whose step the reference cannot take either (a ``StepError``:
+        a QP without a solution, a non-finite result) has NaN from that step on, as a non-finite step has."""
         n, nc, b = x.shape[0], rest_lengths.shape[0], x.shape[2]
         if self.ground is not None:
             return self._advance_ground(x, v, rest_lengths, f_ext, steps, commands, first_step)
@@ -315,12 +316,22 @@ class ElasticBatch:
                 method.restore(tuple(a[..., c:c + 1] for a in self._cache[:3]) + (np.zeros((nc, 1), dtype=bool),
                                                                                   self._cache[3][..., c:c + 1]))
             rows = steps - done
-            pos, vel, contact = np.empty((rows, n, 3)), np.empty((rows, n, 3)), np.empty((rows, n, 3))
-            imp, slack = np.empty((rows, nc)), np.empty((rows, nc), dtype=bool)
-            x[..., c], v[..., c] = method.advance(state, rows, 1, pos, vel, imp, slack, contact, inputs)
+            pos, vel, contact = (np.full((rows, n, 3), np.nan) for _ in range(3))
+            imp, slack = np.full((rows, nc), np.nan), np.zeros((rows, nc), dtype=bool)
+            stopped = False
+            try:
+                x[..., c], v[..., c] = method.advance(state, rows, 1, pos, vel, imp, slack, contact, inputs)
+            except StepError:
+                stopped = True
+                # the copy fails alone, its steps from the one the reference could not take NaN (the rows before
+                # it are written): BatchSimulator's guard reports it (a copy refused before, stepped from its
+                # absurd state, is known there already), where the exception would stop every copy
+                x[..., c] = v[..., c] = np.nan
             self.pairs.update({(done + k, c): impulses for k, impulses in method.advanced_pairs.items()})
             out_x[done:, ..., c], out_v[done:, ..., c], out_contact[done:, ..., c] = pos, vel, contact
             out_imp[done:, :, c], out_slack[done:, :, c] = imp, slack
+            if stopped:   # no carry: the guard keeps the copy's state before the failure
+                continue
             carry = method.carry()
             if carry is None:   # its last step was the reference's: the next starts from forces computed anew there
                 xc, vc = np.ascontiguousarray(x[..., c:c + 1]), np.ascontiguousarray(v[..., c:c + 1])
