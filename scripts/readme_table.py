@@ -9,9 +9,11 @@ the thrown icosahedron's CPU time per step beside MuJoCo's, without and with mem
 rolling beside MuJoCo with its ground contact (``bench/results/ground.csv``, ``bench/bench_ground.py``); and a
 batch's scene-steps per second beside ``mujoco.rollout``, both keeping every step's state
 (``bench/results/batch.csv``, ``bench/bench_batch.py``); the massive method beside MuJoCo's spring tendons
-(``bench/results/massive_speed.csv``, ``bench/massive.py``). Below it, the real-time figures: the command line's
-rolling run (``ground.csv``) and the live node's ticks (``bench/results/node_tick.csv`` and
-``node_in_process.csv``, ``bench/bench_node.py``), and the throw benchmark's reliability line
+(``bench/results/massive_speed.csv``, ``bench/massive.py``); the ``Roll-v0`` vector environment beside
+Gymnasium's MuJoCo environment (``bench/results/envs.csv``, ``bench/bench_envs.py``). Below it, the real-time
+figures: the command line's rolling run (``ground.csv``) and the live node's ticks
+(``bench/results/node_tick.csv`` and ``node_in_process.csv``, ``bench/bench_node.py``), and the throw
+benchmark's reliability line
 (``bench/results/throws.csv``, ``bench/bench_throws.py``). Each CSV's command,
 commit and machine are in its ``.json`` sidecar and on the site's benchmarks page.
 """
@@ -82,12 +84,18 @@ def table() -> str:
     lines.append(f"| massive (cables of 0.05 kg, elastic struts), `run()` | {cell(ours['us_per_step'])} µs/step | "
                  f"{cell(peer['us_per_step'])} µs/step (`mj_step(nstep)`, spring tendons: massless cables) | "
                  f"**{cell(float(peer['us_per_step']) / float(ours['us_per_step']))}** |")
+    envs = {row["contender"]: row for row in read_csv(RESULTS / "envs.csv")}
+    ours, peer, sync = envs["vector"], envs["mujoco"], envs["mujoco_sync"]
+    lines.append(f"| `Roll-v0` (20 ms periods), vector environment of {int(ours['copies']):,} | "
+                 f"{cell(ours['env_steps_per_s'])} env-steps/s | {cell(peer['env_steps_per_s'])} env-steps/s "
+                 f"(Gymnasium `MujocoEnv`, one by one; its `SyncVectorEnv`: {cell(sync['env_steps_per_s'])}) | "
+                 f"**{cell(peer['ratio'])}** |")
     lines += ["", *real_time(ground), "", reliability(read_csv(RESULTS / "throws.csv"))]
     commits = ", ".join(f"`{name}` at {provenance(RESULTS / name)['commit']}"
                         for name in ("head_to_head.csv", "ground.csv", "batch.csv", "massive_speed.csv",
-                                     "throws.csv", "node_tick.csv", "node_in_process.csv"))
-    lines += ["", f"Generated from {commits} by `scripts/readme_table.py`;",
-              "commands and machines: [benchmarks](docs/benchmarks.md)."]
+                                     "envs.csv", "throws.csv", "node_tick.csv", "node_in_process.csv"))
+    lines += ["", f"Generated from {commits} by `scripts/readme_table.py`; commands and machines: "
+                  "[benchmarks](docs/benchmarks.md)."]
     return "\n".join(lines)
 
 
