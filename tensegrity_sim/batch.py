@@ -576,14 +576,15 @@ class BatchSimulator:
         pos, vel = np.empty((k, steps, n, 3)), np.empty((k, steps, n, 3))
         imp, sl = np.empty((k, steps, nc)), np.empty((k, steps, nc), dtype=bool)
         ground = None if sims[0]._ground is None else np.empty((k, steps, n, 3))
-        start = np.stack([st.positions for st in states], axis=-1)
-        start_v = np.stack([st.velocities for st in states], axis=-1)
+        if ground is not None or any(c._contacts is not None for c in sims):   # the events' walks start here
+            start = np.stack([st.positions for st in states], axis=-1)
+            start_v = np.stack([st.velocities for st in states], axis=-1)
         x, v = InextensibleMethod.advance_copies(methods, states, steps, pos, vel, imp, sl, ground)
         add = np.add.reduce
         finite = np.isfinite(add(pos.reshape(k, steps, -1), 2) + add(vel.reshape(k, steps, -1), 2) + add(imp, 2))
         count = states[0].step_count
         t0 = count * self.dt
-        good = [j for j in range(k) if finite[j].all()]
+        good = np.flatnonzero(finite.all(axis=1)).tolist()
         contacts = [[()] * b_all for _ in range(steps)]
         if ground is not None and good:
             found = walk_copies([sims[j]._ground for j in good], start[..., good], start_v[..., good],
@@ -605,9 +606,12 @@ class BatchSimulator:
             st = states[j]
             st.positions, st.velocities = x[j].copy(), v[j].copy()
             st.step_count += steps
-        out_x, out_v = np.full((b_all, steps, n, 3), np.nan), np.full((b_all, steps, n, 3), np.nan)
-        out_imp, out_sl = np.full((b_all, steps, nc), np.nan), np.zeros((b_all, steps, nc), dtype=bool)
-        out_x[running], out_v[running], out_imp[running], out_sl[running] = pos, vel, imp, sl
+        if k == b_all:   # every copy running: the outputs are the loop's (no NaN rows to make)
+            out_x, out_v, out_imp, out_sl = pos, vel, imp, sl
+        else:
+            out_x, out_v = np.full((b_all, steps, n, 3), np.nan), np.full((b_all, steps, n, 3), np.nan)
+            out_imp, out_sl = np.full((b_all, steps, nc), np.nan), np.zeros((b_all, steps, nc), dtype=bool)
+            out_x[running], out_v[running], out_imp[running], out_sl[running] = pos, vel, imp, sl
         for j in set(range(k)) - set(good):   # a failure inside: the copy again, one step at a time
             i, c = running[j], sims[j]
             methods[j].restore(carries[j])
@@ -650,7 +654,12 @@ class BatchSimulator:
     def slack(self) -> np.ndarray:
         """(B, n_cables) bool: the cables slack now, in the method's model."""
         if self._copies is not None:
-            return np.stack([c.slack() for c in self._copies])
+            if not all(type(c._method) is InextensibleMethod for c in self._copies):
+                return np.stack([c.slack() for c in self._copies])
+            for c in self._copies:   # Simulator.slack's, before the method is asked
+                c._settle()
+            return InextensibleMethod.slack_copies([c._method for c in self._copies],
+                                                   np.stack([c._state.positions for c in self._copies]))
         return self._engine.slack(self._x, self._rest).T.copy()
 
     def run(self, duration: float | None = None, *, steps: int | None = None, every: int = 1,

@@ -108,6 +108,29 @@ def test_run_peaks_and_snaps_over_every_step(method):
         assert traj.snaps.sum() > 0   # one is locked, its cables carry the prestress and stay taut (issue 20)
 
 
+def test_inextensible_slack_of_the_copies_at_once_is_each_copys_slack():
+    """BatchSimulator.slack of inextensible copies (InextensibleMethod.slack_copies, all copies at once) is each
+    copy's own Simulator.slack, flag for flag, with some cables slack (lengthened rest lengths, different per copy,
+    reached at the motors' speed) and some taut, before and after steps."""
+    scenes = _scenes("icosahedron")
+    batch = _quiet(lambda: BatchSimulator.from_scenes(scenes, method="inextensible", dt=1e-3))
+    singles = [_quiet(lambda: ts.Simulator(scene, method="inextensible", dt=1e-3)) for scene in scenes]
+    rest = np.stack([scene.cable_rest_lengths for scene in scenes])
+    rest[:, ::2] *= 1.0 + 0.05 * np.arange(1, len(scenes) + 1)[:, None]
+    batch.set_rest_lengths(rest)
+    for sim, r in zip(singles, rest):
+        sim.set_rest_lengths(r)
+    seen = []
+    for _ in range(4):
+        want = np.stack([sim.slack() for sim in singles])
+        np.testing.assert_array_equal(batch.slack(), want)
+        seen.append(want)
+        batch.run(steps=40)
+        for sim in singles:
+            sim.run(steps=40)
+    assert np.any(seen) and not np.all(seen)
+
+
 @pytest.mark.parametrize("batch_size", [3, 8])
 def test_compiled_batch_equals_the_numpy_reference(batch_size):
     """Same arithmetic, so agreement to 1e-12; damped cables and a padding copy (B = 8) included."""
