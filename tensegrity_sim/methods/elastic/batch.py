@@ -320,7 +320,9 @@ class ElasticBatch:
             imp, slack = np.full((rows, nc), np.nan), np.zeros((rows, nc), dtype=bool)
             stopped = False
             try:
-                x[..., c], v[..., c] = method.advance(state, rows, 1, pos, vel, imp, slack, contact, inputs)
+                # (overflow is not warned of: a copy whose numbers run off is reported by BatchSimulator's guard)
+                with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                    x[..., c], v[..., c] = method.advance(state, rows, 1, pos, vel, imp, slack, contact, inputs)
             except StepError:
                 stopped = True
                 # the copy fails alone, its steps from the one the reference could not take NaN (the rows before
