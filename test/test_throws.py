@@ -659,9 +659,15 @@ def test_a_newton_answer_off_a_row_is_polished_with_its_friction_known(monkeypat
     answer meeting the law (the benchmark's check). (The NSGS sweeps go on from the nearer of Newton's two first
     iterates only, as they did then: from both, the other's answers it before any polish; nor from the last
     answer, ``FrictionalSolver.answer``, which answers it too; the random restarts are skipped: on this problem none
-    comes nearer, and they take 25 s; the answer polished is the null-space drift's.)"""
+    comes nearer, and they take 25 s; the answer polished is the null-space drift's.)
+
+    Whether the Newton answer stays off the row depends on the last bits of its arithmetic: it did on the machine
+    that found the throw and on CI's, not with numpy 1.26 and scipy 1.11 on another CPU, whose answer meets the
+    rows unpolished. So the polish is held to its job by taking the method's first Newton answer of the run as
+    off a row, as it was there: polished, it is accepted, and the run goes on soundly."""
     _events_as_before(monkeypatch)
     from bench.bench_throws import AnswerChecks
+    from tensegrity_sim.methods.qp import solvers
 
     polished = []
     polish = F.FrictionalSolver._polish
@@ -672,6 +678,17 @@ def test_a_newton_answer_off_a_row_is_polished_with_its_friction_known(monkeypat
         return found
 
     monkeypatch.setattr(F.FrictionalSolver, "_polish", recorded)
+    check_rows = F.FrictionalSolver._check_rows
+    forced = []
+
+    def off_a_row_first(self, *args):   # (called on the Newton method's answers only)
+        if not forced:
+            forced.append(True)
+            raise solvers.QPError("daqp", "infeasible output",
+                                  "the returned velocities violate a constraint by 1.68e-06 m/s")
+        return check_rows(self, *args)
+
+    monkeypatch.setattr(F.FrictionalSolver, "_check_rows", off_a_row_first)
     monkeypatch.setattr(F, "_RESTARTS", 0)
     monkeypatch.setattr(F, "_CHAINS", 1)
     monkeypatch.setattr(F.FrictionalSolver, "answer", property(lambda self: None, lambda self, value: None),
@@ -681,7 +698,7 @@ def test_a_newton_answer_off_a_row_is_polished_with_its_friction_known(monkeypat
         out = T.run_throw(case)
     assert T.problems(case, out) == [] and out["steps"] == 54
     assert checks.violations == 0, checks.first
-    assert any(polished)
+    assert forced and polished and all(polished)
 
 
 @pytest.mark.parametrize("index, steps", [(12958, 80), (10448, 149), (11130, 160), (9087, 160)])
