@@ -335,7 +335,7 @@ class InextensibleMethod(StepMethod):
         d = positions[:, ends[:, 1]] - positions[:, ends[:, 0]]
         rows = d.reshape(-1, 3)
         length = np.sqrt(np.einsum("ij,ij->i", rows, rows)).reshape(d.shape[:2])
-        limits = np.stack([m._applied for m in methods]) + np.stack([m.length_offsets for m in methods])
+        limits = np.stack([m.limits(m._applied) for m in methods])
         return length < limits * (1.0 - np.array([m._taut_tol for m in methods]))[:, None]
 
     def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
