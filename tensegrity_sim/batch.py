@@ -702,9 +702,28 @@ class BatchSimulator:
         inside = commands is not None and self._copies is None and self._engine.runs_commands()
         if commands is not None and not inside:
             chunk, base_rest = 1, self.rest_lengths   # the commands are applied here, step by step
+        # keeping no step (an environment's control period): the engine's kernel sums the steps up itself where it
+        # can (ElasticBatch.advance_summary), the chunk then taken whole as one step is kept
+        summarised = (not fields and (commands is None or inside) and self._copies is None and self._detectors is None
+                      and (self._grounds is None or not ground_events) and self._engine.summarises())
         done = 0
         while done < steps:
             m = min(chunk, steps - done)
+            if summarised and not self._frozen:
+                summary = self._engine.advance_summary(self._x, self._v, self._rest, self._f_ext, m,
+                                                       commands if inside else None, self._step_count, was_slack.T)
+                if summary is not None:
+                    self._x, self._v, chunk_peak, chunk_snaps, was_slack = summary
+                    if inside:
+                        self._rest, self._f_ext = self._engine.inputs_in_effect
+                    self._step_count += m
+                    if self._grounds is not None:   # (no ground events: the detectors start again at a run finding them)
+                        self._grounds_known = False
+                    np.fmax(peak, chunk_peak.T, out=peak)
+                    snaps += chunk_snaps.T
+                    was_slack = was_slack.T
+                    done += m
+                    continue
             if commands is not None and not inside:
                 self._apply_commands(commands, base_rest)
             x, v, i, sl, events = self._advance(m, commands if inside else None, ground_events)

@@ -8,6 +8,7 @@ import pytest
 import tensegrity_sim as ts
 from bench.cases import icosahedron_thrown, tower_kicked
 from tensegrity_sim.batch import BatchSimulator
+from tensegrity_sim.commands import parse_commands
 from tensegrity_sim.methods.elastic.batch import ElasticBatch
 from tensegrity_sim.system import System
 
@@ -348,7 +349,7 @@ def test_a_copy_whose_step_the_reference_cannot_take_on_the_ground_stops_alone(m
         x1, v1 = x[..., 1].copy(), v[..., 1].copy()
         compiled(x, v, *arguments)
         x[..., 1], v[..., 1] = x1, v1
-        failed, reason = arguments[-3], arguments[-2]
+        failed, reason = arguments[-6], arguments[-5]   # (then the summary: peak, snaps, was_slack; then blocks)
         failed[1], reason[1] = 0, ground_kernels.UNSOLVED
 
     failure = ts.QPError("daqp", "non-finite", "the solution contains NaN or inf")
@@ -365,6 +366,58 @@ def test_a_copy_whose_step_the_reference_cannot_take_on_the_ground_stops_alone(m
     assert np.isnan(traj.positions[1]).all()
     for b in (0, 2):
         np.testing.assert_array_equal(traj.positions[b], want.positions[b][10:])
+
+
+@pytest.mark.parametrize("unsolved", [False, True])
+def test_a_run_keeping_no_step_sums_its_steps_up_in_the_kernel(monkeypatch, unsolved):
+    """A run on the ground that keeps no step (``fields=()``, no ground events: an environment's control period)
+    has the kernel keep only the last step and count the peaks and snaps itself
+    (``ElasticBatch.advance_summary``): the same state, peak tensions and snaps, bit for bit, as the run keeping
+    every step's positions, through cables let out to slack and reeled in taut again (snaps). A copy whose step
+    the kernel leaves to the reference (``unsolved``: copy 1's first step of each run, forced) makes the summary
+    give up, changing nothing, and the run take every step as the full one does: the same numbers still."""
+    from tensegrity_sim.methods.elastic import _ground_kernels as ground_kernels
+
+    scene, x, v = _thrown_on_ground(4, seed=3)
+    if unsolved:
+        compiled = ground_kernels.ground_steps
+
+        def copy_1_unsolved(x, v, *arguments):
+            x1, v1 = x[..., 1].copy(), v[..., 1].copy()
+            compiled(x, v, *arguments)
+            x[..., 1], v[..., 1] = x1, v1
+            failed, reason = arguments[-6], arguments[-5]
+            failed[1], reason[1] = 0, ground_kernels.UNSOLVED
+
+        monkeypatch.setattr(ground_kernels, "ground_steps", copy_1_unsolved)
+    summarised = []
+    summary = ElasticBatch.advance_summary
+
+    def counted(self, *arguments):
+        out = summary(self, *arguments)
+        summarised.append(out is not None)
+        return out
+
+    monkeypatch.setattr(ElasticBatch, "advance_summary", counted)
+    lean, full = (BatchSimulator(scene, 4, method="elastic", dt=1e-3, positions=x, velocities=v, contacts=())
+                  for _ in range(2))
+    # landing; every cable let out past slack by 0.15 s; reeled in taut by 0.25 s (the schedule run inside the kernel)
+    schedule = parse_commands([{"time": t, "rest_lengths": dict(zip(scene.cable_names, (f * scene.cable_rest_lengths
+                                                                                         ).tolist()))}
+                               for t, f in ((0.05, 1.0), (0.15, 1.4), (0.25, 0.8))], scene)
+    snaps = 0
+    for _ in range(3):
+        got = lean.run(steps=120, every=120, commands=schedule, fields=(), ground_events=False)
+        want = full.run(steps=120, every=120, commands=schedule, fields=("positions",), ground_events=False)
+        np.testing.assert_array_equal(lean.positions, full.positions)
+        np.testing.assert_array_equal(lean.velocities, full.velocities)
+        np.testing.assert_array_equal(lean.rest_lengths, full.rest_lengths)
+        np.testing.assert_array_equal(got.peak_tensions, want.peak_tensions)
+        np.testing.assert_array_equal(got.snaps, want.snaps)
+        assert got.positions is None and lean.step_count == full.step_count
+        snaps += want.snaps.sum()
+    assert snaps > 4 * 10 and want.peak_tensions.min() > 0
+    assert summarised == [not unsolved] * 3
 
 
 def test_the_batch_ground_kernel_equals_its_reference():

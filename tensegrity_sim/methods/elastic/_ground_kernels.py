@@ -636,7 +636,7 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
                   height,
                   mu, restitution, radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu,
                   pair_restitution, warm, rest_seq, ext_seq, out_x, out_v, out_impulses, out_slack, out_contact,
-                  out_pairs, n_records, failed, reason, blocks):
+                  out_pairs, n_records, failed, reason, peak, snaps, was_slack, blocks):
     """``n_steps`` steps of ``h`` (s) of every copy (in ``blocks`` contiguous blocks of copies spread over the
     cores), in place on ``x``, ``v`` and the carry (``acc``, ``tension``, ``rigid_dirs``, ``warm``); the kept steps as
     ``_elastic_kernels.elastic_steps`` keeps them, and ``out_contact`` (K, N, 3, B) the ground's impulses
@@ -646,6 +646,11 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
     (the copy stops there: its ``x``, ``v`` are those at that step's start, its carry is not), and ``reason``
     (B,) int64 why (``UNSOLVED``, ``MEMBERS``), or the step before which a copy stopped for want of room for
     its records (``FULL``: fewer than P left; its carry is that step's start's, for a call that goes on).
+    Over the steps taken, ``BatchSimulator.run``'s summary of them: ``peak`` (nc, B) N*s, each cable's largest
+    impulse of a step (raised from what it holds; a NaN is none, as ``np.fmax``), and ``snaps`` (nc, B) int64,
+    each cable's steps that ended taut after a step that ended slack (added to), from ``was_slack`` (nc, B) bool
+    at the first step's start, which gets the slack cables at the last step's end (what a run keeping no step
+    reads instead of every step's impulses and slack flags).
     Each copy is stepped in contiguous arrays of its own (a batch of one: the very arithmetic of
     ``Simulator``'s loop, and no stride of B between a copy's numbers).
 
@@ -661,7 +666,7 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
                height, mu,
                restitution, radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm,
                rest_seq, ext_seq, out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed,
-               reason)
+               reason, peak, snaps, was_slack)
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -671,7 +676,7 @@ def _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, sti
                 touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb, extb, accb, tensionb,
                 dirsb, warmb, rest_seq, ext_seq, dx, imp, total, sl, contact, total_contact, armed, target, landing, x0,
                 v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, kept, out_x, out_v,
-                out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason):
+                out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason, peak, snaps, was_slack):
     """Copy ``b``'s ``n_steps`` steps in its own arrays (``*b``; ``bs``, ``be`` its columns of the inputs), for
     :func:`_block`, which allocates; this loop hands a step dozens of arrays and is compiled without
     reference counts (a counted call of ``_ground_step`` adds and subtracts one per array: ~5 ns each)."""
@@ -717,6 +722,10 @@ def _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, sti
                     n_records[b] = r + 1
         for ci in range(nc):
             total[ci] += imp[ci]
+            if imp[ci] > peak[ci, b]:   # (a NaN is no peak)
+                peak[ci, b] = imp[ci]
+            snaps[ci, b] += was_slack[ci, b] and not sl[ci]
+            was_slack[ci, b] = sl[ci]
         for i in range(n_nodes):
             for j in range(3):
                 total_contact[i, j] += contact[i, j]
@@ -734,7 +743,8 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
            damping, inv_mass, gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height,
            mu, restitution,
            radii, node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, rest_seq, ext_seq,
-           out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason):
+           out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason, peak, snaps,
+           was_slack):
     """Block ``blk`` of ``blocks`` of :func:`_ground_steps`' copies (its arguments): one function that the
     parallel loop calls once a block and the serial loop once, so both step the copies with the same code."""
     n_nodes = x.shape[0]
@@ -808,7 +818,7 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
                     extb, accb, tensionb, dirsb, warmb, rest_seq, ext_seq, dx, imp, total, sl, contact,
                     total_contact, armed, target, landing, x0, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3,
                     ends4, out6, s5, t5, pairs, kept, out_x, out_v, out_impulses, out_slack, out_contact,
-                    out_pairs, n_records, failed, reason)
+                    out_pairs, n_records, failed, reason, peak, snaps, was_slack)
         scatter_copy(xb, vb, accb, tensionb, dirsb, b, x, v, acc, tension, rigid_dirs)
         for i in range(n_nodes + n_pairs):
             for j in range(3):

@@ -281,22 +281,15 @@ class ElasticBatch:
             ("ground", steps, b), lambda: (copy_major(n, 3), copy_major(n, 3), copy_major(nc),
                                            copy_major(nc, dtype=bool), copy_major(n, 3)))
         self.contact = out_contact
-        x, v, rest, ext = (np.array(a, dtype=float, order="C") for a in (x, v, rest_lengths, f_ext))
-        if self._cache is None:
-            self._cache = (np.empty_like(x), np.empty((nc, b)), np.empty((self.rigid.count, 3, b)))
-            kernels.elastic_forces(x, v, rest, ext, *self._model[:10], *self._cache)
-            # each node's and member pair's last contact impulses (drift, closing)
-            self._cache += (np.zeros((2, n + n_pairs, 3, b)) if self._warm is None else self._warm,)
-            self._warm = None
+        x, v, rest, ext = self._ground_start(x, v, rest_lengths, f_ext)
         failed, reason, count = (np.empty(b, dtype=np.int64) for _ in range(3))
         records = np.empty((b, n_pairs and max(n_pairs, min(steps * n_pairs, _PAIR_RECORDS)), 6))
         seq = _HELD if commands is None else self._inputs(commands, rest, ext, steps, first_step)
+        summary = (np.zeros((nc, b)), np.zeros((nc, b), dtype=np.int64), np.zeros((nc, b), dtype=bool))   # unread
         ground_kernels.ground_steps(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache[:3], *self.ground,
                                     self._cache[3], *seq, out_x, out_v, out_imp, out_slack, out_contact, records,
-                                    count, failed, reason, min(b, numba.get_num_threads()))
-        if commands is not None:
-            self.inputs_in_effect = (np.ascontiguousarray(np.broadcast_to(seq[0][-1], rest.shape)),
-                                     np.ascontiguousarray(np.broadcast_to(seq[1][-1], ext.shape)))
+                                    count, failed, reason, *summary, min(b, numba.get_num_threads()))
+        self._inputs_in_effect(seq, rest, ext, commands)
         for c in np.flatnonzero(count > 0):
             self.pairs.update({(k, c): pairs for k, pairs in self.single._pair_records(records[c, :count[c]]).items()})
         for c in np.flatnonzero(failed >= 0):
@@ -345,6 +338,61 @@ class ElasticBatch:
             for mine, its in zip(self._cache, carry[:3] + carry[4:]):
                 mine[..., c] = its[..., 0]
         return out_x, out_v, out_imp, out_slack
+
+    def _ground_start(self, x, v, rest_lengths, f_ext) -> tuple:
+        """The ground kernel's inputs, contiguous copies of ``x``, ``v``, the rest lengths and forces (it steps
+        ``x`` and ``v`` in place), the carry computed first where there is none."""
+        x, v, rest, ext = (np.array(a, dtype=float, order="C") for a in (x, v, rest_lengths, f_ext))
+        if self._cache is None:
+            n, nc, b = x.shape[0], rest.shape[0], x.shape[2]
+            self._cache = (np.empty_like(x), np.empty((nc, b)), np.empty((self.rigid.count, 3, b)))
+            kernels.elastic_forces(x, v, rest, ext, *self._model[:10], *self._cache)
+            # each node's and member pair's last contact impulses (drift, closing)
+            self._cache += (np.zeros((2, n + len(self.single._pair_keys), 3, b)) if self._warm is None
+                            else self._warm,)
+            self._warm = None
+        return x, v, rest, ext
+
+    def _inputs_in_effect(self, seq, rest, ext, commands) -> None:
+        """After a run of ``commands`` (each step's inputs ``seq``): the last step's, as (n_cables, B), (N, 3, B)."""
+        if commands is not None:
+            self.inputs_in_effect = (np.ascontiguousarray(np.broadcast_to(seq[0][-1], rest.shape)),
+                                     np.ascontiguousarray(np.broadcast_to(seq[1][-1], ext.shape)))
+
+    def summarises(self) -> bool:
+        """Whether :meth:`advance_summary` takes runs that keep no step (compiled, on a ground, no member pairs)."""
+        return self.compiled and self.ground is not None and not self.single._pair_keys
+
+    def advance_summary(self, x, v, rest_lengths, f_ext, steps: int, commands, first_step: int, was_slack):
+        """:meth:`advance` of a run that keeps no step (:meth:`summarises`): the kernel keeps only the last step
+        and sums up the others itself (``_ground_kernels.ground_steps``' summary), where every step's numbers
+        cost a fifth of a ``Roll-v0`` control period (the kernel's writes of 20 steps of 256 copies and the run's
+        reductions of them). ``was_slack`` (n_cables, B) bool: the slack cables at the start. Returns the
+        positions and velocities (N, 3, B) after the steps, each cable's largest impulse of a step (n_cables, B)
+        N*s, its snaps (n_cables, B) int and the slack cables (n_cables, B) at the end; or None, changing
+        nothing, where a copy's step was left to the reference or a number is not finite (the caller then takes
+        :meth:`advance`, whose every step it needs for those)."""
+        nc, b = rest_lengths.shape
+        n = x.shape[0]
+        x, v, rest, ext = self._ground_start(x, v, rest_lengths, f_ext)
+        carry = tuple(a.copy() for a in self._cache)
+        out = self._outputs(("summary", b), lambda: (np.empty((1, n, 3, b)), np.empty((1, n, 3, b)),
+                                                     np.empty((1, nc, b)), np.empty((1, nc, b), dtype=bool),
+                                                     np.empty((1, n, 3, b))))
+        failed, reason, count = (np.empty(b, dtype=np.int64) for _ in range(3))
+        seq = _HELD if commands is None else self._inputs(commands, rest, ext, steps, first_step)
+        peak, snaps, slack = np.zeros((nc, b)), np.zeros((nc, b), dtype=np.int64), np.array(was_slack, order="C")
+        ground_kernels.ground_steps(x, v, rest, ext, self.dt, steps, steps, *self._model, *self._cache[:3],
+                                    *self.ground, self._cache[3], *seq, *out, np.empty((b, 0, 6)), count, failed,
+                                    reason, peak, snaps, slack, min(b, numba.get_num_threads()))
+        with np.errstate(invalid="ignore", over="ignore"):
+            finite = np.isfinite(np.add.reduce(x, axis=None) + np.add.reduce(v, axis=None)
+                                 + np.add.reduce(out[2], axis=None))
+        if not finite or (failed >= 0).any():
+            self._cache = carry
+            return None
+        self._inputs_in_effect(seq, rest, ext, commands)
+        return x, v, peak, snaps, slack
 
     def slack(self, x, rest_lengths) -> np.ndarray:
         """(n_cables, B) bool: the cables shorter than their rest lengths at ``x`` (N, 3, B)."""

@@ -183,6 +183,10 @@ class ElasticMethod(StepMethod):
         # empty record buffer, made once: a call of one step (a command every step) is where they cost
         self._flags = tuple(np.empty(1, dtype=np.int64) for _ in range(3))
         self._no_records = np.empty((1, 0, 6))
+        # the kernel's summary of its steps (peak impulses, snaps, slack), which a batch that keeps no step reads;
+        # Simulator reads its kept steps instead: scratch here
+        nc = system.n_cables
+        self._summary = (np.zeros((nc, 1)), np.zeros((nc, 1), dtype=np.int64), np.zeros((nc, 1), dtype=bool))
         self._plain = self.order == 2 and not self.locate_switches
         self._weights = np.array(WEIGHTS[self.order])
         self._model = kernels.model_arrays(system, self.rigid)
@@ -284,7 +288,8 @@ class ElasticMethod(StepMethod):
                        else np.empty((1, max(n_pairs, min(steps * n_pairs, _PAIR_RECORDS)), 6)))
             ground_kernels.ground_steps_serial(x, v, rest, ext, self.dt, steps, every, *self._model, *self._carry[:3],
                                                *self._ground_model, self._carry[4], *inputs, positions, velocities,
-                                               impulses, slack, contact, records, count, failed, reason, 1)
+                                               impulses, slack, contact, records, count, failed, reason,
+                                               *self._summary, 1)
             self._records = self._pair_records(records[0, :count[0]])
             at, why = int(failed[0]), int(reason[0])
             if at >= 0 and why != ground_kernels.FULL:

@@ -48,6 +48,9 @@ class ElasticBatchJax(ElasticBatch):
     def runs_commands(self) -> bool:
         return True
 
+    def summarises(self) -> bool:   # a run keeping no step takes the JAX run's steps as any other
+        return False
+
     def advance(self, x, v, rest_lengths, f_ext, steps: int, commands=None, first_step: int = 0):
         """``steps`` steps of every copy from ``x``, ``v`` (N, 3, B) with rest lengths (n_cables, B) and external
         forces (N, 3, B), held, or with ``commands`` (a ``CommandSchedule``, or one per copy) evaluated inside the
