@@ -138,27 +138,33 @@ def motor_limits(commanded, applied, most, dt, offsets, limit_tol, taut_tol):
 
 
 @njit(cache=True)
+def _crosses(d, limits, v, v0, tau, cable_ends, c, u, um):
+    """Whether cable ``c``'s ends' straight mean path ``d + tau u_mean`` ends beyond its limit (the cables whose
+    snap :func:`first_snap` locates; ``InextensibleMethod._snap_times``' test); ``u`` and ``um`` (3,) get the
+    relative velocity and mean free velocity of its ends."""
+    a = cable_ends[c, 0]
+    b = cable_ends[c, 1]
+    de = np.empty(3)
+    for j in range(3):
+        u[j] = v[b, j] - v[a, j]
+        um[j] = 0.5 * (u[j] + v0[b, j] - v0[a, j])   # numpy's order: (u + v0_b) - v0_a
+        de[j] = d[c, j] + tau * um[j]
+    return dot3(de[0], de[1], de[2], de[0], de[1], de[2]) > limits[c] * limits[c]
+
+
+@njit(cache=True)
 def first_snap(d, limits, v, v0, tau, cable_ends, slack, newton_iter):
     """``InextensibleMethod._first_snap``: the fraction of the sub-step (0, 1] at which the first
     ``slack`` (n_cables,) bool cable reaches its limit (``limits`` (n_cables,) m) on the free path of its
     ends (cable vectors ``d`` (n_cables, 3) m at the start, velocities ``v`` and free velocities ``v0``
     (N, 3) m/s), 1.0 if none does; ``newton_iter`` Newton iterations from the straight path's crossing."""
     first = 1.0
+    u = np.empty(3)
+    um = np.empty(3)
     for c in range(d.shape[0]):
-        if not slack[c]:
+        if not slack[c] or not _crosses(d, limits, v, v0, tau, cable_ends, c, u, um):
             continue
-        a = cable_ends[c, 0]
-        b = cable_ends[c, 1]
-        u = np.empty(3)
-        um = np.empty(3)
-        de = np.empty(3)
-        for j in range(3):
-            u[j] = v[b, j] - v[a, j]
-            um[j] = 0.5 * (u[j] + v0[b, j] - v0[a, j])   # numpy's order: (u + v0_b) - v0_a
-            de[j] = d[c, j] + tau * um[j]
         lim = limits[c]
-        if not dot3(de[0], de[1], de[2], de[0], de[1], de[2]) > lim * lim:
-            continue
         acc = np.empty(3)
         for j in range(3):
             acc[j] = 2.0 * (um[j] - u[j]) / tau
@@ -671,8 +677,9 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
          settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol, landing_iter,
          reel_force, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot,
          dgemv, wide, reference, ground, memory):
-    """``InextensibleMethod._step_impl`` of a step that is one sub-step (no snap or landing located inside
-    it, no impact at its start), without elastic struts or member contact rows, in one call: the motors' limits
+    """``InextensibleMethod._step_impl`` of a step that is one sub-step (no landing located inside it, a snap
+    only where the step taken whole does not meet it: ``InextensibleMethod._whole``; an impact at its start
+    allowed), without elastic struts or member contact rows, in one call: the motors' limits
     (:func:`motor_limits`), the impact test, the free motion from ``x``, ``v`` (N, 3) under ``f_ext``
     (N, 3) N (``inv_mass`` (N, 2) 1/kg, ``MassOperator.kernel_array``; with ``schur`` non-empty the rods' blocks
     apply), the snap search (:func:`first_snap`) and :func:`midpoint`.
@@ -740,14 +747,26 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
             for j in range(3):
                 v0[i, j] = v[i, j] + scale * f_ext[i, j]
     theta = 1.0
+    slack = np.empty(nc, dtype=np.bool_)
+    for c in range(nc):
+        slack[c] = not at_limit[c] and cables_move[c]
     if ok and not all_at:
-        slack = np.empty(nc, dtype=np.bool_)
-        for c in range(nc):
-            slack[c] = not at_limit[c] and cables_move[c]
         theta = first_snap(d, limits, v, v0, dt, cable_ends, slack, newton_iter)
     if ok and on:
         theta = min(theta, first_impact(x, v, v0, dt, g_nodes, radii, height, touch_tol))
-    ok = ok and not (min_event * dt < theta * dt < dt - min_event * dt)
+    # a snap located inside the step of a structure that can lock, without a ground: the step whole where every
+    # crossing cable reaches its limit on its free path only by the path's curvature (its rate at the start would not
+    # close its gap within the step), kept where the snap does not happen on the constrained path (checked after
+    # it); else (a ground, a landing, a cable closing at its rate) the Python path's cut
+    whole = min_event * dt < theta * dt < dt - min_event * dt
+    ok = ok and (not whole or (locked and not on))
+    if ok and whole:
+        u = np.empty(3)
+        um = np.empty(3)
+        for c in range(nc):
+            if (slack[c] and _crosses(d, limits, v, v0, dt, cable_ends, c, u, um)
+                    and dt * dot3(d[c, 0], d[c, 1], d[c, 2], u[0], u[1], u[2]) >= (limits[c] - length[c]) * length[c]):
+                ok = False
     all_limits = np.empty(n_eq + nc)
     all_limits[:n_eq] = rigid_lengths
     for c in range(nc):
@@ -769,6 +788,13 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
             impulses[c] = y[r]
             r += 1
         new_holding[c] = impulses[c] > 0 and at_limit[c]
+    if whole:   # every cable crossing its limit on its free path ends the step short of it, pulling nothing
+        u = np.empty(3)
+        um = np.empty(3)
+        for c in range(nc):
+            if (slack[c] and _crosses(d, limits, v, v0, dt, cable_ends, c, u, um)
+                    and not (impulses[c] == 0.0 and not pulled[c] and length_f[c] < floor[c])):
+                done = False
     published = impulses
     fitted = True
     node = 0.0

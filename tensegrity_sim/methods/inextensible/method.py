@@ -403,19 +403,28 @@ class InextensibleMethod(StepMethod):
             tau = remaining
             x_m, v0 = self._free_motion(x, v, tau, f_ext)
             cut = False
+            whole = None   # the sub-step taken whole though a snap was located inside it
             if event < self.max_events:
                 slack = ~at_limit & self._cables_move
                 snap = theta = 1.0 if at_limit.all() else self._first_snap(d, limits, v, v0, tau, slack)
                 if self.ground is not None:
                     theta = min(theta, self.ground.first_impact(x, v, v0, tau))
                 cut = _MIN_EVENT * self.dt < theta * tau < tau - _MIN_EVENT * self.dt
+                if cut and self.ground is None and self.self_stress.possible:
+                    last = event > 0 and self.solver.last_hint
+                    whole = self._whole(x_m, v, v0, tau, d, length, limits, floor, taut, reel, reeling, slack,
+                                        self._last_hint if last else hint)
+                    cut = whole is None
                 if cut:
                     snapped = self._snapped(d, limits, v, v0, tau, slack) if snap == theta else None
                     tau = theta * tau
                     x_m, v0 = self._free_motion(x, v, tau, f_ext)
             last = event > 0 and not cut and self.solver.last_hint
-            x, v, y, published = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, reeling,
-                                                self._last_hint if last else hint)
+            if whole is None:
+                x, v, y, published = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, reeling,
+                                                    self._last_hint if last else hint)
+            else:
+                x, v, y, published = whole
             impulses += published
             holding = hint = (y > 0) & at_limit
             if not cut:
@@ -722,6 +731,36 @@ class InextensibleMethod(StepMethod):
         if self.compiled:
             return kernels.first_snap(d, limits, v, v0, tau, self.system.cable_ends, slack, _NEWTON_ITER)
         return float(self._snap_times(d, limits, v, v0, tau, slack)[1].min(initial=1.0))
+
+    def _whole(self, x_m, v, v0, tau, d, length, limits, floor, taut, reel, reeling, slack, hint):
+        """The sub-step from ``x_m`` of a structure that can lock, without a ground, taken whole (:meth:`_midpoint`'s
+        result) though a snap was located inside it, where the snap does not happen on the constrained path: every
+        ``slack`` cable whose free path crosses its
+        limit in it (:meth:`_snap_times`' cables; ``d``, ``length`` their vectors and lengths at the start) reaches
+        it by its path's curvature alone (its rate at the start would not close its gap in the sub-step) and ends
+        it short of its limit (below ``floor``), with no impulse and no motor pulling it; else None, nothing
+        changed (the sub-step is cut at the snap, with no QP taken for the try where a cable closes at its
+        rate). Why: a slack cable of a locked structure (a prestressed icosahedron with rigid struts: its limits
+        consistent to ~1e-7 of a length, so one cable hovers that short of its limit while the others hold it)
+        crosses its limit on its ends' free path in every step of a tumble, the free path being straight lines,
+        while the rows of the cables that hold keep it short: each step was cut there for an impact that did
+        nothing (steps 6-43 of the thrown icosahedron, every copy of a batch on the Python path, 50-100x
+        slower)."""
+        crossing = self._snap_times(d, limits, v, v0, tau, slack)[0]
+        ends, length = self.system.cable_ends[crossing], length[crossing]
+        # a cable whose rate at the start closes its gap within the sub-step snaps: only one reaching its limit by
+        # its free path's curvature alone (the straight lines of a turning body) may not
+        closing = tau * np.einsum("ij,ij->i", d[crossing], v[ends[:, 1]] - v[ends[:, 0]])
+        if np.any(closing >= (limits[crossing] - length) * length):
+            return None
+        pulled, residual = self._pulled.copy(), self.self_stress.residual
+        out = self._midpoint(x_m, v, v0, tau, limits, floor, taut, reel, reeling, hint)
+        length = self._cable_geometry(out[0])[1]
+        if not (np.all(out[2][crossing] == 0.0) and not self._pulled[crossing].any()
+                and np.all(length[crossing] < floor[crossing])):
+            self._pulled, self.self_stress.residual = pulled, residual
+            return None
+        return out
 
     def _snapped(self, d, limits, v, v0, tau, slack) -> np.ndarray:
         """The cables (n_cables,) bool whose snap :meth:`_first_snap` located first: a sub-step cut there ends with
