@@ -41,6 +41,11 @@ one stops short by about ``nu`` times the step (at the median block of the rolli
 ``Roll-v0``'s vector environment (64 copies, 25 periods of random reel actions; 11k of its blocks, each a
 strut with one end on the ground, 2.8 a copy-step): 2.03 iterations a block with the damped step alone,
 1.26 with Newton's first (a sticking block: 1; a sliding one, its disc's edge curved: 2).
+At an iterate where every contact sticks (pressed, inside its disc) ``phi = R (u - t)`` is linear with
+``J = R W`` (``R`` the rows' ``rho``, ``t`` the targets), so Newton's step is the sticking mode's own linear
+system ``W d = t - u``: solved with ``W``'s Cholesky factor (pivots above ``_NEWTON_PIVOT``, else as above),
+without the Jacobian and ``J^T J``, and taken whole where it meets the Armijo condition (its slope is
+``-|phi|^2``); where it does not (a contact starts to slide or lifts), the damped step.
 Enumerating the 3^2 contact modes instead would need an inner iteration anyway (a sliding end's
 direction is coupled to the other end's through the strut), and the QP fixed point of ``friction.py``
 costs QPs per iterate. Measured: 1-3 iterations a block for the resting and sliding scenes, warm-started
@@ -203,6 +208,22 @@ def _jacobian(q, s, k, target, work, z):
 
 
 @njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _sticking(q, s, k, target, work, z):
+    """Whether every contact of the block sticks at ``z`` (its ``u`` in ``work[4, 1]``, :func:`_residual`'s): pressed
+    (``y_n - rho (u_n - w) > 0``) with its friction inside the disc, where ``phi`` is linear (``R (u - t)``)."""
+    for c in range(k):
+        o = s + 3 * c
+        r = work[4, 6, o]
+        n = o + 2
+        qn = z[n] - r * (work[4, 1, n] - target[c])
+        t0 = z[o] - r * work[4, 1, o]
+        t1 = z[o + 1] - r * work[4, 1, o + 1]
+        if not (qn > 0.0 and np.sqrt(t0 * t0 + t1 * t1) <= work[5, 2, c] * qn):
+            return False
+    return True
+
+
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
 def _cholesky_solve(q, work, floor):
     """``work[4, 4] = work[3]^-1 work[4, 3]`` for the symmetric positive definite ``work[3]`` (q, q), factored
     in place. Returns False, solving nothing, where a pivot is not above ``floor`` times its diagonal entry:
@@ -241,9 +262,9 @@ def _newton(q, s, k, target, work, z, scale):
     in place. Returns the iterations taken, or -1 if ``phi`` did not reach ``BLOCK_TOL`` times the impulse
     ``scale`` (nor ``RELAXED_TOL`` times it where it stalled: then ``MAX_NEWTON``).
 
-    ``work`` (6, M, M), M >= max(q, 7): [1] W, [2] the Jacobian, [3] the damped normal matrix; rows of [4]:
-    u0, u, phi, -J^T phi, the step, the trial z, rho (each row's); rows of [5]: the trial's u and phi, each
-    contact's Coulomb coefficient, the diagonal of J^T J."""
+    ``work`` (6, M, M), M >= max(q, 7): [1] W, [2] the Jacobian, [3] the damped normal matrix (or W, for a
+    sticking iterate's step); rows of [4]: u0, u, phi, -J^T phi (or t - u), the step, the trial z, rho (each
+    row's); rows of [5]: the trial's u and phi, each contact's Coulomb coefficient, the diagonal of J^T J."""
     tol = BLOCK_TOL * scale
     merit = _residual(q, s, k, target, work, z, 4, 1, 4, 2)
     for it in range(MAX_NEWTON + 1):
@@ -254,29 +275,49 @@ def _newton(q, s, k, target, work, z, scale):
             return it
         if it == MAX_NEWTON:
             break
-        _jacobian(q, s, k, target, work, z)
-        for i in range(q):
-            acc = 0.0
-            for p in range(q):
-                acc += work[2, p, i] * work[4, 2, p]
-            work[4, 3, i] = -acc
-            for j in range(i + 1):   # J^T J is symmetric: each entry's sum once, mirrored
+        # every contact sticking: phi = R (u - t) is linear, J = R W, and Newton's step solves W d = t - u (the
+        # sticking mode's own system: no Jacobian, no J^T J), where W is comfortably definite; taken whole if it
+        # decreases the merit enough (the slope along Newton's step is -|phi|^2 = -2 merit)
+        tried = False
+        accepted = False
+        if _sticking(q, s, k, target, work, z):
+            for i in range(q):
+                for j in range(q):
+                    work[3, i, j] = work[1, i, j]
+                work[4, 3, i] = -work[4, 1, i]
+            for c in range(k):
+                work[4, 3, s + 3 * c + 2] += target[c]
+            tried = _cholesky_solve(q, work, _NEWTON_PIVOT)
+            if tried:
+                for i in range(q):
+                    work[4, 5, i] = z[i] + work[4, 4, i]
+                new = _residual(q, s, k, target, work, work[4, 5], 5, 0, 5, 1)
+                accepted = new <= merit + _ARMIJO * (-2.0 * merit)
+        if not accepted:
+            _jacobian(q, s, k, target, work, z)
+            for i in range(q):
                 acc = 0.0
                 for p in range(q):
-                    acc += work[2, p, i] * work[2, p, j]
-                work[3, i, j] = acc
-                work[3, j, i] = acc
-            work[5, 3, i] = work[3, i, i]
-        # Newton's own step first where J^T J is comfortably definite, taken whole if it decreases the merit
-        # enough (module docstring)
-        accepted = _cholesky_solve(q, work, _NEWTON_PIVOT)
-        if accepted:
-            slope = 0.0
-            for i in range(q):
-                slope -= work[4, 3, i] * work[4, 4, i]    # row 3 holds -J^T phi
-                work[4, 5, i] = z[i] + work[4, 4, i]
-            new = _residual(q, s, k, target, work, work[4, 5], 5, 0, 5, 1)
-            accepted = new <= merit + _ARMIJO * slope
+                    acc += work[2, p, i] * work[4, 2, p]
+                work[4, 3, i] = -acc
+                for j in range(i + 1):   # J^T J is symmetric: each entry's sum once, mirrored
+                    acc = 0.0
+                    for p in range(q):
+                        acc += work[2, p, i] * work[2, p, j]
+                    work[3, i, j] = acc
+                    work[3, j, i] = acc
+                work[5, 3, i] = work[3, i, i]
+        # otherwise Newton's own step where J^T J is comfortably definite (unless it is the step just tried),
+        # taken whole if it decreases the merit enough (module docstring)
+        if not accepted and not tried:
+            accepted = _cholesky_solve(q, work, _NEWTON_PIVOT)
+            if accepted:
+                slope = 0.0
+                for i in range(q):
+                    slope -= work[4, 3, i] * work[4, 4, i]    # row 3 holds -J^T phi
+                    work[4, 5, i] = z[i] + work[4, 4, i]
+                new = _residual(q, s, k, target, work, work[4, 5], 5, 0, 5, 1)
+                accepted = new <= merit + _ARMIJO * slope
         if not accepted:   # the damped step, with the line search
             nu = min(2.0 * merit / (scale * scale), _MAX_DAMPING) + _MIN_DAMPING
             definite = False

@@ -57,6 +57,17 @@ def _residual(s, k, rho, target, mu, w, u0, z):
     return phi, jac, 0.5 * float(phi @ phi)
 
 
+def _sticking(s, k, rho, target, mu, u, z) -> bool:
+    """Whether every contact sticks at ``z`` (``u`` its rows' velocities): the kernel's ``_sticking``."""
+    for c in range(k):
+        o = s + 3 * c
+        r, n = rho[o], o + 2
+        qn = z[n] - r * (u[n] - target[c])
+        if not (qn > 0.0 and np.hypot(z[o] - r * u[o], z[o + 1] - r * u[o + 1]) <= mu[c] * qn):
+            return False
+    return True
+
+
 def _definite(a: np.ndarray, floor: float) -> bool:
     """Whether the kernel's Cholesky factorisation (``_cholesky_solve``, the same operations in the same
     order) of the symmetric ``a`` (q, q) finds every pivot above ``floor`` times its diagonal entry. (The two
@@ -89,9 +100,18 @@ def _newton(s, k, rho, target, mu, w, u0, z, scale):
             return z, it
         if it == MAX_NEWTON:
             break
+        u = u0 + w @ z
+        tried = _sticking(s, k, rho, target, mu, u, z) and _definite(w, _NEWTON_PIVOT)
+        accepted = False
+        if tried:   # the sticking mode's linear system: W d = t - u
+            goal = np.zeros(q)
+            goal[s + 2::3] = target[:k]
+            trial = z + np.linalg.solve(w, goal - u)
+            new = _residual(s, k, rho, target, mu, w, u0, trial)[2]
+            accepted = new <= merit + _ARMIJO * (-2.0 * merit)
         gram = jac.T @ jac
-        accepted = _definite(gram, _NEWTON_PIVOT)
-        if accepted:   # Newton's own step, whole, where it decreases the merit enough
+        if not accepted and not tried and _definite(gram, _NEWTON_PIVOT):
+            # Newton's own step, whole, where it decreases the merit enough (unless it is the step just tried)
             d = np.linalg.solve(gram, -(jac.T @ phi))
             trial = z + d
             new = _residual(s, k, rho, target, mu, w, u0, trial)[2]
