@@ -701,8 +701,8 @@ def _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, sti
                 restitution, radii_b, node_strut_b,
                 touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb, extb, accb, tensionb,
                 dirsb, warmb, rest_seq, ext_seq, ext_held, dx, imp, total, sl, contact, total_contact, armed, target,
-                landing, x0, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, kept, out_x,
-                out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason):
+                landing, x0, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, kept,
+                out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason):
     """Copy ``b``'s ``n_steps`` steps in its own arrays (``*b``; ``bs``, ``be`` its columns of the inputs), for
     :func:`_block`, which allocates; this loop hands a step dozens of arrays and is compiled without
     reference counts (a counted call of ``_ground_step`` adds and subtracts one per array: ~5 ns each)."""
