@@ -30,9 +30,9 @@ is always defined, is a descent direction of the merit, and becomes Newton's ste
 (Yamashita–Fukushima: superlinear under a local error bound, which holds for the indeterminate
 case); ``nu`` is kept within ``[1e-20, 1e-2]`` so that a poor warm start still takes near-Newton steps
 and ``J^T J + nu I`` stays definite where ``J`` is singular (in exact arithmetic: where round-off leaves a
-pivot of its Cholesky factor non-positive, ``nu`` is raised tenthousandfold until it is definite, and the
+pivot of its factor non-positive, ``nu`` is raised tenthousandfold until it is definite, and the
 block is left unsolved, not answered with NaN, where it is not even at ``nu = 1e-2``).
-Each iteration tries Newton's own step first (``nu = 0``), where the Cholesky factor of ``J^T J`` has every
+Each iteration tries Newton's own step first (``nu = 0``), where the factor of ``J^T J`` has every
 pivot above ``_NEWTON_PIVOT`` of its diagonal entry, and takes it whole where it meets the Armijo condition;
 otherwise the damped step, with its line search. Why: ``phi`` is piecewise linear wherever the contacts stick
 or separate, so from a warm start in the answer's modes Newton's step lands on the answer, while the damped
@@ -83,7 +83,7 @@ _MIN_STEP = 2.0 ** -40  # the line search's smallest step
 _MAX_DAMPING = 1e-2    # Levenberg–Marquardt's nu, at most (far from the answer: a step near Newton's) ...
 _MIN_DAMPING = 1e-20   # ... and at least (near it, where J may be singular: J^T J + nu I stays definite) ...
 _DAMPING_GROWTH = 1e4  # ... raised by this factor where round-off leaves it not definite (up to _MAX_DAMPING)
-_NEWTON_PIVOT = 1e-2   # J^T J's Cholesky pivots above this fraction of their diagonal entries: Newton's own step
+_NEWTON_PIVOT = 1e-2   # J^T J's factor's pivots above this fraction of their diagonal entries: Newton's own step
 MAX_ROWS = 7           # a strut's row and two contacts
 MAX_COUPLED = 48       # the rows of a coupled block (struts, contacts) beyond which the reference takes the step
 
@@ -251,35 +251,43 @@ def _strut_contact_solve(work):
 
 
 @njit(cache=True, error_model="numpy", inline="always", _nrt=False)
-def _cholesky_solve(q, work, floor):
+def _factor_solve(q, work, floor):
     """``work[4, 4] = work[3]^-1 work[4, 3]`` for the symmetric positive definite ``work[3]`` (q, q), factored
-    in place. Returns False, solving nothing, where a pivot is not above ``floor`` times its diagonal entry:
-    with ``floor`` 0, where it is not positive (``J^T J + nu I`` with ``J`` singular and ``nu`` below its
-    round-off, a strut resting on the ground, sticking at both ends, when ``|phi|`` is already small, is not
-    definite in floating point); with ``_NEWTON_PIVOT``, where ``J^T J`` is not comfortably definite."""
+    in place as ``L D L^T`` (its strict lower triangle gets ``L``'s, its diagonal ``1 / D``; ``D`` in
+    ``work[5, 4]``, ``work[5, 5]`` scratch): the Cholesky factor's pivots squared, with no square root and one
+    division a pivot (a small block's factor is a chain of them). Returns False, solving nothing, where a pivot
+    is not above ``floor`` times its diagonal entry: with ``floor`` 0, where it is not positive (``J^T J + nu I``
+    with ``J`` singular and ``nu`` below its round-off, a strut resting on the ground, sticking at both ends,
+    when ``|phi|`` is already small, is not definite in floating point); with ``_NEWTON_PIVOT``, where ``J^T J``
+    is not comfortably definite."""
     for j in range(q):
         d = work[3, j, j]
         for p in range(j):
-            d -= work[3, j, p] * work[3, j, p]
+            scaled = work[3, j, p] * work[5, 4, p]   # L_jp D_p
+            work[5, 5, p] = scaled
+            d -= work[3, j, p] * scaled
         if not d > floor * work[3, j, j]:
             return False
-        d = np.sqrt(d)
-        work[3, j, j] = d
+        work[5, 4, j] = d
+        inverse = 1.0 / d
+        work[3, j, j] = inverse
         for i in range(j + 1, q):
             e = work[3, i, j]
             for p in range(j):
-                e -= work[3, i, p] * work[3, j, p]
-            work[3, i, j] = e / d
+                e -= work[3, i, p] * work[5, 5, p]
+            work[3, i, j] = e * inverse
     for i in range(q):
         e = work[4, 3, i]
         for p in range(i):
             e -= work[3, i, p] * work[4, 4, p]
-        work[4, 4, i] = e / work[3, i, i]
+        work[4, 4, i] = e
+    for i in range(q):
+        work[4, 4, i] *= work[3, i, i]
     for i in range(q - 1, -1, -1):
         e = work[4, 4, i]
         for p in range(i + 1, q):
             e -= work[3, p, i] * work[4, 4, p]
-        work[4, 4, i] = e / work[3, i, i]
+        work[4, 4, i] = e
     return True
 
 
@@ -293,7 +301,8 @@ def _newton(q, s, k, target, work, z, scale, ground):
 
     ``work`` (6, M, M), M >= max(q, 7): [1] W, [2] the Jacobian, [3] the damped normal matrix (or W, for a
     sticking iterate's step); rows of [4]: u0, u, phi, -J^T phi (or t - u), the step, the trial z, rho (each
-    row's); rows of [5]: the trial's u and phi, each contact's Coulomb coefficient, the diagonal of J^T J."""
+    row's); rows of [5]: the trial's u and phi, each contact's Coulomb coefficient, the diagonal of J^T J, and
+    :func:`_factor_solve`'s D and scratch."""
     tol = BLOCK_TOL * scale
     merit = _residual(q, s, k, target, work, z, 4, 1, 4, 2)
     for it in range(MAX_NEWTON + 1):
@@ -320,7 +329,7 @@ def _newton(q, s, k, target, work, z, scale, ground):
                 for i in range(q):
                     for j in range(q):
                         work[3, i, j] = work[1, i, j]
-                tried = _cholesky_solve(q, work, _NEWTON_PIVOT)
+                tried = _factor_solve(q, work, _NEWTON_PIVOT)
             if tried:
                 for i in range(q):
                     work[4, 5, i] = z[i] + work[4, 4, i]
@@ -343,7 +352,7 @@ def _newton(q, s, k, target, work, z, scale, ground):
         # otherwise Newton's own step where J^T J is comfortably definite (unless it is the step just tried),
         # taken whole if it decreases the merit enough (module docstring)
         if not accepted and not tried:
-            accepted = _cholesky_solve(q, work, _NEWTON_PIVOT)
+            accepted = _factor_solve(q, work, _NEWTON_PIVOT)
             if accepted:
                 slope = 0.0
                 for i in range(q):
@@ -359,7 +368,7 @@ def _newton(q, s, k, target, work, z, scale, ground):
                     work[3, i, i] = work[5, 3, i] + nu
                     for j in range(i):
                         work[3, i, j] = work[3, j, i]
-                definite = _cholesky_solve(q, work, 0.0)
+                definite = _factor_solve(q, work, 0.0)
                 if definite or nu >= _MAX_DAMPING:
                     break
                 nu = min(nu * _DAMPING_GROWTH, _MAX_DAMPING)   # damped more where round-off leaves it not definite

@@ -69,24 +69,28 @@ def _sticking(s, k, rho, target, mu, u, z) -> bool:
 
 
 def _definite(a: np.ndarray, floor: float) -> bool:
-    """Whether the kernel's Cholesky factorisation (``_cholesky_solve``, the same operations in the same
+    """Whether the kernel's ``L D L^T`` factorisation (``_factor_solve``, the same operations in the same
     order) of the symmetric ``a`` (q, q) finds every pivot above ``floor`` times its diagonal entry. (The two
     matrices agree to round-off, so where a pivot is at the floor's level the twin and the kernel may decide
     differently.)"""
     q = len(a)
     low = np.zeros((q, q))
+    pivots = np.zeros(q)
+    scaled = np.zeros(q)
     for j in range(q):
         d = a[j, j]
         for p in range(j):
-            d -= low[j, p] * low[j, p]
+            scaled[p] = low[j, p] * pivots[p]
+            d -= low[j, p] * scaled[p]
         if not d > floor * a[j, j]:
             return False
-        low[j, j] = d = np.sqrt(d)
+        pivots[j] = d
+        inverse = 1.0 / d
         for i in range(j + 1, q):
             e = a[i, j]
             for p in range(j):
-                e -= low[i, p] * low[j, p]
-            low[i, j] = e / d
+                e -= low[i, p] * scaled[p]
+            low[i, j] = e * inverse
     return True
 
 
