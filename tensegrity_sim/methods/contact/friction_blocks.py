@@ -57,29 +57,55 @@ def _residual(s, k, rho, target, mu, w, u0, z):
     return phi, jac, 0.5 * float(phi @ phi)
 
 
+def _sticking(s, k, rho, target, mu, u, z) -> bool:
+    """Whether every contact sticks at ``z`` (``u`` its rows' velocities): the kernel's ``_sticking``."""
+    for c in range(k):
+        o = s + 3 * c
+        r, n = rho[o], o + 2
+        qn = z[n] - r * (u[n] - target[c])
+        if not (qn > 0.0 and np.hypot(z[o] - r * u[o], z[o + 1] - r * u[o + 1]) <= mu[c] * qn):
+            return False
+    return True
+
+
 def _definite(a: np.ndarray, floor: float) -> bool:
-    """Whether the kernel's Cholesky factorisation (``_cholesky_solve``, the same operations in the same
+    """Whether the kernel's ``L D L^T`` factorisation (``_factor_solve``, the same operations in the same
     order) of the symmetric ``a`` (q, q) finds every pivot above ``floor`` times its diagonal entry. (The two
     matrices agree to round-off, so where a pivot is at the floor's level the twin and the kernel may decide
     differently.)"""
     q = len(a)
     low = np.zeros((q, q))
+    pivots = np.zeros(q)
+    scaled = np.zeros(q)
     for j in range(q):
         d = a[j, j]
         for p in range(j):
-            d -= low[j, p] * low[j, p]
+            scaled[p] = low[j, p] * pivots[p]
+            d -= low[j, p] * scaled[p]
         if not d > floor * a[j, j]:
             return False
-        low[j, j] = d = np.sqrt(d)
+        pivots[j] = d
+        inverse = 1.0 / d
         for i in range(j + 1, q):
             e = a[i, j]
             for p in range(j):
-                e -= low[i, p] * low[j, p]
-            low[i, j] = e / d
+                e -= low[i, p] * scaled[p]
+            low[i, j] = e * inverse
     return True
 
 
-def _newton(s, k, rho, target, mu, w, u0, z, scale):
+def _strut_contact_solve(w, rho, r):
+    """The kernel's ``_strut_contact_solve``: ``W^-1 r`` for a strut's block with one ground contact, by
+    eliminating the contact's rows, or None where ``S`` is not comfortably positive."""
+    b = w[0, 1:4]
+    schur = w[0, 0] - rho[1] * (b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
+    if not schur > _NEWTON_PIVOT * w[0, 0]:
+        return None
+    d0 = (r[0] - rho[1] * (b[0] * r[1] + b[1] * r[2] + b[2] * r[3])) / schur
+    return np.concatenate([[d0], rho[1] * (r[1:4] - b * d0)])
+
+
+def _newton(s, k, rho, target, mu, w, u0, z, scale, ground):
     """The kernel's ``_newton`` from ``z`` (q,): ``(z, iterations)``, ``-1`` unsolved."""
     q = len(z)
     tol = BLOCK_TOL * scale
@@ -89,9 +115,24 @@ def _newton(s, k, rho, target, mu, w, u0, z, scale):
             return z, it
         if it == MAX_NEWTON:
             break
+        u = u0 + w @ z
+        step = None
+        if _sticking(s, k, rho, target, mu, u, z):   # the sticking mode's linear system: W d = t - u
+            goal = np.zeros(q)
+            goal[s + 2::3] = target[:k]
+            if ground and s == 1 and k == 1:
+                step = _strut_contact_solve(w, rho, goal - u)
+            elif _definite(w, _NEWTON_PIVOT):
+                step = np.linalg.solve(w, goal - u)
+        tried = step is not None
+        accepted = False
+        if tried:
+            trial = z + step
+            new = _residual(s, k, rho, target, mu, w, u0, trial)[2]
+            accepted = new <= merit + _ARMIJO * (-2.0 * merit)
         gram = jac.T @ jac
-        accepted = _definite(gram, _NEWTON_PIVOT)
-        if accepted:   # Newton's own step, whole, where it decreases the merit enough
+        if not accepted and not tried and _definite(gram, _NEWTON_PIVOT):
+            # Newton's own step, whole, where it decreases the merit enough (unless it is the step just tried)
             d = np.linalg.solve(gram, -(jac.T @ phi))
             trial = z + d
             new = _residual(s, k, rho, target, mu, w, u0, trial)[2]
@@ -134,7 +175,7 @@ def solve_block_reference(inv: np.ndarray, strut: bool, direction: np.ndarray, e
     # the coupled block's arithmetic is the strut's (a ground row's W_nn is its end's inverse mass exactly);
     # ``inv`` (3,): the ends' diagonal entries of M^-1 and its cross entry
     inv = np.asarray(inv, dtype=float)
-    return solve_coupled_reference(np.stack([inv[:2], [inv[2]] * 2], axis=1), g, s, k, target, np.full(k, mu), v, z)
+    return _solve_rows(np.stack([inv[:2], [inv[2]] * 2], axis=1), g, s, k, target, np.full(k, mu), v, z, True)
 
 
 def solve_coupled_reference(inv: np.ndarray, g: np.ndarray, s: int, k: int, target: np.ndarray, mu: np.ndarray,
@@ -143,6 +184,12 @@ def solve_coupled_reference(inv: np.ndarray, g: np.ndarray, s: int, k: int, targ
     unsolved, ``v`` unchanged); ``inv`` (nb, 2) (``M^-1``'s diagonal and, for the ``2 s`` struts' ends, the cross
     entry with the other end), ``g`` (s + 3k, 3 nb), ``v`` (nb, 3), ``z`` (s + 3k,) the warm start, the rest as
     there."""
+    return _solve_rows(inv, g, s, k, target, mu, v, z, False)
+
+
+def _solve_rows(inv, g, s, k, target, mu, v, z, ground):
+    """The answer of :func:`solve_coupled_reference` (its arguments); ``ground``: a strut's block of
+    :func:`solve_block_reference` (the kernel's ``_newton``'s)."""
     q = s + 3 * k
     nb = len(inv)
     g = g[:q, : 3 * nb]
@@ -163,7 +210,7 @@ def solve_coupled_reference(inv: np.ndarray, g: np.ndarray, s: int, k: int, targ
         rho[o: o + 3] = 1.0 / w[o + 2, o + 2]
         scale = max(scale, abs(target[c]) * rho[o], float(np.abs(z[o: o + 3]).max()))
     z[:s] = -(u0[:s] + w[:s, s:] @ z[s:]) / np.diag(w)[:s]
-    z, it = _newton(s, k, rho, target, np.asarray(mu, dtype=float), w, u0, z, scale)
+    z, it = _newton(s, k, rho, target, np.asarray(mu, dtype=float), w, u0, z, scale, ground)
     if it < 0:
         return v.copy(), z, -1
     return (v.ravel() + inverse @ (g.T @ z)).reshape(-1, 3), z, it

@@ -517,6 +517,15 @@ def pair_scratch(n_nodes, n_rigid, n_pairs):
             np.zeros((6, rows, rows)))
 
 
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _landing_target(gap, vz0, h, touch_tol):
+    """m/s: the drift's normal target of a node armed ``gap`` m above the ground that started the step at
+    ``vz0``: the rate that lands it on the ground, capped at the reversal of its start velocity but never
+    letting it sink past ``touch_tol`` deep (ContactSet.arm_step's floored). Computed only for the armed
+    nodes (two divisions a node)."""
+    return max(min(-gap / h, -vz0), min(-(gap + touch_tol) / h, 0.0))
+
+
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
                  gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu,
@@ -539,24 +548,27 @@ def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, 
             contact[p, j] = 0.0
             v[p, j, b] += half * acc[p, j, b]
     for p in range(n_nodes):
-        vz0 = v0[p, 2]
         gap = x[p, 2, b] - radii[p] - height
-        # the node's vertical velocity once its rigid strut's length rate is zeroed (ContactSet.arm_step's v_f)
-        vz = v[p, 2, b]
-        r = node_strut[p]
-        if r >= 0:
-            a = ends[rigid_members[r], 0]
-            c = ends[rigid_members[r], 1]
-            rate = ((v[c, 0, b] - v[a, 0, b]) * rigid_dirs[r, 0, b] + (v[c, 1, b] - v[a, 1, b]) * rigid_dirs[r, 1, b]
-                    + (v[c, 2, b] - v[a, 2, b]) * rigid_dirs[r, 2, b])
-            s = rate / rigid_w[r, r]
-            vz += (axial_inverse(inv_mass, a) if p == a else -axial_inverse(inv_mass, c)) * (s * rigid_dirs[r, 2, b])
-        armed[p] = inv_mass[p, 0] > 0.0 and min(gap - h * abs(v[p, 2, b]), gap + h * vz) <= touch_tol
-        # the drift's target lands the node on the ground, capped at the reversal of its start velocity
-        # but never letting it sink past touch_tol deep (ContactSet.arm_step's floored)
-        target[p] = max(min(-gap / h, -vz0), min(-(gap + touch_tol) / h, 0.0))
         landing[p] = max(-v[p, 2, b], 0.0) if gap > touch_tol else 0.0
-        found = found or armed[p]
+        # armed where within touch_tol by the drift's end at its vertical velocity, or at that velocity once its
+        # rigid strut's length rate is zeroed (ContactSet.arm_step's v_f, measured only where the first misses)
+        armed[p] = inv_mass[p, 0] > 0.0 and gap - h * abs(v[p, 2, b]) <= touch_tol
+        r = node_strut[p]
+        if not armed[p] and inv_mass[p, 0] > 0.0:
+            vz = v[p, 2, b]
+            if r >= 0:
+                a = ends[rigid_members[r], 0]
+                c = ends[rigid_members[r], 1]
+                rate = ((v[c, 0, b] - v[a, 0, b]) * rigid_dirs[r, 0, b]
+                        + (v[c, 1, b] - v[a, 1, b]) * rigid_dirs[r, 1, b]
+                        + (v[c, 2, b] - v[a, 2, b]) * rigid_dirs[r, 2, b])
+                s = rate / rigid_w[r, r]
+                vz += ((axial_inverse(inv_mass, a) if p == a else -axial_inverse(inv_mass, c))
+                       * (s * rigid_dirs[r, 2, b]))
+            armed[p] = gap + h * vz <= touch_tol
+        if armed[p]:
+            target[p] = _landing_target(gap, v0[p, 2], h, touch_tol)
+            found = True
     n_armed = 0
     if n_pairs:
         pair_impulse, touched = pairs[5], pairs[6]
@@ -589,8 +601,10 @@ def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, 
             if n_armed:   # the member pairs' impulses are summed in the solve: the reference solves again
                 return MEMBERS
             for p in range(n_nodes):
-                armed[p] = armed[p] or (inv_mass[p, 0] > 0.0 and x[p, 2, b] - radii[p] - height + h * v[p, 2, b]
-                                        <= touch_tol)
+                gap = x[p, 2, b] - radii[p] - height
+                if not armed[p] and inv_mass[p, 0] > 0.0 and gap + h * v[p, 2, b] <= touch_tol:
+                    armed[p] = True
+                    target[p] = _landing_target(gap, v0[p, 2], h, touch_tol)
                 for j in range(3):
                     v[p, j, b] = dx[p, j]
                     contact[p, j] = 0.0
@@ -615,20 +629,37 @@ def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, 
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _take_inputs(rest_seq, ext_seq, s, bs, be, rest, ext) -> bool:
+def _take_inputs(rest_seq, ext_seq, ext_held, s, bs, be, rest, ext) -> bool:
     """Step ``s``'s inputs into ``rest`` (nc, 1) (column ``bs`` of ``rest_seq``) and ``ext`` (N, 3, 1) (column ``be``
-    of ``ext_seq``); whether they changed."""
+    of ``ext_seq``); whether they changed. ``ext_held`` (T,): :func:`_held_external`'s (where it holds step ``s``,
+    ``ext`` already has step ``s - 1``'s, the same numbers: not compared again)."""
     changed = False
     for ci in range(rest.shape[0]):
         if rest[ci, 0] != rest_seq[s, ci, bs]:
             rest[ci, 0] = rest_seq[s, ci, bs]
             changed = True
+    if ext_held[s]:
+        return changed
     for i in range(ext.shape[0]):
         for j in range(3):
             if ext[i, j, 0] != ext_seq[s, i, j, be]:
                 ext[i, j, 0] = ext_seq[s, i, j, be]
                 changed = True
     return changed
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _held_external(ext_seq, held):
+    """``held`` (T,) bool: whether step ``s`` >= 1 of ``ext_seq`` (T, N, 3, Be) repeats step ``s - 1``'s external
+    forces for every copy (``==``: a NaN never does), found once a call for a schedule of every copy (Be = 1: an
+    environment's copies under the same forces, where comparing them again at every copy's step took 2 % of its
+    run); False at step 0 and for a schedule per copy."""
+    for s in range(ext_seq.shape[0]):
+        same = s > 0 and ext_seq.shape[3] == 1
+        for i in range(ext_seq.shape[1]):
+            for j in range(3):
+                same = same and ext_seq[s, i, j, 0] == ext_seq[s - 1, i, j, 0]
+        held[s] = same
 
 
 def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest, damping,
@@ -674,9 +705,10 @@ def _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, sti
                 damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu,
                 restitution, radii_b, node_strut_b,
                 touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb, extb, accb, tensionb,
-                dirsb, warmb, rest_seq, ext_seq, dx, imp, total, sl, contact, total_contact, armed, target, landing, x0,
-                v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, kept, out_x, out_v,
-                out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason, peak, snaps, was_slack):
+                dirsb, warmb, rest_seq, ext_seq, ext_held, dx, imp, total, sl, contact, total_contact, armed, target,
+                landing, x0, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, kept,
+                out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason, peak, snaps,
+                was_slack):
     """Copy ``b``'s ``n_steps`` steps in its own arrays (``*b``; ``bs``, ``be`` its columns of the inputs), for
     :func:`_block`, which allocates; this loop hands a step dozens of arrays and is compiled without
     reference counts (a counted call of ``_ground_step`` adds and subtracts one per array: ~5 ns each)."""
@@ -692,7 +724,7 @@ def _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, sti
             for j in range(3):
                 x0[i, j] = xb[i, j, 0]
                 v0[i, j] = vb[i, j, 0]
-        if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, s, bs, be, restb, extb):
+        if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, ext_held, s, bs, be, restb, extb):
             # after the first step, at the last step's end: its members' geometry is kept (a reel's every step)
             _forces(xb, vb, restb, extb, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b, damping_b,
                     inv_mass_b, gravity_b, rigid_members_b, accb, tensionb, dirsb, sl, 0, kept, s == 0)
@@ -795,6 +827,8 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
     out6 = np.empty(6)
     s5 = np.empty(5)
     t5 = np.empty(5)
+    ext_held = np.empty(ext_seq.shape[0], dtype=np.bool_)
+    _held_external(ext_seq, ext_held)
     first = np.int64(blk)   # prange's index is unsigned: with a signed number it would make a float
     for b in range(n_copies * first // blocks, n_copies * (first + 1) // blocks):
         gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, xb, vb, accb, extb, restb, tensionb, dirsb)
@@ -815,7 +849,7 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
                     damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu,
                     restitution, radii_b,
                     node_strut_b, touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb,
-                    extb, accb, tensionb, dirsb, warmb, rest_seq, ext_seq, dx, imp, total, sl, contact,
+                    extb, accb, tensionb, dirsb, warmb, rest_seq, ext_seq, ext_held, dx, imp, total, sl, contact,
                     total_contact, armed, target, landing, x0, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3,
                     ends4, out6, s5, t5, pairs, kept, out_x, out_v, out_impulses, out_slack, out_contact,
                     out_pairs, n_records, failed, reason, peak, snaps, was_slack)
