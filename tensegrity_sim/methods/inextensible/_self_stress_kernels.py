@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..qp._qp_kernels import add_row, cho_solve, cholesky, delassus, dense_rows
+from ..qp._qp_kernels import add_row, cho_solve, cholesky, delassus
 
 __all__ = ["locked_space"]
 
@@ -115,7 +115,13 @@ def locked_space(nodes, directions, n_free, n_eq, cables, at_limit, y, load_basi
             if r >= n_eq:
                 members[r - n_eq] = cables[i - n_eq]
             r += 1
-    a_t = np.ascontiguousarray(dense_rows(b_nodes, b_dirs, n_free, np.ones(3 * n_free)).T)
+    a_t = np.zeros((3 * n_free, kb))   # A_B^T built as such (not A_B transposed and copied): -n at end a, +n at b
+    for r in range(kb):
+        for e in range(2):
+            node = b_nodes[r, e]
+            if node >= 0:
+                for j in range(3):
+                    a_t[3 * node + j, r] = (2.0 * e - 1.0) * b_dirs[r, j]
     same = refine and members.shape[0] == load_cables.shape[0]
     if same:
         for i in range(members.shape[0]):

@@ -104,14 +104,20 @@ def solve_rows(entry, settings, hessian, sqrt_mass, mass, nodes, directions, n_f
     set's answer), and the working set's Cholesky factor and rows (empty when DAQP answered: see
     ``_self_stress_kernels.locked_space``, which refines with the factor)."""
     k = targets.shape[0]
-    bupper = targets / unit
     if guess:
         tolerances = settings.view(np.float64)
+        # at unit scale (every compiled step's) the problem as given: dividing and multiplying by 1.0 changes
+        # no bit, and the guess writes to none of its arguments
+        same = unit == 1.0
         guessed, v, y, factor, rows = working_set_answer(
-            nodes, directions, (1.0 / mass).reshape((n_free, 3)), (v0 / unit).reshape((n_free, 3)), bupper, n_eq,
-            warm, tolerances[_PRIMAL_TOL], tolerances[_DUAL_TOL], tolerances[_SING_TOL])
+            nodes, directions, (1.0 / mass).reshape((n_free, 3)), (v0 if same else v0 / unit).reshape((n_free, 3)),
+            targets if same else targets / unit, n_eq, warm, tolerances[_PRIMAL_TOL], tolerances[_DUAL_TOL],
+            tolerances[_SING_TOL])
         if guessed:
-            return v.reshape(-1) * unit, unit * y, 1, 0, factor, rows
+            if not same:
+                v, y = v * unit, unit * y
+            return v.reshape(-1), y, 1, 0, factor, rows
+    bupper = targets / unit
     a = dense_rows(nodes, directions, n_free, sqrt_mass)
     lower = np.full(k, -1e30)
     sense = np.empty(k, dtype=np.int32)
