@@ -32,20 +32,6 @@ _PAIR_RECORDS = 512   # member-pair impulse records a copy keeps at most in a co
 __all__ = ["ElasticBatch"]
 
 
-# the ground run's blocks of copies a thread, handed out to the threads as they come free (numba's chunks of one):
-# with one block a thread, a thread whose copies roll and slide (more friction blocks to solve) or that the machine
-# slows holds the others up at the run's end
-_BLOCKS_PER_THREAD = 4
-
-
-def _ground_run(x, *arguments) -> None:
-    """``_ground_kernels.ground_steps`` of the copies of ``x`` (N, 3, B) with the arguments after it, over blocks
-    of copies (:data:`_BLOCKS_PER_THREAD`) handed out to numba's threads as they come free."""
-    b = x.shape[2]
-    with numba.parallel_chunksize(1):
-        ground_kernels.ground_steps(x, *arguments, min(b, _BLOCKS_PER_THREAD * numba.get_num_threads()))
-
-
 class ElasticBatch:
     """Steps B copies of ``system`` with the elastic method; checks ``dt`` as :class:`ElasticMethod` does.
 
@@ -300,8 +286,9 @@ class ElasticBatch:
         records = np.empty((b, n_pairs and max(n_pairs, min(steps * n_pairs, _PAIR_RECORDS)), 6))
         seq = _HELD if commands is None else self._inputs(commands, rest, ext, steps, first_step)
         summary = (np.zeros((nc, b)), np.zeros((nc, b), dtype=np.int64), np.zeros((nc, b), dtype=bool))   # unread
-        _ground_run(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache[:3], *self.ground, self._cache[3],
-                    *seq, out_x, out_v, out_imp, out_slack, out_contact, records, count, failed, reason, *summary)
+        ground_kernels.ground_steps(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache[:3], *self.ground,
+                                    self._cache[3], *seq, out_x, out_v, out_imp, out_slack, out_contact, records,
+                                    count, failed, reason, *summary, min(b, numba.get_num_threads()))
         self._inputs_in_effect(seq, rest, ext, commands)
         for c in np.flatnonzero(count > 0):
             self.pairs.update({(k, c): pairs for k, pairs in self.single._pair_records(records[c, :count[c]]).items()})
@@ -395,8 +382,9 @@ class ElasticBatch:
         failed, reason, count = (np.empty(b, dtype=np.int64) for _ in range(3))
         seq = _HELD if commands is None else self._inputs(commands, rest, ext, steps, first_step)
         peak, snaps, slack = np.zeros((nc, b)), np.zeros((nc, b), dtype=np.int64), np.array(was_slack, order="C")
-        _ground_run(x, v, rest, ext, self.dt, steps, steps, *self._model, *self._cache[:3], *self.ground,
-                    self._cache[3], *seq, *out, np.empty((b, 0, 6)), count, failed, reason, peak, snaps, slack)
+        ground_kernels.ground_steps(x, v, rest, ext, self.dt, steps, steps, *self._model, *self._cache[:3],
+                                    *self.ground, self._cache[3], *seq, *out, np.empty((b, 0, 6)), count, failed,
+                                    reason, peak, snaps, slack, min(b, numba.get_num_threads()))
         with np.errstate(invalid="ignore", over="ignore"):
             finite = np.isfinite(np.add.reduce(x, axis=None) + np.add.reduce(v, axis=None)
                                  + np.add.reduce(out[2], axis=None))
