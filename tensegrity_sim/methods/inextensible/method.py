@@ -735,9 +735,8 @@ class InextensibleMethod(StepMethod):
     def _whole(self, x_m, v, v0, tau, d, length, limits, floor, taut, reel, reeling, slack, hint):
         """The sub-step from ``x_m`` of a structure that can lock, without a ground, taken whole (:meth:`_midpoint`'s
         result) though a snap was located inside it, where the snap does not happen on the constrained path: every
-        ``slack`` cable whose free path crosses its
-        limit in it (:meth:`_snap_times`' cables; ``d``, ``length`` their vectors and lengths at the start) reaches
-        it by its path's curvature alone (its rate at the start would not close its gap in the sub-step) and ends
+        ``slack`` cable whose free path crosses its limit in it (:meth:`_snap_times`' cables; ``d``, ``length`` their
+        vectors and lengths at the start) reaches it by its path's curvature alone (its rate at the start would not close its gap in the sub-step) and ends
         it short of its limit (below ``floor``), with no impulse and no motor pulling it; else None, nothing
         changed (the sub-step is cut at the snap, with no QP taken for the try where a cable closes at its
         rate). Why: a slack cable of a locked structure (a prestressed icosahedron with rigid struts: its limits
