@@ -681,7 +681,7 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
     impulse of a step (raised from what it holds; a NaN is none, as ``np.fmax``), and ``snaps`` (nc, B) int64,
     each cable's steps that ended taut after a step that ended slack (added to), from ``was_slack`` (nc, B) bool
     at the first step's start, which gets the slack cables at the last step's end (what a run keeping no step
-    reads instead of every step's impulses and slack flags).
+    reads instead of every step's impulses and slack flags); with no column (nc, 0), none is computed.
     Each copy is stepped in contiguous arrays of its own (a batch of one: the very arithmetic of
     ``Simulator``'s loop, and no stride of B between a copy's numbers).
 
@@ -754,10 +754,12 @@ def _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, sti
                     n_records[b] = r + 1
         for ci in range(nc):
             total[ci] += imp[ci]
-            if imp[ci] > peak[ci, b]:   # (a NaN is no peak)
-                peak[ci, b] = imp[ci]
-            snaps[ci, b] += was_slack[ci, b] and not sl[ci]
-            was_slack[ci, b] = sl[ci]
+        if peak.shape[1]:   # the summary asked for
+            for ci in range(nc):
+                if imp[ci] > peak[ci, b]:   # (a NaN is no peak)
+                    peak[ci, b] = imp[ci]
+                snaps[ci, b] += was_slack[ci, b] and not sl[ci]
+                was_slack[ci, b] = sl[ci]
         for i in range(n_nodes):
             for j in range(3):
                 total_contact[i, j] += contact[i, j]

@@ -285,7 +285,8 @@ class ElasticBatch:
         failed, reason, count = (np.empty(b, dtype=np.int64) for _ in range(3))
         records = np.empty((b, n_pairs and max(n_pairs, min(steps * n_pairs, _PAIR_RECORDS)), 6))
         seq = _HELD if commands is None else self._inputs(commands, rest, ext, steps, first_step)
-        summary = (np.zeros((nc, b)), np.zeros((nc, b), dtype=np.int64), np.zeros((nc, b), dtype=bool))   # unread
+        # no summary asked of the kernel (no column): every step is kept, and the run sums them up
+        summary = tuple(np.empty((nc, 0), dtype=t) for t in (float, np.int64, bool))
         ground_kernels.ground_steps(x, v, rest, ext, self.dt, steps, 1, *self._model, *self._cache[:3], *self.ground,
                                     self._cache[3], *seq, out_x, out_v, out_imp, out_slack, out_contact, records,
                                     count, failed, reason, *summary, min(b, numba.get_num_threads()))

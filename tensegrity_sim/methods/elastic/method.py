@@ -184,9 +184,9 @@ class ElasticMethod(StepMethod):
         self._flags = tuple(np.empty(1, dtype=np.int64) for _ in range(3))
         self._no_records = np.empty((1, 0, 6))
         # the kernel's summary of its steps (peak impulses, snaps, slack), which a batch that keeps no step reads;
-        # Simulator reads its kept steps instead: scratch here
+        # Simulator reads its kept steps instead: none asked for (no column)
         nc = system.n_cables
-        self._summary = (np.zeros((nc, 1)), np.zeros((nc, 1), dtype=np.int64), np.zeros((nc, 1), dtype=bool))
+        self._summary = (np.empty((nc, 0)), np.empty((nc, 0), dtype=np.int64), np.empty((nc, 0), dtype=bool))
         self._plain = self.order == 2 and not self.locate_switches
         self._weights = np.array(WEIGHTS[self.order])
         self._model = kernels.model_arrays(system, self.rigid)
