@@ -660,23 +660,35 @@ def _settle_contacts(x, v, v0, ends, inv_mass, rigid_members, rigid_w, rigid_dir
 
 
 @njit(cache=True, error_model="numpy", inline="always", _nrt=False)
-def _take_inputs(rest_seq, ext_seq, ext_held, s, bs, be, rest, ext, w) -> bool:
-    """Step ``s``'s inputs into column ``w`` of ``rest`` (nc, W) (column ``bs`` of ``rest_seq``) and ``ext``
-    (N, 3, W) (column ``be`` of ``ext_seq``); whether they changed. ``ext_held`` (T,): :func:`_held_external`'s
-    (where it holds step ``s``, ``ext`` already has step ``s - 1``'s, the same numbers: not compared again)."""
-    changed = False
+def _take_inputs(rest_seq, ext_seq, ext_held, s, first, done, rest, ext, moved) -> bool:
+    """Step ``s``'s inputs into a chunk's ``rest`` (nc, W) and ``ext`` (N, 3, W) from columns ``first`` ... of
+    ``rest_seq`` and ``ext_seq`` (or their one column of every copy), for the copies not ``done``; ``moved``
+    (W,) gets whether a copy's changed, and the return whether any did. ``ext_held`` (T,):
+    :func:`_held_external`'s (where it holds step ``s``, ``ext`` already has step ``s - 1``'s, the same numbers:
+    not compared again). Each number's copies are walked innermost (consecutive columns of the inputs)."""
+    width = rest.shape[1]
+    by_copy_rest = rest_seq.shape[2] > 1   # each copy's own column of the inputs (else one of every copy's)
+    by_copy_ext = ext_seq.shape[3] > 1
+    for w in range(width):
+        moved[w] = False
     for ci in range(rest.shape[0]):
-        if rest[ci, w] != rest_seq[s, ci, bs]:
-            rest[ci, w] = rest_seq[s, ci, bs]
-            changed = True
-    if ext_held[s]:
-        return changed
-    for i in range(ext.shape[0]):
-        for j in range(3):
-            if ext[i, j, w] != ext_seq[s, i, j, be]:
-                ext[i, j, w] = ext_seq[s, i, j, be]
-                changed = True
-    return changed
+        for w in range(width):
+            value = rest_seq[s, ci, first + w if by_copy_rest else 0]
+            if not done[w] and rest[ci, w] != value:
+                rest[ci, w] = value
+                moved[w] = True
+    if not ext_held[s]:
+        for i in range(ext.shape[0]):
+            for j in range(3):
+                for w in range(width):
+                    value = ext_seq[s, i, j, first + w if by_copy_ext else 0]
+                    if not done[w] and ext[i, j, w] != value:
+                        ext[i, j, w] = value
+                        moved[w] = True
+    any_moved = False
+    for w in range(width):
+        any_moved = any_moved or moved[w]
+    return any_moved
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -713,8 +725,8 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
     each cable's steps that ended taut after a step that ended slack (added to), from ``was_slack`` (nc, B) bool
     at the first step's start, which gets the slack cables at the last step's end (what a run keeping no step
     reads instead of every step's impulses and slack flags); with no column (nc, 0), none is computed.
-    Each copy is stepped in contiguous arrays of its own (a batch of one: the very arithmetic of
-    ``Simulator``'s loop, and no stride of B between a copy's numbers).
+    A block's copies are stepped in chunks of ``CHUNK`` (:func:`_chunk_steps`), each copy with the very arithmetic
+    of ``Simulator``'s loop (a batch of one), bit for bit.
 
     ``rest_seq`` (T, nc, Bs), ``ext_seq`` (T, N, 3, Be): with T = ``n_steps``, each step's rest lengths and external
     forces (a command schedule evaluated at the steps' start times; Bs, Be = B, or 1 for every copy: an environment's
@@ -769,8 +781,6 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
     nc = rest.shape[0]
     n_pairs = pair_nodes.shape[0]
     half = 0.5 * h
-    by_copy_rest = rest_seq.shape[2] > 1   # each copy's own column of the inputs (else one of every copy's)
-    by_copy_ext = ext_seq.shape[3] > 1
     for s in range(n_steps):
         for i in range(n_nodes):
             for j in range(3):
@@ -786,12 +796,7 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
                     reason[b] = FULL
                     done[w] = True
         if rest_seq.shape[0] > 0:
-            any_moved = False
-            for w in range(width):
-                b = first + w
-                moved[w] = not done[w] and _take_inputs(rest_seq, ext_seq, ext_held, s, b if by_copy_rest else 0,
-                                                        b if by_copy_ext else 0, rest, ext, w)
-                any_moved = any_moved or moved[w]
+            any_moved = _take_inputs(rest_seq, ext_seq, ext_held, s, first, done, rest, ext, moved)
             if any_moved:
                 # a copy's new inputs: forces computed anew at its state (after the first step from the members'
                 # geometry that the last step's end kept: a reel's every step); a copy without keeps its carry
@@ -875,7 +880,7 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
                     total[ci, w] = 0.0
 
 
-CHUNK = 8   # copies stepped together (a chunk's arrays, ~20 of N x 3 x CHUNK numbers, stay in the core's caches)
+CHUNK = 32   # copies stepped together (measured on Roll-v0's vector environment: 8, 16, 32, 64 took 0.80, 0.74, 0.71, 0.75 of the time a copy at a time took)
 
 
 @njit(cache=True, error_model="numpy")
