@@ -144,12 +144,13 @@ def _crosses(d, limits, v, v0, tau, cable_ends, c, u, um):
     relative velocity and mean free velocity of its ends."""
     a = cable_ends[c, 0]
     b = cable_ends[c, 1]
-    de = np.empty(3)
     for j in range(3):
         u[j] = v[b, j] - v[a, j]
         um[j] = 0.5 * (u[j] + v0[b, j] - v0[a, j])   # numpy's order: (u + v0_b) - v0_a
-        de[j] = d[c, j] + tau * um[j]
-    return dot3(de[0], de[1], de[2], de[0], de[1], de[2]) > limits[c] * limits[c]
+    de0 = d[c, 0] + tau * um[0]   # the end's vector (no array: this runs for every slack cable, every step)
+    de1 = d[c, 1] + tau * um[1]
+    de2 = d[c, 2] + tau * um[2]
+    return dot3(de0, de1, de2, de0, de1, de2) > limits[c] * limits[c]
 
 
 @njit(cache=True)
@@ -161,11 +162,13 @@ def first_snap(d, limits, v, v0, tau, cable_ends, slack, newton_iter):
     first = 1.0
     u = np.empty(3)
     um = np.empty(3)
+    acc = np.empty(3)   # the crossing cable's scratch, made once a call
+    p = np.empty(3)
+    dp = np.empty(3)
     for c in range(d.shape[0]):
         if not slack[c] or not _crosses(d, limits, v, v0, tau, cable_ends, c, u, um):
             continue
         lim = limits[c]
-        acc = np.empty(3)
         for j in range(3):
             acc[j] = 2.0 * (um[j] - u[j]) / tau
         # start: the crossing of the straight path d + t tau u_mean (exact at t = 1), small root form
@@ -173,8 +176,6 @@ def first_snap(d, limits, v, v0, tau, cable_ends, slack, newton_iter):
         aa = dot3(um[0], um[1], um[2], um[0], um[1], um[2]) * tau * tau
         cc = dot3(d[c, 0], d[c, 1], d[c, 2], d[c, 0], d[c, 1], d[c, 2]) - lim * lim
         t = min(max(-cc / (bb + np.sqrt(max(bb * bb - aa * cc, 0.0))), 0.0), 1.0)
-        p = np.empty(3)
-        dp = np.empty(3)
         for _ in range(newton_iter):
             for j in range(3):
                 p[j] = d[c, j] + (t * tau) * u[j] + (0.5 * (t * tau) ** 2) * acc[j]
@@ -491,18 +492,16 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
                 contact[armed[c], j] += impulses[c, j]
     x_f = _drift(x_m, 0.5 * tau, v_f)
     d, length = cable_geometry(x_f, cable_ends)
-    binding = np.zeros(0, dtype=np.bool_)
-    members = np.zeros(0, dtype=load_cables.dtype)
-    a_t = np.zeros((3 * n_free, 0))
-    basis = None
-    if ok and locked and k:
-        rows_cables = np.flatnonzero(cables)
-        at_limit = np.empty(rows_cables.shape[0], dtype=np.bool_)
-        for i in range(rows_cables.shape[0]):
-            at_limit[i] = length[rows_cables[i]] >= taut[rows_cables[i]]
-        binding, members, a_t, basis = locked_space(nodes, m_n, n_free, n_eq, rows_cables, at_limit, y, load_basis,
-                                                    load_cables, load_largest, refine, rank_tol, exact, weight, shared,
-                                                    work, factor)
+    if not (ok and locked and k):   # no rule: its space empty
+        return (ok, x_f, v_f, y, cables, nodes, m_n, d, length, np.zeros(0, dtype=np.bool_),
+                np.zeros(0, dtype=load_cables.dtype), np.zeros((3 * n_free, 0)), None, contact, pulling)
+    rows_cables = np.flatnonzero(cables)
+    at_limit = np.empty(rows_cables.shape[0], dtype=np.bool_)
+    for i in range(rows_cables.shape[0]):
+        at_limit[i] = length[rows_cables[i]] >= taut[rows_cables[i]]
+    binding, members, a_t, basis = locked_space(nodes, m_n, n_free, n_eq, rows_cables, at_limit, y, load_basis,
+                                                load_cables, load_largest, refine, rank_tol, exact, weight, shared,
+                                                work, factor)
     return ok, x_f, v_f, y, cables, nodes, m_n, d, length, binding, members, a_t, basis, contact, pulling
 
 

@@ -67,9 +67,9 @@ def _refined_space(nodes, directions, n_free, load_basis, load_largest, rank_tol
         if not cholesky(factor, 0.0):
             return None
     basis = load_basis
+    column = np.empty(k)   # one column's solve, made once
     for _ in range(2):
         solved = np.empty((k, d))
-        column = np.empty(k)
         for c in range(d):
             column[:] = basis[:, c]
             cho_solve(factor, column)
