@@ -224,7 +224,7 @@ def composed_steps(x, v, rest, ext, h, n_steps, every, weights, locate, min_spli
     imp = np.empty(nc)
     total = np.empty(nc)
     for b in range(n_copies):
-        gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs)
+        gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs, 0)
         for ci in range(nc):
             wslack[ci] = slack[ci, b]
             total[ci] = 0.0
@@ -236,6 +236,6 @@ def composed_steps(x, v, rest, ext, h, n_steps, every, weights, locate, min_spli
                 total[ci] += imp[ci]
             if (s + 1) % every == 0 or s == n_steps - 1:
                 keep(wx, wv, 0, total, wslack, s // every, b, out_x, out_v, out_impulses, out_slack)
-        scatter_copy(wx, wv, wacc, wten, wdirs, b, x, v, acc, tension, rigid_dirs)
+        scatter_copy(wx, wv, wacc, wten, wdirs, 0, b, x, v, acc, tension, rigid_dirs)
         for ci in range(nc):
             slack[ci, b] = wslack[ci]

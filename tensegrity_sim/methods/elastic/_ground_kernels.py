@@ -45,7 +45,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ._kernels import _close, _drift, _forces, gather_copy, keep, scatter_copy
+from ._kernels import _close_copies, _drift_copies, _forces_copies, gather_copy, scatter_copy
 from .._mass_kernels import axial_inverse
 from ..contact._detection_kernels import _closest
 from ..contact._friction_block_kernels import MAX_COUPLED, MAX_ROWS, lone_contact, solve_block, solve_coupled
@@ -527,125 +527,168 @@ def _landing_target(gap, vz0, h, touch_tol):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _ground_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                 gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, height, mu,
-                 restitution, radii,
-                 node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, dx, impulses, slack,
-                 contact, armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5,
-                 t5, pairs, kept, b):
-    """One step of copy ``b`` with the contacts (module docstring), in place as ``_elastic_kernels._step``;
-    ``contact`` (N, 3) gets the ground's impulses of the step, ``pairs`` (:func:`pair_scratch`) the member
-    pairs' (``v0`` (N, 3): the velocities at the step's start), ``kept`` (m, 4) the members' lengths and unit vectors
-    at its end (``_kernels._forces``': the next step's forces after new inputs read them). Returns 0, or the reason the step is left to
-    the reference (``UNSOLVED``, ``MEMBERS``: the copy's ``x``, ``v`` and carry are then not those of a step,
-    the caller restarts it)."""
-    n_nodes = x.shape[0]
+def _drift_contacts(x, v, v0, h, ends, inv_mass, rigid_members, rigid_w, rigid_dirs, height, mu, radii, node_strut,
+                    touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, dx, v0b, contact, contacts,
+                    armed, target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5,
+                    pairs, done, why):
+    """Each copy (not ``done``) of a chunk's ``x``, ``v`` (N, 3, W) after the opening half-kick, one after the
+    other (one call a chunk: a call hands over every array, ~4 ns each): the nodes (and member pairs) that the
+    drift would carry into contact armed (``ContactSet.arm_step``, module docstring) and their velocity problem
+    solved, in place on ``v``; ``v0`` (N, 3, W): the velocities at the step's start. ``contacts`` (N, 3, W) gets
+    each copy's impulses, ``landing`` (N, W) the closing speeds of its nodes not yet touching
+    (:func:`_settle_contacts`' restitution), ``pairs`` (:func:`pair_scratch`) the member pairs' (of the last
+    copy: a chunk with pairs holds one), ``work`` (W, ...) and ``z`` (W, ...) each copy's solver scratch;
+    ``dx``, ``v0b``, ``contact`` (N, 3) and the rest are scratch. ``why`` (W,) int64: 0, or why the copy's step
+    is left to the reference (``UNSOLVED``, ``MEMBERS``: its ``v`` is then not a step's)."""
+    n_nodes, _, width = x.shape
     n_pairs = pair_nodes.shape[0]
-    half = 0.5 * h
-    found = False
-    for p in range(n_nodes):
-        for j in range(3):
-            contact[p, j] = 0.0
-            v[p, j, b] += half * acc[p, j, b]
-    for p in range(n_nodes):
-        gap = x[p, 2, b] - radii[p] - height
-        landing[p] = max(-v[p, 2, b], 0.0) if gap > touch_tol else 0.0
-        # armed where within touch_tol by the drift's end at its vertical velocity, or at that velocity once its
-        # rigid strut's length rate is zeroed (ContactSet.arm_step's v_f, measured only where the first misses)
-        armed[p] = inv_mass[p, 0] > 0.0 and gap - h * abs(v[p, 2, b]) <= touch_tol
-        r = node_strut[p]
-        if not armed[p] and inv_mass[p, 0] > 0.0:
-            vz = v[p, 2, b]
-            if r >= 0:
-                a = ends[rigid_members[r], 0]
-                c = ends[rigid_members[r], 1]
-                rate = ((v[c, 0, b] - v[a, 0, b]) * rigid_dirs[r, 0, b]
-                        + (v[c, 1, b] - v[a, 1, b]) * rigid_dirs[r, 1, b]
-                        + (v[c, 2, b] - v[a, 2, b]) * rigid_dirs[r, 2, b])
-                s = rate / rigid_w[r, r]
-                vz += ((axial_inverse(inv_mass, a) if p == a else -axial_inverse(inv_mass, c))
-                       * (s * rigid_dirs[r, 2, b]))
-            armed[p] = gap + h * vz <= touch_tol
-        if armed[p]:
-            target[p] = _landing_target(gap, v0[p, 2], h, touch_tol)
-            found = True
-    n_armed = 0
-    if n_pairs:
-        pair_impulse, touched = pairs[5], pairs[6]
-        for k in range(n_pairs):
-            touched[k] = False
-            for j in range(4):
-                pair_impulse[k, j] = 0.0
-        n_armed = _arm_pairs_for(x, v, v0, h, pair_nodes, pair_radii, touch_tol, pair_restitution, warm[0], ends4,
-                                 out6, s5, t5, pairs, b)
-        if n_armed < 0:
-            return MEMBERS
-    if found or n_armed:
-        for p in range(n_nodes):   # the free velocities, for a solve again (dx is the drift's scratch)
+    for w in range(width):
+        why[w] = 0
+        if done[w]:
+            continue
+        found = False
+        for p in range(n_nodes):
             for j in range(3):
-                dx[p, j] = v[p, j, b]
-        while True:
-            why = _solve_all(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
-                             warm[0], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes,
-                             pair_mu, pairs)
-            if why:
-                return why
-            # ContactSet.missed: the answer carries an unarmed node into the ground (its strut turned by its other
-            # end's contact): those within touch_tol of it by the drift's end are armed too, and solved again
-            missed = False
-            for p in range(n_nodes):
-                end_gap = x[p, 2, b] - radii[p] - height + h * v[p, 2, b]
-                missed = missed or (not armed[p] and inv_mass[p, 0] > 0.0 and end_gap < -touch_tol)
-            if not missed:
-                break
-            if n_armed:   # the member pairs' impulses are summed in the solve: the reference solves again
-                return MEMBERS
-            for p in range(n_nodes):
-                gap = x[p, 2, b] - radii[p] - height
-                if not armed[p] and inv_mass[p, 0] > 0.0 and gap + h * v[p, 2, b] <= touch_tol:
-                    armed[p] = True
-                    target[p] = _landing_target(gap, v0[p, 2], h, touch_tol)
+                contact[p, j] = 0.0
+                v0b[p, j] = v0[p, j, w]
+            gap = x[p, 2, w] - radii[p] - height
+            landing[p, w] = max(-v[p, 2, w], 0.0) if gap > touch_tol else 0.0
+            # armed where within touch_tol by the drift's end at its vertical velocity, or at that velocity once
+            # its rigid strut's length rate is zeroed (ContactSet.arm_step's v_f, measured only where the first
+            # misses)
+            armed[p] = inv_mass[p, 0] > 0.0 and gap - h * abs(v[p, 2, w]) <= touch_tol
+            r = node_strut[p]
+            if not armed[p] and inv_mass[p, 0] > 0.0:
+                vz = v[p, 2, w]
+                if r >= 0:
+                    a = ends[rigid_members[r], 0]
+                    c = ends[rigid_members[r], 1]
+                    rate = ((v[c, 0, w] - v[a, 0, w]) * rigid_dirs[r, 0, w]
+                            + (v[c, 1, w] - v[a, 1, w]) * rigid_dirs[r, 1, w]
+                            + (v[c, 2, w] - v[a, 2, w]) * rigid_dirs[r, 2, w])
+                    s = rate / rigid_w[r, r]
+                    vz += ((axial_inverse(inv_mass, a) if p == a else -axial_inverse(inv_mass, c))
+                           * (s * rigid_dirs[r, 2, w]))
+                armed[p] = gap + h * vz <= touch_tol
+            if armed[p]:
+                target[p] = _landing_target(gap, v0b[p, 2], h, touch_tol)
+                found = True
+        n_armed = 0
+        if n_pairs:
+            pair_impulse, touched = pairs[5], pairs[6]
+            for k in range(n_pairs):
+                touched[k] = False
+                for j in range(4):
+                    pair_impulse[k, j] = 0.0
+            n_armed = _arm_pairs_for(x, v, v0b, h, pair_nodes, pair_radii, touch_tol, pair_restitution, warm[0],
+                                     ends4, out6, s5, t5, pairs, w)
+            if n_armed < 0:
+                why[w] = MEMBERS
+                continue
+        if found or n_armed:
+            for p in range(n_nodes):   # the free velocities, for a solve again
                 for j in range(3):
-                    v[p, j, b] = dx[p, j]
-                    contact[p, j] = 0.0
-    _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, b)
-    _close(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-           rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b, kept)
-    if n_pairs:
-        n_armed = _arm_pairs_for(x, v, v0, 0.0, pair_nodes, pair_radii, touch_tol, pair_restitution, warm[1], ends4,
-                                 out6, s5, t5, pairs, b)
-        if n_armed < 0:
-            return MEMBERS
-    found = False
-    for p in range(n_nodes):
-        armed[p] = inv_mass[p, 0] > 0.0 and x[p, 2, b] - radii[p] - height <= touch_tol
-        target[p] = restitution * landing[p]
-        found = found or armed[p]
-    if found or n_armed:
-        return _solve_all(v, b, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut, mu,
-                          warm[1], contact, work, inv2, vel, z, ends_k, target_k, vel3, z3, n_armed, pair_nodes,
-                          pair_mu, pairs)
-    return 0
+                    dx[p, j] = v[p, j, w]
+            while True:
+                why[w] = _solve_all(v, w, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs,
+                                    node_strut, mu, warm[0], contact, work[w], inv2, vel, z[w], ends_k, target_k,
+                                    vel3, z3, n_armed, pair_nodes, pair_mu, pairs)
+                if why[w]:
+                    break
+                # ContactSet.missed: the answer carries an unarmed node into the ground (its strut turned by its
+                # other end's contact): those within touch_tol of it by the drift's end are armed too, and solved
+                # again
+                missed = False
+                for p in range(n_nodes):
+                    end_gap = x[p, 2, w] - radii[p] - height + h * v[p, 2, w]
+                    missed = missed or (not armed[p] and inv_mass[p, 0] > 0.0 and end_gap < -touch_tol)
+                if not missed:
+                    break
+                if n_armed:   # the member pairs' impulses are summed in the solve: the reference solves again
+                    why[w] = MEMBERS
+                    break
+                for p in range(n_nodes):
+                    gap = x[p, 2, w] - radii[p] - height
+                    if not armed[p] and inv_mass[p, 0] > 0.0 and gap + h * v[p, 2, w] <= touch_tol:
+                        armed[p] = True
+                        target[p] = _landing_target(gap, v0b[p, 2], h, touch_tol)
+                    for j in range(3):
+                        v[p, j, w] = dx[p, j]
+                        contact[p, j] = 0.0
+        for p in range(n_nodes):
+            for j in range(3):
+                contacts[p, j, w] = contact[p, j]
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _take_inputs(rest_seq, ext_seq, ext_held, s, bs, be, rest, ext) -> bool:
-    """Step ``s``'s inputs into ``rest`` (nc, 1) (column ``bs`` of ``rest_seq``) and ``ext`` (N, 3, 1) (column ``be``
-    of ``ext_seq``); whether they changed. ``ext_held`` (T,): :func:`_held_external`'s (where it holds step ``s``,
-    ``ext`` already has step ``s - 1``'s, the same numbers: not compared again)."""
-    changed = False
+def _settle_contacts(x, v, v0, ends, inv_mass, rigid_members, rigid_w, rigid_dirs, height, mu, restitution, radii,
+                     node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, v0b, contact,
+                     contacts, armed, target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5,
+                     t5, pairs, done, why):
+    """Each copy (not ``done``) of a chunk after the closing half-kick and RATTLE, as :func:`_drift_contacts`
+    (its arguments): the touching nodes (and member pairs) armed (``ContactSet.arm_settle``: Newton's
+    restitution of its ``landing``) and their velocity problem solved, in place on ``v``; ``contacts`` adds the
+    impulses."""
+    n_nodes, _, width = x.shape
+    for w in range(width):
+        why[w] = 0
+        if done[w]:
+            continue
+        for p in range(n_nodes):
+            for j in range(3):
+                contact[p, j] = contacts[p, j, w]
+                v0b[p, j] = v0[p, j, w]
+        n_armed = 0
+        if pair_nodes.shape[0]:
+            n_armed = _arm_pairs_for(x, v, v0b, 0.0, pair_nodes, pair_radii, touch_tol, pair_restitution, warm[1],
+                                     ends4, out6, s5, t5, pairs, w)
+            if n_armed < 0:
+                why[w] = MEMBERS
+                continue
+        found = False
+        for p in range(n_nodes):
+            armed[p] = inv_mass[p, 0] > 0.0 and x[p, 2, w] - radii[p] - height <= touch_tol
+            target[p] = restitution * landing[p, w]
+            found = found or armed[p]
+        if found or n_armed:
+            why[w] = _solve_all(v, w, armed, target, inv_mass, ends, rigid_members, rigid_w, rigid_dirs, node_strut,
+                                mu, warm[1], contact, work[w], inv2, vel, z[w], ends_k, target_k, vel3, z3, n_armed,
+                                pair_nodes, pair_mu, pairs)
+            for p in range(n_nodes):
+                for j in range(3):
+                    contacts[p, j, w] = contact[p, j]
+
+
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _take_inputs(rest_seq, ext_seq, ext_held, s, first, done, rest, ext, moved) -> bool:
+    """Step ``s``'s inputs into a chunk's ``rest`` (nc, W) and ``ext`` (N, 3, W) from columns ``first`` ... of
+    ``rest_seq`` and ``ext_seq`` (or their one column of every copy), for the copies not ``done``; ``moved``
+    (W,) gets whether a copy's changed, and the return whether any did. ``ext_held`` (T,):
+    :func:`_held_external`'s (where it holds step ``s``, ``ext`` already has step ``s - 1``'s, the same numbers:
+    not compared again). Each number's copies are walked innermost (consecutive columns of the inputs)."""
+    width = rest.shape[1]
+    by_copy_rest = rest_seq.shape[2] > 1   # each copy's own column of the inputs (else one of every copy's)
+    by_copy_ext = ext_seq.shape[3] > 1
+    for w in range(width):
+        moved[w] = False
     for ci in range(rest.shape[0]):
-        if rest[ci, 0] != rest_seq[s, ci, bs]:
-            rest[ci, 0] = rest_seq[s, ci, bs]
-            changed = True
-    if ext_held[s]:
-        return changed
-    for i in range(ext.shape[0]):
-        for j in range(3):
-            if ext[i, j, 0] != ext_seq[s, i, j, be]:
-                ext[i, j, 0] = ext_seq[s, i, j, be]
-                changed = True
-    return changed
+        for w in range(width):
+            value = rest_seq[s, ci, first + w if by_copy_rest else 0]
+            if not done[w] and rest[ci, w] != value:
+                rest[ci, w] = value
+                moved[w] = True
+    if not ext_held[s]:
+        for i in range(ext.shape[0]):
+            for j in range(3):
+                for w in range(width):
+                    value = ext_seq[s, i, j, first + w if by_copy_ext else 0]
+                    if not done[w] and ext[i, j, w] != value:
+                        ext[i, j, w] = value
+                        moved[w] = True
+    any_moved = False
+    for w in range(width):
+        any_moved = any_moved or moved[w]
+    return any_moved
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -682,8 +725,8 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
     each cable's steps that ended taut after a step that ended slack (added to), from ``was_slack`` (nc, B) bool
     at the first step's start, which gets the slack cables at the last step's end (what a run keeping no step
     reads instead of every step's impulses and slack flags); with no column (nc, 0), none is computed.
-    Each copy is stepped in contiguous arrays of its own (a batch of one: the very arithmetic of
-    ``Simulator``'s loop, and no stride of B between a copy's numbers).
+    A block's copies are stepped in chunks of ``CHUNK`` (:func:`_chunk_steps`), each copy with the very arithmetic
+    of ``Simulator``'s loop (a batch of one), bit for bit.
 
     ``rest_seq`` (T, nc, Bs), ``ext_seq`` (T, N, 3, Be): with T = ``n_steps``, each step's rest lengths and external
     forces (a command schedule evaluated at the steps' start times; Bs, Be = B, or 1 for every copy: an environment's
@@ -701,75 +744,143 @@ def _ground_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
-                damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu,
-                restitution, radii_b, node_strut_b,
-                touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb, extb, accb, tensionb,
-                dirsb, warmb, rest_seq, ext_seq, ext_held, dx, imp, total, sl, contact, total_contact, armed, target,
-                landing, x0, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, kept,
-                out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason, peak, snaps,
-                was_slack):
-    """Copy ``b``'s ``n_steps`` steps in its own arrays (``*b``; ``bs``, ``be`` its columns of the inputs), for
-    :func:`_block`, which allocates; this loop hands a step dozens of arrays and is compiled without
-    reference counts (a counted call of ``_ground_step`` adds and subtracts one per array: ~5 ns each)."""
-    n_nodes = xb.shape[0]
-    nc = restb.shape[0]
-    n_pairs = pair_nodes_b.shape[0]
+def _leave(w, b, x, v, x0, v0, acc, tension, dirs, warm, gx, gv, gacc, gtension, gdirs, gwarm):
+    """Copy ``w`` of a chunk stops (a step left to the reference, or no room for its records): its ``x``, ``v``
+    back at the step's start (``x0``, ``v0``), written with its carry as the step left it into copy ``b`` of
+    the batch's arrays (``g*``)."""
+    for i in range(x.shape[0]):
+        for j in range(3):
+            x[i, j, w] = x0[i, j, w]
+            v[i, j, w] = v0[i, j, w]
+    scatter_copy(x, v, acc, tension, dirs, w, b, gx, gv, gacc, gtension, gdirs)
+    for i in range(warm.shape[1]):
+        for j in range(3):
+            gwarm[0, i, j, b] = warm[0, i, j, w]
+            gwarm[1, i, j, b] = warm[1, i, j, w]
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                 gravity_force, rigid_members, rigid_length_sq, rigid_w, height, mu, restitution, radii, node_strut,
+                 touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, x, v, rest, ext, acc, tension, dirs,
+                 warm, rest_seq, ext_seq, ext_held, x0, v0, dxw, strength, imp, sl, total, contacts, total_contact,
+                 landing, kept, done, moved, why, acc_new, tension_new, dirs_new, v0b, dx, contact, armed, target, work,
+                 inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, gx, gv, gacc, gtension, gdirs,
+                 gwarm, out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason, peak,
+                 snaps, was_slack):
+    """``n_steps`` steps of a chunk of W copies, batch ``first`` to ``first + W - 1``, in the chunk's own arrays
+    (``x`` ... ``warm``, batch last; the scratch beside them, :func:`_block` allocates): each phase of a step
+    that treats every copy alike (the half-kicks, the drift and SHAKE, the forces and RATTLE) walks the W
+    copies innermost, as ``_kernels.elastic_steps_copies`` does, and the contacts' arming and solves go copy by
+    copy (``work``, ``z``: one solver scratch a copy, so that each sees only its own last solve's, as a copy
+    stepped alone does). A copy's numbers are those of stepping it alone (``Simulator``'s loop), bit for bit:
+    the same operations in the same order. A copy whose step is left to the reference (or that has no room
+    for its pairs' records) stops there (:func:`_leave`, ``done``); the others go on. Outputs as
+    :func:`_ground_steps`', but the summary's ``peak``, ``snaps`` and ``was_slack`` (nc, W) are the chunk's."""
+    n_nodes, _, width = x.shape
+    nc = rest.shape[0]
+    n_pairs = pair_nodes.shape[0]
+    half = 0.5 * h
     for s in range(n_steps):
-        if n_pairs and n_records[b] + n_pairs > out_pairs.shape[1]:   # no room for this step's pairs
-            failed[b] = s
-            reason[b] = FULL
-            break
         for i in range(n_nodes):
             for j in range(3):
-                x0[i, j] = xb[i, j, 0]
-                v0[i, j] = vb[i, j, 0]
-        if rest_seq.shape[0] > 0 and _take_inputs(rest_seq, ext_seq, ext_held, s, bs, be, restb, extb):
-            # after the first step, at the last step's end: its members' geometry is kept (a reel's every step)
-            _forces(xb, vb, restb, extb, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b, damping_b,
-                    inv_mass_b, gravity_b, rigid_members_b, accb, tensionb, dirsb, sl, 0, kept, s == 0)
-        why = _ground_step(xb, vb, restb, extb, h, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
-                           damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, accb,
-                           tensionb, dirsb, height, mu, restitution, radii_b, node_strut_b, touch_tol,
-                           pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, warmb, dx, imp, sl, contact,
-                           armed, target, landing, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4,
-                           out6, s5, t5, pairs, kept, 0)
-        if why:
-            for i in range(n_nodes):
-                for j in range(3):
-                    xb[i, j, 0] = x0[i, j]
-                    vb[i, j, 0] = v0[i, j]
-            failed[b] = s
-            reason[b] = why
-            break
-        if n_pairs:   # the step's member contacts: (step, pair, normal, friction in space)
-            pair_impulse, touched = pairs[5], pairs[6]
-            for k in range(n_pairs):
-                if touched[k]:
-                    r = n_records[b]
-                    out_pairs[b, r, 0] = s
-                    out_pairs[b, r, 1] = k
-                    for j in range(4):
-                        out_pairs[b, r, 2 + j] = pair_impulse[k, j]
-                    n_records[b] = r + 1
-        for ci in range(nc):
-            total[ci] += imp[ci]
-        if peak.shape[1]:   # the summary asked for
+                for w in range(width):
+                    x0[i, j, w] = x[i, j, w]
+                    v0[i, j, w] = v[i, j, w]
+        if n_pairs:
+            for w in range(width):
+                b = first + w
+                if not done[w] and n_records[b] + n_pairs > out_pairs.shape[1]:   # no room for this step's pairs
+                    _leave(w, b, x, v, x0, v0, acc, tension, dirs, warm, gx, gv, gacc, gtension, gdirs, gwarm)
+                    failed[b] = s
+                    reason[b] = FULL
+                    done[w] = True
+        if rest_seq.shape[0] > 0:
+            any_moved = _take_inputs(rest_seq, ext_seq, ext_held, s, first, done, rest, ext, moved)
+            if any_moved:
+                # a copy's new inputs: forces computed anew at its state (after the first step from the members'
+                # geometry that the last step's end kept: a reel's every step); a copy without keeps its carry
+                _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping,
+                               inv_mass, gravity_force, rigid_members, acc_new, tension_new, dirs_new, sl, kept, s == 0)
+                for w in range(width):
+                    if moved[w]:
+                        for i in range(n_nodes):
+                            for j in range(3):
+                                acc[i, j, w] = acc_new[i, j, w]
+                        for ci in range(nc):
+                            tension[ci, w] = tension_new[ci, w]
+                        for k in range(dirs.shape[0]):
+                            for j in range(3):
+                                dirs[k, j, w] = dirs_new[k, j, w]
+        for i in range(n_nodes):
+            for j in range(3):
+                for w in range(width):
+                    v[i, j, w] += half * acc[i, j, w]
+        _drift_contacts(x, v, v0, h, ends, inv_mass, rigid_members, rigid_w, dirs, height, mu, radii, node_strut,
+                        touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, dx, v0b, contact, contacts,
+                        armed, target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5,
+                        pairs, done, why)
+        for w in range(width):
+            if why[w]:
+                b = first + w
+                _leave(w, b, x, v, x0, v0, acc, tension, dirs, warm, gx, gv, gacc, gtension, gdirs, gwarm)
+                failed[b] = s
+                reason[b] = why[w]
+                done[w] = True
+        _drift_copies(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, dirs, dxw, strength)
+        _close_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                      gravity_force, rigid_members, rigid_w, acc, tension, dirs, dxw, strength, imp, sl, kept)
+        last = (s + 1) % every == 0 or s == n_steps - 1
+        _settle_contacts(x, v, v0, ends, inv_mass, rigid_members, rigid_w, dirs, height, mu, restitution, radii,
+                         node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, v0b, contact,
+                         contacts, armed, target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6,
+                         s5, t5, pairs, done, why)
+        for w in range(width):
+            if done[w]:
+                continue
+            b = first + w
+            if why[w]:
+                _leave(w, b, x, v, x0, v0, acc, tension, dirs, warm, gx, gv, gacc, gtension, gdirs, gwarm)
+                failed[b] = s
+                reason[b] = why[w]
+                done[w] = True
+                continue
+            if n_pairs:   # the step's member contacts: (step, pair, normal, friction in space)
+                pair_impulse, touched = pairs[5], pairs[6]
+                for k in range(n_pairs):
+                    if touched[k]:
+                        r = n_records[b]
+                        out_pairs[b, r, 0] = s
+                        out_pairs[b, r, 1] = k
+                        for j in range(4):
+                            out_pairs[b, r, 2 + j] = pair_impulse[k, j]
+                        n_records[b] = r + 1
             for ci in range(nc):
-                if imp[ci] > peak[ci, b]:   # (a NaN is no peak)
-                    peak[ci, b] = imp[ci]
-                snaps[ci, b] += was_slack[ci, b] and not sl[ci]
-                was_slack[ci, b] = sl[ci]
-        for i in range(n_nodes):
-            for j in range(3):
-                total_contact[i, j] += contact[i, j]
-        if (s + 1) % every == 0 or s == n_steps - 1:
-            k = s // every
-            keep(xb, vb, 0, total, sl, k, b, out_x, out_v, out_impulses, out_slack)
+                total[ci, w] += imp[ci, w]
+            if peak.shape[1]:   # the summary asked for
+                for ci in range(nc):
+                    if imp[ci, w] > peak[ci, w]:   # (a NaN is no peak)
+                        peak[ci, w] = imp[ci, w]
+                    snaps[ci, w] += was_slack[ci, w] and not sl[ci, w]
+                    was_slack[ci, w] = sl[ci, w]
             for i in range(n_nodes):
                 for j in range(3):
-                    out_contact[k, i, j, b] = total_contact[i, j]
-                    total_contact[i, j] = 0.0
+                    total_contact[i, j, w] += contacts[i, j, w]
+            if last:
+                k = s // every
+                for i in range(n_nodes):
+                    for j in range(3):
+                        out_x[k, i, j, b] = x[i, j, w]
+                        out_v[k, i, j, b] = v[i, j, w]
+                        out_contact[k, i, j, b] = total_contact[i, j, w]
+                        total_contact[i, j, w] = 0.0
+                for ci in range(nc):
+                    out_impulses[k, ci, b] = total[ci, w]
+                    out_slack[k, ci, b] = sl[ci, w]
+                    total[ci, w] = 0.0
+
+
+CHUNK = 32   # copies stepped together (measured on Roll-v0's vector environment: 8, 16, 32, 64 took 0.80, 0.74, 0.71, 0.75 of the time a copy at a time took)
 
 
 @njit(cache=True, error_model="numpy")
@@ -780,15 +891,16 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
            out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason, peak, snaps,
            was_slack):
     """Block ``blk`` of ``blocks`` of :func:`_ground_steps`' copies (its arguments): one function that the
-    parallel loop calls once a block and the serial loop once, so both step the copies with the same code."""
+    parallel loop calls once a block and the serial loop once, so both step the copies with the same code.
+    The block's copies go in chunks of ``CHUNK`` (:func:`_chunk_steps`), one at a time where the scene has
+    member pairs (their scratch, :func:`pair_scratch`, holds one copy's step)."""
     n_nodes = x.shape[0]
     nc, n_copies = rest.shape
     nr = rigid_members.shape[0]
-    # a block of copies a thread (the scratch allocated once for its copies: allocated for each copy, it
-    # cost 7 ms a call of 1,024 copies); the model's arrays copied for each block, measured when the step loop
-    # still counted references per call (threads sharing one array's count took turns at it: 178-204k
-    # scene-steps/s sharing them, 233-243k with copies); since _copy_steps counts none per step, only the
-    # counts of this function's calls, once a copy, remain
+    m = ends.shape[0]
+    # the model's arrays copied for each block, measured when the step loop still counted references per call
+    # (threads sharing one array's count took turns at it: 178-204k scene-steps/s sharing them, 233-243k with
+    # copies); since _chunk_steps counts none per step, only the counts of this function's calls remain
     ends_b, stiffness_b, strut_rest_b, damping_b = ends.copy(), stiffness.copy(), strut_rest.copy(), damping.copy()
     attach_b, attach_at_b = attach, attach_at   # read only where the scene has them (None otherwise)
     inv_mass_b, gravity_b, rigid_members_b = inv_mass.copy(), gravity_force.copy(), rigid_members.copy()
@@ -797,30 +909,13 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
     floor_b, pair_nodes_b, pair_radii_b = floor.copy(), pair_nodes.copy(), pair_radii.copy()
     n_pairs = pair_nodes.shape[0]
     pairs = pair_scratch(n_nodes, nr, n_pairs)
-    kept = np.empty((ends.shape[0], 4))
-    xb = np.empty((n_nodes, 3, 1))
-    vb = np.empty((n_nodes, 3, 1))
-    accb = np.empty((n_nodes, 3, 1))
-    extb = np.empty((n_nodes, 3, 1))
-    warmb = np.empty((2, n_nodes + n_pairs, 3, 1))
-    restb = np.empty((nc, 1))
-    tensionb = np.empty((nc, 1))
-    dirsb = np.empty((nr, 3, 1))
+    v0b = np.empty((n_nodes, 3))
     dx = np.empty((n_nodes, 3))
-    imp = np.empty(nc)
-    total = np.empty(nc)
-    sl = np.empty(nc, dtype=np.bool_)
     contact = np.empty((n_nodes, 3))
-    total_contact = np.empty((n_nodes, 3))
     armed = np.empty(n_nodes, dtype=np.bool_)
     target = np.empty(n_nodes)
-    landing = np.empty(n_nodes)
-    x0 = np.empty((n_nodes, 3))
-    v0 = np.empty((n_nodes, 3))
-    work = np.empty((6, MAX_ROWS, MAX_ROWS))
     inv2 = np.empty(3)
     vel = np.empty((2, 3))
-    z = np.empty(MAX_ROWS)
     ends_k = np.empty(2, dtype=np.int64)
     target_k = np.empty(2)
     vel3 = np.empty(3)
@@ -832,34 +927,68 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
     ext_held = np.empty(ext_seq.shape[0], dtype=np.bool_)
     _held_external(ext_seq, ext_held)
     first = np.int64(blk)   # prange's index is unsigned: with a signed number it would make a float
-    for b in range(n_copies * first // blocks, n_copies * (first + 1) // blocks):
-        gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, xb, vb, accb, extb, restb, tensionb, dirsb)
-        for i in range(n_nodes + n_pairs):
-            for j in range(3):
-                warmb[0, i, j, 0] = warm[0, i, j, b]
-                warmb[1, i, j, 0] = warm[1, i, j, b]
-        total[:] = 0.0   # each copy starts from the scratch a call of its own would have
-        total_contact[:] = 0.0
-        work[:] = 0.0
-        z[:] = 0.0
-        failed[b] = -1
-        reason[b] = 0
-        n_records[b] = 0
-        bs = b if rest_seq.shape[2] > 1 else 0   # the copy's columns of the inputs (or the one of every copy's)
-        be = b if ext_seq.shape[3] > 1 else 0
-        _copy_steps(b, bs, be, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
-                    damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu,
-                    restitution, radii_b,
-                    node_strut_b, touch_tol, pair_nodes_b, pair_radii_b, pair_mu, pair_restitution, xb, vb, restb,
-                    extb, accb, tensionb, dirsb, warmb, rest_seq, ext_seq, ext_held, dx, imp, total, sl, contact,
-                    total_contact, armed, target, landing, x0, v0, work, inv2, vel, z, ends_k, target_k, vel3, z3,
-                    ends4, out6, s5, t5, pairs, kept, out_x, out_v, out_impulses, out_slack, out_contact,
-                    out_pairs, n_records, failed, reason, peak, snaps, was_slack)
-        scatter_copy(xb, vb, accb, tensionb, dirsb, b, x, v, acc, tension, rigid_dirs)
-        for i in range(n_nodes + n_pairs):
-            for j in range(3):
-                warm[0, i, j, b] = warmb[0, i, j, 0]
-                warm[1, i, j, b] = warmb[1, i, j, 0]
+    lo = n_copies * first // blocks
+    hi = n_copies * (first + 1) // blocks
+    chunk = 1 if n_pairs else CHUNK
+    for start in range(lo, hi, chunk):
+        width = min(chunk, hi - start)
+        xw = np.empty((n_nodes, 3, width))
+        vw = np.empty((n_nodes, 3, width))
+        accw = np.empty((n_nodes, 3, width))
+        extw = np.empty((n_nodes, 3, width))
+        restw = np.empty((nc, width))
+        tensionw = np.empty((nc, width))
+        dirsw = np.empty((nr, 3, width))
+        warmw = np.empty((2, n_nodes + n_pairs, 3, width))
+        for w in range(width):
+            b = start + w
+            gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, xw, vw, accw, extw, restw, tensionw, dirsw, w)
+            for i in range(n_nodes + n_pairs):
+                for j in range(3):
+                    warmw[0, i, j, w] = warm[0, i, j, b]
+                    warmw[1, i, j, w] = warm[1, i, j, b]
+            failed[b] = -1
+            reason[b] = 0
+            n_records[b] = 0
+        summed = width if peak.shape[1] else 0   # the summary's columns of the chunk, where asked for
+        peak_w = np.empty((nc, summed))
+        snaps_w = np.empty((nc, summed), dtype=np.int64)
+        slack_w = np.empty((nc, summed), dtype=np.bool_)
+        for w in range(summed):
+            for ci in range(nc):
+                peak_w[ci, w] = peak[ci, start + w]
+                snaps_w[ci, w] = snaps[ci, start + w]
+                slack_w[ci, w] = was_slack[ci, start + w]
+        done = np.zeros(width, dtype=np.bool_)
+        # each copy starts from the scratch a call of its own would have
+        work = np.zeros((width, 6, MAX_ROWS, MAX_ROWS))
+        z = np.zeros((width, MAX_ROWS))
+        _chunk_steps(start, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
+                     damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu,
+                     restitution, radii_b, node_strut_b, touch_tol, pair_nodes_b, pair_radii_b, pair_mu,
+                     pair_restitution, xw, vw, restw, extw, accw, tensionw, dirsw, warmw, rest_seq, ext_seq, ext_held,
+                     np.empty((n_nodes, 3, width)), np.empty((n_nodes, 3, width)), np.empty((n_nodes, 3, width)),
+                     np.empty((nr, width)), np.empty((nc, width)), np.empty((nc, width), dtype=np.bool_),
+                     np.zeros((nc, width)), np.empty((n_nodes, 3, width)), np.zeros((n_nodes, 3, width)),
+                     np.empty((n_nodes, width)), np.empty((m, 4, width)), done, np.empty(width, dtype=np.bool_),
+                     np.empty(width, dtype=np.int64),
+                     np.empty((n_nodes, 3, width)), np.empty((nc, width)), np.empty((nr, 3, width)), v0b, dx,
+                     contact, armed, target, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5,
+                     pairs, x, v, acc, tension, rigid_dirs, warm, out_x, out_v, out_impulses, out_slack, out_contact,
+                     out_pairs, n_records, failed, reason, peak_w, snaps_w, slack_w)
+        for w in range(summed):
+            for ci in range(nc):
+                peak[ci, start + w] = peak_w[ci, w]
+                snaps[ci, start + w] = snaps_w[ci, w]
+                was_slack[ci, start + w] = slack_w[ci, w]
+        for w in range(width):
+            if not done[w]:
+                b = start + w
+                scatter_copy(xw, vw, accw, tensionw, dirsw, w, b, x, v, acc, tension, rigid_dirs)
+                for i in range(n_nodes + n_pairs):
+                    for j in range(3):
+                        warm[0, i, j, b] = warmw[0, i, j, w]
+                        warm[1, i, j, b] = warmw[1, i, j, w]
 
 
 def _named(function, name: str):

@@ -96,12 +96,9 @@ def model_arrays(system, rigid) -> ElasticModel:
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-            rigid_members, acc, tension, rigid_dirs, slack, b, kept=None, fresh=True):
+            rigid_members, acc, tension, rigid_dirs, slack, b):
     """Copy ``b``: accelerations, cable tensions, rigid strut directions and slack cables at ``x``
-    (damping from ``v``), written into ``acc``, ``tension``, ``rigid_dirs`` and ``slack``. ``kept`` (m, 4): each
-    member's length (m) and unit vector at ``x``, written here where ``fresh``, else read from the last call at
-    this very ``x`` (forces again after new inputs: the same numbers without a square root and three divisions
-    a member; the cables along a strut are measured anew). None (compiled without it): measured, not kept."""
+    (damping from ``v``), written into ``acc``, ``tension``, ``rigid_dirs`` and ``slack``."""
     n_nodes = x.shape[0]
     n_struts = strut_rest.shape[0]
     for i in range(n_nodes):
@@ -118,24 +115,13 @@ def _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_re
             continue
         a = ends[i, 0]
         c = ends[i, 1]
-        if kept is not None and not fresh:
-            length = kept[i, 0]
-            n0 = kept[i, 1]
-            n1 = kept[i, 2]
-            n2 = kept[i, 3]
-        else:
-            d0 = x[c, 0, b] - x[a, 0, b]
-            d1 = x[c, 1, b] - x[a, 1, b]
-            d2 = x[c, 2, b] - x[a, 2, b]
-            length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            n0 = d0 / length
-            n1 = d1 / length
-            n2 = d2 / length
-            if kept is not None:
-                kept[i, 0] = length
-                kept[i, 1] = n0
-                kept[i, 2] = n1
-                kept[i, 3] = n2
+        d0 = x[c, 0, b] - x[a, 0, b]
+        d1 = x[c, 1, b] - x[a, 1, b]
+        d2 = x[c, 2, b] - x[a, 2, b]
+        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        n0 = d0 / length
+        n1 = d1 / length
+        n2 = d2 / length
         if rigid_k < n_rigid and rigid_members[rigid_k] == i:
             rigid_dirs[rigid_k, 0, b] = n0
             rigid_dirs[rigid_k, 1, b] = n1
@@ -312,16 +298,16 @@ def _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rig
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _close(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-           rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b, kept=None):
-    """Copy ``b``'s end of a step: the forces at the drifted ``x`` (its members' geometry written into ``kept``,
-    :func:`_forces`'), the cables' impulses, the closing half-kick and RATTLE."""
+           rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b):
+    """Copy ``b``'s end of a step: the forces at the drifted ``x``, the cables' impulses, the closing half-kick
+    and RATTLE."""
     n_nodes = x.shape[0]
     nc = tension.shape[0]
     half = 0.5 * h
     for ci in range(nc):
         impulses[ci] = tension[ci, b]
     _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-            rigid_members, acc, tension, rigid_dirs, slack, b, kept)
+            rigid_members, acc, tension, rigid_dirs, slack, b)
     for ci in range(nc):
         impulses[ci] = half * (impulses[ci] + tension[ci, b])
     for i in range(n_nodes):
@@ -368,36 +354,36 @@ def verlet_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, s
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs):
-    """Copy ``b`` of the batch-last state and carry into the batch-of-one ``w*`` arrays (a copy stepped in
-    contiguous arrays of its own: the very arithmetic of a ``Simulator``, no stride of B)."""
+def gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs, w):
+    """Copy ``b`` of the batch-last state and carry into column ``w`` of the ``w*`` arrays (a chunk of copies
+    stepped in arrays of its own)."""
     for i in range(x.shape[0]):
         for j in range(3):
-            wx[i, j, 0] = x[i, j, b]
-            wv[i, j, 0] = v[i, j, b]
-            wacc[i, j, 0] = acc[i, j, b]
-            wext[i, j, 0] = ext[i, j, b]
+            wx[i, j, w] = x[i, j, b]
+            wv[i, j, w] = v[i, j, b]
+            wacc[i, j, w] = acc[i, j, b]
+            wext[i, j, w] = ext[i, j, b]
     for ci in range(rest.shape[0]):
-        wten[ci, 0] = tension[ci, b]
-        wrest[ci, 0] = rest[ci, b]
+        wten[ci, w] = tension[ci, b]
+        wrest[ci, w] = rest[ci, b]
     for k in range(rigid_dirs.shape[0]):
         for j in range(3):
-            wdirs[k, j, 0] = rigid_dirs[k, j, b]
+            wdirs[k, j, w] = rigid_dirs[k, j, b]
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def scatter_copy(wx, wv, wacc, wten, wdirs, b, x, v, acc, tension, rigid_dirs):
-    """The batch-of-one state and carry written back as copy ``b`` (:func:`gather_copy`'s inverse)."""
+def scatter_copy(wx, wv, wacc, wten, wdirs, w, b, x, v, acc, tension, rigid_dirs):
+    """Column ``w`` of the chunk's state and carry written back as copy ``b`` (:func:`gather_copy`'s inverse)."""
     for i in range(x.shape[0]):
         for j in range(3):
-            x[i, j, b] = wx[i, j, 0]
-            v[i, j, b] = wv[i, j, 0]
-            acc[i, j, b] = wacc[i, j, 0]
+            x[i, j, b] = wx[i, j, w]
+            v[i, j, b] = wv[i, j, w]
+            acc[i, j, b] = wacc[i, j, w]
     for ci in range(tension.shape[0]):
-        tension[ci, b] = wten[ci, 0]
+        tension[ci, b] = wten[ci, w]
     for k in range(rigid_dirs.shape[0]):
         for j in range(3):
-            rigid_dirs[k, j, b] = wdirs[k, j, 0]
+            rigid_dirs[k, j, b] = wdirs[k, j, w]
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -470,8 +456,11 @@ def elastic_steps(x, v, rest, ext, h, n_steps, every, ends, attach, attach_at, s
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                   gravity_force, rigid_members, acc, tension, rigid_dirs, slack):
-    """:func:`_forces` of every copy: ``slack`` (nc, B)."""
+                   gravity_force, rigid_members, acc, tension, rigid_dirs, slack, kept=None, fresh=True):
+    """:func:`_forces` of every copy: ``slack`` (nc, B). ``kept`` (m, 4, B): each member's length (m) and unit
+    vector at ``x``, written here where ``fresh``, else read from the last call at this very ``x`` (forces again
+    after new inputs: the same numbers without a square root and three divisions a member; the cables along a
+    strut are measured anew). None (compiled without it): measured, not kept."""
     n_nodes, _, n_copies = x.shape
     n_struts = strut_rest.shape[0]
     for i in range(n_nodes):
@@ -495,13 +484,24 @@ def _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, s
         ci = i - n_struts
         cd = damping[ci] if ci >= 0 else 0.0
         for b in range(n_copies):
-            d0 = x[c, 0, b] - x[a, 0, b]
-            d1 = x[c, 1, b] - x[a, 1, b]
-            d2 = x[c, 2, b] - x[a, 2, b]
-            length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            n0 = d0 / length
-            n1 = d1 / length
-            n2 = d2 / length
+            if kept is not None and not fresh:
+                length = kept[i, 0, b]
+                n0 = kept[i, 1, b]
+                n1 = kept[i, 2, b]
+                n2 = kept[i, 3, b]
+            else:
+                d0 = x[c, 0, b] - x[a, 0, b]
+                d1 = x[c, 1, b] - x[a, 1, b]
+                d2 = x[c, 2, b] - x[a, 2, b]
+                length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                n0 = d0 / length
+                n1 = d1 / length
+                n2 = d2 / length
+                if kept is not None:
+                    kept[i, 0, b] = length
+                    kept[i, 1, b] = n0
+                    kept[i, 2, b] = n1
+                    kept[i, 3, b] = n2
             if is_rigid:
                 rigid_dirs[rigid_k, 0, b] = n0
                 rigid_dirs[rigid_k, 1, b] = n1
@@ -559,19 +559,13 @@ def _pushes_copies(ends, inv_mass, rigid_members, strengths, dirs, out):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _step_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                 gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength,
-                 impulses, slack):
-    """:func:`_step` of every copy; ``dx`` (N, 3, B) and ``strength`` (nr, B) are scratch, ``impulses``
-    and ``slack`` (nc, B) the step's."""
+def _drift_copies(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, strength):
+    """:func:`_drift` of every copy; ``dx`` (N, 3, B) and ``strength`` (nr, B) are scratch."""
     n_nodes, _, n_copies = x.shape
-    nc = tension.shape[0]
     nr = rigid_members.shape[0]
-    half = 0.5 * h
     for i in range(n_nodes):
         for j in range(3):
             for b in range(n_copies):
-                v[i, j, b] += half * acc[i, j, b]
                 x[i, j, b] += h * v[i, j, b]
     if nr:
         for k in range(nr):   # SHAKE (_shake)
@@ -592,11 +586,23 @@ def _step_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, 
                 for b in range(n_copies):
                     x[i, j, b] += dx[i, j, b]
                     v[i, j, b] += dx[i, j, b] / h
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _close_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                  gravity_force, rigid_members, rigid_w, acc, tension, rigid_dirs, dx, strength, impulses, slack,
+                  kept=None):
+    """:func:`_close` of every copy: ``impulses`` and ``slack`` (nc, B) the step's, ``kept`` (m, 4, B)
+    :func:`_forces_copies`'; ``dx`` (N, 3, B) and ``strength`` (nr, B) are scratch."""
+    n_nodes, _, n_copies = x.shape
+    nc = tension.shape[0]
+    nr = rigid_members.shape[0]
+    half = 0.5 * h
     for ci in range(nc):
         for b in range(n_copies):
             impulses[ci, b] = tension[ci, b]
     _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                   gravity_force, rigid_members, acc, tension, rigid_dirs, slack)
+                   gravity_force, rigid_members, acc, tension, rigid_dirs, slack, kept)
     for ci in range(nc):
         for b in range(n_copies):
             impulses[ci, b] = half * (impulses[ci, b] + tension[ci, b])
@@ -619,6 +625,23 @@ def _step_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, 
             for j in range(3):
                 for b in range(n_copies):
                     v[i, j, b] += dx[i, j, b]
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def _step_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                 gravity_force, rigid_members, rigid_length_sq, rigid_w, acc, tension, rigid_dirs, dx, strength,
+                 impulses, slack):
+    """:func:`_step` of every copy; ``dx`` (N, 3, B) and ``strength`` (nr, B) are scratch, ``impulses``
+    and ``slack`` (nc, B) the step's."""
+    n_nodes, _, n_copies = x.shape
+    half = 0.5 * h
+    for i in range(n_nodes):
+        for j in range(3):
+            for b in range(n_copies):
+                v[i, j, b] += half * acc[i, j, b]
+    _drift_copies(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rigid_dirs, dx, strength)
+    _close_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                  gravity_force, rigid_members, rigid_w, acc, tension, rigid_dirs, dx, strength, impulses, slack)
 
 
 @njit(cache=True, error_model="numpy", nogil=True)   # nogil: blocks of copies on threads (methods/_copy_blocks.py)
