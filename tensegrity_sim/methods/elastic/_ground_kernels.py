@@ -45,7 +45,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ._kernels import _close_copies, _drift_copies, _forces_copies, gather_copy, scatter_copy
+from ._kernels import _close, _close_copies, _drift, _drift_copies, _forces, _forces_copies, gather_copy, scatter_copy
 from .._mass_kernels import axial_inverse
 from ..contact._detection_kernels import _closest
 from ..contact._friction_block_kernels import MAX_COUPLED, MAX_ROWS, lone_contact, solve_block, solve_coupled
@@ -526,13 +526,13 @@ def _landing_target(gap, vz0, h, touch_tol):
     return max(min(-gap / h, -vz0), min(-(gap + touch_tol) / h, 0.0))
 
 
-@njit(cache=True, error_model="numpy", _nrt=False)
-def _drift_contacts(x, v, v0, h, ends, inv_mass, rigid_members, rigid_w, rigid_dirs, height, mu, radii, node_strut,
-                    touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, dx, v0b, contact, contacts,
-                    armed, target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5,
-                    pairs, done, why):
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _drift_contacts(x, v, v0, h, rigid_dirs, bodies, ground, members, warm, dx, v0b, contact, contacts, armed,
+                    target, landing, solver, pairs, done, why):
     """Each copy (not ``done``) of a chunk's ``x``, ``v`` (N, 3, W) after the opening half-kick, one after the
-    other (one call a chunk: a call hands over every array, ~4 ns each): the nodes (and member pairs) that the
+    other (inlined in the step loop: a call handing over these ~50 arrays cost a copy alone a tenth of its step;
+    the model and the scratch come in the tuples ``bodies``, ``ground``, ``members`` and ``solver``, since
+    Python passes a call of more than 30 arguments as ``*args``, which numba does not inline): the nodes (and member pairs) that the
     drift would carry into contact armed (``ContactSet.arm_step``, module docstring) and their velocity problem
     solved, in place on ``v``; ``v0`` (N, 3, W): the velocities at the step's start. ``contacts`` (N, 3, W) gets
     each copy's impulses, ``landing`` (N, W) the closing speeds of its nodes not yet touching
@@ -540,6 +540,10 @@ def _drift_contacts(x, v, v0, h, ends, inv_mass, rigid_members, rigid_w, rigid_d
     copy: a chunk with pairs holds one), ``work`` (W, ...) and ``z`` (W, ...) each copy's solver scratch;
     ``dx``, ``v0b``, ``contact`` (N, 3) and the rest are scratch. ``why`` (W,) int64: 0, or why the copy's step
     is left to the reference (``UNSOLVED``, ``MEMBERS``: its ``v`` is then not a step's)."""
+    ends, inv_mass, rigid_members, rigid_w, node_strut = bodies
+    height, mu, restitution, radii, touch_tol = ground
+    pair_nodes, pair_radii, pair_mu, pair_restitution = members
+    work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5 = solver
     n_nodes, _, width = x.shape
     n_pairs = pair_nodes.shape[0]
     for w in range(width):
@@ -620,15 +624,17 @@ def _drift_contacts(x, v, v0, h, ends, inv_mass, rigid_members, rigid_w, rigid_d
                 contacts[p, j, w] = contact[p, j]
 
 
-@njit(cache=True, error_model="numpy", _nrt=False)
-def _settle_contacts(x, v, v0, ends, inv_mass, rigid_members, rigid_w, rigid_dirs, height, mu, restitution, radii,
-                     node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, v0b, contact,
-                     contacts, armed, target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5,
-                     t5, pairs, done, why):
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _settle_contacts(x, v, v0, rigid_dirs, bodies, ground, members, warm, v0b, contact, contacts, armed, target,
+                     landing, solver, pairs, done, why):
     """Each copy (not ``done``) of a chunk after the closing half-kick and RATTLE, as :func:`_drift_contacts`
     (its arguments): the touching nodes (and member pairs) armed (``ContactSet.arm_settle``: Newton's
     restitution of its ``landing``) and their velocity problem solved, in place on ``v``; ``contacts`` adds the
     impulses."""
+    ends, inv_mass, rigid_members, rigid_w, node_strut = bodies
+    height, mu, restitution, radii, touch_tol = ground
+    pair_nodes, pair_radii, pair_mu, pair_restitution = members
+    work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5 = solver
     n_nodes, _, width = x.shape
     for w in range(width):
         why[w] = 0
@@ -764,9 +770,9 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
                  gravity_force, rigid_members, rigid_length_sq, rigid_w, height, mu, restitution, radii, node_strut,
                  touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, x, v, rest, ext, acc, tension, dirs,
                  warm, rest_seq, ext_seq, ext_held, x0, v0, dxw, strength, imp, sl, total, contacts, total_contact,
-                 landing, kept, done, moved, why, acc_new, tension_new, dirs_new, v0b, dx, contact, armed, target, work,
-                 inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, gx, gv, gacc, gtension, gdirs,
-                 gwarm, out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason, peak,
+                 landing, kept, kept_one, imp_one, sl_one, done, moved, why, acc_new, tension_new, dirs_new, v0b, dx,
+                 contact, armed, target, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, gx,
+                 gv, gacc, gtension, gdirs, gwarm, out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason, peak,
                  snaps, was_slack):
     """``n_steps`` steps of a chunk of W copies, batch ``first`` to ``first + W - 1``, in the chunk's own arrays
     (``x`` ... ``warm``, batch last; the scratch beside them, :func:`_block` allocates): each phase of a step
@@ -775,12 +781,20 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
     copy (``work``, ``z``: one solver scratch a copy, so that each sees only its own last solve's, as a copy
     stepped alone does). A copy's numbers are those of stepping it alone (``Simulator``'s loop), bit for bit:
     the same operations in the same order. A copy whose step is left to the reference (or that has no room
-    for its pairs' records) stops there (:func:`_leave`, ``done``); the others go on. Outputs as
+    for its pairs' records) stops there (:func:`_leave`, ``done``); the others go on. A chunk of one copy
+    (``Simulator``'s, a scene with member pairs, a block's last) drifts and closes with the per-copy kernels
+    (``_drift``, ``_close``, ``_forces``; ``kept_one``, ``imp_one``, ``sl_one`` theirs): the copies' loops of one
+    trip cost it a third more. Outputs as
     :func:`_ground_steps`', but the summary's ``peak``, ``snaps`` and ``was_slack`` (nc, W) are the chunk's."""
     n_nodes, _, width = x.shape
     nc = rest.shape[0]
     n_pairs = pair_nodes.shape[0]
     half = 0.5 * h
+    # the contact phases' arguments in a few tuples (a call of more than 30 arguments is not inlined)
+    bodies = (ends, inv_mass, rigid_members, rigid_w, node_strut)
+    ground = (height, mu, restitution, radii, touch_tol)
+    members = (pair_nodes, pair_radii, pair_mu, pair_restitution)
+    solver = (work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5)
     for s in range(n_steps):
         for i in range(n_nodes):
             for j in range(3):
@@ -800,8 +814,13 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
             if any_moved:
                 # a copy's new inputs: forces computed anew at its state (after the first step from the members'
                 # geometry that the last step's end kept: a reel's every step); a copy without keeps its carry
-                _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping,
-                               inv_mass, gravity_force, rigid_members, acc_new, tension_new, dirs_new, sl, kept, s == 0)
+                if width == 1:
+                    _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                            gravity_force, rigid_members, acc_new, tension_new, dirs_new, sl_one, 0, kept_one, s == 0)
+                else:
+                    _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping,
+                                   inv_mass, gravity_force, rigid_members, acc_new, tension_new, dirs_new, sl, kept,
+                                   s == 0)
                 for w in range(width):
                     if moved[w]:
                         for i in range(n_nodes):
@@ -816,10 +835,8 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
             for j in range(3):
                 for w in range(width):
                     v[i, j, w] += half * acc[i, j, w]
-        _drift_contacts(x, v, v0, h, ends, inv_mass, rigid_members, rigid_w, dirs, height, mu, radii, node_strut,
-                        touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, dx, v0b, contact, contacts,
-                        armed, target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5,
-                        pairs, done, why)
+        _drift_contacts(x, v, v0, h, dirs, bodies, ground, members, warm, dx, v0b, contact, contacts, armed, target,
+                        landing, solver, pairs, done, why)
         for w in range(width):
             if why[w]:
                 b = first + w
@@ -827,14 +844,21 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
                 failed[b] = s
                 reason[b] = why[w]
                 done[w] = True
-        _drift_copies(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, dirs, dxw, strength)
-        _close_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
-                      gravity_force, rigid_members, rigid_w, acc, tension, dirs, dxw, strength, imp, sl, kept)
+        if width == 1:   # a copy alone (Simulator's): the copies' loops of one trip would cost it a third more
+            _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, dirs, dx, 0)
+            _close(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
+                   gravity_force, rigid_members, rigid_w, acc, tension, dirs, dx, imp_one, sl_one, 0, kept_one)
+            for ci in range(nc):
+                imp[ci, 0] = imp_one[ci]
+                sl[ci, 0] = sl_one[ci]
+        else:
+            _drift_copies(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, dirs, dxw, strength)
+            _close_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping,
+                          inv_mass, gravity_force, rigid_members, rigid_w, acc, tension, dirs, dxw, strength, imp, sl,
+                          kept)
         last = (s + 1) % every == 0 or s == n_steps - 1
-        _settle_contacts(x, v, v0, ends, inv_mass, rigid_members, rigid_w, dirs, height, mu, restitution, radii,
-                         node_strut, touch_tol, pair_nodes, pair_radii, pair_mu, pair_restitution, warm, v0b, contact,
-                         contacts, armed, target, landing, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6,
-                         s5, t5, pairs, done, why)
+        _settle_contacts(x, v, v0, dirs, bodies, ground, members, warm, v0b, contact, contacts, armed, target,
+                         landing, solver, pairs, done, why)
         for w in range(width):
             if done[w]:
                 continue
@@ -880,7 +904,9 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
                     total[ci, w] = 0.0
 
 
-CHUNK = 32   # copies stepped together (measured on Roll-v0's vector environment: 8, 16, 32, 64 took 0.80, 0.74, 0.71, 0.75 of the time a copy at a time took)
+# copies stepped together (measured on Roll-v0's vector environment: 8, 16, 32, 64 took 0.80, 0.74, 0.71, 0.75 of
+# the time a copy at a time took)
+CHUNK = 32
 
 
 @njit(cache=True, error_model="numpy")
@@ -970,7 +996,8 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
                      np.empty((n_nodes, 3, width)), np.empty((n_nodes, 3, width)), np.empty((n_nodes, 3, width)),
                      np.empty((nr, width)), np.empty((nc, width)), np.empty((nc, width), dtype=np.bool_),
                      np.zeros((nc, width)), np.empty((n_nodes, 3, width)), np.zeros((n_nodes, 3, width)),
-                     np.empty((n_nodes, width)), np.empty((m, 4, width)), done, np.empty(width, dtype=np.bool_),
+                     np.empty((n_nodes, width)), np.empty((m, 4, width)), np.empty((m, 4)), np.empty(nc),
+                     np.empty(nc, dtype=np.bool_), done, np.empty(width, dtype=np.bool_),
                      np.empty(width, dtype=np.int64),
                      np.empty((n_nodes, 3, width)), np.empty((nc, width)), np.empty((nr, 3, width)), v0b, dx,
                      contact, armed, target, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5,

@@ -96,9 +96,12 @@ def model_arrays(system, rigid) -> ElasticModel:
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-            rigid_members, acc, tension, rigid_dirs, slack, b):
+            rigid_members, acc, tension, rigid_dirs, slack, b, kept=None, fresh=True):
     """Copy ``b``: accelerations, cable tensions, rigid strut directions and slack cables at ``x``
-    (damping from ``v``), written into ``acc``, ``tension``, ``rigid_dirs`` and ``slack``."""
+    (damping from ``v``), written into ``acc``, ``tension``, ``rigid_dirs`` and ``slack``. ``kept`` (m, 4): each
+    member's length (m) and unit vector at ``x``, written here where ``fresh``, else read from the last call at
+    this very ``x`` (forces again after new inputs: the same numbers without a square root and three divisions
+    a member; the cables along a strut are measured anew). None (compiled without it): measured, not kept."""
     n_nodes = x.shape[0]
     n_struts = strut_rest.shape[0]
     for i in range(n_nodes):
@@ -115,13 +118,24 @@ def _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_re
             continue
         a = ends[i, 0]
         c = ends[i, 1]
-        d0 = x[c, 0, b] - x[a, 0, b]
-        d1 = x[c, 1, b] - x[a, 1, b]
-        d2 = x[c, 2, b] - x[a, 2, b]
-        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        n0 = d0 / length
-        n1 = d1 / length
-        n2 = d2 / length
+        if kept is not None and not fresh:
+            length = kept[i, 0]
+            n0 = kept[i, 1]
+            n1 = kept[i, 2]
+            n2 = kept[i, 3]
+        else:
+            d0 = x[c, 0, b] - x[a, 0, b]
+            d1 = x[c, 1, b] - x[a, 1, b]
+            d2 = x[c, 2, b] - x[a, 2, b]
+            length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            n0 = d0 / length
+            n1 = d1 / length
+            n2 = d2 / length
+            if kept is not None:
+                kept[i, 0] = length
+                kept[i, 1] = n0
+                kept[i, 2] = n1
+                kept[i, 3] = n2
         if rigid_k < n_rigid and rigid_members[rigid_k] == i:
             rigid_dirs[rigid_k, 0, b] = n0
             rigid_dirs[rigid_k, 1, b] = n1
@@ -298,16 +312,16 @@ def _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, rig
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _close(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-           rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b):
-    """Copy ``b``'s end of a step: the forces at the drifted ``x``, the cables' impulses, the closing half-kick
-    and RATTLE."""
+           rigid_members, rigid_w, acc, tension, rigid_dirs, dx, impulses, slack, b, kept=None):
+    """Copy ``b``'s end of a step: the forces at the drifted ``x`` (its members' geometry written into ``kept``,
+    :func:`_forces`'), the cables' impulses, the closing half-kick and RATTLE."""
     n_nodes = x.shape[0]
     nc = tension.shape[0]
     half = 0.5 * h
     for ci in range(nc):
         impulses[ci] = tension[ci, b]
     _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
-            rigid_members, acc, tension, rigid_dirs, slack, b)
+            rigid_members, acc, tension, rigid_dirs, slack, b, kept)
     for ci in range(nc):
         impulses[ci] = half * (impulses[ci] + tension[ci, b])
     for i in range(n_nodes):
@@ -617,7 +631,8 @@ def _close_copies(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor,
             c = ends[m, 1]
             wkk = rigid_w[k, k]
             for b in range(n_copies):
-                rate = ((v[c, 0, b] - v[a, 0, b]) * rigid_dirs[k, 0, b] + (v[c, 1, b] - v[a, 1, b]) * rigid_dirs[k, 1, b]
+                rate = ((v[c, 0, b] - v[a, 0, b]) * rigid_dirs[k, 0, b]
+                        + (v[c, 1, b] - v[a, 1, b]) * rigid_dirs[k, 1, b]
                         + (v[c, 2, b] - v[a, 2, b]) * rigid_dirs[k, 2, b])
                 strength[k, b] = rate / wkk
         _pushes_copies(ends, inv_mass, rigid_members, strength, rigid_dirs, dx)
