@@ -528,23 +528,23 @@ def _landing_target(gap, vz0, h, touch_tol):
 
 @njit(cache=True, error_model="numpy", inline="always", _nrt=False)
 def _drift_contacts(x, v, v0, h, rigid_dirs, bodies, ground, members, warm, dx, v0b, contact, contacts, armed,
-                    target, landing, solver, pairs, done, why):
-    """Each copy (not ``done``) of a chunk's ``x``, ``v`` (N, 3, W) after the opening half-kick, one after the
-    other (inlined in the step loop: a call handing over these ~50 arrays cost a copy alone a tenth of its step;
-    the model and the scratch come in the tuples ``bodies``, ``ground``, ``members`` and ``solver``, since
-    Python passes a call of more than 30 arguments as ``*args``, which numba does not inline): the nodes (and member pairs) that the
-    drift would carry into contact armed (``ContactSet.arm_step``, module docstring) and their velocity problem
-    solved, in place on ``v``; ``v0`` (N, 3, W): the velocities at the step's start. ``contacts`` (N, 3, W) gets
-    each copy's impulses, ``landing`` (N, W) the closing speeds of its nodes not yet touching
-    (:func:`_settle_contacts`' restitution), ``pairs`` (:func:`pair_scratch`) the member pairs' (of the last
-    copy: a chunk with pairs holds one), ``work`` (W, ...) and ``z`` (W, ...) each copy's solver scratch;
+                    target, landing, solver, pairs, done, why, width):
+    """Each of the ``width`` copies (not ``done``) of a chunk's ``x``, ``v`` (N, 3, W) after the opening half-kick,
+    one after the other (inlined in the step loop: a call handing over these ~50 arrays cost a copy alone a tenth
+    of its step; the model and the scratch come in the tuples ``bodies``, ``ground``, ``members`` and ``solver``,
+    since Python passes a call of more than 30 arguments as ``*args``, which numba does not inline): the nodes (and
+    member pairs) that the drift would carry into contact armed (``ContactSet.arm_step``, module docstring) and
+    their velocity problem solved, in place on ``v``; ``v0`` (N, 3, W): the velocities at the step's start.
+    ``contacts`` (N, 3, W) gets each copy's impulses, ``landing`` (N, W) the closing speeds of its nodes not yet
+    touching (:func:`_settle_contacts`' restitution), ``pairs`` (:func:`pair_scratch`) the member pairs' (of the
+    last copy: a chunk with pairs holds one), ``work`` (W, ...) and ``z`` (W, ...) each copy's solver scratch;
     ``dx``, ``v0b``, ``contact`` (N, 3) and the rest are scratch. ``why`` (W,) int64: 0, or why the copy's step
     is left to the reference (``UNSOLVED``, ``MEMBERS``: its ``v`` is then not a step's)."""
     ends, inv_mass, rigid_members, rigid_w, node_strut = bodies
     height, mu, restitution, radii, touch_tol = ground
     pair_nodes, pair_radii, pair_mu, pair_restitution = members
     work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5 = solver
-    n_nodes, _, width = x.shape
+    n_nodes = x.shape[0]
     n_pairs = pair_nodes.shape[0]
     for w in range(width):
         why[w] = 0
@@ -626,7 +626,7 @@ def _drift_contacts(x, v, v0, h, rigid_dirs, bodies, ground, members, warm, dx, 
 
 @njit(cache=True, error_model="numpy", inline="always", _nrt=False)
 def _settle_contacts(x, v, v0, rigid_dirs, bodies, ground, members, warm, v0b, contact, contacts, armed, target,
-                     landing, solver, pairs, done, why):
+                     landing, solver, pairs, done, why, width):
     """Each copy (not ``done``) of a chunk after the closing half-kick and RATTLE, as :func:`_drift_contacts`
     (its arguments): the touching nodes (and member pairs) armed (``ContactSet.arm_settle``: Newton's
     restitution of its ``landing``) and their velocity problem solved, in place on ``v``; ``contacts`` adds the
@@ -635,7 +635,7 @@ def _settle_contacts(x, v, v0, rigid_dirs, bodies, ground, members, warm, v0b, c
     height, mu, restitution, radii, touch_tol = ground
     pair_nodes, pair_radii, pair_mu, pair_restitution = members
     work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5 = solver
-    n_nodes, _, width = x.shape
+    n_nodes = x.shape[0]
     for w in range(width):
         why[w] = 0
         if done[w]:
@@ -666,13 +666,12 @@ def _settle_contacts(x, v, v0, rigid_dirs, bodies, ground, members, warm, v0b, c
 
 
 @njit(cache=True, error_model="numpy", inline="always", _nrt=False)
-def _take_inputs(rest_seq, ext_seq, ext_held, s, first, done, rest, ext, moved) -> bool:
+def _take_inputs(rest_seq, ext_seq, ext_held, s, first, done, rest, ext, moved, width) -> bool:
     """Step ``s``'s inputs into a chunk's ``rest`` (nc, W) and ``ext`` (N, 3, W) from columns ``first`` ... of
     ``rest_seq`` and ``ext_seq`` (or their one column of every copy), for the copies not ``done``; ``moved``
     (W,) gets whether a copy's changed, and the return whether any did. ``ext_held`` (T,):
     :func:`_held_external`'s (where it holds step ``s``, ``ext`` already has step ``s - 1``'s, the same numbers:
     not compared again). Each number's copies are walked innermost (consecutive columns of the inputs)."""
-    width = rest.shape[1]
     by_copy_rest = rest_seq.shape[2] > 1   # each copy's own column of the inputs (else one of every copy's)
     by_copy_ext = ext_seq.shape[3] > 1
     for w in range(width):
@@ -772,8 +771,8 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
                  warm, rest_seq, ext_seq, ext_held, x0, v0, dxw, strength, imp, sl, total, contacts, total_contact,
                  landing, kept, kept_one, imp_one, sl_one, done, moved, why, acc_new, tension_new, dirs_new, v0b, dx,
                  contact, armed, target, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5, pairs, gx,
-                 gv, gacc, gtension, gdirs, gwarm, out_x, out_v, out_impulses, out_slack, out_contact, out_pairs, n_records, failed, reason, peak,
-                 snaps, was_slack):
+                 gv, gacc, gtension, gdirs, gwarm, out_x, out_v, out_impulses, out_slack, out_contact, out_pairs,
+                 n_records, failed, reason, peak, snaps, was_slack, many):
     """``n_steps`` steps of a chunk of W copies, batch ``first`` to ``first + W - 1``, in the chunk's own arrays
     (``x`` ... ``warm``, batch last; the scratch beside them, :func:`_block` allocates): each phase of a step
     that treats every copy alike (the half-kicks, the drift and SHAKE, the forces and RATTLE) walks the W
@@ -781,12 +780,15 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
     copy (``work``, ``z``: one solver scratch a copy, so that each sees only its own last solve's, as a copy
     stepped alone does). A copy's numbers are those of stepping it alone (``Simulator``'s loop), bit for bit:
     the same operations in the same order. A copy whose step is left to the reference (or that has no room
-    for its pairs' records) stops there (:func:`_leave`, ``done``); the others go on. A chunk of one copy
-    (``Simulator``'s, a scene with member pairs, a block's last) drifts and closes with the per-copy kernels
-    (``_drift``, ``_close``, ``_forces``; ``kept_one``, ``imp_one``, ``sl_one`` theirs): the copies' loops of one
-    trip cost it a third more. Outputs as
+    for its pairs' records) stops there (:func:`_leave`, ``done``); the others go on. ``many`` None: a chunk of
+    one copy (``Simulator``'s, a scene with member pairs, a block's last), compiled apart (W = 1 a constant:
+    no loop over the copies, the copy's index 0), which drifts and closes with the per-copy kernels (``_drift``,
+    ``_close``, ``_forces``; ``kept_one``, ``imp_one``, ``sl_one`` theirs); an int: W copies (the copies'
+    loops of one trip had cost a copy alone a third more). Outputs as
     :func:`_ground_steps`', but the summary's ``peak``, ``snaps`` and ``was_slack`` (nc, W) are the chunk's."""
     n_nodes, _, width = x.shape
+    if many is None:   # a chunk of one copy, compiled apart: its loops over the copies of one trip, its index constant
+        width = 1
     nc = rest.shape[0]
     n_pairs = pair_nodes.shape[0]
     half = 0.5 * h
@@ -810,11 +812,11 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
                     reason[b] = FULL
                     done[w] = True
         if rest_seq.shape[0] > 0:
-            any_moved = _take_inputs(rest_seq, ext_seq, ext_held, s, first, done, rest, ext, moved)
+            any_moved = _take_inputs(rest_seq, ext_seq, ext_held, s, first, done, rest, ext, moved, width)
             if any_moved:
                 # a copy's new inputs: forces computed anew at its state (after the first step from the members'
                 # geometry that the last step's end kept: a reel's every step); a copy without keeps its carry
-                if width == 1:
+                if many is None:
                     _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
                             gravity_force, rigid_members, acc_new, tension_new, dirs_new, sl_one, 0, kept_one, s == 0)
                 else:
@@ -836,7 +838,7 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
                 for w in range(width):
                     v[i, j, w] += half * acc[i, j, w]
         _drift_contacts(x, v, v0, h, dirs, bodies, ground, members, warm, dx, v0b, contact, contacts, armed, target,
-                        landing, solver, pairs, done, why)
+                        landing, solver, pairs, done, why, width)
         for w in range(width):
             if why[w]:
                 b = first + w
@@ -844,7 +846,7 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
                 failed[b] = s
                 reason[b] = why[w]
                 done[w] = True
-        if width == 1:   # a copy alone (Simulator's): the copies' loops of one trip would cost it a third more
+        if many is None:   # a copy alone: the copies' loops of one trip would cost it a third more
             _drift(x, v, h, ends, inv_mass, rigid_members, rigid_length_sq, rigid_w, dirs, dx, 0)
             _close(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass,
                    gravity_force, rigid_members, rigid_w, acc, tension, dirs, dx, imp_one, sl_one, 0, kept_one)
@@ -858,7 +860,7 @@ def _chunk_steps(first, h, n_steps, every, ends, attach, attach_at, stiffness, f
                           kept)
         last = (s + 1) % every == 0 or s == n_steps - 1
         _settle_contacts(x, v, v0, dirs, bodies, ground, members, warm, v0b, contact, contacts, armed, target,
-                         landing, solver, pairs, done, why)
+                         landing, solver, pairs, done, why, width)
         for w in range(width):
             if done[w]:
                 continue
@@ -989,20 +991,26 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
         # each copy starts from the scratch a call of its own would have
         work = np.zeros((width, 6, MAX_ROWS, MAX_ROWS))
         z = np.zeros((width, MAX_ROWS))
-        _chunk_steps(start, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
-                     damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu,
-                     restitution, radii_b, node_strut_b, touch_tol, pair_nodes_b, pair_radii_b, pair_mu,
-                     pair_restitution, xw, vw, restw, extw, accw, tensionw, dirsw, warmw, rest_seq, ext_seq, ext_held,
-                     np.empty((n_nodes, 3, width)), np.empty((n_nodes, 3, width)), np.empty((n_nodes, 3, width)),
-                     np.empty((nr, width)), np.empty((nc, width)), np.empty((nc, width), dtype=np.bool_),
-                     np.zeros((nc, width)), np.empty((n_nodes, 3, width)), np.zeros((n_nodes, 3, width)),
-                     np.empty((n_nodes, width)), np.empty((m, 4, width)), np.empty((m, 4)), np.empty(nc),
-                     np.empty(nc, dtype=np.bool_), done, np.empty(width, dtype=np.bool_),
-                     np.empty(width, dtype=np.int64),
-                     np.empty((n_nodes, 3, width)), np.empty((nc, width)), np.empty((nr, 3, width)), v0b, dx,
-                     contact, armed, target, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5,
-                     pairs, x, v, acc, tension, rigid_dirs, warm, out_x, out_v, out_impulses, out_slack, out_contact,
-                     out_pairs, n_records, failed, reason, peak_w, snaps_w, slack_w)
+        def chunk_steps(many):   # (a closure: one call written out for the two compilations)
+            _chunk_steps(start, h, n_steps, every, ends_b, attach_b, attach_at_b, stiffness_b, floor_b, strut_rest_b,
+                         damping_b, inv_mass_b, gravity_b, rigid_members_b, rigid_length_sq_b, rigid_w_b, height, mu,
+                         restitution, radii_b, node_strut_b, touch_tol, pair_nodes_b, pair_radii_b, pair_mu,
+                         pair_restitution, xw, vw, restw, extw, accw, tensionw, dirsw, warmw, rest_seq, ext_seq,
+                         ext_held,
+                         np.empty((n_nodes, 3, width)), np.empty((n_nodes, 3, width)), np.empty((n_nodes, 3, width)),
+                         np.empty((nr, width)), np.empty((nc, width)), np.empty((nc, width), dtype=np.bool_),
+                         np.zeros((nc, width)), np.empty((n_nodes, 3, width)), np.zeros((n_nodes, 3, width)),
+                         np.empty((n_nodes, width)), np.empty((m, 4, width)), np.empty((m, 4)), np.empty(nc),
+                         np.empty(nc, dtype=np.bool_), done, np.empty(width, dtype=np.bool_),
+                         np.empty(width, dtype=np.int64),
+                         np.empty((n_nodes, 3, width)), np.empty((nc, width)), np.empty((nr, 3, width)), v0b, dx,
+                         contact, armed, target, work, inv2, vel, z, ends_k, target_k, vel3, z3, ends4, out6, s5, t5,
+                         pairs, x, v, acc, tension, rigid_dirs, warm, out_x, out_v, out_impulses, out_slack,
+                         out_contact, out_pairs, n_records, failed, reason, peak_w, snaps_w, slack_w, many)
+        if width == 1:
+            chunk_steps(None)
+        else:
+            chunk_steps(width)
         for w in range(summed):
             for ci in range(nc):
                 peak[ci, start + w] = peak_w[ci, w]
