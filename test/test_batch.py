@@ -329,6 +329,46 @@ def test_a_scene_with_a_ground_steps_in_the_compiled_batch_as_single_runs_do(met
     assert events > 6 * 3   # landings and lift-offs, not only three nodes touching down
 
 
+def test_a_ground_batch_in_many_chunks_is_its_copies_stepped_alone():
+    """The ground kernel steps a core's copies in chunks of ``CHUNK`` side by side, and a chunk of one copy in a
+    compilation of its own (W = 1 a constant): 67 thrown copies go in chunks of 32, 32 and 3 on one thread and
+    of 32 and 1, 32 and 2 on two (the same numbers), and every copy's positions and velocities are those of a
+    Simulator stepping it alone, bit for bit, through a rest-length command mid-run."""
+    import numba
+    from tensegrity_sim.methods.elastic._ground_kernels import CHUNK
+
+    copies = 2 * CHUNK + 3
+    scene, x, v = _thrown_on_ground(copies, seed=11)
+    runs = {}
+    threads = numba.get_num_threads()
+    for n in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+        numba.set_num_threads(n)
+        try:
+            batch = BatchSimulator(scene, copies, method="elastic", dt=1e-3, positions=x, velocities=v, contacts=())
+            first = batch.run(steps=150, every=50)
+            batch.set_rest_lengths({"c4": 0.6})
+            runs[n] = (first, batch.run(steps=150, every=50))
+        finally:
+            numba.set_num_threads(threads)
+    one = runs[1]
+    for got in runs.values():
+        for a, b in zip(got, one):
+            for field in ("positions", "velocities", "impulses"):
+                np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    for b in range(copies):
+        sim = ts.Simulator(BatchSimulator._with_state(scene, x[b], v[b], b), method="elastic", dt=1e-3,
+                           contacts=())
+        want = [sim.run(steps=150, every=50)]
+        sim.set_rest_lengths({"c4": 0.6})
+        want.append(sim.run(steps=150, every=50))
+        for got, w in zip(one, want):
+            for field in ("positions", "velocities"):
+                np.testing.assert_array_equal(getattr(got, field)[b], getattr(w, field), err_msg=f"copy {b}")
+            # (a kept step's impulses are summed in another order by the Simulator's run: round-off)
+            np.testing.assert_allclose(got.impulses[b], w.impulses, rtol=1e-14, atol=1e-18, err_msg=f"copy {b}")
+    assert np.ptp(one[1].positions[:, -1, :, 2].min(axis=1)) > 1e-3   # the copies went their own ways
+
+
 def test_a_copy_whose_step_the_reference_cannot_take_on_the_ground_stops_alone(monkeypatch):
     """Regression: a copy whose ground step the compiled loop leaves to the reference (``UNSOLVED``) and the
     reference cannot take either (a ``StepError``) stopped every copy: the exception left ``ElasticBatch``'s
