@@ -318,6 +318,17 @@ class BatchSimulator:
             return np.moveaxis(getattr(self, batch_last), -1, 0).copy()
         return np.stack([getattr(c, per_copy) for c in self._copies])
 
+    def batch_last(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The compiled batch's own state arrays, batch last and read only: positions, velocities (N, 3, B) and
+        rest lengths (n_cables, B) (what :attr:`positions`, :attr:`velocities` and :attr:`rest_lengths` copy
+        with the batch first); None where the copies are stepped one by one. Valid until the next change."""
+        if self._copies is not None:
+            return None
+        views = tuple(a.view() for a in (self._x, self._v, self._rest))
+        for a in views:
+            a.flags.writeable = False
+        return views
+
     @property
     def positions(self) -> np.ndarray:
         """(B, N, 3) m; a failed copy's last good state."""

@@ -80,6 +80,31 @@ def test_reel_and_reward_against_a_plain_simulator():
     assert abs(total - ((info["com"] - start)[1] - 0.3 * 0.5 * 0.06)) < 1e-12
 
 
+@pytest.mark.parametrize("cables", [None, ["c9", "c2", "c4"]])
+def test_compiled_period_equals_its_numpy_reference(cables):
+    """The reel, the rewards and the observations by the compiled kernels (envs/_kernels.py) against the task's
+    numpy arithmetic (``compiled=False``): the same environment stepped with the same seeds and actions through
+    autoresets, every output equal to 1e-12 (the centres of mass summed in another order)."""
+    params = dict(SHORT, effort_cost=0.7) if cables is None else dict(SHORT, cables=cables, effort_cost=0.7)
+    envs = [RollVectorEnv(4, **params) for _ in range(2)]
+    envs[1].task.compiled = False
+    for a, b in zip(envs[0].reset(seed=5), envs[1].reset(seed=5)):
+        if isinstance(a, np.ndarray):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+    rng = np.random.default_rng(2)
+    moved = 0.0
+    for _ in range(12):   # two autoresets of every copy
+        action = rng.uniform(-1, 1, envs[0].action_space.shape)
+        (obs, rewards, _, truncated, infos), (obs_ref, rewards_ref, _, truncated_ref, infos_ref) = \
+            (env.step(action) for env in envs)
+        np.testing.assert_allclose(obs, obs_ref, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(rewards, rewards_ref, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(infos["com"], infos_ref["com"], rtol=0, atol=1e-12)
+        assert truncated.tolist() == truncated_ref.tolist()
+        moved = max(moved, float(np.abs(rewards).max()))
+    assert moved > 1e-4   # the robots moved (rewards that are not all zero)
+
+
 def test_refused_copy_is_truncated_with_its_reason():
     vec = RollVectorEnv(3, **SHORT)
     vec.reset(seed=1)

@@ -17,6 +17,7 @@ from ..batch import BatchSimulator
 from ..commands import CommandSchedule
 from ..methods.rigid import RigidStruts
 from ..scene import Scene, load_scene
+from . import _kernels
 
 __all__ = ["PARAMETERS", "RollTask"]
 
@@ -145,6 +146,9 @@ class RollTask:
                              f"the environments reel the cables inside one")
         self.masses = self.sim.system.masses
         self.batch = copies
+        # the period's reel, rewards and observations by the compiled kernels (envs/_kernels.py); False: by numpy,
+        # their reference (the same numbers to round-off)
+        self.compiled = True
         n, nc = len(scene.nodes), len(scene.cables)
         self.n_obs = nc + len(names) + 6 * n + 2
         self.goals = np.tile(self.goal, (copies, 1))
@@ -202,6 +206,11 @@ class RollTask:
     def observe(self) -> np.ndarray:
         """(B, n_obs) float64: cable lengths (n_cables) m, the actuated cables' rest lengths (n_actuated) m,
         node positions relative to the centre of mass (N x 3) m, node velocities (N x 3) m/s, goal (2)."""
+        state = self.sim.batch_last() if self.compiled else None
+        if state is not None:
+            out = np.empty((self.batch, self.n_obs))
+            _kernels.observe(*state, self.sim.system.cable_ends, self.actuated, self.centres, self.goals, out)
+            return out
         x, v = self.sim.positions, self.sim.velocities
         ce = self.sim.system.cable_ends
         b, n, nc, na = self.batch, x.shape[1], len(ce), len(self.actuated)
@@ -244,6 +253,18 @@ class RollTask:
         """One control period of every copy from actions (B, n_actuated) in [-1, 1]: rewards (B,) and the copies'
         time limits reached (B,) bool. The copies the simulator refused are in ``sim.failures`` {copy: reason}."""
         sim, s = self.sim, self.substeps
+        state = sim.batch_last() if self.compiled else None
+        if state is not None:
+            before, start = self.centres, state[2][self.actuated]                           # (B, 3), (na, B) m
+            rest = np.empty((s, len(self.actuated), self.batch))
+            _kernels.reel(state[2], self.actuated, self.targets(actions), self.reel_speed * self.dt, rest)
+            sim.run(steps=s, every=s, commands=_Reel(self.actuated, rest, len(self.scene.nodes)), fields=(),
+                    ground_events=False)
+            x, _, rest_now = sim.batch_last()
+            self.centres, rewards = np.empty((self.batch, 3)), np.empty(self.batch)
+            _kernels.period_end(x, rest_now, self.masses, self.actuated, start, before, self.goals, self.effort_cost,
+                                self.centres, rewards)
+            return self._finished(rewards)
         before = self.centres[:, :2]
         current = sim.rest_lengths[:, self.actuated]
         reach = self.reel_speed * self.dt * np.arange(1, s + 1)[:, None, None]          # (S, 1, 1) m
@@ -260,6 +281,10 @@ class RollTask:
         after = self.centres[:, :2]
         effort = np.abs(rest[-1].T - current).sum(axis=1)
         rewards = np.einsum("bk,bk->b", after - before, self.goals) - self.effort_cost * effort
+        return self._finished(rewards)
+
+    def _finished(self, rewards: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A control period's end: its rewards (a refused copy's none) and the copies' time limits reached."""
         self.elapsed += 1
-        rewards[sim.failed] = 0.0   # a refused copy stands still at its last good state
+        rewards[self.sim.failed] = 0.0   # a refused copy stands still at its last good state
         return rewards, self.elapsed >= self.periods
