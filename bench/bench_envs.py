@@ -17,10 +17,10 @@ Contenders, each stepping random actions in [-1, 1] (one control period of 20 ms
   a reset (``resets`` in the CSV counts them over the bench's run: 0 expected);
 * ``mujoco_sync``: Gymnasium's ``SyncVectorEnv`` of ``--copies`` of them.
 
-Rates are environment steps (control periods) per second of wall time, best of ``--repeats`` turns after a
-warm-up, the contenders taking turns in one process; ``ratio``: the vector environment's rate over each contender's. CSV: ``bench/results/envs.csv``.
+Rates are environment steps (control periods) per second of wall time, best of ``--repeats`` turns of
+``--seconds`` each after a warm-up, the contenders taking turns in one process; ``ratio``: the vector environment's rate over each contender's. CSV: ``bench/results/envs.csv``.
 
-    python3 bench/bench_envs.py --copies 256 --periods 20
+    python3 bench/bench_envs.py --copies 256 --seconds 0.25 --repeats 5
 """
 from __future__ import annotations
 
@@ -91,26 +91,34 @@ class MujocoRoll(MujocoEnv):
         return np.concatenate([self.data.qpos, self.data.qvel])
 
 
-def _rates(contenders: dict, repeats: int) -> dict:
-    """Environment steps per second of each contender ``name: (step, periods, copies)``: ``step()`` (``copies``
-    environment steps each) ``periods`` times, the best of ``repeats`` turns taken in rotation (a shared
-    machine's load then falls on every contender alike, and only ever adds time)."""
-    best = {name: np.inf for name in contenders}
-    for step, _, _ in contenders.values():
+def _rates(contenders: dict, repeats: int, seconds: float) -> dict:
+    """Environment steps per second of each contender ``name: (step, copies)``: ``step()`` (``copies``
+    environment steps each) called until ``seconds`` of wall time have passed, the best of ``repeats`` such turns
+    taken in rotation (a shared machine's load then falls on every contender alike, and only ever adds time).
+    Every contender's turn lasts about as long, each in its steady state: with a set number of periods a turn, one
+    MuJoCo environment's 20 periods took 13 ms against the vector environment's 170 ms, and its short turns
+    started from caches that the vector environment's turn had emptied (1,460-1,550 env-steps/s in five runs,
+    against 1,600-1,670 with turns of 0.25 s)."""
+    best = {name: 0.0 for name in contenders}
+    for step, _ in contenders.values():
         step()   # warm-up (compiling)
     for _ in range(repeats):
-        for name, (step, periods, _) in contenders.items():
-            start = time.perf_counter()
-            for _ in range(periods):
+        for name, (step, copies) in contenders.items():
+            calls, start = 0, time.perf_counter()
+            while True:
                 step()
-            best[name] = min(best[name], time.perf_counter() - start)
-    return {name: periods * copies / best[name] for name, (_, periods, copies) in contenders.items()}
+                calls += 1
+                elapsed = time.perf_counter() - start
+                if elapsed >= seconds:
+                    break
+            best[name] = max(best[name], calls * copies / elapsed)
+    return best
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--copies", type=int, default=256)
-    parser.add_argument("--periods", type=int, default=20, help="control periods per timed turn")
+    parser.add_argument("--seconds", type=float, default=0.25, help="wall seconds of each timed turn")
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args(argv)
     scene = ts.load_scene("icosahedron_ground")
@@ -131,15 +139,14 @@ def main(argv=None) -> None:
         sync = gym.vector.SyncVectorEnv([lambda: MujocoRoll(str(xml), rest) for _ in range(args.copies)])
         sync.reset(seed=0)
         contenders = {
-            "vector": (lambda: vec.step(rng.uniform(-1, 1, (args.copies, na))), args.periods, args.copies),
-            "single": (lambda: single.step(rng.uniform(-1, 1, na)), args.periods, 1),
-            "mujoco": (lambda: env.step(rng.uniform(-1, 1, na)), args.periods, 1),
-            "mujoco_sync": (lambda: sync.step(rng.uniform(-1, 1, (args.copies, na))), max(1, args.periods // 4),
-                            args.copies)}
-        rates = _rates(contenders, args.repeats)
+            "vector": (lambda: vec.step(rng.uniform(-1, 1, (args.copies, na))), args.copies),
+            "single": (lambda: single.step(rng.uniform(-1, 1, na)), 1),
+            "mujoco": (lambda: env.step(rng.uniform(-1, 1, na)), 1),
+            "mujoco_sync": (lambda: sync.step(rng.uniform(-1, 1, (args.copies, na))), args.copies)}
+        rates = _rates(contenders, args.repeats, args.seconds)
         resets = {"mujoco": env.resets, "mujoco_sync": sum(e.resets for e in sync.envs)}
     ours = rates["vector"]
-    out = [{"contender": name, "copies": contenders[name][2], "env_steps_per_s": float(rate),
+    out = [{"contender": name, "copies": contenders[name][1], "env_steps_per_s": float(rate),
             "ratio": float(ours / rate), "resets": resets.get(name, 0)} for name, rate in rates.items()]
     for row in out:
         print(f"{row['contender']:<12} {row['copies']:>5} copies {row['env_steps_per_s']:>12.1f} env-steps/s   "
