@@ -221,11 +221,11 @@ class QPSolver:
                           f"impulse {smallest:.3g} N*s, an acting row {slack:.3g} m/s "
                           f"short of its target (impulse scale {impulse:.3g} N*s, velocity scale {scale:.3g} m/s)")
 
-    def _residuals_reference(self, v, y, v0, rows: Rows):
+    def _residuals_reference(self, v, y, v0, rows: Rows, acting_floor: float = 0.0):
         """The numpy reference of ``_qp_kernels.answer_residuals``: the velocity scale (m/s), the
         largest constraint violation (m/s), the impulse scale (N*s), the stationarity residual (N*s),
         the smallest inequality impulse (N*s, at most 0) and how far an acting row is short of its
-        target (m/s)."""
+        target (m/s); a row acts where its impulse exceeds ``acting_floor`` (N*s) too."""
         n_eq = rows.n_eq
         scale = max(float(np.max(np.abs(v0), initial=0.0)), float(np.max(np.abs(rows.targets), initial=0.0)))
         res = rows.rates(v) - rows.targets
@@ -234,7 +234,7 @@ class QPSolver:
         impulse = max(float(np.max(np.abs(self.mass * v0.ravel()), initial=0.0)),
                       float(np.max(np.abs(change), initial=0.0)), float(np.max(np.abs(y), initial=0.0)), 1e-300)
         stationarity = float(np.max(np.abs(change + rows.dense(self.n_free).T @ y), initial=0.0))
-        acting = y[n_eq:] > _FEASIBILITY_TOL * impulse
+        acting = y[n_eq:] > max(_FEASIBILITY_TOL * impulse, acting_floor)
         slack = float(np.max(-res[n_eq:][acting], initial=0.0))
         return scale, viol, impulse, stationarity, float(np.min(y[n_eq:], initial=0.0)), slack
 
@@ -1073,8 +1073,9 @@ class BlockMassSolver(MassWrapper):
     def _check(self, v, y, v0, rows: Rows) -> None:
         self.inner._check(self.to_inner(v), y, self.to_inner(v0), self.inner_rows(rows))
 
-    def _residuals_reference(self, v, y, v0, rows: Rows):
-        return self.inner._residuals_reference(self.to_inner(v), y, self.to_inner(v0), self.inner_rows(rows))
+    def _residuals_reference(self, v, y, v0, rows: Rows, acting_floor: float = 0.0):
+        return self.inner._residuals_reference(self.to_inner(v), y, self.to_inner(v0), self.inner_rows(rows),
+                                               acting_floor)
 
     def describe(self) -> dict:
         return {**self.inner.describe(), "mass": "2x2 blocks (rigid rods), Schur coordinates"}
