@@ -754,7 +754,8 @@ def test_an_impulse_within_the_physical_tolerance_of_zero_is_no_acting_row(monke
     6.9e-6 N*s, under the physical tolerance (8.2e-6 N*s), one of them on a row 3.5e-5 m/s short of its target.
     Counted as acting, that row stopped the run (``QPError ... (infeasible output)``); as a row without an
     impulse, within the tolerance, the answer is accepted and the throw runs soundly (every accepted answer
-    recomputed against the Coulomb law and the rows' complementarity by ``throw_cases``' checks)."""
+    recomputed against the Coulomb law and the rows' complementarity by ``throw_cases``' checks). (The polygon
+    start, ``friction._polyhedral_start``, later answers the step too: the rule before is tried without it.)"""
     out = T.run_throw(SET_DOWN_SUPERBALL)
     assert T.problems(SET_DOWN_SUPERBALL, out) == [] and out["steps"] == 30
     solver = F.FrictionalSolver
@@ -766,5 +767,55 @@ def test_an_impulse_within_the_physical_tolerance_of_zero_is_no_acting_row(monke
         return not (stationarity > tol or smallest < -tol or heaviest * max(viol, slack) > tol)
 
     monkeypatch.setattr(solver, "_rows_within", acting_from_any_impulse)
+    monkeypatch.setattr(F, "_polyhedral_start", lambda *args: None)   # (the last start, which answers it too)
     out = T.run_throw(SET_DOWN_SUPERBALL)
     assert out["error"] is not None and "infeasible output" in str(out["error"])
+
+
+@pytest.mark.parametrize("vx, vy", [(0.3, 0.0), (0.2, 0.15), (0.001, -0.002)])
+def test_the_polygon_start_of_a_sliding_or_sticking_node_is_the_disc_law_where_turned_to_its_slip(vx, vy):
+    """``friction._polyhedral_start`` on one free node of mass m resting on the ground with a gravity kick
+    ``g h`` and a tangential velocity ``(vx, vy)`` (the Delassus matrix of its normal and tangential rows:
+    ``diag(-1, 1, 1) / m``; no other rows): the closed form, ``y_n = m g h``; sliding where ``m |v_t| > mu y_n``,
+    ``f = -mu y_n v_t / |v_t|``, else sticking, ``f = -m v_t``. With its polygon turned to point an edge against
+    the slip, the polygon's solution is the disc's, to HiGHS' tolerances."""
+    m, mu, gh = 0.7, 0.8, 9.81e-3
+    delassus = np.diag([-1.0, 1.0, 1.0]) / m
+    free = np.array([gh, vx, vy])
+    yn = m * gh
+    speed = np.hypot(vx, vy)
+    sliding = m * speed > mu * yn
+    friction = -mu * yn * np.array([vx, vy]) / speed if sliding else -m * np.array([vx, vy])
+    turn = np.array([np.arctan2(-vy, -vx)])
+    r = F._polyhedral_start(delassus, free, 0, 0, np.array([mu]), yn, turn)
+    assert r[0] == pytest.approx(yn, rel=1e-6)
+    np.testing.assert_allclose(r[1:], friction, rtol=1e-6, atol=1e-9 * yn)
+    # turned a quarter of an edge away, a sliding node's friction is the polygon's: inside the disc, off its law
+    r = F._polyhedral_start(delassus, free, 0, 0, np.array([mu]), yn, turn + np.pi / 16)
+    assert np.hypot(*r[1:]) <= mu * r[0] * (1 + 1e-9)
+    if sliding:
+        assert np.abs(r[1:] - friction).max() > 1e-3 * mu * yn
+
+
+THREE_BAR_LET_OUT = 20455   # bench_throws.py --seed 0 (fuzz_throw): a batch of three, copy 0 stopped at step 56
+
+
+def test_a_resting_three_bar_letting_a_cable_out_is_answered_from_the_polygon_start(monkeypatch):
+    """Throw 20455 (three_bar resting on three nodes at mu = 1.45, a cable let out 1.7 % at step 55) stopped at
+    step 56 (``FrictionError ... (no solution): contacts 'n2' on the ground miss the Coulomb law by up to 4.26e-07
+    N*s ... after 30 mode QPs and 7400 semismooth Newton iterations``, issue 47): 20 rows on 18 degrees of
+    freedom and a singular value 6.1e-5 of 65; its solution has a node sliding at 1.3e-4 m/s, where no Newton
+    start went. From the solution with polygons for discs (``friction._polyhedral_start``) Newton reaches it: the
+    first 57 steps run soundly, every accepted answer meeting the law and the rows' complementarity (the
+    benchmark's check). Without that start the step stops as before."""
+    from bench.bench_throws import AnswerChecks
+
+    case = _fuzz_copy(THREE_BAR_LET_OUT, 0, 57)
+    assert case["robot"] == "three_bar" and case["command_step"] == 55 and case["mu"] > 1.4
+    with AnswerChecks() as checks:
+        out = T.run_throw(case)
+    assert T.problems(case, out) == [] and out["steps"] == 57
+    assert checks.violations == 0, checks.first
+    monkeypatch.setattr(F, "_polyhedral_start", lambda *args: None)
+    out = T.run_throw(case)
+    assert out["error"] is not None and "no solution" in str(out["error"])

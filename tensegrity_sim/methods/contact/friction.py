@@ -116,6 +116,10 @@ _NSGS_SWEEPS = (100, 300, 600, 4000)   # NSGS sweeps between Newton's further st
 _CHAINS = 2               # Newton's first iterates (the modes' and zero's) the NSGS sweeps go on from ...
 _RESTARTS = 64            # Newton's starts from random impulses where it stops at a merit's local minimum ...
 _DRIFT_SWEEPS, _DRIFT_ROUNDS = 50, 400   # ... then NSGS rounds of sweeps with steps along W's null space
+_CONE_EDGES = 8           # the polygon's edges that stand for each disc in the polyhedral cone's start ...
+_CONE_BOUND = 100.0       # ... its impulses bounded by this many times the problem's impulse scale ...
+_CONE_SECONDS = 10.0      # ... HiGHS' time limit for it ...
+_CONE_TURNS = 6           # ... and its tries, each polygon turned to point an edge against the last one's slip
 # Where no answer meets the law to FIXED_POINT_TOL of the contacts' own impulse scale, the best one found is
 # taken if it meets it to ACCEPT_TOL of the momentum in play (FrictionalSolver._physical_tol: the free nodes'
 # sum m |v0|, at rest the weight times the step) and counted in FrictionalSolver.relaxed; beyond it the problem
@@ -135,6 +139,85 @@ _SLIP_FLOOR = 1e-12       # m/s: a tangential speed below this (plus relative ro
 _TANGENTS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 _UP = np.array([0.0, 0.0, 1.0])
 _CYCLED = object()        # FrictionalSolver._modes_compiled: the modes cycled, every QP answered
+
+
+def _polyhedral_start(delassus, free_rates, n_eq: int, n_rows: int, mu, scale: float, turn):
+    """Impulses ``r`` (:meth:`FrictionalSolver._newton`'s: the rows' multipliers, then each contact's friction)
+    solving the frictional problem with each Coulomb disc replaced by its inscribed polygon of
+    :data:`_CONE_EDGES` edges: Stewart and Trinkle's linear complementarity problem (1996), which has a solution
+    for any friction coefficient (Anitescu and Potra 1997), found exactly as a mixed-integer feasibility problem
+    (one binary a complementarity pair, big-M bounds: HiGHS through ``scipy.optimize.milp``). The polygon's
+    friction ``sum_j beta_j d_j`` and a contact's slip speed ``lam``::
+
+        equality row i:     u_i = 0
+        inequality row i:   0 <= y_i        complementary to  -u_i >= 0
+        edge j, contact c:  0 <= beta_cj    complementary to  lam_c + d_j . u_t,c >= 0
+        contact c:          0 <= lam_c      complementary to  mu_c y_n,c - sum_j beta_cj >= 0
+
+    with ``u = free_rates + delassus r``. Impulses are in units of ``scale`` and bounded by :data:`_CONE_BOUND`
+    of it, rates in those of the largest that such impulses make. None where HiGHS finds no point in
+    :data:`_CONE_SECONDS` (or the bound is too tight)."""
+    from scipy.optimize import Bounds, LinearConstraint, milp
+    k = len(mu)
+    n_qp, m = n_rows + k, _CONE_EDGES
+    n_in = n_qp - n_eq
+    angles = turn[:, None] + 2.0 * np.pi * np.arange(m) / m                        # contact c's edge j's d_cj
+    spread = np.zeros((2 * k, k * m))                                              # f (2k) = spread @ beta (km)
+    for c in range(k):
+        spread[2 * c, c * m:(c + 1) * m] = np.cos(angles[c])
+        spread[2 * c + 1, c * m:(c + 1) * m] = np.sin(angles[c])
+    rate = max(scale * float(np.max(np.abs(delassus), initial=0.0)), float(np.max(np.abs(free_rates))), 1e-300)
+    big_r, big_u = _CONE_BOUND, _CONE_BOUND * (n_qp + k * m) + float(np.max(np.abs(free_rates))) / rate
+    # scaled rates u / rate = base + gain @ (y, beta, lam) in units of scale, scale, rate
+    gain = (scale / rate) * np.hstack([delassus[:, :n_qp], delassus[:, n_qp:] @ spread,
+                                       np.zeros((len(free_rates), k))])
+    base = free_rates / rate
+    n_v = n_qp + k * m + k
+    n_b = n_in + k * m + k
+    rows, lo, hi = [], [], []
+
+    def add(coef, low, high, binary=None, weight=0.0):
+        row = np.zeros(n_v + n_b)
+        row[:len(coef)] = coef
+        if binary is not None:
+            row[n_v + binary] = weight
+        rows.append(row)
+        lo.append(low)
+        hi.append(high)
+
+    for i in range(n_eq):
+        add(gain[i], -base[i], -base[i])
+    for a, i in enumerate(range(n_eq, n_qp)):   # -u_i >= 0, -u_i <= big_u (1 - z), y_i <= big_r z
+        add(-gain[i], base[i], np.inf)
+        add(-gain[i], -np.inf, big_u + base[i], a, big_u)
+        add(np.eye(n_v)[i], -np.inf, 0.0, a, -big_r)
+    for c in range(k):
+        tangential = gain[n_qp + 2 * c:n_qp + 2 * c + 2]
+        for j in range(m):   # lam + d_j . u_t >= 0, <= big_u (1 - z), beta <= big_r z
+            edge = spread[2 * c:2 * c + 2, c * m + j]
+            coef = edge @ tangential
+            coef[n_qp + k * m + c] += 1.0
+            shift = float(edge @ base[n_qp + 2 * c:n_qp + 2 * c + 2])
+            z = n_in + c * m + j
+            add(coef, -shift, np.inf)
+            add(coef, -np.inf, big_u - shift, z, big_u)
+            add(np.eye(n_v)[n_qp + c * m + j], -np.inf, 0.0, z, -big_r)
+        coef = np.zeros(n_v)   # mu y_n - sum beta >= 0, <= big_r (1 - z); lam <= big_u z
+        coef[n_rows + c] = mu[c]
+        coef[n_qp + c * m:n_qp + (c + 1) * m] = -1.0
+        z = n_in + k * m + c
+        add(coef, 0.0, np.inf)
+        add(coef, -np.inf, big_r, z, big_r)
+        add(np.eye(n_v)[n_qp + k * m + c], -np.inf, 0.0, z, -big_u)
+    lower = np.concatenate([np.full(n_eq, -big_r), np.zeros(n_v - n_eq + n_b)])
+    upper = np.concatenate([np.full(n_qp + k * m, big_r), np.full(k, big_u), np.ones(n_b)])
+    found = milp(np.zeros(n_v + n_b), constraints=LinearConstraint(np.array(rows), lo, hi),
+                 bounds=Bounds(lower, upper), integrality=np.r_[np.zeros(n_v), np.ones(n_b)],
+                 options={"time_limit": _CONE_SECONDS})
+    if found.x is None:
+        return None
+    x = found.x
+    return scale * np.concatenate([x[:n_qp], spread @ x[n_qp:n_qp + k * m]])
 
 
 class FrictionError(QPError):
@@ -792,8 +875,9 @@ class FrictionalSolver:
         friction as a known impulse, and by the Coulomb law's projection form (:meth:`_verify`).
         Newton is globalised by its line search, Levenberg–Marquardt steps where the Newton step does not
         descend, and further starts where it stops at a local minimum of the merit: from its last answer to a
-        problem of the same structure (:attr:`answer`), from zero, from NSGS sweeps of the same fixed point, then
-        from seeded random impulses (see below). Returns ``(v, y)`` as
+        problem of the same structure (:attr:`answer`), from zero, from NSGS sweeps of the same fixed point, from the
+        solution of the problem with polygons for discs (:func:`_polyhedral_start`), then from seeded random
+        impulses (see below). Returns ``(v, y)`` as
         :meth:`solve` does; raises :class:`FrictionError` naming the contacts whose law is unmet if no
         start reaches an answer that meets it."""
         k, n_rows, mass, mu = len(self._targets), len(rows), self._meff, self._mu
@@ -1039,6 +1123,28 @@ class FrictionalSolver:
                     sweep(chain)
                 r, its = descend(chain.copy())
                 it += its
+        if not (solved(r) or acceptable(best[1])):
+            # from the polyhedral cone's solution (:func:`_polyhedral_start`), which exists for any mu: where the
+            # rows depend on each other nearly (a singular value 1e-6 of the Delassus matrix's largest), the
+            # solution can lie where neither Newton nor the sweeps go. Measured (issue 47, bench_throws.py throw
+            # 20455: three_bar resting on three nodes at mu = 1.45 as a cable is let out, 20 rows on 18 degrees
+            # of freedom, a singular value 6.1e-5 of 65): 7400 iterations from every other start missed the law
+            # by 4.3e-7 N*s; the polygon's solution has one node sliding at 1.3e-4 m/s. A polygon's friction
+            # meets the disc's law exactly where a sliding contact's edge points against its slip: each try turns
+            # the polygons so (the problem's solutions are many: the next may slide another contact)
+            turn = np.zeros(k)   # each polygon's first edge's angle to t1
+            slip_tol = _SLIP_FLOOR + FIXED_POINT_TOL * float(np.max(np.abs(free_rates)))
+            for _ in range(_CONE_TURNS):
+                start = _polyhedral_start(delassus, free_rates, n_eq, n_rows, mu, scale, turn)
+                if start is None:
+                    break
+                r, its = descend(start)
+                it += its
+                if solved(r) or acceptable(best[1]):
+                    break
+                slip = (free_rates + delassus @ start)[n_qp:].reshape(k, 2)
+                turn = np.where(np.hypot(slip[:, 0], slip[:, 1]) > slip_tol, np.arctan2(-slip[:, 1], -slip[:, 0]),
+                                turn)
         for seed in range(_RESTARTS):
             if solved(r) or acceptable(best[1]):
                 break
