@@ -8,6 +8,7 @@ comes in, never inside a step loop.
 """
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 import os
@@ -102,12 +103,21 @@ def float_array(values: Any, name: str, shape: tuple[int, ...] | None = None) ->
     return arr
 
 
+@functools.cache
+def _physical_memory() -> int | None:
+    """This machine's physical memory, bytes (None: not a POSIX system, no bound known); asked once (the
+    system call took ~50 us of every run, an environment's control period among them)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
 def check_memory(nbytes: int, what: str) -> None:
     """Refuse to allocate ``nbytes`` for ``what`` when it exceeds this machine's physical memory (an
     absurd request would otherwise fail in numpy, or swap the machine to a standstill)."""
-    try:
-        physical = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, ValueError, OSError):  # not a POSIX system: no bound known
+    physical = _physical_memory()
+    if physical is None:
         return
     if nbytes > physical:
         shown = f"{nbytes:.3g}" if nbytes < 1e300 else "over 1e300"

@@ -455,9 +455,19 @@ def test_a_run_keeping_no_step_sums_its_steps_up_in_the_kernel(monkeypatch, unso
         np.testing.assert_array_equal(got.peak_tensions, want.peak_tensions)
         np.testing.assert_array_equal(got.snaps, want.snaps)
         assert got.positions is None and lean.step_count == full.step_count
+        # the slack cables at the end: the summary's own (kept for slack() and the next run's snaps) where it ran,
+        # equal to those measured at the state
+        assert (lean._known_slack is not None) == (not unsolved)
+        np.testing.assert_array_equal(lean.slack(), full.slack())
         snaps += want.snaps.sum()
     assert snaps > 4 * 10 and want.peak_tensions.min() > 0
     assert summarised == [not unsolved] * 3
+    # new rest lengths are another array: slack() measures again
+    rest = lean.rest_lengths * 2.0
+    lean.set_rest_lengths(rest)
+    full.set_rest_lengths(rest)
+    np.testing.assert_array_equal(lean.slack(), full.slack())
+    assert lean.slack().all()
 
 
 def test_the_batch_ground_kernel_equals_its_reference():

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._kernels import _step, gather_copy, keep, scatter_copy
+from ._kernels import _step, gather_copies, keep, scatter_copies
 from .composition import _FLOW_ITER, _POLY_ITER, LOCATE_TOL, MAX_SWITCHES
 
 __all__ = ["composed_steps", "newton_in_bracket"]
@@ -224,7 +224,7 @@ def composed_steps(x, v, rest, ext, h, n_steps, every, weights, locate, min_spli
     imp = np.empty(nc)
     total = np.empty(nc)
     for b in range(n_copies):
-        gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs, 0)
+        gather_copies(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs, 0, 1)
         for ci in range(nc):
             wslack[ci] = slack[ci, b]
             total[ci] = 0.0
@@ -236,6 +236,6 @@ def composed_steps(x, v, rest, ext, h, n_steps, every, weights, locate, min_spli
                 total[ci] += imp[ci]
             if (s + 1) % every == 0 or s == n_steps - 1:
                 keep(wx, wv, 0, total, wslack, s // every, b, out_x, out_v, out_impulses, out_slack)
-        scatter_copy(wx, wv, wacc, wten, wdirs, 0, b, x, v, acc, tension, rigid_dirs)
+        scatter_copies(wx, wv, wacc, wten, wdirs, 0, b, 1, x, v, acc, tension, rigid_dirs)
         for ci in range(nc):
             slack[ci, b] = wslack[ci]

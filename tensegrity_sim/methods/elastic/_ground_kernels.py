@@ -45,7 +45,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ._kernels import _close, _close_copies, _drift, _drift_copies, _forces, _forces_copies, gather_copy, scatter_copy
+from ._kernels import (_close, _close_copies, _drift, _drift_copies, _forces, _forces_copies, gather_copies,
+                       scatter_copies)
 from .._mass_kernels import axial_inverse
 from ..contact._detection_kernels import _closest
 from ..contact._friction_block_kernels import MAX_COUPLED, MAX_ROWS, lone_contact, solve_block, solve_coupled
@@ -757,7 +758,7 @@ def _leave(w, b, x, v, x0, v0, acc, tension, dirs, warm, gx, gv, gacc, gtension,
         for j in range(3):
             x[i, j, w] = x0[i, j, w]
             v[i, j, w] = v0[i, j, w]
-    scatter_copy(x, v, acc, tension, dirs, w, b, gx, gv, gacc, gtension, gdirs)
+    scatter_copies(x, v, acc, tension, dirs, w, b, 1, gx, gv, gacc, gtension, gdirs)
     for i in range(warm.shape[1]):
         for j in range(3):
             gwarm[0, i, j, b] = warm[0, i, j, w]
@@ -968,22 +969,24 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
         tensionw = np.empty((nc, width))
         dirsw = np.empty((nr, 3, width))
         warmw = np.empty((2, n_nodes + n_pairs, 3, width))
+        # (each number's copies innermost, consecutive in the batch's arrays and the chunk's)
+        gather_copies(x, v, acc, ext, rest, tension, rigid_dirs, start, xw, vw, accw, extw, restw, tensionw, dirsw, 0,
+                      width)
+        for i in range(n_nodes + n_pairs):
+            for j in range(3):
+                for w in range(width):
+                    warmw[0, i, j, w] = warm[0, i, j, start + w]
+                    warmw[1, i, j, w] = warm[1, i, j, start + w]
         for w in range(width):
-            b = start + w
-            gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, xw, vw, accw, extw, restw, tensionw, dirsw, w)
-            for i in range(n_nodes + n_pairs):
-                for j in range(3):
-                    warmw[0, i, j, w] = warm[0, i, j, b]
-                    warmw[1, i, j, w] = warm[1, i, j, b]
-            failed[b] = -1
-            reason[b] = 0
-            n_records[b] = 0
+            failed[start + w] = -1
+            reason[start + w] = 0
+            n_records[start + w] = 0
         summed = width if peak.shape[1] else 0   # the summary's columns of the chunk, where asked for
         peak_w = np.empty((nc, summed))
         snaps_w = np.empty((nc, summed), dtype=np.int64)
         slack_w = np.empty((nc, summed), dtype=np.bool_)
-        for w in range(summed):
-            for ci in range(nc):
+        for ci in range(nc):
+            for w in range(summed):
                 peak_w[ci, w] = peak[ci, start + w]
                 snaps_w[ci, w] = snaps[ci, start + w]
                 slack_w[ci, w] = was_slack[ci, start + w]
@@ -1011,19 +1014,26 @@ def _block(blk, blocks, x, v, rest, ext, h, n_steps, every, ends, attach, attach
             chunk_steps(None)
         else:
             chunk_steps(width)
-        for w in range(summed):
-            for ci in range(nc):
+        for ci in range(nc):
+            for w in range(summed):
                 peak[ci, start + w] = peak_w[ci, w]
                 snaps[ci, start + w] = snaps_w[ci, w]
                 was_slack[ci, start + w] = slack_w[ci, w]
-        for w in range(width):
-            if not done[w]:
-                b = start + w
-                scatter_copy(xw, vw, accw, tensionw, dirsw, w, b, x, v, acc, tension, rigid_dirs)
-                for i in range(n_nodes + n_pairs):
-                    for j in range(3):
-                        warm[0, i, j, b] = warmw[0, i, j, w]
-                        warm[1, i, j, b] = warmw[1, i, j, w]
+        w = 0
+        while w < width:   # each run of copies that did not stop (a stopped one's _leave wrote it)
+            if done[w]:
+                w += 1
+                continue
+            end = w + 1
+            while end < width and not done[end]:
+                end += 1
+            scatter_copies(xw, vw, accw, tensionw, dirsw, w, start + w, end - w, x, v, acc, tension, rigid_dirs)
+            for i in range(n_nodes + n_pairs):
+                for j in range(3):
+                    for k in range(w, end):
+                        warm[0, i, j, start + k] = warmw[0, i, j, k]
+                        warm[1, i, j, start + k] = warmw[1, i, j, k]
+            w = end
 
 
 def _named(function, name: str):

@@ -368,36 +368,44 @@ def verlet_step(x, v, rest, ext, h, ends, attach, attach_at, stiffness, floor, s
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def gather_copy(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs, w):
-    """Copy ``b`` of the batch-last state and carry into column ``w`` of the ``w*`` arrays (a chunk of copies
-    stepped in arrays of its own)."""
+def gather_copies(x, v, acc, ext, rest, tension, rigid_dirs, b, wx, wv, wacc, wext, wrest, wten, wdirs, w, count):
+    """Copies ``b`` ... ``b + count - 1`` of the batch-last state and carry into columns ``w`` ... of the ``w*``
+    arrays (a chunk of copies stepped in arrays of its own), each number's copies innermost: consecutive in both
+    (a copy at a time, every number of it in another cache line, took most of a 256-copy call's fixed cost)."""
     for i in range(x.shape[0]):
         for j in range(3):
-            wx[i, j, w] = x[i, j, b]
-            wv[i, j, w] = v[i, j, b]
-            wacc[i, j, w] = acc[i, j, b]
-            wext[i, j, w] = ext[i, j, b]
+            for k in range(count):
+                wx[i, j, w + k] = x[i, j, b + k]
+                wv[i, j, w + k] = v[i, j, b + k]
+                wacc[i, j, w + k] = acc[i, j, b + k]
+                wext[i, j, w + k] = ext[i, j, b + k]
     for ci in range(rest.shape[0]):
-        wten[ci, w] = tension[ci, b]
-        wrest[ci, w] = rest[ci, b]
-    for k in range(rigid_dirs.shape[0]):
+        for k in range(count):
+            wten[ci, w + k] = tension[ci, b + k]
+            wrest[ci, w + k] = rest[ci, b + k]
+    for r in range(rigid_dirs.shape[0]):
         for j in range(3):
-            wdirs[k, j, w] = rigid_dirs[k, j, b]
+            for k in range(count):
+                wdirs[r, j, w + k] = rigid_dirs[r, j, b + k]
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def scatter_copy(wx, wv, wacc, wten, wdirs, w, b, x, v, acc, tension, rigid_dirs):
-    """Column ``w`` of the chunk's state and carry written back as copy ``b`` (:func:`gather_copy`'s inverse)."""
+def scatter_copies(wx, wv, wacc, wten, wdirs, w, b, count, x, v, acc, tension, rigid_dirs):
+    """Columns ``w`` ... ``w + count - 1`` of the chunk's state and carry written back as copies ``b`` ...
+    (:func:`gather_copies`' inverse)."""
     for i in range(x.shape[0]):
         for j in range(3):
-            x[i, j, b] = wx[i, j, w]
-            v[i, j, b] = wv[i, j, w]
-            acc[i, j, b] = wacc[i, j, w]
+            for k in range(count):
+                x[i, j, b + k] = wx[i, j, w + k]
+                v[i, j, b + k] = wv[i, j, w + k]
+                acc[i, j, b + k] = wacc[i, j, w + k]
     for ci in range(tension.shape[0]):
-        tension[ci, b] = wten[ci, w]
-    for k in range(rigid_dirs.shape[0]):
+        for k in range(count):
+            tension[ci, b + k] = wten[ci, w + k]
+    for r in range(rigid_dirs.shape[0]):
         for j in range(3):
-            rigid_dirs[k, j, b] = wdirs[k, j, w]
+            for k in range(count):
+                rigid_dirs[r, j, b + k] = wdirs[r, j, w + k]
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
