@@ -160,7 +160,7 @@ def merge(paths: list[Path], out: Path) -> dict:
     ranges, kinds = [], set()
     for path in paths:
         rows = read_csv(path)
-        ranges.append(rows[-1]["throw_range"])
+        ranges.append(str(rows[-1]["throw_range"]))   # (a single rerun throw reads back as a number)
         kinds.add((rows[-1]["seed"], rows[-1]["steps"], rows[-1]["space"]))
         for r in rows[:-1]:
             row = groups.setdefault((r["method"], r["robot"]), dict(r, **{key: 0 for key in COUNTS}))

@@ -722,12 +722,13 @@ def test_snaps_and_landings_in_a_step_with_contacts_take_their_impacts_and_make_
 
 def test_merged_throw_ranges_join_where_one_starts_as_the_last_ends(tmp_path):
     """``bench_throws.py --merge`` sums its CSVs and names their ranges, contiguous ones joined (README's line
-    quotes them): three chunks and a rerun list give two ranges and the list, the counts added."""
+    quotes them): three chunks and a rerun list give two ranges and the list, the counts added; a rerun of one
+    throw (its range a number, read back as one) is named as it is."""
     from bench.bench_throws import joined, merge
     from bench.tables import read_csv, write_csv
     assert joined(["0-9", "10-19", "40-49", "50-59", "1430,53", "60-69"]) == ["0-19", "40-59", "1430,53", "60-69"]
     paths = []
-    for i, (span, stopped) in enumerate([("0-9", 1), ("10-19", 0), ("30-39", 2)]):
+    for i, (span, stopped) in enumerate([("0-9", 1), ("10-19", 0), ("30-39", 2), ("1430", 1)]):
         rows = [dict(method="elastic", robot="prism3", throws=10, stopped=stopped, unsound=0, cut=0,
                      answers_checked=5, violations=0, set_down=1, contact_response=2, batches=3, steps=200,
                      seed=0, throw_range=span, space="fuzz", wall_s=1.0)]
@@ -736,8 +737,8 @@ def test_merged_throw_ranges_join_where_one_starts_as_the_last_ends(tmp_path):
         write_csv(paths[-1], rows)
     merge(paths, tmp_path / "all.csv")
     total = read_csv(tmp_path / "all.csv")[-1]
-    assert (total["throw_range"], total["throws"], total["stopped"], total["answers_checked"]) == ("0-19;30-39", 30, 3,
-                                                                                                    15)
+    assert (total["throw_range"], total["throws"], total["stopped"], total["answers_checked"]) == ("0-19;30-39;1430",
+                                                                                                    40, 4, 20)
 
 
 SET_DOWN_SUPERBALL = {  # bench_throws.py --seed 0, throw 19541 (fuzz_throw)

@@ -94,6 +94,16 @@ def model_arrays(system, rigid) -> ElasticModel:
         np.ascontiguousarray(rigid.w_matrix, dtype=float), bool(rigid.coupled))
 
 
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _member_geometry(x, a, c, b):
+    """The length (m) and unit vector (from node ``a`` to node ``c``) of a member of copy ``b`` at ``x``."""
+    d0 = x[c, 0, b] - x[a, 0, b]
+    d1 = x[c, 1, b] - x[a, 1, b]
+    d2 = x[c, 2, b] - x[a, 2, b]
+    length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    return length, d0 / length, d1 / length, d2 / length
+
+
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
             rigid_members, acc, tension, rigid_dirs, slack, b, kept=None, fresh=True):
@@ -124,13 +134,7 @@ def _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_re
             n1 = kept[i, 2]
             n2 = kept[i, 3]
         else:
-            d0 = x[c, 0, b] - x[a, 0, b]
-            d1 = x[c, 1, b] - x[a, 1, b]
-            d2 = x[c, 2, b] - x[a, 2, b]
-            length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            n0 = d0 / length
-            n1 = d1 / length
-            n2 = d2 / length
+            length, n0, n1, n2 = _member_geometry(x, a, c, b)
             if kept is not None:
                 kept[i, 0] = length
                 kept[i, 1] = n0
@@ -509,14 +513,7 @@ def _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, s
             # the geometry in a loop of its own, without branches: vectorised over the copies (its square root
             # and three divisions a member were, one copy at a time, two thirds of this function's time)
             for b in range(n_copies):
-                d0 = x[c, 0, b] - x[a, 0, b]
-                d1 = x[c, 1, b] - x[a, 1, b]
-                d2 = x[c, 2, b] - x[a, 2, b]
-                length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-                kept[i, 0, b] = length
-                kept[i, 1, b] = d0 / length
-                kept[i, 2, b] = d1 / length
-                kept[i, 3, b] = d2 / length
+                kept[i, 0, b], kept[i, 1, b], kept[i, 2, b], kept[i, 3, b] = _member_geometry(x, a, c, b)
         if kept is not None and ci >= 0:
             # a cable's tension, then its pushes on its ends, each in a loop of its own (vectorised over the
             # copies; the same numbers)
@@ -548,13 +545,7 @@ def _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, s
                     n1 = kept[i, 2, b]
                     n2 = kept[i, 3, b]
                 else:
-                    d0 = x[c, 0, b] - x[a, 0, b]
-                    d1 = x[c, 1, b] - x[a, 1, b]
-                    d2 = x[c, 2, b] - x[a, 2, b]
-                    length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-                    n0 = d0 / length
-                    n1 = d1 / length
-                    n2 = d2 / length
+                    length, n0, n1, n2 = _member_geometry(x, a, c, b)
                 if is_rigid:
                     rigid_dirs[rigid_k, 0, b] = n0
                     rigid_dirs[rigid_k, 1, b] = n1
