@@ -104,6 +104,30 @@ def _member_geometry(x, a, c, b):
     return length, d0 / length, d1 / length, d2 / length
 
 
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _damped(t, cd, v, a, c, b, n0, n1, n2):
+    """A cable's tension ``t`` (N) with its damping ``cd`` (N s/m) along the rate of its length (its ends ``a``,
+    ``c`` of copy ``b`` at ``v``, along the unit vector ``n``): a damped cable never pushes."""
+    if cd > 0.0:
+        rate = ((v[c, 0, b] - v[a, 0, b]) * n0 + (v[c, 1, b] - v[a, 1, b]) * n1 + (v[c, 2, b] - v[a, 2, b]) * n2)
+        if t > 0.0:
+            t += cd * rate
+        t = max(t, 0.0)
+    return t
+
+
+@njit(cache=True, error_model="numpy", inline="always", _nrt=False)
+def _push_ends(acc, a, c, b, t, n0, n1, n2):
+    """A member's tension ``t`` along the unit vector ``n`` from node ``a`` to ``c`` added to copy ``b``'s
+    forces ``acc``: toward ``c`` on ``a``, the opposite on ``c``."""
+    acc[a, 0, b] += t * n0
+    acc[a, 1, b] += t * n1
+    acc[a, 2, b] += t * n2
+    acc[c, 0, b] -= t * n0
+    acc[c, 1, b] -= t * n1
+    acc[c, 2, b] -= t * n2
+
+
 @njit(cache=True, error_model="numpy", _nrt=False)
 def _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_rest, damping, inv_mass, gravity_force,
             rigid_members, acc, tension, rigid_dirs, slack, b, kept=None, fresh=True):
@@ -152,21 +176,10 @@ def _forces(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, strut_re
         t = stiffness[i] * max(length - r, floor[i])
         if i >= n_struts:
             ci = i - n_struts
-            cd = damping[ci]
-            if cd > 0.0:
-                rate = ((v[c, 0, b] - v[a, 0, b]) * n0 + (v[c, 1, b] - v[a, 1, b]) * n1
-                        + (v[c, 2, b] - v[a, 2, b]) * n2)
-                if t > 0.0:
-                    t += cd * rate
-                t = max(t, 0.0)   # a damped cable never pushes
+            t = _damped(t, damping[ci], v, a, c, b, n0, n1, n2)
             tension[ci, b] = t
             slack[ci] = length < r
-        acc[a, 0, b] += t * n0
-        acc[a, 1, b] += t * n1
-        acc[a, 2, b] += t * n2
-        acc[c, 0, b] -= t * n0
-        acc[c, 1, b] -= t * n1
-        acc[c, 2, b] -= t * n2
+        _push_ends(acc, a, c, b, t, n0, n1, n2)
     if attach is not None:   # a scene without cables along a strut compiles without this (attach None)
         for k in range(attach.shape[0]):
             slack[attach[k, 0] - n_struts] = _attached_force(x, v, rest, attach, attach_at, stiffness, floor,
@@ -520,23 +533,12 @@ def _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, s
             for b in range(n_copies):
                 length = kept[i, 0, b]
                 r = rest[ci, b]
-                t = k_i * max(length - r, floor_i)
-                if cd > 0.0:
-                    rate = ((v[c, 0, b] - v[a, 0, b]) * kept[i, 1, b] + (v[c, 1, b] - v[a, 1, b]) * kept[i, 2, b]
-                            + (v[c, 2, b] - v[a, 2, b]) * kept[i, 3, b])
-                    if t > 0.0:
-                        t += cd * rate
-                    t = max(t, 0.0)   # a damped cable never pushes
+                t = _damped(k_i * max(length - r, floor_i), cd, v, a, c, b, kept[i, 1, b], kept[i, 2, b],
+                            kept[i, 3, b])
                 tension[ci, b] = t
                 slack[ci, b] = length < r
             for b in range(n_copies):
-                t = tension[ci, b]
-                acc[a, 0, b] += t * kept[i, 1, b]
-                acc[a, 1, b] += t * kept[i, 2, b]
-                acc[a, 2, b] += t * kept[i, 3, b]
-                acc[c, 0, b] -= t * kept[i, 1, b]
-                acc[c, 1, b] -= t * kept[i, 2, b]
-                acc[c, 2, b] -= t * kept[i, 3, b]
+                _push_ends(acc, a, c, b, tension[ci, b], kept[i, 1, b], kept[i, 2, b], kept[i, 3, b])
         else:
             for b in range(n_copies):
                 if kept is not None:
@@ -556,20 +558,10 @@ def _forces_copies(x, v, rest, ext, ends, attach, attach_at, stiffness, floor, s
                     r = rest[ci, b]
                 t = k_i * max(length - r, floor_i)
                 if ci >= 0:
-                    if cd > 0.0:
-                        rate = ((v[c, 0, b] - v[a, 0, b]) * n0 + (v[c, 1, b] - v[a, 1, b]) * n1
-                                + (v[c, 2, b] - v[a, 2, b]) * n2)
-                        if t > 0.0:
-                            t += cd * rate
-                        t = max(t, 0.0)   # a damped cable never pushes
+                    t = _damped(t, cd, v, a, c, b, n0, n1, n2)
                     tension[ci, b] = t
                     slack[ci, b] = length < r
-                acc[a, 0, b] += t * n0
-                acc[a, 1, b] += t * n1
-                acc[a, 2, b] += t * n2
-                acc[c, 0, b] -= t * n0
-                acc[c, 1, b] -= t * n1
-                acc[c, 2, b] -= t * n2
+                _push_ends(acc, a, c, b, t, n0, n1, n2)
         if is_rigid:
             rigid_k += 1
     if attach is not None:   # the same arithmetic as _forces' (the copies' numbers bit for bit)
