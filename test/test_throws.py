@@ -796,6 +796,8 @@ def test_the_polygon_start_of_a_sliding_or_sticking_node_is_the_disc_law_where_t
     assert np.hypot(*r[1:]) <= mu * r[0] * (1 + 1e-9)
     if sliding:
         assert np.abs(r[1:] - friction).max() > 1e-3 * mu * yn
+    # a problem with a number that is not finite has no start (the Newton method's check names it)
+    assert F._polyhedral_start(np.where(np.eye(3) > 0, np.nan, 0.0), free, 0, 0, np.array([mu]), yn, turn) is None
 
 
 THREE_BAR_LET_OUT = 20455   # bench_throws.py --seed 0 (fuzz_throw): a batch of three, copy 0 stopped at step 56

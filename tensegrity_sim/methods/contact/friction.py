@@ -156,8 +156,10 @@ def _polyhedral_start(delassus, free_rates, n_eq: int, n_rows: int, mu, scale: f
 
     with ``u = free_rates + delassus r``. Impulses are in units of ``scale`` and bounded by :data:`_CONE_BOUND`
     of it, rates in those of the largest that such impulses make. None where HiGHS finds no point in
-    :data:`_CONE_SECONDS` (or the bound is too tight)."""
+    :data:`_CONE_SECONDS` (or the bound is too tight), or where a number is not finite."""
     from scipy.optimize import Bounds, LinearConstraint, milp
+    if not (np.isfinite(delassus).all() and np.isfinite(free_rates).all() and np.isfinite(scale) and scale > 0):
+        return None
     k = len(mu)
     n_qp, m = n_rows + k, _CONE_EDGES
     n_in = n_qp - n_eq
