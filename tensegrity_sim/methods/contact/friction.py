@@ -178,6 +178,11 @@ def _polyhedral_start(delassus, free_rates, n_eq: int, n_rows: int, mu, scale: f
     n_b = n_in + k * m + k
     rows, lo, hi = [], [], []
 
+    def unit(i):
+        row = np.zeros(n_v)
+        row[i] = 1.0
+        return row
+
     def add(coef, low, high, binary=None, weight=0.0):
         row = np.zeros(n_v + n_b)
         row[:len(coef)] = coef
@@ -192,7 +197,7 @@ def _polyhedral_start(delassus, free_rates, n_eq: int, n_rows: int, mu, scale: f
     for a, i in enumerate(range(n_eq, n_qp)):   # -u_i >= 0, -u_i <= big_u (1 - z), y_i <= big_r z
         add(-gain[i], base[i], np.inf)
         add(-gain[i], -np.inf, big_u + base[i], a, big_u)
-        add(np.eye(n_v)[i], -np.inf, 0.0, a, -big_r)
+        add(unit(i), -np.inf, 0.0, a, -big_r)
     for c in range(k):
         tangential = gain[n_qp + 2 * c:n_qp + 2 * c + 2]
         for j in range(m):   # lam + d_j . u_t >= 0, <= big_u (1 - z), beta <= big_r z
@@ -203,14 +208,14 @@ def _polyhedral_start(delassus, free_rates, n_eq: int, n_rows: int, mu, scale: f
             z = n_in + c * m + j
             add(coef, -shift, np.inf)
             add(coef, -np.inf, big_u - shift, z, big_u)
-            add(np.eye(n_v)[n_qp + c * m + j], -np.inf, 0.0, z, -big_r)
+            add(unit(n_qp + c * m + j), -np.inf, 0.0, z, -big_r)
         coef = np.zeros(n_v)   # mu y_n - sum beta >= 0, <= big_r (1 - z); lam <= big_u z
         coef[n_rows + c] = mu[c]
         coef[n_qp + c * m:n_qp + (c + 1) * m] = -1.0
         z = n_in + k * m + c
         add(coef, 0.0, np.inf)
         add(coef, -np.inf, big_r, z, big_r)
-        add(np.eye(n_v)[n_qp + k * m + c], -np.inf, 0.0, z, -big_u)
+        add(unit(n_qp + k * m + c), -np.inf, 0.0, z, -big_u)
     lower = np.concatenate([np.full(n_eq, -big_r), np.zeros(n_v - n_eq + n_b)])
     upper = np.concatenate([np.full(n_qp + k * m, big_r), np.full(k, big_u), np.ones(n_b)])
     found = milp(np.zeros(n_v + n_b), constraints=LinearConstraint(np.array(rows), lo, hi),
