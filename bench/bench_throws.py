@@ -32,7 +32,7 @@ stopped run, not a completed one).
 Run: ``python3 bench/bench_throws.py [--count N] [--seed S] [--first I] [--steps K] [--space fuzz|wide|rods]
 [--budget T] [--out PATH]``; ``--throws I J ...`` runs those throws alone (a rerun of earlier failures; their
 indices, comma-joined, are the CSV's ``throw_range``); ``--merge A.csv B.csv ... --out PATH`` sums runs over
-disjoint ranges (chunks run side by side) into one CSV.
+disjoint throws (chunks run side by side, reruns) into one CSV, its ``throw_range`` the throws in order.
 """
 from __future__ import annotations
 
@@ -169,23 +169,28 @@ def merge(paths: list[Path], out: Path) -> dict:
     if len(kinds) != 1:
         raise SystemExit(f"cannot merge runs of different seeds, steps or spaces: {sorted(kinds)}")
     seed, steps, space = kinds.pop()
-    return write(out, list(groups.values()), steps=steps, seed=seed, ranges=";".join(joined(ranges)), space=space)
+    return write(out, list(groups.values()), steps=steps, seed=seed, ranges=compacted(ranges), space=space)
 
 
-def joined(ranges: list[str]) -> list[str]:
-    """The ranges ``ranges`` ("a-b" or a comma-separated rerun list, each kept as it is), in their order, with
-    each "a-b" that starts where the one before it ended joined to it: ["0-9", "10-19", "40-49"] gives
-    ["0-19", "40-49"]."""
-    out: list[str] = []
+def compacted(ranges: list[str]) -> str:
+    """The throws of ``ranges`` ("a-b", one index, or several of these joined by "," or ";") named in order, consecutive
+    throws as one "a-b", the rest alone, ";" between: ["10-19", "0-9", "20,21,40"] gives "0-21;40". Runs to be
+    merged cover disjoint throws: a throw in two of them is refused."""
+    seen: set[int] = set()
     for r in ranges:
-        first, _, last = r.partition("-")
-        if out and last and "," not in r:
-            before_first, _, before_last = out[-1].partition("-")
-            if before_last and "," not in out[-1] and int(before_last) + 1 == int(first):
-                out[-1] = f"{before_first}-{last}"
-                continue
-        out.append(r)
-    return out
+        for part in r.replace(";", ",").split(","):
+            first, _, last = part.partition("-")
+            span = range(int(first), int(last or first) + 1)
+            if seen.intersection(span):
+                raise SystemExit(f"throws {sorted(seen.intersection(span))[:5]} are in two of the runs to merge")
+            seen.update(span)
+    runs: list[list[int]] = []
+    for i in sorted(seen):
+        if runs and runs[-1][1] + 1 == i:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    return ";".join(f"{a}-{b}" if b > a else f"{a}" for a, b in runs)
 
 
 def main(argv=None) -> int:

@@ -720,13 +720,17 @@ def test_snaps_and_landings_in_a_step_with_contacts_take_their_impacts_and_make_
     assert checks.violations == 0, checks.first
 
 
-def test_merged_throw_ranges_join_where_one_starts_as_the_last_ends(tmp_path):
-    """``bench_throws.py --merge`` sums its CSVs and names their ranges, contiguous ones joined (README's line
-    quotes them): three chunks and a rerun list give two ranges and the list, the counts added; a rerun of one
-    throw (its range a number, read back as one) is named as it is."""
-    from bench.bench_throws import joined, merge
+def test_merged_throw_ranges_are_the_throws_in_order(tmp_path):
+    """``bench_throws.py --merge`` sums its CSVs and names their throws in order, consecutive ones as one range
+    (README's line quotes them), whatever ranges and rerun lists they came in: three chunks and a rerun of one
+    throw (its range a number, read back as one) give two ranges and the one throw, the counts added; a rerun
+    list filling a gap joins the ranges on both sides; a throw in two runs is refused."""
+    from bench.bench_throws import compacted, merge
     from bench.tables import read_csv, write_csv
-    assert joined(["0-9", "10-19", "40-49", "50-59", "1430,53", "60-69"]) == ["0-19", "40-59", "1430,53", "60-69"]
+    assert compacted(["40-49", "0-9", "10-19", "20,21,22,39", "1430"]) == "0-22;39-49;1430"
+    assert compacted(["0-9", "12-19", "10,11"]) == compacted(["0-9;12-19", "10-11"]) == "0-19"
+    with pytest.raises(SystemExit, match=r"\[5\] are in two"):
+        compacted(["0-9", "5"])
     paths = []
     for i, (span, stopped) in enumerate([("0-9", 1), ("10-19", 0), ("30-39", 2), ("1430", 1)]):
         rows = [dict(method="elastic", robot="prism3", throws=10, stopped=stopped, unsound=0, cut=0,
