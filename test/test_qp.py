@@ -396,6 +396,54 @@ def test_daqp_solves_problems_at_a_tiny_velocity_scale():
     assert [row["verdict"] for row in rows] == ["pass", "pass"], rows
 
 
+# ---------------------------------------------------------------- the kernels' Cholesky factor and solve
+@pytest.mark.parametrize("g", [1, 2, 7, 30])
+def test_kernel_cholesky_and_solve_match_scipy(g):
+    """``_qp_kernels.cholesky`` factors a Delassus matrix as scipy does (lower factor, and its transpose above the
+    diagonal) and ``cho_solve`` solves with it as scipy's ``cho_solve`` does, to 1e-12 relative on random
+    member rows (g of them on g + 2 free nodes, masses 1e2 apart); ``cholesky_dropping`` drops a duplicated row
+    (its pivot round-off) and solves the rest as if it were not there, its unknown 0."""
+    import scipy.linalg as sl
+    from tensegrity_sim.methods.qp import _qp_kernels as qk
+    rng = np.random.default_rng(g)
+    n_free = g + 2
+    nodes = np.array([rng.choice(n_free, 2, replace=False) for _ in range(g)])
+    directions = rng.normal(size=(g, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    inv_mass = np.repeat(10.0 ** rng.uniform(-1, 1, size=(n_free, 1)), 3, axis=1)
+    rows = np.arange(g)
+    w = qk.delassus(nodes, directions, rows, inv_mass)
+    dense = np.zeros((g, 3 * n_free))   # A, each row -n at end a and +n at end b
+    for r, (a, b) in enumerate(nodes):
+        dense[r, 3 * a:3 * a + 3] -= directions[r]
+        dense[r, 3 * b:3 * b + 3] += directions[r]
+    exact = dense @ (inv_mass.reshape(-1)[:, None] * dense.T)
+    np.testing.assert_allclose(np.tril(w), np.tril(exact), rtol=0, atol=1e-14 * np.abs(exact).max())
+    low = sl.cholesky(exact, lower=True)
+    factor = w.copy()
+    assert qk.cholesky(factor, 1e-12)
+    np.testing.assert_allclose(np.tril(factor), low, rtol=0, atol=1e-12 * np.abs(low).max())
+    np.testing.assert_array_equal(np.triu(factor), np.tril(factor).T)
+    b = rng.normal(size=g)
+    solved = b.copy()
+    qk.cho_solve(factor, solved)
+    expected = sl.cho_solve((low, True), b)
+    np.testing.assert_allclose(solved, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    if g < 2:
+        return
+    # a copy of row 0 appended: its pivot falls to round-off, it is dropped, the others solve as before
+    nodes2 = np.vstack([nodes, nodes[:1]])
+    directions2 = np.vstack([directions, directions[:1]])
+    w2 = qk.delassus(nodes2, directions2, np.arange(g + 1), inv_mass)
+    dropped = np.zeros(g + 1, dtype=bool)
+    assert qk.cholesky_dropping(w2, 1e-10, np.ones(g + 1, dtype=bool), dropped)
+    assert dropped.tolist() == [False] * g + [True]
+    solved2 = np.append(b, 0.0)
+    qk.cho_solve(w2, solved2)
+    np.testing.assert_allclose(solved2[:g], expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    assert solved2[g] == 0.0
+
+
 # ---------------------------------------------------------------- DAQP's working-set answer
 @pytest.mark.parametrize("case", CASES, ids=list(CASES))
 def test_daqp_working_set_answer_matches_its_reference_and_quadprog(case):

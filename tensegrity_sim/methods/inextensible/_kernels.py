@@ -936,21 +936,38 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
     ``residual`` (B,), the inputs ``f_ext`` (B, N, 3), ``commanded`` and ``offsets`` (B, nc), the friction
     memory ``stick``, ``normal`` (B, N), ``slip`` (B, N, 2), the sums ``total`` (B, nc), ``contact_total``
     (B, N, 3) and the outputs (``out_x`` (B, K, N, 3, 1) ..., every step kept); the tables after ``offsets`` are
-    the structure's, shared. A copy's steps are the very arithmetic of its own :func:`steps` call from step 0;
+    the structure's, shared (each copy steps with copies of them and of its rows of the batch's arrays). A copy's
+    steps are the very arithmetic of its own :func:`steps` call from step 0;
     each stops where its :func:`steps` stops (a step for the Python path): ``done`` (B,) gets that step, the
     carry arrays the copy's carry before it; ``stall_count`` (B,) int gets each copy's motor steps at their
     force."""
-    no_rest = np.empty((0, commanded.shape[1]))   # the inputs held: no schedule
-    no_ext = np.empty((0, x.shape[1], 3))
     for b in prange(x.shape[0]):
+        # each copy steps in arrays of its own, its tables too (copies, the same numbers), its outputs written back
+        # after: the steps count references to the arrays they take, and a count the threads share (a table's, or
+        # the batch array's behind a copy's view of it) moves between their cores at every step. With shared
+        # arrays two threads stepped 256 thrown icosahedra 1.2-1.6 times as fast as one; with copies, 1.8-2.3 times.
+        no_rest = np.empty((0, commanded.shape[1]))   # the inputs held: no schedule
+        no_ext = np.empty((0, x.shape[1], 3))
+        own_schur = (schur[0].copy(), schur[1].copy(), schur[2].copy())
+        own_ground = (ground[0], ground[1].copy(), ground[2].copy(), ground[3], ground[4], ground[5], ground[6].copy(),
+                      ground[7], ground[8], ground[9], ground[10], ground[11])
+        own_x, own_v = out_x[b].copy(), out_v[b].copy()
+        own_impulses, own_slack, own_contact = out_impulses[b].copy(), out_slack[b].copy(), out_contact[b].copy()
+        own_f = f_ext[b].copy()
+        own_stalls = np.zeros(1, dtype=stall_count.dtype)
+        own_total = total[b].copy()
+        own_contact_total = contact_total[b].copy()
+        own_stick, own_normal, own_slip = stick[b].copy(), normal[b].copy(), slip[b].copy()
         i, xb, vb, ab, hb, hib, rb = steps(
-            0, n_steps, 1, x[b], v[b], applied[b], holding[b], hint[b], residual[b], total[b], out_x[b], out_v[b],
-            out_impulses[b], out_slack[b], f_ext[b], commanded[b], most, dt, offsets[b], limit_tol, taut_tol,
-            inv_mass, ends, n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event,
-            newton_iter, entry, settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol,
-            landing_iter, reel_force, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight,
-            shared, ddot, dgemv, wide, reference, ground, (stick[b], normal[b], slip[b]), contact_total[b],
-            out_contact[b], no_rest, no_ext, f_ext[b], f_ext[b], stall_count[b:b + 1])
+            0, n_steps, 1, x[b].copy(), v[b].copy(), applied[b].copy(), holding[b].copy(), hint[b].copy(), residual[b],
+            own_total, own_x, own_v, own_impulses, own_slack, own_f, commanded[b].copy(), most, dt, offsets[b].copy(),
+            limit_tol, taut_tol, inv_mass.copy(), ends.copy(), n_eq, rigid_lengths.copy(), cables_move.copy(),
+            row_nodes.copy(), free_nodes.copy(), cable_ends.copy(), min_event, newton_iter, entry, settings.copy(),
+            hessian.copy(), sqrt_mass.copy(), mass.copy(), own_schur, feasibility_tol, velocity_floor, landing_tol,
+            landing_iter, reel_force, locked, load_basis.copy(), load_cables.copy(), load_largest, refine, rank_tol,
+            exact, weight.copy(), shared, ddot, dgemv, wide, reference.copy(), own_ground,
+            (own_stick, own_normal, own_slip), own_contact_total, own_contact, no_rest, no_ext, own_f, own_f,
+            own_stalls)
         done[b] = i
         x[b] = xb
         v[b] = vb
@@ -958,3 +975,14 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
         holding[b] = hb
         hint[b] = hib
         residual[b] = rb
+        out_x[b] = own_x
+        out_v[b] = own_v
+        out_impulses[b] = own_impulses
+        out_slack[b] = own_slack
+        out_contact[b] = own_contact
+        total[b] = own_total
+        contact_total[b] = own_contact_total
+        stick[b] = own_stick
+        normal[b] = own_normal
+        slip[b] = own_slip
+        stall_count[b] = own_stalls[0]

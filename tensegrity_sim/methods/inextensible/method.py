@@ -335,7 +335,8 @@ class InextensibleMethod(StepMethod):
         d = positions[:, ends[:, 1]] - positions[:, ends[:, 0]]
         rows = d.reshape(-1, 3)
         length = np.sqrt(np.einsum("ij,ij->i", rows, rows)).reshape(d.shape[:2])
-        limits = np.stack([m.limits(m._applied) for m in methods])
+        # (limits as limits() adds them, the copies stacked first)
+        limits = np.stack([m._applied for m in methods]) + np.stack([m.length_offsets for m in methods])
         return length < limits * (1.0 - np.array([m._taut_tol for m in methods]))[:, None]
 
     def strain_energy(self, positions: np.ndarray, rest_lengths: np.ndarray) -> float:
@@ -555,10 +556,13 @@ class InextensibleMethod(StepMethod):
         """What a step leaves to the next (a motor's position, the cables that hold, the warm start, the
         rule's largest dropped impulse, on a ground each node's friction mode and the friction solver's last
         Newton answer, a start of its next): a command or a reset does not recompute it from the state, so the
-        simulator rewinds the steps computed ahead before either (``carry_outlives_inputs``)."""
+        simulator rewinds the steps computed ahead before either (``carry_outlives_inputs``). The motors'
+        positions, the cables that hold and the warm starts are arrays each step replaces and none changes in
+        place: the carry holds them as they are (a batch takes 256 carries a run); the friction memory, which
+        the steps update in place, is copied."""
         answer = None if self.ground is None else self.solver.answer   # (immutable: replaced, never changed)
-        return (self._applied.copy(), self._holding.copy(), self._hint.copy(), self._last_hint.copy(),
-                self.self_stress.residual, tuple(a.copy() for a in self._memory()), answer)
+        return (self._applied, self._holding, self._hint, self._last_hint, self.self_stress.residual,
+                tuple(a.copy() for a in self._memory()), answer)
 
     def restore(self, carry) -> None:
         applied, holding, hint, last, self.self_stress.residual, memory, answer = carry
