@@ -3,8 +3,8 @@
     python3 bench/bench_batch.py            # writes bench/results/batch.csv and batch.md, prints both
     python3 bench/bench_batch.py --ground   # the ground case only: bench/results/batch_ground.csv
     python3 bench/bench_batch.py --response # a member contact response: bench/results/batch_response.csv
-    python3 bench/bench_batch.py --inextensible  # 256 inextensible, free and resting on the ground:
-                                                 # bench/results/batch_inextensible.csv
+    python3 bench/bench_batch.py --inextensible  # 256 inextensible, free and resting on the ground, on all
+                                                 # cores and on one: bench/results/batch_inextensible.csv
 
 Cases (icosahedron thrown: rigid struts, 613 N/m cables, random node velocities; dt = 1 ms):
 
@@ -150,31 +150,54 @@ def measure_ground(batch: int = 1024, steps: int = 500) -> list[dict]:
              "note": f"ours rolled {moved:.3f} m in {steps} ms; load {load}"} for name, t in best.items()]
 
 
-def measure_inextensible(batch: int = 256, steps: int = 20, free: bool = True) -> list[dict]:
+def measure_inextensible(batch: int = 256, steps: int = 20, free: bool = True, one_thread: bool = False) -> list[dict]:
     """Issue 47's batch targets: ``batch`` inextensible icosahedra thrown (free; left out with ``free=False``,
     as the whole run measures that case with its others) and resting on the ground (``icosahedron_ground``),
     each against ``mujoco.rollout`` of MuJoCo's limited tendons (Euler; on the ground its plane contacts), as
     many threads as cores, no strut-strut detection on either side, taking turns; ours steps the copies'
-    compiled loops over the cores (``InextensibleMethod.advance_copies``)."""
+    compiled loops over the cores (``InextensibleMethod.advance_copies``). ``one_thread``: both also on one
+    thread (numba's threads set to 1 for ours), each ratio to rollout on as many threads: how each uses the
+    second core (``--inextensible``)."""
     threads = os.cpu_count() or 1
     rows = []
     cases = [("icosahedron_thrown inextensible", icosahedron_thrown())] if free else []
     for case, scene in cases + [("icosahedron_ground resting inextensible", load_scene("icosahedron_ground"))]:
         mujoco_run, pool = _mujoco(scene, "inextensible", batch, steps, threads)
         contenders = {"mujoco rollout": mujoco_run, "BatchSimulator": _ours(scene, "inextensible", batch, steps, ())}
+        pools = [pool]
+        if one_thread:
+            single_run, single_pool = _mujoco(scene, "inextensible", batch, steps, 1)
+            pools.append(single_pool)
+            contenders["mujoco rollout, 1 thread"] = single_run
+            contenders["BatchSimulator, 1 thread"] = _one_thread(_ours(scene, "inextensible", batch, steps, ()))
         best = {name: float("inf") for name in contenders}
         for run in contenders.values():   # warm-up: compile, allocate
             run()
         for _ in range(REPEATS):
             for name, run in contenders.items():
                 best[name] = min(best[name], time_runs(run, warmup=lambda: None, repeats=1).best)
-        pool.close()
+        for p in pools:
+            p.close()
         load = " ".join(f"{x:.2f}" for x in os.getloadavg())
-        rows += [{"case": case, "batch": batch, "steps": steps, "contender": name, "threads": threads,
+        rows += [{"case": case, "batch": batch, "steps": steps, "contender": name,
+                  "threads": 1 if name.endswith("1 thread") else threads,
                   "keeps": "every step's state", "scene_steps_per_s": round(batch * steps / t),
-                  "ratio_to_mujoco": round(best["mujoco rollout"] / t, 3),
+                  "ratio_to_mujoco": round(best["mujoco rollout, 1 thread" if name.endswith("1 thread") else
+                                                "mujoco rollout"] / t, 3),
                   "note": f"load {load}"} for name, t in best.items()]
     return rows
+
+
+def _one_thread(run):
+    """``run`` with numba's threads set to one, and back after."""
+    def single():
+        before = numba.get_num_threads()
+        numba.set_num_threads(1)
+        try:
+            return run()
+        finally:
+            numba.set_num_threads(before)
+    return single
 
 
 def measure_response(batch: int = 64, steps: int = 1000) -> list[dict]:
@@ -279,7 +302,7 @@ def write(rows: list[dict]) -> str:
 if __name__ == "__main__":
     # a single case: its own CSV; an unknown flag is refused (it used to run the whole bench)
     single = {"--ground": (measure_ground, "batch_ground.csv"), "--response": (measure_response, "batch_response.csv"),
-              "--inextensible": (measure_inextensible, "batch_inextensible.csv")}
+              "--inextensible": (lambda: measure_inextensible(one_thread=True), "batch_inextensible.csv")}
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     group = parser.add_mutually_exclusive_group()

@@ -945,7 +945,8 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
         # each copy steps in arrays of its own, its tables too (copies, the same numbers), its outputs written back
         # after: the steps count references to the arrays they take, and a count the threads share (a table's, or
         # the batch array's behind a copy's view of it) moves between their cores at every step. With shared
-        # arrays two threads stepped 256 thrown icosahedra 1.2-1.6 times as fast as one; with copies, 1.8-2.3 times.
+        # arrays two threads stepped 256 thrown icosahedra 1.2-1.6 times as fast as one, with copies 1.4-2.3 times
+        # (eight runs on a two-core machine that its host shares: bench_batch.py --inextensible).
         no_rest = np.empty((0, commanded.shape[1]))   # the inputs held: no schedule
         no_ext = np.empty((0, x.shape[1], 3))
         own_schur = (schur[0].copy(), schur[1].copy(), schur[2].copy())
