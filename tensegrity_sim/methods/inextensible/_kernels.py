@@ -944,7 +944,7 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
     for b in prange(x.shape[0]):
         # each copy steps in arrays of its own, its tables too (copies, the same numbers), its outputs written back
         # after: the steps count references to the arrays they take, and a count the threads share (a table's, or
-        # the batch array's behind a copy's view of it) moves between their cores at every step. With shared
+        # the batch array's behind a copy's view of it) would move between their cores at every step. With shared
         # arrays two threads stepped 256 thrown icosahedra 1.2-1.6 times as fast as one, with copies 1.4-2.3 times
         # (eight runs on a two-core machine that its host shares: bench_batch.py --inextensible).
         no_rest = np.empty((0, commanded.shape[1]))   # the inputs held: no schedule
