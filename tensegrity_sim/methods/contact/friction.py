@@ -116,6 +116,9 @@ _NSGS_SWEEPS = (100, 300, 600, 4000)   # NSGS sweeps between Newton's further st
 _CHAINS = 2               # Newton's first iterates (the modes' and zero's) the NSGS sweeps go on from ...
 _RESTARTS = 64            # Newton's starts from random impulses where it stops at a merit's local minimum ...
 _DRIFT_SWEEPS, _DRIFT_ROUNDS = 50, 400   # ... then NSGS rounds of sweeps with steps along W's null space
+_CONTINUATION_STEP = 0.1  # the first step in t of Newton's continuation along t mu from the frictionless problem, ...
+_CONTINUATION_ITER = 8    # ... Newton's iterations at each t before the step is halved ...
+_CONTINUATION_MIN = 1e-3  # ... and the step below which it is given up
 _CONE_EDGES = 8           # the polygon's edges that stand for each disc in the polyhedral cone's start ...
 _CONE_BOUND = 100.0       # ... its impulses bounded by this many times the problem's impulse scale ...
 _CONE_SECONDS = 10.0      # ... HiGHS' time limit for it ...
@@ -882,9 +885,10 @@ class FrictionalSolver:
         friction as a known impulse, and by the Coulomb law's projection form (:meth:`_verify`).
         Newton is globalised by its line search, Levenberg–Marquardt steps where the Newton step does not
         descend, and further starts where it stops at a local minimum of the merit: from its last answer to a
-        problem of the same structure (:attr:`answer`), from zero, from NSGS sweeps of the same fixed point, from the
-        solution of the problem with polygons for discs (:func:`_polyhedral_start`), then from seeded random
-        impulses (see below). Returns ``(v, y)`` as
+        problem of the same structure (:attr:`answer`), from zero, from NSGS sweeps of the same fixed point, along
+        the friction coefficients from the frictionless problem's solution (``continued``), from the solution of
+        the problem with polygons for discs (:func:`_polyhedral_start`), then from seeded random impulses (see
+        below). Returns ``(v, y)`` as
         :meth:`solve` does; raises :class:`FrictionError` naming the contacts whose law is unmet if no
         start reaches an answer that meets it."""
         k, n_rows, mass, mu = len(self._targets), len(rows), self._meff, self._mu
@@ -911,8 +915,8 @@ class FrictionalSolver:
         u0 = self._velocity(v0)
         impulse_scale = max(float(np.max(mass * np.abs(u0).max(axis=1), initial=0.0)), 1e-300)
 
-        def equation(r):
-            """Phi(r) (n,) and its generalised Jacobian (n, n)."""
+        def equation(r, mu=mu):
+            """Phi(r) (n,) and its generalised Jacobian (n, n), with the friction coefficients ``mu`` (k,)."""
             res = free_rates + delassus @ r
             phi = np.empty_like(r)
             jac = np.zeros((len(r), len(r)))
@@ -948,13 +952,13 @@ class FrictionalSolver:
             jac[ti] = d_phi.reshape(2 * k, -1)
             return phi, jac
 
-        def descend(r):
-            """Newton from ``r`` until ``|Phi|`` is within tolerance or stops falling: ``r``, its iterations."""
-            phi, jac = equation(r)
+        def descend(r, mu=mu, iterations=MAX_NEWTON_ITER):
+            """Newton from ``r`` until ``|Phi|`` (friction coefficients ``mu``) is within tolerance or stops
+            falling, in at most ``iterations``: ``r``, its iterations."""
+            phi, jac = equation(r, mu)
             merit = 0.5 * float(phi @ phi)
-            for it in range(1, MAX_NEWTON_ITER + 1):
-                tol = FIXED_POINT_TOL * max(impulse_scale, float(np.max(np.abs(r), initial=0.0)))
-                if float(np.max(np.abs(phi), initial=0.0)) <= 0.1 * tol:
+            for it in range(1, iterations + 1):
+                if within(r, phi):
                     return r, it - 1
                 found = None
                 step = np.linalg.lstsq(jac, -phi, rcond=None)[0]
@@ -963,7 +967,7 @@ class FrictionalSolver:
                 alpha = 1.0
                 for _ in range(_LINE_SEARCH):
                     trial = r + alpha * step
-                    trial_phi, trial_jac = equation(trial)
+                    trial_phi, trial_jac = equation(trial, mu)
                     trial_merit = 0.5 * float(trial_phi @ trial_phi)
                     if trial_merit <= (1.0 - 2e-4 * alpha) * merit:
                         found = trial, trial_phi, trial_jac, trial_merit
@@ -977,7 +981,7 @@ class FrictionalSolver:
                     damping = 1e-10 * max(float(np.trace(gram)) / len(r), 1e-300)
                     for _ in range(_LM_DAMPINGS):
                         trial = r - np.linalg.solve(gram + damping * np.eye(len(r)), gradient)
-                        trial_phi, trial_jac = equation(trial)
+                        trial_phi, trial_jac = equation(trial, mu)
                         trial_merit = 0.5 * float(trial_phi @ trial_phi)
                         if trial_merit < merit:
                             found = trial, trial_phi, trial_jac, trial_merit
@@ -986,7 +990,12 @@ class FrictionalSolver:
                 if found is None:
                     return r, it   # a stationary point of the merit that is no solution
                 r, phi, jac, merit = found
-            return r, MAX_NEWTON_ITER
+            return r, iterations
+
+        def within(r, phi) -> bool:
+            """Whether ``Phi(r)``, ``phi``, is within Newton's tolerance (relative to the impulses in play)."""
+            tol = FIXED_POINT_TOL * max(impulse_scale, float(np.max(np.abs(r), initial=0.0)))
+            return float(np.max(np.abs(phi), initial=0.0)) <= 0.1 * tol
 
         best = [np.inf, None]   # the start whose answer came nearest the law: its miss, its impulses
 
@@ -996,6 +1005,26 @@ class FrictionalSolver:
             if miss < best[0]:
                 best[:] = miss, r.copy()
             return miss <= 1.0
+
+        def continued():
+            """Newton along the friction coefficients ``t mu``, t from 0 to 1: from no impulse at ``t = 0`` (no
+            friction: the rows' and normals' convex problem), each solution the next ``t``'s start, the step in
+            ``t`` grown by half where Newton answered in :data:`_CONTINUATION_ITER` iterations, halved where
+            not. Returns the solution at ``t = 1``, or the last iterate where the step falls below
+            :data:`_CONTINUATION_MIN` (the caller checks it); and the Newton iterations taken."""
+            r, its = descend(np.zeros(n_qp + 2 * k), 0.0 * mu)
+            if not within(r, equation(r, 0.0 * mu)[0]):
+                return r, its
+            t, step = 0.0, _CONTINUATION_STEP
+            while t < 1.0 and step >= _CONTINUATION_MIN:
+                nearer = min(1.0, t + step)
+                trial, taken = descend(r.copy(), nearer * mu, _CONTINUATION_ITER)
+                its += taken
+                if within(trial, equation(trial, nearer * mu)[0]):
+                    r, t, step = trial, nearer, 1.5 * step
+                else:
+                    step *= 0.5
+            return r, its
 
         def sweep(r):
             """One projected Gauss–Seidel sweep (NSGS) of the same fixed point, row by row and contact by
@@ -1130,6 +1159,16 @@ class FrictionalSolver:
                     sweep(chain)
                 r, its = descend(chain.copy())
                 it += its
+        if not (solved(r) or acceptable(best[1])):
+            # continued from the frictionless problem (``continued``): with mu > 1 the solution can move far from
+            # every start above as the friction grows (a cable pulling a node sideways presses it into the ground
+            # through its friction), and Newton from them stops at a local minimum of the merit; along t mu each
+            # start is near its solution. Measured (issue 47, bench_throws.py throw 22448: superball resting on
+            # three nodes at mu = 1.46 as cables are let out, 36 unknowns, a singular value 8.1e-4 of 6.3): every
+            # other start missed the law by 1.4e-5 N*s after 8100 iterations; along t mu the normal impulses
+            # grow from 0.017 to 0.065 N*s, all three nodes sliding, and ~10 steps of t reach it in 0.2 s
+            r, its = continued()
+            it += its
         if not (solved(r) or acceptable(best[1])):
             # from the polyhedral cone's solution (:func:`_polyhedral_start`), which exists for any mu: where the
             # rows depend on each other nearly (a singular value 1e-6 of the Delassus matrix's largest), the
