@@ -992,16 +992,18 @@ class FrictionalSolver:
                 r, phi, jac, merit = found
             return r, iterations
 
+        def tolerance(r) -> float:
+            """N*s: the law's tolerance at impulses ``r``, relative to the larger of them and the contacts' scale."""
+            return FIXED_POINT_TOL * max(impulse_scale, float(np.max(np.abs(r), initial=0.0)))
+
         def within(r, phi) -> bool:
-            """Whether ``Phi(r)``, ``phi``, is within Newton's tolerance (relative to the impulses in play)."""
-            tol = FIXED_POINT_TOL * max(impulse_scale, float(np.max(np.abs(r), initial=0.0)))
-            return float(np.max(np.abs(phi), initial=0.0)) <= 0.1 * tol
+            """Whether ``Phi(r)``, ``phi``, is within Newton's tolerance."""
+            return float(np.max(np.abs(phi), initial=0.0)) <= 0.1 * tolerance(r)
 
         best = [np.inf, None]   # the start whose answer came nearest the law: its miss, its impulses
 
         def solved(r):
-            tol = FIXED_POINT_TOL * max(impulse_scale, float(np.max(np.abs(r), initial=0.0)))
-            miss = float(np.max(np.abs(equation(r)[0]), initial=0.0)) / (0.1 * tol)
+            miss = float(np.max(np.abs(equation(r)[0]), initial=0.0)) / (0.1 * tolerance(r))
             if miss < best[0]:
                 best[:] = miss, r.copy()
             return miss <= 1.0
@@ -1102,8 +1104,7 @@ class FrictionalSolver:
         def polish(r):
             """:meth:`_polish` of the answer of ``r``."""
             y, _, applied, _, _ = answer(r)
-            tol = FIXED_POINT_TOL * max(impulse_scale, float(np.max(np.abs(r), initial=0.0)))
-            return self._polish(v0, rows, warm, applied, y[n_rows:] > 0, tol)
+            return self._polish(v0, rows, warm, applied, y[n_rows:] > 0, tolerance(r))
 
         # from the modes' last iterate (its multipliers and friction). Where that ends at a local minimum of
         # the merit that is no solution (Alart–Curnier's has some), Newton again from NSGS sweeps, which
@@ -1204,8 +1205,7 @@ class FrictionalSolver:
         if not solved(r) and best[1] is not None:   # (None: every miss NaN; the check below names it)
             r = best[1]
         y, _, applied, v, vt = answer(r)
-        impulse = max(impulse_scale, float(np.max(np.abs(r), initial=0.0)))
-        tol = FIXED_POINT_TOL * impulse
+        tol = tolerance(r)
         yn = y[n_rows:]
         self.iterations = MAX_MODE_ITER + it
         try:
