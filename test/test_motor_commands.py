@@ -136,3 +136,41 @@ def test_a_rolling_command_the_locked_icosahedron_cannot_follow_stalls_its_motor
         assert sim.motor_stalls > 0
         runs.append(traj.positions)
     np.testing.assert_allclose(runs[0], runs[1], rtol=0, atol=1e-12)
+
+
+def test_a_stalled_motor_starts_its_next_step_pulling():
+    """A motor that pulled at its force starts the next step pulling (``InextensibleMethod._motor_modes``): in
+    the hold of ``examples/roll.yaml`` on the locked ``icosahedron_ground`` (its three motors stalled at 2 kN,
+    the robot rocking on its edges) each step solves its sub-step once or, for the landing, twice, where solving
+    it with the motors following first took three solves; the stalled cables stay where they locked, to the
+    tolerance of a locked structure's cable at its limit (the structure gives no more), and the step kernel
+    takes the same steps to the bit."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ts.LengthOffsetWarning)
+        scene = ts.load_scene("icosahedron_ground")
+        sims = [ts.Simulator(scene, method="inextensible", dt=1e-3, contacts=()) for _ in range(2)]
+    schedule = load_commands(ROOT / "examples" / "roll.yaml", scene)
+    for sim in sims:
+        sim.run(steps=400, commands=schedule)
+    api, kernel = sims
+    api._method.one_kernel = False   # each solve through the friction solver's API, counted
+    solves = []
+    solve = api._method.solver.solve
+
+    def counted(*args):
+        solves[-1] += 1
+        return solve(*args)
+    api._method.solver.solve = counted
+    cables = [scene.cable_names.index(name) for name in ("c4", "c5", "c6")]
+    ends = api.system.cable_ends[cables]
+    locked = np.linalg.norm(np.diff(api.positions[ends], axis=1)[:, 0], axis=1)
+    stalls = api.motor_stalls
+    for _ in range(50):
+        solves.append(0)
+        a, b = api.step(), kernel.step()
+        assert np.array_equal(a.positions, b.positions) and np.array_equal(a.impulses, b.impulses)
+    assert api.motor_stalls - stalls == 150   # the three motors at their force in every step
+    assert max(solves) <= 2 and sum(solves) < 75
+    from tensegrity_sim.methods.inextensible.self_stress import TAUT_TOL   # (a locked structure's cable at its limit)
+    np.testing.assert_allclose(np.linalg.norm(np.diff(api.positions[ends], axis=1)[:, 0], axis=1), locked,
+                               rtol=TAUT_TOL, atol=0)

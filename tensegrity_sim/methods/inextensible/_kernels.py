@@ -319,10 +319,50 @@ def _solve_mass(f, inv_mass, ends, n_eq):
 
 
 @njit(cache=True)
+def _pulling_inputs(x_m, v0, limits, reel, pulling, most, cable_ends, schur, inv_mass, ends, n_eq, cable_limits, dt,
+                    tau):
+    """The sub-step's free velocity, limits and reel with the ``pulling`` motors at their force (:func:`midpoint`)."""
+    nc = reel.shape[0]
+    push = np.zeros_like(v0)
+    pull = np.zeros((nc, 3))
+    for c in range(nc):
+        if pulling[c]:
+            a = cable_ends[c, 0]
+            b = cable_ends[c, 1]
+            dx = x_m[b, 0] - x_m[a, 0]
+            dy = x_m[b, 1] - x_m[a, 1]
+            dz = x_m[b, 2] - x_m[a, 2]
+            scale = most / np.sqrt(dot3(dx, dy, dz, dx, dy, dz))   # (einsum's order, as the reference's)
+            pull[c, 0] = scale * dx
+            pull[c, 1] = scale * dy
+            pull[c, 2] = scale * dz
+    for c in range(nc):   # np.add.at's order: every first end, then every second end
+        if pulling[c]:
+            for j in range(3):
+                push[cable_ends[c, 0], j] += pull[c, j]
+    for c in range(nc):
+        if pulling[c]:
+            for j in range(3):
+                push[cable_ends[c, 1], j] += -pull[c, j]
+    if schur[0].shape[0]:   # the rods' blocks
+        v0p = v0 + _solve_mass(push, inv_mass, ends, n_eq)
+    else:
+        v0p = v0 + inv_mass[:, :1] * push
+    limits_p = limits.copy()
+    reel_p = reel.copy()
+    for c in range(nc):
+        if pulling[c]:
+            # (the motor half a step's reel ahead of its cable, as a running one is)
+            limits_p[n_eq + c] = cable_limits[c] - (dt + 0.5 * tau) * reel[c]
+            reel_p[c] = 0.0
+    return v0p, limits_p, reel_p
+
+
+@njit(cache=True)
 def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, holding, row_nodes, free_nodes,
              cable_ends, taut, entry, settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor,
              landing_tol, landing_iter, reel_force, cable_limits, dt, inv_mass, locked, load_basis, load_cables,
-             load_largest, refine, rank_tol, exact, weight, shared, ground, memory):
+             load_largest, refine, rank_tol, exact, weight, shared, ground, memory, carried):
     """``InextensibleMethod._midpoint`` with no contact rows or the ground's alone, its QP solved by DAQP
     (``_solve_checked``, or with armed ground contacts the compiled friction modes,
     ``_friction_kernels.contact_solve``), in one call: the rows (:func:`select_rows`, member table
@@ -354,7 +394,9 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
     (``InextensibleMethod._motor_modes``, the same arithmetic): a known impulse along the cable added to ``v0``
     (``inv_mass`` (N, 2) 1/kg, ``MassOperator.kernel_array``), the cable's limit where the motor stood at the step's
     start (``cable_limits`` (nc,) m: the step's limits without the landing's lag; ``dt``: the step),
-    no reel; the multipliers returned include those impulses."""
+    no reel; the multipliers returned include those impulses. The motors ``carried`` (nc,) bool (those at their
+    force in the last step) that still reel start pulling, and where one's cable ends shorter than its landing the
+    sub-step starts again from every motor following (``InextensibleMethod._motor_modes``)."""
     (on, g_nodes, radii, height, mu, touch_tol, free_index, fixed_point_tol, slip_floor, max_iter,
      depth, _) = ground
     stick, normal, slip = memory
@@ -362,10 +404,17 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
     nc = reel.shape[0]
     most = reel_force * tau   # N*s: the most a motor pulls over the sub-step (InextensibleMethod._motor_modes)
     pulling = np.zeros(nc, dtype=np.bool_)
-    pulls = False
+    start_pulling = False
+    for c in range(nc):
+        pulling[c] = carried[c] and reel[c] < 0.0
+        start_pulling |= pulling[c]
+    pulls = start_pulling
     v0p = v0
     limits_p = limits
     reel_p = reel
+    if start_pulling:
+        v0p, limits_p, reel_p = _pulling_inputs(x_m, v0, limits, reel, pulling, most, cable_ends, schur, inv_mass,
+                                                ends, n_eq, cable_limits, dt, tau)
     while True:
         cables, sel, m_n, m_length, m_limits, floor_rate, targets, warm = select_rows(
             x_m, v, v0p, tau, ends, n_eq, limits_p, floor, cables_move, reel_p, holding)
@@ -434,6 +483,22 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
                 v_start = v
                 factor = np.zeros((0, 0))
                 work = np.zeros(0, dtype=np.int64)
+        if ok and start_pulling and k:
+            # the motors carried pulling: where one's cable ends shorter than a following motor would take it, the
+            # sub-step again from every motor following
+            x_try = _drift(x_m, 0.5 * tau, v_f)
+            _, length_try = cable_geometry(x_try, cable_ends)
+            release = False
+            for c in range(nc):
+                release |= pulling[c] and length_try[c] < limits[n_eq + c]
+            if release:
+                start_pulling = False
+                pulls = False
+                pulling = np.zeros(nc, dtype=np.bool_)
+                v0p = v0
+                limits_p = limits
+                reel_p = reel
+                continue
         # a motor that would pull harder than reel_force pulls at that force, its cable held where it stood
         over = False
         if ok:
@@ -447,38 +512,8 @@ def midpoint(x_m, v, v0, tau, ends, n_eq, limits, floor, cables_move, reel, hold
         if not over:
             break
         pulls = True
-        push = np.zeros_like(v0)
-        pull = np.zeros((nc, 3))
-        for c in range(nc):
-            if pulling[c]:
-                a = cable_ends[c, 0]
-                b = cable_ends[c, 1]
-                dx = x_m[b, 0] - x_m[a, 0]
-                dy = x_m[b, 1] - x_m[a, 1]
-                dz = x_m[b, 2] - x_m[a, 2]
-                scale = most / np.sqrt(dot3(dx, dy, dz, dx, dy, dz))   # (einsum's order, as the reference's)
-                pull[c, 0] = scale * dx
-                pull[c, 1] = scale * dy
-                pull[c, 2] = scale * dz
-        for c in range(nc):   # np.add.at's order: every first end, then every second end
-            if pulling[c]:
-                for j in range(3):
-                    push[cable_ends[c, 0], j] += pull[c, j]
-        for c in range(nc):
-            if pulling[c]:
-                for j in range(3):
-                    push[cable_ends[c, 1], j] += -pull[c, j]
-        if schur[0].shape[0]:   # the rods' blocks
-            v0p = v0 + _solve_mass(push, inv_mass, ends, n_eq)
-        else:
-            v0p = v0 + inv_mass[:, :1] * push
-        limits_p = limits.copy()
-        reel_p = reel.copy()
-        for c in range(nc):
-            if pulling[c]:
-                # (the motor half a step's reel ahead of its cable, as a running one is)
-                limits_p[n_eq + c] = cable_limits[c] - (dt + 0.5 * tau) * reel[c]
-                reel_p[c] = 0.0
+        v0p, limits_p, reel_p = _pulling_inputs(x_m, v0, limits, reel, pulling, most, cable_ends, schur, inv_mass,
+                                                ends, n_eq, cable_limits, dt, tau)
     if ok and k and pulls:   # the pulling motors' impulses are their cables' too
         r = n_eq
         for c in range(nc):
@@ -686,7 +721,7 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
          n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
          settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol, landing_iter,
          reel_force, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot,
-         dgemv, wide, reference, ground, memory):
+         dgemv, wide, reference, ground, memory, carried):
     """``InextensibleMethod._step_impl`` of a step that is one sub-step (no landing located inside it, a snap
     only where the step taken whole does not meet it: ``InextensibleMethod._whole``; an impact at its start
     allowed), without elastic struts or member contact rows, in one call: the motors' limits
@@ -695,7 +730,8 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     apply), the snap search (:func:`first_snap`) and :func:`midpoint`.
     ``holding``, ``hint`` (nc,) bool: the cables known to hold and the QP's warm start; ``ground`` and
     ``memory`` as :func:`midpoint` takes them (``memory`` itself is not changed: the friction modes after
-    the step are returned, for the caller to keep when it takes the step).
+    the step are returned, for the caller to keep when it takes the step), ``carried`` too (the motors that
+    pulled at their force are returned last).
 
     When the structure can lock (``locked``), the self-stress rule's fit runs here too (:func:`fit_one`
     with numpy's ``ddot``/``dgemv``, ``wide`` as there, the cables' ``reference`` tensions) if its self-stress is one
@@ -785,12 +821,12 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
     if not ok:   # the caller's Python path
         return (False, x, v, holding, new_applied, taut, False, impulses, holding, 0.0, holding,
                 np.zeros(0), d, length, np.zeros(0, dtype=np.bool_), load_cables[:0],
-                np.zeros((3 * free_nodes.shape[0], 0)), None, np.zeros_like(x), memory, 0)
+                np.zeros((3 * free_nodes.shape[0], 0)), None, np.zeros_like(x), memory, 0, carried)
     done, x_f, v_f, y, cables, _, _, d_f, length_f, binding, members, a_t, basis, contact, pulled = midpoint(
         x_m, v, v0, dt, ends, n_eq, all_limits, floor, cables_move, reel, hint, row_nodes, free_nodes, cable_ends,
         taut, entry, settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol,
         landing_iter, reel_force, limits, dt, inv_mass, locked, load_basis, load_cables, load_largest, refine,
-        rank_tol, exact, weight, shared, ground, modes)
+        rank_tol, exact, weight, shared, ground, modes, carried)
     new_holding = np.zeros(nc, dtype=np.bool_)
     r = n_eq
     for c in range(nc):
@@ -849,7 +885,7 @@ def step(x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol
             new_applied[c] = max(new_applied[c], min(applied[c], ahead))
             stalls += 1
     return (ok and done, x_f, v_f, new_holding, new_applied, taut, fitted, summed, slack, node, cables, y, d_f,
-            length_f, binding, members, a_t, basis, contact, modes, stalls)
+            length_f, binding, members, a_t, basis, contact, modes, stalls, pulled)
 
 
 @njit(cache=True)
@@ -858,7 +894,8 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
           cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian,
           sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol, landing_iter, reel_force, locked,
           load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide,
-          reference, ground, memory, contact_total, out_contact, rest_seq, ext_seq, gravity, ext, stall_count):
+          reference, ground, memory, contact_total, out_contact, rest_seq, ext_seq, gravity, ext, stall_count,
+          carried):
     """Steps ``first``, ``first + 1``, ... of ``n_steps`` from ``x``, ``v`` (N, 3), the inputs held, each
     :func:`step` from the cables known to hold ``holding`` and the warm start ``hint`` (nc,) bool (after a
     step both are the cables that held, as in ``InextensibleMethod._step_impl``), until one needs the
@@ -876,7 +913,8 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
     before step ``first``. A step whose inputs differ from the last step's starts as after
     ``InextensibleMethod.invalidate`` (no cable known to hold, the warm start kept): the very arithmetic of
     setting them before stepping it, as ``Simulator`` does. The cables that hold are returned after that.
-    ``stall_count`` (1,) int: the motor steps at their force (``InextensibleMethod.stalls``) are added to it."""
+    ``stall_count`` (1,) int: the motor steps at their force (``InextensibleMethod.stalls``) are added to it;
+    ``carried`` (nc,) bool: the motors at their force in the last step, updated in place with each step taken."""
     n = x.shape[0]
     nc = cable_ends.shape[0]
     scheduled = rest_seq.shape[0] > 0
@@ -894,14 +932,15 @@ def steps(first, n_steps, every, x, v, applied, holding, hint, residual, total, 
             if changed:
                 holding = np.zeros(nc, dtype=np.bool_)
         (ok, x_f, v_f, new_holding, new_applied, _, fitted, impulses, slack, node, _, _, _, _, _, _, _,
-         _, contact, modes, stalls) = step(
+         _, contact, modes, stalls, pulled) = step(
             x, v, f_ext, commanded, applied, most, dt, offsets, limit_tol, taut_tol, holding, hint, inv_mass, ends,
             n_eq, rigid_lengths, cables_move, row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry,
             settings, hessian, sqrt_mass, mass, schur, feasibility_tol, velocity_floor, landing_tol, landing_iter,
             reel_force, locked, load_basis, load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot,
-            dgemv, wide, reference, ground, memory)
+            dgemv, wide, reference, ground, memory, carried)
         if not (ok and fitted):
             return i, x, v, applied, holding, hint, residual
+        carried[:] = pulled
         x, v, applied, holding, hint = x_f, v_f, new_applied, new_holding, new_holding
         stall_count[0] += stalls
         residual = max(residual, node)
@@ -930,7 +969,7 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
                  row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass,
                  schur, feasibility_tol, velocity_floor, landing_tol, landing_iter, reel_force, locked, load_basis,
                  load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference,
-                 ground, stick, normal, slip, contact_total, out_contact, done, stall_count):
+                 ground, stick, normal, slip, contact_total, out_contact, done, stall_count, carried):
     """:func:`steps` of B copies of one structure on every core (``prange`` over the copies), each in arrays of
     its own: the leading axis of ``x``, ``v`` (B, N, 3), the carry ``applied``, ``holding``, ``hint`` (B, nc),
     ``residual`` (B,), the inputs ``f_ext`` (B, N, 3), ``commanded`` and ``offsets`` (B, nc), the friction
@@ -940,7 +979,7 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
     steps are the very arithmetic of its own :func:`steps` call from step 0;
     each stops where its :func:`steps` stops (a step for the Python path): ``done`` (B,) gets that step, the
     carry arrays the copy's carry before it; ``stall_count`` (B,) int gets each copy's motor steps at their
-    force."""
+    force; ``carried`` (B, nc) bool: each copy's motors at their force, as :func:`steps` keeps them."""
     for b in prange(x.shape[0]):
         # each copy steps in arrays of its own, its tables too (copies, the same numbers), its outputs written back
         # after: the steps count references to the arrays they take, and a count the threads share (a table's, or
@@ -959,6 +998,7 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
         own_total = total[b].copy()
         own_contact_total = contact_total[b].copy()
         own_stick, own_normal, own_slip = stick[b].copy(), normal[b].copy(), slip[b].copy()
+        own_carried = carried[b].copy()
         i, xb, vb, ab, hb, hib, rb = steps(
             0, n_steps, 1, x[b].copy(), v[b].copy(), applied[b].copy(), holding[b].copy(), hint[b].copy(), residual[b],
             own_total, own_x, own_v, own_impulses, own_slack, own_f, commanded[b].copy(), most, dt, offsets[b].copy(),
@@ -968,7 +1008,7 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
             landing_iter, reel_force, locked, load_basis.copy(), load_cables.copy(), load_largest, refine, rank_tol,
             exact, weight.copy(), shared, ddot, dgemv, wide, reference.copy(), own_ground,
             (own_stick, own_normal, own_slip), own_contact_total, own_contact, no_rest, no_ext, own_f, own_f,
-            own_stalls)
+            own_stalls, own_carried)
         done[b] = i
         x[b] = xb
         v[b] = vb
@@ -987,3 +1027,4 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
         normal[b] = own_normal
         slip[b] = own_slip
         stall_count[b] = own_stalls[0]
+        carried[b] = own_carried

@@ -262,6 +262,7 @@ class InextensibleMethod(StepMethod):
         self._elastic_incidence = system.incidence_matrix(self._elastic_ends)
         self._holding = np.zeros(system.n_cables, dtype=bool)
         self._hint = self._holding   # the QP's warm start of the first sub-step (see invalidate)
+        self._carried = np.zeros(system.n_cables, dtype=bool)   # motors at their force in the last step (_motor_modes)
         # the cables that held in the last sub-step of the last step cut at snaps: the warm start of such a
         # step's last sub-step, where the backend asks for it (QPSolver.last_hint)
         self._last_hint = self._holding
@@ -310,6 +311,7 @@ class InextensibleMethod(StepMethod):
             state.velocities = state.velocities + self.rigid.project_velocities(state.positions, state.velocities)
         self._applied = state.rest_lengths.copy()
         self._holding = self._hint = self._last_hint = np.zeros(self.system.n_cables, dtype=bool)
+        self._carried = np.zeros(self.system.n_cables, dtype=bool)
         self.self_stress.forget()
 
     def applied_rest_lengths(self, state: State) -> np.ndarray:
@@ -449,6 +451,7 @@ class InextensibleMethod(StepMethod):
             self.stalls += int(np.count_nonzero(pulled))
         self._holding = self._hint = holding
         self._applied = applied
+        self._carried = pulled.copy()
         contact = pairs = None
         if self.ground is not None:
             contact, pairs = self.ground.take_impulses(), self.ground.take_pair_impulses()
@@ -463,12 +466,13 @@ class InextensibleMethod(StepMethod):
         handle)."""
         rule = self.self_stress
         (ok, x, v, holding, applied, taut, fitted, impulses, slack, node, cables, y, d, length, binding, members,
-         a_t, basis, contact, modes, stalls) = kernels.step(state.positions, state.velocities,
+         a_t, basis, contact, modes, stalls, pulled) = kernels.step(state.positions, state.velocities,
                                                             *self._step_inputs(state),
                                                     self._applied, *self._motors(), self._holding, self._hint,
-                                                    *self._step_constants(), self._memory())
+                                                    *self._step_constants(), self._memory(), self._carried)
         if not ok:
             return None
+        self._carried = pulled.copy()
         for kept, new in zip(self._memory(), modes):
             kept[:] = new
         self.stalls += stalls
@@ -558,17 +562,18 @@ class InextensibleMethod(StepMethod):
     def carry(self):
         """What a step leaves to the next (a motor's position, the cables that hold, the warm start, the
         rule's largest dropped impulse, on a ground each node's friction mode and the friction solver's last
-        Newton answer, a start of its next): a command or a reset does not recompute it from the state, so the
-        simulator rewinds the steps computed ahead before either (``carry_outlives_inputs``). The motors'
-        positions, the cables that hold and the warm starts are arrays each step replaces and none changes in
-        place: the carry holds them as they are (a batch takes 256 carries a run); the friction memory, which
-        the steps update in place, is copied."""
+        Newton answer, a start of its next, and the motors that pulled at their force): a command or a reset does
+        not recompute it from the state, so the simulator rewinds the steps computed ahead before either
+        (``carry_outlives_inputs``). The motors' positions, the cables that hold and the warm starts are arrays
+        each step replaces and none changes in place: the carry holds them as they are (a batch takes 256 carries
+        a run); the friction memory and the pulling motors, which the loops update in place, are copied."""
         answer = None if self.ground is None else self.solver.answer   # (immutable: replaced, never changed)
         return (self._applied, self._holding, self._hint, self._last_hint, self.self_stress.residual,
-                tuple(a.copy() for a in self._memory()), answer)
+                tuple(a.copy() for a in self._memory()), answer, self._carried.copy())
 
     def restore(self, carry) -> None:
-        applied, holding, hint, last, self.self_stress.residual, memory, answer = carry
+        applied, holding, hint, last, self.self_stress.residual, memory, answer, carried = carry
+        self._carried = carried.copy()
         self._applied, self._holding, self._hint = applied.copy(), holding.copy(), hint.copy()
         self._last_hint = last.copy()
         for kept, saved in zip(self._memory(), memory):
@@ -608,7 +613,7 @@ class InextensibleMethod(StepMethod):
             i, x, v, self._applied, self._holding, self._hint, rule.residual = kernels.steps(
                 i, steps, every, x, v, self._applied, self._holding, self._hint, rule.residual, total, *out,
                 gravity + ext_now, rest_now, *motors, *constants, self._memory(), on_ground, contact, rest_seq,
-                ext_seq, gravity, ext_now, stall_count)
+                ext_seq, gravity, ext_now, stall_count, self._carried)
             self.stalls += int(stall_count[0])
             stall_count[0] = 0
             if i == steps:
@@ -663,6 +668,7 @@ class InextensibleMethod(StepMethod):
         applied = np.stack([m._applied for m in methods])
         holding = np.stack([m._holding for m in methods])
         hint = np.stack([m._hint for m in methods])
+        carried = np.stack([m._carried for m in methods])
         residual = np.array([m.self_stress.residual for m in methods], dtype=float)
         f_ext = np.stack([m._step_inputs(s)[0] for m, s in zip(methods, states)])
         commanded = np.stack([s.rest_lengths for s in states])
@@ -680,10 +686,11 @@ class InextensibleMethod(StepMethod):
         kernels.copies_steps(steps, x, v, applied, holding, hint, residual, np.zeros(applied.shape),
                              positions[..., None], velocities[..., None], impulses[..., None], slack[..., None], f_ext,
                              commanded, most, dt, offsets, limit_tol, taut_tol, *first._step_constants(), *memory,
-                             on_ground, out_contact, done, stalls)
+                             on_ground, out_contact, done, stalls, carried)
         for b, method in enumerate(methods):
             # each copy's carry a row of the copies' arrays, its own (replaced, never changed in place, by its steps)
             method._applied, method._holding, method._hint = applied[b], holding[b], hint[b]
+            method._carried = carried[b]
             method.self_stress.residual = float(residual[b])
             method.stalls += int(stalls[b])
             if grounded:
@@ -840,11 +847,20 @@ class InextensibleMethod(StepMethod):
         midpoint, the cable held where the motor stood at the step's start (its brake). Motors only go from
         following to pulling within a sub-step, so this ends. Returns ``x_f``, ``v_f`` (N, 3), the
         multipliers (k,) N*s, the rows (or None), the cable rows (nc,) bool and the motors' impulses at their
-        force (nc,) N*s."""
+        force (nc,) N*s.
+
+        The motors that pulled at their force in the last step (``_carried``) and still reel start pulling: a
+        stalled motor stays stalled, and its step is one solve. Where one's cable ends the sub-step shorter than
+        its landing (a following motor would have held it there: it is not stalled), the sub-step is solved again
+        from every motor following, as without the carry. Measured (issue 47, ``bench/roll_cost.py``: the locked
+        icosahedron's reel of ``examples/roll.yaml``): the hold's steps took 21 friction QPs each, solved with the
+        motors following, then pulling, then for the landing; carried, 1.1, and the step kernel's steps 0.10 ms
+        where they took 0.67."""
         n_eq = self._n_eq
         most = self.reel_force * tau   # N*s: the most a motor pulls over the sub-step
         reeling = reel < 0
-        pulling = np.zeros(len(reel), dtype=bool)
+        pulling = reeling & self._carried
+        carried = pulling.any()
         while True:
             ends = self.system.cable_ends[pulling]
             d = x_m[ends[:, 1]] - x_m[ends[:, 0]]
@@ -868,6 +884,14 @@ class InextensibleMethod(StepMethod):
             impulses = np.zeros(len(reel))
             impulses[cables] = y[n_eq:]
             over = reeling & ~pulling & (impulses > most)
+            if carried:
+                length = self.system.geometry(x_m + (0.5 * tau) * v_f, self.system.cable_ends)[1]
+                if (pulling & (length < all_limits[n_eq:])).any():   # pulled in past its landing: not stalled
+                    carried = False
+                    pulling = np.zeros(len(reel), dtype=bool)
+                    if self.ground is not None:
+                        self.solver.last = None
+                    continue
             if not over.any():
                 return x_m + (0.5 * tau) * v_f, v_f, y, rows, cables, np.where(pulling, most, 0.0)
             pulling |= over
@@ -939,7 +963,7 @@ class InextensibleMethod(StepMethod):
             x_m, v, v0, tau, self._ends, self._n_eq, all_limits, floor, self._cables_move, reel, holding,
             self._row_nodes, self._free_nodes, self.system.cable_ends, taut, *self._qp_call(self.solver),
             _FEASIBILITY_TOL, _VELOCITY_FLOOR, _LANDING_TOL, _LANDING_ITER, self.reel_force, limits, self.dt,
-            self._kernel_mass, locked, *self.self_stress.load_space, _NO_GROUND, _NO_MEMORY)
+            self._kernel_mass, locked, *self.self_stress.load_space, _NO_GROUND, _NO_MEMORY, self._carried)
         if not ok:
             return None
         self._pulled |= pulled
