@@ -240,7 +240,8 @@ def test_a_frictional_problem_answered_only_near_the_tolerance_is_answered_and_c
     round-off of the resting icosahedron's statically indeterminate contacts, with the modes and the further
     starts skipped), the best answer is taken if it meets the law to ACCEPT_TOL of the momentum in play,
     and counted: the robot stays at rest, its weight on the ground; with ACCEPT_TOL = 1e-18 the same step is
-    a FrictionError naming the three contacts."""
+    a FrictionError naming the contacts that miss the law (which of the three miss it at 1e-18 is round-off:
+    all three with one machine's BLAS, n0 and n8 with an AMD EPYC's)."""
     from tensegrity_sim.methods.contact import friction
 
     for name, value in (("MAX_MODE_ITER", 0), ("_NSGS_SWEEPS", ()), ("_RESTARTS", 0), ("_DRIFT_ROUNDS", 0),
@@ -256,8 +257,8 @@ def test_a_frictional_problem_answered_only_near_the_tolerance_is_answered_and_c
     weight = float(sim.system.masses.sum()) * G
     np.testing.assert_allclose(tr.contact_impulses[:, :, 2].sum(axis=1), weight * 1e-3, rtol=1e-9)
     monkeypatch.setattr(friction, "ACCEPT_TOL", 1e-18)
-    with pytest.raises(friction.FrictionError, match=r"\(no solution\): contacts 'n0' on the ground, 'n4' on the "
-                                                     r"ground, 'n8' on the ground miss the Coulomb law"):
+    with pytest.raises(friction.FrictionError, match=r"\(no solution\): contacts 'n[048]' on the ground(, 'n[048]' on "
+                                                     r"the ground)* miss the Coulomb law"):
         sim.step()
 
 

@@ -744,7 +744,7 @@ def test_a_resting_superball_letting_cables_out_is_answered_along_the_friction_c
     monkeypatch.setattr(F, "_CONTINUATION_MIN", 2.0 * F._CONTINUATION_STEP)   # (no step in t is taken)
     monkeypatch.setattr(F, "_polyhedral_start", lambda *args: None)   # (it misses too, in 30 s of HiGHS)
     out = T.run_throw(case)
-    assert out["error"] is not None and "no solution" in str(out["error"]) and out["steps"] == 61
+    assert out["error"] is not None and out["steps"] == 55 and out["steps"] == 61
 
 
 SPINNING_SUPERBALL = 22315   # bench_throws.py --seed 0 (fuzz_throw): 50.3 J made at step 4
@@ -864,7 +864,8 @@ def test_a_resting_three_bar_letting_a_cable_out_is_answered_from_the_polygon_st
     start went. From the solution with polygons for discs (``friction._polyhedral_start``) Newton reaches it: the
     first 57 steps run soundly, every accepted answer meeting the law and the rows' complementarity (the
     benchmark's check). Newton along the friction coefficients (``continued``, the start before, added for throw
-    22448) answers it too: without both the step stops as before."""
+    22448) answers it too: without both the run stops at step 56 as before (a FrictionError, or where round-off
+    takes the backend first to an answer it refuses, as an AMD EPYC's BLAS does, a QPError)."""
     from bench.bench_throws import AnswerChecks
 
     case = _fuzz_copy(THREE_BAR_LET_OUT, 0, 57)
@@ -882,4 +883,4 @@ def test_a_resting_three_bar_letting_a_cable_out_is_answered_from_the_polygon_st
     monkeypatch.setattr(F, "_CONTINUATION_MIN", 2.0 * F._CONTINUATION_STEP)
     monkeypatch.setattr(F, "_polyhedral_start", lambda *args: None)
     out = T.run_throw(case)
-    assert out["error"] is not None and "no solution" in str(out["error"])
+    assert out["error"] is not None and out["steps"] == 55
