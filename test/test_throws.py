@@ -744,7 +744,7 @@ def test_a_resting_superball_letting_cables_out_is_answered_along_the_friction_c
     monkeypatch.setattr(F, "_CONTINUATION_MIN", 2.0 * F._CONTINUATION_STEP)   # (no step in t is taken)
     monkeypatch.setattr(F, "_polyhedral_start", lambda *args: None)   # (it misses too, in 30 s of HiGHS)
     out = T.run_throw(case)
-    assert out["error"] is not None and out["steps"] == 55 and out["steps"] == 61
+    assert out["error"] is not None and "no solution" in str(out["error"]) and out["steps"] == 61
 
 
 SPINNING_SUPERBALL = 22315   # bench_throws.py --seed 0 (fuzz_throw): 50.3 J made at step 4
