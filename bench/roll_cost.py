@@ -58,8 +58,6 @@ def measure(steps: int) -> list[dict]:
             return inner(*args, **kwargs)
         setattr(owner, name, call)
 
-    counted(method, "_step_impl")
-    counted(method, "_free_motion")
     for name in ("_newton", "_jammed", "_qp"):   # (the compiled modes, _modes_compiled, stay as they are)
         counted(solver, name)
     kernel = method._step_kernel
@@ -94,10 +92,11 @@ def measure(steps: int) -> list[dict]:
         count[kind] += 1
         energy[k] = 0.5 * float(np.einsum("i,ij,ij->", mass, r.velocities, r.velocities))
     total = sum(seconds.values())
-    phases = [round(t / sim.dt) for t in (0.3, 1.0, 1.3)]   # the schedule's changes: reel in, hold, let out
+    # the schedule's changes (reel in, hold, let out) that the run reaches
+    ends = [f"of the {phase} {energy[k]:.2f} J" for phase, t in (("reel", 0.3), ("hold", 1.0), ("let-out", 1.3))
+            if (k := round(t / sim.dt)) < steps]
     note = (f"{steps - 1} steps in {total:.3f} s ({(steps - 1) / total:,.0f} steps/s); kinetic energy at most "
-            f"{energy.max():.2f} J, at the end of the reel {energy[phases[0]]:.2f} J, of the hold "
-            f"{energy[phases[1]]:.2f} J, of the let-out {energy[phases[2]]:.2f} J; motor steps at their force "
+            f"{energy.max():.2f} J{', at the end ' + ', '.join(ends) if ends else ''}; motor steps at their force "
             f"{method.stalls}")
     return [{"path": kind, "steps": count[kind], "seconds": seconds[kind],
              "ms_per_step": 1e3 * seconds[kind] / count[kind] if count[kind] else float("nan"),

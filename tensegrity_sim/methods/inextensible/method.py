@@ -451,7 +451,7 @@ class InextensibleMethod(StepMethod):
             self.stalls += int(np.count_nonzero(pulled))
         self._holding = self._hint = holding
         self._applied = applied
-        self._carried = pulled.copy()
+        self._carried = pulled
         contact = pairs = None
         if self.ground is not None:
             contact, pairs = self.ground.take_impulses(), self.ground.take_pair_impulses()
@@ -472,7 +472,7 @@ class InextensibleMethod(StepMethod):
                                                     *self._step_constants(), self._memory(), self._carried)
         if not ok:
             return None
-        self._carried = pulled.copy()
+        self._carried = pulled
         for kept, new in zip(self._memory(), modes):
             kept[:] = new
         self.stalls += stalls
