@@ -101,7 +101,7 @@ import numpy as np
 
 from ...system import System
 from .member import Armed, MemberContacts, tangents
-from . import _friction_kernels as kernels
+from . import _friction_kernels as kernels, _newton_kernels as newton_kernels
 from ..qp import _daqp_kernels as daqp_kernels
 from ..qp.solvers import (_FEASIBILITY_TOL, _VELOCITY_FLOOR, DaqpSolver, MassWrapper, QPError,
                           QPSolver, Rows)
@@ -142,6 +142,100 @@ _SLIP_FLOOR = 1e-12       # m/s: a tangential speed below this (plus relative ro
 _TANGENTS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 _UP = np.array([0.0, 0.0, 1.0])
 _CYCLED = object()        # FrictionalSolver._modes_compiled: the modes cycled, every QP answered
+
+
+def alart_curnier(r, mu, free_rates, delassus, rho, n_eq: int, n_rows: int, k: int):
+    """``Phi(r)`` (n,) of :meth:`FrictionalSolver._newton`'s Alart–Curnier equation and its generalised Jacobian
+    (n, n), with the friction coefficients ``mu`` (k,): the unknowns ``r = (y, f)`` (the ``n_rows`` method rows'
+    multipliers, the first ``n_eq`` of them equalities, one normal row's per contact, then each contact's
+    friction (k, 2)), the rates ``free_rates + delassus @ r`` less their targets, ``rho`` (n,) each row's
+    effective mass. The plain reference of ``_newton_kernels.alart_curnier``."""
+    n_qp = n_rows + k
+    every = np.arange(k)
+    ineq = np.arange(n_eq, n_qp)
+    normal = np.arange(n_rows, n_qp)
+    t_index = n_qp + 2 * every[:, None] + np.arange(2)  # (k, 2) positions of f in r
+    res = free_rates + delassus @ r
+    phi = np.empty_like(r)
+    jac = np.zeros((len(r), len(r)))
+    phi[:n_eq] = rho[:n_eq] * res[:n_eq]
+    jac[:n_eq] = rho[:n_eq, None] * delassus[:n_eq]
+    trial = r[ineq] + rho[ineq] * res[ineq]
+    acting = trial > 0
+    phi[ineq] = r[ineq] - np.maximum(trial, 0.0)
+    jac[ineq[acting]] = -rho[ineq[acting], None] * delassus[ineq[acting]]
+    jac[ineq[~acting], ineq[~acting]] = 1.0
+    # the disc: f - proj(f - rho v_t) with radius mu s+, s the normal row's trial (as above)
+    s = r[normal] + rho[normal] * res[normal]
+    radius = mu * np.maximum(s, 0.0)
+    ti = t_index.ravel()
+    z = (r[ti] - rho[ti] * res[ti]).reshape(k, 2)
+    dz = -rho[ti, None] * delassus[ti]
+    dz[np.arange(2 * k), ti] += 1.0
+    dz = dz.reshape(k, 2, -1)
+    size = np.sqrt(np.einsum("ij,ij->i", z, z))
+    out = size > radius
+    direction = z / np.maximum(size, 1e-300)[:, None]
+    projected = np.where(out[:, None], radius[:, None] * direction, z)
+    phi[ti] = (r[ti].reshape(k, 2) - projected).ravel()
+    scale = np.where(out, radius / np.maximum(size, 1e-300), 1.0)
+    bend = np.eye(2) - np.where(out[:, None, None], direction[:, :, None] * direction[:, None, :], 0.0)
+    d_proj = scale[:, None, None] * np.einsum("cij,cjn->cin", bend, dz)
+    ds = rho[normal, None] * delassus[normal]
+    ds[every, normal] += 1.0
+    lifting = out & (s > 0)
+    d_proj[lifting] += (mu[lifting, None, None] * direction[lifting, :, None]) * ds[lifting, None, :]
+    d_phi = -d_proj
+    d_phi[every[:, None], np.arange(2), t_index] += 1.0
+    jac[ti] = d_phi.reshape(2 * k, -1)
+    return phi, jac
+
+
+def newton_descend(r, mu, iterations: int, free_rates, delassus, rho, n_eq: int, n_rows: int, k: int, tol: float,
+                   impulse_scale: float, line_search: int, dampings: int):
+    """Newton on :func:`alart_curnier` from ``r`` until ``|Phi|`` (friction coefficients ``mu``) is within a tenth
+    of ``tol`` times the larger of ``impulse_scale`` and ``max |r|``, or stops falling, in at most ``iterations``:
+    ``r``, its iterations. Each iteration takes the least-squares Newton step with an Armijo line search of
+    ``line_search`` halvings on ``|Phi|^2 / 2``; where that does not descend (at a kink the chosen Jacobian can
+    mislead, and a singular one leaves a direction free), Levenberg–Marquardt steps on the same model, damped
+    tenfold more up to ``dampings`` times, which descend wherever the merit's gradient ``J^T Phi`` is not 0.
+    The plain reference of ``_newton_kernels.newton_descend``."""
+    def within(r, phi) -> bool:
+        largest = float(np.max(np.abs(r), initial=0.0))
+        return float(np.max(np.abs(phi), initial=0.0)) <= 0.1 * (tol * max(impulse_scale, largest))
+
+    phi, jac = alart_curnier(r, mu, free_rates, delassus, rho, n_eq, n_rows, k)
+    merit = 0.5 * float(phi @ phi)
+    for it in range(1, iterations + 1):
+        if within(r, phi):
+            return r, it - 1
+        found = None
+        step = np.linalg.lstsq(jac, -phi, rcond=None)[0]
+        # Armijo on |Phi|^2 / 2, along which the Newton step descends at rate -|Phi|^2 where Phi is smooth
+        alpha = 1.0
+        for _ in range(line_search):
+            trial = r + alpha * step
+            trial_phi, trial_jac = alart_curnier(trial, mu, free_rates, delassus, rho, n_eq, n_rows, k)
+            trial_merit = 0.5 * float(trial_phi @ trial_phi)
+            if trial_merit <= (1.0 - 2e-4 * alpha) * merit:
+                found = trial, trial_phi, trial_jac, trial_merit
+                break
+            alpha *= 0.5
+        if found is None:
+            gradient, gram = jac.T @ phi, jac.T @ jac
+            damping = 1e-10 * max(float(np.trace(gram)) / len(r), 1e-300)
+            for _ in range(dampings):
+                trial = r - np.linalg.solve(gram + damping * np.eye(len(r)), gradient)
+                trial_phi, trial_jac = alart_curnier(trial, mu, free_rates, delassus, rho, n_eq, n_rows, k)
+                trial_merit = 0.5 * float(trial_phi @ trial_phi)
+                if trial_merit < merit:
+                    found = trial, trial_phi, trial_jac, trial_merit
+                    break
+                damping *= 10.0
+        if found is None:
+            return r, it   # a stationary point of the merit that is no solution
+        r, phi, jac, merit = found
+    return r, iterations
 
 
 def _polyhedral_start(delassus, free_rates, n_eq: int, n_rows: int, mu, scale: float, turn):
@@ -910,87 +1004,23 @@ class FrictionalSolver:
         problem = (self._nodes.tobytes(), b"" if self._pairs is None else self._pairs.keys.tobytes(),
                    rows.nodes.tobytes(), n_eq, n_rows)
         ineq = np.arange(n_eq, n_qp)
-        normal = np.arange(n_rows, n_qp)
         t_index = n_qp + 2 * every[:, None] + np.arange(2)  # (k, 2) positions of f in r
         u0 = self._velocity(v0)
         impulse_scale = max(float(np.max(mass * np.abs(u0).max(axis=1), initial=0.0)), 1e-300)
 
+        compiled = self.compiled and all(np.isfinite(a).all() for a in (delassus, free_rates, rho))
+        ac, nd = (newton_kernels.alart_curnier, newton_kernels.newton_descend) if compiled else (alart_curnier,
+                                                                                               newton_descend)
+
         def equation(r, mu=mu):
             """Phi(r) (n,) and its generalised Jacobian (n, n), with the friction coefficients ``mu`` (k,)."""
-            res = free_rates + delassus @ r
-            phi = np.empty_like(r)
-            jac = np.zeros((len(r), len(r)))
-            phi[:n_eq] = rho[:n_eq] * res[:n_eq]
-            jac[:n_eq] = rho[:n_eq, None] * delassus[:n_eq]
-            trial = r[ineq] + rho[ineq] * res[ineq]
-            acting = trial > 0
-            phi[ineq] = r[ineq] - np.maximum(trial, 0.0)
-            jac[ineq[acting]] = -rho[ineq[acting], None] * delassus[ineq[acting]]
-            jac[ineq[~acting], ineq[~acting]] = 1.0
-            # the disc: f - proj(f - rho v_t) with radius mu s+, s the normal row's trial (as above)
-            s = r[normal] + rho[normal] * res[normal]
-            radius = mu * np.maximum(s, 0.0)
-            ti = t_index.ravel()
-            z = (r[ti] - rho[ti] * res[ti]).reshape(k, 2)
-            dz = -rho[ti, None] * delassus[ti]
-            dz[np.arange(2 * k), ti] += 1.0
-            dz = dz.reshape(k, 2, -1)
-            size = np.sqrt(np.einsum("ij,ij->i", z, z))
-            out = size > radius
-            direction = z / np.maximum(size, 1e-300)[:, None]
-            projected = np.where(out[:, None], radius[:, None] * direction, z)
-            phi[ti] = (r[ti].reshape(k, 2) - projected).ravel()
-            scale = np.where(out, radius / np.maximum(size, 1e-300), 1.0)
-            bend = np.eye(2) - np.where(out[:, None, None], direction[:, :, None] * direction[:, None, :], 0.0)
-            d_proj = scale[:, None, None] * np.einsum("cij,cjn->cin", bend, dz)
-            ds = rho[normal, None] * delassus[normal]
-            ds[every, normal] += 1.0
-            lifting = out & (s > 0)
-            d_proj[lifting] += (mu[lifting, None, None] * direction[lifting, :, None]) * ds[lifting, None, :]
-            d_phi = -d_proj
-            d_phi[every[:, None], np.arange(2), t_index] += 1.0
-            jac[ti] = d_phi.reshape(2 * k, -1)
-            return phi, jac
+            return ac(r, mu, free_rates, delassus, rho, n_eq, n_rows, k)
 
         def descend(r, mu=mu, iterations=MAX_NEWTON_ITER):
             """Newton from ``r`` until ``|Phi|`` (friction coefficients ``mu``) is within tolerance or stops
             falling, in at most ``iterations``: ``r``, its iterations."""
-            phi, jac = equation(r, mu)
-            merit = 0.5 * float(phi @ phi)
-            for it in range(1, iterations + 1):
-                if within(r, phi):
-                    return r, it - 1
-                found = None
-                step = np.linalg.lstsq(jac, -phi, rcond=None)[0]
-                # Armijo on |Phi|^2 / 2, along which the Newton step descends at rate -|Phi|^2 where Phi is
-                # smooth
-                alpha = 1.0
-                for _ in range(_LINE_SEARCH):
-                    trial = r + alpha * step
-                    trial_phi, trial_jac = equation(trial, mu)
-                    trial_merit = 0.5 * float(trial_phi @ trial_phi)
-                    if trial_merit <= (1.0 - 2e-4 * alpha) * merit:
-                        found = trial, trial_phi, trial_jac, trial_merit
-                        break
-                    alpha *= 0.5
-                if found is None:
-                    # no descent along the Newton step (at a kink the chosen Jacobian can mislead, and a
-                    # singular one leaves a direction free): Levenberg–Marquardt steps on the same model,
-                    # damped more until |Phi| falls; they descend wherever the merit's gradient J^T Phi is not 0
-                    gradient, gram = jac.T @ phi, jac.T @ jac
-                    damping = 1e-10 * max(float(np.trace(gram)) / len(r), 1e-300)
-                    for _ in range(_LM_DAMPINGS):
-                        trial = r - np.linalg.solve(gram + damping * np.eye(len(r)), gradient)
-                        trial_phi, trial_jac = equation(trial, mu)
-                        trial_merit = 0.5 * float(trial_phi @ trial_phi)
-                        if trial_merit < merit:
-                            found = trial, trial_phi, trial_jac, trial_merit
-                            break
-                        damping *= 10.0
-                if found is None:
-                    return r, it   # a stationary point of the merit that is no solution
-                r, phi, jac, merit = found
-            return r, iterations
+            return nd(r, mu, iterations, free_rates, delassus, rho, n_eq, n_rows, k, FIXED_POINT_TOL, impulse_scale,
+                      _LINE_SEARCH, _LM_DAMPINGS)
 
         def tolerance(r) -> float:
             """N*s: the law's tolerance at impulses ``r``, relative to the larger of them and the contacts' scale."""
