@@ -4,12 +4,13 @@ itself; the same steps as ``run``'s, bench_ground.py's "inextensible step" row) 
 
 * ``step kernel``: the whole step in ``_inextensible_kernels.step`` (its friction modes, motors and landing
   iterations compiled);
-* ``Python path, events``: the step left to ``InextensibleMethod._step_impl`` for events inside it (a snap or a
+* ``Python path, events``: the step left to ``InextensibleMethod._step_python`` for events inside it (a snap or a
   landing cut there, several sub-steps), every friction solve answered by the compiled modes;
 * ``Python path, reference modes``: ... with a friction solve the compiled modes refused (a QP that DAQP alone
   does not answer: ``FrictionalSolver._modes`` and its backend's fallbacks took it) or the jammed modes' retry;
 * ``Python path, Newton``: ... with a friction solve whose modes cycled at both levels, answered by the
-  semismooth Newton method (``FrictionalSolver._newton``).
+  semismooth Newton method (``FrictionalSolver._newton``); the step after such a step goes there at once
+  (``InextensibleMethod._step_impl``).
 
 Besides each path's steps, seconds and share, the run's kinetic energy (its largest, and at the end of each
 phase of the schedule) says what the steps are doing: the locked icosahedron's motors pull at their
@@ -60,13 +61,12 @@ def measure(steps: int) -> list[dict]:
 
     for name in ("_newton", "_jammed", "_qp"):   # (the compiled modes, _modes_compiled, stay as they are)
         counted(solver, name)
-    kernel = method._step_kernel
+    python = method._step_python
 
-    def step_kernel(state):
-        done = kernel(state)
-        calls["python"] += done is None
-        return done
-    method._step_kernel = step_kernel
+    def step_python(state):
+        calls["python"] += 1
+        return python(state)
+    method._step_python = step_python
 
     base = sim.rest_lengths
     mass = scene.masses

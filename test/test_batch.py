@@ -656,3 +656,25 @@ def test_a_run_without_ground_events_steps_the_same():
     fresh = BatchSimulator(scene, 2, method="elastic", contacts=(), positions=with_events.positions,
                            velocities=with_events.velocities)
     assert touching and touching == {e.members for e in fresh.run(steps=1).contacts[0] if e.kind == "begin"}
+
+
+def test_inextensible_copies_rocking_on_the_ground_step_as_single_runs_do():
+    """Two copies of the inextensible roll of ``examples/roll.yaml`` into its let-out, where the icosahedron rocks
+    on its edges and the friction modes of many steps cycle: a copy whose last step cycled skips the copies'
+    kernel (``_inextensible_kernels.copies_steps``' ``cycling``) and takes its step as a single run does, from
+    the Newton method's last answer, so each copy equals a Simulator under the same schedule, bit for bit."""
+    from pathlib import Path
+
+    from tensegrity_sim.commands import load_commands
+
+    scene = ts.load_scene("icosahedron_ground")
+    schedule = load_commands(Path(__file__).resolve().parents[1] / "examples" / "roll.yaml", scene)
+    batch = _quiet(lambda: BatchSimulator(scene, 2, method="inextensible", dt=1e-3, contacts=()))
+    sim = _quiet(lambda: ts.Simulator(scene, method="inextensible", dt=1e-3, contacts=()))
+    got = batch.run(steps=1450, every=50, commands=schedule)
+    want = sim.run(steps=1450, every=50, commands=schedule)
+    for b in range(2):
+        np.testing.assert_array_equal(got.positions[b], want.positions)
+        np.testing.assert_array_equal(got.velocities[b], want.velocities)
+    assert sim._method.solver.resumed >= 10
+    assert all(c._method.solver.resumed == sim._method.solver.resumed for c in batch._copies)

@@ -578,6 +578,8 @@ class FrictionalSolver:
         self.iterations = 0                                    # QPs of the last solve (+ Newton iterations)
         self.relaxed = 0                                       # solves answered to ACCEPT_TOL (physical)
         self.resumed = 0                                       # Newton solves answered from the last answer
+        self.cycled = 0                                        # solves whose modes cycled (Newton answered)
+        self.resume = False                                    # a solve tries Newton from the last answer first
         self.answer = None                                     # the Newton method's last: (its problem, r)
         self._guess = None                                     # the modes' last iterate: multipliers, friction (k, 2)
         self.disarm()
@@ -689,10 +691,21 @@ class FrictionalSolver:
         self.last = None
 
     def solve(self, v0: np.ndarray, rows: Rows, warm: np.ndarray | None = None):
-        """``v`` (n_free, 3) m/s and the multipliers (len(rows),) N*s of ``rows``, with the armed contacts."""
+        """``v`` (n_free, 3) m/s and the multipliers (len(rows),) N*s of ``rows``, with the armed contacts.
+
+        With :attr:`resume` set (the inextensible method sets it for a step after one whose modes cycled:
+        ``InextensibleMethod._step_impl``), the Newton method from its last answer comes first, taken where it
+        meets the law and the rows to the fixed point's own tolerance (``_newton(..., resume=True)``): the body
+        still rocks on the same contacts, the solution moved little, and the modes would most likely cycle
+        again. Measured (issue 47, ``bench/roll_cost.py``, the inextensible roll of ``examples/roll.yaml``): 55 of
+        the 74 steps whose modes cycled followed one that did, each paying ~90 mode QPs before Newton."""
         self.last = None
         if not self.armed:
             return self.inner.solve(v0, rows, warm)
+        if self.resume and self.answer is not None:
+            found = self._newton(v0, rows, warm, resume=True)
+            if found is not None:
+                return found
         found = self._settle(v0, rows, warm)
         if found is None:
             found = self._jammed(v0, rows, warm)
@@ -702,7 +715,10 @@ class FrictionalSolver:
             # then the whole problem by the semismooth Newton method
             rows = _velocity_level(rows)
             found = self._settle(v0, rows, warm)
-        return found if found is not None else self._newton(v0, rows, warm)
+        if found is None:
+            self.cycled += 1
+            found = self._newton(v0, rows, warm)
+        return found
 
     def _settle(self, v0, rows, warm):
         """The mode fixed point from the modes the contacts remember: the compiled kernel's answer
@@ -958,7 +974,7 @@ class FrictionalSolver:
                             np.concatenate([rows.targets, c_targets]), n_eq, w4)
         return v0c, all_rows
 
-    def _newton(self, v0, rows, warm):
+    def _newton(self, v0, rows, warm, resume=False):
         """The frictional problem when the modes cycle: all of it at once (the method's ``rows``, the
         contacts' normal rows and the friction disc) as the Alart–Curnier equation ``Phi(r) = 0`` in the
         impulses ``r = (y, f)`` (``y``: the QP's multipliers, method rows then normal rows; ``f`` (k, 2)
@@ -984,7 +1000,8 @@ class FrictionalSolver:
         the problem with polygons for discs (:func:`_polyhedral_start`), then from seeded random impulses (see
         below). Returns ``(v, y)`` as
         :meth:`solve` does; raises :class:`FrictionError` naming the contacts whose law is unmet if no
-        start reaches an answer that meets it."""
+        start reaches an answer that meets it. ``resume``: from the last answer alone, None where that is no
+        answer (:meth:`solve`'s :attr:`resume`)."""
         k, n_rows, mass, mu = len(self._targets), len(rows), self._meff, self._mu
         n_qp = n_rows + k                                   # method rows, then one normal row per contact
         every = np.arange(k)
@@ -1131,6 +1148,29 @@ class FrictionalSolver:
             return self._rows_within(v, y, v0c, all_rows.subset(np.arange(n_qp), all_rows.targets[:n_qp], n_eq),
                                      v0, r)
 
+        def from_last_answer():
+            """Newton from the last answer alone (``resume``): its answer where it is one of the same problem's
+            structure and Newton from it meets the law and the rows to the fixed point's own tolerance, else None
+            (the caller solves the problem from its modes)."""
+            if self.answer is None or self.answer[0] != problem:
+                return None
+            r, it = descend(self.answer[1].copy())
+            if not solved(r):
+                return None
+            y, _, applied, v, vt = answer(r)   # (accepted as the modes' answers are: no physical tolerance)
+            tol = tolerance(r)
+            try:
+                self._verify(y[n_rows:], applied, vt, mass, tol)
+                v0c, _ = self._with_contacts(v0, rows, applied, every[:0])
+                self.inner._check(v, y, v0c, all_rows.subset(np.arange(n_qp), all_rows.targets[:n_qp], n_eq))
+            except QPError:
+                return None
+            self.iterations = it
+            self._keep(v0, v, vt, applied, y[n_rows:], tol)
+            self.answer = (problem, r.copy())
+            self.resumed += 1
+            return v, y[:n_rows]
+
         def polish(r):
             """:meth:`_polish` of the answer of ``r``."""
             y, _, applied, _, _ = answer(r)
@@ -1144,6 +1184,8 @@ class FrictionalSolver:
         # too (with mu > 1 a cable pulling harder on a node can press it harder on the ground, so the nearest
         # solution may be far along a branch neither sees), from seeded random impulses of the problem's
         # scale: measured on such a problem (prism3 thrown at mu = 1.6), 37 of 200 starts reach a solution
+        if resume:
+            return from_last_answer()
         r = np.zeros(n_qp + 2 * k)
         if self._guess is not None:
             r[:n_qp], r[n_qp:] = self._guess[0], self._guess[1].ravel()

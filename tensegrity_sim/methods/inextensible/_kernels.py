@@ -969,7 +969,7 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
                  row_nodes, free_nodes, cable_ends, min_event, newton_iter, entry, settings, hessian, sqrt_mass, mass,
                  schur, feasibility_tol, velocity_floor, landing_tol, landing_iter, reel_force, locked, load_basis,
                  load_cables, load_largest, refine, rank_tol, exact, weight, shared, ddot, dgemv, wide, reference,
-                 ground, stick, normal, slip, contact_total, out_contact, done, stall_count, carried):
+                 ground, stick, normal, slip, contact_total, out_contact, done, stall_count, carried, cycling):
     """:func:`steps` of B copies of one structure on every core (``prange`` over the copies), each in arrays of
     its own: the leading axis of ``x``, ``v`` (B, N, 3), the carry ``applied``, ``holding``, ``hint`` (B, nc),
     ``residual`` (B,), the inputs ``f_ext`` (B, N, 3), ``commanded`` and ``offsets`` (B, nc), the friction
@@ -979,8 +979,13 @@ def copies_steps(n_steps, x, v, applied, holding, hint, residual, total, out_x, 
     steps are the very arithmetic of its own :func:`steps` call from step 0;
     each stops where its :func:`steps` stops (a step for the Python path): ``done`` (B,) gets that step, the
     carry arrays the copy's carry before it; ``stall_count`` (B,) int gets each copy's motor steps at their
-    force; ``carried`` (B, nc) bool: each copy's motors at their force, as :func:`steps` keeps them."""
+    force; ``carried`` (B, nc) bool: each copy's motors at their force, as :func:`steps` keeps them. A copy whose
+    last step's friction modes cycled (``cycling`` (B,) bool: ``InextensibleMethod._cycling``) takes no step here
+    (``done`` 0): its next step is the Python path's."""
     for b in prange(x.shape[0]):
+        if cycling[b]:
+            done[b] = 0
+            continue
         # each copy steps in arrays of its own, its tables too (copies, the same numbers), its outputs written back
         # after: the steps count references to the arrays they take, and a count the threads share (a table's, or
         # the batch array's behind a copy's view of it) would move between their cores at every step. With shared

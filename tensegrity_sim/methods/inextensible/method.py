@@ -263,6 +263,9 @@ class InextensibleMethod(StepMethod):
         self._holding = np.zeros(system.n_cables, dtype=bool)
         self._hint = self._holding   # the QP's warm start of the first sub-step (see invalidate)
         self._carried = np.zeros(system.n_cables, dtype=bool)   # motors at their force in the last step (_motor_modes)
+        # the last step's friction modes cycled on its Python path (FrictionalSolver.cycled): the next step skips the
+        # step kernel, whose modes would cycle the same way before leaving it to that path (_step_impl)
+        self._cycling = False
         # the cables that held in the last sub-step of the last step cut at snaps: the warm start of such a
         # step's last sub-step, where the backend asks for it (QPSolver.last_hint)
         self._last_hint = self._holding
@@ -312,6 +315,7 @@ class InextensibleMethod(StepMethod):
         self._applied = state.rest_lengths.copy()
         self._holding = self._hint = self._last_hint = np.zeros(self.system.n_cables, dtype=bool)
         self._carried = np.zeros(self.system.n_cables, dtype=bool)
+        self._cycling = False
         self.self_stress.forget()
 
     def applied_rest_lengths(self, state: State) -> np.ndarray:
@@ -373,11 +377,28 @@ class InextensibleMethod(StepMethod):
         return d, length
 
     def _step_impl(self, state: State) -> MethodStep:
+        """One step: in the step kernel (:meth:`_step_kernel`) where it can take it, else on the Python path
+        (:meth:`_step_python`). A step after one whose friction modes cycled (answered by the Newton method,
+        which only the Python path has) goes to the Python path at once: the kernel's modes would cycle too (the
+        same QPs), and then leave the step to it. Measured (issue 47, the inextensible roll of
+        ``examples/roll.yaml``, ``bench/roll_cost.py``): 74 steps cycled, 55 of them right after one that did,
+        and each kernel's try cost 4.1 ms, three quarters of such a step."""
         self.self_stress.begin_step()
-        if self._kernel_steps():
+        if self._kernel_steps() and not self._cycling:
             done = self._step_kernel(state)
             if done is not None:
                 return done
+        cycled = 0
+        if self.ground is not None:
+            cycled, self.solver.resume = self.solver.cycled, self._cycling
+        try:
+            return self._step_python(state)
+        finally:
+            self._cycling = self.ground is not None and self.solver.cycled > cycled
+
+    def _step_python(self, state: State) -> MethodStep:
+        """:meth:`_step_impl` on the Python path: the events inside the step located and taken, each sub-step's
+        QP by the backend (on a ground its friction solver)."""
         x, v = state.positions, state.velocities
         if self.compiled:
             applied, reel, limits, floor, taut, reeling = kernels.motor_limits(
@@ -569,10 +590,10 @@ class InextensibleMethod(StepMethod):
         a run); the friction memory and the pulling motors, which the loops update in place, are copied."""
         answer = None if self.ground is None else self.solver.answer   # (immutable: replaced, never changed)
         return (self._applied, self._holding, self._hint, self._last_hint, self.self_stress.residual,
-                tuple(a.copy() for a in self._memory()), answer, self._carried.copy())
+                tuple(a.copy() for a in self._memory()), answer, self._carried.copy(), self._cycling)
 
     def restore(self, carry) -> None:
-        applied, holding, hint, last, self.self_stress.residual, memory, answer, carried = carry
+        applied, holding, hint, last, self.self_stress.residual, memory, answer, carried, self._cycling = carry
         self._carried = carried.copy()
         self._applied, self._holding, self._hint = applied.copy(), holding.copy(), hint.copy()
         self._last_hint = last.copy()
@@ -610,14 +631,17 @@ class InextensibleMethod(StepMethod):
         rule, i = self.self_stress, 0
         stall_count = np.zeros(1, dtype=np.int64)   # the kernel's motor steps at their force
         while True:
-            i, x, v, self._applied, self._holding, self._hint, rule.residual = kernels.steps(
-                i, steps, every, x, v, self._applied, self._holding, self._hint, rule.residual, total, *out,
-                gravity + ext_now, rest_now, *motors, *constants, self._memory(), on_ground, contact, rest_seq,
-                ext_seq, gravity, ext_now, stall_count, self._carried)
-            self.stalls += int(stall_count[0])
-            stall_count[0] = 0
-            if i == steps:
-                break
+            if not self._cycling:
+                i, x, v, self._applied, self._holding, self._hint, rule.residual = kernels.steps(
+                    i, steps, every, x, v, self._applied, self._holding, self._hint, rule.residual, total, *out,
+                    gravity + ext_now, rest_now, *motors, *constants, self._memory(), on_ground, contact, rest_seq,
+                    ext_seq, gravity, ext_now, stall_count, self._carried)
+                self.stalls += int(stall_count[0])
+                stall_count[0] = 0
+                if i == steps:
+                    break
+            elif len(rest_seq) and not (np.array_equal(rest_seq[i], rest_now) and np.array_equal(ext_seq[i], ext_now)):
+                self.invalidate()   # the step's new inputs, as the kernel takes them (_step_impl's kernel skipped)
             if len(rest_seq):   # the step's inputs (the kernel invalidated the method if they changed)
                 rest_now, ext_now = rest_seq[i], ext_seq[i]
             try:
@@ -686,7 +710,8 @@ class InextensibleMethod(StepMethod):
         kernels.copies_steps(steps, x, v, applied, holding, hint, residual, np.zeros(applied.shape),
                              positions[..., None], velocities[..., None], impulses[..., None], slack[..., None], f_ext,
                              commanded, most, dt, offsets, limit_tol, taut_tol, *first._step_constants(), *memory,
-                             on_ground, out_contact, done, stalls, carried)
+                             on_ground, out_contact, done, stalls, carried,
+                             np.array([m._cycling for m in methods], dtype=bool))
         for b, method in enumerate(methods):
             # each copy's carry a row of the copies' arrays, its own (replaced, never changed in place, by its steps)
             method._applied, method._holding, method._hint = applied[b], holding[b], hint[b]
