@@ -23,7 +23,8 @@ the MuJoCo row without contacts, or with them for a row with contacts).
   strut-strut detection (the peer's struts touch the plane only); MuJoCo with its plane contacts
   (elliptic cones, impratio 100) and implicitfast (its Euler goes unstable in the roll), as many threads
   as cores. Each contender does ``STEPS`` steps of the
-whole batch per timed call; the rate is the best of ``REPEATS`` turns (a shared machine only ever adds time),
+whole batch per timed call; the rate is the best of ``REPEATS`` turns (``SHORT_REPEATS`` for the inextensible
+rows' 20-step calls; a shared machine only ever adds time),
 scene-steps per second = batch x steps / wall time.
 
 Like for like (issue 47): MuJoCo's rollout writes every step's state (time, qpos, qvel, ...: float64, into an
@@ -60,6 +61,9 @@ from tensegrity_sim.methods._copy_blocks import copy_blocks  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 REPEATS = 5
+# the inextensible rows' turns: their calls are short (20 steps of 256 copies, ~50 ms), and on the project's 2-core
+# machine the best of 5 moved by 0.95-1.22x from run to run; of 15, by ...
+SHORT_REPEATS = 15
 CASES = [  # (cable model, batch, steps per timed call)
     ("elastic", 1024, 100),
     ("inextensible", 256, 20),
@@ -173,7 +177,7 @@ def measure_inextensible(batch: int = 256, steps: int = 20, free: bool = True, o
         best = {name: float("inf") for name in contenders}
         for run in contenders.values():   # warm-up: compile, allocate
             run()
-        for _ in range(REPEATS):
+        for _ in range(SHORT_REPEATS):
             for name, run in contenders.items():
                 best[name] = min(best[name], time_runs(run, warmup=lambda: None, repeats=1).best)
         for p in pools:
@@ -283,12 +287,13 @@ def write(rows: list[dict]) -> str:
     write_csv(RESULTS / "batch.csv", rows)
     lines = ["## Batches (issues 12, 28)\n",
              "`python3 bench/bench_batch.py`: scene-steps per second of a whole batch (dt = 1 ms, best of "
-             f"{REPEATS} turns in one process), against `mujoco.rollout` with as many threads as cores "
-             "(Euler, sensors off; limited tendons for the inextensible case), the rows with contacts against "
-             "MuJoCo with the struts' capsules colliding, the others against MuJoCo with contacts off; the ground "
-             "rows against MuJoCo's plane contacts (implicitfast). Like for like, every row keeps every step's "
-             "state as rollout does (positions and velocities, float64), but those whose \"keeps\" says otherwise: "
-             "float32 state, every field (also impulses, tensions, slack), or only the last step (not like for like). "
+             f"{REPEATS} turns in one process, {SHORT_REPEATS} for the inextensible rows' short calls), against "
+             "`mujoco.rollout` with as many threads as cores (Euler, sensors off; limited tendons for the "
+             "inextensible case), the rows with contacts against MuJoCo with the struts' capsules colliding, the "
+             "others against MuJoCo with contacts off; the ground rows against MuJoCo's plane contacts "
+             "(implicitfast). Like for like, every row keeps every step's state as rollout does (positions and "
+             "velocities, float64), but those whose \"keeps\" says otherwise: float32 state, every field (also "
+             "impulses, tensions, slack), or only the last step (not like for like). "
              f"Load average {os.getloadavg()[0]:.2f} at the end.\n",
              "| case | batch | contender | threads | keeps | scene-steps/s | ratio to MuJoCo | note |",
              "| --- | --- | --- | --- | --- | --- | --- | --- |"]
