@@ -62,7 +62,7 @@ from tensegrity_sim.methods._copy_blocks import copy_blocks  # noqa: E402
 RESULTS = Path(__file__).resolve().parent / "results"
 REPEATS = 5
 # the inextensible rows' turns: their calls are short (20 steps of 256 copies, ~50 ms), and on the project's 2-core
-# machine the best of 5 moved by 0.95-1.22x from run to run; of 15, by ...
+# machine the best of 5 moved by 0.95-1.22x from run to run; of 15, by 1.04-1.08x (three runs, the free copies)
 SHORT_REPEATS = 15
 CASES = [  # (cable model, batch, steps per timed call)
     ("elastic", 1024, 100),
@@ -261,7 +261,8 @@ def measure() -> list[dict]:
         best = {name: float("inf") for name in contenders}
         for name, run in contenders.items():   # warm-up: compile, allocate
             run()
-        for _ in range(REPEATS):               # turns: the machine's load falls on every contender alike
+        # turns: the machine's load falls on every contender alike
+        for _ in range(REPEATS if model == "elastic" else SHORT_REPEATS):
             for name, run in contenders.items():
                 best[name] = min(best[name], time_runs(run, warmup=lambda: None, repeats=1).best)
         pool.close()
