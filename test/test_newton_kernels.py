@@ -18,9 +18,9 @@ from tensegrity_sim.methods.contact import friction as F
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _problem(rng, n_rows, n_eq, k):
-    """A random Delassus problem: rows from a random map of 3 (n_rows + k) velocities, a positive definite
-    inverse mass, rates and impulses of unit scale."""
+def _problem(rng, n_rows, k):
+    """A random Delassus problem of ``n_rows`` rows and ``k`` contacts (n = n_rows + 3 k unknowns): the rows a random
+    map of 3 n velocities, a positive definite inverse mass, rates, effective masses and friction coefficients."""
     n = n_rows + 3 * k
     rates = rng.normal(size=(n, 3 * n))
     delassus = rates @ np.diag(rng.uniform(0.5, 2.0, 3 * n)) @ rates.T
@@ -32,7 +32,7 @@ def _problem(rng, n_rows, n_eq, k):
 def test_the_equation_and_its_jacobian_match_the_reference(seed):
     rng = np.random.default_rng(seed)
     n_rows, n_eq, k = 5, 2, 3
-    free_rates, delassus, rho, mu = _problem(rng, n_rows, n_eq, k)
+    free_rates, delassus, rho, mu = _problem(rng, n_rows, k)
     branches = set()
     for _ in range(40):
         r = rng.normal(size=len(free_rates)) * rng.choice([0.1, 1.0, 10.0])

@@ -702,7 +702,7 @@ class FrictionalSolver:
         self.last = None
         if not self.armed:
             return self.inner.solve(v0, rows, warm)
-        if self.resume and self.answer is not None:
+        if self.resume and self.answer is not None and self.answer[0] == self._structure(rows):
             found = self._newton(v0, rows, warm, resume=True)
             if found is not None:
                 return found
@@ -974,6 +974,13 @@ class FrictionalSolver:
                             np.concatenate([rows.targets, c_targets]), n_eq, w4)
         return v0c, all_rows
 
+    def _structure(self, rows: Rows) -> tuple:
+        """The structure of the Newton method's problem with ``rows``: the armed contacts and the method's rows
+        (its members, equalities first). An answer to the same structure is a start of the same size and meaning
+        (:attr:`answer`)."""
+        return (self._nodes.tobytes(), b"" if self._pairs is None else self._pairs.keys.tobytes(),
+                rows.nodes.tobytes(), rows.n_eq, len(rows))
+
     def _newton(self, v0, rows, warm, resume=False):
         """The frictional problem when the modes cycle: all of it at once (the method's ``rows``, the
         contacts' normal rows and the friction disc) as the Alart–Curnier equation ``Phi(r) = 0`` in the
@@ -1000,8 +1007,8 @@ class FrictionalSolver:
         the problem with polygons for discs (:func:`_polyhedral_start`), then from seeded random impulses (see
         below). Returns ``(v, y)`` as
         :meth:`solve` does; raises :class:`FrictionError` naming the contacts whose law is unmet if no
-        start reaches an answer that meets it. ``resume``: from the last answer alone, None where that is no
-        answer (:meth:`solve`'s :attr:`resume`)."""
+        start reaches an answer that meets it. ``resume``: from the last answer (to a problem of the same
+        :meth:`_structure`) alone, None where that is no answer (:meth:`solve`'s :attr:`resume`)."""
         k, n_rows, mass, mu = len(self._targets), len(rows), self._meff, self._mu
         n_qp = n_rows + k                                   # method rows, then one normal row per contact
         every = np.arange(k)
@@ -1016,10 +1023,7 @@ class FrictionalSolver:
         targets = np.concatenate([all_rows.targets[:n_qp], np.zeros(2 * k)])
         free_rates = rates @ v0_free.ravel() - targets      # u - r at r = 0
         n_eq = all_rows.n_eq
-        # the problem's structure: the armed contacts and the method's rows (its members, equalities first); an
-        # answer to the same structure is a start of the same size and meaning (:attr:`answer`)
-        problem = (self._nodes.tobytes(), b"" if self._pairs is None else self._pairs.keys.tobytes(),
-                   rows.nodes.tobytes(), n_eq, n_rows)
+        problem = self._structure(rows)
         ineq = np.arange(n_eq, n_qp)
         t_index = n_qp + 2 * every[:, None] + np.arange(2)  # (k, 2) positions of f in r
         u0 = self._velocity(v0)
@@ -1149,11 +1153,9 @@ class FrictionalSolver:
                                      v0, r)
 
         def from_last_answer():
-            """Newton from the last answer alone (``resume``): its answer where it is one of the same problem's
-            structure and Newton from it meets the law and the rows to the fixed point's own tolerance, else None
+            """Newton from the last answer alone (``resume``: one to a problem of this structure, :meth:`solve`
+            checks): its answer where it meets the law and the rows to the fixed point's own tolerance, else None
             (the caller solves the problem from its modes)."""
-            if self.answer is None or self.answer[0] != problem:
-                return None
             r, it = descend(self.answer[1].copy())
             if not solved(r):
                 return None
